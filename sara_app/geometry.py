@@ -1,0 +1,210 @@
+"""Batched geometry of capsules, balls and boxes.
+
+Conventions: a capsule set is ``ends`` of shape ``(..., 2, 3)`` (segment end points, metres) and
+``radius_m`` of shape ``(...)``; a ball is a capsule whose two ends coincide. Boxes are oriented:
+``T_world_box`` of shape ``(..., 4, 4)`` and ``half_extents_m`` of shape ``(..., 3)``.
+All functions broadcast over leading axes and never loop in Python over capsules.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_EPS = 1e-12
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.einsum("...i,...i->...", a, b)
+
+
+def point_segment_distance(points: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """Distance from points ``(..., 3)`` to segments ``(..., 2, 3)``, broadcast: ``(...)``."""
+    p0, p1 = ends[..., 0, :], ends[..., 1, :]
+    d = p1 - p0
+    dd = _dot(d, d)
+    s = np.clip(_dot(points - p0, d) / np.maximum(dd, _EPS), 0.0, 1.0)
+    closest = p0 + s[..., None] * d
+    return np.linalg.norm(points - closest, axis=-1)
+
+
+def segment_segment_closest(
+    ends_a: np.ndarray, ends_b: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Closest points of segment pairs, broadcast over leading axes.
+
+    Returns ``(distance, s, t)``: distance ``(...)`` and the parameters in [0, 1] of the closest
+    points on a and b. Handles degenerate (point) segments and parallel segments.
+    """
+    p1, q1 = ends_a[..., 0, :], ends_a[..., 1, :]
+    p2, q2 = ends_b[..., 0, :], ends_b[..., 1, :]
+    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
+    a, e = _dot(d1, d1), _dot(d2, d2)
+    b, c, f = _dot(d1, d2), _dot(d1, r), _dot(d2, r)
+    denom = a * e - b * b
+    a_safe, e_safe = np.maximum(a, _EPS), np.maximum(e, _EPS)
+    # Parallel (or degenerate) pairs: any s is optimal for the infinite lines; take s = 0 and
+    # let the clamping below find the best t and then the best s.
+    general = denom > _EPS * np.maximum(a * e, _EPS)
+    s = np.where(general, (b * f - c * e) / np.where(general, denom, 1.0), 0.0)
+    s = np.clip(np.where(a > _EPS, s, 0.0), 0.0, 1.0)
+    # A point segment b (e = 0): t = -1 sends it through the clamp branch, s = clip(-c / a).
+    t = np.where(e > _EPS, (b * s + f) / e_safe, -1.0)
+    # t outside [0, 1]: clamp it and recompute s for the clamped t.
+    t_clamped = np.clip(t, 0.0, 1.0)
+    s = np.where(
+        t != t_clamped,
+        np.where(a > _EPS, np.clip((b * t_clamped - c) / a_safe, 0.0, 1.0), 0.0),
+        s,
+    )
+    t = t_clamped
+    c1 = p1 + s[..., None] * d1
+    c2 = p2 + t[..., None] * d2
+    return np.linalg.norm(c1 - c2, axis=-1), s, t
+
+
+def segment_segment_distance(ends_a: np.ndarray, ends_b: np.ndarray) -> np.ndarray:
+    """Distance between segments ``(..., 2, 3)`` and ``(..., 2, 3)``, broadcast: ``(...)``."""
+    return segment_segment_closest(ends_a, ends_b)[0]
+
+
+def capsule_distances(
+    ends_a: np.ndarray, radius_a: np.ndarray, ends_b: np.ndarray, radius_b: np.ndarray
+) -> np.ndarray:
+    """Surface distances of all pairs: a ``(N, 2, 3), (N,)`` vs b ``(M, 2, 3), (M,)`` -> ``(N, M)``.
+
+    Negative values mean penetration (the value is then a lower bound of minus the depth).
+    """
+    axis = segment_segment_distance(ends_a[:, None], ends_b[None, :])
+    return axis - radius_a[:, None] - radius_b[None, :]
+
+
+def capsules_intersect(
+    ends_a: np.ndarray, radius_a: np.ndarray, ends_b: np.ndarray, radius_b: np.ndarray
+) -> np.ndarray:
+    """``(N, M)`` bool: capsule i of a and capsule j of b share at least one point."""
+    return capsule_distances(ends_a, radius_a, ends_b, radius_b) <= 0.0
+
+
+def points_in_capsules(points: np.ndarray, ends: np.ndarray, radius_m: np.ndarray) -> np.ndarray:
+    """Whether each point ``(..., 3)`` lies in its capsule ``(..., 2, 3), (...)``, broadcast."""
+    return point_segment_distance(points, ends) <= radius_m
+
+
+def points_in_union(points: np.ndarray, ends: np.ndarray, radius_m: np.ndarray) -> np.ndarray:
+    """``(S,)`` bool: point s ``(S, 3)`` lies in at least one capsule ``(N, 2, 3), (N,)``."""
+    d = point_segment_distance(points[:, None, :], ends[None, :, :, :])
+    return np.any(d <= radius_m[None, :], axis=1)
+
+
+def ball_enclosing_balls(
+    c1: np.ndarray, r1: np.ndarray, c2: np.ndarray, r2: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Smallest ball enclosing two balls ``(..., 3), (...)`` each; returns ``(centre, radius)``."""
+    d = np.linalg.norm(c2 - c1, axis=-1)
+    radius = np.maximum(np.maximum(r1, r2), 0.5 * (d + r1 + r2))
+    # The centre lies on the line c1 -> c2 at distance radius - r1 from c1 (when not nested).
+    w = np.where(d > _EPS, np.clip((radius - r1) / np.maximum(d, _EPS), 0.0, 1.0), 0.0)
+    w = np.where(r1 >= d + r2, 0.0, np.where(r2 >= d + r1, 1.0, w))
+    return c1 + w[..., None] * (c2 - c1), radius
+
+
+def capsule_enclosing_capsules(
+    ends_a: np.ndarray, radius_a: np.ndarray, ends_b: np.ndarray, radius_b: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """A capsule enclosing two capsules with corresponding ends, e.g. one link at t_a and t_b.
+
+    The axis runs between the midpoints of corresponding ends; the radius grows by half the
+    larger end displacement. Sound for any pair (a point at axis parameter s of either capsule is
+    within that bound of the new axis at s). Returns ``(ends (..., 2, 3), radius (...))``.
+    """
+    mid = 0.5 * (ends_a + ends_b)
+    half_shift = 0.5 * np.linalg.norm(ends_a - ends_b, axis=-1).max(axis=-1)
+    return mid, np.maximum(radius_a, radius_b) + half_shift
+
+
+def capsule_volume(ends: np.ndarray, radius_m: np.ndarray) -> np.ndarray:
+    """Volume of each capsule, ``(...)``: cylinder plus one ball."""
+    length = np.linalg.norm(ends[..., 1, :] - ends[..., 0, :], axis=-1)
+    return np.pi * radius_m**2 * length + 4.0 / 3.0 * np.pi * radius_m**3
+
+
+def union_volume_mc(
+    ends: np.ndarray, radius_m: np.ndarray, n_samples: int, rng: np.random.Generator
+) -> tuple[float, float]:
+    """Monte-Carlo volume of a union of capsules ``(N, 2, 3), (N,)``: ``(volume, std_error)``."""
+    lo = (ends.min(axis=1) - radius_m[:, None]).min(axis=0)
+    hi = (ends.max(axis=1) + radius_m[:, None]).max(axis=0)
+    box_volume = float(np.prod(hi - lo))
+    pts = lo + rng.random((n_samples, 3)) * (hi - lo)
+    inside = np.zeros(n_samples, dtype=bool)
+    chunk = max(1, 2_000_000 // max(len(radius_m), 1))
+    for k in range(0, n_samples, chunk):
+        inside[k : k + chunk] = points_in_union(pts[k : k + chunk], ends, radius_m)
+    share = inside.mean()
+    return box_volume * share, box_volume * float(np.sqrt(share * (1 - share) / n_samples))
+
+
+def transform_points(T_a_b: np.ndarray, points_b: np.ndarray) -> np.ndarray:
+    """Apply homogeneous transforms ``(..., 4, 4)`` to points ``(..., 3)``, broadcast."""
+    return np.einsum("...ij,...j->...i", T_a_b[..., :3, :3], points_b) + T_a_b[..., :3, 3]
+
+
+def point_box_distance(
+    points: np.ndarray, T_world_box: np.ndarray, half_extents_m: np.ndarray
+) -> np.ndarray:
+    """Distance from points ``(..., 3)`` to solid oriented boxes, broadcast; 0 inside."""
+    R, p = T_world_box[..., :3, :3], T_world_box[..., :3, 3]
+    local = np.einsum("...ji,...j->...i", R, points - p)
+    excess = np.maximum(np.abs(local) - half_extents_m, 0.0)
+    return np.linalg.norm(excess, axis=-1)
+
+
+def segment_box_distance(
+    ends: np.ndarray, T_world_box: np.ndarray, half_extents_m: np.ndarray
+) -> np.ndarray:
+    """Exact distance between segments ``(..., 2, 3)`` and solid oriented boxes, broadcast.
+
+    In the box frame the squared distance along the segment, f(s) = sum_i max(|x_i(s)| - h_i, 0)^2,
+    is convex and piecewise quadratic with breakpoints where x_i(s) = +-h_i. Each piece is
+    minimised in closed form; the minimum over the pieces is exact.
+    """
+    R, p = T_world_box[..., :3, :3], T_world_box[..., :3, 3]
+    a = np.einsum("...ji,...j->...i", R, ends[..., 0, :] - p)  # (..., 3) in box frame
+    b = np.einsum("...ji,...j->...i", R, ends[..., 1, :] - p)
+    h = np.broadcast_to(half_extents_m, a.shape)
+    d = b - a
+    d_safe = np.where(np.abs(d) > _EPS, d, _EPS)
+    # Breakpoints s where a_i + s d_i = +-h_i, plus 0 and 1: (..., 8), sorted.
+    bp = np.concatenate(
+        [
+            np.zeros(a.shape[:-1] + (1,)),
+            np.clip((h - a) / d_safe, 0.0, 1.0),
+            np.clip((-h - a) / d_safe, 0.0, 1.0),
+            np.ones(a.shape[:-1] + (1,)),
+        ],
+        axis=-1,
+    )
+    bp.sort(axis=-1)
+    lo, hi = bp[..., :-1], bp[..., 1:]  # (..., 7) pieces
+    mid = 0.5 * (lo + hi)
+    x_mid = a[..., None, :] + mid[..., None] * d[..., None, :]  # (..., 7, 3)
+    # On a piece each coordinate is either inside its slab (no cost), above (+h) or below (-h).
+    sign = np.where(x_mid > h[..., None, :], 1.0, np.where(x_mid < -h[..., None, :], -1.0, 0.0))
+    # f(s) = sum_i sign_i^2 (a_i + s d_i - sign_i h_i)^2 ; minimise over s in [lo, hi].
+    off = a[..., None, :] - sign * h[..., None, :]
+    act = sign * sign
+    qa = np.sum(act * d[..., None, :] ** 2, axis=-1)
+    qb = np.sum(act * off * d[..., None, :], axis=-1)
+    s_star = np.clip(-qb / np.maximum(qa, _EPS), lo, hi)
+    s_star = np.where(qa > _EPS, s_star, lo)
+    x = a[..., None, :] + s_star[..., None] * d[..., None, :]
+    excess = np.maximum(np.abs(x) - h[..., None, :], 0.0)
+    return np.sqrt(np.min(np.sum(excess**2, axis=-1), axis=-1))
+
+
+def capsule_box_distances(
+    ends: np.ndarray, radius_m: np.ndarray, T_world_box: np.ndarray, half_extents_m: np.ndarray
+) -> np.ndarray:
+    """Surface distances of capsules ``(N, 2, 3), (N,)`` to boxes ``(B, 4, 4), (B, 3)``: ``(N, B)``."""
+    axis = segment_box_distance(ends[:, None], T_world_box[None], half_extents_m[None])
+    return axis - radius_m[:, None]
