@@ -102,13 +102,17 @@ class Skeleton:
         try:
             return self.joints.index(name)
         except ValueError:
-            raise UnknownNameError(f"joint of the {self.kind!r} skeleton", name, self.joints)
+            raise UnknownNameError(
+                f"joint of the {self.kind!r} skeleton", name, self.joints
+            ) from None
 
     def part_index(self, name: str) -> int:
         try:
             return self.parts.index(name)
         except ValueError:
-            raise UnknownNameError(f"body part of the {self.kind!r} skeleton", name, self.parts)
+            raise UnknownNameError(
+                f"body part of the {self.kind!r} skeleton", name, self.parts
+            ) from None
 
     def parts_of_joint(self, joint: str) -> tuple[str, ...]:
         j = self.joint_index(joint)
@@ -218,9 +222,7 @@ def from_source(source: str, points: Mapping[str, object]) -> np.ndarray:
     needed = sorted({n for j in sk.joints for n in table[j]})
     missing = [n for n in needed if n not in points]
     if missing:
-        raise InputError(
-            f"source {source!r} is missing points {missing}; it needs {needed}"
-        )
+        raise InputError(f"source {source!r} is missing points {missing}; it needs {needed}")
     out = np.empty((sk.n_joints, 3))
     for i, j in enumerate(sk.joints):
         pts = [np.asarray(points[n], dtype=float) for n in table[j]]

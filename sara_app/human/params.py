@@ -1,0 +1,166 @@
+"""Human-model parameter sets: the validated file format and the plain arrays the core uses.
+
+A parameter set is keyed by joint and body-part *name* and must be complete: a missing or unknown
+name is an error that names it (a known pitfall matched parameter vectors to body parts by map
+order). Sets ship as JSON files in ``sara_app/params/``; ``load_param_set`` reads one by name or
+path. ``ReachParams`` is the plain, per-skeleton-kind array form the reach models take.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from sara_app.errors import ParameterError, UnknownNameError
+from sara_app.human.skeleton import FULL_BODY_PARTS, FULL_JOINTS, skeleton
+
+PARAM_DIR = Path(__file__).resolve().parent.parent / "params"
+
+Pos = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
+NonNeg = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class JointBound(_Strict):
+    """Bounds of one joint's Cartesian motion."""
+
+    v_max_mps: Pos
+    a_max_mps2: Pos
+
+
+class BodyPartGeometry(_Strict):
+    """Size of one body part: thickness is a diameter (seed 001); iso radius per seed 000."""
+
+    thickness_m: Pos
+    iso_radius_m: Pos
+
+
+class ArmModelParams(_Strict):
+    """Pereira's 3-DOF arm model (seed 000 Sec. III-B), the same for both arms.
+
+    Coordinates of the mid-forearm point relative to the shoulder, in the torso frame:
+    polar angle theta from the medial axis, azimuth phi about it (0 = down, pi/2 = forward),
+    and the prismatic extension r.
+    """
+
+    theta_min_rad: NonNeg = 0.0
+    theta_max_rad: Annotated[float, Field(gt=0.0, le=float(np.pi))] = float(np.pi)
+    angle_v_max_rad_s: Pos
+    angle_a_max_rad_s2: Pos
+    r_v_max_mps: Pos
+    r_a_max_mps2: Pos
+    base_rotation_rad_s: NonNeg = 0.1
+    shoulder_v_max_mps: Pos = 2.0
+
+
+class ParamSet(_Strict):
+    """A named, complete human parameter set (the JSON file format)."""
+
+    name: str
+    description: str = ""
+    sources: dict[str, str] = {}
+    sound_for: dict[str, str] = {}
+    delta_y_m: NonNeg
+    delta_v_mps: NonNeg
+    delay_s: NonNeg
+    iso_v_max_full_mps: Pos = 2.0
+    iso_v_max_upper_mps: Pos = 1.6
+    joints: dict[str, JointBound]
+    body_parts: dict[str, BodyPartGeometry]
+    arm: ArmModelParams
+
+    @field_validator("joints")
+    @classmethod
+    def _joints_complete(cls, v: dict[str, JointBound]) -> dict[str, JointBound]:
+        _check_names("joint", v, FULL_JOINTS)
+        return v
+
+    @field_validator("body_parts")
+    @classmethod
+    def _parts_complete(cls, v: dict[str, BodyPartGeometry]) -> dict[str, BodyPartGeometry]:
+        _check_names("body part", v, tuple(FULL_BODY_PARTS))
+        return v
+
+
+def _check_names(kind: str, given: dict[str, object], valid: tuple[str, ...]) -> None:
+    unknown = [n for n in given if n not in valid]
+    if unknown:
+        raise UnknownNameError(kind, unknown[0], valid)
+    missing = [n for n in valid if n not in given]
+    if missing:
+        raise ValueError(f"{kind} parameters missing for {missing}; every one of {valid} is needed")
+
+
+@dataclass(frozen=True)
+class ReachParams:
+    """Arrays for one skeleton kind, in the skeleton's joint / part order.
+
+    ``v_max_mps``, ``a_max_mps2``: ``(J,)``; ``half_thickness_m``, ``iso_radius_m``: ``(P,)``.
+    """
+
+    kind: str
+    name: str
+    v_max_mps: np.ndarray
+    a_max_mps2: np.ndarray
+    half_thickness_m: np.ndarray
+    iso_radius_m: np.ndarray
+    delta_y_m: float
+    delta_v_mps: float
+    delay_s: float
+    iso_v_max_mps: float
+    arm: ArmModelParams
+
+
+def to_reach_params(ps: ParamSet, kind: str) -> ReachParams:
+    """The plain arrays of ``ps`` for skeleton ``kind``, looked up by name."""
+    sk = skeleton(kind)
+    return ReachParams(
+        kind=kind,
+        name=ps.name,
+        v_max_mps=np.array([ps.joints[j].v_max_mps for j in sk.joints]),
+        a_max_mps2=np.array([ps.joints[j].a_max_mps2 for j in sk.joints]),
+        half_thickness_m=np.array([0.5 * ps.body_parts[p].thickness_m for p in sk.parts]),
+        iso_radius_m=np.array([ps.body_parts[p].iso_radius_m for p in sk.parts]),
+        delta_y_m=ps.delta_y_m,
+        delta_v_mps=ps.delta_v_mps,
+        delay_s=ps.delay_s,
+        iso_v_max_mps=ps.iso_v_max_full_mps if kind == "full" else ps.iso_v_max_upper_mps,
+        arm=ps.arm,
+    )
+
+
+def available_param_sets() -> tuple[str, ...]:
+    return tuple(sorted(p.stem for p in PARAM_DIR.glob("*.json")))
+
+
+def parse_param_set(data: object, origin: str = "<data>") -> ParamSet:
+    try:
+        return ParamSet.model_validate(data)
+    except ValidationError as e:
+        raise ParameterError(f"invalid parameter set {origin}: {e}") from None
+
+
+def load_param_set(name_or_path: str | Path = "seed001_table1") -> ParamSet:
+    """Load a shipped set by name (see ``available_param_sets``) or a JSON file by path."""
+    path = Path(name_or_path)
+    if path.suffix != ".json":
+        path = PARAM_DIR / f"{name_or_path}.json"
+        if not path.exists():
+            raise UnknownNameError("parameter set", str(name_or_path), available_param_sets())
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise ParameterError(f"cannot read parameter set {path}: {e}") from None
+    return parse_param_set(data, str(path))
+
+
+def save_param_set(ps: ParamSet, path: str | Path) -> None:
+    Path(path).write_text(json.dumps(ps.model_dump(), indent=2) + "\n")

@@ -1,0 +1,100 @@
+"""Joint velocities from positions, with an explicit bound on the estimate's error.
+
+A backward difference over a lag h, v_hat(t) = (y(t) - y(t - h)) / h, with positions known to
+within delta_y (Euclidean) and a joint acceleration bounded by a_max, is off by at most
+
+    |v_hat(t) - v(t)| <= 2 delta_y / h + a_max h / 2
+
+(noise at both ends, plus the Taylor remainder of a motion whose acceleration is bounded). The
+bound is smallest at h* = 2 sqrt(delta_y / a_max); each joint uses the available lag closest to
+its optimum. The bound assumes a_max holds: it is exactly the assumption of the ACC model that
+consumes it, so the model stays sound under its own assumptions.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sara_app.errors import InputError
+
+
+def velocity_error_bound(lag_s: np.ndarray, delta_y_m: float, a_max_mps2: np.ndarray) -> np.ndarray:
+    """Error bound of a backward difference with lag ``lag_s`` (broadcast with a_max), m/s."""
+    return 2.0 * delta_y_m / lag_s + 0.5 * a_max_mps2 * lag_s
+
+
+def _best_lags(dts: np.ndarray, delta_y_m: float, a_max: np.ndarray) -> tuple[np.ndarray, ...]:
+    """For candidate lags ``(L,)`` and joints ``(J,)``: index of the best lag and its bound."""
+    bounds = velocity_error_bound(dts[:, None], delta_y_m, a_max[None, :])  # (L, J)
+    best = np.argmin(bounds, axis=0)
+    return best, bounds[best, np.arange(a_max.shape[0])]
+
+
+def estimate_recording(
+    times_s: np.ndarray,
+    positions_m: np.ndarray,
+    delta_y_m: float,
+    a_max_mps2: np.ndarray,
+    max_lag_frames: int = 8,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Causal velocity estimates for a whole recording.
+
+    ``positions_m`` ``(T, J, 3)``; returns ``v (T, J, 3)`` and the error bound ``dv (T, J)``.
+    Frame 0 has no past: its bound is infinite (the ACC model is then unusable there).
+    """
+    T, J, _ = positions_m.shape
+    v = np.zeros_like(positions_m)
+    dv = np.full((T, J), np.inf)
+    for i in range(1, T):
+        lags = np.arange(1, min(max_lag_frames, i) + 1)
+        dts = times_s[i] - times_s[i - lags]
+        best, bound = _best_lags(dts, delta_y_m, a_max_mps2)
+        past = positions_m[i - lags[best], np.arange(J)]
+        v[i] = (positions_m[i] - past) / dts[best][:, None]
+        dv[i] = bound
+    return v, dv
+
+
+class VelocityEstimator:
+    """Streaming version: keeps the last ``max_lag_frames`` frames of one human."""
+
+    def __init__(
+        self, n_joints: int, delta_y_m: float, a_max_mps2: np.ndarray, max_lag_frames: int = 8
+    ) -> None:
+        self.delta_y_m = delta_y_m
+        self.a_max = np.asarray(a_max_mps2, dtype=float)
+        self.times = np.full(max_lag_frames + 1, -np.inf)
+        self.frames = np.zeros((max_lag_frames + 1, n_joints, 3))
+        self.count = 0
+        self.v = np.zeros((n_joints, 3))
+        self.dv = np.full(n_joints, np.inf)
+
+    def reset(self) -> None:
+        self.count = 0
+        self.dv[:] = np.inf
+
+    def update(self, t_s: float, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Add a frame; returns the velocity ``(J, 3)`` and its error bound ``(J,)`` at ``t_s``.
+
+        A time stamp that does not advance raises InputError (the caller drops the frame).
+        """
+        if self.count and not t_s > self.times[0]:
+            raise InputError(
+                f"skeleton time stamp {t_s} does not advance past the previous {self.times[0]}"
+            )
+        self.times[1:] = self.times[:-1]
+        self.frames[1:] = self.frames[:-1]
+        self.times[0] = t_s
+        self.frames[0] = y
+        self.count = min(self.count + 1, len(self.times))
+        n = self.count - 1
+        if n == 0:
+            self.v[:] = 0.0
+            self.dv[:] = np.inf
+            return self.v, self.dv
+        dts = t_s - self.times[1 : n + 1]
+        best, bound = _best_lags(dts, self.delta_y_m, self.a_max)
+        past = self.frames[1 + best, np.arange(self.a_max.shape[0])]
+        self.v[:] = (y - past) / dts[best][:, None]
+        self.dv[:] = bound
+        return self.v, self.dv

@@ -1,0 +1,242 @@
+"""Soundness of the reachability models on synthetic motion that obeys each model's bounds.
+
+Every joint follows its own random motion inside the model's assumptions (the models treat
+joints independently, so this is a superset of real human motion); measurements carry noise up
+to delta_y (and the velocity error bound); the future joint positions, grown by the body part's
+half thickness, are checked at densely sampled times of every interval. Zero misses allowed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sara_app.errors import InputError, ParameterError, UnknownNameError
+from sara_app.geometry import point_segment_distance
+from sara_app.human.params import load_param_set, parse_param_set, to_reach_params
+from sara_app.human.reach import MODELS, HumanReach
+from sara_app.human.skeleton import skeleton
+
+KINDS = ("full", "upper")
+T_START = np.array([0.0, 0.004, 0.05, 0.1, 0.2])
+T_END = np.array([0.004, 0.05, 0.1, 0.2, 0.35])
+
+
+def _reach(kind: str) -> HumanReach:
+    return HumanReach(to_reach_params(load_param_set("seed001_table1"), kind))
+
+
+def _rand_ball(rng: np.random.Generator, shape: tuple[int, ...], radius: np.ndarray) -> np.ndarray:
+    """Points uniformly in balls of ``radius`` (broadcast to shape[:-1]); shape ends in 3."""
+    d = rng.normal(size=shape)
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    return d * (np.asarray(radius)[..., None] * rng.random(shape[:-1])[..., None] ** (1 / 3))
+
+
+def _on_sphere(rng: np.random.Generator, shape: tuple[int, ...], radius: np.ndarray) -> np.ndarray:
+    d = rng.normal(size=shape)
+    return d / np.linalg.norm(d, axis=-1, keepdims=True) * np.asarray(radius)[..., None]
+
+
+def _simulate(
+    rng: np.random.Generator,
+    y0: np.ndarray,
+    v0: np.ndarray,
+    a_max: np.ndarray,
+    v_max: np.ndarray | None,
+    times: np.ndarray,
+    n_switch: int = 6,
+) -> np.ndarray:
+    """Joint paths ``(S, H, J, 3)`` at ``times (S,)`` with bang-bang accelerations |a| = a_max
+    switching direction at random times; speeds clipped to v_max (clipping only lowers |v|)."""
+    dt = np.diff(times, prepend=0.0)
+    H, J, _ = y0.shape
+    switches = np.sort(rng.random((n_switch,)) * times[-1])
+    acc_dirs = _on_sphere(rng, (n_switch + 1, H, J, 3), np.ones((n_switch + 1, H, J)))
+    y, v = y0.copy(), v0.copy()
+    out = np.empty((len(times), H, J, 3))
+    for s, t in enumerate(times):
+        seg = np.searchsorted(switches, t)
+        a = acc_dirs[seg] * a_max[None, :, None]
+        v_new = v + a * dt[s]
+        if v_max is not None:
+            n = np.linalg.norm(v_new, axis=-1, keepdims=True)
+            v_new = v_new * np.minimum(1.0, v_max[None, :, None] / np.maximum(n, 1e-12))
+        y = y + 0.5 * (v + v_new) * dt[s]  # trapezoid: exact for the piecewise-linear v
+        v = v_new
+        out[s] = y
+    return out
+
+
+def _check_contained(reach: HumanReach, model: str, occ_ends, occ_radius, paths, k: int):
+    """Every joint of ``paths (S, H, J, 3)`` must lie in interval k's capsules."""
+    cap, joint, margin = reach.coverage[model]
+    ends = occ_ends[:, k][:, cap]  # (H, M, 2, 3)
+    rad = occ_radius[:, k][:, cap]
+    d = point_segment_distance(paths[:, :, joint], ends[None])  # (S, H, M)
+    excess = d + margin - rad[None]
+    return float(excess.max())
+
+
+def _pose(rng: np.random.Generator, kind: str, H: int) -> np.ndarray:
+    """Plausible random poses ``(H, J, 3)`` (limb lengths in a human range)."""
+    sk = skeleton(kind)
+    base = {
+        "head": (0, 0, 1.65),
+        "neck": (0, 0, 1.45),
+        "pelvis": (0, 0, 0.95),
+        "l_shoulder": (-0.18, 0, 1.42),
+        "r_shoulder": (0.18, 0, 1.42),
+        "l_elbow": (-0.2, 0.05, 1.13),
+        "r_elbow": (0.2, 0.05, 1.13),
+        "l_wrist": (-0.2, 0.25, 1.0),
+        "r_wrist": (0.22, 0.28, 1.02),
+        "l_hip": (-0.1, 0, 0.92),
+        "r_hip": (0.1, 0, 0.92),
+        "l_knee": (-0.1, 0.02, 0.5),
+        "r_knee": (0.1, 0.02, 0.5),
+        "l_ankle": (-0.1, 0, 0.08),
+        "r_ankle": (0.1, 0, 0.08),
+    }
+    y = np.array([base[j] for j in sk.joints], dtype=float)
+    return y[None] + rng.normal(scale=0.02, size=(H,) + y.shape) + rng.normal(size=(H, 1, 3))
+
+
+@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("seed", range(4))
+def test_vel_and_iso_contain_speed_bounded_motion(kind: str, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    reach = _reach(kind)
+    p = reach.params
+    H = 16
+    y_true = _pose(rng, kind, H)
+    y_meas = y_true + _rand_ball(rng, y_true.shape, np.full(y_true.shape[:2], p.delta_y_m))
+    occ = {m: reach.model(m, y_meas, None, None, T_START, T_END) for m in ("vel", "iso13855")}
+    v_lim = {"vel": p.v_max_mps, "iso13855": np.full_like(p.v_max_mps, p.iso_v_max_mps)}
+    for m, o in occ.items():
+        J = y_true.shape[1]
+        v0 = _rand_ball(rng, y_true.shape, np.broadcast_to(v_lim[m], y_true.shape[:2]))
+        for k in range(len(T_START)):
+            times = np.linspace(0, T_END[k] + p.delay_s, 60)
+            paths = _simulate(rng, y_true, v0, np.full(J, 300.0), v_lim[m], times)
+            sel = times >= T_START[k] + p.delay_s
+            assert _check_contained(reach, m, o.ends, o.radius, paths[sel], k) <= 1e-12, m
+
+
+@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("seed", range(4))
+def test_acc_contains_acceleration_bounded_motion(kind: str, seed: int) -> None:
+    rng = np.random.default_rng(100 + seed)
+    reach = _reach(kind)
+    p = reach.params
+    H = 16
+    y_true = _pose(rng, kind, H)
+    v_true = _rand_ball(rng, y_true.shape, np.full(y_true.shape[:2], 3.0))  # any speed
+    dv = np.full(y_true.shape[:2], 0.3)
+    y_meas = y_true + _rand_ball(rng, y_true.shape, np.full(y_true.shape[:2], p.delta_y_m))
+    v_meas = v_true + _on_sphere(rng, y_true.shape, dv)  # worst case: error at its bound
+    o = reach.model("acc", y_meas, v_meas, dv, T_START, T_END)
+    for k in range(len(T_START)):
+        times = np.linspace(0, T_END[k] + p.delay_s, 80)
+        paths = _simulate(rng, y_true, v_true, p.a_max_mps2, None, times)
+        sel = times >= T_START[k] + p.delay_s
+        assert _check_contained(reach, "acc", o.ends, o.radius, paths[sel], k) <= 1e-12
+
+
+@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("seed", range(4))
+def test_pos_contains_rigid_limbs_in_any_configuration(kind: str, seed: int) -> None:
+    rng = np.random.default_rng(200 + seed)
+    reach = _reach(kind)
+    sk, p = reach.skeleton, reach.params
+    H = 32
+    y_true = _pose(rng, kind, H)
+    y_meas = y_true + _rand_ball(rng, y_true.shape, np.full(y_true.shape[:2], p.delta_y_m))
+    o = reach.model("pos", y_meas, None, None, T_START, T_END)
+    k = len(T_START) - 1
+    tau = T_END[k] + p.delay_s
+    for _ in range(20):
+        fut = y_true + _rand_ball(rng, y_true.shape, np.full(y_true.shape[:2], 2.0 * tau))
+        # Limbs: root moves at most v_root tau; every segment keeps its true length, any angle.
+        for chain in sk.limb_chains:
+            root = chain[0]
+            fut[:, root] = y_true[:, root] + _on_sphere(
+                rng, (H, 3), np.full(H, p.v_max_mps[root] * tau)
+            )
+            for a, b in zip(chain[:-1], chain[1:]):
+                length = np.linalg.norm(y_true[:, b] - y_true[:, a], axis=-1)
+                fut[:, b] = fut[:, a] + _on_sphere(rng, (H, 3), length)
+        # head and torso joints obey the vel model
+        for j in ("head", "neck", "pelvis"):
+            i = sk.joint_index(j)
+            fut[:, i] = y_true[:, i] + _on_sphere(rng, (H, 3), np.full(H, p.v_max_mps[i] * tau))
+        assert _check_contained(reach, "pos", o.ends, o.radius, fut[None], k) <= 1e-12
+
+
+def test_sets_grow_with_age_and_delay() -> None:
+    reach = _reach("full")
+    y = _pose(np.random.default_rng(1), "full", 1)
+    v = np.zeros_like(y)
+    for m in MODELS:
+        young = reach.model(m, y, v, None, [0.0], [0.1])
+        old = reach.model(m, y, v, None, [0.05], [0.15])  # same horizon, measurement 50 ms older
+        assert np.all(old.radius >= young.radius - 1e-12), m
+        assert np.any(old.radius > young.radius), m
+
+
+def test_every_joint_is_covered_by_every_model() -> None:
+    for kind in KINDS:
+        reach = _reach(kind)
+        for m in MODELS:
+            _, joint, _ = reach.coverage[m]
+            assert set(joint.tolist()) == set(range(reach.skeleton.n_joints)), (kind, m)
+
+
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        (np.full((15, 3), np.nan), "not finite"),
+        (np.zeros((14, 3)), "expected"),
+        (np.zeros((2, 15, 2)), "expected"),
+    ],
+)
+def test_bad_positions_raise_domain_errors(bad: np.ndarray, match: str) -> None:
+    reach = _reach("full")
+    with pytest.raises(InputError, match=match):
+        reach.model("vel", bad, None, None, [0.0], [0.1])
+
+
+def test_infinite_coordinate_named() -> None:
+    reach = _reach("full")
+    y = _pose(np.random.default_rng(0), "full", 1)
+    y[0, 5, 1] = np.inf
+    with pytest.raises(InputError, match="l_elbow"):
+        reach.model("pos", y, None, None, [0.0], [0.1])
+
+
+def test_bad_intervals_and_missing_velocities() -> None:
+    reach = _reach("upper")
+    y = _pose(np.random.default_rng(0), "upper", 1)
+    with pytest.raises(InputError, match="start <= end"):
+        reach.model("vel", y, None, None, [0.2], [0.1])
+    with pytest.raises(InputError, match="velocities"):
+        reach.model("acc", y, None, None, [0.0], [0.1])
+    with pytest.raises(UnknownNameError, match="valid choices"):
+        reach.model("nope", y, None, None, [0.0], [0.1])
+
+
+def test_parameter_sets_are_complete_by_name() -> None:
+    data = load_param_set("seed001_table1").model_dump()
+    del data["joints"]["l_elbow"]
+    with pytest.raises(ParameterError, match="l_elbow"):
+        parse_param_set(data)
+    data = load_param_set("seed001_table1").model_dump()
+    data["body_parts"]["tail"] = data["body_parts"]["head"]
+    with pytest.raises(ParameterError, match="tail"):
+        parse_param_set(data)
+    data = load_param_set("seed001_table1").model_dump()
+    data["joints"]["head"]["v_max_mps"] = 0.0
+    with pytest.raises(ParameterError, match="v_max_mps"):
+        parse_param_set(data)
+    with pytest.raises(UnknownNameError, match="seed001_table1"):
+        load_param_set("no_such_set")
