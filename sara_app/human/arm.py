@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from sara_app.human.params import ReachParams
+from sara_app.human.params import ArmModelParams, ReachParams
 
 if TYPE_CHECKING:
     from sara_app.human.reach import HumanReach, Occupancy
@@ -96,7 +96,7 @@ def joint_intervals(
     dq: np.ndarray,
     r_max: np.ndarray,
     tau: np.ndarray,
-    arm: object,
+    arm: ArmModelParams,
     q_dot: np.ndarray | None = None,
     dq_dot: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -109,17 +109,17 @@ def joint_intervals(
     p = arm  # ArmModelParams
     t = tau[None, :, None, None]
     q0, d0 = q[:, None], dq[:, None]
-    vmax = np.array([p.angle_v_max_rad_s, p.angle_v_max_rad_s, p.r_v_max_mps])  # type: ignore[attr-defined]
-    amax = np.array([p.angle_a_max_rad_s2, p.angle_a_max_rad_s2, p.r_a_max_mps2])  # type: ignore[attr-defined]
+    vmax = np.array([p.angle_v_max_rad_s, p.angle_v_max_rad_s, p.r_v_max_mps])
+    amax = np.array([p.angle_a_max_rad_s2, p.angle_a_max_rad_s2, p.r_a_max_mps2])
     # 1st order
     lo = q0 - d0 - vmax * t
     hi = q0 + d0 + vmax * t
     # 0th order: theta and r limits (phi is unbounded)
-    pos_lo = np.array([-np.inf, p.theta_min_rad, 0.0])  # type: ignore[attr-defined]
+    pos_lo = np.array([-np.inf, p.theta_min_rad, 0.0])
     pos_hi = np.broadcast_to(
         np.stack(
             [np.full_like(r_max, np.inf), np.full_like(r_max, p.theta_max_rad), r_max],
-            axis=-1,  # type: ignore[attr-defined]
+            axis=-1,
         )[:, None],
         lo.shape,
     )
@@ -206,11 +206,13 @@ def arm_occupancy(
         spread = np.where(cone[..., i], r_hi[..., i] * np.sin(alpha[..., i]), r_hi[..., i])
         radius[:, :, i] = np.maximum(r_sh[i], spread + r_fore[:, None, i]) + grow[..., 0]
     iso = reach.iso13855(y, t_end_s)
+    iso_ends = np.broadcast_to(iso.ends, (H, K) + iso.ends.shape[2:])
+    iso_radius = np.broadcast_to(iso.radius, (H, K, iso.radius.shape[2]))
     keep = np.array([not n.endswith(("_arm", "_hand")) for n in sk.parts])
     names = ARMS + tuple(n for n, k in zip(sk.parts, keep) if k)
     return Occupancy(
         "arm",
-        np.concatenate([ends, iso.ends[:, :, keep]], axis=2),
-        np.concatenate([radius, iso.radius[:, :, keep]], axis=2),
+        np.concatenate([ends, iso_ends[:, :, keep]], axis=2),
+        np.concatenate([radius, iso_radius[:, :, keep]], axis=2),
         names,
     )

@@ -9,6 +9,7 @@ path. ``ReachParams`` is the plain, per-skeleton-kind array form the reach model
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
@@ -90,7 +91,7 @@ class ParamSet(_Strict):
         return v
 
 
-def _check_names(kind: str, given: dict[str, object], valid: tuple[str, ...]) -> None:
+def _check_names(kind: str, given: Mapping[str, object], valid: tuple[str, ...]) -> None:
     unknown = [n for n in given if n not in valid]
     if unknown:
         raise UnknownNameError(kind, unknown[0], valid)

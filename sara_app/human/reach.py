@@ -20,7 +20,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from sara_app.errors import InputError, UnknownNameError
-from sara_app.geometry import ball_enclosing_balls
 from sara_app.human.params import ReachParams
 from sara_app.human.skeleton import skeleton
 
@@ -30,7 +29,12 @@ SARA_MODELS: tuple[str, ...] = ("pos", "vel", "acc")
 
 @dataclass
 class Occupancy:
-    """Capsules of one model: ``ends (H, K, C, 2, 3)``, ``radius (H, K, C)``, names ``(C,)``."""
+    """Capsules of one model: ``ends (H, K, C, 2, 3)``, ``radius (H, K, C)``, names ``(C,)``.
+
+    From the buffered model methods, axes of length 1 broadcast (a model whose capsule ends do
+    not move has ``ends (H, 1, C, 2, 3)``; one whose radius is the same for every human has
+    ``radius (1, K, C)``).
+    """
 
     model: str
     ends: np.ndarray
@@ -87,6 +91,49 @@ class HumanReach:
         self.pos_names = sk.limbs + ("head", "torso")
         self.part_names = sk.parts
         self.coverage = {m: self._coverage(m) for m in MODELS}
+        self._tables()
+        self._buffers: dict[tuple[str, tuple[int, ...]], np.ndarray] = {}
+
+    def _tables(self) -> None:
+        """Per-capsule coefficients and index tables, so each model is a few numpy calls."""
+        sk, p = self.skeleton, self.params
+        J = sk.n_joints
+        ja, jb, ball = self.ja, self.jb, self.is_ball
+        # R_VEL / ISO: radius = base + speed * tau (max over the two joints, radius monotone).
+        self.vel_base = p.delta_y_m + p.half_thickness_m
+        self.vel_speed = np.maximum(p.v_max_mps[ja], p.v_max_mps[jb])
+        self.iso_base = p.delta_y_m + p.iso_radius_m
+        # R_ACC: per joint X = [R(tau_b) | R(tau_b) + |v| (tau_b - tau_a) / 2]; ball parts take
+        # the first, two-joint parts the second (see ``acc``). Centres C = [tau_a | mid | tau_b].
+        self.acc_ia = np.where(ball, ja, J + ja)
+        self.acc_ib = np.where(ball, jb, J + jb)
+        self.acc_ends = np.stack(
+            [np.where(ball, ja, J + ja), np.where(ball, 2 * J + jb, J + jb)], 1
+        )
+        self.a_half = 0.5 * p.a_max_mps2
+        # R_POS: all limb segments, summed per limb by a matrix product.
+        seg = [(a, b, i) for i, c in enumerate(sk.limb_chains) for a, b in zip(c[:-1], c[1:])]
+        self.pos_seg_a = np.array([a for a, _, _ in seg], dtype=int)
+        self.pos_seg_b = np.array([b for _, b, _ in seg], dtype=int)
+        self.pos_sum = np.zeros((len(seg), len(sk.limb_chains)))
+        self.pos_sum[np.arange(len(seg)), [i for _, _, i in seg]] = 1.0
+        n_seg = np.array([len(c) - 1 for c in sk.limb_chains])
+        self.pos_base = self.limb_half_th + (1 + 2 * n_seg) * p.delta_y_m
+        self.pos_speed = p.v_max_mps[self.limb_root]
+        self.pos_ends = np.concatenate(
+            [np.repeat(self.limb_root[:, None], 2, 1), sk.part_joints[self.limb_pos_parts]]
+        )
+        self.pos_rbase = np.concatenate([self.pos_base, self.vel_base[self.limb_pos_parts]])
+        self.pos_rspeed = np.concatenate([self.pos_speed, self.vel_speed[self.limb_pos_parts]])
+        self.n_limbs = len(sk.limb_chains)
+
+    def _buf(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
+        """A per-instance buffer, allocated once per shape (the hot path allocates nothing)."""
+        key = (name, shape)
+        b = self._buffers.get(key)
+        if b is None:
+            b = self._buffers[key] = np.empty(shape)
+        return b
 
     def _coverage(self, model: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Which joints each capsule of ``model`` must contain, and with which margin.
@@ -147,24 +194,37 @@ class HumanReach:
 
     # --- models --------------------------------------------------------------------------------
 
+    # Outputs of vel / acc / pos / iso13855 are views into per-instance buffers, valid until the
+    # next call of the same model with the same shapes; ``model`` returns copies.
+
     def vel(self, y: np.ndarray, t_end_s: np.ndarray) -> Occupancy:
         """R_VEL = y(0) + B(delta_y) + B(v_max tau) per joint, capsules per body part.
 
         Sound when every joint's speed stays below its v_max.
         """
-        p = self.params
-        tau = np.asarray(t_end_s, dtype=float) + p.delay_s  # (K,)
-        r_joint = p.delta_y_m + p.v_max_mps[None, :] * tau[:, None]  # (K, J)
-        radius = np.maximum(r_joint[:, self.ja], r_joint[:, self.jb]) + p.half_thickness_m
-        ends = np.stack([y[:, self.ja], y[:, self.jb]], axis=2)  # (H, P, 2, 3)
-        K = tau.shape[0]
-        H = y.shape[0]
-        return Occupancy(
-            "vel",
-            np.broadcast_to(ends[:, None], (H, K) + ends.shape[1:]),
-            np.broadcast_to(radius[None], (H, K, radius.shape[1])),
-            self.part_names,
-        )
+        tau = t_end_s + self.params.delay_s  # (K,)
+        return self._static("vel", y, tau, self.vel_base, self.vel_speed)
+
+    def iso13855(self, y: np.ndarray, t_end_s: np.ndarray) -> Occupancy:
+        """ISO 13855 expansion (seed 000 Sec. III-A): every body part's capsule at the measured
+        pose, radius iso_radius + delta_y + v_iso tau. Sound when no point moves faster than
+        v_iso (1.6 m/s upper body, 2.0 m/s full body): real fast motion breaks this (seed 000).
+        """
+        tau = t_end_s + self.params.delay_s
+        speed = np.full(self.skeleton.n_parts, self.params.iso_v_max_mps)
+        return self._static("iso13855", y, tau, self.iso_base, speed)
+
+    def _static(
+        self, name: str, y: np.ndarray, tau: np.ndarray, base: np.ndarray, speed: np.ndarray
+    ) -> Occupancy:
+        """Capsules at the measured pose whose radius grows linearly: base + speed * tau."""
+        H, K, P = y.shape[0], tau.shape[0], self.skeleton.n_parts
+        ends = self._buf(name + "e", (H, P, 2, 3))
+        np.take(y, self.skeleton.part_joints, axis=1, out=ends)
+        radius = self._buf(name + "r", (K, P))
+        np.multiply(tau[:, None], speed, out=radius)
+        radius += base
+        return Occupancy(name, ends[:, None], radius[None], self.part_names)
 
     def acc(
         self,
@@ -176,31 +236,37 @@ class HumanReach:
     ) -> Occupancy:
         """R_ACC = y(0) + B(delta_y) + v(0) tau + B(dv tau) + B(a_max tau^2 / 2) per joint.
 
-        Over an interval the joint's balls move linearly and grow convexly, so their union is
-        inside the capsule of the end balls (balls at tau_a, tau_b, radius at tau_b); body parts
-        with two joints take the smallest ball enclosing each joint's two end balls. Sound when
-        every joint's acceleration stays below a_max and ``dv`` bounds the velocity error.
+        Over [tau_a, tau_b] a joint's ball moves linearly and grows convexly, so the union lies
+        in the capsule of its end balls with the radius at tau_b: ball body parts (head, hands,
+        feet) use that capsule. A two-joint part at time tau is the hull of its joints' balls;
+        over the interval it lies in the capsule between the joints' mid-interval centres with
+        radius max_j (R_j(tau_b) + |v_j| (tau_b - tau_a) / 2) (a point of the hull is a convex
+        combination of points of the two balls). Sound when every joint's acceleration stays
+        below a_max and ``dv`` bounds the velocity error.
         """
         p = self.params
-        ta = np.asarray(t_start_s, dtype=float) + p.delay_s  # (K,)
-        tb = np.asarray(t_end_s, dtype=float) + p.delay_s
-        a_half = 0.5 * p.a_max_mps2  # (J,)
-        # (H, K, J)
-        ra = p.delta_y_m + dv[:, None, :] * ta[None, :, None] + a_half * (ta**2)[None, :, None]
-        rb = p.delta_y_m + dv[:, None, :] * tb[None, :, None] + a_half * (tb**2)[None, :, None]
-        ca = y[:, None] + v[:, None] * ta[None, :, None, None]  # (H, K, J, 3)
-        cb = y[:, None] + v[:, None] * tb[None, :, None, None]
-        cball, rball = ball_enclosing_balls(ca, ra, cb, rb)
-        ball = self.is_ball
-        ends = np.empty(y.shape[:1] + (ta.shape[0], self.skeleton.n_parts, 2, 3))
-        ends[:, :, ball, 0] = ca[:, :, self.ja[ball]]
-        ends[:, :, ball, 1] = cb[:, :, self.ja[ball]]
-        ends[:, :, ~ball, 0] = cball[:, :, self.ja[~ball]]
-        ends[:, :, ~ball, 1] = cball[:, :, self.jb[~ball]]
-        radius = np.where(
-            ball, rb[:, :, self.ja], np.maximum(rball[:, :, self.ja], rball[:, :, self.jb])
-        )
-        return Occupancy("acc", ends, radius + p.half_thickness_m, self.part_names)
+        H, J = y.shape[0], y.shape[1]
+        K = t_end_s.shape[0]
+        ta = t_start_s + p.delay_s
+        tb = t_end_s + p.delay_s
+        times = np.stack([ta, 0.5 * (ta + tb), tb], axis=1)  # (K, 3): tau_a, mid, tau_b
+        # X (H, K, 2J): [R(tau_b) | R(tau_b) + |v| (tau_b - tau_a) / 2]
+        X = self._buf("acc_x", (H, K, 2 * J))
+        R = X[:, :, :J]
+        np.multiply(dv[:, None, :], tb[:, None], out=R)
+        R += self.a_half * (tb * tb)[:, None] + p.delta_y_m
+        speed = np.sqrt((v * v).sum(axis=2))
+        np.multiply(speed[:, None, :], (0.5 * (tb - ta))[:, None], out=X[:, :, J:])
+        X[:, :, J:] += R
+        radius = self._buf("acc_r", (H, K, self.skeleton.n_parts))
+        np.maximum(X[:, :, self.acc_ia], X[:, :, self.acc_ib], out=radius)
+        radius += p.half_thickness_m
+        # Centres (H, K, 3, J, 3): joint positions at tau_a, mid and tau_b.
+        C = self._buf("acc_c", (H, K, 3, J, 3))
+        np.multiply(v[:, None, None], times[None, :, :, None, None], out=C)
+        C += y[:, None, None]
+        ends = C.reshape(H, K, 3 * J, 3)[:, :, self.acc_ends]
+        return Occupancy("acc", ends, radius, self.part_names)
 
     def pos(self, y: np.ndarray, t_end_s: np.ndarray) -> Occupancy:
         """R_POS: per limb a ball at its root joint (shoulder or hip) of radius
@@ -211,44 +277,20 @@ class HumanReach:
         adds a single delta_y). Sound when the root's speed stays below its v_max and the limb
         lengths are rigid.
         """
-        p = self.params
-        sk = self.skeleton
-        tau = np.asarray(t_end_s, dtype=float) + p.delay_s
-        lengths = np.zeros((y.shape[0], len(sk.limb_chains)))
-        for i, chain in enumerate(sk.limb_chains):
-            seg = y[:, list(chain[1:])] - y[:, list(chain[:-1])]
-            lengths[:, i] = np.linalg.norm(seg, axis=-1).sum(axis=-1)
-        n_seg = np.array([len(c) - 1 for c in sk.limb_chains])
-        r_limb = (
-            p.v_max_mps[self.limb_root][None, None] * tau[None, :, None]
-            + lengths[:, None]
-            + self.limb_half_th
-            + (1 + 2 * n_seg) * p.delta_y_m
-        )  # (H, K, n_limbs)
-        centre = y[:, self.limb_root]  # (H, n_limbs, 3)
+        tau = t_end_s + self.params.delay_s
         H, K = y.shape[0], tau.shape[0]
-        limb_ends = np.broadcast_to(centre[:, None, :, None], (H, K, len(self.limb_root), 2, 3))
-        core = self.vel(y, t_end_s)
-        ends = np.concatenate([limb_ends, core.ends[:, :, self.limb_pos_parts]], axis=2)
-        radius = np.concatenate([r_limb, core.radius[:, :, self.limb_pos_parts]], axis=2)
-        return Occupancy("pos", ends, radius, self.pos_names)
-
-    def iso13855(self, y: np.ndarray, t_end_s: np.ndarray) -> Occupancy:
-        """ISO 13855 expansion (seed 000 Sec. III-A): every body part's capsule at the measured
-        pose, radius iso_radius + delta_y + v_iso tau. Sound when no point moves faster than
-        v_iso (1.6 m/s upper body, 2.0 m/s full body): real fast motion breaks this (seed 000).
-        """
-        p = self.params
-        tau = np.asarray(t_end_s, dtype=float) + p.delay_s
-        radius = p.iso_radius_m[None, :] + p.delta_y_m + p.iso_v_max_mps * tau[:, None]
-        ends = np.stack([y[:, self.ja], y[:, self.jb]], axis=2)
-        H, K = y.shape[0], tau.shape[0]
-        return Occupancy(
-            "iso13855",
-            np.broadcast_to(ends[:, None], (H, K) + ends.shape[1:]),
-            np.broadcast_to(radius[None], (H, K, radius.shape[1])),
-            self.part_names,
-        )
+        seg = y[:, self.pos_seg_b] - y[:, self.pos_seg_a]
+        seg *= seg
+        lengths = np.sqrt(seg.sum(axis=2)) @ self.pos_sum  # (H, L)
+        C = self.pos_ends.shape[0]
+        radius = self._buf("pos_r", (H, K, C))
+        np.multiply(tau[:, None], self.pos_rspeed, out=radius[0])
+        radius[0] += self.pos_rbase
+        radius[1:] = radius[0]
+        radius[:, :, : self.n_limbs] += lengths[:, None, :]
+        ends = self._buf("pos_e", (H, C, 2, 3))
+        np.take(y, self.pos_ends, axis=1, out=ends)
+        return Occupancy("pos", ends[:, None], radius, self.pos_names)
 
     def model(
         self,
@@ -263,19 +305,27 @@ class HumanReach:
         t_start_s, t_end_s = check_intervals(t_start_s, t_end_s)
         y = self.check_positions(y)
         if name == "vel":
-            return self.vel(y, t_end_s)
-        if name == "pos":
-            return self.pos(y, t_end_s)
-        if name == "iso13855":
-            return self.iso13855(y, t_end_s)
-        if name == "acc":
+            o = self.vel(y, t_end_s)
+        elif name == "pos":
+            o = self.pos(y, t_end_s)
+        elif name == "iso13855":
+            o = self.iso13855(y, t_end_s)
+        elif name == "acc":
             v, dv = self.check_velocities(y, v, dv)
-            return self.acc(y, v, dv, t_start_s, t_end_s)
-        if name == "arm":
+            o = self.acc(y, v, dv, t_start_s, t_end_s)
+        elif name == "arm":
             from sara_app.human.arm import arm_occupancy
 
-            return arm_occupancy(self, y, t_start_s, t_end_s)
-        raise UnknownNameError("reachability model", name, MODELS)
+            o = arm_occupancy(self, y, t_start_s, t_end_s)
+        else:
+            raise UnknownNameError("reachability model", name, MODELS)
+        H, K, C = y.shape[0], t_end_s.shape[0], len(o.names)
+        return Occupancy(
+            o.model,
+            np.array(np.broadcast_to(o.ends, (H, K, C, 2, 3))),
+            np.array(np.broadcast_to(o.radius, (H, K, C))),
+            o.names,
+        )
 
     def check_velocities(
         self, y: np.ndarray, v: np.ndarray | None, dv: np.ndarray | None

@@ -1,0 +1,205 @@
+"""Offline analysis commands on recordings: capsules to JSONL, containment, volumes, calibration.
+
+Printing and file formats live here; the measurements are in ``analysis.py`` and
+``calibrate.py``.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TextIO
+
+import numpy as np
+
+from sara_app.human.analysis import Containment, containment, mean_volume, occupancies
+from sara_app.human.calibrate import CalibrationReport, calibrate
+from sara_app.human.params import ParamSet, load_param_set, save_param_set, to_reach_params
+from sara_app.human.reach import MODELS, HumanReach
+from sara_app.human.recordings import Recording, load_recording
+
+
+def write_jsonl(
+    reach: HumanReach,
+    rec: Recording,
+    horizon_s: float,
+    out: TextIO,
+    models: Sequence[str] = MODELS,
+) -> int:
+    """One JSON line per frame and model: the capsules for [0, horizon] after that frame.
+
+    ``{"frame": i, "t_s": t, "model": m, "horizon_s": h, "params": name, "capsules":
+    [{"part": name, "p1": [x, y, z], "p2": [x, y, z], "radius": r}, ...]}`` (metres, world frame).
+    Returns the number of lines written.
+    """
+    occ = occupancies(
+        reach, rec.times_s, rec.positions_m, np.zeros(1), np.array([horizon_s]), tuple(models)
+    )
+    n = 0
+    for i in range(rec.n_frames):
+        for m in models:
+            o = occ[m]
+            caps = [
+                {
+                    "part": name,
+                    "p1": np.round(o.ends[i, 0, c, 0], 6).tolist(),
+                    "p2": np.round(o.ends[i, 0, c, 1], 6).tolist(),
+                    "radius": round(float(o.radius[i, 0, c]), 6),
+                }
+                for c, name in enumerate(o.names)
+            ]
+            line = {
+                "frame": i,
+                "t_s": round(float(rec.times_s[i]), 6),
+                "model": m,
+                "horizon_s": horizon_s,
+                "params": reach.params.name,
+                "capsules": caps,
+            }
+            out.write(json.dumps(line) + "\n")
+            n += 1
+    return n
+
+
+def format_containment(name: str, res: dict[str, Containment]) -> str:
+    lines = [f"containment on {name} (share of future joint positions inside the set):"]
+    for m, c in res.items():
+        lines.append(f"  {m:9s} {100 * c.share:8.3f} %  ({c.checked - c.contained} misses)")
+        if c.misses_per_joint:
+            worst = ", ".join(
+                f"{w.joint} at t={w.t_s:.3f}s +{w.dt_s:.3f}s by {100 * w.excess_m:.1f} cm"
+                for w in c.worst[:3]
+            )
+            per = ", ".join(f"{j}: {n}" for j, n in c.misses_per_joint.items())
+            lines.append(f"            misses per joint: {per}")
+            lines.append(f"            worst: {worst}")
+    return "\n".join(lines)
+
+
+def reach_command(
+    recording: str, horizon_s: float, params: str, out: Path | None, models: Sequence[str]
+) -> dict[str, Containment]:
+    rec = load_recording(recording)
+    ps = load_param_set(params)
+    reach = HumanReach(to_reach_params(ps, rec.kind))
+    if out is not None:
+        with open(out, "w") as f:
+            n = write_jsonl(reach, rec, horizon_s, f, models)
+        print(f"wrote {n} lines to {out}")
+    res = containment(reach, rec.times_s, rec.positions_m, horizon_s, tuple(models))
+    print(f"{rec.name}: {rec.n_frames} frames, parameters {ps.name!r}, horizon {horizon_s} s")
+    print(format_containment(rec.name, res))
+    vols = mean_volume(reach, rec.times_s, rec.positions_m, horizon_s, tuple(models))
+    print("mean set volume over [0, horizon] (Monte Carlo, 20 frames):")
+    for m, v in vols.items():
+        print(f"  {m:9s} {v:8.4f} m^3")
+    return res
+
+
+def volume_table(
+    recording: str,
+    params: str,
+    horizons: Sequence[float],
+    png: Path | None,
+    models: Sequence[str] = MODELS,
+) -> dict[str, list[float]]:
+    """Mean set volume per model and horizon (the trend of seed 001 Fig. 7), optional PNG."""
+    rec = load_recording(recording)
+    ps = load_param_set(params)
+    reach = HumanReach(to_reach_params(ps, rec.kind))
+    table: dict[str, list[float]] = {m: [] for m in models}
+    for h in horizons:
+        v = mean_volume(reach, rec.times_s, rec.positions_m, h, tuple(models))
+        for m in models:
+            table[m].append(v[m])
+    print(f"mean set volume [m^3] on {rec.name}, parameters {ps.name!r}")
+    print("horizon_s " + " ".join(f"{m:>9s}" for m in models))
+    for k, h in enumerate(horizons):
+        print(f"{h:9.3f} " + " ".join(f"{table[m][k]:9.4f}" for m in models))
+    if png is not None:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig, ax = plt.subplots(figsize=(6, 4))
+        for m in models:
+            ax.plot(horizons, table[m], marker="o", label=m)
+        ax.set_xlabel("horizon t_f [s]")
+        ax.set_ylabel("mean reachable-set volume [m$^3$]")
+        ax.set_title(f"{rec.name}: set volume vs. horizon ({ps.name})")
+        ax.set_yscale("log")
+        ax.grid(True, alpha=0.3, which="both")
+        ax.legend()
+        fig.tight_layout()
+        fig.savefig(png, dpi=120)
+        print(f"wrote {png}")
+    return table
+
+
+def format_calibration(rep: CalibrationReport) -> str:
+    lines = [f"calibrated bounds (horizon {rep.horizon_s} s) and the frames that drive them:"]
+    for j in rep.v_max:
+        dv = rep.drivers_v[j][0] if rep.drivers_v[j] else None
+        da = rep.drivers_a[j][0] if rep.drivers_a[j] else None
+        line = f"  {j:11s} v_max {rep.v_max[j]:6.2f} m/s  a_max {rep.a_max[j]:7.1f} m/s^2"
+        if dv:
+            line += f" | v by {dv.recording} t={dv.t_s:.3f}s +{dv.tau_s:.3f}s ({dv.value:.2f})"
+        if da:
+            line += f" | a by {da.recording} t={da.t_s:.3f}s +{da.tau_s:.3f}s ({da.value:.1f})"
+        lines.append(line)
+    lines.append(f"  ISO 13855 speed needed: {rep.iso_v_max:.2f} m/s")
+    lines.append(
+        f"  arm model: shoulder speed {rep.shoulder_v_max:.2f} m/s, "
+        f"rate limits x{rep.arm_scale:.2f}"
+    )
+    return "\n".join(lines)
+
+
+def calibrate_command(
+    recordings: Sequence[str], horizon_s: float, base: str, name: str, out: Path
+) -> tuple[ParamSet, CalibrationReport]:
+    recs = [load_recording(r) for r in recordings]
+    ps, rep = calibrate(load_param_set(base), recs, horizon_s, name)
+    print(format_calibration(rep))
+    summary = {}
+    for rec in recs:
+        for label, pset in (("base", load_param_set(base)), ("calibrated", ps)):
+            reach = HumanReach(to_reach_params(pset, rec.kind))
+            res = containment(reach, rec.times_s, rec.positions_m, horizon_s)
+            misses = {m: c.checked - c.contained for m, c in res.items()}
+            print(
+                f"  {rec.name} with {label} set: "
+                + ", ".join(
+                    f"{m} {100 * c.share:.4f}% ({misses[m]} misses)" for m, c in res.items()
+                )
+            )
+            if label == "calibrated":
+                summary[rec.name] = misses
+    sound = [m for m in MODELS if all(s[m] == 0 for s in summary.values())]
+    # The hand ball is centred at the wrist: its radius must reach the fingertips (seed 000's
+    # hand radius 0.205 m), which seed 001's 0.205 m thickness does not.
+    parts = dict(ps.body_parts)
+    for hand in ("l_hand", "r_hand"):
+        parts[hand] = parts[hand].model_copy(
+            update={"thickness_m": max(parts[hand].thickness_m, 0.41)}
+        )
+    ps = ps.model_copy(
+        update={
+            "body_parts": parts,
+            "description": (
+                f"Calibrated by `sara-app calibrate` on {', '.join(r.name for r in recs)} "
+                f"(horizon {horizon_s} s) from {base!r}: bounds widened until the models contain "
+                "the recordings. Bounds driven by single frames are listed by the command."
+            ),
+            "sound_for": {
+                "models": ", ".join(sound),
+                "misses_per_recording": json.dumps(summary),
+                "horizon_s": str(horizon_s),
+            },
+        }
+    )
+    save_param_set(ps, out)
+    print(f"wrote parameter set {name!r} to {out}; models sound on these recordings: {sound}")
+    return ps, rep

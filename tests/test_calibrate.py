@@ -1,0 +1,80 @@
+"""Calibration widens bounds exactly enough to contain a recording, and names its drivers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sara_app.human.analysis import containment
+from sara_app.human.calibrate import calibrate, fit_velocity
+from sara_app.human.params import load_param_set, to_reach_params
+from sara_app.human.reach import HumanReach
+from sara_app.human.recordings import Recording
+from sara_app.human.skeleton import FULL_JOINTS
+
+
+def _synthetic(speed_mps: float, glitch: bool = False) -> Recording:
+    """A standing figure whose right wrist oscillates with peak speed ``speed_mps``."""
+    t = np.arange(0, 2.0, 1 / 120)
+    base = np.array(
+        [
+            [0, 0, 1.65],
+            [0, 0, 1.45],
+            [0, 0, 0.95],
+            [-0.18, 0, 1.42],
+            [0.18, 0, 1.42],
+            [-0.2, 0.05, 1.13],
+            [0.2, 0.05, 1.13],
+            [-0.2, 0.25, 1.0],
+            [0.22, 0.28, 1.02],
+            [-0.1, 0, 0.92],
+            [0.1, 0, 0.92],
+            [-0.1, 0.02, 0.5],
+            [0.1, 0.02, 0.5],
+            [-0.1, 0, 0.08],
+            [0.1, 0, 0.08],
+        ]
+    )
+    y = np.repeat(base[None], len(t), axis=0)
+    w = 2 * np.pi * 2.0
+    y[:, 8, 1] += speed_mps / w * np.sin(w * t)
+    if glitch:
+        y[100, 8, 2] += 0.2  # one frame of tracking glitch
+    return Recording("synthetic", "full", t, y, "test")
+
+
+def test_fit_velocity_finds_the_peak_speed_and_its_frame() -> None:
+    rec = _synthetic(3.0)
+    v, drivers = fit_velocity([rec], FULL_JOINTS, 0.0, 0.3)
+    j = FULL_JOINTS.index("r_wrist")
+    assert v[j] == pytest.approx(3.0, rel=0.01)
+    assert v[0] == 0.0  # the head does not move
+    # the fastest crossing of the centre is at t = k/4 s (zero phase, every half period)
+    assert min(abs(drivers[j][0].t_s - k / 4) for k in range(8)) < 0.03
+
+
+def test_glitch_frame_is_reported_as_driver() -> None:
+    rec = _synthetic(1.0, glitch=True)
+    _, drivers = fit_velocity([rec], FULL_JOINTS, 0.004, 0.3)
+    j = FULL_JOINTS.index("r_wrist")
+    assert any(
+        abs(d.t_s - rec.times_s[100]) < 1e-9 or abs(d.t_s + d.tau_s - rec.times_s[100]) < 1e-9
+        for d in drivers[j]
+    )
+
+
+def test_calibrated_set_contains_what_the_base_set_misses() -> None:
+    rec = _synthetic(3.5)
+    base = load_param_set("seed001_table1")
+    before = containment(
+        HumanReach(to_reach_params(base, "full")), rec.times_s, rec.positions_m, 0.3
+    )
+    assert before["vel"].share < 1.0 and before["iso13855"].share < 1.0
+    ps, rep = calibrate(base, [rec], 0.3, "synthetic_fit")
+    after = containment(HumanReach(to_reach_params(ps, "full")), rec.times_s, rec.positions_m, 0.3)
+    for m, res in after.items():
+        assert res.share == 1.0, (m, res.worst[:2])
+    # delta_y absorbs part of the displacement over one frame, so the need is below the peak
+    assert 3.0 < ps.joints["r_wrist"].v_max_mps < 3.6
+    assert ps.joints["head"].v_max_mps == base.joints["head"].v_max_mps  # never tightened
+    assert rep.drivers_v["r_wrist"]

@@ -1,0 +1,49 @@
+"""The offline commands run end to end on a small CSV recording."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from sara_app.cli import main
+from sara_app.human.recordings import Recording, save_csv
+from sara_app.human.skeleton import FULL_JOINTS
+
+
+def _csv(tmp_path):
+    t = np.arange(0, 0.5, 1 / 60)
+    base = np.linspace([0, 0, 0.1], [0.3, 0.2, 1.7], len(FULL_JOINTS))
+    y = base[None] + 0.3 * np.sin(2 * np.pi * t)[:, None, None] * np.array([1.0, 0, 0])
+    path = tmp_path / "h.csv"
+    save_csv(Recording("h", "full", t, y, "test"), path)
+    return path
+
+
+def test_reach_writes_jsonl_and_reports(tmp_path, capsys) -> None:
+    out = tmp_path / "caps.jsonl"
+    assert main(["reach", str(_csv(tmp_path)), "--horizon", "0.1", "--out", str(out)]) == 0
+    lines = [json.loads(x) for x in out.read_text().splitlines()]
+    assert len(lines) == 30 * 5
+    first = lines[0]
+    assert set(first) == {"frame", "t_s", "model", "horizon_s", "params", "capsules"}
+    cap = first["capsules"][0]
+    assert len(cap["p1"]) == 3 and cap["radius"] > 0
+    text = capsys.readouterr().out
+    assert "containment" in text and "vel" in text and "m^3" in text
+
+
+def test_bad_recording_is_a_clear_error(tmp_path, capsys) -> None:
+    bad = tmp_path / "bad.csv"
+    bad.write_text("time_s,head_x\n0,1\n")
+    assert main(["reach", str(bad)]) == 2
+    assert "error:" in capsys.readouterr().err
+
+
+def test_calibrate_writes_a_loadable_set(tmp_path) -> None:
+    from sara_app.human.params import load_param_set
+
+    out = tmp_path / "fit.json"
+    assert main(["calibrate", str(_csv(tmp_path)), "--horizon", "0.1", "--out", str(out)]) == 0
+    ps = load_param_set(out)
+    assert ps.name == "cmu_calibrated" and ps.sound_for["models"]
