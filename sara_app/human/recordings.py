@@ -215,6 +215,10 @@ def validate(rec: Recording) -> None:
 _CMU_SUBDIR = Path("shared") / "data" / "cmu_mocap"
 
 
+# The CMU walk 02_01 ships with the package (see its README) for machines without shared/.
+PACKAGED_DATA_DIR = Path(__file__).resolve().parent.parent / "data" / "cmu"
+
+
 def shared_data_dir() -> Path:
     """The folder with the CMU motion capture files.
 
@@ -781,14 +785,12 @@ def load_recording(path_or_name: str | os.PathLike[str]) -> Recording:
             [p] if p.suffix.lower() in _SUFFIXES else [p.with_name(p.name + s) for s in _SUFFIXES]
         )
         try:
-            base = shared_data_dir()
+            bases = [shared_data_dir(), PACKAGED_DATA_DIR]
         except RecordingError:
-            base = None
-        if base is not None:
-            for c in cand:
-                if (base / c).is_file():
-                    p = base / c
-                    break
+            bases = [PACKAGED_DATA_DIR]
+        found = [b / c for b in bases for c in cand if (b / c).is_file()]
+        if found:
+            p = found[0]
     suffix = p.suffix.lower()
     if suffix not in _SUFFIXES:
         raise RecordingError(
