@@ -15,7 +15,12 @@ import numpy as np
 
 from sara_app.errors import InputError
 from sara_app.geometry import point_segment_distance, union_volume_mc
-from sara_app.human.arm import arm_coordinates, arm_occupancy, coordinate_uncertainty
+from sara_app.human.arm import (
+    arm_coordinates,
+    arm_occupancy,
+    coordinate_uncertainty,
+    frame_error,
+)
 from sara_app.human.reach import MODELS, HumanReach, Occupancy
 from sara_app.human.velocity import estimate_recording
 
@@ -88,7 +93,7 @@ def occupancies(
         elif m == "arm":
             idx = {j: i for i, j in enumerate(reach.skeleton.joints)}
             q, _ = arm_coordinates(y, idx)
-            dq = coordinate_uncertainty(q, p.delta_y_m)
+            dq = coordinate_uncertainty(q, p.delta_y_m, frame_error(y, idx, p.delta_y_m))
             a = p.arm
             amax = np.array([a.angle_a_max_rad_s2, a.angle_a_max_rad_s2, a.r_a_max_mps2])
             qd, bound = arm_velocities(times_s, q, dq, amax)

@@ -76,15 +76,37 @@ def arm_coordinates(y: np.ndarray, idx: dict[str, int]) -> tuple[np.ndarray, np.
     return q, medial
 
 
-def coordinate_uncertainty(q: np.ndarray, delta_y_m: float) -> np.ndarray:
+def frame_error(y: np.ndarray, idx: dict[str, int], delta_y_m: float) -> np.ndarray:
+    """Bound ``(H,)`` on the angle between the measured and the true torso frame.
+
+    z comes from neck - pelvis (each off by delta_y): off by beta_z = asin(2 delta_y / |n - p|);
+    x from the shoulders projected normal to z: off by beta_x = asin(2 delta_y / |across|) plus
+    beta_z; the frame as a whole by at most 2 beta_z + beta_x.
+    """
+
+    def ang(length: np.ndarray) -> np.ndarray:
+        ratio = 2.0 * delta_y_m / np.maximum(length, _TINY)
+        return np.where(ratio < 1.0, np.arcsin(np.minimum(ratio, 1.0)), np.pi)
+
+    spine = np.linalg.norm(y[:, idx["neck"]] - y[:, idx["pelvis"]], axis=-1)
+    across = np.linalg.norm(y[:, idx["r_shoulder"]] - y[:, idx["l_shoulder"]], axis=-1)
+    return np.minimum(2.0 * ang(spine) + ang(across), np.pi)
+
+
+def coordinate_uncertainty(
+    q: np.ndarray, delta_y_m: float, frame_err: np.ndarray | None = None
+) -> np.ndarray:
     """Bound ``(H, 2, 3)`` on the error of (phi, theta, r) when S, E, W are off by delta_y.
 
     m - S is off by at most 2 delta_y, so r by 2 delta_y and the direction by
-    gamma = asin(2 delta_y / r); theta by gamma and phi by gamma / min sin(theta +- gamma).
+    gamma = asin(2 delta_y / r) plus the torso frame's error ``frame_err (H,)``; theta by gamma
+    and phi by gamma / min sin(theta +- gamma).
     """
     eps = 2.0 * delta_y_m
     r, theta = q[..., 2], q[..., 1]
     gamma = np.where(r > eps, np.arcsin(np.minimum(eps / np.maximum(r, _TINY), 1.0)), np.pi)
+    if frame_err is not None:
+        gamma = np.minimum(gamma + frame_err[:, None], np.pi)
     lo, hi = theta - gamma, theta + gamma
     min_sin = np.where((lo <= 0) | (hi >= np.pi), 0.0, np.minimum(np.sin(lo), np.sin(hi)))
     dphi = np.where(min_sin > _TINY, np.minimum(gamma / np.maximum(min_sin, _TINY), np.pi), np.pi)
@@ -155,7 +177,8 @@ def arm_occupancy(
     idx = {j: i for i, j in enumerate(sk.joints)}
     tau = np.asarray(t_end_s, dtype=float) + p.delay_s  # (K,)
     q, medial = arm_coordinates(y, idx)
-    dq = coordinate_uncertainty(q, p.delta_y_m)
+    f_err = frame_error(y, idx, p.delta_y_m)
+    dq = coordinate_uncertainty(q, p.delta_y_m, f_err)
     H, K = y.shape[0], tau.shape[0]
     ends = np.empty((H, K, 2, 2, 3))
     radius = np.empty((H, K, 2))
@@ -193,7 +216,9 @@ def arm_occupancy(
         np.cos(phi_c)[..., None] * dn + np.sin(phi_c)[..., None] * fw
     )
     c = np.where(full[..., None], m, c)
-    alpha = alpha + p.arm.base_rotation_rad_s * tau[None, :, None]
+    # Base rotation since the measurement, and the measured frame's own error (the cone is
+    # mapped to the world with the measured frame).
+    alpha = alpha + p.arm.base_rotation_rad_s * tau[None, :, None] + f_err[:, None, None]
     r_hi = hi[..., 2]
     grow = p.delta_y_m + p.arm.shoulder_v_max_mps * tau[None, :, None]
     r_sh = np.stack([p.half_thickness_m[sk.part_index(f"{s[0]}_upper_arm")] for s in ARMS])
