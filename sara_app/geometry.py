@@ -205,6 +205,9 @@ def segment_box_distance(
 def capsule_box_distances(
     ends: np.ndarray, radius_m: np.ndarray, T_world_box: np.ndarray, half_extents_m: np.ndarray
 ) -> np.ndarray:
-    """Surface distances of capsules ``(N, 2, 3), (N,)`` to boxes ``(B, 4, 4), (B, 3)``: ``(N, B)``."""
+    """Surface distances of capsules ``(N, 2, 3), (N,)`` to boxes ``(B, 4, 4), (B, 3)``.
+
+    Returns ``(N, B)``.
+    """
     axis = segment_box_distance(ends[:, None], T_world_box[None], half_extents_m[None])
     return axis - radius_m[:, None]
