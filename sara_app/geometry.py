@@ -11,6 +11,10 @@ from __future__ import annotations
 import numpy as np
 
 _EPS = 1e-12
+# Segments whose directions have sin^2(angle) below this are handled as parallel. The error of
+# the parallel branch is about length * sin(angle) (<= 1e-12 of the segment length here); above
+# it, the cross-product form of the closest-point formula is accurate to round-off.
+_PARALLEL_SIN2 = 1e-24
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -22,7 +26,9 @@ def point_segment_distance(points: np.ndarray, ends: np.ndarray) -> np.ndarray:
     p0, p1 = ends[..., 0, :], ends[..., 1, :]
     d = p1 - p0
     dd = _dot(d, d)
-    s = np.clip(_dot(points - p0, d) / np.maximum(dd, _EPS), 0.0, 1.0)
+    # Only an exactly degenerate segment is a point; a short one is still projected onto (a
+    # clamp such as max(dd, eps) would leave s short of the true parameter by up to its length).
+    s = np.clip(_dot(points - p0, d) / np.where(dd > 0.0, dd, 1.0), 0.0, 1.0)
     closest = p0 + s[..., None] * d
     return np.linalg.norm(points - closest, axis=-1)
 
@@ -40,20 +46,26 @@ def segment_segment_closest(
     d1, d2, r = q1 - p1, q2 - p2, p1 - p2
     a, e = _dot(d1, d1), _dot(d2, d2)
     b, c, f = _dot(d1, d2), _dot(d1, r), _dot(d2, r)
-    denom = a * e - b * b
-    a_safe, e_safe = np.maximum(a, _EPS), np.maximum(e, _EPS)
+    # Only exactly degenerate segments are points: treating a short segment as its first end
+    # overestimates the distance by up to its length.
+    a_pos, e_pos = a > 0.0, e > 0.0
+    a_safe, e_safe = np.where(a_pos, a, 1.0), np.where(e_pos, e, 1.0)
+    # a e - b^2 = |d1 x d2|^2 and b f - c e = (d1 x d2) . (d2 x r) (Lagrange identity). The cross
+    # products avoid the cancellation of a e - b^2 for nearly parallel segments.
+    n = np.cross(d1, d2)
+    denom = _dot(n, n)
     # Parallel (or degenerate) pairs: any s is optimal for the infinite lines; take s = 0 and
     # let the clamping below find the best t and then the best s.
-    general = denom > _EPS * np.maximum(a * e, _EPS)
-    s = np.where(general, (b * f - c * e) / np.where(general, denom, 1.0), 0.0)
-    s = np.clip(np.where(a > _EPS, s, 0.0), 0.0, 1.0)
+    general = denom > _PARALLEL_SIN2 * a * e
+    s = np.where(general, _dot(n, np.cross(d2, r)) / np.where(general, denom, 1.0), 0.0)
+    s = np.clip(np.where(a_pos, s, 0.0), 0.0, 1.0)
     # A point segment b (e = 0): t = -1 sends it through the clamp branch, s = clip(-c / a).
-    t = np.where(e > _EPS, (b * s + f) / e_safe, -1.0)
+    t = np.where(e_pos, (b * s + f) / e_safe, -1.0)
     # t outside [0, 1]: clamp it and recompute s for the clamped t.
     t_clamped = np.clip(t, 0.0, 1.0)
     s = np.where(
         t != t_clamped,
-        np.where(a > _EPS, np.clip((b * t_clamped - c) / a_safe, 0.0, 1.0), 0.0),
+        np.where(a_pos, np.clip((b * t_clamped - c) / a_safe, 0.0, 1.0), 0.0),
         s,
     )
     t = t_clamped
@@ -171,7 +183,8 @@ def segment_box_distance(
     R, p = T_world_box[..., :3, :3], T_world_box[..., :3, 3]
     a = np.einsum("...ji,...j->...i", R, ends[..., 0, :] - p)  # (..., 3) in box frame
     b = np.einsum("...ji,...j->...i", R, ends[..., 1, :] - p)
-    h = np.broadcast_to(half_extents_m, a.shape)
+    shape = np.broadcast_shapes(a.shape, np.shape(half_extents_m))
+    a, b, h = (np.broadcast_to(v, shape) for v in (a, b, half_extents_m))
     d = b - a
     d_safe = np.where(np.abs(d) > _EPS, d, _EPS)
     # Breakpoints s where a_i + s d_i = +-h_i, plus 0 and 1: (..., 8), sorted.
@@ -195,8 +208,8 @@ def segment_box_distance(
     act = sign * sign
     qa = np.sum(act * d[..., None, :] ** 2, axis=-1)
     qb = np.sum(act * off * d[..., None, :], axis=-1)
-    s_star = np.clip(-qb / np.maximum(qa, _EPS), lo, hi)
-    s_star = np.where(qa > _EPS, s_star, lo)
+    # qa = 0 only where f is constant on the piece; a tiny qa still has an interior minimum.
+    s_star = np.where(qa > 0.0, np.clip(-qb / np.where(qa > 0.0, qa, 1.0), lo, hi), lo)
     x = a[..., None, :] + s_star[..., None] * d[..., None, :]
     excess = np.maximum(np.abs(x) - h[..., None, :], 0.0)
     return np.sqrt(np.min(np.sum(excess**2, axis=-1), axis=-1))
