@@ -126,15 +126,15 @@ def containment(
     n_off = max(1, int(np.floor(horizon_s / dt + 1e-9)))
     offsets = np.arange(1, n_off + 1)
     T = y.shape[0]
-    # Use each frame's actual future times; offsets index frames, tau uses the median period
-    # only to size the batch. Exact per-frame taus are applied below by a per-frame model call
-    # when the recording is not uniformly sampled.
-    uniform = np.allclose(np.diff(times_s), dt, rtol=1e-6, atol=1e-9)
+    # Future frames are indexed by offset, so every frame must be one period apart.
+    if not np.allclose(np.diff(times_s), dt, rtol=1e-6, atol=1e-9):
+        raise InputError(
+            f"containment needs a uniformly sampled recording; frame periods range from "
+            f"{np.diff(times_s).min():.6f} to {np.diff(times_s).max():.6f} s: resample it first"
+        )
     taus = offsets * dt
     results: dict[str, Containment] = {}
-    occ = occupancies(reach, times_s, y, taus, taus, models) if uniform else None
-    if occ is None:  # non-uniform: frame-by-frame with exact times
-        occ = _occupancies_nonuniform(reach, times_s, y, offsets, models)
+    occ = occupancies(reach, times_s, y, taus, taus, models)
     names = reach.skeleton.joints
     for m in models:
         o = occ[m]
@@ -169,19 +169,6 @@ def containment(
             )
         results[m] = res
     return results
-
-
-def _occupancies_nonuniform(
-    reach: HumanReach,
-    times_s: np.ndarray,
-    y: np.ndarray,
-    offsets: np.ndarray,
-    models: tuple[str, ...],
-) -> dict[str, Occupancy]:
-    raise InputError(
-        f"containment needs a uniformly sampled recording; frame periods range from "
-        f"{np.diff(times_s).min():.6f} to {np.diff(times_s).max():.6f} s: resample it first"
-    )
 
 
 def mean_volume(
