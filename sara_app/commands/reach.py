@@ -1,0 +1,64 @@
+"""Offline human-reach commands: ``reach``, ``volumes``, ``calibrate``."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from sara_app.human.reach import MODELS
+
+
+def _models(text: str) -> list[str]:
+    names = [m.strip() for m in text.split(",") if m.strip()]
+    bad = [m for m in names if m not in MODELS]
+    if bad:
+        raise argparse.ArgumentTypeError(f"unknown model {bad[0]!r}; valid: {', '.join(MODELS)}")
+    return names
+
+
+def _reach(args: argparse.Namespace) -> None:
+    from sara_app.human.report import reach_command
+
+    reach_command(args.recording, args.horizon, args.params, args.out, args.models)
+
+
+def _volumes(args: argparse.Namespace) -> None:
+    from sara_app.human.report import volume_table
+
+    hs = [float(h) for h in args.horizons.split(",")]
+    volume_table(args.recording, args.params, hs, args.png)
+
+
+def _calibrate(args: argparse.Namespace) -> None:
+    from sara_app.human.report import calibrate_command
+
+    calibrate_command(args.recordings, args.horizon, args.base, args.name, args.out)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    r = sub.add_parser("reach", help="reachable capsules per frame of a recording (JSONL) + report")
+    r.add_argument(
+        "recording", help="a .amc (with its .asf beside it), a .csv, or a CMU trial name like 02_01"
+    )
+    r.add_argument(
+        "--horizon", type=float, default=0.3, help="seconds after each frame (default 0.3)"
+    )
+    r.add_argument("--params", default="seed001_table1", help="parameter set name or JSON path")
+    r.add_argument("--models", type=_models, default=list(MODELS), help="comma-separated")
+    r.add_argument("--out", type=Path, default=None, help="JSONL file of capsules")
+    r.set_defaults(run=_reach)
+
+    v = sub.add_parser("volumes", help="set volume per model vs horizon (table + PNG)")
+    v.add_argument("recording")
+    v.add_argument("--params", default="seed001_table1")
+    v.add_argument("--horizons", default="0.05,0.1,0.15,0.2,0.3,0.4,0.5")
+    v.add_argument("--png", type=Path, default=None)
+    v.set_defaults(run=_volumes)
+
+    c = sub.add_parser("calibrate", help="fit per-joint bounds so the models contain recordings")
+    c.add_argument("recordings", nargs="+")
+    c.add_argument("--horizon", type=float, default=0.5)
+    c.add_argument("--base", default="seed001_table1")
+    c.add_argument("--name", default="cmu_calibrated")
+    c.add_argument("--out", type=Path, required=True)
+    c.set_defaults(run=_calibrate)
