@@ -1,0 +1,171 @@
+"""Decoding of bus payloads: validate, count rejections by reason, never raise into a loop.
+
+- ``decode(key, payload) -> Decoded`` is stateless and raises ``MessageError`` (an InputError
+  with a ``reason``) for a bad message: for tools and tests.
+- ``Decoder().decode(key, payload) -> Decoded | None`` is what loops use: it never raises; a bad
+  message returns None, increments ``counts[reason]`` and is logged (rate-limited: the 1st, 2nd,
+  4th, 8th ... of each reason). It also rejects, per key (one key = one publisher), a message
+  whose ``seq`` is not above the last accepted one as ``'out_of_order'`` (duplicates and stale
+  reorderings), except a publisher restart: ``seq`` lower but ``stamp_s`` newer than the last
+  accepted stamp by ``restart_after_s`` or more (counted in ``restarts``). Skipped seq numbers
+  of accepted messages add up in ``missed`` (lost in transport or dropped by a full channel).
+
+Reasons (``REASONS``): too_large, bad_key, malformed_json, non_finite, schema_version,
+missing_field, unknown_field, unknown_source, unknown_joint, missing_joint, unknown_frame,
+inconsistent_length, invalid, key_mismatch, out_of_order, internal.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from typing import NamedTuple
+
+from pydantic import ValidationError
+
+from sara_app.bus.keys import ParsedKey, parse_key
+from sara_app.bus.messages import MODELS_BY_KIND, SCHEMA_VERSION, Message
+from sara_app.errors import InputError
+
+MAX_PAYLOAD_BYTES = 4 * 1024 * 1024
+MAX_TRACKED_KEYS = 4096
+REASONS: tuple[str, ...] = (
+    "too_large",
+    "bad_key",
+    "malformed_json",
+    "non_finite",
+    "schema_version",
+    "missing_field",
+    "unknown_field",
+    "unknown_source",
+    "unknown_joint",
+    "missing_joint",
+    "unknown_frame",
+    "inconsistent_length",
+    "invalid",
+    "key_mismatch",
+    "out_of_order",
+    "internal",
+)
+# pydantic error type -> reason; custom error types of messages.py pass through when listed.
+_ERROR_REASON = {"missing": "missing_field", "extra_forbidden": "unknown_field"}
+_ERROR_REASON.update({"finite_number": "non_finite"})
+
+log = logging.getLogger("sara_app.bus")
+
+
+class MessageError(InputError):
+    """A payload that is not a valid message; ``reason`` is one of ``REASONS``."""
+
+    def __init__(self, reason: str, message: str) -> None:
+        self.reason = reason
+        super().__init__(f"{reason}: {message}")
+
+
+class Decoded(NamedTuple):
+    """A valid message, its parsed key and its reception time (``time.time()`` seconds)."""
+
+    key: ParsedKey
+    msg: Message
+    recv_s: float
+
+
+def _reject_constant(name: str) -> float:
+    raise MessageError("non_finite", f"JSON constant {name} is not allowed")
+
+
+def _validation_error(err: ValidationError) -> MessageError:
+    first = err.errors()[0]
+    kind = first["type"]
+    reason = kind if kind in REASONS else _ERROR_REASON.get(kind, "invalid")
+    where = ".".join(str(p) for p in first["loc"]) or "<message>"
+    return MessageError(reason, f"{where}: {first['msg']} ({err.error_count()} error(s))"[:500])
+
+
+def decode(key_expr: str, payload: bytes) -> Decoded:
+    """Validate one payload received on ``key_expr``; raise MessageError if it is bad."""
+    recv_s = time.time()
+    if len(payload) > MAX_PAYLOAD_BYTES:
+        raise MessageError("too_large", f"{len(payload)} bytes > {MAX_PAYLOAD_BYTES}")
+    try:
+        key = parse_key(key_expr)
+    except InputError as e:
+        raise MessageError("bad_key", str(e)) from None
+    try:
+        data = json.loads(payload, parse_constant=_reject_constant)
+    except (ValueError, RecursionError) as e:  # JSONDecodeError and UnicodeDecodeError
+        if isinstance(e, MessageError):
+            raise
+        raise MessageError("malformed_json", str(e)[:200]) from None
+    if not isinstance(data, dict):
+        raise MessageError("malformed_json", f"expected a JSON object, got {type(data).__name__}")
+    if "schema_version" not in data:
+        raise MessageError("missing_field", "schema_version is required")
+    version = data["schema_version"]
+    if type(version) is not int or version != SCHEMA_VERSION:
+        raise MessageError("schema_version", f"{version!r} unsupported; valid: {SCHEMA_VERSION}")
+    try:
+        msg = MODELS_BY_KIND[key.kind].model_validate(data)
+    except ValidationError as e:
+        raise _validation_error(e) from None
+    cell = getattr(msg, "cell", key.cell)
+    if cell != key.cell:
+        raise MessageError("key_mismatch", f"message cell {cell!r} on key {key_expr!r}")
+    return Decoded(key, msg, recv_s)  # type: ignore[arg-type]
+
+
+class Decoder:
+    """Stateful, never-raising decoder with per-reason counters and per-key seq tracking."""
+
+    def __init__(self, restart_after_s: float = 1.0, logger: logging.Logger = log) -> None:
+        self.restart_after_s = float(restart_after_s)
+        self.counts: dict[str, int] = {}
+        self.accepted = 0
+        self.restarts = 0
+        self.missed = 0  # seq numbers skipped by accepted messages (lost or dropped upstream)
+        self._last: dict[str, tuple[int, float]] = {}  # key -> (seq, stamp_s) last accepted
+        self._log = logger
+
+    @property
+    def rejected(self) -> int:
+        return sum(self.counts.values())
+
+    def decode(self, key_expr: str, payload: bytes) -> Decoded | None:
+        """The decoded message, or None (counted, logged) when it is rejected."""
+        try:
+            d = decode(key_expr, payload)
+            self._check_order(str(key_expr), d.msg.seq, d.msg.stamp_s)
+        except MessageError as e:
+            self._reject(e.reason, str(key_expr), str(e))
+            return None
+        except Exception as e:  # noqa: BLE001 - a bad message must never end the caller's loop
+            self._reject("internal", str(key_expr), repr(e))
+            return None
+        self.accepted += 1
+        return d
+
+    def reset(self, key_expr: str | None = None) -> None:
+        """Forget the last seq of one key (or of all keys)."""
+        if key_expr is None:
+            self._last.clear()
+        else:
+            self._last.pop(key_expr, None)
+
+    def _check_order(self, key_expr: str, seq: int, stamp_s: float) -> None:
+        last = self._last.get(key_expr)
+        if last is not None and seq <= last[0]:
+            if stamp_s < last[1] + self.restart_after_s:
+                raise MessageError("out_of_order", f"seq {seq} <= last {last[0]} on {key_expr}")
+            self.restarts += 1
+        elif last is not None:
+            self.missed += seq - last[0] - 1
+        elif last is None and len(self._last) >= MAX_TRACKED_KEYS:
+            self._last.pop(next(iter(self._last)))
+        self._last[key_expr] = (seq, stamp_s)
+
+    def _reject(self, reason: str, key_expr: str, text: str) -> None:
+        n = self.counts.get(reason, 0) + 1
+        self.counts[reason] = n
+        if n & (n - 1) == 0:  # 1, 2, 4, 8, ...: bounded log volume under a flood
+            self._log.warning("bus: rejected message #%d (%s) on %s: %s", n, reason, key_expr, text)

@@ -1,0 +1,154 @@
+"""Zenoh key expressions of a SaRA cell: every key in one place, built and parsed here.
+
+Key scheme version 1 (``KEY_SCHEME``), all under the root ``sara``:
+
+=========================================  ======  ================================================
+key                                        dir.    payload (``sara_app.bus.messages``)
+=========================================  ======  ================================================
+``sara/<cell>/human/<id>/skeleton``        in      ``SkeletonMsg``: one tracked human
+``sara/<cell>/robot/state``                in      ``RobotStateMsg``: measured robot (optional)
+``sara/<cell>/robot/command``              out     ``RobotCommandMsg``: the shielded set point
+``sara/<cell>/verdict``                    out     ``VerdictMsg``: one per control cycle
+``sara/<cell>/occupancy``                  out     ``OccupancyMsg``: sets for display, 10-20 Hz
+``sara/<cell>/params``                     in      ``ParamsMsg``: a full scenario / parameter update
+``sara/<cell>/params/ack``                 out     ``ParamsAckMsg``: the worker accepts or rejects
+``sara/<cell>/status``                     out     ``StatusMsg``: worker heartbeat, about 1 Hz
+=========================================  ======  ================================================
+
+"in"/"out" are seen from the cell worker. ``<cell>`` and ``<id>`` are names of 1-64 characters
+from ``[A-Za-z0-9_-]`` (no ``/``, no zenoh wildcards ``*``/``$``/``**``), see ``NAME_PATTERN``.
+
+API: ``skeleton_key(cell, human_id)``, ``robot_state_key(cell)`` ... ``status_key(cell)``, or
+``key(kind, cell, human_id=None)``; subscriptions: ``cell_keys(cell)`` (``sara/<cell>/**``),
+``skeleton_keys(cell)`` (``sara/<cell>/human/*/skeleton``), ``all_status_keys()``;
+``parse_key(key) -> ParsedKey(cell, kind, human_id)`` (raises ``InputError``);
+``check_name(what, name)`` validates a cell or human id.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Literal, NamedTuple, get_args
+
+from sara_app.errors import InputError, UnknownNameError
+
+KEY_SCHEME = 1
+ROOT = "sara"
+NAME_PATTERN = r"[A-Za-z0-9_-]{1,64}"
+_NAME_RE = re.compile(NAME_PATTERN)
+
+Kind = Literal[
+    "skeleton",
+    "robot_state",
+    "robot_command",
+    "verdict",
+    "occupancy",
+    "params",
+    "params_ack",
+    "status",
+]
+KINDS: tuple[str, ...] = get_args(Kind)
+
+# kind -> key suffix after ``sara/<cell>/`` (the skeleton's ``{id}`` is filled in).
+_SUFFIX: dict[str, str] = {
+    "skeleton": "human/{id}/skeleton",
+    "robot_state": "robot/state",
+    "robot_command": "robot/command",
+    "verdict": "verdict",
+    "occupancy": "occupancy",
+    "params": "params",
+    "params_ack": "params/ack",
+    "status": "status",
+}
+_BY_SUFFIX: dict[str, str] = {v: k for k, v in _SUFFIX.items() if "{id}" not in v}
+
+
+class ParsedKey(NamedTuple):
+    """A parsed key: its cell, its kind (one of ``KINDS``) and the human id (skeletons only)."""
+
+    cell: str
+    kind: str
+    human_id: str | None
+
+
+def check_name(what: str, name: object) -> str:
+    """Return ``name`` if it is a valid cell or human id, else raise InputError naming it."""
+    if not isinstance(name, str) or _NAME_RE.fullmatch(name) is None:
+        raise InputError(f"{what} {name!r} is not a valid name; expected {NAME_PATTERN}")
+    return name
+
+
+def key(kind: str, cell: str, human_id: str | None = None) -> str:
+    """The key expression of ``kind`` for ``cell`` (``human_id`` required for skeletons only)."""
+    if kind not in _SUFFIX:
+        raise UnknownNameError("message kind", kind, KINDS)
+    check_name("cell", cell)
+    suffix = _SUFFIX[kind]
+    if kind == "skeleton":
+        suffix = suffix.format(id=check_name("human id", human_id))
+    elif human_id is not None:
+        raise InputError(f"a {kind} key takes no human id; got {human_id!r}")
+    return f"{ROOT}/{cell}/{suffix}"
+
+
+def skeleton_key(cell: str, human_id: str) -> str:
+    return key("skeleton", cell, human_id)
+
+
+def robot_state_key(cell: str) -> str:
+    return key("robot_state", cell)
+
+
+def robot_command_key(cell: str) -> str:
+    return key("robot_command", cell)
+
+
+def verdict_key(cell: str) -> str:
+    return key("verdict", cell)
+
+
+def occupancy_key(cell: str) -> str:
+    return key("occupancy", cell)
+
+
+def params_key(cell: str) -> str:
+    return key("params", cell)
+
+
+def params_ack_key(cell: str) -> str:
+    return key("params_ack", cell)
+
+
+def status_key(cell: str) -> str:
+    return key("status", cell)
+
+
+def cell_keys(cell: str) -> str:
+    """Every key of one cell: ``sara/<cell>/**``."""
+    return f"{ROOT}/{check_name('cell', cell)}/**"
+
+
+def skeleton_keys(cell: str) -> str:
+    """Every human's skeleton key of one cell: ``sara/<cell>/human/*/skeleton``."""
+    return f"{ROOT}/{check_name('cell', cell)}/human/*/skeleton"
+
+
+def all_status_keys() -> str:
+    """The status keys of every cell: ``sara/*/status``."""
+    return f"{ROOT}/*/status"
+
+
+def parse_key(key_expr: str) -> ParsedKey:
+    """Parse a concrete key (no wildcards) into ``ParsedKey``; InputError if it is not ours."""
+    parts = str(key_expr).split("/")
+    if len(parts) < 3 or parts[0] != ROOT:
+        raise InputError(f"key {key_expr!r} is not a {ROOT}/<cell>/... key")
+    cell = check_name("cell", parts[1])
+    rest = parts[2:]
+    if len(rest) == 3 and rest[0] == "human" and rest[2] == "skeleton":
+        return ParsedKey(cell, "skeleton", check_name("human id", rest[1]))
+    kind = _BY_SUFFIX.get("/".join(rest))
+    if kind is None:
+        valid = ", ".join(_SUFFIX.values())
+        raise InputError(f"key {key_expr!r}: unknown suffix {'/'.join(rest)!r}; valid: {valid}")
+    return ParsedKey(cell, kind, None)

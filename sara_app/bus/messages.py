@@ -1,0 +1,352 @@
+"""JSON message schemas of a SaRA cell (schema version 1) and their validated models.
+
+Every message is a JSON object with ``schema_version`` (int, ``SCHEMA_VERSION``), ``seq``
+(int >= 0, strictly increasing per publisher and key) and ``stamp_s`` (float: the producer's
+sensor or computation time, seconds of the shared wall clock ``time.time()``). Numbers must be
+finite (no NaN, no Infinity), unknown fields are refused, list lengths must be consistent.
+``MODELS_BY_KIND`` maps each key kind of ``sara_app.bus.keys`` to its model.
+
+Decoding (``sara_app.bus.codec``) validates against these models and counts every rejection by
+reason; ``encode(msg) -> bytes`` is the inverse.
+
+Skeletons: ``joints`` maps the point names of the declared ``source`` (a source of
+``sara_app.human.skeleton.SOURCES``) to ``[x, y, z]`` metres in frame ``world``. Every point the
+source's mapping uses is required; a name outside the source's point set is refused.
+``SkeletonMsg.to_arrays()`` gives the ``(J, 3)`` arrays in the skeleton kind's joint order.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic_core import PydanticCustomError
+
+from sara_app.bus.keys import NAME_PATTERN
+from sara_app.human.skeleton import COCO17_NAMES, SOURCES, from_source, skeleton
+
+SCHEMA_VERSION = 1
+
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+NonNeg = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+Vec3 = Annotated[list[Finite], Field(min_length=3, max_length=3)]
+Name = Annotated[str, Field(pattern=f"^{NAME_PATTERN}$")]
+JointVector = Annotated[list[Finite], Field(min_length=1, max_length=64)]
+Mode = Literal["intended", "failsafe", "rest", "fault"]
+
+# Point names a source may send beyond those its mapping uses (accepted, not required).
+_OPTIONAL_POINTS: dict[str, tuple[str, ...]] = {"coco17": COCO17_NAMES}
+
+
+def source_points(source: str) -> tuple[frozenset[str], frozenset[str]]:
+    """(required, allowed) point names of a skeleton source."""
+    required = frozenset(n for names in SOURCES[source][1].values() for n in names)
+    return required, required | frozenset(_OPTIONAL_POINTS.get(source, ()))
+
+
+def _fail(kind: str, message: str) -> PydanticCustomError:
+    return PydanticCustomError(kind, message)
+
+
+class _Msg(BaseModel):
+    model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
+
+    schema_version: Literal[1] = 1
+    seq: Annotated[int, Field(ge=0, le=2**63 - 1)]
+    stamp_s: NonNeg
+
+
+class SkeletonMsg(_Msg):
+    """One tracked human at ``stamp_s`` (key ``sara/<cell>/human/<id>/skeleton``)."""
+
+    frame: str = "world"
+    source: str
+    joints: dict[str, Vec3]
+    velocities: dict[str, Vec3] | None = None
+    position_uncertainty_m: NonNeg | None = None
+    velocity_uncertainty_mps: NonNeg | None = None
+
+    @field_validator("frame")
+    @classmethod
+    def _frame(cls, v: str) -> str:
+        if v != "world":
+            raise _fail("unknown_frame", f"frame {v!r} is not supported; valid: world")
+        return v
+
+    @field_validator("source")
+    @classmethod
+    def _source(cls, v: str) -> str:
+        if v not in SOURCES:
+            raise _fail("unknown_source", f"source {v!r} unknown; valid: {', '.join(SOURCES)}")
+        return v
+
+    @model_validator(mode="after")
+    def _names(self) -> SkeletonMsg:
+        required, allowed = source_points(self.source)
+        for field, points in (("joints", self.joints), ("velocities", self.velocities)):
+            if points is None:
+                continue
+            unknown = sorted(set(points) - allowed)
+            if unknown:
+                raise _fail(
+                    "unknown_joint",
+                    f"{field}: {unknown} are not points of source {self.source!r}; "
+                    f"valid: {sorted(allowed)}",
+                )
+            missing = sorted(required - set(points))
+            if missing:
+                raise _fail("missing_joint", f"{field}: source {self.source!r} needs {missing}")
+        return self
+
+    @property
+    def kind(self) -> str:
+        """The skeleton kind (``'full'`` or ``'upper'``) of the source."""
+        return SOURCES[self.source][0]
+
+    def to_arrays(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """Positions ``(J, 3)`` m and velocities ``(J, 3)`` m/s (or None) in ``kind`` order.
+
+        Virtual joints are means of source points (velocities too: the mapping is linear).
+        """
+        y_m = from_source(self.source, self.joints)
+        v_mps = None if self.velocities is None else from_source(self.source, self.velocities)
+        return y_m, v_mps
+
+    @classmethod
+    def from_arrays(
+        cls,
+        kind: str,
+        y_m: np.ndarray,
+        *,
+        seq: int,
+        stamp_s: float,
+        v_mps: np.ndarray | None = None,
+        **extra: Any,
+    ) -> SkeletonMsg:
+        """Build from ``(J, 3)`` arrays of the project's ``kind`` (source ``sara_<kind>``)."""
+        names = skeleton(kind).joints
+        joints = dict(zip(names, np.asarray(y_m, dtype=float).tolist()))
+        vel = None if v_mps is None else dict(zip(names, np.asarray(v_mps, float).tolist()))
+        return cls(
+            seq=seq, stamp_s=stamp_s, source=f"sara_{kind}", joints=joints, velocities=vel, **extra
+        )
+
+
+def _same_lengths(**lists: list[float] | None) -> None:
+    given = {k: len(v) for k, v in lists.items() if v is not None}
+    if len(set(given.values())) > 1:
+        raise _fail("inconsistent_length", f"lengths differ: {given}")
+
+
+class RobotStateMsg(_Msg):
+    """Measured robot joint state (key ``sara/<cell>/robot/state``); lengths = n_dof."""
+
+    q: JointVector
+    q_dot: JointVector
+    q_ddot: JointVector | None = None
+
+    @model_validator(mode="after")
+    def _lengths(self) -> RobotStateMsg:
+        _same_lengths(q=self.q, q_dot=self.q_dot, q_ddot=self.q_ddot)
+        return self
+
+
+class RobotCommandMsg(_Msg):
+    """The shielded set point sent to the robot (key ``sara/<cell>/robot/command``)."""
+
+    q: JointVector
+    q_dot: JointVector
+    q_ddot: JointVector
+    mode: Mode
+
+    @model_validator(mode="after")
+    def _lengths(self) -> RobotCommandMsg:
+        _same_lengths(q=self.q, q_dot=self.q_dot, q_ddot=self.q_ddot)
+        return self
+
+
+class VerdictMsg(_Msg):
+    """The outcome of one control cycle (key ``sara/<cell>/verdict``).
+
+    ``results``: model name -> True when that model's human set is free of the robot's set.
+    ``skeleton_age_s``: human id -> age of the newest accepted skeleton at decision time.
+    ``dropped``: reason -> count of rejected or dropped input messages since the worker started.
+    """
+
+    cell: Name
+    safety_mode: Literal["ssm", "pfl", "jssa"]
+    mode: Mode
+    results: dict[str, bool] = {}
+    skeleton_age_s: dict[str, Finite] = {}
+    min_distance_m: Finite | None = None
+    cycle_time_us: NonNeg
+    faults: list[str] = []
+    dropped: dict[str, Annotated[int, Field(ge=0)]] = {}
+
+
+class CapsulesMsg(BaseModel):
+    """Flat capsules: ``ends_m`` is ``(C, 2, 3)`` flattened, ``radius_m`` is ``(C,)``."""
+
+    model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
+
+    ends_m: list[Finite]
+    radius_m: list[NonNeg]
+
+    @model_validator(mode="after")
+    def _lengths(self) -> CapsulesMsg:
+        if len(self.ends_m) != 6 * len(self.radius_m):
+            raise _fail(
+                "inconsistent_length",
+                f"ends_m has {len(self.ends_m)} numbers; expected 6 * {len(self.radius_m)}",
+            )
+        return self
+
+    @classmethod
+    def from_arrays(cls, ends_m: np.ndarray, radius_m: np.ndarray) -> CapsulesMsg:
+        """From ``(..., 2, 3)`` ends and ``(...)`` radii (flattened in C order)."""
+        return cls(
+            ends_m=np.asarray(ends_m, float).ravel().tolist(),
+            radius_m=np.asarray(radius_m, float).ravel().tolist(),
+        )
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(C, 2, 3)`` ends and ``(C,)`` radii."""
+        return np.asarray(self.ends_m).reshape(-1, 2, 3), np.asarray(self.radius_m)
+
+
+class HumanOccupancyMsg(BaseModel):
+    """One human for display: ``joints_m`` is ``(J, 3)`` flattened in ``kind`` joint order."""
+
+    model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
+
+    id: Name
+    kind: Literal["full", "upper"]
+    joints_m: list[Finite]
+    models: dict[str, CapsulesMsg] = {}
+
+    @model_validator(mode="after")
+    def _lengths(self) -> HumanOccupancyMsg:
+        n = 3 * skeleton(self.kind).n_joints
+        if len(self.joints_m) != n:
+            raise _fail("inconsistent_length", f"joints_m has {len(self.joints_m)}; expected {n}")
+        return self
+
+
+class RobotOccupancyMsg(BaseModel):
+    """Robot link capsules per interval: ``capsules`` holds ``(K, L)`` capsules, K-major."""
+
+    model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
+
+    link_names: list[str]
+    n_intervals: Annotated[int, Field(ge=0)]
+    capsules: CapsulesMsg
+    verified: bool
+
+    @model_validator(mode="after")
+    def _lengths(self) -> RobotOccupancyMsg:
+        n = self.n_intervals * len(self.link_names)
+        if len(self.capsules.radius_m) != n:
+            raise _fail(
+                "inconsistent_length",
+                f"robot has {len(self.capsules.radius_m)} capsules; expected "
+                f"{self.n_intervals} intervals * {len(self.link_names)} links",
+            )
+        return self
+
+
+class ContactMsg(BaseModel):
+    """One detected contact between a robot link and a human body part (for display)."""
+
+    model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
+
+    human_id: Name
+    body_part: str
+    link: str
+    kind: Literal["constrained", "unconstrained"]
+    energy_j: NonNeg | None = None
+    energy_limit_j: NonNeg | None = None
+
+
+class OccupancyMsg(_Msg):
+    """Display occupancies, about 10-20 Hz (key ``sara/<cell>/occupancy``)."""
+
+    humans: list[HumanOccupancyMsg] = []
+    robot: RobotOccupancyMsg | None = None
+    contacts: list[ContactMsg] = []
+    link_energies_j: dict[str, NonNeg] = {}
+
+
+def _check_finite_tree(value: object, depth: int = 0) -> None:
+    if isinstance(value, float) and not math.isfinite(value):
+        raise _fail("finite_number", f"non-finite number {value!r}")
+    if depth > 64:
+        raise _fail("too_deep", "nesting deeper than 64")
+    if isinstance(value, dict):
+        for v in value.values():
+            _check_finite_tree(v, depth + 1)
+    elif isinstance(value, list):
+        for v in value:
+            _check_finite_tree(v, depth + 1)
+
+
+class ParamsMsg(_Msg):
+    """A full scenario or parameter update for the worker (key ``sara/<cell>/params``)."""
+
+    request_id: Name
+    scenario: dict[str, Any]
+
+    @field_validator("scenario")
+    @classmethod
+    def _finite(cls, v: dict[str, Any]) -> dict[str, Any]:
+        _check_finite_tree(v)
+        return v
+
+
+class ParamsAckMsg(_Msg):
+    """The worker's answer to a ``ParamsMsg`` (key ``sara/<cell>/params/ack``)."""
+
+    request_id: Name
+    accepted: bool
+    reason: str = ""
+
+
+class StatusMsg(_Msg):
+    """Worker heartbeat, about 1 Hz (key ``sara/<cell>/status``)."""
+
+    cell: Name
+    state: Literal["starting", "running", "stopping", "fault"]
+    scenario: str = ""
+    uptime_s: NonNeg = 0.0
+    humans: list[str] = []
+    cycle_time_p50_us: NonNeg | None = None
+    cycle_time_p99_us: NonNeg | None = None
+
+
+Message = (
+    SkeletonMsg
+    | RobotStateMsg
+    | RobotCommandMsg
+    | VerdictMsg
+    | OccupancyMsg
+    | ParamsMsg
+    | ParamsAckMsg
+    | StatusMsg
+)
+
+MODELS_BY_KIND: dict[str, type[_Msg]] = {
+    "skeleton": SkeletonMsg,
+    "robot_state": RobotStateMsg,
+    "robot_command": RobotCommandMsg,
+    "verdict": VerdictMsg,
+    "occupancy": OccupancyMsg,
+    "params": ParamsMsg,
+    "params_ack": ParamsAckMsg,
+    "status": StatusMsg,
+}
+
+
+def encode(msg: _Msg) -> bytes:
+    """The JSON bytes of a validated message."""
+    return msg.model_dump_json().encode()
