@@ -1,0 +1,52 @@
+"""Publish skeletons from your own tracking system to a SaRA cell: plain eclipse-zenoh + json.
+
+    pip install eclipse-zenoh
+    python example_publisher.py --connect tcp/127.0.0.1:7447 --cell cell1 --human h1
+
+Replace ``read_tracker`` with your tracker: named joints in metres, world frame (z up).
+"""
+
+import argparse
+import itertools
+import json
+import math
+import time
+
+import zenoh
+
+STANDING = {  # the 15 joints of source "sara_full": a person 1.5 m in front of the robot
+    "head": (1.5, 0, 1.65), "neck": (1.5, 0, 1.45), "pelvis": (1.5, 0, 0.95),
+    "l_shoulder": (1.5, 0.18, 1.42), "r_shoulder": (1.5, -0.18, 1.42),
+    "l_elbow": (1.5, 0.22, 1.15), "r_elbow": (1.5, -0.22, 1.15),
+    "l_wrist": (1.5, 0.24, 0.9), "r_wrist": (1.5, -0.24, 0.9),
+    "l_hip": (1.5, 0.1, 0.92), "r_hip": (1.5, -0.1, 0.92), "l_knee": (1.5, 0.1, 0.5),
+    "r_knee": (1.5, -0.1, 0.5), "l_ankle": (1.5, 0.1, 0.08), "r_ankle": (1.5, -0.1, 0.08),
+}  # fmt: skip
+
+
+def read_tracker(t: float) -> dict[str, list[float]]:
+    """Your tracking system goes here: {joint name: [x, y, z]} in metres, world frame."""
+    return {n: [x + 0.2 * math.sin(t), y, z] for n, (x, y, z) in STANDING.items()}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--connect", default="tcp/127.0.0.1:7447", help="zenoh endpoint of the cell")
+    ap.add_argument("--cell", default="cell1")
+    ap.add_argument("--human", default="h1")
+    ap.add_argument("--rate", type=float, default=60.0, help="Hz")
+    ap.add_argument("--count", type=int, default=0, help="messages to send; 0: until Ctrl-C")
+    args = ap.parse_args()
+    conf = {"mode": "client", "connect": {"endpoints": [args.connect]}}
+    with zenoh.open(zenoh.Config.from_json5(json.dumps(conf))) as session:
+        pub = session.declare_publisher(f"sara/{args.cell}/human/{args.human}/skeleton")
+        for seq in itertools.islice(itertools.count(), args.count or None):
+            t = time.time()  # the measurement time, shared wall clock
+            msg = {"schema_version": 1, "seq": seq, "stamp_s": t, "frame": "world",
+                   "source": "sara_full", "joints": read_tracker(t)}  # fmt: skip
+            pub.put(json.dumps(msg).encode())
+            time.sleep(1.0 / args.rate)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,221 @@
+"""Zenoh sessions on loopback, subscribers drained by the caller's loop, publishers.
+
+- ``router_config(port)``: the embedded hub, a router listening on ``tcp/127.0.0.1:<port>``;
+  ``client_config(port)``: a process that connects to it. Multicast and gossip scouting are off,
+  listeners are refused on non-loopback hosts. ``free_port()`` picks an unused TCP port.
+- ``Bus(config)`` (or ``Bus.router(port)`` / ``Bus.client(port)``) owns one zenoh session and
+  everything declared on it; ``close()`` (or ``with Bus...:``) undeclares all and closes it, so
+  the process can exit. Opening raises ``BusError`` when the session cannot be opened.
+- ``bus.subscribe(key_expr)`` -> ``Subscription``: samples queue in a zenoh RingChannel (drops
+  the oldest when full: a sensor stream wants the newest; ``fifo=True`` for a FifoChannel, which
+  back-pressures instead). ``drain()`` never blocks: it returns ``Drained(messages, rejected)``,
+  the decoded messages and the number rejected during this drain; per-reason counters live in
+  the (shareable) ``Decoder``.
+- ``bus.publisher(key)`` -> ``Publisher``: ``put(msg)`` encodes and sends, never raises (a failure
+  is counted in ``failed`` and logged) and returns whether it was sent; ``next_seq()`` numbers
+  messages 0, 1, 2, ...; ``has_subscribers()`` tells whether anyone listens.
+
+Zenoh callbacks run on zenoh threads and need the GIL; the channel handlers here keep all
+decoding on the caller's thread.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import json
+import logging
+import socket
+from typing import Any, NamedTuple
+
+import zenoh
+
+from sara_app.bus.codec import Decoded, Decoder
+from sara_app.bus.messages import encode
+from sara_app.errors import ParameterError, SaraError
+
+LOOPBACK = "127.0.0.1"
+DEFAULT_PORT = 7447
+_NO_SCOUTING = {"multicast": {"enabled": False}, "gossip": {"enabled": False}}
+
+log = logging.getLogger("sara_app.bus")
+
+
+class BusError(SaraError):
+    """A zenoh session could not be opened or used."""
+
+
+class Drained(NamedTuple):
+    messages: list[Decoded]
+    rejected: int
+
+
+def free_port(host: str = LOOPBACK) -> int:
+    """An unused TCP port on ``host`` (free when checked; zenoh endpoints cannot bind port 0)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+def endpoint(port: int, host: str = LOOPBACK) -> str:
+    """``tcp/<host>:<port>`` for a loopback ``host``; ParameterError otherwise."""
+    if host != "localhost":
+        try:
+            loopback = ipaddress.ip_address(host).is_loopback
+        except ValueError:
+            loopback = False
+        if not loopback:
+            raise ParameterError(f"bus host {host!r} is not a loopback address; use 127.0.0.1")
+    if not isinstance(port, int) or not 0 < port < 65536:
+        raise ParameterError(f"bus port {port!r} is not in 1..65535")
+    return f"tcp/{host}:{port}"
+
+
+def router_config(port: int = DEFAULT_PORT, host: str = LOOPBACK) -> zenoh.Config:
+    """A router session listening on ``tcp/<host>:<port>`` (loopback only), no scouting."""
+    cfg = {"mode": "router", "listen": {"endpoints": [endpoint(port, host)]}}
+    return zenoh.Config.from_json5(json.dumps({**cfg, "scouting": _NO_SCOUTING}))
+
+
+def client_config(
+    port: int = DEFAULT_PORT, host: str = LOOPBACK, timeout_ms: int = 5000
+) -> zenoh.Config:
+    """A client session that connects to ``tcp/<host>:<port>``, giving up after ``timeout_ms``."""
+    connect = {"endpoints": [endpoint(port, host)], "timeout_ms": int(timeout_ms)}
+    cfg = {"mode": "client", "connect": connect, "scouting": _NO_SCOUTING}
+    return zenoh.Config.from_json5(json.dumps(cfg))
+
+
+class Subscription:
+    """Samples of one key expression, queued by zenoh and decoded by ``drain()``."""
+
+    def __init__(
+        self, session: zenoh.Session, key_expr: str, decoder: Decoder, capacity: int, fifo: bool
+    ) -> None:
+        channel = zenoh.handlers.FifoChannel if fifo else zenoh.handlers.RingChannel
+        self.key_expr = key_expr
+        self.decoder = decoder
+        self._sub: Any = session.declare_subscriber(key_expr, channel(int(capacity)))
+
+    def drain(self, max_n: int | None = None) -> Drained:
+        """Decode every queued sample (at most ``max_n``) without blocking."""
+        out: list[Decoded] = []
+        before = self.decoder.rejected
+        if self._sub is None:
+            return Drained(out, 0)
+        n = 0
+        while max_n is None or n < max_n:
+            try:
+                sample = self._sub.try_recv()
+            except zenoh.ZError as e:  # closed underneath us: nothing more to read
+                log.warning("bus: subscription %s: %s", self.key_expr, e)
+                break
+            if sample is None:
+                break
+            n += 1
+            d = self.decoder.decode(str(sample.key_expr), sample.payload.to_bytes())
+            if d is not None:
+                out.append(d)
+        return Drained(out, self.decoder.rejected - before)
+
+    def close(self) -> None:
+        if self._sub is not None:
+            try:
+                self._sub.undeclare()
+            except zenoh.ZError:
+                pass
+            self._sub = None
+
+
+class Publisher:
+    """Publishes validated messages on one key; numbers them with ``next_seq()``."""
+
+    def __init__(self, session: zenoh.Session, key_expr: str, express: bool) -> None:
+        self.key_expr = key_expr
+        self.failed = 0
+        self._seq = -1
+        self._pub: Any = session.declare_publisher(
+            key_expr, congestion_control=zenoh.CongestionControl.DROP, express=express
+        )
+
+    def next_seq(self) -> int:
+        self._seq += 1
+        return self._seq
+
+    def has_subscribers(self) -> bool:
+        """Whether a matching subscriber is known (e.g. to wait before a first message)."""
+        try:
+            return self._pub is not None and bool(self._pub.matching_status.matching)
+        except zenoh.ZError:
+            return False
+
+    def put(self, msg: Any) -> bool:
+        """Encode and send ``msg``; False (counted, logged) when it could not be sent."""
+        try:
+            if self._pub is None:
+                raise BusError("publisher is closed")
+            self._pub.put(encode(msg))
+            return True
+        except Exception as e:  # noqa: BLE001 - publishing must never end the caller's loop
+            self.failed += 1
+            if self.failed & (self.failed - 1) == 0:
+                log.warning("bus: put #%d on %s failed: %r", self.failed, self.key_expr, e)
+            return False
+
+    def close(self) -> None:
+        if self._pub is not None:
+            try:
+                self._pub.undeclare()
+            except zenoh.ZError:
+                pass
+            self._pub = None
+
+
+class Bus:
+    """One zenoh session and what was declared on it; close it to let the process exit."""
+
+    def __init__(self, config: zenoh.Config) -> None:
+        try:
+            self.session = zenoh.open(config)
+        except zenoh.ZError as e:
+            raise BusError(f"cannot open the zenoh session: {e}") from None
+        self._owned: list[Subscription | Publisher] = []
+
+    @classmethod
+    def router(cls, port: int = DEFAULT_PORT, host: str = LOOPBACK) -> Bus:
+        return cls(router_config(port, host))
+
+    @classmethod
+    def client(cls, port: int = DEFAULT_PORT, host: str = LOOPBACK, timeout_ms: int = 5000) -> Bus:
+        return cls(client_config(port, host, timeout_ms))
+
+    def subscribe(
+        self,
+        key_expr: str,
+        decoder: Decoder | None = None,
+        capacity: int = 256,
+        fifo: bool = False,
+    ) -> Subscription:
+        """Subscribe to ``key_expr`` (wildcards allowed); share ``decoder`` to pool counters."""
+        sub = Subscription(self.session, key_expr, decoder or Decoder(), capacity, fifo)
+        self._owned.append(sub)
+        return sub
+
+    def publisher(self, key_expr: str, express: bool = True) -> Publisher:
+        """A publisher on one concrete key (``express``: send at once, no batching)."""
+        pub = Publisher(self.session, key_expr, express)
+        self._owned.append(pub)
+        return pub
+
+    def close(self) -> None:
+        """Undeclare everything and close the session (idempotent)."""
+        for item in self._owned:
+            item.close()
+        self._owned.clear()
+        if not self.session.is_closed():
+            self.session.close()
+
+    def __enter__(self) -> Bus:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

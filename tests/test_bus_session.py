@@ -1,0 +1,206 @@
+"""Real zenoh sessions on 127.0.0.1: our wrappers, an independent plain-zenoh client, the example
+publisher script, rejection counters, ring-channel drops and clean exits."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sara_app.bus import keys
+from sara_app.bus.codec import Decoded, Decoder
+from sara_app.bus.examples import example_messages
+from sara_app.bus.messages import SkeletonMsg, encode
+from sara_app.bus.session import Bus, BusError, Subscription, endpoint, free_port
+from sara_app.errors import ParameterError
+
+EXAMPLE_SCRIPT = Path(__file__).resolve().parents[1] / "sara_app" / "bus" / "example_publisher.py"
+CELL = "cell1"
+
+
+@pytest.fixture(scope="module")
+def router() -> Iterator[tuple[Bus, int]]:
+    port = free_port()
+    with Bus.router(port) as bus:
+        yield bus, port
+
+
+def _collect(sub: Subscription, n: int, timeout_s: float = 10.0) -> list[Decoded]:
+    """Drain until ``n`` messages were received or accepted+rejected reached ``n``."""
+    out: list[Decoded] = []
+    deadline = time.monotonic() + timeout_s
+    start = sub.decoder.accepted + sub.decoder.rejected
+    while time.monotonic() < deadline:
+        out += sub.drain().messages
+        if sub.decoder.accepted + sub.decoder.rejected - start >= n:
+            break
+        time.sleep(0.005)
+    return out
+
+
+def test_loopback_only_and_connection_errors() -> None:
+    assert endpoint(7447) == "tcp/127.0.0.1:7447"
+    for host in ("0.0.0.0", "192.168.1.2", "example.com"):
+        with pytest.raises(ParameterError, match="loopback"):
+            endpoint(7447, host)
+    with pytest.raises(ParameterError):
+        endpoint(0)
+    with pytest.raises(BusError, match="cannot open"):
+        Bus.client(free_port(), timeout_ms=300)
+
+
+def test_client_to_client_through_the_router(router: tuple[Bus, int]) -> None:
+    _, port = router
+    with Bus.client(port) as a, Bus.client(port) as b:
+        sub = b.subscribe(keys.cell_keys(CELL), fifo=True)
+        sent = example_messages()
+        pubs = {k: a.publisher(key) for k, (key, _) in sent.items()}
+        deadline = time.monotonic() + 10  # let the subscription reach the publishers' session
+        while not all(p.has_subscribers() for p in pubs.values()) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        for k, (_, msg) in sent.items():
+            assert pubs[k].put(msg)
+        got = _collect(sub, len(sent))
+        assert {d.key.kind: d.msg for d in got} == {k: m for k, (_, m) in sent.items()}
+        assert sub.decoder.rejected == 0
+    assert not pubs["verdict"].put(sent["verdict"][1])  # closed: refused, counted, no raise
+    assert pubs["verdict"].failed == 1
+    assert sub.drain() == ([], 0)
+
+
+def test_ring_channel_keeps_the_newest_and_counts_gaps() -> None:
+    with Bus.router(free_port()) as bus:
+        sub = bus.subscribe(keys.skeleton_keys(CELL), capacity=8)
+        pub = bus.publisher(keys.skeleton_key(CELL, "h1"))
+        y = np.zeros((15, 3))
+
+        def send(n: int) -> None:
+            for _ in range(n):
+                pub.put(SkeletonMsg.from_arrays("full", y, seq=pub.next_seq(), stamp_s=1.0))
+
+        send(4)
+        first = [d.msg.seq for d in _collect(sub, 4)]
+        send(20)
+        time.sleep(0.2)
+        later = [d.msg.seq for d in sub.drain().messages]
+        assert first == [0, 1, 2, 3]
+        assert later == list(range(24 - len(later), 24)) and len(later) <= 8
+        assert sub.decoder.missed == 20 - len(later)
+
+
+INDEPENDENT = """
+import json, sys, time, zenoh
+port, payloads = int(sys.argv[1]), json.load(sys.stdin)
+conf = {"mode": "client", "connect": {"endpoints": [f"tcp/127.0.0.1:{port}"]}}
+with zenoh.open(zenoh.Config.from_json5(json.dumps(conf))) as session:
+    pubs = {}
+    for key, text in payloads:
+        if key not in pubs:
+            pubs[key] = session.declare_publisher(key)
+            deadline = time.monotonic() + 10
+            while not pubs[key].matching_status.matching and time.monotonic() < deadline:
+                time.sleep(0.01)
+        pubs[key].put(text.encode("latin-1"))
+"""
+
+
+def _skeleton_text(seq: int, **change: object) -> str:
+    data = json.loads(encode(example_messages()["skeleton"][1])) | {"seq": seq} | change
+    return json.dumps(data)
+
+
+def test_independent_publisher_good_and_bad(router: tuple[Bus, int]) -> None:
+    bus, port = router
+    decoder = Decoder()
+    sub = bus.subscribe(keys.skeleton_keys(CELL), decoder, fifo=True)
+    k1, k2 = keys.skeleton_key(CELL, "h1"), keys.skeleton_key(CELL, "h2")
+    bad_joints = json.loads(_skeleton_text(3))
+    bad_joints["joints"]["l_knee"] = [0.0, 0.0, 0.0]
+    missing = json.loads(_skeleton_text(4))
+    del missing["stamp_s"]
+    payloads = [
+        (k1, _skeleton_text(0)),
+        (k1, _skeleton_text(1)),
+        (k2, _skeleton_text(0)),
+        (k1, '{"schema_version": 1, "seq": 2,'),  # malformed JSON
+        (k1, _skeleton_text(2, schema_version=3)),
+        (k1, _skeleton_text(2).replace('"stamp_s": 1767225600.125', '"stamp_s": NaN')),
+        (k1, json.dumps(bad_joints)),
+        (k1, json.dumps(missing)),
+        (k1, _skeleton_text(1)),  # duplicate of an accepted seq
+        (k1, _skeleton_text(7)),
+    ]
+    proc = subprocess.run(
+        [sys.executable, "-c", INDEPENDENT, str(port)],
+        input=json.dumps(payloads),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == 0, proc.stderr
+    got = _collect(sub, len(payloads))
+    accepted = [(d.key.human_id, d.msg.seq) for d in got]
+    assert accepted == [("h1", 0), ("h1", 1), ("h2", 0), ("h1", 7)]
+    assert decoder.counts == {
+        "malformed_json": 1,
+        "schema_version": 1,
+        "non_finite": 1,
+        "unknown_joint": 1,
+        "missing_field": 1,
+        "out_of_order": 1,
+    }
+    y_m, _ = got[0].msg.to_arrays()  # type: ignore[union-attr]
+    assert y_m.shape == (9, 3) and np.all(np.isfinite(y_m))
+    sub.close()
+
+
+def test_example_publisher_script(router: tuple[Bus, int]) -> None:
+    bus, port = router
+    assert "sara_app" not in EXAMPLE_SCRIPT.read_text().replace("sara_full", "")
+    sub = bus.subscribe(keys.skeleton_keys("demo"), fifo=True)
+    n = 20
+    args = ["--connect", f"tcp/127.0.0.1:{port}", "--cell", "demo", "--human", "me"]
+    proc = subprocess.run(
+        [sys.executable, str(EXAMPLE_SCRIPT), *args, "--count", str(n), "--rate", "200"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == 0, proc.stderr
+    got = _collect(sub, n, timeout_s=3.0)
+    assert sub.decoder.rejected == 0
+    seqs = [d.msg.seq for d in got]
+    assert seqs == list(range(n))
+    for d in got:
+        y_m, v_mps = d.msg.to_arrays()  # type: ignore[union-attr]
+        assert d.key == ("demo", "skeleton", "me") and y_m.shape == (15, 3) and v_mps is None
+    sub.close()
+
+
+CLOSER = """
+import sys
+from sara_app.bus import keys
+from sara_app.bus.session import Bus
+with Bus.client(int(sys.argv[1])) as bus:
+    bus.subscribe(keys.cell_keys("cell1"))
+    bus.publisher(keys.verdict_key("cell1"))
+print("closed")
+"""
+
+
+def test_processes_exit_after_close(router: tuple[Bus, int]) -> None:
+    _, port = router
+    proc = subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(CLOSER), str(port)],
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    assert proc.returncode == 0 and proc.stdout.strip() == "closed", proc.stderr
