@@ -1,0 +1,70 @@
+"""What the dashboard draws for one instant: plain numpy containers, no viser, no bus types.
+
+Shapes: ``J`` skeleton joints, ``B`` bones, ``C`` capsules of one model, ``K`` time intervals of
+the shielded trajectory, ``L`` robot links, ``M`` environment boxes. Lengths in m, world frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+MODEL_NAMES: tuple[str, ...] = ("pos", "vel", "acc", "iso13855", "arm")
+"""Human reachability models the dashboard knows (one capsule group and one toggle each)."""
+
+CONTACT_NONE, CONTACT_UNCONSTRAINED, CONTACT_ENV, CONTACT_SELF = 0, 1, 2, 3
+"""Values of :attr:`DisplayFrame.contact_class`: no contact possible, free (unconstrained)
+contact, clamping against the environment, clamping between robot links."""
+
+
+@dataclass
+class HumanDisplay:
+    """One tracked human.
+
+    ``joint_positions (J, 3)`` (NaN rows for missing joints are skipped), ``bone_pairs (B, 2)``
+    int indices into the joints, ``models``: model name (one of :data:`MODEL_NAMES`) to
+    ``(ends (C, 2, 3), radius (C,))`` reachable capsules over the whole horizon.
+    """
+
+    id: str
+    joint_positions: np.ndarray
+    bone_pairs: np.ndarray
+    models: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+
+
+@dataclass
+class EnvBoxes:
+    """Oriented environment boxes: ``T_world_box (M, 4, 4)``, ``half_extents_m (M, 3)``."""
+
+    T_world_box: np.ndarray
+    half_extents_m: np.ndarray
+
+
+@dataclass
+class DisplayFrame:
+    """Everything the 3D view and the status panel show for one instant.
+
+    - ``t_s``: time stamp of the verdict [s] (x axis of the live plots);
+    - ``q (n_dof,)``: robot joint configuration (URDF actuated joint order);
+    - ``robot_ends (K, L, 2, 3)``, ``robot_radius (K, L)``: occupancy of the shielded
+      trajectory per interval and link; ``verified``: the shield's verdict for it;
+    - ``contact_class (K, L)`` int8 or None: one of the ``CONTACT_*`` values per capsule;
+    - ``status``: ``mode`` (str), ``safety_mode`` (str), ``min_distance_m`` (float),
+      ``cycle_p50_us`` / ``cycle_p99_us`` (float), ``skeleton_age_ms`` (float, or dict human id
+      to float), ``dropped`` (int, or dict reason to count); missing keys show as "n/a";
+    - ``critical_pair (2, 3)`` or None: the two points of the JSSA critical pair;
+    - ``boxes``: environment boxes or None.
+    """
+
+    t_s: float
+    q: np.ndarray
+    humans: list[HumanDisplay] = field(default_factory=list)
+    robot_ends: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 2, 3)))
+    robot_radius: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    verified: bool = False
+    contact_class: np.ndarray | None = None
+    status: dict[str, Any] = field(default_factory=dict)
+    critical_pair: np.ndarray | None = None
+    boxes: EnvBoxes | None = None

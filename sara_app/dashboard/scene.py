@@ -1,0 +1,346 @@
+"""The cell's 3D scene in viser: robot (URDF), skeletons, human and robot capsules, boxes.
+
+Node layout (scene paths): ``/robot`` (URDF via :class:`viser.extras.ViserUrdf`),
+``/humans/skeleton`` (line segments) and ``/humans/joints`` (points), ``/humans/<model>``
+(one translucent capsule group per model of :data:`MODEL_NAMES`), ``/robot_occupancy`` (one
+translucent capsule group, colour per capsule), ``/environment/boxes`` (batched unit boxes),
+``/critical_pair`` (a line). :meth:`CellScene.update` sends one :class:`DisplayFrame` in one
+``server.atomic()`` block; the robot's URDF pose is only recomputed when ``q`` changed.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Iterator
+from dataclasses import replace
+
+import numpy as np
+import viser
+import yourdfpy
+from viser.extras import ViserUrdf
+
+from sara_app.dashboard.capsules import CapsuleGroup, InstanceBatch, rotation_to_wxyz, unit_box
+from sara_app.dashboard.frame import (
+    CONTACT_ENV,
+    CONTACT_SELF,
+    CONTACT_UNCONSTRAINED,
+    MODEL_NAMES,
+    DisplayFrame,
+    EnvBoxes,
+    HumanDisplay,
+)
+from sara_app.errors import InputError, UnknownNameError
+from sara_app.robot.model import ROBOT_NAMES, urdf_dir
+
+MODEL_COLORS: dict[str, tuple[int, int, int]] = {
+    "pos": (70, 110, 230),
+    "vel": (0, 170, 210),
+    "acc": (150, 80, 220),
+    "iso13855": (240, 140, 30),
+    "arm": (230, 200, 0),
+}
+VERIFIED_RGB = (30, 190, 60)
+UNVERIFIED_RGB = (225, 30, 30)
+CONTACT_RGB: dict[int, tuple[int, int, int]] = {
+    CONTACT_UNCONSTRAINED: (255, 190, 0),
+    CONTACT_ENV: (220, 0, 220),
+    CONTACT_SELF: (40, 90, 255),
+}
+"""Occupancy colours by contact class; class 'none' keeps the verdict colour."""
+
+HUMAN_OPACITY = 0.25
+ROBOT_OPACITY = 0.35
+BOX_OPACITY = 0.5
+Q_EPS_RAD = 1e-4
+"""Joint change below which the URDF pose is not redrawn (0.1 mm at 1 m; it costs ~3 ms)."""
+
+
+def occupancy_colors(
+    n: int, verified: bool, contact_class: np.ndarray | None, by_contact: bool
+) -> np.ndarray:
+    """Colours ``(n, 3)`` uint8 of ``n`` occupancy capsules: verdict colour, then contact class.
+
+    ``contact_class (n,)`` overrides the verdict colour for classes other than 'none' when
+    ``by_contact`` is set.
+    """
+    rgb = np.empty((n, 3), dtype=np.uint8)
+    rgb[:] = VERIFIED_RGB if verified else UNVERIFIED_RGB
+    if by_contact and contact_class is not None:
+        for cls, color in CONTACT_RGB.items():
+            rgb[contact_class == cls] = color
+    return rgb
+
+
+def _segments(humans: list[HumanDisplay]) -> np.ndarray:
+    """Bone segments ``(S, 2, 3)`` of all humans; bones touching a non-finite joint dropped."""
+    parts = []
+    for h in humans:
+        y = np.asarray(h.joint_positions, dtype=float)
+        pairs = np.asarray(h.bone_pairs, dtype=np.intp).reshape(-1, 2)
+        if y.ndim != 2 or y.shape[1] != 3:
+            raise InputError(f"human {h.id!r}: joint positions shape {y.shape}; expected (J, 3)")
+        if pairs.size and (pairs.min() < 0 or pairs.max() >= y.shape[0]):
+            raise InputError(
+                f"human {h.id!r}: bone index range [{pairs.min()}, {pairs.max()}] is outside "
+                f"the {y.shape[0]} joints"
+            )
+        seg = y[pairs]
+        parts.append(seg[np.isfinite(seg).all(axis=(1, 2))])
+    return np.concatenate(parts) if parts else np.zeros((0, 2, 3))
+
+
+class CellScene:
+    """The cell scene for one robot; ``update(frame)`` renders one :class:`DisplayFrame`.
+
+    ``robot``: one of :data:`ROBOT_NAMES`; ``T_world_base (4, 4)``: robot base pose.
+    """
+
+    def __init__(
+        self,
+        server: viser.ViserServer,
+        robot: str = "panda",
+        T_world_base: np.ndarray | None = None,
+    ) -> None:
+        if robot not in ROBOT_NAMES:
+            raise UnknownNameError("robot", robot, ROBOT_NAMES)
+        self.server = server
+        self.color_by_contact = True
+        server.scene.set_up_direction("+z")
+        server.scene.add_grid("/grid", width=4.0, height=4.0, cell_size=0.25)
+        T = np.eye(4) if T_world_base is None else np.asarray(T_world_base, dtype=float)
+        server.scene.add_frame(
+            "/robot",
+            wxyz=rotation_to_wxyz(T[None, :3, :3])[0],
+            position=T[:3, 3],
+            show_axes=False,
+        )
+        urdf = yourdfpy.URDF.load(str(urdf_dir() / f"{robot}.urdf"))
+        self.urdf = ViserUrdf(server, urdf, root_node_name="/robot")
+        self.joint_names = self.urdf.get_actuated_joint_names()
+        self._q_shown = np.full(len(self.joint_names), np.nan)
+        self.skeleton = server.scene.add_line_segments(
+            "/humans/skeleton", np.zeros((1, 2, 3)), (40, 40, 40), thickness=0.015, visible=False
+        )
+        self.joints = server.scene.add_point_cloud(
+            "/humans/joints",
+            np.zeros((1, 3)),
+            (20, 20, 20),
+            point_size=0.04,
+            point_shape="circle",
+            visible=False,
+        )
+        self.models = {
+            m: CapsuleGroup(server, f"/humans/{m}", HUMAN_OPACITY, 16, MODEL_COLORS[m])
+            for m in MODEL_NAMES
+        }
+        self.occupancy = CapsuleGroup(server, "/robot_occupancy", ROBOT_OPACITY, 64)
+        self.boxes = InstanceBatch(server, "/environment/boxes", unit_box(), BOX_OPACITY, 4)
+        self._boxes_shown: tuple[np.ndarray, np.ndarray] | None = None
+        self.critical = server.scene.add_line_segments(
+            "/critical_pair", np.zeros((1, 2, 3)), (255, 0, 0), thickness=0.02, visible=False
+        )
+
+    # ------------------------------------------------------------------------------------------
+    def set_model_visible(self, model: str, visible: bool) -> None:
+        """Show or hide one human model's capsules (all humans)."""
+        if model not in self.models:
+            raise UnknownNameError("human model", model, MODEL_NAMES)
+        self.models[model].visible = visible
+
+    def update(self, frame: DisplayFrame) -> None:
+        """Render ``frame`` (one atomic batch of messages). Raises :class:`InputError` on bad
+        shapes; non-finite capsules and joints are hidden rather than raised on."""
+        with self.server.atomic():
+            self._update_robot(frame.q)
+            self._update_humans(frame.humans)
+            self._update_occupancy(frame)
+            self._update_boxes(frame.boxes)
+            self._update_critical(frame.critical_pair)
+
+    # ------------------------------------------------------------------------------------------
+    def _update_robot(self, q: np.ndarray) -> None:
+        q = np.asarray(q, dtype=float)
+        if q.shape != self._q_shown.shape:
+            raise InputError(
+                f"q has shape {q.shape}; expected ({len(self.joint_names)},) for joints "
+                f"{', '.join(self.joint_names)}"
+            )
+        if not np.all(np.isfinite(q)):
+            return  # keep the last drawn pose
+        if np.all(np.abs(q - self._q_shown) <= Q_EPS_RAD):
+            return
+        self.urdf.update_cfg(q)
+        self._q_shown[:] = q
+
+    def _update_humans(self, humans: list[HumanDisplay]) -> None:
+        seg = _segments(humans)
+        self.skeleton.visible = self.joints.visible = bool(seg.shape[0])
+        if seg.shape[0]:
+            self.skeleton.points = seg
+            self.skeleton.colors = np.full(seg.shape, 40, dtype=np.uint8)
+            y = np.concatenate([np.asarray(h.joint_positions, dtype=float) for h in humans])
+            y = y[np.isfinite(y).all(axis=1)]
+            self.joints.points = y
+            self.joints.colors = np.full(y.shape, 20, dtype=np.uint8)
+        for h in humans:
+            for m in h.models:
+                if m not in self.models:
+                    raise UnknownNameError("human model", m, MODEL_NAMES)
+        for name, group in self.models.items():
+            pieces = [h.models[name] for h in humans if name in h.models]
+            if len(pieces) == 1:
+                ends, radius = pieces[0]
+            elif pieces:
+                ends = np.concatenate([np.asarray(p[0], dtype=float) for p in pieces])
+                radius = np.concatenate([np.asarray(p[1], dtype=float) for p in pieces])
+            else:
+                ends, radius = np.zeros((0, 2, 3)), np.zeros(0)
+            group.set(ends, radius)
+
+    def _update_occupancy(self, frame: DisplayFrame) -> None:
+        ends = np.asarray(frame.robot_ends, dtype=float)
+        radius = np.asarray(frame.robot_radius, dtype=float)
+        if ends.ndim != 4 or ends.shape[2:] != (2, 3) or radius.shape != ends.shape[:2]:
+            raise InputError(
+                f"robot occupancy ends {ends.shape} / radius {radius.shape}; expected "
+                "(K, L, 2, 3) / (K, L)"
+            )
+        cc = frame.contact_class
+        if cc is not None:
+            cc = np.asarray(cc)
+            if cc.shape != radius.shape:
+                raise InputError(f"contact_class has shape {cc.shape}; expected {radius.shape}")
+            cc = cc.reshape(-1)
+        n = radius.size
+        colors = occupancy_colors(n, bool(frame.verified), cc, self.color_by_contact)
+        self.occupancy.set(ends.reshape(n, 2, 3), radius.reshape(n), colors)
+
+    def _update_boxes(self, boxes: EnvBoxes | None) -> None:
+        if boxes is None:
+            T, half = np.zeros((0, 4, 4)), np.zeros((0, 3))
+        else:
+            T = np.asarray(boxes.T_world_box, dtype=float)
+            half = np.asarray(boxes.half_extents_m, dtype=float)
+        if T.ndim != 3 or T.shape[1:] != (4, 4) or half.shape != (T.shape[0], 3):
+            raise InputError(
+                f"boxes T_world_box {T.shape} / half_extents_m {half.shape}; expected "
+                "(M, 4, 4) / (M, 3)"
+            )
+        last = self._boxes_shown
+        if last is not None and np.array_equal(last[0], T) and np.array_equal(last[1], half):
+            return
+        m = T.shape[0]
+        ok = np.asarray(np.isfinite(T).all(axis=(1, 2)) & np.isfinite(half).all(axis=1))
+        b = self.boxes
+        b.reserve(m)
+        b.positions[:m] = np.where(ok[:, None], T[:, :3, 3], 0.0)
+        if m:
+            R = np.where(ok[:, None, None], T[:, :3, :3], np.eye(3))
+            b.wxyzs[:m] = rotation_to_wxyz(R)
+        b.scales[:m] = np.where(ok[:, None], 2.0 * np.abs(half), 0.0)
+        b.colors[:m] = (150, 150, 160)
+        b.push(m)
+        self._boxes_shown = (T.copy(), half.copy())
+
+    def _update_critical(self, pair: np.ndarray | None) -> None:
+        if pair is None:
+            self.critical.visible = False
+            return
+        p = np.asarray(pair, dtype=float)
+        if p.shape != (2, 3):
+            raise InputError(f"critical_pair has shape {p.shape}; expected (2, 3)")
+        ok = bool(np.all(np.isfinite(p)))
+        if ok:
+            self.critical.points = p[None]
+        self.critical.visible = ok
+
+
+# ----------------------------------------------------------------------------------------------
+# Synthetic frames and benchmark
+
+
+def demo_frame(
+    t_s: float,
+    n_dof: int = 7,
+    n_humans: int = 1,
+    n_capsules: int = 14,
+    K: int = 10,
+    L: int = 8,
+    verified: bool = True,
+) -> DisplayFrame:
+    """A synthetic frame that moves with ``t_s``: humans at x = 1 m walking in y, every model
+    with ``n_capsules`` capsules, ``K x L`` occupancy capsules stacked above the robot base."""
+    rng = np.random.default_rng(int(t_s * 1000) % 2**31)
+    humans = []
+    J = 15
+    bones = np.stack([np.arange(1, J) - 1, np.arange(1, J)], axis=1)
+    for i in range(n_humans):
+        base = np.array([1.0 + 0.6 * i, 0.3 * np.sin(t_s), 0.0])
+        y = base + np.column_stack(
+            [0.1 * rng.standard_normal(J), 0.1 * rng.standard_normal(J), np.linspace(1.7, 0.1, J)]
+        )
+        models = {}
+        for k, m in enumerate(MODEL_NAMES):
+            a = base + np.array([0.0, 0.0, 0.2]) + rng.normal(scale=0.15, size=(n_capsules, 3))
+            b = a + rng.normal(scale=0.2, size=(n_capsules, 3))
+            models[m] = (np.stack([a, b], axis=1), np.full(n_capsules, 0.08 + 0.03 * k))
+        humans.append(HumanDisplay(f"h{i}", y, bones, models))
+    z = np.linspace(0.0, 1.0, L + 1)
+    sway = 0.05 * np.arange(K)[:, None] + 0.1 * np.sin(t_s)
+    a = np.stack([sway * z[None, :-1], np.zeros((K, L)), np.broadcast_to(z[:-1], (K, L))], -1)
+    b = np.stack([sway * z[None, 1:], np.zeros((K, L)), np.broadcast_to(z[1:], (K, L))], -1)
+    contact = np.zeros((K, L), dtype=np.int8)
+    contact[-1, -3:] = (1, 2, 3)
+    T_box = np.eye(4)
+    T_box[:3, 3] = (0.6, -0.6, 0.35)
+    return DisplayFrame(
+        t_s=t_s,
+        q=0.1 * np.sin(t_s + np.arange(n_dof)) + np.array([0, 0, 0, -1.5, 0, 1.5, 0.8])[:n_dof],
+        humans=humans,
+        robot_ends=np.stack([a, b], axis=2),
+        robot_radius=np.full((K, L), 0.07),
+        verified=verified,
+        contact_class=contact,
+        status={
+            "mode": "intended" if verified else "failsafe",
+            "safety_mode": "SSM",
+            "min_distance_m": 0.5 + 0.2 * np.sin(t_s),
+            "cycle_p50_us": 800.0,
+            "cycle_p99_us": 1300.0,
+            "skeleton_age_ms": 12.0,
+            "dropped": 0,
+        },
+        critical_pair=np.array([[0.1, 0.0, 0.9], [1.0, 0.0, 1.2]]),
+        boxes=EnvBoxes(T_box[None], np.array([[0.3, 0.2, 0.35]])),
+    )
+
+
+def bench_rows(n: int = 2000) -> list[tuple[str, float, float, str]]:
+    """Scene update cost (Python side, no browser) for 1 human x 5 models x 14 capsules and
+    10 intervals x 8 links, with the robot moving and standing; serves on 127.0.0.1."""
+    from sara_app.bench import timeit_us
+    from sara_app.dashboard.viewer import Dashboard
+
+    n = max(n // 10, 20)
+    frames = [demo_frame(0.01 * i) for i in range(64)]
+    standing = [replace(f, q=frames[0].q) for f in frames]
+    dash = Dashboard()
+    dash.start(port=8780)
+    assert dash.scene is not None  # set by start()
+    scene = dash.scene
+    rows = []
+    try:
+        for label, seq in (("robot moving", frames), ("robot standing", standing)):
+            it = itertools.cycle(seq)
+
+            def step(it: Iterator[DisplayFrame] = it) -> None:
+                scene.update(next(it))
+
+            med, p99 = timeit_us(step, n, warmup=20)
+            rows.append((f"dashboard scene update, {label}", med, p99, "1 human x 5 x 14, 10 x 8"))
+        it = itertools.cycle(standing)
+        med, p99 = timeit_us(lambda: dash.update(next(it)), n, warmup=20)
+        rows.append(("dashboard update (scene + panels)", med, p99, "robot standing"))
+    finally:
+        dash.stop()
+    return rows
