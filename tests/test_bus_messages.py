@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import re
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -186,3 +188,14 @@ def test_decoder_never_raises(raw: bytes, field: str, value: Any, kind: str) -> 
         assert got is None or type(got.msg) is type(EXAMPLES[kind][1])
     assert dec.accepted + dec.rejected == 3
     assert set(dec.counts) <= set(REASONS) - {"internal"}
+
+
+def test_contract_examples_decode() -> None:
+    text = (Path(__file__).resolve().parents[1] / "sara_app/bus/CONTRACT.md").read_text()
+    blocks = re.findall(r"Example on `([^`]+)`:\s*```json\n(.*?)```", text, flags=re.S)
+    kinds = set()
+    for key, payload in blocks:
+        d = decode(key, payload.encode())
+        kinds.add(d.key.kind)
+        assert d.msg == EXAMPLES[d.key.kind][1]  # the document shows the tested examples
+    assert kinds == set(EXAMPLES)

@@ -4,6 +4,7 @@ publisher script, rejection counters, ring-channel drops and clean exits."""
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 import textwrap
@@ -204,3 +205,20 @@ def test_processes_exit_after_close(router: tuple[Bus, int]) -> None:
         timeout=30,
     )
     assert proc.returncode == 0 and proc.stdout.strip() == "closed", proc.stderr
+
+
+def test_contract_script_runs_as_written(router: tuple[Bus, int], tmp_path: Path) -> None:
+    text = (EXAMPLE_SCRIPT.parent / "CONTRACT.md").read_text()
+    (script,) = re.findall(r"```python\n(.*?)```", text, flags=re.S)
+    path = tmp_path / "my_tracker.py"
+    path.write_text(script)
+    bus, port = router
+    sub = bus.subscribe(keys.skeleton_keys("doc"), fifo=True)
+    args = ["--connect", f"tcp/127.0.0.1:{port}", "--cell", "doc", "--count", "5", "--rate", "200"]
+    proc = subprocess.run(
+        [sys.executable, str(path), *args], capture_output=True, text=True, timeout=60
+    )
+    assert proc.returncode == 0, proc.stderr
+    got = _collect(sub, 5, timeout_s=3.0)
+    assert [d.msg.seq for d in got] == list(range(5)) and sub.decoder.rejected == 0
+    sub.close()
