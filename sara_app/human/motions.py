@@ -1,0 +1,171 @@
+"""Where simulated humans are: recorded, scripted or adversarial motion, behind one interface.
+
+Every source answers ``pose(t, robot_ends, robot_radius) -> (15, 3)`` joint positions (full
+skeleton, world frame) for increasing times ``t``; only adversaries look at the robot. Built from
+a scenario's human specification by :func:`make_motion`.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+from sara_app.errors import ParameterError
+from sara_app.geometry import segment_segment_closest
+from sara_app.human.params import ReachParams
+from sara_app.human.recordings import Recording, load_recording
+from sara_app.human.scripted import ScriptedMotion, build_motion, joints, standing
+
+
+class HumanMotion(Protocol):
+    def pose(self, t: float, robot_ends: np.ndarray, robot_radius: np.ndarray) -> np.ndarray: ...
+
+
+class Scripted:
+    def __init__(self, motion: ScriptedMotion) -> None:
+        self.motion = motion
+
+    def pose(self, t: float, robot_ends: np.ndarray, robot_radius: np.ndarray) -> np.ndarray:
+        return self.motion.pose(t)
+
+
+class Playback:
+    """A recording replayed from ``clip_start_s`` at scenario time ``start_s``, turned by
+    ``yaw_rad`` about the vertical through its first pelvis position and moved by ``offset_m``;
+    linear interpolation between frames, held at the ends."""
+
+    def __init__(
+        self,
+        rec: Recording,
+        *,
+        start_s: float = 0.0,
+        clip_start_s: float = 0.0,
+        offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        yaw_rad: float = 0.0,
+    ) -> None:
+        if rec.kind != "full":
+            raise ParameterError(f"recording {rec.name!r} is {rec.kind!r}; simulation needs 'full'")
+        self.t = rec.times_s - rec.times_s[0] - clip_start_s + start_s
+        pelvis = rec.positions_m[0, rec.joints.index("pelvis")]
+        pivot = np.array([pelvis[0], pelvis[1], 0.0])
+        c, s = np.cos(yaw_rad), np.sin(yaw_rad)
+        R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        self.y = (rec.positions_m - pivot) @ R.T + pivot + np.asarray(offset_m)
+
+    def pose(self, t: float, robot_ends: np.ndarray, robot_radius: np.ndarray) -> np.ndarray:
+        i = int(np.searchsorted(self.t, t, side="right"))
+        if i <= 0:
+            return self.y[0].copy()
+        if i >= len(self.t):
+            return self.y[-1].copy()
+        w = (t - self.t[i - 1]) / (self.t[i] - self.t[i - 1])
+        return (1.0 - w) * self.y[i - 1] + w * self.y[i]
+
+
+class Adversary:
+    """Body parts that chase the robot at the model bounds (bang-bang acceleration).
+
+    ``'rigid'``: the whole body translates with one velocity, bounded by the smallest joint
+    ``v_max`` and ``a_max`` (respects every model, R_POS included). ``'limbs'``: every joint
+    chases its nearest robot point with its own bounds (respects R_VEL, R_ACC and ISO 13855 where
+    ``v_max`` is below its speed; limbs stretch, so R_POS and the arm model do not apply).
+    Integration: the velocity changes by at most ``a_max dt`` per step and is projected onto the
+    ``v_max`` ball (a projection onto a convex set containing the old velocity never lengthens
+    the change), positions use the mean velocity of the step.
+    """
+
+    def __init__(
+        self,
+        strategy: str,
+        position_xy: tuple[float, float],
+        params: ReachParams,
+        *,
+        start_s: float = 0.0,
+        seed: int = 0,
+    ) -> None:
+        if strategy not in ("rigid", "limbs"):
+            raise ParameterError(f"strategy = {strategy!r}; valid: rigid, limbs")
+        self.strategy = strategy
+        rng = np.random.default_rng(seed)
+        self.y = joints(standing(position_xy, float(rng.uniform(-np.pi, np.pi))))
+        self.v = np.zeros_like(self.y)
+        self.start_s = start_s
+        self.t_last: float | None = None
+        if strategy == "rigid":
+            self.v_max = np.full(len(self.y), float(params.v_max_mps.min()))
+            self.a_max = np.full(len(self.y), float(params.a_max_mps2.min()))
+        else:
+            self.v_max = params.v_max_mps.copy()
+            self.a_max = params.a_max_mps2.copy()
+        # a little randomness in how hard it pushes (still within the bounds)
+        self.push = float(rng.uniform(0.85, 1.0))
+
+    def _targets(self, robot_ends: np.ndarray) -> np.ndarray:
+        """Nearest point on any link axis for every joint ``(15, 3)``."""
+        seg = robot_ends.reshape(-1, 2, 3)
+        pts = np.repeat(self.y[:, None, None, :], 2, axis=2)  # joints as point segments
+        d, _, t = segment_segment_closest(pts, seg[None])
+        k = np.argmin(d, axis=1)
+        a, b = seg[k, 0], seg[k, 1]
+        tt = t[np.arange(len(k)), k][:, None]
+        return a + tt * (b - a)
+
+    def pose(self, t: float, robot_ends: np.ndarray, robot_radius: np.ndarray) -> np.ndarray:
+        if self.t_last is None or t <= self.start_s:
+            self.t_last = t
+            return self.y.copy()
+        dt = t - self.t_last
+        self.t_last = t
+        if dt <= 0:
+            return self.y.copy()
+        tgt = self._targets(robot_ends)
+        if self.strategy == "rigid":
+            d = tgt - self.y
+            i = int(np.argmin(np.linalg.norm(d, axis=1)))
+            d = np.broadcast_to(d[i], self.y.shape)
+        else:
+            d = tgt - self.y
+        n = np.linalg.norm(d, axis=1, keepdims=True)
+        want = self.v_max[:, None] * d / np.maximum(n, 1e-9)
+        dvel = want - self.v
+        dn = np.linalg.norm(dvel, axis=1, keepdims=True)
+        step = np.minimum(dn, (self.push * self.a_max * dt)[:, None])
+        v_new = self.v + dvel / np.maximum(dn, 1e-12) * step
+        sp = np.linalg.norm(v_new, axis=1, keepdims=True)
+        v_new *= np.minimum(1.0, self.v_max[:, None] / np.maximum(sp, 1e-12))
+        self.y = self.y + 0.5 * (self.v + v_new) * dt
+        self.v = v_new
+        return self.y.copy()
+
+
+def make_motion(spec: object, params: ReachParams) -> HumanMotion:
+    """A motion source for one scenario human (``sara_app.scenario`` human models)."""
+    from sara_app.scenario import AdversarialHuman, RecordingHuman, ScriptedHuman
+
+    if isinstance(spec, RecordingHuman):
+        rec = load_recording(spec.recording)
+        return Playback(
+            rec,
+            start_s=spec.start_s,
+            clip_start_s=spec.clip_start_s,
+            offset_m=spec.offset_m,
+            yaw_rad=spec.yaw_rad,
+        )
+    if isinstance(spec, ScriptedHuman):
+        return Scripted(
+            build_motion(
+                spec.motion,
+                spec.position_m,
+                spec.target_m,
+                params.v_max_mps,
+                params.a_max_mps2,
+                speed_scale=spec.speed_scale,
+                start_s=spec.start_s,
+            )
+        )
+    if isinstance(spec, AdversarialHuman):
+        return Adversary(
+            spec.strategy, spec.position_m, params, start_s=spec.start_s, seed=spec.seed
+        )
+    raise ParameterError(f"unknown human specification {type(spec).__name__}")

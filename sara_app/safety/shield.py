@@ -1,0 +1,247 @@
+"""The safety shield: every cycle, verify one intended step + failsafe, else brake on the last
+verified failsafe (seed 000 Sec. II, seed 001 Sec. II-C, seed 003 Sec. III-B).
+
+Induction: the follower always holds a failsafe stop that was verified, together with the step
+that led to it, against human sets that cover the whole stop (the sets grow from the measurement
+time to the end of the stop). A cycle commits the intended step only if the new shielded
+trajectory (step + its own stop) verifies; otherwise it advances along the held stop, which
+stays verified. So the robot is always on a verified motion or at rest.
+
+Assumptions (seed 003 Sec. V), stated here because the guarantee rests on them:
+
+- a robot at rest cannot hurt a person (SSM: contact with a resting robot is allowed);
+- the tracking system sees every person in the cell; a person's skeleton stamped ``t`` shows
+  the pose at ``t - delay`` within ``delta_y`` per joint; every enabled model's bounds hold for
+  that person (see the parameter set's ``sound_for``);
+- the controller tracks the commanded joint trajectory within ``tracking_tol_rad`` per joint
+  (checked every cycle against the measured state; beyond it is a fault);
+- clocks of sensor and cell agree (a measurement from the future is a fault).
+
+Faults (stale, missing, malformed or future skeletons; tracking error; a planning failure)
+never raise: the cycle brakes along the held failsafe and reports them.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sara_app.errors import ParameterError, SaraError
+from sara_app.geometry import segment_segment_distance
+from sara_app.human.reach import HumanReach
+from sara_app.robot.failsafe import ShieldedTrajectory, shielded_trajectory
+from sara_app.robot.model import RobotModel
+from sara_app.robot.occupancy import RobotOccupancy
+from sara_app.robot.trajectory import JointState, PathFollower
+from sara_app.safety.ssm import SsmResult, SsmVerifier
+
+MODES = ("intended", "failsafe", "rest", "fault")
+
+
+@dataclass
+class HumanState:
+    """One person's latest measurement: joints ``y (J, 3)`` m, velocity ``v (J, 3)`` m/s with
+    error bound ``dv (J,)`` m/s, sensor time stamp ``stamp_s`` (``None``: never measured)."""
+
+    id: str
+    y: np.ndarray
+    v: np.ndarray
+    dv: np.ndarray
+    stamp_s: float | None
+
+
+@dataclass
+class ShieldSettings:
+    dt_s: float = 0.004
+    max_interval_s: float = 0.02
+    models: tuple[str, ...] = ("pos", "vel", "acc")
+    tracking_tol_rad: float = 0.005
+    skeleton_timeout_s: float = 0.2
+    future_tolerance_s: float = 0.002
+    """How far a skeleton's stamp may lie ahead of the cell clock before it is a fault."""
+
+    def check(self) -> None:
+        for name in ("dt_s", "max_interval_s", "tracking_tol_rad", "skeleton_timeout_s"):
+            val = getattr(self, name)
+            if not (isinstance(val, int | float) and math.isfinite(val) and val > 0):
+                raise ParameterError(f"shield setting {name} = {val!r}; expected a value > 0")
+
+
+@dataclass
+class CycleResult:
+    """What one cycle decided. ``command``: the joint state at the end of the executed step;
+    ``trajectory`` / ``robot_ends (K, L, 2, 3)`` / ``robot_radius (K, L)``: the shielded
+    trajectory that was checked (``None`` if none could be planned); ``model_free``: per model,
+    True/False when evaluated on every interval, absent otherwise."""
+
+    t_s: float
+    mode: str
+    verified: bool
+    command: JointState
+    faults: list[str] = field(default_factory=list)
+    model_free: dict[str, bool] = field(default_factory=dict)
+    ages_s: dict[str, float] = field(default_factory=dict)
+    min_distance_m: float | None = None
+    cycle_time_us: float = 0.0
+    trajectory: ShieldedTrajectory | None = None
+    robot_ends: np.ndarray | None = None
+    robot_radius: np.ndarray | None = None
+    ssm: SsmResult | None = None
+
+
+class Shield:
+    """SSM shield around a :class:`PathFollower` (which it owns and advances)."""
+
+    def __init__(
+        self,
+        robot: RobotModel,
+        follower: PathFollower,
+        reach: HumanReach,
+        settings: ShieldSettings | None = None,
+    ) -> None:
+        self.settings = s = settings or ShieldSettings()
+        s.check()
+        self.robot = robot
+        self.follower = follower
+        self.reach = reach
+        self.verifier = SsmVerifier(reach, s.models)
+        self.occupancy = RobotOccupancy(robot)
+        # Tracking error up to tol per joint moves a link point by at most sum_j L[i, j] tol.
+        self.tracking_margin_m = self.occupancy.lipschitz @ np.full(robot.n_dof, s.tracking_tol_rad)
+        self._half_th = reach.params.half_thickness_m
+        self._parts = reach.skeleton.part_joints
+        self.cycles = 0
+        self.fault_cycles = 0
+        self.failsafe_cycles = 0
+
+    # -- checks ---------------------------------------------------------------------------------
+
+    def _check_tracking(self, measured: JointState | None, faults: list[str]) -> None:
+        if measured is None:
+            return
+        q = np.asarray(measured.q, dtype=float)
+        expected = self.follower.state.q
+        if q.shape != expected.shape or not np.all(np.isfinite(q)):
+            faults.append(f"robot state malformed: q shape {q.shape}, expected {expected.shape}")
+            return
+        err = float(np.max(np.abs(q - expected)))
+        if err > self.settings.tracking_tol_rad:
+            faults.append(
+                f"tracking error {err:.4f} rad > tolerance {self.settings.tracking_tol_rad} rad"
+            )
+
+    def _check_humans(
+        self, t_now: float, humans: list[HumanState], faults: list[str], ages: dict[str, float]
+    ) -> list[int]:
+        """Indices of usable humans; a human that is not usable is a fault."""
+        ok = []
+        J = self.reach.skeleton.n_joints
+        s = self.settings
+        for i, h in enumerate(humans):
+            if h.stamp_s is None or not math.isfinite(h.stamp_s):
+                faults.append(f"human {h.id!r}: no measurement")
+                continue
+            age = t_now - h.stamp_s
+            ages[h.id] = age
+            shapes = (np.shape(h.y), np.shape(h.v), np.shape(h.dv))
+            if shapes != ((J, 3), (J, 3), (J,)):
+                faults.append(f"human {h.id!r}: arrays {shapes}, expected ({J}, 3) and ({J},)")
+            elif not (np.all(np.isfinite(h.y)) and np.all(np.isfinite(h.v))):
+                faults.append(f"human {h.id!r}: non-finite joint positions or velocities")
+            elif np.any(np.isnan(h.dv)) or np.any(h.dv < 0):
+                faults.append(f"human {h.id!r}: velocity error bound invalid")
+            elif age > s.skeleton_timeout_s:
+                faults.append(f"human {h.id!r}: skeleton {age:.3f} s old > {s.skeleton_timeout_s}")
+            elif age < -s.future_tolerance_s:
+                faults.append(f"human {h.id!r}: skeleton stamped {-age:.4f} s in the future")
+            else:
+                ok.append(i)
+        return ok
+
+    # -- the cycle ------------------------------------------------------------------------------
+
+    def cycle(
+        self,
+        t_now: float,
+        humans: list[HumanState],
+        measured: JointState | None = None,
+        *,
+        want_distance: bool = True,
+    ) -> CycleResult:
+        """One control cycle at cell time ``t_now``; advances the follower by ``dt_s``."""
+        t0 = time.perf_counter()
+        faults: list[str] = []
+        ages: dict[str, float] = {}
+        self._check_tracking(measured, faults)
+        usable = self._check_humans(t_now, humans, faults, ages)
+        traj = ends = radius = res = None
+        verified = False
+        try:
+            traj = shielded_trajectory(
+                self.follower, self.settings.dt_s, max_interval_s=self.settings.max_interval_s
+            )
+            ends, radius = self.occupancy.intervals_of(traj)
+            radius += self.tracking_margin_m
+            if not faults:
+                if usable:
+                    idx = np.array(usable)
+                    y = np.stack([humans[i].y for i in idx])
+                    v = np.stack([humans[i].v for i in idx])
+                    dv = np.stack([humans[i].dv for i in idx])
+                    age = np.array([ages[humans[i].id] for i in idx])
+                    res = self.verifier.verify(
+                        y, v, dv, np.maximum(age, 0.0), traj.times, ends, radius
+                    )
+                    verified = res.safe
+                else:
+                    verified = True
+        except SaraError as e:  # a planning or input failure is an unsafe cycle, not a crash
+            faults.append(f"cycle failed: {e}")
+            verified = False
+        follower = self.follower
+        if verified and traj is not None:
+            command = follower.commit(traj.step)
+            mode = "failsafe" if traj.step.fallback else "intended"
+        else:
+            command = follower.brake(self.settings.dt_s)
+            mode = "fault" if faults else "failsafe"
+        if mode != "fault" and follower.sd <= 1e-9 and abs(follower.sdd) <= 1e-7:
+            mode = "rest" if (follower.done or verified) else mode
+        self.cycles += 1
+        self.fault_cycles += mode == "fault"
+        self.failsafe_cycles += mode in ("failsafe", "fault")
+        out = CycleResult(
+            t_s=t_now,
+            mode=mode,
+            verified=verified,
+            command=command,
+            faults=faults,
+            ages_s=ages,
+            trajectory=traj,
+            robot_ends=ends,
+            robot_radius=radius,
+            ssm=res,
+        )
+        if res is not None:
+            for m, name in enumerate(self.verifier.models):
+                ev = res.evaluated[:, m]
+                if ev.all():
+                    out.model_free[name] = bool(res.free[:, m].all())
+        if want_distance and usable:
+            out.min_distance_m = self.min_distance(command.q, [humans[i].y for i in usable])
+        out.cycle_time_us = (time.perf_counter() - t0) * 1e6
+        return out
+
+    def min_distance(self, q: np.ndarray, ys: list[np.ndarray]) -> float:
+        """Smallest surface distance between the robot's link capsules at ``q`` and the measured
+        body parts (half thickness) of the given humans (m)."""
+        r_ends, r_rad = self.robot.link_capsules(q)
+        best = math.inf
+        for y in ys:
+            d = segment_segment_distance(y[self._parts][:, None], r_ends[None])
+            d -= self._half_th[:, None] + r_rad[None]
+            best = min(best, float(d.min()))
+        return best

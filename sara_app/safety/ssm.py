@@ -1,0 +1,157 @@
+"""Speed and separation monitoring: human reachable sets against the robot's occupancy, per
+interval of a shielded trajectory (seed 001 Sec. II-B/C, seed 003 Sec. III-B).
+
+An interval is safe for a human when at least one enabled model's set for that interval is free
+of every robot link capsule of the interval; the trajectory is safe when every interval is safe
+for every human. This is sound exactly when each enabled model is sound for the human's motion
+(its parameters bound it): with "any model free", one unsound model makes the verdict unsound.
+
+Hot path: per model, an axis-aligned bounding-box test of every (interval, human capsule, link)
+triple (a capsule lies inside its box, so disjoint boxes mean disjoint capsules), then exact
+segment distances only for the triples whose boxes overlap. Models are tried in the given order
+and only for intervals that no earlier model has cleared.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sara_app.errors import UnknownNameError
+from sara_app.geometry import segment_pair_distances
+from sara_app.human.reach import MODELS, HumanReach, Occupancy
+
+
+@dataclass
+class SsmResult:
+    """``safe``: every interval cleared for every human. ``free (H, M, K)``: model ``m``'s set of
+    human ``h`` is free of the robot on interval ``k`` (False also where it was not evaluated
+    because an earlier model had cleared the interval: see ``evaluated``). ``closest_m (H, M)``:
+    the smallest exact surface distance found between that model's sets and the robot (``inf``
+    when no bounding boxes overlapped; negative: overlap)."""
+
+    safe: bool
+    free: np.ndarray
+    evaluated: np.ndarray
+    closest_m: np.ndarray
+
+
+def boxes_of(ends: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned boxes ``(lo, hi)`` ``(..., 3)`` of capsules ``(..., 2, 3)``, ``(...)``."""
+    r = radius[..., None]
+    return np.minimum(ends[..., 0, :], ends[..., 1, :]) - r, np.maximum(
+        ends[..., 0, :], ends[..., 1, :]
+    ) + r
+
+
+class SsmVerifier:
+    """Checks human sets from :class:`HumanReach` against robot interval capsules."""
+
+    def __init__(self, reach: HumanReach, models: tuple[str, ...] | list[str]) -> None:
+        bad = [m for m in models if m not in MODELS]
+        if bad:
+            raise UnknownNameError("reachability model", bad[0], MODELS)
+        self.reach = reach
+        self.models = tuple(models)
+
+    def occupancy(
+        self,
+        model: str,
+        y: np.ndarray,
+        v: np.ndarray,
+        dv: np.ndarray,
+        t_start_s: np.ndarray,
+        t_end_s: np.ndarray,
+    ) -> Occupancy:
+        """One human's set ``(1, K|1, C, 2, 3)`` for intervals since its measurement."""
+        r = self.reach
+        if model == "vel":
+            return r.vel(y, t_end_s)
+        if model == "pos":
+            return r.pos(y, t_end_s)
+        if model == "iso13855":
+            return r.iso13855(y, t_end_s)
+        if model == "acc":
+            return r.acc(y, v, dv, t_start_s, t_end_s)
+        from sara_app.human.arm import arm_occupancy
+
+        return arm_occupancy(r, y, t_start_s, t_end_s)
+
+    def verify(
+        self,
+        y: np.ndarray,
+        v: np.ndarray,
+        dv: np.ndarray,
+        age_s: np.ndarray,
+        times_s: np.ndarray,
+        robot_ends: np.ndarray,
+        robot_radius: np.ndarray,
+    ) -> SsmResult:
+        """``y, v (H, J, 3)``, ``dv (H, J)``, ``age_s (H,)`` (command time minus measurement
+        time), ``times_s (K+1,)`` from now, robot ``(K, L, 2, 3)``, ``(K, L)``."""
+        H, M, K = y.shape[0], len(self.models), robot_ends.shape[0]
+        free = np.zeros((H, M, K), dtype=bool)
+        evaluated = np.zeros((H, M, K), dtype=bool)
+        closest = np.full((H, M), np.inf)
+        r_lo, r_hi = boxes_of(robot_ends, robot_radius)  # (K, L, 3)
+        safe = True
+        for h in range(H):
+            ts = times_s[:-1] + age_s[h]
+            te = times_s[1:] + age_s[h]
+            cleared = np.zeros(K, dtype=bool)
+            for m, name in enumerate(self.models):
+                todo = ~cleared
+                occ = self.occupancy(name, y[h : h + 1], v[h : h + 1], dv[h : h + 1], ts, te)
+                hit, dmin = self._collides(occ, robot_ends, robot_radius, r_lo, r_hi, todo)
+                evaluated[h, m] = todo
+                free[h, m] = todo & ~hit
+                closest[h, m] = dmin
+                cleared |= free[h, m]
+                if cleared.all():
+                    break
+            safe = safe and bool(cleared.all())
+        return SsmResult(safe, free, evaluated, closest)
+
+    @staticmethod
+    def _collides(
+        occ: Occupancy,
+        robot_ends: np.ndarray,
+        robot_radius: np.ndarray,
+        r_lo: np.ndarray,
+        r_hi: np.ndarray,
+        todo: np.ndarray,
+    ) -> tuple[np.ndarray, float]:
+        """``(hit (K,), closest distance)`` of one human's capsules against the robot, for the
+        intervals in ``todo``."""
+        K = robot_ends.shape[0]
+        ends = occ.ends[0]  # (K|1, C, 2, 3)
+        rad = occ.radius[0]  # (K|1, C)
+        h_lo, h_hi = boxes_of(ends, rad)  # (K|1, C, 3)
+        overlap = np.all(h_lo[:, :, None] <= r_hi[:, None], axis=-1)
+        overlap &= np.all(r_lo[:, None] <= h_hi[:, :, None], axis=-1)  # (K, C, L)
+        overlap &= todo[:, None, None]
+        k, c, l = np.nonzero(overlap)
+        hit = np.zeros(K, dtype=bool)
+        if k.size == 0:
+            return hit, float("inf")
+        ke = k if ends.shape[0] == K else np.zeros_like(k)
+        kr = k if rad.shape[0] == K else np.zeros_like(k)
+        ha, rb = ends[ke, c], robot_ends[k, l]  # (n, 2, 3) candidate pairs
+        reach = rad[kr, c] + robot_radius[k, l]
+        # Sphere lower bound: |mid_a - mid_b| - half lengths <= segment distance.
+        ma = ha.sum(axis=1)
+        ma -= rb.sum(axis=1)
+        lower = 0.5 * np.sqrt((ma * ma).sum(axis=1))
+        lower -= 0.5 * np.sqrt(((ha[:, 1] - ha[:, 0]) ** 2).sum(axis=1))
+        lower -= 0.5 * np.sqrt(((rb[:, 1] - rb[:, 0]) ** 2).sum(axis=1))
+        lower -= reach
+        near = lower <= 0.0
+        if not near.any():
+            return hit, float(lower.min())
+        d = segment_pair_distances(ha[near], rb[near])
+        d -= reach[near]
+        hit[k[near][d <= 0.0]] = True
+        if (~near).any():
+            return hit, float(min(d.min(), lower[~near].min()))
+        return hit, float(d.min())

@@ -1,0 +1,273 @@
+"""Scenario files: one pydantic model of a cell (robot, task, environment, humans, parameters,
+shield settings), loaded from JSON, YAML or TOML and saved as JSON.
+
+Validation happens here, at the boundary: a malformed file raises :class:`ScenarioError` naming
+the field (``humans.0.motion``), the bad value and the valid choices. Joint-space checks that need
+the robot model (waypoints inside the joint limits, the right number of joints) run in
+:func:`check_against_robot`, called by :func:`load_scenario`.
+"""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from sara_app.errors import SaraError, ScenarioError
+from sara_app.human.params import ParamSet, load_param_set, parse_param_set
+from sara_app.human.reach import MODELS
+
+Vec3 = tuple[float, float, float]
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+Name = Annotated[str, Field(pattern=r"^[A-Za-z0-9_\-]+$", min_length=1, max_length=64)]
+
+MOTIONS = ("stand", "approach", "punch", "headbutt", "box_pick")
+STRATEGIES = ("rigid", "limbs")
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+class RobotSpec(_Strict):
+    name: Literal["panda", "ur5e"] = "panda"
+    base_xyz_m: tuple[Finite, Finite, Finite] = (0.0, 0.0, 0.0)
+    base_rpy_rad: tuple[Finite, Finite, Finite] = (0.0, 0.0, 0.0)
+    margin_m: NonNeg = 0.0
+
+
+class LimitScale(_Strict):
+    """Fractions of the URDF's joint limits the task may use (the failsafe uses the same)."""
+
+    velocity: Annotated[float, Field(gt=0, le=1)] = 1.0
+    acceleration: Annotated[float, Field(gt=0, le=1)] = 1.0
+    jerk: Annotated[float, Field(gt=0, le=1)] = 1.0
+
+
+class TaskSpec(_Strict):
+    waypoints_rad: list[list[Finite]] = Field(min_length=1)
+    blend_distance_rad: Pos = 0.1
+    cycles: Annotated[int, Field(ge=1, le=1000)] = 1
+    """How often the waypoints are run through (back and forth between the last and the first)."""
+
+
+class BoxSpec(_Strict):
+    name: Name
+    center_m: tuple[Finite, Finite, Finite]
+    size_m: tuple[Pos, Pos, Pos]
+    rpy_rad: tuple[Finite, Finite, Finite] = (0.0, 0.0, 0.0)
+
+
+class SensorSpec(_Strict):
+    rate_hz: Annotated[float, Field(ge=1, le=1000)] = 100.0
+    noise_m: NonNeg = 0.0
+    """Position noise, uniform in a cube whose corners lie at this distance (keep <= delta_y)."""
+
+
+class _HumanBase(_Strict):
+    id: Name
+    sensor: SensorSpec = SensorSpec()
+    start_s: NonNeg = 0.0
+
+
+class RecordingHuman(_HumanBase):
+    type: Literal["recording"]
+    recording: str = "02_01"
+    offset_m: tuple[Finite, Finite, Finite] = (0.0, 0.0, 0.0)
+    yaw_rad: Finite = 0.0
+    clip_start_s: NonNeg = 0.0
+
+
+class ScriptedHuman(_HumanBase):
+    type: Literal["scripted"]
+    motion: Literal["stand", "approach", "punch", "headbutt", "box_pick"]
+    position_m: tuple[Finite, Finite] = (1.0, 0.0)
+    """Where the person stands (pelvis, on the floor plane) at the start."""
+    target_m: tuple[Finite, Finite, Finite] = (0.4, 0.0, 0.5)
+    """The point the motion aims at (an end-effector position, a box place)."""
+    speed_scale: Annotated[float, Field(gt=0, le=1)] = 1.0
+
+
+class AdversarialHuman(_HumanBase):
+    type: Literal["adversarial"]
+    strategy: Literal["rigid", "limbs"] = "rigid"
+    position_m: tuple[Finite, Finite] = (1.2, 0.0)
+    seed: int = 0
+
+
+HumanSpec = Annotated[
+    RecordingHuman | ScriptedHuman | AdversarialHuman, Field(discriminator="type")
+]
+
+
+class ShieldSpec(_Strict):
+    mode: Literal["ssm"] = "ssm"
+    dt_s: Annotated[float, Field(ge=1e-4, le=0.05)] = 0.004
+    max_interval_s: Annotated[float, Field(gt=0, le=0.1)] = 0.02
+    models: list[str] = ["pos", "vel", "acc"]
+    tracking_tol_rad: Annotated[float, Field(gt=0, le=0.1)] = 0.005
+    skeleton_timeout_s: Annotated[float, Field(gt=0, le=5)] = 0.2
+
+    @field_validator("models")
+    @classmethod
+    def _known_models(cls, v: list[str]) -> list[str]:
+        if not v:
+            raise ValueError(f"at least one model is needed; valid: {', '.join(MODELS)}")
+        bad = [m for m in v if m not in MODELS]
+        if bad:
+            raise ValueError(f"unknown model {bad[0]!r}; valid: {', '.join(MODELS)}")
+        if len(set(v)) != len(v):
+            raise ValueError(f"models listed twice in {v}")
+        return v
+
+
+class SimSpec(_Strict):
+    duration_s: Annotated[float, Field(gt=0, le=600)] = 10.0
+    seed: int = 0
+
+
+class Scenario(_Strict):
+    schema_version: Literal[1] = 1
+    name: Name
+    description: str = ""
+    robot: RobotSpec = RobotSpec()
+    limits: LimitScale = LimitScale()
+    task: TaskSpec
+    environment: list[BoxSpec] = []
+    humans: list[HumanSpec] = []
+    human_params: str | dict[str, Any] = "seed001_table1"
+    """A parameter-set name (see ``sara_app/params``) or a full inline parameter set."""
+    shield: ShieldSpec = ShieldSpec()
+    sim: SimSpec = SimSpec()
+
+    @field_validator("humans")
+    @classmethod
+    def _unique_ids(cls, v: list[Any]) -> list[Any]:
+        ids = [h.id for h in v]
+        dup = sorted({i for i in ids if ids.count(i) > 1})
+        if dup:
+            raise ValueError(f"human id {dup[0]!r} used twice; ids must be unique")
+        return v
+
+    @field_validator("human_params")
+    @classmethod
+    def _params_valid(cls, v: str | dict[str, Any]) -> str | dict[str, Any]:
+        try:
+            if isinstance(v, str):
+                load_param_set(v)
+            else:
+                parse_param_set(v, "human_params")
+        except SaraError as e:
+            raise ValueError(str(e)) from e
+        return v
+
+    def param_set(self) -> ParamSet:
+        hp = self.human_params
+        return load_param_set(hp) if isinstance(hp, str) else parse_param_set(hp, "human_params")
+
+
+def _format_validation(err: ValidationError, origin: str) -> str:
+    lines = []
+    for e in err.errors()[:5]:
+        loc = ".".join(str(p) for p in e["loc"]) or "<root>"
+        lines.append(f"{loc}: {e['msg']} (got {e.get('input')!r:.80})")
+    more = len(err.errors()) - 5
+    tail = f" (+{more} more)" if more > 0 else ""
+    return f"scenario {origin}: " + "; ".join(lines) + tail
+
+
+def parse_scenario(data: object, origin: str = "<data>") -> Scenario:
+    """Validate a decoded scenario; :class:`ScenarioError` names every bad field."""
+    try:
+        return Scenario.model_validate(data)
+    except ValidationError as e:
+        raise ScenarioError(_format_validation(e, origin)) from None
+
+
+def _read(path: Path) -> object:
+    text = path.read_text()
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".json":
+            return json.loads(text)
+        if suffix in (".yaml", ".yml"):
+            import yaml
+
+            return yaml.safe_load(text)
+        if suffix == ".toml":
+            return tomllib.loads(text)
+    except (ValueError, tomllib.TOMLDecodeError) as e:
+        raise ScenarioError(f"scenario file {str(path)!r} is not valid {suffix[1:]}: {e}") from e
+    except Exception as e:  # yaml.YAMLError without importing yaml at module level
+        raise ScenarioError(f"scenario file {str(path)!r} cannot be parsed: {e}") from e
+    raise ScenarioError(
+        f"scenario file {str(path)!r} has suffix {suffix!r}; valid: .json, .yaml, .yml, .toml"
+    )
+
+
+def scenarios_dir() -> Path:
+    """The shipped ``scenarios/`` folder (repository root)."""
+    return Path(__file__).resolve().parent.parent / "scenarios"
+
+
+def scenario_names(folder: Path | None = None) -> tuple[str, ...]:
+    folder = folder or scenarios_dir()
+    exts = (".json", ".yaml", ".yml", ".toml")
+    return tuple(sorted(p.stem for p in folder.glob("*") if p.suffix.lower() in exts))
+
+
+def scenario_path(name_or_path: str | Path, folder: Path | None = None) -> Path:
+    p = Path(name_or_path)
+    if p.suffix and p.is_file():
+        return p
+    folder = folder or scenarios_dir()
+    for ext in (".json", ".yaml", ".yml", ".toml"):
+        cand = folder / f"{name_or_path}{ext}"
+        if cand.is_file():
+            return cand
+    raise ScenarioError(
+        f"scenario {str(name_or_path)!r} not found (a file path, or a name in {folder}); "
+        f"valid names: {', '.join(scenario_names(folder)) or '(none)'}"
+    )
+
+
+def load_scenario(name_or_path: str | Path, folder: Path | None = None) -> Scenario:
+    """A shipped scenario by name, or a file; validated against the robot model too."""
+    path = scenario_path(name_or_path, folder)
+    sc = parse_scenario(_read(path), str(path))
+    check_against_robot(sc)
+    return sc
+
+
+def save_scenario(sc: Scenario, path: str | Path) -> Path:
+    path = Path(path)
+    path.write_text(json.dumps(sc.model_dump(mode="json"), indent=2) + "\n")
+    return path
+
+
+def check_against_robot(sc: Scenario) -> None:
+    """Waypoints have the robot's joint count and lie inside its position limits."""
+    from sara_app.robot.model import load_robot
+
+    robot = load_robot(sc.robot.name)
+    lim = robot.limits
+    for i, wp in enumerate(sc.task.waypoints_rad):
+        if len(wp) != robot.n_dof:
+            raise ScenarioError(
+                f"task.waypoints_rad.{i} has {len(wp)} values; robot {sc.robot.name!r} has "
+                f"{robot.n_dof} joints"
+            )
+        q = np.asarray(wp)
+        bad = np.flatnonzero((q < lim.q_min) | (q > lim.q_max))
+        if bad.size:
+            j = int(bad[0])
+            raise ScenarioError(
+                f"task.waypoints_rad.{i}: joint {robot.joint_names[j]!r} = {q[j]:.4f} rad is "
+                f"outside its limits [{lim.q_min[j]:.4f}, {lim.q_max[j]:.4f}]"
+            )
