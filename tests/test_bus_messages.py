@@ -58,7 +58,8 @@ def test_joint_mapping_matches_the_reach_code() -> None:
         y_m, v_mps = msg.to_arrays()
         sk = skeleton(msg.kind)
         assert y_m.shape == v_mps.shape == (sk.n_joints, 3)  # type: ignore[union-attr]
-        np.testing.assert_array_equal(y_m, from_source(source, joints))
+        np.testing.assert_allclose(y_m, from_source(source, joints), rtol=1e-15, atol=1e-15)
+        np.testing.assert_allclose(v_mps, from_source(source, vel), rtol=1e-15, atol=1e-15)  # type: ignore[arg-type]
         table = SOURCES[source][1]
         for i, j in enumerate(sk.joints):  # virtual joints are means, velocities too
             np.testing.assert_allclose(y_m[i], np.mean([joints[n] for n in table[j]], axis=0))

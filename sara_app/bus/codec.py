@@ -17,15 +17,16 @@ inconsistent_length, invalid, key_mismatch, out_of_order, internal.
 
 from __future__ import annotations
 
-import json
 import logging
+import math
 import time
-from typing import NamedTuple
+from collections.abc import Mapping
+from typing import Any, NamedTuple
 
 from pydantic import ValidationError
 
 from sara_app.bus.keys import ParsedKey, parse_key
-from sara_app.bus.messages import MODELS_BY_KIND, SCHEMA_VERSION, Message
+from sara_app.bus.messages import MODELS_BY_KIND, Message
 from sara_app.errors import InputError
 
 MAX_PAYLOAD_BYTES = 4 * 1024 * 1024
@@ -49,8 +50,12 @@ REASONS: tuple[str, ...] = (
     "internal",
 )
 # pydantic error type -> reason; custom error types of messages.py pass through when listed.
-_ERROR_REASON = {"missing": "missing_field", "extra_forbidden": "unknown_field"}
-_ERROR_REASON.update({"finite_number": "non_finite"})
+_ERROR_REASON = {
+    "missing": "missing_field",
+    "extra_forbidden": "unknown_field",
+    "finite_number": "non_finite",
+    "too_deep": "invalid",
+}
 
 log = logging.getLogger("sara_app.bus")
 
@@ -71,16 +76,27 @@ class Decoded(NamedTuple):
     recv_s: float
 
 
-def _reject_constant(name: str) -> float:
-    raise MessageError("non_finite", f"JSON constant {name} is not allowed")
+_PRIORITY = {r: i for i, r in enumerate(REASONS)}
+
+
+def _error_reason(e: Mapping[str, Any]) -> str:
+    kind, loc, value = e["type"], e["loc"], e.get("input")
+    if kind in ("json_invalid", "json_type", "model_type", "model_attributes_type") and not loc:
+        return "malformed_json"
+    if loc == ("schema_version",):
+        return "missing_field" if kind == "missing" else "schema_version"
+    if isinstance(value, float) and not math.isfinite(value):
+        return "non_finite"
+    return kind if kind in _PRIORITY else _ERROR_REASON.get(kind, "invalid")
 
 
 def _validation_error(err: ValidationError) -> MessageError:
-    first = err.errors()[0]
-    kind = first["type"]
-    reason = kind if kind in REASONS else _ERROR_REASON.get(kind, "invalid")
-    where = ".".join(str(p) for p in first["loc"]) or "<message>"
-    return MessageError(reason, f"{where}: {first['msg']} ({err.error_count()} error(s))"[:500])
+    errors = err.errors()
+    reasons = [_error_reason(e) for e in errors]
+    i = min(range(len(errors)), key=lambda k: _PRIORITY[reasons[k]])
+    where = ".".join(str(p) for p in errors[i]["loc"]) or "<message>"
+    text = f"{where}: {errors[i]['msg']} ({len(errors)} error(s))"
+    return MessageError(reasons[i], text[:500])
 
 
 def decode(key_expr: str, payload: bytes) -> Decoded:
@@ -92,23 +108,12 @@ def decode(key_expr: str, payload: bytes) -> Decoded:
         key = parse_key(key_expr)
     except InputError as e:
         raise MessageError("bad_key", str(e)) from None
-    try:
-        data = json.loads(payload, parse_constant=_reject_constant)
-    except (ValueError, RecursionError) as e:  # JSONDecodeError and UnicodeDecodeError
-        if isinstance(e, MessageError):
-            raise
-        raise MessageError("malformed_json", str(e)[:200]) from None
-    if not isinstance(data, dict):
-        raise MessageError("malformed_json", f"expected a JSON object, got {type(data).__name__}")
-    if "schema_version" not in data:
-        raise MessageError("missing_field", "schema_version is required")
-    version = data["schema_version"]
-    if type(version) is not int or version != SCHEMA_VERSION:
-        raise MessageError("schema_version", f"{version!r} unsupported; valid: {SCHEMA_VERSION}")
-    try:
-        msg = MODELS_BY_KIND[key.kind].model_validate(data)
+    try:  # pydantic's JSON parser: strict types, NaN/Infinity/overflow refused as non-finite
+        msg = MODELS_BY_KIND[key.kind].model_validate_json(payload)
     except ValidationError as e:
         raise _validation_error(e) from None
+    if "schema_version" not in msg.model_fields_set:
+        raise MessageError("missing_field", "schema_version is required")
     cell = getattr(msg, "cell", key.cell)
     if cell != key.cell:
         raise MessageError("key_mismatch", f"message cell {cell!r} on key {key_expr!r}")

@@ -25,7 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from pydantic_core import PydanticCustomError
 
 from sara_app.bus.keys import NAME_PATTERN
-from sara_app.human.skeleton import COCO17_NAMES, SOURCES, from_source, skeleton
+from sara_app.human.skeleton import COCO17_NAMES, SOURCES, skeleton
 
 SCHEMA_VERSION = 1
 
@@ -46,6 +46,21 @@ def source_points(source: str) -> tuple[frozenset[str], frozenset[str]]:
     return required, required | frozenset(_OPTIONAL_POINTS.get(source, ()))
 
 
+def _source_matrix(source: str) -> tuple[tuple[str, ...], np.ndarray]:
+    """Required point names ``(P,)`` and the ``(J, P)`` averaging matrix of a source."""
+    kind, table = SOURCES[source]
+    names = tuple(sorted({n for pts in table.values() for n in pts}))
+    joints = skeleton(kind).joints
+    W = np.zeros((len(joints), len(names)))
+    for i, j in enumerate(joints):
+        for n in table[j]:
+            W[i, names.index(n)] += 1.0 / len(table[j])
+    return names, W
+
+
+_MATRICES = {s: _source_matrix(s) for s in SOURCES}
+
+
 def _fail(kind: str, message: str) -> PydanticCustomError:
     return PydanticCustomError(kind, message)
 
@@ -53,9 +68,16 @@ def _fail(kind: str, message: str) -> PydanticCustomError:
 class _Msg(BaseModel):
     model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
 
-    schema_version: Literal[1] = 1
+    schema_version: Literal[1] = 1  # required on the wire (checked by the decoder)
     seq: Annotated[int, Field(ge=0, le=2**63 - 1)]
     stamp_s: NonNeg
+
+    @field_validator("schema_version", mode="before")
+    @classmethod
+    def _version_is_int(cls, v: object) -> object:
+        if type(v) is not int:  # JSON true would otherwise equal 1
+            raise _fail("schema_version", f"schema_version {v!r} is not an int")
+        return v
 
 
 class SkeletonMsg(_Msg):
@@ -108,11 +130,14 @@ class SkeletonMsg(_Msg):
     def to_arrays(self) -> tuple[np.ndarray, np.ndarray | None]:
         """Positions ``(J, 3)`` m and velocities ``(J, 3)`` m/s (or None) in ``kind`` order.
 
-        Virtual joints are means of source points (velocities too: the mapping is linear).
+        Virtual joints are means of source points (velocities too: the mapping is linear); the
+        same mapping as ``sara_app.human.skeleton.from_source``, as one matrix product.
         """
-        y_m = from_source(self.source, self.joints)
-        v_mps = None if self.velocities is None else from_source(self.source, self.velocities)
-        return y_m, v_mps
+        names, W = _MATRICES[self.source]
+        y_m = W @ np.array([self.joints[n] for n in names])
+        if self.velocities is None:
+            return y_m, None
+        return y_m, W @ np.array([self.velocities[n] for n in names])
 
     @classmethod
     def from_arrays(
