@@ -34,15 +34,16 @@ def router() -> Iterator[tuple[Bus, int]]:
 
 
 def _collect(sub: Subscription, n: int, timeout_s: float = 10.0) -> list[Decoded]:
-    """Drain until ``n`` messages were received or accepted+rejected reached ``n``."""
+    """Drain a fresh subscription until ``n`` samples arrived (accepted or rejected)."""
     out: list[Decoded] = []
+    rejected = 0
     deadline = time.monotonic() + timeout_s
-    start = sub.decoder.accepted + sub.decoder.rejected
-    while time.monotonic() < deadline:
-        out += sub.drain().messages
-        if sub.decoder.accepted + sub.decoder.rejected - start >= n:
-            break
+    while time.monotonic() < deadline and len(out) + rejected < n:
+        got = sub.drain()
+        out += got.messages
+        rejected += got.rejected
         time.sleep(0.005)
+    assert rejected == sub.decoder.rejected  # one fresh decoder per subscription here
     return out
 
 
