@@ -20,44 +20,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from sara_app.cell import build_cell
 from sara_app.geometry import segment_segment_distance
 from sara_app.human.motions import HumanMotion, make_motion
-from sara_app.human.params import to_reach_params
-from sara_app.human.reach import HumanReach
 from sara_app.human.velocity import VelocityEstimator
-from sara_app.robot.model import JointLimits, RobotModel, load_robot
-from sara_app.robot.trajectory import PathFollower
-from sara_app.safety.shield import CycleResult, HumanState, Shield, ShieldSettings
+from sara_app.robot.model import RobotModel, load_robot
+from sara_app.safety.shield import CycleResult, HumanState
 from sara_app.scenario import Scenario
 
 _MOVING_RAD_S = 1e-6
-
-
-def base_pose(xyz: tuple[float, float, float], rpy: tuple[float, float, float]) -> np.ndarray:
-    """``T_world_base (4, 4)`` from a position and roll-pitch-yaw (fixed axes x, y, z)."""
-    r, p, y = rpy
-    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
-    T = np.eye(4)
-    T[:3, :3] = np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
-    T[:3, 3] = xyz
-    return T
-
-
-def scaled_limits(limits: JointLimits, v: float, a: float, j: float) -> JointLimits:
-    return JointLimits(
-        limits.q_min,
-        limits.q_max,
-        limits.v_max * v,
-        limits.a_max * a,
-        limits.j_max * j,
-        limits.tau_max,
-    )
 
 
 @dataclass
@@ -107,32 +78,20 @@ class Simulation:
 
     def __init__(self, sc: Scenario) -> None:
         self.scenario = sc
-        T = base_pose(sc.robot.base_xyz_m, sc.robot.base_rpy_rad)
-        self.robot: RobotModel = load_robot(
-            sc.robot.name, T_world_base=T, margin_m=sc.robot.margin_m
-        )
+        cell = build_cell(sc)
+        self.robot: RobotModel = cell.robot
         self.truth_robot = (
-            self.robot if sc.robot.margin_m == 0 else load_robot(sc.robot.name, T_world_base=T)
+            cell.robot
+            if sc.robot.margin_m == 0
+            else load_robot(sc.robot.name, T_world_base=cell.robot.T_world_base)
         )
-        lim = scaled_limits(
-            self.robot.limits, sc.limits.velocity, sc.limits.acceleration, sc.limits.jerk
-        )
-        wps = np.asarray(sc.task.waypoints_rad, dtype=float)
-        self.passes = [wps if i % 2 == 0 else wps[::-1] for i in range(sc.task.cycles)]
-        follower = PathFollower(self.passes[0], lim, blend_distance=sc.task.blend_distance_rad)
+        self.passes = cell.passes
         self.pass_index = 0
-        ps = sc.param_set()
-        self.params = to_reach_params(ps, "full")
-        reach = HumanReach(self.params)
+        ps = cell.param_set
+        self.params = cell.params
+        reach = cell.shield.reach
+        self.shield = cell.shield
         s = sc.shield
-        settings = ShieldSettings(
-            dt_s=s.dt_s,
-            max_interval_s=s.max_interval_s,
-            models=tuple(s.models),
-            tracking_tol_rad=s.tracking_tol_rad,
-            skeleton_timeout_s=s.skeleton_timeout_s,
-        )
-        self.shield = Shield(self.robot, follower, reach, settings)
         self.dt = s.dt_s
         self.rng = np.random.default_rng(sc.sim.seed)
         self.motions: list[HumanMotion] = [make_motion(h, self.params) for h in sc.humans]

@@ -1,0 +1,82 @@
+"""A cell built from a scenario: robot model, task passes, human parameters and the shield.
+
+Shared by the simulator and the cell worker so both verify with exactly the same setup.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sara_app.human.params import ParamSet, ReachParams, to_reach_params
+from sara_app.human.reach import HumanReach
+from sara_app.robot.model import JointLimits, RobotModel, load_robot
+from sara_app.robot.trajectory import PathFollower
+from sara_app.safety.shield import Shield, ShieldSettings
+from sara_app.scenario import Scenario
+
+
+def base_pose(xyz: tuple[float, float, float], rpy: tuple[float, float, float]) -> np.ndarray:
+    """``T_world_base (4, 4)`` from a position and roll-pitch-yaw (fixed axes x, y, z)."""
+    r, p, y = rpy
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    T = np.eye(4)
+    T[:3, :3] = np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
+    T[:3, 3] = xyz
+    return T
+
+
+def scaled_limits(limits: JointLimits, v: float, a: float, j: float) -> JointLimits:
+    return JointLimits(
+        limits.q_min,
+        limits.q_max,
+        limits.v_max * v,
+        limits.a_max * a,
+        limits.j_max * j,
+        limits.tau_max,
+    )
+
+
+def shield_settings(sc: Scenario) -> ShieldSettings:
+    s = sc.shield
+    return ShieldSettings(
+        dt_s=s.dt_s,
+        max_interval_s=s.max_interval_s,
+        models=tuple(s.models),
+        tracking_tol_rad=s.tracking_tol_rad,
+        skeleton_timeout_s=s.skeleton_timeout_s,
+    )
+
+
+@dataclass
+class Cell:
+    """``passes``: the task's waypoint arrays ``(W, n)``, run one after the other (back and
+    forth); ``param_set`` / ``params``: the human parameters (full skeleton)."""
+
+    scenario: Scenario
+    robot: RobotModel
+    limits: JointLimits
+    passes: list[np.ndarray]
+    param_set: ParamSet
+    params: ReachParams
+    shield: Shield
+
+
+def build_cell(sc: Scenario) -> Cell:
+    T = base_pose(sc.robot.base_xyz_m, sc.robot.base_rpy_rad)
+    robot = load_robot(sc.robot.name, T_world_base=T, margin_m=sc.robot.margin_m)
+    lim = scaled_limits(robot.limits, sc.limits.velocity, sc.limits.acceleration, sc.limits.jerk)
+    wps = np.asarray(sc.task.waypoints_rad, dtype=float)
+    passes = [wps if i % 2 == 0 else wps[::-1] for i in range(sc.task.cycles)]
+    follower = PathFollower(passes[0], lim, blend_distance=sc.task.blend_distance_rad)
+    ps = sc.param_set()
+    params = to_reach_params(ps, "full")
+    shield = Shield(robot, follower, HumanReach(params), shield_settings(sc))
+    return Cell(sc, robot, lim, passes, ps, params, shield)
