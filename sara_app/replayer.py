@@ -1,0 +1,142 @@
+"""The replayer: publishes a scenario's people over Zenoh as a tracking system would, in real
+time, at each person's sensor rate (the built-in demo's stand-in for a real tracker).
+
+A skeleton stamped ``t`` carries the pose of scenario time ``t - t0 - delay`` (the parameter
+set's sensor delay), with the scenario's sensor noise, so the cell sees exactly what its models
+assume. Adversaries chase the robot as commanded on ``sara/<cell>/robot/command``. The scenario
+restarts after ``sim.duration_s``; an accepted scenario update (``params/ack``) restarts it with
+the new people.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import signal
+import sys
+import threading
+import time
+
+import numpy as np
+
+from sara_app.bus import keys
+from sara_app.bus.codec import Decoder
+from sara_app.bus.messages import ParamsAckMsg, ParamsMsg, RobotCommandMsg, SkeletonMsg
+from sara_app.bus.session import Bus, Publisher
+from sara_app.cell import base_pose
+from sara_app.errors import SaraError
+from sara_app.human.motions import HumanMotion, make_motion
+from sara_app.human.params import to_reach_params
+from sara_app.robot.model import RobotModel, load_robot
+from sara_app.scenario import Scenario, load_scenario, parse_scenario
+
+log = logging.getLogger("sara_app.replayer")
+
+
+class Replayer:
+    def __init__(self, cell: str, scenario: Scenario, bus: Bus, *, seed: int = 0) -> None:
+        self.cell = keys.check_name("cell", cell)
+        self.bus = bus
+        self.rng = np.random.default_rng(seed)
+        self.stop_event = threading.Event()
+        dec = Decoder()
+        self.sub_cmd = bus.subscribe(keys.robot_command_key(self.cell), dec)
+        self.sub_params = bus.subscribe(keys.params_key(self.cell), dec, fifo=True)
+        self.sub_ack = bus.subscribe(keys.params_ack_key(self.cell), dec, fifo=True)
+        self._pending: dict[str, dict] = {}
+        self.pubs: dict[str, Publisher] = {}
+        self.load(scenario)
+
+    def load(self, sc: Scenario) -> None:
+        self.scenario = sc
+        self.params = to_reach_params(sc.param_set(), "full")
+        T = base_pose(sc.robot.base_xyz_m, sc.robot.base_rpy_rad)
+        self.robot: RobotModel = load_robot(sc.robot.name, T_world_base=T)
+        self.q = np.asarray(sc.task.waypoints_rad[0], dtype=float)
+        self._restart(time.time())
+
+    def _restart(self, now: float) -> None:
+        self.t0 = now
+        self.motions: list[HumanMotion] = [
+            make_motion(h, self.params) for h in self.scenario.humans
+        ]
+        self.next_s = [now for _ in self.scenario.humans]
+        for h in self.scenario.humans:
+            if h.id not in self.pubs:
+                self.pubs[h.id] = self.bus.publisher(keys.skeleton_key(self.cell, h.id))
+
+    def _inputs(self) -> None:
+        for d in self.sub_cmd.drain().messages:
+            if isinstance(d.msg, RobotCommandMsg) and len(d.msg.q) == self.robot.n_dof:
+                self.q = np.asarray(d.msg.q)
+        for d in self.sub_params.drain().messages:
+            if isinstance(d.msg, ParamsMsg):
+                self._pending[d.msg.request_id] = d.msg.scenario
+        for d in self.sub_ack.drain().messages:
+            if isinstance(d.msg, ParamsAckMsg):
+                data = self._pending.pop(d.msg.request_id, None)
+                if d.msg.accepted and data is not None:
+                    try:
+                        self.load(parse_scenario(data, "params message"))
+                    except SaraError as e:
+                        log.warning("accepted scenario cannot be replayed: %s", e)
+
+    def tick(self, now: float) -> int:
+        """Publish every skeleton that is due; returns how many were sent."""
+        self._inputs()
+        t_scn = now - self.t0 - self.params.delay_s
+        if t_scn > self.scenario.sim.duration_s:
+            self._restart(now)
+            t_scn = -self.params.delay_s
+        ends, rad = self.robot.link_capsules(self.q)
+        sent = 0
+        for i, (h, m) in enumerate(zip(self.scenario.humans, self.motions)):
+            y = m.pose(max(t_scn, 0.0), ends, rad)
+            if now < self.next_s[i]:
+                continue
+            self.next_s[i] = max(self.next_s[i] + 1.0 / h.sensor.rate_hz, now - 0.5)
+            if h.sensor.noise_m > 0:
+                y = y + self.rng.uniform(-1, 1, y.shape) * (h.sensor.noise_m / math.sqrt(3.0))
+            pub = self.pubs[h.id]
+            msg = SkeletonMsg.from_arrays("full", y, seq=pub.next_seq(), stamp_s=now)
+            sent += pub.put(msg)
+        return sent
+
+    def run(self, duration_s: float | None = None) -> None:
+        rate = max((h.sensor.rate_hz for h in self.scenario.humans), default=100.0)
+        period = 1.0 / max(rate, 100.0)
+        t_end = None if duration_s is None else time.monotonic() + duration_s
+        while not self.stop_event.is_set():
+            if t_end is not None and time.monotonic() >= t_end:
+                break
+            try:
+                self.tick(time.time())
+            except Exception:  # noqa: BLE001 - a replay glitch must not end the demo
+                log.exception("replayer tick failed")
+            time.sleep(period / 2)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="sara_app.replayer", description="replay scenario humans")
+    ap.add_argument("--cell", default="cell1")
+    ap.add_argument("--scenario", default="standing_beside_path")
+    ap.add_argument("--port", type=int, default=7447)
+    ap.add_argument("--duration", type=float, default=None)
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s replayer %(message)s")
+    try:
+        sc = load_scenario(args.scenario)
+        with Bus.client(args.port) as bus:
+            r = Replayer(args.cell, sc, bus)
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(sig, lambda *_: r.stop_event.set())
+            r.run(args.duration)
+    except SaraError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
