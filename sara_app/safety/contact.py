@@ -1,0 +1,397 @@
+"""Contact classification per interval, robot link and body part (seed 003 Sec. VI).
+
+Inputs (all world frame, metres, seconds; ``K`` intervals, ``L`` robot links, ``P`` body parts,
+``B`` environment boxes):
+
+- robot interval capsules ``r_ends (K, L, 2, 3)``, ``r_radius (K, L)`` (each contains the link
+  over the whole interval, :meth:`RobotOccupancy.intervals`);
+- link states at the ``K+1`` samples: ``s_ends (K+1, L, 2, 3)`` (the link capsules, radius
+  ``s_radius (L,)``), ``p1_dot (K+1, L, 3)`` velocity of ``s_ends[..., 0, :]`` and ``omega
+  (K+1, L, 3)`` (:meth:`sara_app.robot.energy.LinkMotion.evaluate`);
+- ``eps_v (K, L)`` m/s: linearisation error of the projected velocities
+  (:class:`VelocityErrorBound`);
+- human capsules ``h_ends (K, P, 2, 3)``, ``h_radius (K, P)`` (reachable occupancy per interval);
+- boxes ``T_world_box (B, 4, 4)``, ``half_extents_m (B, 3)``.
+
+Rules (``~`` = not; every predicate is written so that NaN input gives the conservative answer):
+
+- contact (eq. 8): the link and body-part capsules are not separated;
+- env-constrained (eq. 10-11): the body part touches box ``b`` and no relaxation applies:
+  velocity (Thm VI.1 and eq. 25-26, 31): every point of the link moves away from the box along
+  the normal ``n`` at the closest points, ``min_samples(n.p1_dot - (r + |p2 - p1|) |n x w|) >=
+  eps_v``. Note the MINUS: seed 003 prints ``+`` in eq. 16/22-25, but ``cos(alpha) >= -1`` gives
+  the lower bound with ``-``; the brute-force test in ``tests/test_contact.py`` checks it.
+  Human diameter (eq. 33): the link is farther than the body part's diameter from the box;
+- self-constrained (eq. 12-13): the body part also touches another link ``l`` and no
+  relaxation applies: topology (eq. 36-37, the pair is declared unclampable), diameter (eq. 34,
+  the two links are farther apart than the diameter; seed 003 prints ``<=``, the relaxation is
+  ``>``), velocity (eq. 32): along the normal ``n_l`` on link ``l`` towards link ``i``, the
+  slowest point of ``i`` is at least as fast as the fastest point of ``l`` plus both links'
+  linearisation errors (seed 003 adds one ``eps_v``; each link's velocity has its own error);
+- multi-body clamping (eq. 39-43): body parts whose occupancies intersect and are not a safe
+  pair form stacks. Over-approximation used here: the whole connected component of a body part
+  (a superset of every path through it) is its virtual body part, with the summed diameter and
+  the union occupancy. The component's analysis contains the single part's (contact with any
+  member, boxes touched by any member, larger diameter), so one analysis per component suffices.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sara_app.geometry import segment_segment_closest
+from sara_app.robot.model import RobotModel
+
+NONE, UNCONSTRAINED, ENV_CONSTRAINED, SELF_CONSTRAINED = 0, 1, 2, 3
+CLASS_NAMES: tuple[str, ...] = ("none", "unconstrained", "env-constrained", "self-constrained")
+
+
+# --- Thm VI.2: linearisation error of the projected point velocity ----------------------------
+
+
+class VelocityErrorBound:
+    """Bound of ``|d^2/dt^2 (n . p_dot)|`` over all points of each link (Thm VI.2).
+
+    ``eps_v = dt^2 / 8 * C_l`` (eq. 52: interpolation error of a C^2 function; seed 003 eq. 27
+    prints ``dt / 8``, which is not dimensionally a speed). ``C_l`` bounds the jerk of every point
+    of link ``l`` from joint speed, acceleration and jerk bounds. Two forms:
+
+    - ``"spatial"`` (default, derived for 3-D revolute chains): angular velocity, acceleration
+      and jerk bounds of each body propagate along the chain (``W_i = W + |qd_i|``, ``A_i = A +
+      |qdd_i| + |qd_i| W``, ``B_i = B + |qddd_i| + 2 |qdd_i| W + |qd_i| (A + W^2)``: the
+      derivatives of ``Omega_i = Omega_i-1 + qd_i a_i`` with the axis ``a_i`` turning with its
+      parent), and a point ``s`` metres further on body ``i`` adds ``s (B_i + 3 A_i W_i +
+      W_i^3)`` to the jerk (third derivative of ``s`` rotating with the body);
+    - ``"paper"``: seed 003 eq. 27 (planar derivation, with the factor 2 of eq. 53 on the middle
+      term), which omits the terms from turning axes. Kept for comparison.
+
+    Lengths: ``d`` are the distances between consecutive joint origins along each link's chain
+    (constant), the last one replaced by the reach of the link capsule from its joint origin.
+    """
+
+    def __init__(self, model: RobotModel) -> None:
+        pm = model.pin_model
+        self.n_links, self.n_dof = model.n_links, model.n_dof
+        chains: list[list[int]] = []
+        lengths: list[np.ndarray] = []
+        for i, fid in enumerate(model._frame_ids):
+            frame = pm.frames[fid]
+            m = int(frame.parentJoint)
+            chain = [int(j) for j in pm.supports[m].tolist()[1:]]
+            ends_m = (
+                model.capsules_local[i] @ frame.placement.rotation.T + frame.placement.translation
+            )
+            reach = float(np.max(np.linalg.norm(ends_m, axis=1))) + float(model.radius_m[i])
+            d = [float(np.linalg.norm(pm.jointPlacements[c].translation)) for c in chain[1:]]
+            chains.append([int(pm.idx_vs[j]) for j in chain])
+            lengths.append(np.array(d + [reach]) if chain else np.zeros(0))
+        self.chains, self.lengths = chains, lengths
+        lim = model.limits
+        self.C_limits = self.coefficients(lim.v_max, lim.a_max, lim.j_max)
+        """``(L,)`` m/s^3 from the joint limits."""
+
+    def coefficients(
+        self, qd: np.ndarray, qdd: np.ndarray, qddd: np.ndarray, form: str = "spatial"
+    ) -> np.ndarray:
+        """``C (..., L)`` from absolute joint bounds ``(..., n)`` (rad/s, rad/s^2, rad/s^3)."""
+        qd, qdd, qddd = (np.abs(np.asarray(x, dtype=float)) for x in (qd, qdd, qddd))
+        out = np.zeros(qd.shape[:-1] + (self.n_links,))
+        for i, (chain, d) in enumerate(zip(self.chains, self.lengths)):
+            if form == "paper":
+                out[..., i] = _paper_coefficient(chain, d, qd, qdd, qddd)
+                continue
+            W = A = Bj = jerk = np.zeros(qd.shape[:-1])
+            for pos, j in enumerate(chain):
+                v, a, jj = qd[..., j], qdd[..., j], qddd[..., j]
+                W, A, Bj = W + v, A + a + v * W, Bj + jj + 2.0 * a * W + v * (A + W * W)
+                jerk = jerk + d[pos] * (Bj + 3.0 * A * W + W**3)
+            out[..., i] = jerk
+        return out
+
+    def eps_v(self, dt: np.ndarray, C: np.ndarray | None = None) -> np.ndarray:
+        """``(K, L)`` m/s for interval lengths ``dt (K,)``; ``C`` defaults to the limits'."""
+        C = self.C_limits if C is None else C
+        return (np.asarray(dt, dtype=float) ** 2 / 8.0)[:, None] * C
+
+
+def _paper_coefficient(
+    chain: list[int], d: np.ndarray, qd: np.ndarray, qdd: np.ndarray, qddd: np.ndarray
+) -> np.ndarray:
+    """Seed 003 eq. 27 bracket summed over k <= i along ``chain`` (i = segment index)."""
+    total = np.zeros(qd.shape[:-1])
+    if not chain:
+        return total
+    V = np.cumsum(qd[..., chain], axis=-1)  # sum_{j<=i} qd_j
+    A = np.cumsum(qdd[..., chain], axis=-1)
+    for i in range(len(chain)):
+        k = chain[: i + 1]
+        inner = qddd[..., k] + 2.0 * qdd[..., k] * V[..., i, None]
+        inner = inner + qd[..., k] * (A[..., i, None] + V[..., i, None] ** 2)
+        total = total + d[i] * inner.sum(axis=-1)
+    return total
+
+
+# --- geometry helpers ------------------------------------------------------------------------
+
+
+def segment_box_closest(
+    ends: np.ndarray, T_world_box: np.ndarray, half_extents_m: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Closest points of segments ``(..., 2, 3)`` and solid boxes, broadcast.
+
+    Returns ``(distance (...), point_on_segment (..., 3), point_on_box (..., 3))``, world frame.
+    The same piecewise-quadratic minimisation as :func:`sara_app.geometry.segment_box_distance`
+    (exact), keeping the minimiser: in the box frame ``f(s) = sum_i max(|x_i(s)| - h_i, 0)^2``
+    is convex and quadratic between the breakpoints ``x_i(s) = +-h_i``.
+    """
+    R, p = T_world_box[..., :3, :3], T_world_box[..., :3, 3]
+    a = np.einsum("...ji,...j->...i", R, ends[..., 0, :] - p)
+    b = np.einsum("...ji,...j->...i", R, ends[..., 1, :] - p)
+    shape = np.broadcast_shapes(a.shape, np.shape(half_extents_m))
+    a, b, h = (np.broadcast_to(v, shape) for v in (a, b, half_extents_m))
+    d = b - a
+    d_safe = np.where(np.abs(d) > 1e-12, d, 1e-12)
+    bp = np.concatenate(
+        [
+            np.zeros(shape[:-1] + (1,)),
+            (h - a) / d_safe,
+            (-h - a) / d_safe,
+            np.ones(shape[:-1] + (1,)),
+        ],
+        axis=-1,
+    )
+    bp = np.sort(np.clip(bp, 0.0, 1.0), axis=-1)
+    lo, hi = bp[..., :-1], bp[..., 1:]
+    hh, aa, dd = h[..., None, :], a[..., None, :], d[..., None, :]
+    x_mid = aa + (0.5 * (lo + hi))[..., None] * dd
+    sign = np.where(x_mid > hh, 1.0, np.where(x_mid < -hh, -1.0, 0.0))
+    qa = np.sum(sign * sign * dd * dd, axis=-1)
+    qb = np.sum(sign * sign * (aa - sign * hh) * dd, axis=-1)
+    s = np.where(qa > 0.0, np.clip(-qb / np.where(qa > 0.0, qa, 1.0), lo, hi), lo)
+    x = aa + s[..., None] * dd  # (..., 7, 3) candidate minimisers, box frame
+    c = np.clip(x, -hh, hh)
+    dist = np.linalg.norm(x - c, axis=-1)
+    k = np.argmin(dist, axis=-1)[..., None, None]
+    x = np.take_along_axis(x, k, axis=-2)[..., 0, :]
+    c = np.take_along_axis(c, k, axis=-2)[..., 0, :]
+    x_w = np.einsum("...ij,...j->...i", R, x) + p
+    c_w = np.einsum("...ij,...j->...i", R, c) + p
+    return np.take_along_axis(dist, k[..., 0], axis=-1)[..., 0], x_w, c_w
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.where(n > 0.0, n, np.nan)  # a zero normal is NaN: no relaxation
+
+
+def _cross_norm(n: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """``|n x w|`` over the last axis, broadcast (np.cross is slow on small arrays)."""
+    cx = n[..., 1] * w[..., 2] - n[..., 2] * w[..., 1]
+    cy = n[..., 2] * w[..., 0] - n[..., 0] * w[..., 2]
+    cz = n[..., 0] * w[..., 1] - n[..., 1] * w[..., 0]
+    return np.sqrt(cx * cx + cy * cy + cz * cz)
+
+
+def _speed_bounds(
+    n: np.ndarray, s_ends: np.ndarray, s_radius: np.ndarray, p1_dot: np.ndarray, omega: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Thm VI.1 at both samples of each interval: min and max of ``n . p_dot`` over a link.
+
+    ``n (K, L, X, 3)`` normals for link ``i`` (axis 1) against ``X`` objects; sample arrays
+    ``(K+1, L, ...)``. Returns ``(v_min, v_max)`` ``(K, L, X)``: the min over both samples of the
+    lower bound and the max of the upper bound (the interpolation of eq. 25).
+    """
+    p1 = s_ends[:, :, 0, :]
+    reach = s_radius + np.linalg.norm(s_ends[:, :, 1, :] - p1, axis=-1)  # (K+1, L)
+    lo, hi = [], []
+    for sl in (slice(None, -1), slice(1, None)):
+        along = np.einsum("klxi,kli->klx", n, p1_dot[sl])
+        turn = reach[sl][..., None] * _cross_norm(n, omega[sl][:, :, None, :])
+        lo.append(along - turn)
+        hi.append(along + turn)
+    return np.minimum(lo[0], lo[1]), np.maximum(hi[0], hi[1])
+
+
+# --- the classifier --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ContactResult:
+    """Classification of every (interval, link, body part), arrays ``(K, L, P)`` unless noted.
+
+    ``contact``: the link can touch the part or a clamped stack (virtual body part) containing
+    it (eq. 8, 40-43); ``contact_single``: eq. 8 for the part alone; ``env`` / ``self_``: an
+    environment- / self-constrained collision through the part's stack is possible; ``cls``
+    (int8): 0 none, 1 unconstrained, 2 env-constrained, 3 self-constrained (env wins when both);
+    ``stack (K, P, P)``: membership of part ``j``'s virtual body part (itself included);
+    ``stack_diameter_m (K, P)``; ``distance_m``: link-to-part surface distance (m).
+    """
+
+    contact: np.ndarray
+    contact_single: np.ndarray
+    env: np.ndarray
+    self_: np.ndarray
+    cls: np.ndarray
+    stack: np.ndarray
+    stack_diameter_m: np.ndarray
+    distance_m: np.ndarray
+
+
+def _closure(adj: np.ndarray) -> np.ndarray:
+    """Reflexive-transitive closure of ``(K, P, P)`` boolean adjacency (repeated squaring)."""
+    P = adj.shape[-1]
+    reach = (adj | np.eye(P, dtype=bool)).astype(np.float32)
+    for _ in range(max(1, int(np.ceil(np.log2(max(P, 2)))))):
+        reach = np.minimum(reach @ reach, 1.0)
+    return reach > 0.0
+
+
+class ContactClassifier:
+    """Seed 003 Sec. VI for fixed robot/human topology; call :meth:`classify` every cycle.
+
+    ``unclampable (L, L)`` bool (G^(r)), ``human_safe (P, P)`` bool (G^(h)), ``diameters_m
+    (P,)``. ``relax_velocity`` / ``relax_diameter`` / ``relax_topology`` / ``multi_body`` switch
+    the relaxations and the stack analysis (all on by default; off is always more conservative,
+    except ``multi_body=False`` which is NOT sound and exists only for tests and comparison).
+    """
+
+    def __init__(
+        self,
+        unclampable: np.ndarray,
+        human_safe: np.ndarray,
+        diameters_m: np.ndarray,
+        *,
+        relax_velocity: bool = True,
+        relax_diameter: bool = True,
+        relax_topology: bool = True,
+        multi_body: bool = True,
+    ) -> None:
+        L, P = unclampable.shape[0], human_safe.shape[0]
+        self.diameters_m = np.asarray(diameters_m, dtype=float).copy()
+        if self.diameters_m.shape != (P,):
+            raise ValueError(f"diameters_m {self.diameters_m.shape}; expected ({P},)")
+        unclamp = np.asarray(unclampable, bool) if relax_topology else np.zeros((L, L), bool)
+        self._no_pair = unclamp | np.eye(L, dtype=bool)  # (i, l) can never self-clamp
+        self._not_safe_h = ~np.asarray(human_safe, bool) & ~np.eye(P, dtype=bool)
+        self.relax_velocity, self.relax_diameter = relax_velocity, relax_diameter
+        self.multi_body = multi_body
+
+    def classify(
+        self,
+        r_ends: np.ndarray,
+        r_radius: np.ndarray,
+        s_ends: np.ndarray,
+        s_radius: np.ndarray,
+        p1_dot: np.ndarray,
+        omega: np.ndarray,
+        eps_v: np.ndarray,
+        h_ends: np.ndarray,
+        h_radius: np.ndarray,
+        T_world_box: np.ndarray,
+        half_extents_m: np.ndarray,
+    ) -> ContactResult:
+        """Classify; shapes in the module docstring. Never raises on NaN (NaN = worst case)."""
+        L = r_radius.shape[1]
+        # One all-pairs segment computation for robot and human capsules of each interval.
+        caps = np.concatenate([r_ends, h_ends], axis=1)  # (K, N, 2, 3), N = L + P
+        rad = np.concatenate([r_radius, h_radius], axis=1)
+        d_ax, s, t = segment_segment_closest(caps[:, :, None], caps[:, None])
+        gap = d_ax - rad[:, :, None] - rad[:, None, :]  # (K, N, N) surface distances
+        d_rh = gap[:, :L, L:]
+        contact_s = ~(d_rh > 0.0)
+        stack, diam = self._stacks(gap[:, L:, L:])
+        stack_f = stack.astype(np.float32)
+        contact_g = np.einsum("klm,kjm->klj", contact_s.astype(np.float32), stack_f) > 0.0
+        motion = (s_ends, s_radius, p1_dot, omega, eps_v)
+        if T_world_box.shape[0]:
+            box = segment_box_closest(caps[:, :, None], T_world_box, half_extents_m)
+            env = self._env(box, rad, L, stack_f, diam, motion)
+        else:
+            env = np.zeros(contact_s.shape, dtype=bool)
+        rr = (caps[:, :L], gap[:, :L, :L], s[:, :L, :L], t[:, :L, :L])
+        self_ = self._self(rr, contact_g, diam, motion)
+        clamped = contact_g & (env | self_)
+        contact = contact_s | clamped
+        cls = np.where(
+            ~contact,
+            NONE,
+            np.where(
+                clamped & env, ENV_CONSTRAINED, np.where(clamped, SELF_CONSTRAINED, UNCONSTRAINED)
+            ),
+        ).astype(np.int8)
+        return ContactResult(
+            contact, contact_s, env & contact_g, self_ & contact_g, cls, stack, diam, d_rh
+        )
+
+    def _stacks(self, d_hh: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Virtual body parts from the human-human surface distances ``(K, P, P)``."""
+        K, P = d_hh.shape[:2]
+        if not self.multi_body:
+            stack = np.broadcast_to(np.eye(P, dtype=bool), (K, P, P))
+            return stack, np.broadcast_to(self.diameters_m, (K, P))
+        stack = _closure(~(d_hh > 0.0) & self._not_safe_h)
+        return stack, stack @ self.diameters_m
+
+    def _env(
+        self,
+        box: tuple[np.ndarray, np.ndarray, np.ndarray],
+        rad: np.ndarray,
+        L: int,
+        stack_f: np.ndarray,
+        diam: np.ndarray,
+        motion: tuple[np.ndarray, ...],
+    ) -> np.ndarray:
+        """``(K, L, P)``: an environment-constrained collision is possible (eq. 10-11, 31, 33).
+
+        ``box``: axis distance and closest points of every capsule (robot first) to every box.
+        """
+        d_ax, p_c, p_b = box
+        gap = d_ax - rad[:, :, None]  # (K, N, B)
+        touch = ~(gap[:, L:] > 0.0)  # body part touches box
+        touch_g = np.einsum("kjm,kmb->kjb", stack_f, touch.astype(np.float32)) > 0.0
+        d_rb = gap[:, :L]
+        can = ~(d_rb > 0.0)  # a link touching the box always may clamp
+        if self.relax_velocity:
+            s_ends, s_radius, p1_dot, omega, eps_v = motion
+            n = _unit(p_c[:, :L] - p_b[:, :L])  # normal on the box towards the link
+            v_min, _ = _speed_bounds(n, s_ends, s_radius, p1_dot, omega)
+            can |= ~(v_min >= eps_v[:, :, None])
+        else:
+            can = np.ones_like(can)
+        pair = touch_g[:, None, :, :] & can[:, :, None, :]  # (K, L, P, B)
+        if self.relax_diameter:
+            pair &= ~(d_rb[:, :, None, :] > diam[:, None, :, None])
+        return np.asarray(pair.any(axis=-1))
+
+    def _self(
+        self,
+        rr: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+        contact_g: np.ndarray,
+        diam: np.ndarray,
+        motion: tuple[np.ndarray, ...],
+    ) -> np.ndarray:
+        """``(K, L, P)``: a self-constrained collision is possible (eq. 12-13, 32, 34, 37).
+
+        ``rr``: robot capsules ``(K, L, 2, 3)``, their surface distances and closest-point
+        parameters ``(K, L, L)``.
+        """
+        r_ends, d_rr, s, t = rr
+        can = ~self._no_pair[None] & np.ones(d_rr.shape, dtype=bool)
+        if self.relax_velocity:
+            s_ends, s_radius, p1_dot, omega, eps_v = motion
+            a0, a1 = r_ends[:, :, None, 0], r_ends[:, :, None, 1]
+            b0, b1 = r_ends[:, None, :, 0], r_ends[:, None, :, 1]
+            p_i = a0 + s[..., None] * (a1 - a0)
+            p_l = b0 + t[..., None] * (b1 - b0)
+            n_l = _unit(p_i - p_l)  # (K, i, l, 3): normal on link l towards link i
+            v_min_i, _ = _speed_bounds(n_l, s_ends, s_radius, p1_dot, omega)
+            _, v_max_l = _speed_bounds(n_l.transpose(0, 2, 1, 3), s_ends, s_radius, p1_dot, omega)
+            gap = v_min_i - v_max_l.transpose(0, 2, 1)
+            apart = (gap >= eps_v[:, :, None] + eps_v[:, None, :]) & (d_rr > 0.0)
+            can &= ~apart
+        pair = contact_g[:, None, :, :] & can[..., None]  # (K, i, l, P)
+        if self.relax_diameter:
+            pair &= ~(d_rr[..., None] > diam[:, None, None, :])
+        return np.asarray(pair.any(axis=2))

@@ -1,0 +1,296 @@
+"""Contact classification (seed 003 Sec. VI): constructed cases for every rule, brute-force
+checks of the geometric predicates, and the Thm VI.2 bound against dense sampling."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.sparse.csgraph import connected_components
+
+from sara_app.geometry import segment_box_distance
+from sara_app.robot.energy import LinkMotion
+from sara_app.robot.model import load_robot
+from sara_app.safety.contact import (
+    ENV_CONSTRAINED,
+    NONE,
+    SELF_CONSTRAINED,
+    UNCONSTRAINED,
+    ContactClassifier,
+    ContactResult,
+    VelocityErrorBound,
+    _closure,
+    _speed_bounds,
+    segment_box_closest,
+)
+from sara_app.safety.topology import human_safe_matrix, unclampable_matrix
+
+# A table: top face at z = 0.
+TABLE_T = np.eye(4)[None].copy()
+TABLE_T[0, :3, 3] = [0.0, 0.0, -0.02]
+TABLE_H = np.array([[0.5, 0.5, 0.02]])
+NO_BOX = (np.zeros((0, 4, 4)), np.zeros((0, 3)))
+HAND_D = 0.12  # diameter used for the hands in these cases
+
+
+def _x_capsule(y: float, z: float, half: float = 0.2) -> list[list[float]]:
+    return [[-half, y, z], [half, y, z]]
+
+
+def _classify(
+    links: list[tuple[list[list[float]], float, list[float]]],
+    parts: list[tuple[str, list[list[float]], float]],
+    boxes: tuple[np.ndarray, np.ndarray] = (TABLE_T, TABLE_H),
+    unclampable: np.ndarray | None = None,
+    **flags: bool,
+) -> ContactResult:
+    """One interval; links (ends, radius, velocity), parts (name, ends, radius)."""
+    L, P = len(links), len(parts)
+    r_ends = np.array([[ln[0] for ln in links]], dtype=float)
+    r_radius = np.array([[ln[1] for ln in links]])
+    vel = np.array([ln[2] for ln in links], dtype=float)
+    names = [p[0] for p in parts]
+    clf = ContactClassifier(
+        np.zeros((L, L), bool) if unclampable is None else unclampable,
+        human_safe_matrix(names),
+        np.full(P, HAND_D),
+        **flags,
+    )
+    return clf.classify(
+        r_ends,
+        r_radius,
+        np.repeat(r_ends, 2, axis=0),
+        r_radius[0],
+        np.repeat(vel[None], 2, axis=0),
+        np.zeros((2, L, 3)),
+        np.full((1, L), 1e-4),
+        np.array([[p[1] for p in parts]], dtype=float),
+        np.array([[p[2] for p in parts]]),
+        *boxes,
+    )
+
+
+HAND_ON_TABLE = ("l_hand", [[0.0, 0.0, 0.05]] * 2, 0.05)
+
+
+# --- constructed cases ----------------------------------------------------------------------
+
+
+def test_hand_between_link_and_table_is_constrained_when_the_link_approaches() -> None:
+    down = _classify([(_x_capsule(0.0, 0.13), 0.04, [0.0, 0.0, -0.1])], [HAND_ON_TABLE])
+    assert down.cls[0, 0, 0] == ENV_CONSTRAINED and down.env[0, 0, 0]
+    up = _classify([(_x_capsule(0.0, 0.13), 0.04, [0.0, 0.0, 0.1])], [HAND_ON_TABLE])
+    assert up.cls[0, 0, 0] == UNCONSTRAINED
+    sideways = _classify([(_x_capsule(0.0, 0.13), 0.04, [0.3, 0.0, 0.0])], [HAND_ON_TABLE])
+    assert sideways.cls[0, 0, 0] == ENV_CONSTRAINED  # n . v = 0 < eps_v: not provably away
+    no_relax = _classify(
+        [(_x_capsule(0.0, 0.13), 0.04, [0.0, 0.0, 0.1])], [HAND_ON_TABLE], relax_velocity=False
+    )
+    assert no_relax.cls[0, 0, 0] == ENV_CONSTRAINED
+
+
+def test_hand_not_touching_the_table_or_the_link() -> None:
+    lifted = ("l_hand", [[0.0, 0.0, 0.07]] * 2, 0.05)  # 2 cm above the table
+    res = _classify([(_x_capsule(0.0, 0.155), 0.04, [0.0, 0.0, -0.1])], [lifted])
+    assert res.cls[0, 0, 0] == UNCONSTRAINED
+    far = _classify([(_x_capsule(0.0, 0.5), 0.04, [0.0, 0.0, -0.1])], [HAND_ON_TABLE])
+    assert far.cls[0, 0, 0] == NONE and not far.contact[0, 0, 0]
+
+
+def test_link_touching_the_table_always_may_clamp() -> None:
+    res = _classify([(_x_capsule(0.0, 0.03), 0.04, [0.0, 0.0, 1.0])], [HAND_ON_TABLE])
+    assert res.cls[0, 0, 0] == ENV_CONSTRAINED
+
+
+def test_human_diameter_relaxation() -> None:
+    # A large reachable hand capsule touches the table and a link that is farther from the
+    # table than the hand's diameter: no clamping possible even when the link moves down.
+    big_hand = ("l_hand", [[0.0, 0.0, 0.15]] * 2, 0.15)
+    link = (_x_capsule(0.0, 0.34), 0.05, [0.0, 0.0, -0.1])
+    assert _classify([link], [big_hand]).cls[0, 0, 0] == UNCONSTRAINED
+    assert _classify([link], [big_hand], relax_diameter=False).cls[0, 0, 0] == ENV_CONSTRAINED
+
+
+FOREARM = ("l_lower_arm", [[-0.15, 0.0, 0.5], [0.15, 0.0, 0.5]], 0.04)
+
+
+def _two_links(v: float) -> list[tuple[list[list[float]], float, list[float]]]:
+    return [
+        (_x_capsule(0.085, 0.5), 0.05, [0.0, -v, 0.0]),
+        (_x_capsule(-0.085, 0.5), 0.05, [0.0, v, 0.0]),
+    ]
+
+
+def test_forearm_between_two_closing_links_is_self_constrained() -> None:
+    res = _classify(_two_links(0.1), [FOREARM], boxes=NO_BOX)
+    assert np.all(res.cls[0, :, 0] == SELF_CONSTRAINED)
+    declared = np.array([[False, True], [True, False]])
+    res = _classify(_two_links(0.1), [FOREARM], boxes=NO_BOX, unclampable=declared)
+    assert np.all(res.cls[0, :, 0] == UNCONSTRAINED)
+    res = _classify(
+        _two_links(0.1), [FOREARM], boxes=NO_BOX, unclampable=declared, relax_topology=False
+    )
+    assert np.all(res.cls[0, :, 0] == SELF_CONSTRAINED)
+    apart = _classify(_two_links(-0.1), [FOREARM], boxes=NO_BOX)
+    assert np.all(apart.cls[0, :, 0] == UNCONSTRAINED)
+    # Both moving the same way at the same speed: the gap does not shrink, but neither link is
+    # provably faster than the other by 2 eps_v, so clamping is not excluded.
+    same = [(ln[0], ln[1], [0.0, 0.1, 0.0]) for ln in _two_links(0.0)]
+    assert np.all(_classify(same, [FOREARM], boxes=NO_BOX).cls[0, :, 0] == SELF_CONSTRAINED)
+
+
+def test_two_hands_stacked_on_a_table_form_one_virtual_body_part() -> None:
+    r_hand = ("r_hand", [[0.0, 0.0, 0.05]] * 2, 0.05)  # on the table
+    l_hand = ("l_hand", [[0.0, 0.0, 0.145]] * 2, 0.05)  # on the right hand
+    link = (_x_capsule(0.0, 0.24), 0.05, [0.0, 0.0, -0.1])  # touches the left hand only
+    res = _classify([link], [l_hand, r_hand])
+    assert res.stack[0].all()
+    assert res.stack_diameter_m[0].tolist() == pytest.approx([2 * HAND_D, 2 * HAND_D])
+    assert res.cls[0, 0, 0] == ENV_CONSTRAINED  # link-table gap 0.19 m <= 0.24 m
+    assert res.contact[0, 0, 1] and not res.contact_single[0, 0, 1]  # r_hand is in the stack
+    single = _classify([link], [l_hand, r_hand], multi_body=False)
+    assert single.cls[0, 0, 0] == UNCONSTRAINED and single.cls[0, 0, 1] == NONE
+    # hands from the same arm never stack: a hand and its own forearm
+    forearm = ("l_lower_arm", [[0.0, 0.0, 0.05]] * 2, 0.05)
+    res = _classify([link], [l_hand, forearm])
+    assert not res.stack[0, 0, 1] and res.cls[0, 0, 0] == UNCONSTRAINED
+
+
+def test_nan_inputs_give_the_worst_case() -> None:
+    nan_part = ("l_hand", [[np.nan, 0.0, 0.0]] * 2, 0.05)
+    res = _classify([(_x_capsule(0.0, 0.13), 0.04, [0.0, 0.0, -0.1])], [nan_part])
+    assert res.contact[0, 0, 0] and res.cls[0, 0, 0] == ENV_CONSTRAINED
+    # the human may be anywhere, but a link provably leaving the table cannot clamp
+    res = _classify([(_x_capsule(0.0, 0.13), 0.04, [0.0, 0.0, 0.1])], [nan_part])
+    assert res.contact[0, 0, 0] and res.cls[0, 0, 0] == UNCONSTRAINED
+    nan_vel = _classify([(_x_capsule(0.0, 0.13), 0.04, [0.0, 0.0, np.nan])], [HAND_ON_TABLE])
+    assert nan_vel.cls[0, 0, 0] == ENV_CONSTRAINED
+
+
+# --- brute force of the predicates ----------------------------------------------------------
+
+
+def _random_pose(rng: np.random.Generator) -> np.ndarray:
+    Q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    T = np.eye(4)
+    T[:3, :3] = Q * np.sign(np.linalg.det(Q))
+    T[:3, 3] = rng.normal(scale=0.3, size=3)
+    return T
+
+
+def test_segment_box_closest_against_sampling() -> None:
+    rng = np.random.default_rng(0)
+    n = 400
+    T = np.array([_random_pose(rng) for _ in range(n)])
+    h = rng.uniform(0.01, 0.4, (n, 3))
+    ends = rng.normal(scale=0.6, size=(n, 2, 3))
+    ends[:50, 1] = ends[:50, 0]  # points
+    d, p_seg, p_box = segment_box_closest(ends, T, h)
+    assert np.allclose(d, segment_box_distance(ends, T, h), atol=1e-12)
+    assert np.allclose(np.linalg.norm(p_seg - p_box, axis=-1), d, atol=1e-12)
+    local = np.einsum("nji,nj->ni", T[:, :3, :3], p_box - T[:, :3, 3])
+    assert np.all(np.abs(local) <= h + 1e-12)  # box point inside the box
+    a, b = ends[:, 0], ends[:, 1]
+    along = np.einsum("ni,ni->n", p_seg - a, b - a)
+    cross = np.linalg.norm(np.cross(p_seg - a, b - a), axis=-1)
+    assert np.all(cross <= 1e-9) and np.all(along >= -1e-12)  # on the segment
+    s = np.linspace(0, 1, 2001)
+    pts = a[:, None] + s[None, :, None] * (b - a)[:, None]
+    loc = np.einsum("nji,nsj->nsi", T[:, :3, :3], pts - T[:, None, :3, 3])
+    brute = np.linalg.norm(np.maximum(np.abs(loc) - h[:, None], 0.0), axis=-1).min(axis=1)
+    assert np.all(d <= brute + 1e-12) and np.all(brute - d <= 1e-3)
+
+
+def test_thm_vi1_speed_bounds_contain_every_point_velocity() -> None:
+    rng = np.random.default_rng(1)
+    worst_paper = np.inf
+    for _ in range(200):
+        p1, p2 = rng.normal(scale=0.3, size=(2, 3))
+        r = rng.uniform(0.0, 0.1)
+        v1, w = rng.normal(size=3), rng.normal(scale=3.0, size=3)
+        n = rng.normal(size=3)
+        n /= np.linalg.norm(n)
+        lo, hi = _speed_bounds(
+            n.reshape(1, 1, 1, 3),
+            np.tile(np.array([p1, p2]), (2, 1, 1, 1)),
+            np.array([r]),
+            np.tile(v1, (2, 1, 1)),
+            np.tile(w, (2, 1, 1)),
+        )
+        lam = rng.uniform(0, 1, 4000)
+        u = rng.normal(size=(4000, 3))
+        u *= (rng.uniform(0, 1, 4000) ** (1 / 3) * r / np.linalg.norm(u, axis=1))[:, None]
+        x = p1 + lam[:, None] * (p2 - p1) + u
+        vn = (v1 + np.cross(w, x - p1)) @ n
+        assert vn.min() >= lo[0, 0, 0] - 1e-12 and vn.max() <= hi[0, 0, 0] + 1e-12
+        paper = n @ v1 + (r + np.linalg.norm(p2 - p1)) * np.linalg.norm(np.cross(n, w))
+        worst_paper = min(worst_paper, vn.min() - paper)
+    assert worst_paper < 0.0  # the "+" printed in eq. 16/25 is not a lower bound
+
+
+def test_stack_closure_matches_connected_components() -> None:
+    rng = np.random.default_rng(2)
+    adj = rng.uniform(size=(30, 14, 14)) < 0.08
+    adj = adj | adj.transpose(0, 2, 1)
+    reach = _closure(adj)
+    for k in range(30):
+        _, label = connected_components(adj[k], directed=False)
+        assert np.array_equal(reach[k], label[:, None] == label[None, :])
+
+
+def test_topology_declarations_by_name() -> None:
+    panda = load_robot("panda")
+    G = unclampable_matrix("panda", panda.link_names)
+    i3, i4, i5 = (panda.link_names.index(f"panda_link{k}") for k in (3, 4, 5))
+    assert G[i3, i4] and G[i4, i3] and not G[i3, i5]  # the elbow pinch may clamp
+    ur = load_robot("ur5e")
+    Gu = unclampable_matrix("ur5e", ur.link_names)
+    assert not Gu[ur.link_names.index("upper_arm_link"), ur.link_names.index("forearm_link")]
+    with pytest.raises(Exception, match="'kuka'"):
+        unclampable_matrix("kuka", panda.link_names)
+    with pytest.raises(Exception, match="'link9'"):
+        unclampable_matrix("panda", panda.link_names, [("panda_link1", "link9")])
+    H = human_safe_matrix(["l_hand", "l_lower_arm", "r_hand", "l_hand"], [0, 0, 0, 1])
+    assert H[0, 1] and not H[0, 2] and not H[0, 3]
+
+
+# --- Thm VI.2 against dense sampling --------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["panda", "ur5e"])
+def test_thm_vi2_linearisation_bound_holds_on_dense_samples(name: str) -> None:
+    model = load_robot(name)
+    motion, bound = LinkMotion(model), VelocityErrorBound(model)
+    lim = model.limits
+    rng = np.random.default_rng(3)
+    dt, S = 0.08, 81
+    t = np.linspace(0.0, dt, S)
+    ratios = []
+    for _ in range(12):
+        q0 = rng.uniform(np.maximum(lim.q_min, -3), np.minimum(lim.q_max, 3))
+        v0 = rng.uniform(-1, 1, model.n_dof) * lim.v_max
+        a0 = rng.uniform(-1, 1, model.n_dof) * lim.a_max
+        j0 = rng.uniform(-1, 1, model.n_dof) * np.minimum(lim.j_max, 300.0)
+        q = q0 + t[:, None] * v0 + t[:, None] ** 2 / 2 * a0 + t[:, None] ** 3 / 6 * j0
+        qd = v0 + t[:, None] * a0 + t[:, None] ** 2 / 2 * j0
+        qdd = a0 + t[:, None] * j0
+        C = bound.coefficients(np.abs(qd).max(0), np.abs(qdd).max(0), np.abs(j0))
+        C_paper = bound.coefficients(np.abs(qd).max(0), np.abs(qdd).max(0), np.abs(j0), "paper")
+        eps = dt**2 / 8 * C
+        smp = motion.evaluate(q, qd)
+        poses = np.array([model.link_poses(qq) for qq in q])  # (S, L, 4, 4)
+        # points fixed on each link: capsule ends pushed out by the radius along random dirs
+        u = rng.normal(size=(model.n_links, 4, 3))
+        u *= (model.radius_m[:, None] / np.linalg.norm(u, axis=-1))[..., None]
+        local = np.concatenate([model.capsules_local, model.capsules_local], axis=1) + u
+        x = np.einsum("slij,lpj->slpi", poses[..., :3, :3], local) + poses[:, :, None, :3, 3]
+        xd = smp.p1_dot[:, :, None] + np.cross(smp.omega[:, :, None], x - smp.ends[:, :, None, 0])
+        n = rng.normal(size=(8, 3))
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        vn = np.einsum("slpi,di->slpd", xd, n)  # (S, L, points, directions)
+        w = (t / dt)[:, None, None, None]
+        err = np.abs(vn - ((1 - w) * vn[0] + w * vn[-1])).max(axis=(0, 2, 3))  # (L,)
+        assert np.all(err <= eps + 1e-12), (err, eps)
+        moving = eps > 0
+        ratios.append((err[moving] / eps[moving]).max())
+        assert np.all(C >= C_paper - 1e-9)  # the spatial bound contains the planar one
+    assert max(ratios) > 0.3  # the test trajectories do exercise the bound (seen: 0.49, 0.84)
