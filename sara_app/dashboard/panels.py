@@ -135,19 +135,21 @@ def _uplot(
 
 
 class DashboardPanels:
-    """The GUI of one dashboard. ``on_toggle_model(name, visible)`` and
-    ``on_color_by_contact(flag)`` act on the scene; the scenario callbacks on the owner."""
+    """The GUI of one dashboard. ``on_toggle(name, visible)`` (one checkbox per name of
+    ``toggle_names``) and ``on_color_by_contact(flag)`` act on the scene; the scenario callbacks
+    on the owner."""
 
     def __init__(
         self,
         server: viser.ViserServer,
-        on_toggle_model: Callable[[str, bool], None],
+        on_toggle: Callable[[str, bool], None],
         on_color_by_contact: Callable[[bool], None],
         window_s: float = 30.0,
         plot_period_s: float = 0.2,
         on_select_scenario: Callable[[str], None] | None = None,
         on_save_as: Callable[[str], None] | None = None,
         on_params_edit: Callable[[dict[str, Any]], None] | None = None,
+        toggle_names: tuple[str, ...] = MODEL_NAMES,
     ) -> None:
         self.server = server
         self.on_select_scenario = on_select_scenario
@@ -164,10 +166,10 @@ class DashboardPanels:
         with tabs.add_tab("Status"):
             self.status = gui.add_markdown(status_markdown({}))
             self.error = gui.add_markdown("", visible=False)
-            with gui.add_folder("Human models"):
-                self.model_toggles = {m: gui.add_checkbox(m, True) for m in MODEL_NAMES}
-            for m, box in self.model_toggles.items():
-                _forward_toggle(box, m, on_toggle_model)
+            with gui.add_folder("Show"):
+                self.toggles = {m: gui.add_checkbox(m, True) for m in toggle_names}
+            for m, box in self.toggles.items():
+                _forward_toggle(box, m, on_toggle)
             self.contact_toggle = gui.add_checkbox("Colour by contact state", True)
             self.contact_toggle.on_update(lambda _e: on_color_by_contact(self.contact_toggle.value))
             gui.add_markdown(LEGEND_MD)
@@ -181,29 +183,38 @@ class DashboardPanels:
     # ------------------------------------------------------------------------------------------
     def _build_scenario_tab(self, gui: viser.GuiApi) -> None:
         self.scenario = gui.add_dropdown("Scenario", (NO_SCENARIO,))
-        load = gui.add_button("Load")
-        load.on_click(lambda _e: self._invoke("Load", self.on_select_scenario, self.scenario.value))
+        gui.add_button("Load").on_click(_click(self.load_selected))
         self.save_name = gui.add_text("Save as", "")
-        save = gui.add_button("Save as")
-        save.on_click(lambda _e: self._invoke("Save", self.on_save_as, self._save_name()))
+        gui.add_button("Save as").on_click(_click(self.save_as))
         self.params_folder = gui.add_folder("Parameters")
-        apply = gui.add_button("Apply parameters")
-        apply.on_click(lambda _e: self._invoke("Parameters", self.on_params_edit, self.params()))
+        gui.add_button("Apply parameters").on_click(_click(self.apply_params))
         self.message = gui.add_markdown("")
 
-    def _save_name(self) -> str:
-        return self.save_name.value.strip()
+    def load_selected(self) -> bool:
+        """The "Load" button: ``on_select_scenario(dropdown value)``; True if accepted."""
+        return self._invoke("Load", self.on_select_scenario, lambda: self.scenario.value)
 
-    def _invoke(self, what: str, callback: Callable[[Any], None] | None, arg: Any) -> None:
+    def save_as(self) -> bool:
+        """The "Save as" button: ``on_save_as(typed name)``; True if accepted."""
+        return self._invoke("Save", self.on_save_as, lambda: self.save_name.value.strip())
+
+    def apply_params(self) -> bool:
+        """The "Apply parameters" button: ``on_params_edit(params())``; True if accepted."""
+        return self._invoke("Parameters", self.on_params_edit, self.params)
+
+    def _invoke(
+        self, what: str, callback: Callable[[Any], None] | None, arg: Callable[[], Any]
+    ) -> bool:
         if callback is None:
             self.show_message(f"{what}: not available", error=True)
-            return
+            return False
         try:
-            callback(arg)
+            callback(arg())
         except (SaraError, ValueError) as exc:
             self.show_message(f"{what} refused: {exc}", error=True)
-            return
+            return False
         self.show_message(f"{what}: done")
+        return True
 
     def show_message(self, text: str, error: bool = False) -> None:
         """Show ``text`` in the scenario tab (bold with a warning sign when ``error``)."""
@@ -268,6 +279,13 @@ class DashboardPanels:
         self.error.visible = text is not None
         if text is not None:
             self.error.content = f"**⚠ display error:** {text}"
+
+
+def _click(action: Callable[[], bool]) -> Callable[[Any], None]:
+    def handler(_event: Any) -> None:
+        action()
+
+    return handler
 
 
 def _forward_toggle(

@@ -48,6 +48,9 @@ CONTACT_RGB: dict[int, tuple[int, int, int]] = {
 }
 """Occupancy colours by contact class; class 'none' keeps the verdict colour."""
 
+LAYERS: tuple[str, ...] = ("robot", "occupancy", "skeletons", "boxes", "critical_pair")
+"""Scene parts that can be shown or hidden besides the human models."""
+
 HUMAN_OPACITY = 0.25
 ROBOT_OPACITY = 0.35
 BOX_OPACITY = 0.5
@@ -108,7 +111,7 @@ class CellScene:
         server.scene.set_up_direction("+z")
         server.scene.add_grid("/grid", width=4.0, height=4.0, cell_size=0.25)
         T = np.eye(4) if T_world_base is None else np.asarray(T_world_base, dtype=float)
-        server.scene.add_frame(
+        self.robot_frame = server.scene.add_frame(
             "/robot",
             wxyz=rotation_to_wxyz(T[None, :3, :3])[0],
             position=T[:3, 3],
@@ -139,13 +142,31 @@ class CellScene:
         self.critical = server.scene.add_line_segments(
             "/critical_pair", np.zeros((1, 2, 3)), (255, 0, 0), thickness=0.02, visible=False
         )
+        self.layers = dict.fromkeys(LAYERS, True)
+        self._layer_nodes: dict[str, tuple[viser.SceneNodeHandle, ...]] = {
+            "skeletons": (self.skeleton, self.joints),
+            "critical_pair": (self.critical,),
+        }
 
     # ------------------------------------------------------------------------------------------
-    def set_model_visible(self, model: str, visible: bool) -> None:
-        """Show or hide one human model's capsules (all humans)."""
-        if model not in self.models:
-            raise UnknownNameError("human model", model, MODEL_NAMES)
-        self.models[model].visible = visible
+    def set_visible(self, name: str, visible: bool) -> None:
+        """Show or hide a human model's capsules (one of :data:`MODEL_NAMES`, all humans) or a
+        layer (one of :data:`LAYERS`)."""
+        if name in self.models:
+            self.models[name].visible = visible
+        elif name in LAYERS:
+            self.layers[name] = bool(visible)
+            if name == "robot":
+                self.robot_frame.visible = bool(visible)
+            elif name == "occupancy":
+                self.occupancy.visible = visible
+            elif name == "boxes":
+                self.boxes.visible = visible
+            else:  # skeletons, critical_pair: shown with the next frame that has data
+                for handle in self._layer_nodes[name]:
+                    handle.visible = handle.visible and bool(visible)
+        else:
+            raise UnknownNameError("layer or human model", name, MODEL_NAMES + LAYERS)
 
     def update(self, frame: DisplayFrame) -> None:
         """Render ``frame`` (one atomic batch of messages). Raises :class:`InputError` on bad
@@ -174,7 +195,7 @@ class CellScene:
 
     def _update_humans(self, humans: list[HumanDisplay]) -> None:
         seg = _segments(humans)
-        self.skeleton.visible = self.joints.visible = bool(seg.shape[0])
+        self.skeleton.visible = self.joints.visible = self.layers["skeletons"] and bool(len(seg))
         if seg.shape[0]:
             self.skeleton.points = seg
             self.skeleton.colors = np.full(seg.shape, 40, dtype=np.uint8)
@@ -252,7 +273,7 @@ class CellScene:
         ok = bool(np.all(np.isfinite(p)))
         if ok:
             self.critical.points = p[None]
-        self.critical.visible = ok
+        self.critical.visible = ok and self.layers["critical_pair"]
 
 
 # ----------------------------------------------------------------------------------------------

@@ -17,9 +17,9 @@ from typing import Any
 import numpy as np
 import viser
 
-from sara_app.dashboard.frame import DisplayFrame
+from sara_app.dashboard.frame import MODEL_NAMES, DisplayFrame
 from sara_app.dashboard.panels import DashboardPanels
-from sara_app.dashboard.scene import CellScene
+from sara_app.dashboard.scene import LAYERS, CellScene
 from sara_app.errors import InputError, SaraError
 
 log = logging.getLogger(__name__)
@@ -32,8 +32,8 @@ class Dashboard:
         self,
         robot: str = "panda",
         T_world_base: np.ndarray | None = None,
-        camera_position: tuple[float, float, float] = (2.4, -2.4, 1.9),
-        camera_look_at: tuple[float, float, float] = (0.2, 0.0, 0.6),
+        camera_position: tuple[float, float, float] = (1.9, -1.9, 1.6),
+        camera_look_at: tuple[float, float, float] = (0.4, 0.0, 0.6),
     ) -> None:
         self.robot, self.T_world_base = robot, T_world_base
         self.camera = (camera_position, camera_look_at)
@@ -58,7 +58,10 @@ class Dashboard:
             def set_contact(flag: bool) -> None:
                 scene.color_by_contact = flag
 
-            self.panels = DashboardPanels(server, scene.set_model_visible, set_contact, **callbacks)
+            names = MODEL_NAMES + LAYERS
+            self.panels = DashboardPanels(
+                server, scene.set_visible, set_contact, toggle_names=names, **callbacks
+            )
         except BaseException:
             server.stop()
             raise

@@ -1,0 +1,170 @@
+"""Dashboard server side without a browser: a real viser server on 127.0.0.1, the scene's node
+state after updates, capacity growth, toggles, malformed frames, scenario-tab callbacks."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from sara_app.dashboard.frame import CONTACT_ENV, CONTACT_SELF, CONTACT_UNCONSTRAINED, MODEL_NAMES
+from sara_app.dashboard.panels import RollingSeries, flatten, status_markdown, unflatten
+from sara_app.dashboard.scene import (
+    CONTACT_RGB,
+    UNVERIFIED_RGB,
+    VERIFIED_RGB,
+    demo_frame,
+    occupancy_colors,
+)
+from sara_app.dashboard.viewer import Dashboard
+from sara_app.errors import ScenarioError, UnknownNameError
+
+
+@pytest.fixture(scope="module")
+def dash() -> Iterator[Dashboard]:
+    d = Dashboard()
+    d.start(port=8690)
+    yield d
+    d.stop()
+
+
+def test_start_reports_real_port_on_loopback(dash: Dashboard) -> None:
+    other = Dashboard()
+    url = other.start(port=int(dash.url.rsplit(":", 1)[1]))  # type: ignore[union-attr]
+    try:
+        assert url.startswith("http://127.0.0.1:") and url != dash.url
+        assert other.server is not None and url.endswith(f":{other.server.get_port()}")
+    finally:
+        other.stop()
+
+
+def test_occupancy_colours_follow_verdict_and_contact(dash: Dashboard) -> None:
+    scene = dash.scene
+    assert scene is not None
+    for verified, rgb in ((True, VERIFIED_RGB), (False, UNVERIFIED_RGB)):
+        frame = demo_frame(1.0, verified=verified)
+        assert dash.update(frame)
+        n = frame.robot_radius.size
+        colors = np.asarray(scene.occupancy.tubes.handle.batched_colors)[:n]  # type: ignore[union-attr]
+        cc = frame.contact_class.reshape(-1)  # type: ignore[union-attr]
+        assert np.all(colors[cc == 0] == rgb)
+        for cls in (CONTACT_UNCONSTRAINED, CONTACT_ENV, CONTACT_SELF):
+            assert np.all(colors[cc == cls] == CONTACT_RGB[cls])
+        # the caps of capsule i carry capsule i's colour
+        caps = np.asarray(scene.occupancy.caps.handle.batched_colors)[: 2 * n]  # type: ignore[union-attr]
+        assert np.all(caps.reshape(n, 2, 3) == colors[:, None])
+    plain = occupancy_colors(4, True, np.array([0, 1, 2, 3]), by_contact=False)
+    assert np.all(plain == VERIFIED_RGB)
+
+
+def test_capacity_grows_and_buffers_are_reused(dash: Dashboard) -> None:
+    scene = dash.scene
+    assert scene is not None
+    group = scene.models["pos"]
+    big = demo_frame(2.0, n_capsules=70)
+    assert dash.update(big)
+    assert group.tubes.capacity >= 70 and group.caps.capacity >= 140
+    buf = group.tubes.positions
+    small = demo_frame(2.1, n_capsules=3)
+    assert dash.update(small)
+    assert group.tubes.positions is buf  # no reallocation when shrinking
+    scales = np.asarray(group.tubes.handle.batched_scales)  # type: ignore[union-attr]
+    assert np.all(scales[3:] == 0.0) and np.all(scales[:3, 0] > 0.0)
+    ends, radius = small.humans[0].models["pos"]
+    sent = np.asarray(group.tubes.handle.batched_positions)[:3]  # type: ignore[union-attr]
+    np.testing.assert_allclose(sent, ends.mean(axis=1), atol=1e-6)
+
+
+def test_model_toggle_and_unknown_model(dash: Dashboard) -> None:
+    scene = dash.scene
+    assert scene is not None
+    scene.set_visible("vel", False)
+    assert not scene.models["vel"].tubes.handle.visible  # type: ignore[union-attr]
+    assert dash.update(demo_frame(3.0))
+    scene.set_visible("vel", True)
+    assert scene.models["vel"].caps.handle.visible  # type: ignore[union-attr]
+    with pytest.raises(UnknownNameError, match="valid choices: pos, vel.*robot, occupancy"):
+        scene.set_visible("speed", True)
+    scene.set_visible("skeletons", False)
+    assert dash.update(demo_frame(3.05)) and not scene.skeleton.visible
+    scene.set_visible("skeletons", True)
+    assert dash.update(demo_frame(3.06)) and scene.skeleton.visible and scene.joints.visible
+    scene.set_visible("robot", False)
+    assert not scene.robot_frame.visible
+    scene.set_visible("robot", True)
+    frame = demo_frame(3.1)
+    frame.humans[0].models["speed"] = frame.humans[0].models["pos"]
+    assert not dash.update(frame)
+
+
+def test_malformed_frames_are_rejected_visibly(dash: Dashboard) -> None:
+    assert dash.panels is not None
+    before = dash.frames_rejected
+    assert not dash.update(replace(demo_frame(4.0), q=np.zeros(3)))
+    assert not dash.update(replace(demo_frame(4.0), robot_radius=np.zeros((2, 2))))
+    assert dash.frames_rejected == before + 2
+    assert dash.panels.error.visible and "expected" in dash.panels.error.content
+    # NaNs are not malformed: they are hidden, the frame is shown
+    frame = demo_frame(4.1)
+    frame.robot_ends[0, 0] = np.nan
+    frame.humans[0].joint_positions[2] = np.nan
+    assert dash.update(frame)
+
+
+def test_scenario_callbacks_and_refusals(dash: Dashboard) -> None:
+    panels = dash.panels
+    assert panels is not None
+    got: list[object] = []
+
+    def select(name: str) -> None:
+        got.append(("select", name))
+
+    def save(name: str) -> None:
+        if not name:
+            raise ScenarioError("scenario name '' is empty; expected letters, digits, '_'")
+        got.append(("save", name))
+
+    def edit(params: dict) -> None:
+        if params["human"]["v_max"] <= 0:
+            raise ScenarioError(f"v_max = {params['human']['v_max']}; expected > 0")
+        got.append(("edit", params))
+
+    panels.on_select_scenario, panels.on_save_as, panels.on_params_edit = select, save, edit
+    panels.set_scenarios(["walk_in", "reach_over"], current="reach_over")
+    assert panels.load_selected() and got[-1] == ("select", "reach_over")
+    assert not panels.save_as() and "refused" in panels.message.content
+    panels.save_name.value = " mine "
+    assert panels.save_as() and got[-1] == ("save", "mine")
+    params = {"human": {"v_max": 2.0, "full_body": True, "name": "x", "radii": [0.1, 0.2]}}
+    panels.set_params(params)
+    assert panels.apply_params() and got[-1] == ("edit", params)
+    panels._param_inputs["human.v_max"].value = -1.0
+    n = len(got)
+    assert not panels.apply_params() and len(got) == n
+    assert "v_max = -1.0" in panels.message.content
+
+
+def test_flatten_round_trip_and_status_table() -> None:
+    nested = {"a": {"b": 1, "c": {"d": [1, 2]}}, "e": "x"}
+    assert flatten(nested) == {"a.b": 1, "a.c.d": [1, 2], "e": "x"}
+    assert unflatten(flatten(nested)) == nested
+    status = {"mode": "failsafe", "min_distance_m": float("inf"), "dropped": {"bad": 3}}
+    md = status_markdown(status)
+    assert "failsafe" in md and "inf" in md and "bad: 3" in md and "n/a" in md
+
+
+def test_rolling_series_keeps_window_and_skips_nonfinite() -> None:
+    s = RollingSeries(1, window_s=1.0, capacity=16)
+    for i in range(100):
+        s.append(0.05 * i, np.array([i * 1.0]))
+    s.append(5.0, np.array([np.nan]))
+    t, y = s.data()
+    assert t[-1] == pytest.approx(0.05 * 99) and t[0] >= t[-1] - 1.0 - 1e-12
+    np.testing.assert_allclose(y, t / 0.05)
+    assert np.all(np.diff(t) > 0)
+
+
+def test_all_model_groups_exist(dash: Dashboard) -> None:
+    assert dash.scene is not None and tuple(dash.scene.models) == MODEL_NAMES
