@@ -1,0 +1,43 @@
+"""``sara-app serve`` (the whole cell on this machine) and ``sara-app worker`` (one cell worker
+connected to a running Zenoh router)."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def _serve(args: argparse.Namespace) -> int:
+    from sara_app.serve import main_for_cli
+
+    return main_for_cli(
+        args.scenario, args.cell, args.zenoh_port, args.viewer_port, args.api_port, args.duration
+    )
+
+
+def _worker(args: argparse.Namespace) -> int:
+    from sara_app.worker import main
+
+    argv = ["--cell", args.cell, "--scenario", args.scenario, "--port", str(args.zenoh_port)]
+    if args.duration is not None:
+        argv += ["--duration", str(args.duration)]
+    return main(argv)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from sara_app.serve import DEFAULT_SCENARIO
+
+    s = sub.add_parser("serve", help="run the dashboard on the built-in demo cell (127.0.0.1)")
+    s.add_argument("--scenario", default=DEFAULT_SCENARIO, help="a name in scenarios/ or a file")
+    s.add_argument("--cell", default="cell1")
+    s.add_argument("--zenoh-port", type=int, default=7447)
+    s.add_argument("--viewer-port", type=int, default=8080)
+    s.add_argument("--api-port", type=int, default=8000)
+    s.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    s.set_defaults(run=_serve)
+
+    w = sub.add_parser("worker", help="run one cell worker against a running zenoh router")
+    w.add_argument("--scenario", default=DEFAULT_SCENARIO)
+    w.add_argument("--cell", default="cell1")
+    w.add_argument("--zenoh-port", type=int, default=7447)
+    w.add_argument("--duration", type=float, default=None)
+    w.set_defaults(run=_worker)
