@@ -1,0 +1,346 @@
+"""Power and force limiting check (seed 003 eq. 6-7, 47-48): the PFL verdict of one trajectory.
+
+``c_safe,i,j = ~contact  |  (free & T_i < T_free,i^j)  |  (clamped & T_i < T_clamp,i^j)`` for
+every interval ``k``, robot link ``i`` and body part ``j`` (eq. 7), with the contact classes of
+:mod:`sara_app.safety.contact` and ``T_i`` the larger link energy at the interval's two ends
+(:mod:`sara_app.robot.energy`, eq. 47-48). A clamped stack of body parts (virtual body part)
+gets the smallest constrained threshold of its members.
+
+Usage (built once per cell, :meth:`PflCheck.check` every control cycle)::
+
+    pfl = PflCheck(model, skeleton("full").parts)               # thresholds_seed003, blunt links
+    res = pfl.check(r_ends, r_radius, s_ends, p1_dot, omega, dt,
+                    h_ends, h_radius, T_world_box, half_extents_m, energy_J)
+    res.safe_all  # bool: eq. 6
+
+or :meth:`PflCheck.check_trajectory` from ``q, q_dot, qd_bound, t`` (it runs the robot occupancy
+and :class:`~sara_app.robot.energy.LinkMotion` itself).
+
+Inputs of :meth:`PflCheck.check` (world frame; m, s, J; ``K`` intervals, ``L = model.n_links``
+capsule links in ``model.link_names`` order, ``P`` body parts in ``part_names`` order, ``B``
+boxes):
+
+==================  ====================  ======================================================
+``r_ends``          ``(K, L, 2, 3)``      link capsule over each interval (RobotOccupancy)
+``r_radius``        ``(K, L)``
+``s_ends``          ``(K+1, L, 2, 3)``    link capsules at the samples (radius model.radius_m)
+``p1_dot, omega``   ``(K+1, L, 3)``       velocity of ``s_ends[..., 0, :]``; angular velocity
+``dt``              ``(K,)``              interval lengths; ``eps_v`` from the joint limits
+``h_ends``          ``(K, P, 2, 3)``      human reachable capsule of each body part
+``h_radius``        ``(K, P)``
+``T_world_box``     ``(B, 4, 4)``         environment boxes (B may be 0)
+``half_extents_m``  ``(B, 3)``
+``energy_J``        ``(K+1, L)``          link energies at the samples (or ``(K, 2, L)``)
+==================  ====================  ======================================================
+
+Shape errors raise :class:`InputError` (a configuration bug); non-finite VALUES never raise: a
+NaN position means possible contact and clamping, a NaN energy fails eq. 7, so the verdict is
+unsafe and the shield keeps its failsafe.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from sara_app.errors import InputError
+from sara_app.robot.energy import LinkMotion, interval_energy_J
+from sara_app.robot.model import RobotModel
+from sara_app.robot.occupancy import RobotOccupancy
+from sara_app.safety.contact import (
+    CLASS_NAMES,
+    ContactClassifier,
+    ContactResult,
+    VelocityErrorBound,
+)
+from sara_app.safety.thresholds import (
+    ThresholdSet,
+    diameters_m,
+    load_thresholds,
+    threshold_arrays,
+)
+from sara_app.safety.topology import human_safe_matrix, unclampable_matrix
+
+
+@dataclass(frozen=True)
+class PflResult:
+    """Verdict and details; arrays ``(K, L, P)`` unless noted.
+
+    ``safe``: eq. 7; ``safe_interval (K,)``; ``safe_all``: eq. 6; ``cls`` (int8, names in
+    ``CLASS_NAMES``); ``threshold_J``: the threshold that applies (constrained one, min over the
+    stack, where clamping is possible; else the unconstrained one); ``energy_J (K, L)``: eq.
+    47-48 interval energy; ``margin_J = threshold_J - energy_J`` (negative: too fast);
+    ``contact``: the full :class:`ContactResult`.
+    """
+
+    safe: np.ndarray
+    safe_interval: np.ndarray
+    safe_all: bool
+    cls: np.ndarray
+    threshold_J: np.ndarray
+    energy_J: np.ndarray
+    margin_J: np.ndarray
+    contact: ContactResult
+
+    @property
+    def class_names(self) -> tuple[str, ...]:
+        return CLASS_NAMES
+
+
+class PflCheck:
+    """The PFL check for one robot and one set of body parts (one or more humans).
+
+    ``part_names (P,)``: skeleton body-part names (may repeat for several humans; then give
+    ``human_index (P,)``). ``thresholds``: a :class:`ThresholdSet` or its name. ``link_shapes``:
+    contact shape per link name (default blunt; set the tool link's shape). ``unclampable_pairs``
+    overrides the robot's declared pairs (:mod:`sara_app.safety.topology`). Relaxation switches
+    as in :class:`ContactClassifier`.
+    """
+
+    def __init__(
+        self,
+        model: RobotModel,
+        part_names: Sequence[str],
+        *,
+        thresholds: ThresholdSet | str = "thresholds_seed003",
+        link_shapes: Mapping[str, str] | None = None,
+        human_index: Sequence[int] | np.ndarray | None = None,
+        unclampable_pairs: Sequence[tuple[str, str]] | None = None,
+        relax_velocity: bool = True,
+        relax_diameter: bool = True,
+        relax_topology: bool = True,
+        multi_body: bool = True,
+    ) -> None:
+        ts = load_thresholds(thresholds) if isinstance(thresholds, str) else thresholds
+        self.model, self.thresholds = model, ts
+        self.part_names = tuple(part_names)
+        self.n_links, self.n_parts = model.n_links, len(self.part_names)
+        self.T_free, self.T_clamp = threshold_arrays(
+            ts, model.link_names, self.part_names, link_shapes
+        )
+        self.classifier = ContactClassifier(
+            unclampable_matrix(model.name, model.link_names, unclampable_pairs),
+            human_safe_matrix(self.part_names, human_index),
+            diameters_m(ts, self.part_names),
+            relax_velocity=relax_velocity,
+            relax_diameter=relax_diameter,
+            relax_topology=relax_topology,
+            multi_body=multi_body,
+        )
+        self.velocity_error = VelocityErrorBound(model)
+        self.occupancy = RobotOccupancy(model)
+        self.motion = LinkMotion(model, self.occupancy)
+        self._s_radius = np.asarray(model.radius_m, dtype=float)
+
+    def _shapes(self, K: int, **arrays: np.ndarray) -> None:
+        L, P = self.n_links, self.n_parts
+        want = {
+            "r_ends": (K, L, 2, 3),
+            "r_radius": (K, L),
+            "s_ends": (K + 1, L, 2, 3),
+            "p1_dot": (K + 1, L, 3),
+            "omega": (K + 1, L, 3),
+            "dt": (K,),
+            "h_ends": (K, P, 2, 3),
+            "h_radius": (K, P),
+        }
+        for key, shape in want.items():
+            if arrays[key].shape != shape:
+                raise InputError(f"{key} has shape {arrays[key].shape}; expected {shape}")
+        B = arrays["T_world_box"].shape[0]
+        if arrays["T_world_box"].shape != (B, 4, 4) or arrays["half_extents_m"].shape != (B, 3):
+            raise InputError(
+                f"boxes {arrays['T_world_box'].shape}, {arrays['half_extents_m'].shape}; "
+                "expected (B, 4, 4) and (B, 3)"
+            )
+
+    def check(
+        self,
+        r_ends: np.ndarray,
+        r_radius: np.ndarray,
+        s_ends: np.ndarray,
+        p1_dot: np.ndarray,
+        omega: np.ndarray,
+        dt: np.ndarray,
+        h_ends: np.ndarray,
+        h_radius: np.ndarray,
+        T_world_box: np.ndarray,
+        half_extents_m: np.ndarray,
+        energy_J: np.ndarray,
+        *,
+        eps_v: np.ndarray | None = None,
+    ) -> PflResult:
+        """Eq. 6-7 over all intervals, links and body parts (inputs in the module docstring).
+
+        ``eps_v (K, L)`` m/s overrides the Thm VI.2 error bound, which is by default computed
+        from ``dt`` and the joint limits (see :meth:`eps_from_bounds` for tighter values).
+        """
+        K = r_radius.shape[0] if np.ndim(r_radius) == 2 else -1
+        arrays = {k: v for k, v in locals().items() if k not in ("self", "K", "eps_v")}
+        self._shapes(K, **{k: np.asarray(v) for k, v in arrays.items()})
+        E = np.asarray(energy_J, dtype=float)
+        if E.shape == (K + 1, self.n_links):
+            E_int = interval_energy_J(E)
+        elif E.shape == (K, 2, self.n_links):
+            E_int = E.max(axis=1)
+        else:
+            raise InputError(
+                f"energy_J has shape {E.shape}; expected ({K + 1}, {self.n_links}) or "
+                f"({K}, 2, {self.n_links})"
+            )
+        if eps_v is None:
+            eps_v = self.velocity_error.eps_v(dt)
+        elif np.shape(eps_v) != (K, self.n_links):
+            raise InputError(f"eps_v has shape {np.shape(eps_v)}; expected ({K}, {self.n_links})")
+        c = self.classifier.classify(
+            r_ends, r_radius, s_ends, self._s_radius, p1_dot, omega, eps_v,
+            h_ends, h_radius, T_world_box, half_extents_m,
+        )  # fmt: skip
+        return self._verdict(c, E_int)
+
+    def eps_from_bounds(
+        self,
+        dt: np.ndarray,
+        qd_bound: np.ndarray,
+        qdd_bound: np.ndarray | None = None,
+        qddd_bound: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Thm VI.2 error ``(K, L)`` m/s from per-interval joint bounds ``(K, n)`` (rad/s,
+        rad/s^2, rad/s^3; acceleration and jerk default to the joint limits). With the
+        Panda's jerk limits a 10 ms interval gives ~0.5 m/s at the hand: pass the trajectory's
+        own bounds or use short intervals, or the velocity relaxation rarely applies."""
+        lim = self.model.limits
+        qdd = lim.a_max if qdd_bound is None else qdd_bound
+        qddd = lim.j_max if qddd_bound is None else qddd_bound
+        C = self.velocity_error.coefficients(
+            qd_bound,
+            np.broadcast_to(qdd, np.shape(qd_bound)),
+            np.broadcast_to(qddd, np.shape(qd_bound)),
+        )
+        return self.velocity_error.eps_v(dt, C)
+
+    def _verdict(self, c: ContactResult, E_int: np.ndarray) -> PflResult:
+        clamped = c.cls >= 2
+        # Constrained threshold of a stack: the smallest over its members (K, L, P).
+        stack_clamp = np.where(c.stack[:, None, :, :], self.T_clamp[None, :, None, :], np.inf)
+        T_clamp = stack_clamp.min(axis=-1)
+        thr = np.where(clamped, T_clamp, self.T_free[None])
+        margin = thr - E_int[:, :, None]
+        safe = ~c.contact | (margin > 0.0)  # eq. 7 with strict "<"; NaN energy -> unsafe
+        safe_k = safe.all(axis=(1, 2))
+        return PflResult(safe, safe_k, bool(safe_k.all()), c.cls, thr, E_int, margin, c)
+
+    def check_trajectory(
+        self,
+        q: np.ndarray,
+        q_dot: np.ndarray,
+        qd_bound: np.ndarray,
+        t: np.ndarray,
+        h_ends: np.ndarray,
+        h_radius: np.ndarray,
+        T_world_box: np.ndarray,
+        half_extents_m: np.ndarray,
+        qdd_bound: np.ndarray | None = None,
+    ) -> PflResult:
+        """:meth:`check` of a sampled joint trajectory: ``q, q_dot (K+1, n)`` at times ``t
+        (K+1,)``, ``qd_bound (K, n)`` rigorous speed bounds per interval (e.g. a
+        ``ShieldedTrajectory``'s ``q, v, v_bound, times``); ``qdd_bound (K, n)`` (its
+        ``a_bound``) tightens the Thm VI.2 error (jerk from the joint limits)."""
+        arrays = [np.asarray(a, dtype=float) for a in (q, q_dot, qd_bound, t)]
+        if all(np.isfinite(a).all() for a in arrays):
+            r_ends, r_radius = self.occupancy.intervals(q, qd_bound, t)
+        else:  # unknown robot occupancy: contact with everything, the verdict is unsafe
+            K = arrays[2].shape[0]
+            r_ends = np.full((K, self.n_links, 2, 3), np.nan)
+            r_radius = np.full((K, self.n_links), np.nan)
+        samples = self.motion.evaluate(q, q_dot)
+        return self.check(
+            r_ends, r_radius, samples.ends, samples.p1_dot, samples.omega, np.diff(t),
+            h_ends, h_radius, T_world_box, half_extents_m, samples.energy_J,
+            eps_v=self.eps_from_bounds(np.diff(t), qd_bound, qdd_bound),
+        )  # fmt: skip
+
+
+# --- benchmark -------------------------------------------------------------------------------
+
+
+def _bench_scene(K: int = 10) -> tuple[PflCheck, dict[str, np.ndarray]]:
+    from sara_app.human.params import load_param_set, to_reach_params
+    from sara_app.human.reach import HumanReach
+    from sara_app.human.skeleton import skeleton
+    from sara_app.robot.model import load_robot
+
+    model = load_robot("panda")
+    sk = skeleton("full")
+    pfl = PflCheck(model, sk.parts, link_shapes={"panda_hand": "edge"})
+    rng = np.random.default_rng(0)
+    lim = model.limits
+    t = np.linspace(0.0, 0.1, K + 1)
+    q0 = np.array([0.0, -0.3, 0.0, -2.0, 0.0, 1.8, 0.8])
+    qd = 0.3 * lim.v_max * rng.uniform(-1, 1, 7)
+    q = q0 + t[:, None] * qd
+    y = np.array(
+        [[0.6, 0.0, 1.7], [0.6, 0.0, 1.5], [0.6, 0.0, 1.0], [0.6, 0.2, 1.45], [0.6, -0.2, 1.45]]
+        + [[0.45, 0.25, 1.2], [0.45, -0.25, 1.2], [0.35, 0.2, 1.0], [0.35, -0.2, 1.0]]
+        + [[0.6, 0.1, 0.95], [0.6, -0.1, 0.95], [0.6, 0.1, 0.5], [0.6, -0.1, 0.5]]
+        + [[0.6, 0.1, 0.05], [0.6, -0.1, 0.05]]
+    )
+    reach = HumanReach(to_reach_params(load_param_set("seed001_table1"), "full"))
+    occ = reach.vel(y[None], t[1:])
+    h_ends = np.broadcast_to(occ.ends[0], (K, sk.n_parts, 2, 3)).copy()
+    h_radius = np.broadcast_to(occ.radius[0], (K, sk.n_parts)).copy()
+    T_box = np.eye(4)[None].copy()
+    T_box[0, :3, 3] = [0.5, 0.0, 0.35]
+    scene = {
+        "q": q,
+        "q_dot": np.broadcast_to(qd, q.shape).copy(),
+        "qd_bound": np.broadcast_to(np.abs(qd), (K, 7)).copy(),
+        "t": t,
+        "h_ends": h_ends,
+        "h_radius": h_radius,
+        "T_world_box": T_box,
+        "half_extents_m": np.array([[0.4, 0.6, 0.02]]),
+    }
+    return pfl, scene
+
+
+def bench_rows(n: int = 2000) -> list[tuple[str, float, float, str]]:
+    """PFL cycle, Panda, one full-body human (R_VEL), one table, 10 intervals."""
+    from sara_app.bench import timeit_us
+
+    pfl, sc = _bench_scene(10)
+    q, qd, t = sc["q"], sc["q_dot"], sc["t"]
+    human = (sc["h_ends"], sc["h_radius"], sc["T_world_box"], sc["half_extents_m"])
+    r_ends, r_radius = pfl.occupancy.intervals(q, sc["qd_bound"], t)
+    smp = pfl.motion.evaluate(q, qd)
+    s = (smp.ends.copy(), smp.p1_dot.copy(), smp.omega.copy(), smp.energy_J.copy())
+    rows = []
+    for name, fn in (
+        ("pfl: energies + twists (11 samples)", lambda: pfl.motion.evaluate(q, qd)),
+        (
+            "pfl: contact classification",
+            lambda: pfl.classifier.classify(
+                r_ends,
+                r_radius,
+                s[0],
+                pfl._s_radius,
+                s[1],
+                s[2],
+                pfl.velocity_error.eps_v(np.diff(t)),
+                *human,
+            ),  # fmt: skip
+        ),
+        (
+            "pfl: check (given link states)",
+            lambda: pfl.check(r_ends, r_radius, s[0], s[1], s[2], np.diff(t), *human, s[3]),
+        ),
+        (
+            "pfl: full cycle incl. occupancy",
+            lambda: pfl.check_trajectory(q, qd, sc["qd_bound"], t, *human),
+        ),
+    ):
+        med, p99 = timeit_us(fn, n, warmup=max(10, n // 10))
+        rows.append((name, med, p99, "Panda, 14 parts, 1 box, K=10"))
+    return rows

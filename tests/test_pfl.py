@@ -1,0 +1,159 @@
+"""The PFL verdict (seed 003 eq. 6-7, 47-48) on the Panda with a full-body human."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sara_app.errors import InputError
+from sara_app.human.skeleton import skeleton
+from sara_app.robot.model import load_robot
+from sara_app.safety.contact import ENV_CONSTRAINED, NONE, UNCONSTRAINED
+from sara_app.safety.pfl import PflCheck, PflResult, bench_rows
+
+PARTS = skeleton("full").parts
+Q0 = np.array([0.0, 0.3, 0.0, -2.0, 0.0, 2.3, 0.8])
+DT = 1e-3
+
+
+@pytest.fixture(scope="module")
+def pfl() -> PflCheck:
+    return PflCheck(load_robot("panda"), PARTS)
+
+
+def _far_human(K: int) -> tuple[np.ndarray, np.ndarray]:
+    h_ends = np.zeros((K, len(PARTS), 2, 3))
+    h_ends[..., 0] = 5.0 + np.arange(len(PARTS))[None, :, None]  # x far away, spread out
+    return h_ends, np.full((K, len(PARTS)), 0.1)
+
+
+def _run(
+    pfl: PflCheck,
+    q_dot: np.ndarray,
+    h: tuple[np.ndarray, np.ndarray],
+    boxes: tuple[np.ndarray, np.ndarray],
+    K: int = 1,
+) -> PflResult:
+    t = np.arange(K + 1) * DT
+    q = Q0 + t[:, None] * q_dot
+    qd = np.broadcast_to(q_dot, q.shape)
+    bound = np.broadcast_to(np.abs(q_dot), (K, 7))
+    return pfl.check_trajectory(q, qd, bound, t, *h, *boxes, qdd_bound=np.zeros((K, 7)))
+
+
+def _hand_on_table(pfl: PflCheck) -> tuple[tuple, tuple, np.ndarray, int]:
+    """A hand ball under the Panda hand, resting on a table 10 cm below the link."""
+    model = pfl.model
+    ends, radius = model.link_capsules(Q0)
+    i_hand = model.link_names.index("panda_hand")
+    low = ends[i_hand][np.argmin(ends[i_hand, :, 2])]
+    z_top = low[2] - radius[i_hand] - 0.10
+    T = np.eye(4)[None].copy()
+    T[0, :3, 3] = [low[0], low[1], z_top - 0.02]
+    h_ends, h_radius = _far_human(1)
+    j = PARTS.index("l_hand")
+    h_ends[0, j] = [low[0], low[1], z_top + 0.051]
+    h_radius[0, j] = 0.051
+    # joint velocity moving the hand link straight down at 1 m/s
+    J = model.link_jacobians(Q0)[i_hand]
+    q_dot = np.linalg.pinv(J) @ np.array([0.0, 0.0, -1.0, 0.0, 0.0, 0.0])
+    return (h_ends, h_radius), (T, np.array([[0.5, 0.5, 0.02]])), q_dot, i_hand
+
+
+def test_hand_on_table_energy_between_the_thresholds(pfl: PflCheck) -> None:
+    human, table, q_dot, i = _hand_on_table(pfl)
+    j = PARTS.index("l_hand")
+    E1 = pfl.motion.energies(Q0[None], q_dot[None])[0, i]
+    q_dot = q_dot * np.sqrt(0.3 / E1)  # hand link energy 0.3 J: 0.12 (clamp) < 0.3 < 0.49 (free)
+    down = _run(pfl, q_dot, human, table)
+    assert down.cls[0, i, j] == ENV_CONSTRAINED
+    assert down.threshold_J[0, i, j] == 0.12
+    assert down.energy_J[0, i] == pytest.approx(0.3, rel=0.02)
+    assert not down.safe[0, i, j] and not down.safe_all
+    up = _run(pfl, -q_dot, human, table)
+    assert up.cls[0, i, j] == UNCONSTRAINED
+    assert up.threshold_J[0, i, j] == 0.49 and up.safe[0, i, j]
+    assert up.margin_J[0, i, j] == pytest.approx(0.49 - up.energy_J[0, i])
+    no_table = _run(pfl, q_dot, human, (np.zeros((0, 4, 4)), np.zeros((0, 3))))
+    assert no_table.cls[0, i, j] == UNCONSTRAINED and no_table.safe[0, i, j]
+
+
+def test_far_human_and_robot_at_rest_are_safe(pfl: PflCheck) -> None:
+    boxes = (np.zeros((0, 4, 4)), np.zeros((0, 3)))
+    far = _run(pfl, np.full(7, 1.5), _far_human(3), boxes, K=3)
+    assert far.safe_all and np.all(far.cls == NONE)
+    h_ends = np.zeros((3, len(PARTS), 2, 3))
+    h_ends[..., 2] = 0.5
+    engulf = (h_ends, np.full((3, len(PARTS)), 3.0))
+    rest = _run(pfl, np.zeros(7), engulf, boxes, K=3)
+    assert rest.safe_all and np.all(rest.contact.contact)  # zero energy: contact is harmless
+    fast = _run(pfl, np.full(7, 1.5), engulf, boxes, K=3)
+    assert not fast.safe_all
+    moving = fast.energy_J[:, :, None] > 0
+    assert np.array_equal(fast.safe, fast.energy_J[:, :, None] < fast.threshold_J)
+    assert np.any(~fast.safe & moving)
+
+
+def test_applied_threshold_follows_class_stack_and_tool_shape() -> None:
+    model = load_robot("panda")
+    pfl = PflCheck(model, PARTS, link_shapes={"panda_hand": "edge"})
+    i_hand = model.link_names.index("panda_hand")
+    assert pfl.T_free[i_hand, PARTS.index("l_hand")] == 0.375
+    assert pfl.T_free[0, PARTS.index("l_hand")] == 0.49  # other links blunt
+    rng = np.random.default_rng(0)
+    K = 4
+    h_ends = rng.normal(scale=0.5, size=(K, len(PARTS), 2, 3)) + [0.4, 0.0, 0.4]
+    h_radius = rng.uniform(0.02, 0.05, (K, len(PARTS)))
+    T = np.eye(4)[None].copy()
+    T[0, :3, 3] = [0.5, 0.0, 0.2]
+    res = _run(pfl, rng.uniform(-1, 1, 7), (h_ends, h_radius), (T, np.array([[0.3, 0.3, 0.1]])), K)
+    assert set(np.unique(res.cls).tolist()) >= {NONE, UNCONSTRAINED, ENV_CONSTRAINED}
+    for k, i, j in zip(*np.nonzero(res.cls >= ENV_CONSTRAINED)):
+        members = np.flatnonzero(res.contact.stack[k, j])
+        assert res.threshold_J[k, i, j] == pfl.T_clamp[i, members].min()
+    free = res.cls <= UNCONSTRAINED
+    assert np.array_equal(res.threshold_J[free], np.broadcast_to(pfl.T_free, res.cls.shape)[free])
+
+
+def test_check_matches_check_trajectory_and_energy_forms(pfl: PflCheck) -> None:
+    rng = np.random.default_rng(1)
+    K = 3
+    t = np.arange(K + 1) * 0.004
+    q = Q0 + rng.normal(scale=0.02, size=(K + 1, 7))
+    qd = rng.uniform(-1, 1, (K + 1, 7))
+    bound = np.maximum(np.abs(qd[:-1]), np.abs(qd[1:])) + np.abs(np.diff(q, axis=0)) / 0.004
+    h = (rng.normal(scale=0.3, size=(K, len(PARTS), 2, 3)) + 0.4, np.full((K, len(PARTS)), 0.1))
+    boxes = (np.eye(4)[None], np.array([[0.2, 0.2, 0.05]]))
+    a = pfl.check_trajectory(q, qd, bound, t, *h, *boxes)
+    r_ends, r_radius = pfl.occupancy.intervals(q, bound, t)
+    s = pfl.motion.evaluate(q, qd)
+    eps = pfl.eps_from_bounds(np.diff(t), bound)
+    args = (r_ends, r_radius, s.ends, s.p1_dot, s.omega, np.diff(t), *h, *boxes)
+    b = pfl.check(*args, s.energy_J.copy(), eps_v=eps)
+    c = pfl.check(*args, np.stack([s.energy_J[:-1], s.energy_J[1:]], axis=1), eps_v=eps)
+    for other in (b, c):
+        assert np.array_equal(a.safe, other.safe) and np.array_equal(a.cls, other.cls)
+        assert np.array_equal(a.margin_J, other.margin_J)
+    with pytest.raises(InputError, match="h_radius has shape"):
+        pfl.check(*args[:7], h[1][:, :3], *boxes, s.energy_J)
+    with pytest.raises(InputError, match="energy_J has shape"):
+        pfl.check(*args, s.energy_J[:2])
+
+
+def test_non_finite_trajectory_is_unsafe_without_raising(pfl: PflCheck) -> None:
+    K = 2
+    t = np.arange(K + 1) * DT
+    q = np.tile(Q0, (K + 1, 1))
+    qd = np.full((K + 1, 7), 0.5)
+    q[1, 3] = np.nan
+    h_ends, h_radius = _far_human(K)
+    res = pfl.check_trajectory(q, qd, np.full((K, 7), 0.5), t, h_ends, h_radius,
+                               np.zeros((0, 4, 4)), np.zeros((0, 3)))  # fmt: skip
+    assert not res.safe_all and np.all(res.contact.contact)
+
+
+def test_bench_rows_shape() -> None:
+    rows = bench_rows(3)
+    assert len(rows) == 4
+    for name, med, p99, note in rows:
+        assert name.startswith("pfl") and med > 0 and p99 >= med and "Panda" in note
