@@ -132,6 +132,10 @@ def test_scenario_callbacks_and_refusals(dash: Dashboard) -> None:
         got.append(("edit", params))
 
     panels.on_select_scenario, panels.on_save_as, panels.on_params_edit = select, save, edit
+    assert panels.load_selected() and panels.message.content == "Load: done"
+    panels.on_select_scenario = lambda name: panels.show_message(f"loaded {name}")
+    assert panels.load_selected() and panels.message.content == "loaded (no scenarios)"
+    panels.on_select_scenario = select
     panels.set_scenarios(["walk_in", "reach_over"], current="reach_over")
     assert panels.load_selected() and got[-1] == ("select", "reach_over")
     assert not panels.save_as() and "refused" in panels.message.content

@@ -189,6 +189,7 @@ class DashboardPanels:
         self.params_folder = gui.add_folder("Parameters")
         gui.add_button("Apply parameters").on_click(_click(self.apply_params))
         self.message = gui.add_markdown("")
+        self._messages_shown = 0
 
     def load_selected(self) -> bool:
         """The "Load" button: ``on_select_scenario(dropdown value)``; True if accepted."""
@@ -208,17 +209,20 @@ class DashboardPanels:
         if callback is None:
             self.show_message(f"{what}: not available", error=True)
             return False
+        shown = self._messages_shown
         try:
             callback(arg())
         except (SaraError, ValueError) as exc:
             self.show_message(f"{what} refused: {exc}", error=True)
             return False
-        self.show_message(f"{what}: done")
+        if self._messages_shown == shown:  # keep what the callback reported itself
+            self.show_message(f"{what}: done")
         return True
 
     def show_message(self, text: str, error: bool = False) -> None:
         """Show ``text`` in the scenario tab (bold with a warning sign when ``error``)."""
         self.message.content = f"**⚠ {text}**" if error else text
+        self._messages_shown += 1
 
     def set_scenarios(self, names: list[str], current: str | None = None) -> None:
         """Replace the dropdown's scenario names; select ``current`` if given."""
