@@ -1,0 +1,292 @@
+"""The REST service of a SaRA installation (FastAPI): cells, scenarios, parameter sets.
+
+``create_app(registry, scenarios_folder=None, viewer_url=None, static_dir=None) -> FastAPI``.
+
+- ``GET /api/health``; ``GET /api/links`` (``{"viewer": url, "docs": "/docs"}``).
+- ``GET /api/cells``, ``GET /api/cells/{cell}``: live status (``CellRegistry`` snapshots);
+  ``GET /api/cells/{cell}/events`` and ``GET /api/events``: the same as Server-Sent Events
+  (``interval_s``, optional ``limit`` of events).
+- ``POST /api/cells/{cell}/scenario``: validate a full scenario, send it to the worker and
+  return its answer (422 invalid, 404 unknown cell, 409 refused, 504 no answer).
+- ``GET /api/scenarios``, ``GET/PUT /api/scenarios/{name}``: list, read, save (validated;
+  an existing name is replaced only with ``?overwrite=true``; the stored ``name`` is the URL's).
+- ``GET /api/params``, ``GET /api/params/{name}``: human-model parameter sets;
+  ``GET /api/thresholds``, ``GET /api/thresholds/{name}``: contact-energy threshold sets.
+- ``/docs``: OpenAPI; ``/``: the landing page from the repository's ``static/`` folder.
+
+Names in URLs are ``[A-Za-z0-9_-]{1,64}`` (422 otherwise): no path ever leaves its folder.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import re
+import tempfile
+import threading
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import Annotated, Any
+
+from fastapi import Body, FastAPI, HTTPException, Query, Request
+from fastapi.responses import StreamingResponse
+from fastapi.staticfiles import StaticFiles
+
+import sara_app
+from sara_app.api.registry import CellRegistry, WorkerTimeoutError
+from sara_app.errors import SaraError, ScenarioError
+from sara_app.human.params import available_param_sets, load_param_set
+from sara_app.safety.thresholds import load_thresholds, threshold_set_names
+from sara_app.scenario import (
+    Scenario,
+    check_against_robot,
+    load_scenario,
+    parse_scenario,
+    save_scenario,
+    scenario_names,
+    scenario_path,
+    scenarios_dir,
+)
+
+NAME_RE = re.compile(r"[A-Za-z0-9_-]{1,64}")
+STATIC_DIR = Path(sara_app.__file__).resolve().parent.parent / "static"
+
+
+def check_url_name(kind: str, name: str) -> str:
+    """``name`` when it is a valid name; HTTP 422 naming the rule otherwise."""
+    if not NAME_RE.fullmatch(name):
+        raise HTTPException(422, f"{kind} name {name[:80]!r} is invalid; use 1-64 of [A-Za-z0-9_-]")
+    return name
+
+
+def validate_scenario(data: dict[str, Any], origin: str) -> Scenario:
+    """A scenario checked as a whole (schema and robot); HTTP 422 with the field otherwise."""
+    try:
+        sc = parse_scenario(data, origin)
+        check_against_robot(sc)
+    except SaraError as e:
+        raise HTTPException(422, str(e)) from None
+    return sc
+
+
+def _save_atomic(sc: Scenario, path: Path) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=".json", dir=path.parent)
+    os.close(fd)
+    try:
+        save_scenario(sc, tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+async def _sse(
+    request: Request, snapshot: Any, stopping: threading.Event, interval_s: float, limit: int | None
+) -> AsyncIterator[str]:
+    n = 0
+    while limit is None or n < limit:
+        if stopping.is_set() or await request.is_disconnected():
+            return
+        yield f"event: status\ndata: {json.dumps(snapshot())}\n\n"
+        n += 1
+        if limit is None or n < limit:
+            await asyncio.sleep(interval_s)
+
+
+def _stream(request: Request, snapshot: Any, interval_s: float, limit: int | None) -> Any:
+    stopping: threading.Event = request.app.state.stopping
+    return StreamingResponse(
+        _sse(request, snapshot, stopping, interval_s, limit),
+        media_type="text/event-stream",
+        headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
+    )
+
+
+def _add_cell_routes(app: FastAPI, registry: CellRegistry) -> None:
+    def known_cell(cell: str) -> dict[str, Any]:
+        check_url_name("cell", cell)
+        snap = registry.cell(cell)
+        if snap is None:
+            valid = ", ".join(registry.names()) or "(none seen yet)"
+            raise HTTPException(404, f"cell {cell!r} has not been seen on the bus; known: {valid}")
+        return snap
+
+    @app.get("/api/cells", tags=["cells"])
+    def list_cells() -> list[dict[str, Any]]:
+        """Every cell seen on the bus, with its live status."""
+        return registry.cells()
+
+    @app.get("/api/cells/{cell}", tags=["cells"])
+    def get_cell(cell: str) -> dict[str, Any]:
+        return known_cell(cell)
+
+    @app.get("/api/cells/{cell}/events", tags=["cells"])
+    def cell_events(
+        request: Request,
+        cell: str,
+        interval_s: float = Query(0.5, ge=0.01, le=10.0),
+        limit: int | None = Query(None, ge=1),
+    ) -> Any:
+        """Server-Sent Events: the cell's snapshot every ``interval_s`` (offline until seen)."""
+        check_url_name("cell", cell)
+
+        def snapshot() -> dict[str, Any]:
+            return registry.cell(cell) or {"cell": cell, "online": False, "known": False}
+
+        return _stream(request, snapshot, interval_s, limit)
+
+    @app.get("/api/events", tags=["cells"])
+    def all_events(
+        request: Request,
+        interval_s: float = Query(0.5, ge=0.01, le=10.0),
+        limit: int | None = Query(None, ge=1),
+    ) -> Any:
+        """Server-Sent Events: the list of every cell's snapshot every ``interval_s``."""
+        return _stream(request, registry.cells, interval_s, limit)
+
+    @app.post("/api/cells/{cell}/scenario", tags=["cells"])
+    def send_scenario(
+        cell: str,
+        scenario: Annotated[dict[str, Any], Body()],
+        timeout_s: float = Query(3.0, gt=0.0, le=30.0),
+    ) -> dict[str, Any]:
+        """Validate a full scenario and have the cell's worker apply it (all or nothing)."""
+        check_url_name("cell", cell)
+        sc = validate_scenario(scenario, "request body")
+        known_cell(cell)
+        try:
+            ans = registry.request_params(cell, sc.model_dump(mode="json"), timeout_s)
+        except WorkerTimeoutError as e:
+            raise HTTPException(504, str(e)) from None
+        except SaraError as e:
+            raise HTTPException(422, str(e)) from None
+        if not ans.accepted:
+            raise HTTPException(409, f"the worker of cell {cell!r} refused: {ans.reason}")
+        return {"cell": cell, "scenario": sc.name, "accepted": True, "request_id": ans.request_id}
+
+
+def _add_scenario_routes(app: FastAPI, folder: Path) -> None:
+    def names() -> list[str]:
+        return sorted(set(scenario_names(folder)))
+
+    @app.get("/api/scenarios", tags=["scenarios"])
+    def list_scenarios() -> list[str]:
+        return names()
+
+    @app.get("/api/scenarios/{name}", tags=["scenarios"])
+    def get_scenario(name: str) -> dict[str, Any]:
+        """The validated scenario as JSON."""
+        check_url_name("scenario", name)
+        if name not in names():
+            raise HTTPException(404, f"scenario {name!r} not found; valid: {', '.join(names())}")
+        try:
+            return load_scenario(name, folder).model_dump(mode="json")
+        except SaraError as e:
+            raise HTTPException(500, f"stored scenario {name!r} is invalid: {e}") from None
+
+    @app.put("/api/scenarios/{name}", tags=["scenarios"])
+    def put_scenario(
+        name: str,
+        scenario: Annotated[dict[str, Any], Body()],
+        overwrite: bool = Query(False),
+    ) -> dict[str, Any]:
+        """Validate and save as ``<name>.json``; replacing an existing name needs overwrite."""
+        check_url_name("scenario", name)
+        sc = validate_scenario({**scenario, "name": name}, "request body")
+        exists = name in names()
+        if exists and not overwrite:
+            raise HTTPException(
+                409, f"scenario {name!r} exists; choose a new name or pass ?overwrite=true"
+            )
+        path = folder / f"{name}.json"
+        if exists and scenario_path(name, folder) != path:  # one file per name
+            other = scenario_path(name, folder).name
+            raise HTTPException(409, f"scenario {name!r} is stored as {other}; not replaced")
+        _save_atomic(sc, path)
+        return {"name": name, "file": path.name, "overwritten": exists}
+
+
+def _human_param_sets() -> list[str]:
+    """Shipped files that are human-model parameter sets (the folder also holds thresholds)."""
+    out = []
+    for name in available_param_sets():
+        try:
+            load_param_set(name)
+        except SaraError:
+            continue
+        out.append(name)
+    return out
+
+
+def _add_param_routes(app: FastAPI) -> None:
+    @app.get("/api/params", tags=["params"])
+    def list_params() -> list[str]:
+        """Names of the shipped human-model parameter sets."""
+        return _human_param_sets()
+
+    @app.get("/api/params/{name}", tags=["params"])
+    def get_params(name: str) -> dict[str, Any]:
+        check_url_name("parameter set", name)
+        valid = _human_param_sets()
+        if name not in valid:
+            raise HTTPException(404, f"parameter set {name!r} not found; valid: {', '.join(valid)}")
+        return load_param_set(name).model_dump(mode="json")
+
+    @app.get("/api/thresholds", tags=["params"])
+    def list_thresholds() -> list[str]:
+        """Names of the shipped contact-energy threshold sets (power and force limiting)."""
+        return list(threshold_set_names())
+
+    @app.get("/api/thresholds/{name}", tags=["params"])
+    def get_thresholds(name: str) -> dict[str, Any]:
+        check_url_name("threshold set", name)
+        valid = threshold_set_names()
+        if name not in valid:
+            raise HTTPException(404, f"threshold set {name!r} not found; valid: {', '.join(valid)}")
+        try:
+            return load_thresholds(name).model_dump(mode="json")
+        except SaraError as e:
+            raise HTTPException(500, str(e)) from None
+
+
+def create_app(
+    registry: CellRegistry,
+    scenarios_folder: Path | str | None = None,
+    *,
+    viewer_url: str | None = None,
+    static_dir: Path | str | None = STATIC_DIR,
+) -> FastAPI:
+    """The FastAPI app; ``registry`` supplies live cells, ``scenarios_folder`` the scenarios
+    (default: the shipped ``scenarios/``), ``viewer_url`` the 3D view's address for the page."""
+    folder = Path(scenarios_folder) if scenarios_folder is not None else scenarios_dir()
+    if not folder.is_dir():
+        raise ScenarioError(f"scenarios folder {str(folder)!r} is not a directory")
+    app = FastAPI(
+        title="SaRA cell service",
+        version=sara_app.__dict__.get("__version__", "0.1.0"),
+        description="Live status of SaRA cells, scenarios and human-model parameter sets.",
+    )
+    app.state.registry = registry
+    app.state.stopping = threading.Event()  # set by ApiServer.stop(): ends event streams
+
+    @app.get("/api/health", tags=["service"])
+    def health() -> dict[str, Any]:
+        cells = registry.cells()
+        return {
+            "ok": True,
+            "bus": registry.bus is not None,
+            "cells": len(cells),
+            "online": sum(c["online"] for c in cells),
+        }
+
+    @app.get("/api/links", tags=["service"])
+    def links() -> dict[str, Any]:
+        return {"viewer": viewer_url, "docs": "/docs"}
+
+    _add_cell_routes(app, registry)
+    _add_scenario_routes(app, folder)
+    _add_param_routes(app)
+    if static_dir is not None and Path(static_dir).is_dir():
+        app.mount("/", StaticFiles(directory=str(static_dir), html=True), name="static")
+    return app

@@ -1,0 +1,293 @@
+"""Live state of every cell on the bus, as the REST service sees it.
+
+``CellRegistry(bus)`` subscribes (zenoh client ``Bus``) to ``sara/*/status``, ``sara/*/verdict``
+and ``sara/*/params/ack``; a background thread drains them at about ``poll_hz`` (50 Hz) and keeps,
+per cell: the last status and verdict, when each was received, a rolling window of verdict cycle
+times (p50/p99) and whether the cell is online (a status within ``offline_after_s``, 3 s).
+
+``request_params(cell, scenario, timeout_s)`` publishes a ``ParamsMsg`` on ``sara/<cell>/params``
+with a fresh ``request_id`` and waits for the worker's ``ParamsAckMsg``: it returns a
+``ParamsAnswer`` (accepted, reason) or raises ``WorkerTimeoutError`` when no worker listens or
+none answers in time.
+
+Several programs may publish on ``sara/<cell>/params`` (this service, the dashboard). The
+decoder of a worker requires ``seq`` to increase per key, so the ``seq`` used here is the wall
+clock in microseconds (kept strictly increasing): it stays ordered across restarts and against
+any other publisher that numbers its messages the same way.
+
+``bus=None`` gives a registry without a bus (tests, an API without cells); ``ingest(decoded)``
+feeds it messages directly. ``clock`` (default ``time.time``) is the wall clock the ages use.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+import uuid
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+import numpy as np
+from pydantic import ValidationError
+
+from sara_app.bus import keys
+from sara_app.bus.codec import Decoded
+from sara_app.bus.messages import ParamsAckMsg, ParamsMsg, StatusMsg, VerdictMsg
+from sara_app.bus.session import Bus, Publisher, Subscription
+from sara_app.errors import InputError, SaraError
+
+log = logging.getLogger("sara_app.api")
+
+MAX_CELLS = 256
+CYCLE_WINDOW = 1000  # verdicts in the rolling cycle-time window
+
+
+class WorkerTimeoutError(SaraError):
+    """A cell worker did not answer a parameter request (absent, busy or not subscribed)."""
+
+
+class ParamsAnswer(NamedTuple):
+    request_id: str
+    accepted: bool
+    reason: str
+
+
+@dataclass
+class _Cell:
+    name: str
+    status: StatusMsg | None = None
+    status_recv_s: float | None = None
+    verdict: VerdictMsg | None = None
+    verdict_recv_s: float | None = None
+    verdicts: int = 0
+    cycle_us: deque[float] = field(default_factory=lambda: deque(maxlen=CYCLE_WINDOW))
+
+
+def _age(now_s: float, then_s: float | None) -> float | None:
+    return None if then_s is None else max(0.0, now_s - then_s)
+
+
+class CellRegistry:
+    """Per-cell live status from the bus; ``start()`` the drain thread, ``close()`` to stop."""
+
+    def __init__(
+        self,
+        bus: Bus | None,
+        *,
+        offline_after_s: float = 3.0,
+        poll_hz: float = 50.0,
+        clock: Callable[[], float] = time.time,
+        owns_bus: bool = False,
+    ) -> None:
+        self.bus = bus
+        self.offline_after_s = float(offline_after_s)
+        self.poll_s = 1.0 / float(poll_hz)
+        self.clock = clock
+        self._owns_bus = owns_bus
+        self._lock = threading.Lock()
+        self._acked = threading.Condition(self._lock)
+        self._cells: dict[str, _Cell] = {}
+        self._pending: dict[str, ParamsAckMsg | None] = {}
+        self._publishers: dict[str, Publisher] = {}
+        self._last_seq = 0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._subs: list[Subscription] = []
+        if bus is not None:
+            self._subs = [
+                bus.subscribe(keys.all_status_keys(), capacity=256),
+                bus.subscribe(f"{keys.ROOT}/*/verdict", capacity=4096),
+                bus.subscribe(f"{keys.ROOT}/*/params/ack", capacity=256, fifo=True),
+            ]
+
+    @classmethod
+    def connect(cls, port: int, **kwargs: Any) -> CellRegistry:
+        """A registry on its own zenoh client session to the router on 127.0.0.1:``port``."""
+        return cls(Bus.client(port), owns_bus=True, **kwargs)
+
+    # -- life cycle ------------------------------------------------------------------------
+    def start(self) -> CellRegistry:
+        if self._thread is None and self.bus is not None:
+            self._thread = threading.Thread(target=self._run, name="sara-api-registry", daemon=True)
+            self._thread.start()
+        return self
+
+    def close(self) -> None:
+        """Stop the drain thread, undeclare the subscriptions (and close an owned bus)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+        for sub in self._subs:
+            sub.close()
+        with self._lock:
+            pubs = list(self._publishers.values())
+            self._publishers.clear()
+        for pub in pubs:
+            pub.close()
+        if self._owns_bus and self.bus is not None:
+            self.bus.close()
+
+    def __enter__(self) -> CellRegistry:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.poll_s):
+            self.poll()
+
+    def poll(self) -> int:
+        """Drain every subscription once; the number of messages taken in. Never raises."""
+        n = 0
+        for sub in self._subs:
+            try:
+                for d in sub.drain().messages:
+                    self.ingest(d)
+                    n += 1
+            except Exception as e:  # noqa: BLE001 - the drain thread must keep running
+                log.warning("api registry: draining %s failed: %r", sub.key_expr, e)
+        return n
+
+    # -- state -----------------------------------------------------------------------------
+    def ingest(self, d: Decoded) -> None:
+        """Take one decoded status, verdict or params ack into the state."""
+        msg = d.msg
+        with self._lock:
+            if isinstance(msg, ParamsAckMsg):
+                if msg.request_id in self._pending:
+                    self._pending[msg.request_id] = msg
+                    self._acked.notify_all()
+                return
+            if not isinstance(msg, StatusMsg | VerdictMsg):
+                return
+            cell = self._cells.get(d.key.cell)
+            if cell is None:
+                if len(self._cells) >= MAX_CELLS:
+                    return
+                cell = self._cells[d.key.cell] = _Cell(d.key.cell)
+            if isinstance(msg, StatusMsg):
+                cell.status, cell.status_recv_s = msg, d.recv_s
+            else:
+                cell.verdict, cell.verdict_recv_s = msg, d.recv_s
+                cell.verdicts += 1
+                cell.cycle_us.append(msg.cycle_time_us)
+
+    def names(self) -> list[str]:
+        with self._lock:
+            return sorted(self._cells)
+
+    def known(self, cell: str) -> bool:
+        with self._lock:
+            return cell in self._cells
+
+    def cells(self) -> list[dict[str, Any]]:
+        """The snapshot of every known cell, sorted by name."""
+        now_s = self.clock()
+        with self._lock:
+            return [self._snapshot(self._cells[n], now_s) for n in sorted(self._cells)]
+
+    def cell(self, name: str) -> dict[str, Any] | None:
+        """The snapshot of one cell, or None when it was never seen."""
+        now_s = self.clock()
+        with self._lock:
+            c = self._cells.get(name)
+            return None if c is None else self._snapshot(c, now_s)
+
+    def _snapshot(self, c: _Cell, now_s: float) -> dict[str, Any]:
+        st, v = c.status, c.verdict
+        status_age = _age(now_s, c.status_recv_s)
+        seen = [t for t in (c.status_recv_s, c.verdict_recv_s) if t is not None]
+        p50 = p99 = None
+        if c.cycle_us:
+            p50, p99 = (float(x) for x in np.percentile(np.fromiter(c.cycle_us, float), [50, 99]))
+        elif st is not None:
+            p50, p99 = st.cycle_time_p50_us, st.cycle_time_p99_us
+        return {
+            "cell": c.name,
+            "online": status_age is not None and status_age < self.offline_after_s,
+            "state": None if st is None else st.state,
+            "scenario": None if st is None else st.scenario,
+            "uptime_s": None if st is None else st.uptime_s,
+            "humans": [] if st is None else list(st.humans),
+            "mode": None if v is None else v.mode,
+            "safety_mode": None if v is None else v.safety_mode,
+            "min_distance_m": None if v is None else v.min_distance_m,
+            "results": {} if v is None else dict(v.results),
+            "skeleton_age_s": {} if v is None else dict(v.skeleton_age_s),
+            "faults": [] if v is None else list(v.faults),
+            "dropped": {} if v is None else dict(v.dropped),
+            "cycle_time_us": None if v is None else v.cycle_time_us,
+            "cycle_time_p50_us": p50,
+            "cycle_time_p99_us": p99,
+            "cycle_window": len(c.cycle_us),
+            "verdicts_received": c.verdicts,
+            "last_seen_s": max(seen) if seen else None,
+            "status_age_s": status_age,
+            "verdict_age_s": _age(now_s, c.verdict_recv_s),
+        }
+
+    # -- parameter requests ----------------------------------------------------------------
+    def _publisher(self, cell: str) -> Publisher:
+        if self.bus is None:
+            raise WorkerTimeoutError(f"no bus: cannot reach the worker of cell {cell!r}")
+        with self._lock:
+            pub = self._publishers.get(cell)
+            if pub is None:
+                pub = self._publishers[cell] = self.bus.publisher(keys.params_key(cell))
+            return pub
+
+    def _next_seq(self) -> int:
+        with self._lock:
+            self._last_seq = max(self._last_seq + 1, time.time_ns() // 1000)
+            return self._last_seq
+
+    def request_params(
+        self, cell: str, scenario: dict[str, Any], timeout_s: float = 3.0
+    ) -> ParamsAnswer:
+        """Send a full scenario to ``cell``'s worker and wait for its accept/reject answer.
+
+        Raises InputError for a bad cell name or a scenario that cannot be sent (non-finite
+        numbers), WorkerTimeoutError when no worker listens or none answers in ``timeout_s``.
+        """
+        keys.check_name("cell", cell)
+        request_id = f"api-{uuid.uuid4().hex[:16]}"
+        try:
+            msg = ParamsMsg(
+                seq=self._next_seq(), stamp_s=time.time(), request_id=request_id, scenario=scenario
+            )
+        except ValidationError as e:
+            raise InputError(f"scenario cannot be sent: {e.errors()[0]['msg']}") from None
+        deadline = time.monotonic() + float(timeout_s)
+        pub = self._publisher(cell)
+        while not pub.has_subscribers():
+            if time.monotonic() >= deadline:
+                raise WorkerTimeoutError(
+                    f"the worker of cell {cell!r} did not answer: nothing subscribes to "
+                    f"{pub.key_expr} (waited {timeout_s:g} s)"
+                )
+            time.sleep(0.01)
+        with self._lock:
+            self._pending[request_id] = None
+        try:
+            if not pub.put(msg):
+                raise WorkerTimeoutError(f"could not publish on {pub.key_expr}")
+            with self._acked:
+                ok = self._acked.wait_for(
+                    lambda: self._pending[request_id] is not None,
+                    timeout=max(0.0, deadline - time.monotonic()),
+                )
+                ack = self._pending[request_id]
+        finally:
+            with self._lock:
+                self._pending.pop(request_id, None)
+        if not ok or ack is None:
+            raise WorkerTimeoutError(
+                f"the worker of cell {cell!r} did not answer request {request_id} "
+                f"within {timeout_s:g} s"
+            )
+        return ParamsAnswer(request_id, ack.accepted, ack.reason)

@@ -1,0 +1,90 @@
+// Landing page: polls /api/cells every 500 ms and redraws one card per cell (no reload).
+"use strict";
+
+const POLL_MS = 500;
+const MODES = ["intended", "failsafe", "fault", "rest"];
+
+function fmt(x, digits, unit) {
+  if (x === null || x === undefined || !Number.isFinite(x)) return "–";
+  return x.toFixed(digits) + (unit ? " " + unit : "");
+}
+
+function row(dl, label, value) {
+  const dt = document.createElement("dt");
+  dt.textContent = label;
+  const dd = document.createElement("dd");
+  dd.textContent = value;
+  dd.dataset.field = label;
+  dl.append(dt, dd);
+}
+
+function ages(obj) {
+  const parts = Object.entries(obj || {}).map(([id, a]) => id + " " + fmt(a * 1000, 0, "ms"));
+  return parts.length ? parts.join(", ") : "–";
+}
+
+function dropped(obj) {
+  const entries = Object.entries(obj || {}).filter(([, n]) => n > 0);
+  const total = entries.reduce((s, [, n]) => s + n, 0);
+  return total ? total + " (" + entries.map(([r, n]) => r + " " + n).join(", ") + ")" : "0";
+}
+
+function card(c) {
+  const mode = c.online && MODES.includes(c.mode) ? c.mode : "rest";
+  const el = document.createElement("article");
+  el.className = "cell mode-" + mode + (c.online ? "" : " offline");
+  el.dataset.cell = c.cell;
+  el.dataset.mode = c.online ? c.mode || "" : "offline";
+  const h = document.createElement("h2");
+  h.textContent = c.cell;
+  const badge = document.createElement("span");
+  badge.className = "badge";
+  badge.textContent = c.online ? c.mode || c.state || "no verdict" : "offline";
+  h.append(badge);
+  const dl = document.createElement("dl");
+  row(dl, "scenario", c.scenario || "–");
+  row(dl, "safety mode", c.safety_mode || "–");
+  row(dl, "min distance", fmt(c.min_distance_m, 3, "m"));
+  row(dl, "cycle p50 / p99", fmt(c.cycle_time_p50_us, 0) + " / " + fmt(c.cycle_time_p99_us, 0, "µs"));
+  row(dl, "skeleton age", ages(c.skeleton_age_s));
+  row(dl, "dropped", dropped(c.dropped));
+  if (c.faults && c.faults.length) row(dl, "faults", c.faults.join("; "));
+  row(dl, "last seen", c.status_age_s === null ? "–" : fmt(c.status_age_s, 1, "s ago"));
+  el.append(h, dl);
+  return el;
+}
+
+async function poll() {
+  const conn = document.getElementById("connection");
+  try {
+    const r = await fetch("/api/cells", { cache: "no-store" });
+    if (!r.ok) throw new Error("HTTP " + r.status);
+    const cells = await r.json();
+    document.getElementById("cells").replaceChildren(...cells.map(card));
+    document.getElementById("empty").hidden = cells.length > 0;
+    conn.textContent = "live · " + new Date().toLocaleTimeString();
+    conn.classList.remove("lost");
+  } catch (e) {
+    conn.textContent = "service unreachable (" + e.message + "), retrying…";
+    conn.classList.add("lost");
+  } finally {
+    setTimeout(poll, POLL_MS);
+  }
+}
+
+async function links() {
+  try {
+    const r = await fetch("/api/links");
+    const l = await r.json();
+    if (l.viewer) {
+      const a = document.getElementById("viewer-link");
+      a.href = l.viewer;
+      a.hidden = false;
+    }
+  } catch (e) {
+    /* the page works without the link */
+  }
+}
+
+links();
+poll();

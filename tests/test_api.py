@@ -1,0 +1,394 @@
+"""The REST service: cells from bus messages, scenarios (read, validated save, no overwrite, no
+traversal), parameter sets, event streams, the landing page; and one run with a real uvicorn
+server, a real zenoh router and a fake worker answering scenario requests over zenoh."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from sara_app.api import ApiServer, ApiServerError, CellRegistry, create_app
+from sara_app.api.registry import CYCLE_WINDOW
+from sara_app.bus import keys
+from sara_app.bus.codec import Decoded
+from sara_app.bus.messages import ParamsAckMsg, ParamsMsg, StatusMsg, VerdictMsg
+from sara_app.bus.session import Bus, free_port
+from sara_app.errors import SaraError
+from sara_app.human.params import available_param_sets, load_param_set
+from sara_app.safety.thresholds import threshold_set_names
+from sara_app.scenario import load_scenario, parse_scenario, scenario_names, scenarios_dir
+
+pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
+
+VIEWER = "http://127.0.0.1:8080/"
+
+
+@pytest.fixture
+def folder(tmp_path: Path) -> Path:
+    """A private copy of the shipped scenarios: tests never write into the repository."""
+    out = tmp_path / "scenarios"
+    shutil.copytree(scenarios_dir(), out)
+    return out
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now_s = 1_000.0
+
+    def __call__(self) -> float:
+        return self.now_s
+
+
+@pytest.fixture
+def offline(folder: Path) -> Iterator[tuple[CellRegistry, TestClient, Clock]]:
+    clock = Clock()
+    reg = CellRegistry(None, clock=clock)
+    with TestClient(create_app(reg, folder, viewer_url=VIEWER)) as client:
+        yield reg, client, clock
+
+
+def _status(cell: str, seq: int = 0, scenario: str = "demo") -> StatusMsg:
+    return StatusMsg(seq=seq, stamp_s=1.0, cell=cell, state="running", scenario=scenario)
+
+
+def _verdict(cell: str, seq: int, cycle_us: float, mode: str = "intended", **kw: Any) -> VerdictMsg:
+    return VerdictMsg(
+        seq=seq, stamp_s=1.0, cell=cell, safety_mode="ssm", mode=mode, cycle_time_us=cycle_us, **kw
+    )
+
+
+def _feed(reg: CellRegistry, cell: str, msg: Any, recv_s: float) -> None:
+    kind = "status" if isinstance(msg, StatusMsg) else "verdict"
+    reg.ingest(Decoded(keys.parse_key(keys.key(kind, cell)), msg, recv_s))  # type: ignore[arg-type]
+
+
+def _base(folder: Path, name: str = "empty_cell") -> dict[str, Any]:
+    return json.loads((folder / f"{name}.json").read_text())
+
+
+def test_cells_from_status_and_verdicts(offline: tuple[CellRegistry, TestClient, Clock]) -> None:
+    reg, client, clock = offline
+    assert client.get("/api/cells").json() == []
+    rng = np.random.default_rng(3)
+    cycles = rng.lognormal(6.0, 0.5, size=CYCLE_WINDOW + 500)
+    _feed(reg, "cell1", _status("cell1", scenario="punches"), clock.now_s)
+    for i, c in enumerate(cycles):
+        _feed(reg, "cell1", _verdict("cell1", i, float(c)), clock.now_s)
+    last = _verdict(
+        "cell1",
+        len(cycles),
+        250.0,
+        mode="failsafe",
+        min_distance_m=0.21,
+        skeleton_age_s={"h1": 0.012},
+        dropped={"out_of_order": 2},
+        results={"pos": False, "vel": True},
+    )
+    _feed(reg, "cell1", last, clock.now_s)
+    _feed(reg, "cell2", _verdict("cell2", 0, 100.0), clock.now_s)  # verdicts, never a status
+
+    cells = client.get("/api/cells").json()
+    assert [c["cell"] for c in cells] == ["cell1", "cell2"]
+    c1, c2 = cells
+    window = np.append(cycles, 250.0)[-CYCLE_WINDOW:]  # the rolling window: newest verdicts
+    assert c1["cycle_time_p50_us"] == pytest.approx(np.percentile(window, 50))
+    assert c1["cycle_time_p99_us"] == pytest.approx(np.percentile(window, 99))
+    assert c1["cycle_window"] == CYCLE_WINDOW and c1["verdicts_received"] == len(cycles) + 1
+    assert c1["online"] and c1["scenario"] == "punches" and c1["state"] == "running"
+    assert c1["mode"] == "failsafe" and c1["safety_mode"] == "ssm"
+    assert c1["min_distance_m"] == 0.21 and c1["skeleton_age_s"] == {"h1": 0.012}
+    assert c1["dropped"] == {"out_of_order": 2} and c1["results"] == {"pos": False, "vel": True}
+    assert not c2["online"] and c2["state"] is None and c2["mode"] == "intended"
+    assert client.get("/api/cells/cell1").json() == c1
+
+    clock.now_s += 2.9
+    assert client.get("/api/cells/cell1").json()["online"]
+    clock.now_s += 0.2  # no status for 3.1 s: offline
+    got = client.get("/api/cells/cell1").json()
+    assert not got["online"] and got["status_age_s"] == pytest.approx(3.1)
+    _feed(reg, "cell1", _status("cell1", seq=1), clock.now_s)
+    assert client.get("/api/cells/cell1").json()["online"]
+
+    r = client.get("/api/cells/nope")
+    assert r.status_code == 404 and "cell1, cell2" in r.json()["detail"]
+    assert client.get("/api/cells/bad.name").status_code == 422
+    assert client.get("/api/health").json() == {"ok": True, "bus": False, "cells": 2, "online": 1}
+
+
+def test_scenarios_read_as_validated(
+    offline: tuple[CellRegistry, TestClient, Clock], folder: Path
+) -> None:
+    _, client, _ = offline
+    names = client.get("/api/scenarios").json()
+    assert names == sorted(scenario_names(folder)) and "empty_cell" in names
+    for name in names:
+        assert client.get(f"/api/scenarios/{name}").json() == load_scenario(
+            name, folder
+        ).model_dump(mode="json")
+    r = client.get("/api/scenarios/nope")
+    assert r.status_code == 404 and "empty_cell" in r.json()["detail"]
+
+
+def test_scenario_save_validates_and_never_overwrites_silently(
+    offline: tuple[CellRegistry, TestClient, Clock], folder: Path
+) -> None:
+    _, client, _ = offline
+    edit = _base(folder)
+    edit["environment"][0]["center_m"] = [0.7, 0.1, 0.1]
+    r = client.put("/api/scenarios/my_edit", json=edit)
+    assert r.status_code == 200, r.text
+    assert r.json() == {"name": "my_edit", "file": "my_edit.json", "overwritten": False}
+    got = client.get("/api/scenarios/my_edit").json()
+    assert got["name"] == "my_edit" and got["environment"][0]["center_m"] == [0.7, 0.1, 0.1]
+    assert load_scenario(folder / "my_edit.json").environment[0].center_m == (0.7, 0.1, 0.1)
+
+    shipped = (folder / "empty_cell.json").read_bytes()
+    saved = (folder / "my_edit.json").read_bytes()
+    edit["environment"][0]["center_m"] = [0.5, 0.0, 0.1]
+    for name in ("empty_cell", "my_edit"):
+        r = client.put(f"/api/scenarios/{name}", json=edit)
+        assert r.status_code == 409 and "overwrite=true" in r.json()["detail"]
+    assert (folder / "empty_cell.json").read_bytes() == shipped
+    assert (folder / "my_edit.json").read_bytes() == saved
+    r = client.put("/api/scenarios/my_edit", params={"overwrite": "true"}, json=edit)
+    assert r.status_code == 200 and r.json()["overwritten"]
+    assert client.get("/api/scenarios/my_edit").json()["environment"][0]["center_m"] == [
+        0.5,
+        0.0,
+        0.1,
+    ]
+
+    before = sorted(p.name for p in folder.parent.rglob("*"))
+    bad_cases = {
+        "task.waypoints_rad.0": lambda s: s["task"]["waypoints_rad"][0].pop(),
+        "shield.models": lambda s: s["shield"].update(models=["teleport"]),
+        "environment.0.size_m": lambda s: s["environment"][0].update(size_m=[0.5, -1.0, 0.2]),
+        "robot.name": lambda s: s["robot"].update(name="r2d2"),
+        "humans.0: Input tag 'ghost'": lambda s: s.update(humans=[{"id": "h1", "type": "ghost"}]),
+        "task.waypoints_rad.1": lambda s: s["task"]["waypoints_rad"][1].__setitem__(0, 9.0),
+    }
+    for field, mutate in bad_cases.items():
+        sc = _base(folder)
+        mutate(sc)
+        r = client.put("/api/scenarios/bad_edit", json=sc)
+        assert r.status_code == 422 and field in r.json()["detail"], (field, r.text)
+    for name in ("a.b", "x" * 65, "..", "a b", "%2e%2e"):
+        assert client.put(f"/api/scenarios/{name}", json=_base(folder)).status_code in (
+            404,
+            405,
+            422,
+        )
+    assert sorted(p.name for p in folder.parent.rglob("*")) == before  # nothing written anywhere
+
+
+def test_parameter_and_threshold_sets(offline: tuple[CellRegistry, TestClient, Clock]) -> None:
+    _, client, _ = offline
+    names = client.get("/api/params").json()
+    assert "seed001_table1" in names and set(names) <= set(available_param_sets())
+    for name in names:
+        assert client.get(f"/api/params/{name}").json() == load_param_set(name).model_dump()
+    for name in set(available_param_sets()) - set(names):  # files of another kind
+        with pytest.raises(SaraError):
+            load_param_set(name)
+    r = client.get("/api/params/nope")
+    assert r.status_code == 404 and "seed001_table1" in r.json()["detail"]
+    assert client.get("/api/params/..").status_code in (404, 422)
+    assert client.get("/api/thresholds").json() == list(threshold_set_names())
+    for name in threshold_set_names():
+        assert client.get(f"/api/thresholds/{name}").json()["name"] == name
+
+
+def test_landing_page_docs_and_links(offline: tuple[CellRegistry, TestClient, Clock]) -> None:
+    _, client, _ = offline
+    page = client.get("/")
+    assert page.status_code == 200 and "text/html" in page.headers["content-type"]
+    assert 'src="app.js"' in page.text and 'href="/docs"' in page.text
+    js = client.get("/app.js").text
+    assert "/api/cells" in js and "/api/links" in js
+    assert client.get("/style.css").status_code == 200
+    assert client.get("/api/links").json() == {"viewer": VIEWER, "docs": "/docs"}
+    assert client.get("/docs").status_code == 200
+    paths = client.get("/openapi.json").json()["paths"]
+    for p in (
+        "/api/health",
+        "/api/cells",
+        "/api/cells/{cell}",
+        "/api/cells/{cell}/scenario",
+        "/api/scenarios/{name}",
+        "/api/params/{name}",
+        "/api/cells/{cell}/events",
+    ):
+        assert p in paths
+
+
+def test_event_streams(offline: tuple[CellRegistry, TestClient, Clock]) -> None:
+    reg, client, clock = offline
+    _feed(reg, "cell1", _status("cell1"), clock.now_s)
+
+    def events(url: str) -> list[Any]:
+        with client.stream("GET", url) as r:
+            assert r.headers["content-type"].startswith("text/event-stream")
+            lines = [ln for ln in r.iter_lines() if ln.startswith("data: ")]
+        return [json.loads(ln[6:]) for ln in lines]
+
+    got = events("/api/cells/cell1/events?limit=3&interval_s=0.01")
+    assert len(got) == 3 and all(e["cell"] == "cell1" and e["online"] for e in got)
+    assert events("/api/cells/later/events?limit=1") == [
+        {"cell": "later", "online": False, "known": False}
+    ]
+    assert [[c["cell"] for c in e] for e in events("/api/events?limit=2&interval_s=0.01")] == [
+        ["cell1"],
+        ["cell1"],
+    ]
+    assert client.get("/api/cells/a.b/events?limit=1").status_code == 422
+
+
+def test_scenario_post_checks_before_sending(
+    offline: tuple[CellRegistry, TestClient, Clock], folder: Path
+) -> None:
+    reg, client, clock = offline
+    sc = _base(folder)
+    sc["task"]["waypoints_rad"][0][3] = 5.0  # outside the Panda's joint 4 limits
+    r = client.post("/api/cells/cell1/scenario", json=sc)
+    assert r.status_code == 422 and "task.waypoints_rad.0" in r.json()["detail"]
+    r = client.post("/api/cells/cell1/scenario", json=_base(folder))
+    assert r.status_code == 404  # never seen on the bus
+    _feed(reg, "cell1", _status("cell1"), clock.now_s)
+    r = client.post("/api/cells/cell1/scenario", json=_base(folder))
+    assert r.status_code == 504 and "no bus" in r.json()["detail"]
+
+
+# -- live: uvicorn + zenoh router + a fake worker ------------------------------------------------
+
+
+class FakeWorker:
+    """Publishes status and verdicts of ``cell``; answers params requests when ``answer``."""
+
+    def __init__(self, port: int, cell: str, answer: bool) -> None:
+        self.bus = Bus.client(port)
+        self.cell, self.answer = cell, answer
+        self.received: list[dict[str, Any]] = []
+        self._stop = threading.Event()
+        self._status = self.bus.publisher(keys.status_key(cell))
+        self._verdict = self.bus.publisher(keys.verdict_key(cell))
+        self._ack = self.bus.publisher(keys.params_ack_key(cell))
+        self._params = self.bus.subscribe(keys.params_key(cell), fifo=True) if answer else None
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        i = 0
+        while not self._stop.wait(0.005):
+            if i % 40 == 0:
+                self._status.put(
+                    StatusMsg(
+                        seq=self._status.next_seq(),
+                        stamp_s=time.time(),
+                        cell=self.cell,
+                        state="running",
+                        scenario="empty_cell",
+                        humans=["h1"],
+                    )
+                )
+            mode = "failsafe" if i % 2 else "intended"
+            self._verdict.put(
+                _verdict(
+                    self.cell,
+                    self._verdict.next_seq(),
+                    300.0 + i % 7,
+                    mode=mode,
+                    min_distance_m=0.5,
+                    skeleton_age_s={"h1": 0.01},
+                )
+            )
+            i += 1
+            if self._params is not None:
+                for d in self._params.drain().messages:
+                    self._answer(d.msg)  # type: ignore[arg-type]
+
+    def _answer(self, msg: ParamsMsg) -> None:
+        self.received.append(msg.scenario)
+        boxes = [b["name"] for b in msg.scenario.get("environment", [])]
+        ok = "forbidden" not in boxes
+        reason = "" if ok else "environment: box 'forbidden' blocks the task"
+        self._ack.put(
+            ParamsAckMsg(
+                seq=self._ack.next_seq(),
+                stamp_s=time.time(),
+                request_id=msg.request_id,
+                accepted=ok,
+                reason=reason,
+            )
+        )
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2)
+        self.bus.close()
+
+
+def _wait_until(fn: Any, timeout_s: float = 10.0) -> Any:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        got = fn()
+        if got:
+            return got
+        time.sleep(0.05)
+    raise AssertionError("condition not met in time")
+
+
+def test_live_cell_and_scenario_round_trip(folder: Path) -> None:
+    port = free_port()
+    with Bus.router(port), CellRegistry.connect(port) as reg:
+        server = ApiServer(create_app(reg, folder, viewer_url=VIEWER), port=0)
+        url = server.start()
+        assert url.startswith("http://127.0.0.1:") and not url.endswith(":0/")
+        worker = FakeWorker(port, "cell1", answer=True)
+        mute = FakeWorker(port, "cell2", answer=False)
+        try:
+            with pytest.raises(ApiServerError, match="did not start"):
+                ApiServer(create_app(reg, folder), port=int(url.rsplit(":", 1)[1][:-1])).start()
+            with httpx.Client(base_url=url, timeout=10) as http:
+
+                def both_online() -> list[Any]:
+                    cells = http.get("api/cells").json()
+                    on = [c for c in cells if c["online"] and c["verdicts_received"] > 5]
+                    return cells if len(on) == 2 else []
+
+                c1 = _wait_until(both_online)[0]
+                assert c1["cell"] == "cell1" and c1["scenario"] == "empty_cell"
+                assert c1["mode"] in ("intended", "failsafe") and c1["min_distance_m"] == 0.5
+                assert 300.0 <= c1["cycle_time_p50_us"] <= c1["cycle_time_p99_us"] <= 306.0
+
+                sc = _base(folder)
+                sc["environment"][0]["center_m"] = [0.7, 0.0, 0.1]
+                r = http.post("api/cells/cell1/scenario", json=sc)
+                assert r.status_code == 200, r.text
+                assert r.json()["accepted"]
+                assert worker.received[-1] == parse_scenario(sc).model_dump(mode="json")
+                assert worker.received[-1]["environment"][0]["center_m"] == [0.7, 0.0, 0.1]
+                sc["environment"][0]["name"] = "forbidden"
+                r = http.post("api/cells/cell1/scenario", json=sc)
+                assert r.status_code == 409 and "blocks the task" in r.json()["detail"]
+                assert len(worker.received) == 2
+                r = http.post("api/cells/cell2/scenario", params={"timeout_s": 0.5}, json=sc)
+                assert r.status_code == 504 and "did not answer" in r.json()["detail"]
+                with http.stream("GET", "api/cells/cell1/events?limit=2&interval_s=0.05") as s:
+                    data = [json.loads(x[6:]) for x in s.iter_lines() if x.startswith("data: ")]
+                assert [d["cell"] for d in data] == ["cell1", "cell1"]
+        finally:
+            worker.close()
+            mute.close()
+            server.stop()
+        with pytest.raises(httpx.TransportError):
+            httpx.get(url + "api/health", timeout=1)
