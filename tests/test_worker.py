@@ -1,0 +1,145 @@
+"""The cell worker end to end over real Zenoh on 127.0.0.1: skeletons from an independent client
+process (plain eclipse-zenoh, the README's script), verdicts and commands back, bad messages
+counted, live scenario updates acknowledged, stale input a fault."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import threading
+import time
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sara_app.bus import keys
+from sara_app.bus.messages import ParamsAckMsg, ParamsMsg, VerdictMsg
+from sara_app.bus.session import Bus, free_port
+from sara_app.scenario import load_scenario
+from sara_app.worker import CellWorker
+
+EXAMPLE = Path(__file__).resolve().parent.parent / "sara_app" / "bus" / "example_publisher.py"
+
+# An independent client that stands a person at x (m) in front of the robot, on the end
+# effector's path when x is about 0.6.
+NEAR_CLIENT = """
+import json, sys, time, zenoh
+port, x, n = sys.argv[1], float(sys.argv[2]), int(sys.argv[3])
+J = {"head": (0, 0, 1.65), "neck": (0, 0, 1.45), "pelvis": (0, 0, 0.95),
+     "l_shoulder": (0, 0.18, 1.42), "r_shoulder": (0, -0.18, 1.42), "l_elbow": (0, 0.22, 1.15),
+     "r_elbow": (0, -0.22, 1.15), "l_wrist": (0, 0.24, 0.9), "r_wrist": (0, -0.24, 0.9),
+     "l_hip": (0, 0.1, 0.92), "r_hip": (0, -0.1, 0.92), "l_knee": (0, 0.1, 0.5),
+     "r_knee": (0, -0.1, 0.5), "l_ankle": (0, 0.1, 0.08), "r_ankle": (0, -0.1, 0.08)}
+conf = {"mode": "client", "connect": {"endpoints": [f"tcp/127.0.0.1:{port}"]}}
+with zenoh.open(zenoh.Config.from_json5(json.dumps(conf))) as s:
+    pub = s.declare_publisher("sara/cell1/human/near/skeleton")
+    for seq in range(n):
+        joints = {k: [x + a, b, c] for k, (a, b, c) in J.items()}
+        msg = {"schema_version": 1, "seq": seq, "stamp_s": time.time(), "source": "sara_full",
+               "joints": joints}
+        pub.put(json.dumps(msg).encode())
+        if seq == 5:
+            pub.put(b"{not json")
+            pub.put(json.dumps({**msg, "seq": seq + 1, "joints": {"head": [float("nan")] * 3}}))
+        time.sleep(0.01)
+"""
+
+
+@pytest.fixture()
+def cell():
+    port = free_port()
+    with Bus.router(port) as hub, Bus.client(port) as wb, Bus.client(port) as tb:
+        worker = CellWorker("cell1", load_scenario("standing_beside_path"), wb)
+        verdicts = tb.subscribe(keys.verdict_key("cell1"), fifo=True, capacity=20000)
+        thread = threading.Thread(target=worker.run, daemon=True)
+        thread.start()
+        try:
+            yield port, worker, verdicts, tb
+        finally:
+            worker.stop_event.set()
+            thread.join(10)
+        del hub
+
+
+def _collect(verdicts, seconds: float) -> list[VerdictMsg]:
+    out: list[VerdictMsg] = []
+    t_end = time.monotonic() + seconds
+    while time.monotonic() < t_end:
+        out += [d.msg for d in verdicts.drain().messages if isinstance(d.msg, VerdictMsg)]
+        time.sleep(0.02)
+    return out
+
+
+def test_far_person_from_readme_client_lets_the_robot_work(cell) -> None:
+    port, worker, verdicts, _ = cell
+    proc = subprocess.Popen(
+        [sys.executable, str(EXAMPLE), "--connect", f"tcp/127.0.0.1:{port}", "--count", "150",
+         "--rate", "60"]
+    )  # fmt: skip
+    try:
+        got = _collect(verdicts, 3.0)
+    finally:
+        proc.wait(10)
+    seen = [v for v in got if "h1" in v.skeleton_age_s]
+    assert seen, "no verdict ever saw the published person"
+    modes = Counter(v.mode for v in seen)
+    assert modes["intended"] > 0.5 * len(seen), modes
+    # while the client publishes (the first half of the window) the input stays fresh
+    ages = np.array([v.skeleton_age_s["h1"] for v in seen[: len(seen) // 2]])
+    assert np.all(ages < 0.1) and np.all(ages > -0.01)
+    fresh = seen[: len(seen) // 2]
+    assert all(v.min_distance_m is not None and v.min_distance_m > 0.3 for v in fresh)
+
+
+def test_person_on_the_path_stops_the_robot_and_bad_messages_are_counted(cell) -> None:
+    port, worker, verdicts, _ = cell
+    time.sleep(0.6)  # the robot is on its way
+    proc = subprocess.Popen([sys.executable, "-c", NEAR_CLIENT, str(port), "0.6", "200"])
+    try:
+        got = _collect(verdicts, 2.5)
+    finally:
+        proc.wait(10)
+    seen = [v for v in got if "near" in v.skeleton_age_s]
+    assert seen
+    # once the person is seen the robot never takes an intended step (braking, rest; a fault
+    # once the client stops publishing)
+    assert all(v.mode != "intended" for v in seen[3:]), Counter(v.mode for v in seen)
+    assert worker.shield.follower.sd <= 1e-9
+    dropped = got[-1].dropped
+    assert dropped.get("malformed_json", 0) >= 1
+    assert dropped.get("non_finite", 0) + dropped.get("invalid", 0) >= 1
+
+
+def test_stale_skeleton_is_a_fault(cell) -> None:
+    port, worker, verdicts, _ = cell
+    proc = subprocess.Popen([sys.executable, "-c", NEAR_CLIENT, str(port), "2.5", "20"])
+    proc.wait(10)
+    got = _collect(verdicts, 1.0)
+    last = got[-1]
+    assert last.mode == "fault"
+    assert any("old" in f for f in last.faults)
+
+
+def test_live_scenario_update_acknowledged_or_refused(cell) -> None:
+    port, worker, verdicts, tb = cell
+    acks = tb.subscribe(keys.params_ack_key("cell1"), fifo=True)
+    pub = tb.publisher(keys.params_key("cell1"))
+    good = load_scenario("standing_beside_path").model_dump(mode="json")
+    good["shield"]["models"] = ["vel"]
+    bad = json.loads(json.dumps(good))
+    bad["task"]["waypoints_rad"][0][1] = 9.0  # outside the joint limits
+    for i, data in enumerate((good, bad)):
+        pub.put(ParamsMsg(seq=i, stamp_s=time.time(), request_id=f"r{i}", scenario=data))
+    answers: dict[str, ParamsAckMsg] = {}
+    t_end = time.monotonic() + 5
+    while len(answers) < 2 and time.monotonic() < t_end:
+        for d in acks.drain().messages:
+            if isinstance(d.msg, ParamsAckMsg):
+                answers[d.msg.request_id] = d.msg
+        time.sleep(0.02)
+    assert answers["r0"].accepted
+    assert not answers["r1"].accepted and "waypoints_rad" in answers["r1"].reason
+    assert worker.shield.verifier.models == ("vel",)  # the good one applied, the bad one not
