@@ -191,7 +191,10 @@ def parse_scenario(data: object, origin: str = "<data>") -> Scenario:
 
 
 def _read(path: Path) -> object:
-    text = path.read_text()
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        raise ScenarioError(f"scenario file {str(path)!r} cannot be read as UTF-8 text: {e}") from e
     suffix = path.suffix.lower()
     try:
         if suffix == ".json":
