@@ -102,8 +102,14 @@ def test_model_toggle_and_unknown_model(dash: Dashboard) -> None:
 def test_malformed_frames_are_rejected_visibly(dash: Dashboard) -> None:
     assert dash.panels is not None
     before = dash.frames_rejected
+    assert dash.scene is not None
+    handle = dash.scene.models["pos"].tubes.handle
+    assert dash.update(demo_frame(3.9))
+    shown = np.array(handle.batched_positions)  # type: ignore[union-attr]
     assert not dash.update(replace(demo_frame(4.0), q=np.zeros(3)))
     assert not dash.update(replace(demo_frame(4.0), robot_radius=np.zeros((2, 2))))
+    # a frame rejected late (occupancy shape) changed nothing earlier in it either
+    np.testing.assert_array_equal(handle.batched_positions, shown)  # type: ignore[union-attr]
     assert dash.frames_rejected == before + 2
     assert dash.panels.error.visible and "expected" in dash.panels.error.content
     # NaNs are not malformed: they are hidden, the frame is shown

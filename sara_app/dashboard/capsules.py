@@ -255,7 +255,8 @@ class InstanceBatch:
             self.handle.visible = self._visible
 
 
-def _capsule_arrays(ends: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def capsule_arrays(ends: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Checked float arrays ``ends (N, 2, 3)``, ``radius (N,)``; :class:`InputError` if not."""
     e = np.asarray(ends, dtype=float)
     r = np.asarray(radius, dtype=float)
     if e.ndim != 3 or e.shape[1:] != (2, 3):
@@ -300,7 +301,7 @@ class CapsuleGroup:
         ``colors`` None uses the group's colour. Raises :class:`InputError` on bad shapes;
         non-finite capsules are hidden, never raised on.
         """
-        e, r = _capsule_arrays(ends, radius)
+        e, r = capsule_arrays(ends, radius)
         if not self.visible:
             return  # hidden: nothing to send; the next update after showing it sends all
         n = e.shape[0]

@@ -19,7 +19,13 @@ import viser
 import yourdfpy
 from viser.extras import ViserUrdf
 
-from sara_app.dashboard.capsules import CapsuleGroup, InstanceBatch, rotation_to_wxyz, unit_box
+from sara_app.dashboard.capsules import (
+    CapsuleGroup,
+    InstanceBatch,
+    capsule_arrays,
+    rotation_to_wxyz,
+    unit_box,
+)
 from sara_app.dashboard.frame import (
     CONTACT_ENV,
     CONTACT_SELF,
@@ -74,9 +80,10 @@ def occupancy_colors(
     return rgb
 
 
-def _segments(humans: list[HumanDisplay]) -> np.ndarray:
-    """Bone segments ``(S, 2, 3)`` of all humans; bones touching a non-finite joint dropped."""
-    parts = []
+def _skeleton(humans: list[HumanDisplay]) -> tuple[np.ndarray, np.ndarray]:
+    """Bone segments ``(S, 2, 3)`` and joint points ``(P, 3)`` of all humans; bones touching a
+    non-finite joint and non-finite joints dropped."""
+    segs, points = [np.zeros((0, 2, 3))], [np.zeros((0, 3))]
     for h in humans:
         y = np.asarray(h.joint_positions, dtype=float)
         pairs = np.asarray(h.bone_pairs, dtype=np.intp).reshape(-1, 2)
@@ -88,8 +95,23 @@ def _segments(humans: list[HumanDisplay]) -> np.ndarray:
                 f"the {y.shape[0]} joints"
             )
         seg = y[pairs]
-        parts.append(seg[np.isfinite(seg).all(axis=(1, 2))])
-    return np.concatenate(parts) if parts else np.zeros((0, 2, 3))
+        segs.append(seg[np.isfinite(seg).all(axis=(1, 2))])
+        points.append(y[np.isfinite(y).all(axis=1)])
+    return np.concatenate(segs), np.concatenate(points)
+
+
+def _boxes(boxes: EnvBoxes | None) -> tuple[np.ndarray, np.ndarray]:
+    """Checked ``T_world_box (M, 4, 4)``, ``half_extents_m (M, 3)`` (M = 0 for None)."""
+    if boxes is None:
+        return np.zeros((0, 4, 4)), np.zeros((0, 3))
+    T = np.asarray(boxes.T_world_box, dtype=float)
+    half = np.asarray(boxes.half_extents_m, dtype=float)
+    if T.ndim != 3 or T.shape[1:] != (4, 4) or half.shape != (T.shape[0], 3):
+        raise InputError(
+            f"boxes T_world_box {T.shape} / half_extents_m {half.shape}; expected "
+            "(M, 4, 4) / (M, 3)"
+        )
+    return T, half
 
 
 class CellScene:
@@ -169,56 +191,58 @@ class CellScene:
             raise UnknownNameError("layer or human model", name, MODEL_NAMES + LAYERS)
 
     def update(self, frame: DisplayFrame) -> None:
-        """Render ``frame`` (one atomic batch of messages). Raises :class:`InputError` on bad
-        shapes; non-finite capsules and joints are hidden rather than raised on."""
+        """Render ``frame`` in one atomic batch of messages. The whole frame is checked first:
+        bad shapes or names raise :class:`InputError` / :class:`UnknownNameError` and change
+        nothing; non-finite capsules, joints and poses are hidden rather than raised on."""
+        q = self._checked_q(frame.q)
+        seg, joints = _skeleton(frame.humans)
+        models = self._model_capsules(frame.humans)
+        occ = self._occupancy(frame)
+        boxes = _boxes(frame.boxes)
+        pair = None if frame.critical_pair is None else np.asarray(frame.critical_pair, float)
+        if pair is not None and pair.shape != (2, 3):
+            raise InputError(f"critical_pair has shape {pair.shape}; expected (2, 3)")
         with self.server.atomic():
-            self._update_robot(frame.q)
-            self._update_humans(frame.humans)
-            self._update_occupancy(frame)
-            self._update_boxes(frame.boxes)
-            self._update_critical(frame.critical_pair)
+            self._update_robot(q)
+            self._update_skeletons(seg, joints)
+            for name, (ends, radius) in models.items():
+                self.models[name].set(ends, radius)
+            self.occupancy.set(*occ)
+            self._update_boxes(*boxes)
+            self._update_critical(pair)
 
     # ------------------------------------------------------------------------------------------
-    def _update_robot(self, q: np.ndarray) -> None:
+    def _checked_q(self, q: np.ndarray) -> np.ndarray:
         q = np.asarray(q, dtype=float)
         if q.shape != self._q_shown.shape:
             raise InputError(
                 f"q has shape {q.shape}; expected ({len(self.joint_names)},) for joints "
                 f"{', '.join(self.joint_names)}"
             )
-        if not np.all(np.isfinite(q)):
-            return  # keep the last drawn pose
-        if np.all(np.abs(q - self._q_shown) <= Q_EPS_RAD):
-            return
-        self.urdf.update_cfg(q)
-        self._q_shown[:] = q
+        return q
 
-    def _update_humans(self, humans: list[HumanDisplay]) -> None:
-        seg = _segments(humans)
-        self.skeleton.visible = self.joints.visible = self.layers["skeletons"] and bool(len(seg))
-        if seg.shape[0]:
-            self.skeleton.points = seg
-            self.skeleton.colors = np.full(seg.shape, 40, dtype=np.uint8)
-            y = np.concatenate([np.asarray(h.joint_positions, dtype=float) for h in humans])
-            y = y[np.isfinite(y).all(axis=1)]
-            self.joints.points = y
-            self.joints.colors = np.full(y.shape, 20, dtype=np.uint8)
+    def _model_capsules(
+        self, humans: list[HumanDisplay]
+    ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Per model: all humans' capsules concatenated, ``(C, 2, 3)`` and ``(C,)``."""
         for h in humans:
             for m in h.models:
                 if m not in self.models:
                     raise UnknownNameError("human model", m, MODEL_NAMES)
-        for name, group in self.models.items():
-            pieces = [h.models[name] for h in humans if name in h.models]
-            if len(pieces) == 1:
-                ends, radius = pieces[0]
-            elif pieces:
-                ends = np.concatenate([np.asarray(p[0], dtype=float) for p in pieces])
-                radius = np.concatenate([np.asarray(p[1], dtype=float) for p in pieces])
+        out = {}
+        for name in self.models:
+            pieces = [capsule_arrays(*h.models[name]) for h in humans if name in h.models]
+            if pieces:
+                out[name] = (
+                    np.concatenate([p[0] for p in pieces]),
+                    np.concatenate([p[1] for p in pieces]),
+                )
             else:
-                ends, radius = np.zeros((0, 2, 3)), np.zeros(0)
-            group.set(ends, radius)
+                out[name] = (np.zeros((0, 2, 3)), np.zeros(0))
+        return out
 
-    def _update_occupancy(self, frame: DisplayFrame) -> None:
+    def _occupancy(self, frame: DisplayFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Occupancy capsules flattened: ends ``(K L, 2, 3)``, radii ``(K L,)``, colours."""
         ends = np.asarray(frame.robot_ends, dtype=float)
         radius = np.asarray(frame.robot_radius, dtype=float)
         if ends.ndim != 4 or ends.shape[2:] != (2, 3) or radius.shape != ends.shape[:2]:
@@ -234,19 +258,26 @@ class CellScene:
             cc = cc.reshape(-1)
         n = radius.size
         colors = occupancy_colors(n, bool(frame.verified), cc, self.color_by_contact)
-        self.occupancy.set(ends.reshape(n, 2, 3), radius.reshape(n), colors)
+        return ends.reshape(n, 2, 3), radius.reshape(n), colors
 
-    def _update_boxes(self, boxes: EnvBoxes | None) -> None:
-        if boxes is None:
-            T, half = np.zeros((0, 4, 4)), np.zeros((0, 3))
-        else:
-            T = np.asarray(boxes.T_world_box, dtype=float)
-            half = np.asarray(boxes.half_extents_m, dtype=float)
-        if T.ndim != 3 or T.shape[1:] != (4, 4) or half.shape != (T.shape[0], 3):
-            raise InputError(
-                f"boxes T_world_box {T.shape} / half_extents_m {half.shape}; expected "
-                "(M, 4, 4) / (M, 3)"
-            )
+    def _update_robot(self, q: np.ndarray) -> None:
+        if not np.all(np.isfinite(q)):
+            return  # keep the last drawn pose
+        if np.all(np.abs(q - self._q_shown) <= Q_EPS_RAD):
+            return
+        self.urdf.update_cfg(q)
+        self._q_shown[:] = q
+
+    def _update_skeletons(self, seg: np.ndarray, joints: np.ndarray) -> None:
+        shown = self.layers["skeletons"] and bool(len(seg))
+        self.skeleton.visible = self.joints.visible = shown
+        if shown:
+            self.skeleton.points = seg
+            self.skeleton.colors = np.full(seg.shape, 40, dtype=np.uint8)
+            self.joints.points = joints
+            self.joints.colors = np.full(joints.shape, 20, dtype=np.uint8)
+
+    def _update_boxes(self, T: np.ndarray, half: np.ndarray) -> None:
         last = self._boxes_shown
         if last is not None and np.array_equal(last[0], T) and np.array_equal(last[1], half):
             return
@@ -263,13 +294,10 @@ class CellScene:
         b.push(m)
         self._boxes_shown = (T.copy(), half.copy())
 
-    def _update_critical(self, pair: np.ndarray | None) -> None:
-        if pair is None:
+    def _update_critical(self, p: np.ndarray | None) -> None:
+        if p is None:
             self.critical.visible = False
             return
-        p = np.asarray(pair, dtype=float)
-        if p.shape != (2, 3):
-            raise InputError(f"critical_pair has shape {p.shape}; expected (2, 3)")
         ok = bool(np.all(np.isfinite(p)))
         if ok:
             self.critical.points = p[None]
