@@ -3,6 +3,7 @@
 
 const POLL_MS = 500;
 const MODES = ["intended", "failsafe", "fault", "rest"];
+const STALE_S = 1.0; // a mode older than this is not shown as live
 
 function fmt(x, digits, unit) {
   if (x === null || x === undefined || !Number.isFinite(x)) return "–";
@@ -30,16 +31,17 @@ function dropped(obj) {
 }
 
 function card(c) {
-  const mode = c.online && MODES.includes(c.mode) ? c.mode : "rest";
+  const stale = c.online && (c.verdict_age_s === null || c.verdict_age_s > STALE_S);
+  const mode = c.online && !stale && MODES.includes(c.mode) ? c.mode : "rest";
   const el = document.createElement("article");
   el.className = "cell mode-" + mode + (c.online ? "" : " offline");
   el.dataset.cell = c.cell;
-  el.dataset.mode = c.online ? c.mode || "" : "offline";
+  el.dataset.mode = !c.online ? "offline" : stale ? "stale" : c.mode || "";
   const h = document.createElement("h2");
   h.textContent = c.cell;
   const badge = document.createElement("span");
   badge.className = "badge";
-  badge.textContent = c.online ? c.mode || c.state || "no verdict" : "offline";
+  badge.textContent = !c.online ? "offline" : stale ? "no recent verdict" : c.mode;
   h.append(badge);
   const dl = document.createElement("dl");
   row(dl, "scenario", c.scenario || "–");
@@ -49,7 +51,9 @@ function card(c) {
   row(dl, "skeleton age", ages(c.skeleton_age_s));
   row(dl, "dropped", dropped(c.dropped));
   if (c.faults && c.faults.length) row(dl, "faults", c.faults.join("; "));
-  row(dl, "last seen", c.status_age_s === null ? "–" : fmt(c.status_age_s, 1, "s ago"));
+  row(dl, "state", c.state || "–");
+  row(dl, "last verdict", fmt(c.verdict_age_s, 1, "s ago"));
+  row(dl, "last status", fmt(c.status_age_s, 1, "s ago"));
   el.append(h, dl);
   return el;
 }

@@ -5,7 +5,10 @@ server, a real zenoh router and a fake worker answering scenario requests over z
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import signal
+import subprocess
 import threading
 import time
 from collections.abc import Iterator
@@ -277,6 +280,7 @@ class FakeWorker:
     def __init__(self, port: int, cell: str, answer: bool) -> None:
         self.bus = Bus.client(port)
         self.cell, self.answer = cell, answer
+        self.mode: str | None = None  # None: alternate intended / failsafe
         self.received: list[dict[str, Any]] = []
         self._stop = threading.Event()
         self._status = self.bus.publisher(keys.status_key(cell))
@@ -300,7 +304,7 @@ class FakeWorker:
                         humans=["h1"],
                     )
                 )
-            mode = "failsafe" if i % 2 else "intended"
+            mode = self.mode or ("failsafe" if i % 2 else "intended")
             self._verdict.put(
                 _verdict(
                     self.cell,
@@ -392,3 +396,91 @@ def test_live_cell_and_scenario_round_trip(folder: Path) -> None:
             server.stop()
         with pytest.raises(httpx.TransportError):
             httpx.get(url + "api/health", timeout=1)
+
+
+# -- the landing page in headless chromium -------------------------------------------------------
+
+CHROMIUM = "/usr/bin/chromium"
+FLAGS = (
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+    "--window-size=1000,700",
+)
+
+
+class Page:
+    """The first page target of a chromium with ``--remote-debugging-port``: JS evaluation."""
+
+    def __init__(self, port: int) -> None:
+        from websockets.sync.client import connect
+
+        def target() -> str:
+            try:
+                targets = httpx.get(f"http://127.0.0.1:{port}/json/list", timeout=2).json()
+            except httpx.HTTPError:
+                return ""
+            return next((t["webSocketDebuggerUrl"] for t in targets if t["type"] == "page"), "")
+
+        self.ws = connect(_wait_until(target, 30.0), max_size=None, open_timeout=10)
+        self._id = 0
+
+    def eval(self, expression: str) -> Any:
+        self._id += 1
+        params = {"expression": expression, "returnByValue": True}
+        self.ws.send(json.dumps({"id": self._id, "method": "Runtime.evaluate", "params": params}))
+        while True:
+            msg = json.loads(self.ws.recv(timeout=30))
+            if msg.get("id") == self._id:
+                return msg["result"]["result"].get("value")
+
+
+@pytest.mark.skipif(not Path(CHROMIUM).exists(), reason=f"{CHROMIUM} is absent")
+def test_landing_page_shows_live_status_in_chromium(folder: Path, tmp_path: Path) -> None:
+    port = free_port()
+    with Bus.router(port), CellRegistry.connect(port) as reg:
+        server = ApiServer(create_app(reg, folder, viewer_url=VIEWER), port=0)
+        url = server.start()
+        worker = FakeWorker(port, "cell1", answer=False)
+        worker.mode = "intended"
+        debug_port = free_port()
+        args = [CHROMIUM, *FLAGS, f"--user-data-dir={tmp_path / 'profile'}"]
+        proc = subprocess.Popen(
+            [*args, f"--remote-debugging-port={debug_port}", url],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,
+        )
+        page = None
+        try:
+            page = Page(debug_port)
+            card = "document.querySelector('article[data-cell=\"cell1\"]')"
+
+            def mode() -> str:
+                return str(page.eval(f"{card} ? {card}.dataset.mode : ''") or "")  # type: ignore[union-attr]
+
+            assert _wait_until(lambda: mode() == "intended", 20.0)
+            page.eval("window.__sameLoad = 1")  # survives only if the page is never reloaded
+            assert page.eval(f"{card}.textContent").count("empty_cell") == 1
+            assert page.eval("document.getElementById('viewer-link').href") == VIEWER
+            green = page.eval(f"getComputedStyle({card}).borderLeftColor")
+            worker.mode = "fault"
+            assert _wait_until(lambda: mode() == "fault", 10.0)
+            red = page.eval(f"getComputedStyle({card}).borderLeftColor")
+            assert page.eval("window.__sameLoad") == 1
+            rgb = [[int(x) for x in c[c.index("(") + 1 : -1].split(",")[:3]] for c in (green, red)]
+            assert rgb[0][1] > rgb[0][0] and rgb[1][0] > rgb[1][1]  # green, then red
+            worker.close()  # no status any more: offline after 3 s, still without a reload
+            assert _wait_until(lambda: mode() == "offline", 10.0)
+            assert page.eval("window.__sameLoad") == 1
+        finally:
+            if page is not None:
+                page.ws.close()
+            os.killpg(proc.pid, signal.SIGTERM)  # the session this test started
+            proc.wait(timeout=10)
+            worker.close()
+            server.stop()
