@@ -1,0 +1,181 @@
+"""JSSA: kinematics and index against finite differences, exact projection (KKT), fallbacks,
+randomised closed-loop episodes with constant-velocity humans."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sara_app.errors import ParameterError
+from sara_app.robot.model import load_robot
+from sara_app.safety.jssa import JssaController, JssaParams, integrate, make_params
+from sara_app.safety.jssa_index import index_gradient, index_terms, safety_index
+from sara_app.safety.jssa_kinematics import PointKinematics
+from sara_app.safety.jssa_qp import project_halfspace_box, project_polytope_box
+from sara_app.safety.jssa_study import PANDA_HOME, panda_on_table, rigid_human
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return panda_on_table()
+
+
+def test_point_kinematics_match_finite_differences() -> None:
+    T = np.eye(4)
+    c, s = np.cos(0.7), np.sin(0.7)
+    T[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
+    T[:3, 3] = [0.3, -0.2, 0.1]
+    r = load_robot("panda", T_world_base=T)
+    kin = PointKinematics(r)
+    rng = np.random.default_rng(1)
+    for trial in range(3):
+        q0 = PANDA_HOME + rng.normal(0, 0.3, 7)
+        v0, a0, u = rng.normal(0, 0.5, 7), rng.normal(0, 2, 7), rng.normal(0, 30, 7)
+
+        def state(t, q0=q0, v0=v0, a0=a0, u=u):
+            return q0 + v0 * t + a0 * t * t / 2 + u * t**3 / 6, v0 + a0 * t + u * t * t / 2
+
+        link, frac = 3 + 2 * trial, rng.random()
+
+        def point(t, link=link, frac=frac, state=state):
+            e, _ = r.link_capsules(state(t)[0])
+            return e[link, 0] + frac * (e[link, 1] - e[link, 0])
+
+        kin.update(q0, v0, a0)
+        v, a, c_, J = kin.points(np.array([link]), point(0.0)[None])
+        h = 1e-3
+        P = np.array([point(k * h) for k in (-2, -1, 0, 1, 2)])
+        v_fd = (P[3] - P[1]) / (2 * h)
+        a_fd = (P[3] - 2 * P[2] + P[1]) / h**2
+        j_fd = (P[4] - 2 * P[3] + 2 * P[1] - P[0]) / (2 * h**3)
+        np.testing.assert_allclose(v[0], v_fd, atol=1e-5)
+        np.testing.assert_allclose(J[0] @ v0, v[0], atol=1e-12)
+        np.testing.assert_allclose(a[0], a_fd, atol=1e-4)
+        np.testing.assert_allclose(J[0] @ u + c_[0], j_fd, atol=1e-3 * (1 + np.abs(j_fd).max()))
+
+
+def test_index_gradient_matches_finite_differences() -> None:
+    rng = np.random.default_rng(2)
+    dp, dv, da = rng.normal(size=(3, 5, 3))
+    r_sum = np.full(5, 0.2)
+    lam1, lam2 = 3.0, 1.5
+
+    def phi(dp, dv, da):
+        return safety_index(*index_terms(dp, dv, da, r_sum), 0.05, lam1, lam2)
+
+    _, gp, gv, ga = index_gradient(dp, dv, da, r_sum, lam1, lam2)
+    eps = 1e-6
+    for k, (grad, which) in enumerate(((gp, 0), (gv, 1), (ga, 2))):
+        for i in range(3):
+            args_p = [dp.copy(), dv.copy(), da.copy()]
+            args_m = [dp.copy(), dv.copy(), da.copy()]
+            args_p[which][:, i] += eps
+            args_m[which][:, i] -= eps
+            fd = (phi(*args_p) - phi(*args_m)) / (2 * eps)
+            np.testing.assert_allclose(grad[:, i], fd, rtol=1e-5, atol=1e-6, err_msg=str(k))
+
+
+def test_exact_projection_satisfies_kkt_and_matches_qp_solver() -> None:
+    rng = np.random.default_rng(3)
+    n = 7
+    for _ in range(60):
+        u0 = rng.normal(0, 2, n)
+        w = rng.uniform(0.5, 2.0, n)
+        g = rng.normal(size=n) * (rng.random(n) > 0.2)
+        lo, hi = -rng.uniform(0.5, 2, n), rng.uniform(0.5, 2, n)
+        b = float(rng.normal(0, 2))
+        u, mu, ok = project_halfspace_box(u0, w, g, b, lo, hi)
+        u_min = np.where(g > 0, lo, hi)
+        assert ok == (g @ u_min <= b + 1e-9)
+        if not ok:
+            continue
+        # primal feasibility, dual feasibility, complementary slackness
+        assert g @ u <= b + 1e-9 and np.all(u >= lo - 1e-12) and np.all(u <= hi + 1e-12)
+        assert mu >= 0 and abs(mu * (g @ u - b)) < 1e-7
+        # stationarity: r = -(w (u - u0) + mu g) is the box multiplier: >= 0 at hi, <= 0 at lo,
+        # 0 inside
+        r = -(w * (u - u0) + mu * g)
+        at_hi, at_lo = np.isclose(u, hi), np.isclose(u, lo)
+        inside = ~(at_hi | at_lo)
+        assert np.all(np.abs(r[inside]) < 1e-8)
+        assert np.all(r[at_hi] >= -1e-8) and np.all(r[at_lo] <= 1e-8)
+        u_qp, ok_qp = project_polytope_box(u0, w, g[None], np.array([b]), lo, hi)
+        assert ok_qp
+        np.testing.assert_allclose(u, u_qp, atol=1e-6)
+
+
+def test_params_validation() -> None:
+    with pytest.raises(ParameterError, match="complex roots"):
+        make_params(lambda_1=1.0, lambda_2=1.0)
+    with pytest.raises(ParameterError):
+        make_params(d_min_m=-0.1)
+    with pytest.raises(ParameterError, match="weights"):
+        JssaController(load_robot("panda"), JssaParams(weights=(1.0, 2.0)))
+
+
+def test_bad_inputs_give_fallback_brake_never_an_exception(robot) -> None:
+    ctrl = JssaController(robot, JssaParams())
+    h = rigid_human(np.array([1.2, 0.0]), np.pi, np.array([-1.0, 0.0]), np.zeros(2))
+    qd, qdd = np.full(7, 0.3), np.full(7, 1.0)
+    u0 = np.zeros(7)
+    bad_ends = h.ends.copy()
+    bad_ends[3, 0, 1] = np.nan
+    cases = [
+        (PANDA_HOME, qd, qdd, u0, None, h.radius, h.vel, 0.008),
+        (PANDA_HOME, qd, qdd, u0, bad_ends, h.radius, h.vel, 0.008),
+        (PANDA_HOME, qd, qdd, u0, h.ends, h.radius[:3], h.vel, 0.008),
+        (PANDA_HOME, qd, qdd, u0, h.ends, h.radius, None, 0.008),
+        (PANDA_HOME * np.nan, qd, qdd, u0, h.ends, h.radius, h.vel, 0.008),
+        (PANDA_HOME, qd, qdd, np.full(7, np.inf), h.ends, h.radius, h.vel, 0.008),
+        (PANDA_HOME, qd, qdd, u0, h.ends, h.radius, h.vel, float("nan")),
+        (PANDA_HOME, "junk", None, u0, "junk", h.radius, h.vel, 0.008),
+    ]
+    for args in cases:
+        res = ctrl.step(*args)
+        assert res.fallback and res.active
+        assert np.all(np.isfinite(res.jerk)) and np.all(np.abs(res.jerk) <= ctrl.jerk_hi)
+    assert ctrl.stats["fallback"] == len(cases) == ctrl.stats["invalid_input"]
+    # the brake opposes the motion
+    res = ctrl.step(PANDA_HOME, qd, np.zeros(7), u0, None, None, None, 0.008)
+    assert np.all(res.jerk < 0)
+    # no humans at all is not an error
+    none3 = np.zeros((0, 2, 3))
+    empty = ctrl.step(PANDA_HOME, qd, qdd, u0, none3, np.zeros(0), none3, 0.008)
+    assert not empty.fallback and not empty.active
+
+
+def _lateral_walker(x_line: float, y0: float, speed: float):
+    """Constant-velocity human facing the robot (-x), walking along y at x = x_line."""
+    v = np.array([0.0, -np.sign(y0) * speed])
+
+    def fn(t: float):
+        return rigid_human(np.array([x_line, y0]) + t * v, np.pi, v, np.zeros(2))
+
+    return fn
+
+
+@pytest.mark.parametrize("mode", ["single", "multi"])
+def test_random_constant_velocity_episodes_keep_d_min_and_jerk_bounds(robot, mode) -> None:
+    from sara_app.safety.jssa_study import Scenario, run_episode
+
+    rng = np.random.default_rng(4 if mode == "single" else 5)
+    params = JssaParams(lambda_1=3.0, lambda_2=1.0, mode=mode)
+    for _ in range(2):
+        walker = _lateral_walker(
+            rng.uniform(1.05, 1.3), rng.choice([-1.0, 1.0]) * rng.uniform(1.5, 2.0),
+            rng.uniform(0.5, 1.2),
+        )  # fmt: skip
+        sc = Scenario(robot, PANDA_HOME.copy(), walker, duration_s=3.0)
+        ctrl = JssaController(robot, params)
+        tr = run_episode(sc, ctrl)
+        assert tr.active.any()  # the human did come close enough to matter
+        assert tr.distance_m.min() > params.d_min_m
+        assert np.all(np.abs(tr.jerk) <= robot.limits.j_max * (1 + 1e-12))
+
+
+def test_integrate_is_eq1() -> None:
+    q, qd, qdd, u = np.ones(2), np.array([0.5, -1.0]), np.array([2.0, 0.0]), np.array([-6.0, 3.0])
+    q1, qd1, qdd1 = integrate(q, qd, qdd, u, 0.1)
+    np.testing.assert_allclose(qdd1, qdd + 0.1 * u)
+    np.testing.assert_allclose(qd1, qd + 0.1 * qdd + 0.005 * u)
+    np.testing.assert_allclose(q1, q + 0.1 * qd + 0.005 * qdd + 0.001 / 6 * u)
