@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.sparse.csgraph import connected_components
 
-from sara_app.geometry import segment_box_distance
+from sara_app.geometry import segment_box_distance, segment_segment_closest
 from sara_app.robot.energy import LinkMotion
 from sara_app.robot.model import load_robot
 from sara_app.safety.contact import (
@@ -19,9 +19,11 @@ from sara_app.safety.contact import (
     ContactResult,
     VelocityErrorBound,
     _closure,
+    _Motion,
     _speed_bounds,
     segment_box_closest,
 )
+from sara_app.safety.contact_kernels import all_pairs
 from sara_app.safety.topology import human_safe_matrix, unclampable_matrix
 
 # A table: top face at z = 0.
@@ -179,25 +181,47 @@ def _random_pose(rng: np.random.Generator) -> np.ndarray:
 
 def test_segment_box_closest_against_sampling() -> None:
     rng = np.random.default_rng(0)
-    n = 400
-    T = np.array([_random_pose(rng) for _ in range(n)])
-    h = rng.uniform(0.01, 0.4, (n, 3))
-    ends = rng.normal(scale=0.6, size=(n, 2, 3))
-    ends[:50, 1] = ends[:50, 0]  # points
-    d, p_seg, p_box = segment_box_closest(ends, T, h)
-    assert np.allclose(d, segment_box_distance(ends, T, h), atol=1e-12)
-    assert np.allclose(np.linalg.norm(p_seg - p_box, axis=-1), d, atol=1e-12)
-    local = np.einsum("nji,nj->ni", T[:, :3, :3], p_box - T[:, :3, 3])
-    assert np.all(np.abs(local) <= h + 1e-12)  # box point inside the box
-    a, b = ends[:, 0], ends[:, 1]
-    along = np.einsum("ni,ni->n", p_seg - a, b - a)
-    cross = np.linalg.norm(np.cross(p_seg - a, b - a), axis=-1)
+    nb, ns = 40, 60
+    T = np.array([_random_pose(rng) for _ in range(nb)])
+    h = rng.uniform(0.01, 0.4, (nb, 3))
+    ends = rng.normal(scale=0.6, size=(ns, 2, 3))
+    ends[:10, 1] = ends[:10, 0]  # points
+    ends[10:15, 1] = ends[10:15, 0] + [0.3, 0.0, 0.0]  # axis-parallel in the world
+    d, p_seg, p_box = segment_box_closest(ends, T, h)  # (ns, nb), (3, ns, nb)
+    assert np.allclose(d, segment_box_distance(ends[:, None], T[None], h[None]), atol=1e-12)
+    assert np.allclose(np.linalg.norm(p_seg - p_box, axis=0), d, atol=1e-12)
+    local = np.einsum("bji,jsb->sbi", T[:, :3, :3], p_box - T[:, :3, 3].T[:, None, :])
+    assert np.all(np.abs(local) <= h[None] + 1e-12)  # box point inside the box
+    a, b = ends[:, 0, :, None], ends[:, 1, :, None]  # (ns, 3, 1)
+    ps = p_seg.transpose(1, 0, 2)  # (ns, 3, nb)
+    cross = np.linalg.norm(np.cross(ps - a, b - a, axis=1), axis=1)
+    along = np.einsum("sib,sib->sb", ps - a, np.broadcast_to(b - a, ps.shape))
     assert np.all(cross <= 1e-9) and np.all(along >= -1e-12)  # on the segment
-    s = np.linspace(0, 1, 2001)
-    pts = a[:, None] + s[None, :, None] * (b - a)[:, None]
-    loc = np.einsum("nji,nsj->nsi", T[:, :3, :3], pts - T[:, None, :3, 3])
-    brute = np.linalg.norm(np.maximum(np.abs(loc) - h[:, None], 0.0), axis=-1).min(axis=1)
-    assert np.all(d <= brute + 1e-12) and np.all(brute - d <= 1e-3)
+    u = np.linspace(0, 1, 1001)
+    pts = ends[:, None, 0] + u[None, :, None] * (ends[:, 1] - ends[:, 0])[:, None]  # (ns, S, 3)
+    loc = np.einsum("bji,nsbj->nsbi", T[:, :3, :3], pts[:, :, None] - T[None, None, :, :3, 3])
+    brute = np.linalg.norm(np.maximum(np.abs(loc) - h, 0.0), axis=-1).min(axis=1)  # (ns, nb)
+    assert np.all(d <= brute + 1e-12) and np.all(brute - d <= 2e-3)
+
+
+def test_all_pairs_against_geometry_and_sampling() -> None:
+    rng = np.random.default_rng(4)
+    caps = rng.normal(scale=0.4, size=(3, 12, 2, 3))
+    caps[:, :3, 1] = caps[:, :3, 0]  # balls
+    caps[:, 3, 1] = caps[:, 3, 0] + 2 * (caps[:, 4, 1] - caps[:, 4, 0])  # parallel to 4
+    d, s, t = all_pairs(caps)
+    d_ref = segment_segment_closest(caps[:, :, None], caps[:, None])[0]
+    off = ~np.eye(12, dtype=bool)
+    assert np.allclose(d[:, off], d_ref[:, off], atol=1e-12)
+    assert np.array_equal(s, t.transpose(0, 2, 1))
+    pa = caps[:, :, None, 0] + s[..., None] * (caps[:, :, None, 1] - caps[:, :, None, 0])
+    pb = caps[:, None, :, 0] + t[..., None] * (caps[:, None, :, 1] - caps[:, None, :, 0])
+    assert np.allclose(np.linalg.norm(pa - pb, axis=-1)[:, off], d[:, off], atol=1e-12)
+    u = np.linspace(0, 1, 201)
+    pts = caps[:, :, None, 0] + u[None, None, :, None] * (caps[:, :, 1] - caps[:, :, 0])[:, :, None]
+    brute = np.linalg.norm(pts[:, :, None, :, None] - pts[:, None, :, None, :], axis=-1)
+    brute = brute.min(axis=(-1, -2))
+    assert np.all(d[:, off] <= brute[:, off] + 1e-12) and np.all(brute - d <= 1e-2)
 
 
 def test_thm_vi1_speed_bounds_contain_every_point_velocity() -> None:
@@ -209,20 +233,21 @@ def test_thm_vi1_speed_bounds_contain_every_point_velocity() -> None:
         v1, w = rng.normal(size=3), rng.normal(scale=3.0, size=3)
         n = rng.normal(size=3)
         n /= np.linalg.norm(n)
-        lo, hi = _speed_bounds(
-            n.reshape(1, 1, 1, 3),
-            np.tile(np.array([p1, p2]), (2, 1, 1, 1)),
-            np.array([r]),
-            np.tile(v1, (2, 1, 1)),
-            np.tile(w, (2, 1, 1)),
+        reach = r + np.linalg.norm(p2 - p1)
+        motion = _Motion(
+            np.tile(v1[:, None, None], (1, 2, 1)),
+            np.tile(w[:, None, None], (1, 2, 1)),
+            np.full((2, 1), reach),
+            np.zeros((1, 1)),
         )
+        lo, hi = _speed_bounds(n.reshape(3, 1, 1, 1), motion)
         lam = rng.uniform(0, 1, 4000)
         u = rng.normal(size=(4000, 3))
         u *= (rng.uniform(0, 1, 4000) ** (1 / 3) * r / np.linalg.norm(u, axis=1))[:, None]
         x = p1 + lam[:, None] * (p2 - p1) + u
         vn = (v1 + np.cross(w, x - p1)) @ n
         assert vn.min() >= lo[0, 0, 0] - 1e-12 and vn.max() <= hi[0, 0, 0] + 1e-12
-        paper = n @ v1 + (r + np.linalg.norm(p2 - p1)) * np.linalg.norm(np.cross(n, w))
+        paper = n @ v1 + reach * np.linalg.norm(np.cross(n, w))
         worst_paper = min(worst_paper, vn.min() - paper)
     assert worst_paper < 0.0  # the "+" printed in eq. 16/25 is not a lower bound
 

@@ -134,7 +134,7 @@ class LinkMotion:
         self._grow(S)
         w = V[:, None, :] * self._maskf[None]  # (S, L, n): E_i q_dot
         T = self._T[:S]
-        np.einsum("sli,sij,slj->sl", w, M, w, out=T)
+        np.einsum("sli,sli->sl", np.matmul(w, M), w, out=T)
         T *= 0.5
         T[bad] = np.inf
         return T
@@ -162,7 +162,7 @@ class LinkMotion:
             ends = self._occ.link_ends(Q)
             ends[bad] = np.nan
         # Twist of link i (base axes, at the base origin): sum over its supporting joints.
-        tw = np.einsum("sxn,ln,sn->slx", J, self._maskf, V)  # (S, L, 6)
+        tw = np.matmul(J * V[:, None, :], self._maskf.T).transpose(0, 2, 1)  # (S, L, 6)
         w_base = tw[..., 3:]
         p1_base = (ends[:, :, 0, :] - self._t_wb) @ self._R_wb  # R^T (p - t)
         v_base = tw[..., :3] + np.cross(w_base, p1_base)

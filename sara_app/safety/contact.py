@@ -41,8 +41,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sara_app.geometry import segment_segment_closest
 from sara_app.robot.model import RobotModel
+from sara_app.safety.contact_kernels import all_pairs, segment_box_soa
 
 NONE, UNCONSTRAINED, ENV_CONSTRAINED, SELF_CONSTRAINED = 0, 1, 2, 3
 CLASS_NAMES: tuple[str, ...] = ("none", "unconstrained", "env-constrained", "self-constrained")
@@ -88,6 +88,15 @@ class VelocityErrorBound:
             chains.append([int(pm.idx_vs[j]) for j in chain])
             lengths.append(np.array(d + [reach]) if chain else np.zeros(0))
         self.chains, self.lengths = chains, lengths
+        # Vectorised form: per joint (v index) its parent joint (-1: the base) and the lever
+        # matrix D (n, L): D[c, i] = the length following joint c on link i's chain.
+        self._parent = [
+            int(pm.idx_vs[pm.parents[j]]) if pm.parents[j] > 0 else -1 for j in range(1, pm.njoints)
+        ]
+        self._order = [int(pm.idx_vs[j]) for j in range(1, pm.njoints)]  # parents first
+        self._D = np.zeros((self.n_dof, self.n_links))
+        for i, (chain, lever) in enumerate(zip(chains, lengths)):
+            self._D[chain, i] = lever
         lim = model.limits
         self.C_limits = self.coefficients(lim.v_max, lim.a_max, lim.j_max)
         """``(L,)`` m/s^3 from the joint limits."""
@@ -97,18 +106,22 @@ class VelocityErrorBound:
     ) -> np.ndarray:
         """``C (..., L)`` from absolute joint bounds ``(..., n)`` (rad/s, rad/s^2, rad/s^3)."""
         qd, qdd, qddd = (np.abs(np.asarray(x, dtype=float)) for x in (qd, qdd, qddd))
-        out = np.zeros(qd.shape[:-1] + (self.n_links,))
-        for i, (chain, d) in enumerate(zip(self.chains, self.lengths)):
-            if form == "paper":
+        if form == "paper":
+            out = np.zeros(qd.shape[:-1] + (self.n_links,))
+            for i, (chain, d) in enumerate(zip(self.chains, self.lengths)):
                 out[..., i] = _paper_coefficient(chain, d, qd, qdd, qddd)
-                continue
-            W = A = Bj = jerk = np.zeros(qd.shape[:-1])
-            for pos, j in enumerate(chain):
-                v, a, jj = qd[..., j], qdd[..., j], qddd[..., j]
-                W, A, Bj = W + v, A + a + v * W, Bj + jj + 2.0 * a * W + v * (A + W * W)
-                jerk = jerk + d[pos] * (Bj + 3.0 * A * W + W**3)
-            out[..., i] = jerk
-        return out
+            return out
+        # Bounds on |Omega|, |alpha|, |beta| of the body after each joint (parents first).
+        W, A, Bj = np.zeros_like(qd), np.zeros_like(qd), np.zeros_like(qd)
+        zero = np.zeros(qd.shape[:-1])
+        for j, p in zip(self._order, self._parent):
+            w0, a0, b0 = (zero, zero, zero) if p < 0 else (W[..., p], A[..., p], Bj[..., p])
+            v, a, jj = qd[..., j], qdd[..., j], qddd[..., j]
+            W[..., j] = w0 + v
+            A[..., j] = a0 + a + v * w0
+            Bj[..., j] = b0 + jj + 2.0 * a * w0 + v * (a0 + w0 * w0)
+        # A point s metres further on body j adds s (|beta| + 3 |alpha||Omega| + |Omega|^3).
+        return np.asarray((Bj + 3.0 * A * W + W**3) @ self._D)
 
     def eps_v(self, dt: np.ndarray, C: np.ndarray | None = None) -> np.ndarray:
         """``(K, L)`` m/s for interval lengths ``dt (K,)``; ``C`` defaults to the limits'."""
@@ -139,76 +152,55 @@ def _paper_coefficient(
 def segment_box_closest(
     ends: np.ndarray, T_world_box: np.ndarray, half_extents_m: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Closest points of segments ``(..., 2, 3)`` and solid boxes, broadcast.
+    """Closest points of segments ``(M, 2, 3)`` and boxes ``(B, 4, 4), (B, 3)``.
 
-    Returns ``(distance (...), point_on_segment (..., 3), point_on_box (..., 3))``, world frame.
-    The same piecewise-quadratic minimisation as :func:`sara_app.geometry.segment_box_distance`
-    (exact), keeping the minimiser: in the box frame ``f(s) = sum_i max(|x_i(s)| - h_i, 0)^2``
-    is convex and quadratic between the breakpoints ``x_i(s) = +-h_i``.
+    Returns ``(distance (M, B), point_on_segment (3, M, B), point_on_box (3, M, B))``, world
+    frame (coordinates first), from :func:`contact_kernels.segment_box_soa`.
     """
-    R, p = T_world_box[..., :3, :3], T_world_box[..., :3, 3]
-    a = np.einsum("...ji,...j->...i", R, ends[..., 0, :] - p)
-    b = np.einsum("...ji,...j->...i", R, ends[..., 1, :] - p)
-    shape = np.broadcast_shapes(a.shape, np.shape(half_extents_m))
-    a, b, h = (np.broadcast_to(v, shape) for v in (a, b, half_extents_m))
-    d = b - a
-    d_safe = np.where(np.abs(d) > 1e-12, d, 1e-12)
-    bp = np.concatenate(
-        [
-            np.zeros(shape[:-1] + (1,)),
-            (h - a) / d_safe,
-            (-h - a) / d_safe,
-            np.ones(shape[:-1] + (1,)),
-        ],
-        axis=-1,
-    )
-    bp = np.sort(np.clip(bp, 0.0, 1.0), axis=-1)
-    lo, hi = bp[..., :-1], bp[..., 1:]
-    hh, aa, dd = h[..., None, :], a[..., None, :], d[..., None, :]
-    x_mid = aa + (0.5 * (lo + hi))[..., None] * dd
-    sign = np.where(x_mid > hh, 1.0, np.where(x_mid < -hh, -1.0, 0.0))
-    qa = np.sum(sign * sign * dd * dd, axis=-1)
-    qb = np.sum(sign * sign * (aa - sign * hh) * dd, axis=-1)
-    s = np.where(qa > 0.0, np.clip(-qb / np.where(qa > 0.0, qa, 1.0), lo, hi), lo)
-    x = aa + s[..., None] * dd  # (..., 7, 3) candidate minimisers, box frame
-    c = np.clip(x, -hh, hh)
-    dist = np.linalg.norm(x - c, axis=-1)
-    k = np.argmin(dist, axis=-1)[..., None, None]
-    x = np.take_along_axis(x, k, axis=-2)[..., 0, :]
-    c = np.take_along_axis(c, k, axis=-2)[..., 0, :]
-    x_w = np.einsum("...ij,...j->...i", R, x) + p
-    c_w = np.einsum("...ij,...j->...i", R, c) + p
-    return np.take_along_axis(dist, k[..., 0], axis=-1)[..., 0], x_w, c_w
+    M, B = ends.shape[0], T_world_box.shape[0]
+    p, q = ends[:, 0].T, ends[:, 1].T
+    dist = np.empty((M, B))
+    p_seg = np.empty((3, M, B))
+    p_box = np.empty((3, M, B))
+    for b in range(B):
+        dist[:, b], p_seg[:, :, b], p_box[:, :, b] = segment_box_soa(
+            p, q, T_world_box[b], half_extents_m[b]
+        )
+    return dist, p_seg, p_box
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    return v / np.where(n > 0.0, n, np.nan)  # a zero normal is NaN: no relaxation
+    """Unit vectors of ``(3, ...)`` (coordinates first); a zero vector gives NaN (no relaxation)."""
+    n = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    return v / np.where(n > 0.0, n, np.nan)
 
 
-def _cross_norm(n: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """``|n x w|`` over the last axis, broadcast (np.cross is slow on small arrays)."""
-    cx = n[..., 1] * w[..., 2] - n[..., 2] * w[..., 1]
-    cy = n[..., 2] * w[..., 0] - n[..., 0] * w[..., 2]
-    cz = n[..., 0] * w[..., 1] - n[..., 1] * w[..., 0]
-    return np.sqrt(cx * cx + cy * cy + cz * cz)
+@dataclass(frozen=True)
+class _Motion:
+    """Link states at the samples, coordinates first: ``pd``, ``w`` ``(3, K+1, L)``, ``reach``
+    ``(K+1, L)`` = radius + capsule length (the lever of Thm VI.1), ``eps_v (K, L)``."""
+
+    pd: np.ndarray
+    w: np.ndarray
+    reach: np.ndarray
+    eps_v: np.ndarray
 
 
-def _speed_bounds(
-    n: np.ndarray, s_ends: np.ndarray, s_radius: np.ndarray, p1_dot: np.ndarray, omega: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+def _speed_bounds(n: np.ndarray, m: _Motion) -> tuple[np.ndarray, np.ndarray]:
     """Thm VI.1 at both samples of each interval: min and max of ``n . p_dot`` over a link.
 
-    ``n (K, L, X, 3)`` normals for link ``i`` (axis 1) against ``X`` objects; sample arrays
-    ``(K+1, L, ...)``. Returns ``(v_min, v_max)`` ``(K, L, X)``: the min over both samples of the
-    lower bound and the max of the upper bound (the interpolation of eq. 25).
+    ``n (3, K, L, X)`` normals for link ``i`` (axis 2) against ``X`` objects. Returns ``(v_min,
+    v_max)`` ``(K, L, X)``: the min over both samples of ``n . p1_dot - (r + |p2 - p1|) |n x
+    w|`` and the max of the ``+`` form (eq. 25; the lower bound needs the minus, see above).
     """
-    p1 = s_ends[:, :, 0, :]
-    reach = s_radius + np.linalg.norm(s_ends[:, :, 1, :] - p1, axis=-1)  # (K+1, L)
     lo, hi = [], []
     for sl in (slice(None, -1), slice(1, None)):
-        along = np.einsum("klxi,kli->klx", n, p1_dot[sl])
-        turn = reach[sl][..., None] * _cross_norm(n, omega[sl][:, :, None, :])
+        pd, w = m.pd[:, sl, :, None], m.w[:, sl, :, None]
+        along = n[0] * pd[0] + n[1] * pd[1] + n[2] * pd[2]
+        cx = n[1] * w[2] - n[2] * w[1]
+        cy = n[2] * w[0] - n[0] * w[2]
+        cz = n[0] * w[1] - n[1] * w[0]
+        turn = m.reach[sl][..., None] * np.sqrt(cx * cx + cy * cy + cz * cz)
         lo.append(along - turn)
         hi.append(along + turn)
     return np.minimum(lo[0], lo[1]), np.maximum(hi[0], hi[1])
@@ -293,20 +285,26 @@ class ContactClassifier:
         half_extents_m: np.ndarray,
     ) -> ContactResult:
         """Classify; shapes in the module docstring. Never raises on NaN (NaN = worst case)."""
-        L = r_radius.shape[1]
+        K, L = r_radius.shape
         # One all-pairs segment computation for robot and human capsules of each interval.
         caps = np.concatenate([r_ends, h_ends], axis=1)  # (K, N, 2, 3), N = L + P
         rad = np.concatenate([r_radius, h_radius], axis=1)
-        d_ax, s, t = segment_segment_closest(caps[:, :, None], caps[:, None])
+        d_ax, s, t = all_pairs(caps)
         gap = d_ax - rad[:, :, None] - rad[:, None, :]  # (K, N, N) surface distances
         d_rh = gap[:, :L, L:]
         contact_s = ~(d_rh > 0.0)
         stack, diam = self._stacks(gap[:, L:, L:])
         stack_f = stack.astype(np.float32)
         contact_g = np.einsum("klm,kjm->klj", contact_s.astype(np.float32), stack_f) > 0.0
-        motion = (s_ends, s_radius, p1_dot, omega, eps_v)
+        p1 = s_ends[:, :, 0, :]
+        motion = _Motion(
+            p1_dot.transpose(2, 0, 1),
+            omega.transpose(2, 0, 1),
+            s_radius + np.linalg.norm(s_ends[:, :, 1, :] - p1, axis=-1),
+            eps_v,
+        )
         if T_world_box.shape[0]:
-            box = segment_box_closest(caps[:, :, None], T_world_box, half_extents_m)
+            box = segment_box_closest(caps.reshape(-1, 2, 3), T_world_box, half_extents_m)
             env = self._env(box, rad, L, stack_f, diam, motion)
         else:
             env = np.zeros(contact_s.shape, dtype=bool)
@@ -341,23 +339,25 @@ class ContactClassifier:
         L: int,
         stack_f: np.ndarray,
         diam: np.ndarray,
-        motion: tuple[np.ndarray, ...],
+        motion: _Motion,
     ) -> np.ndarray:
         """``(K, L, P)``: an environment-constrained collision is possible (eq. 10-11, 31, 33).
 
-        ``box``: axis distance and closest points of every capsule (robot first) to every box.
+        ``box``: axis distance ``(K N, B)`` and closest points ``(3, K N, B)`` of every capsule
+        (robot first in each interval) to every box.
         """
+        K, N = rad.shape
         d_ax, p_c, p_b = box
-        gap = d_ax - rad[:, :, None]  # (K, N, B)
+        B = d_ax.shape[1]
+        gap = d_ax.reshape(K, N, B) - rad[:, :, None]
         touch = ~(gap[:, L:] > 0.0)  # body part touches box
         touch_g = np.einsum("kjm,kmb->kjb", stack_f, touch.astype(np.float32)) > 0.0
         d_rb = gap[:, :L]
         can = ~(d_rb > 0.0)  # a link touching the box always may clamp
         if self.relax_velocity:
-            s_ends, s_radius, p1_dot, omega, eps_v = motion
-            n = _unit(p_c[:, :L] - p_b[:, :L])  # normal on the box towards the link
-            v_min, _ = _speed_bounds(n, s_ends, s_radius, p1_dot, omega)
-            can |= ~(v_min >= eps_v[:, :, None])
+            n = _unit((p_c - p_b).reshape(3, K, N, B)[:, :, :L])  # on the box, towards the link
+            v_min, _ = _speed_bounds(n, motion)
+            can |= ~(v_min >= motion.eps_v[:, :, None])
         else:
             can = np.ones_like(can)
         pair = touch_g[:, None, :, :] & can[:, :, None, :]  # (K, L, P, B)
@@ -370,7 +370,7 @@ class ContactClassifier:
         rr: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
         contact_g: np.ndarray,
         diam: np.ndarray,
-        motion: tuple[np.ndarray, ...],
+        motion: _Motion,
     ) -> np.ndarray:
         """``(K, L, P)``: a self-constrained collision is possible (eq. 12-13, 32, 34, 37).
 
@@ -380,16 +380,15 @@ class ContactClassifier:
         r_ends, d_rr, s, t = rr
         can = ~self._no_pair[None] & np.ones(d_rr.shape, dtype=bool)
         if self.relax_velocity:
-            s_ends, s_radius, p1_dot, omega, eps_v = motion
-            a0, a1 = r_ends[:, :, None, 0], r_ends[:, :, None, 1]
-            b0, b1 = r_ends[:, None, :, 0], r_ends[:, None, :, 1]
-            p_i = a0 + s[..., None] * (a1 - a0)
-            p_l = b0 + t[..., None] * (b1 - b0)
-            n_l = _unit(p_i - p_l)  # (K, i, l, 3): normal on link l towards link i
-            v_min_i, _ = _speed_bounds(n_l, s_ends, s_radius, p1_dot, omega)
-            _, v_max_l = _speed_bounds(n_l.transpose(0, 2, 1, 3), s_ends, s_radius, p1_dot, omega)
+            e = r_ends.transpose(2, 3, 0, 1)  # (2, 3, K, L)
+            p_i = e[0][..., :, None] + s * (e[1] - e[0])[..., :, None]  # (3, K, i, l)
+            p_l = e[0][..., None, :] + t * (e[1] - e[0])[..., None, :]
+            n_l = _unit(p_i - p_l)  # normal on link l towards link i
+            v_min_i, _ = _speed_bounds(n_l, motion)
+            _, v_max_l = _speed_bounds(n_l.transpose(0, 1, 3, 2), motion)
             gap = v_min_i - v_max_l.transpose(0, 2, 1)
-            apart = (gap >= eps_v[:, :, None] + eps_v[:, None, :]) & (d_rr > 0.0)
+            eps = motion.eps_v
+            apart = (gap >= eps[:, :, None] + eps[:, None, :]) & (d_rr > 0.0)
             can &= ~apart
         pair = contact_g[:, None, :, :] & can[..., None]  # (K, i, l, P)
         if self.relax_diameter:
