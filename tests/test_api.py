@@ -11,6 +11,7 @@ import signal
 import subprocess
 import threading
 import time
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -18,7 +19,10 @@ from typing import Any
 import httpx
 import numpy as np
 import pytest
-from fastapi.testclient import TestClient
+
+with warnings.catch_warnings():  # starlette prefers httpx2 for its test client; httpx works
+    warnings.filterwarnings("ignore", message=".*httpx.*deprecated")
+    from fastapi.testclient import TestClient
 
 from sara_app.api import ApiServer, ApiServerError, CellRegistry, create_app
 from sara_app.api.registry import CYCLE_WINDOW
@@ -30,8 +34,6 @@ from sara_app.errors import SaraError
 from sara_app.human.params import available_param_sets, load_param_set
 from sara_app.safety.thresholds import threshold_set_names
 from sara_app.scenario import load_scenario, parse_scenario, scenario_names, scenarios_dir
-
-pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 
 VIEWER = "http://127.0.0.1:8080/"
 
@@ -484,3 +486,28 @@ def test_landing_page_shows_live_status_in_chromium(folder: Path, tmp_path: Path
             proc.wait(timeout=10)
             worker.close()
             server.stop()
+
+
+def test_server_stop_ends_open_event_streams(folder: Path) -> None:
+    reg = CellRegistry(None)
+    server = ApiServer(create_app(reg, folder), port=0)
+    url = server.start()
+    got: list[str] = []
+    opened = threading.Event()
+
+    def listen() -> None:
+        with httpx.stream("GET", url + "api/events?interval_s=0.05", timeout=30) as r:
+            for line in r.iter_lines():
+                got.append(line)
+                opened.set()
+
+    reader = threading.Thread(target=listen, daemon=True)
+    reader.start()
+    assert opened.wait(10)
+    server.stop()  # raises ApiServerError if uvicorn's thread is still serving the stream
+    reader.join(10)
+    assert not reader.is_alive() and "data: []" in got
+    url = server.start()  # can be started again, and its streams flow again
+    with httpx.stream("GET", url + "api/events?interval_s=0.01&limit=2", timeout=10) as r:
+        assert [x for x in r.iter_lines() if x.startswith("data:")] == ["data: []"] * 2
+    server.stop()

@@ -60,6 +60,14 @@ def check_url_name(kind: str, name: str) -> str:
     return name
 
 
+def check_known(kind: str, name: str, valid: list[str] | tuple[str, ...]) -> str:
+    """``name`` when valid and one of ``valid``; HTTP 422 or 404 (listing ``valid``)."""
+    check_url_name(kind, name)
+    if name not in valid:
+        raise HTTPException(404, f"{kind} {name!r} not found; valid: {', '.join(valid)}")
+    return name
+
+
 def validate_scenario(data: dict[str, Any], origin: str) -> Scenario:
     """A scenario checked as a whole (schema and robot); HTTP 422 with the field otherwise."""
     try:
@@ -177,9 +185,7 @@ def _add_scenario_routes(app: FastAPI, folder: Path) -> None:
     @app.get("/api/scenarios/{name}", tags=["scenarios"])
     def get_scenario(name: str) -> dict[str, Any]:
         """The validated scenario as JSON."""
-        check_url_name("scenario", name)
-        if name not in names():
-            raise HTTPException(404, f"scenario {name!r} not found; valid: {', '.join(names())}")
+        check_known("scenario", name, names())
         try:
             return load_scenario(name, folder).model_dump(mode="json")
         except SaraError as e:
@@ -227,10 +233,7 @@ def _add_param_routes(app: FastAPI) -> None:
 
     @app.get("/api/params/{name}", tags=["params"])
     def get_params(name: str) -> dict[str, Any]:
-        check_url_name("parameter set", name)
-        valid = _human_param_sets()
-        if name not in valid:
-            raise HTTPException(404, f"parameter set {name!r} not found; valid: {', '.join(valid)}")
+        check_known("parameter set", name, _human_param_sets())
         return load_param_set(name).model_dump(mode="json")
 
     @app.get("/api/thresholds", tags=["params"])
@@ -240,10 +243,7 @@ def _add_param_routes(app: FastAPI) -> None:
 
     @app.get("/api/thresholds/{name}", tags=["params"])
     def get_thresholds(name: str) -> dict[str, Any]:
-        check_url_name("threshold set", name)
-        valid = threshold_set_names()
-        if name not in valid:
-            raise HTTPException(404, f"threshold set {name!r} not found; valid: {', '.join(valid)}")
+        check_known("threshold set", name, threshold_set_names())
         try:
             return load_thresholds(name).model_dump(mode="json")
         except SaraError as e:

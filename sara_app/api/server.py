@@ -39,6 +39,9 @@ class ApiServer:
         """Start serving; the URL (``http://host:port/``) once uvicorn listens."""
         if self.url is not None:
             return self.url
+        stopping = self._stopping()
+        if stopping is not None:
+            stopping.clear()
         config = uvicorn.Config(
             self.app,
             host=self.host,
@@ -71,6 +74,11 @@ class ApiServer:
         self.url = f"http://{self.host}:{port}/"
         return self.url
 
+    def _stopping(self) -> threading.Event | None:
+        """``create_app``'s event that ends open event streams (None for other apps)."""
+        ev = getattr(getattr(self.app, "state", None), "stopping", None)
+        return ev if isinstance(ev, threading.Event) else None
+
     @staticmethod
     def _serve(server: uvicorn.Server) -> None:
         try:
@@ -80,8 +88,8 @@ class ApiServer:
 
     def stop(self) -> None:
         """End event streams, stop uvicorn and join its thread (idempotent)."""
-        stopping = getattr(getattr(self.app, "state", None), "stopping", None)
-        if isinstance(stopping, threading.Event):
+        stopping = self._stopping()
+        if stopping is not None:
             stopping.set()
         if self._server is not None:
             self._server.should_exit = True
