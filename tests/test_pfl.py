@@ -69,6 +69,7 @@ def test_hand_on_table_energy_between_the_thresholds(pfl: PflCheck) -> None:
     assert down.cls[0, i, j] == ENV_CONSTRAINED
     assert down.threshold_J[0, i, j] == 0.12
     assert down.energy_J[0, i] == pytest.approx(0.3, rel=0.02)
+    assert down.allowed_J[0, i] == 0.12 and down.limiting_part[0, i] == j
     assert not down.safe[0, i, j] and not down.safe_all
     up = _run(pfl, -q_dot, human, table)
     assert up.cls[0, i, j] == UNCONSTRAINED
@@ -82,6 +83,7 @@ def test_far_human_and_robot_at_rest_are_safe(pfl: PflCheck) -> None:
     boxes = (np.zeros((0, 4, 4)), np.zeros((0, 3)))
     far = _run(pfl, np.full(7, 1.5), _far_human(3), boxes, K=3)
     assert far.safe_all and np.all(far.cls == NONE)
+    assert np.all(np.isinf(far.allowed_J)) and np.all(far.limiting_part == -1)
     h_ends = np.zeros((3, len(PARTS), 2, 3))
     h_ends[..., 2] = 0.5
     engulf = (h_ends, np.full((3, len(PARTS)), 3.0))

@@ -73,6 +73,13 @@ class PflResult:
     stack, where clamping is possible; else the unconstrained one); ``energy_J (K, L)``: eq.
     47-48 interval energy; ``margin_J = threshold_J - energy_J`` (negative: too fast);
     ``contact``: the full :class:`ContactResult`.
+
+    Per interval and link ``(K, L)``: ``allowed_J`` the smallest threshold over the body parts
+    the link can touch (``inf`` without contact) and ``limiting_part`` the index of that part
+    (-1 without contact; its class is ``cls[k, i, limiting_part]``). For speed scaling: a
+    path-consistent slow-down by ``a`` scales the energies by ``a^2``, so ``sqrt(allowed_J /
+    energy_J)`` is a CANDIDATE factor only: slower links may lose the velocity relaxation (a
+    clamping class, a lower threshold), so the slower trajectory must be checked again.
     """
 
     safe: np.ndarray
@@ -83,6 +90,8 @@ class PflResult:
     energy_J: np.ndarray
     margin_J: np.ndarray
     contact: ContactResult
+    allowed_J: np.ndarray
+    limiting_part: np.ndarray
 
     @property
     def class_names(self) -> tuple[str, ...]:
@@ -230,7 +239,13 @@ class PflCheck:
         margin = thr - E_int[:, :, None]
         safe = ~c.contact | (margin > 0.0)  # eq. 7 with strict "<"; NaN energy -> unsafe
         safe_k = safe.all(axis=(1, 2))
-        return PflResult(safe, safe_k, bool(safe_k.all()), c.cls, thr, E_int, margin, c)
+        thr_contact = np.where(c.contact, thr, np.inf)
+        part = np.argmin(thr_contact, axis=2)
+        allowed = np.take_along_axis(thr_contact, part[..., None], axis=2)[..., 0]
+        part = np.where(np.isfinite(allowed), part, -1)
+        return PflResult(
+            safe, safe_k, bool(safe_k.all()), c.cls, thr, E_int, margin, c, allowed, part
+        )
 
     def check_trajectory(
         self,
