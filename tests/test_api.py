@@ -25,6 +25,7 @@ with warnings.catch_warnings():  # starlette prefers httpx2 for its test client;
     from fastapi.testclient import TestClient
 
 from sara_app.api import ApiServer, ApiServerError, CellRegistry, create_app
+from sara_app.api.app import merge_sections
 from sara_app.api.registry import CYCLE_WINDOW
 from sara_app.bus import keys
 from sara_app.bus.codec import Decoded
@@ -272,6 +273,28 @@ def test_scenario_post_checks_before_sending(
     r = client.post("/api/cells/cell1/scenario", json=_base(folder))
     assert r.status_code == 504 and "no bus" in r.json()["detail"]
 
+    # PATCH: merged onto the scenario file the cell reports ("demo" is not one), then validated
+    r = client.patch("/api/cells/cell1/scenario", json={"shield": {"dt_s": 0.004}})
+    assert r.status_code == 404 and "empty_cell" in r.json()["detail"]
+    for changes, field in (
+        ({"shield": {"dt_s": 1.0}}, "shield.dt_s"),
+        ({"human_params": {"delay_s": -1.0}}, "delay_s"),
+        ({"human_params": "nope"}, "human_params"),
+        ({"limits": {"jerk": 2.0}}, "limits.jerk"),
+        ({"colour": "red"}, "colour"),
+    ):
+        r = client.patch("/api/cells/cell1/scenario?base=empty_cell", json=changes)
+        assert r.status_code == 422 and field in r.json()["detail"], (changes, r.text)
+    r = client.patch("/api/cells/cell1/scenario?base=empty_cell", json={"shield": {"dt_s": 0.002}})
+    assert r.status_code == 504  # valid: it would be sent
+
+
+def test_merge_sections() -> None:
+    base = {"a": {"x": 1, "y": 2}, "b": [1, 2], "c": "s"}
+    got = merge_sections(base, {"a": {"y": 3, "z": 4}, "b": [5], "c": {"k": 1}, "d": 0})
+    assert got == {"a": {"x": 1, "y": 3, "z": 4}, "b": [5], "c": {"k": 1}, "d": 0}
+    assert base == {"a": {"x": 1, "y": 2}, "b": [1, 2], "c": "s"}  # not modified
+
 
 # -- live: uvicorn + zenoh router + a fake worker ------------------------------------------------
 
@@ -387,6 +410,23 @@ def test_live_cell_and_scenario_round_trip(folder: Path) -> None:
                 r = http.post("api/cells/cell1/scenario", json=sc)
                 assert r.status_code == 409 and "blocks the task" in r.json()["detail"]
                 assert len(worker.received) == 2
+                r = http.patch(
+                    "api/cells/cell1/scenario",
+                    json={"shield": {"skeleton_timeout_s": 0.1}, "human_params": {"delay_s": 0.05}},
+                )
+                assert r.status_code == 200, r.text
+                want = load_scenario("empty_cell", folder).model_dump(mode="json")
+                got = worker.received[-1]
+                assert got == r.json()["applied"]
+                assert got["shield"] == {**want["shield"], "skeleton_timeout_s": 0.1}
+                named = load_param_set(want["human_params"]).model_dump(mode="json")
+                assert got["human_params"] == {
+                    **named,
+                    "name": want["human_params"] + "_edited",
+                    "delay_s": 0.05,
+                }
+                for k in set(want) - {"shield", "human_params"}:
+                    assert got[k] == want[k], k
                 r = http.post("api/cells/cell2/scenario", params={"timeout_s": 0.5}, json=sc)
                 assert r.status_code == 504 and "did not answer" in r.json()["detail"]
                 with http.stream("GET", "api/cells/cell1/events?limit=2&interval_s=0.05") as s:

@@ -7,7 +7,9 @@
   ``GET /api/cells/{cell}/events`` and ``GET /api/events``: the same as Server-Sent Events
   (``interval_s``, optional ``limit`` of events).
 - ``POST /api/cells/{cell}/scenario``: validate a full scenario, send it to the worker and
-  return its answer (422 invalid, 404 unknown cell, 409 refused, 504 no answer).
+  return its answer (422 invalid, 404 unknown cell, 409 refused, 504 no answer);
+  ``PATCH`` the same with a partial update (parameters, shield settings, boxes) on a scenario
+  file (default: the one the cell runs).
 - ``GET /api/scenarios``, ``GET/PUT /api/scenarios/{name}``: list, read, save (validated;
   an existing name is replaced only with ``?overwrite=true``; the stored ``name`` is the URL's).
 - ``GET /api/params``, ``GET /api/params/{name}``: human-model parameter sets;
@@ -111,7 +113,7 @@ def _stream(request: Request, snapshot: Any, interval_s: float, limit: int | Non
     )
 
 
-def _add_cell_routes(app: FastAPI, registry: CellRegistry) -> None:
+def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None:
     def known_cell(cell: str) -> dict[str, Any]:
         check_url_name("cell", cell)
         snap = registry.cell(cell)
@@ -153,15 +155,7 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry) -> None:
         """Server-Sent Events: the list of every cell's snapshot every ``interval_s``."""
         return _stream(request, registry.cells, interval_s, limit)
 
-    @app.post("/api/cells/{cell}/scenario", tags=["cells"])
-    def send_scenario(
-        cell: str,
-        scenario: Annotated[dict[str, Any], Body()],
-        timeout_s: float = Query(3.0, gt=0.0, le=30.0),
-    ) -> dict[str, Any]:
-        """Validate a full scenario and have the cell's worker apply it (all or nothing)."""
-        check_url_name("cell", cell)
-        sc = validate_scenario(scenario, "request body")
+    def send(cell: str, sc: Scenario, timeout_s: float) -> dict[str, Any]:
         known_cell(cell)
         try:
             ans = registry.request_params(cell, sc.model_dump(mode="json"), timeout_s)
@@ -172,6 +166,53 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry) -> None:
         if not ans.accepted:
             raise HTTPException(409, f"the worker of cell {cell!r} refused: {ans.reason}")
         return {"cell": cell, "scenario": sc.name, "accepted": True, "request_id": ans.request_id}
+
+    @app.post("/api/cells/{cell}/scenario", tags=["cells"])
+    def send_scenario(
+        cell: str,
+        scenario: Annotated[dict[str, Any], Body()],
+        timeout_s: float = Query(3.0, gt=0.0, le=30.0),
+    ) -> dict[str, Any]:
+        """Validate a full scenario and have the cell's worker apply it (all or nothing)."""
+        check_url_name("cell", cell)
+        return send(cell, validate_scenario(scenario, "request body"), timeout_s)
+
+    @app.patch("/api/cells/{cell}/scenario", tags=["cells"])
+    def update_scenario(
+        cell: str,
+        changes: Annotated[dict[str, Any], Body()],
+        base: str | None = Query(None, description="scenario file to start from"),
+        timeout_s: float = Query(3.0, gt=0.0, le=30.0),
+    ) -> dict[str, Any]:
+        """Parameter update: ``changes`` applied to the scenario file ``base`` (default: the
+        one the cell reports running), validated as a whole and sent to the worker.
+
+        Object-valued sections are merged key by key, other fields replaced: e.g.
+        ``{"shield": {"skeleton_timeout_s": 0.1}}``, ``{"human_params": "cmu_calibrated"}``, or
+        ``{"human_params": {"delay_s": 0.05}}`` (the named set's values with that change).
+        Edits made elsewhere and not saved to that file are not part of the result."""
+        check_url_name("cell", cell)
+        base = base or str(known_cell(cell).get("scenario") or "")
+        check_known("scenario", base, sorted(set(scenario_names(folder))))
+        data = load_scenario(base, folder).model_dump(mode="json")
+        hp = data["human_params"]
+        if isinstance(hp, str) and isinstance(changes.get("human_params"), dict):
+            # a partial edit of a named set: start from the set's values, under a new name
+            named = load_param_set(hp).model_dump(mode="json")
+            data["human_params"] = {**named, "name": f"{hp}_edited"}
+        merged = merge_sections(data, changes)
+        sc = validate_scenario(merged, f"{base!r} with the changes")
+        return {**send(cell, sc, timeout_s), "applied": sc.model_dump(mode="json")}
+
+
+def merge_sections(data: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]:
+    """``data`` with ``changes``: object-valued sections merged one level deep, others replaced
+    (lists, such as ``humans`` or ``environment``, are replaced whole)."""
+    out = dict(data)
+    for k, v in changes.items():
+        old = out.get(k)
+        out[k] = {**old, **v} if isinstance(old, dict) and isinstance(v, dict) else v
+    return out
 
 
 def _add_scenario_routes(app: FastAPI, folder: Path) -> None:
@@ -284,7 +325,7 @@ def create_app(
     def links() -> dict[str, Any]:
         return {"viewer": viewer_url, "docs": "/docs"}
 
-    _add_cell_routes(app, registry)
+    _add_cell_routes(app, registry, folder)
     _add_scenario_routes(app, folder)
     _add_param_routes(app)
     if static_dir is not None and Path(static_dir).is_dir():
