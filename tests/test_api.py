@@ -551,3 +551,34 @@ def test_server_stop_ends_open_event_streams(folder: Path) -> None:
     with httpx.stream("GET", url + "api/events?interval_s=0.01&limit=2", timeout=10) as r:
         assert [x for x in r.iter_lines() if x.startswith("data:")] == ["data: []"] * 2
     server.stop()
+
+
+def test_edit_over_the_api_reaches_the_real_worker(folder: Path) -> None:
+    """The project's cell worker (in a thread here) applies a scenario sent over the API: its
+    status then reports the new scenario, and the verdicts keep coming."""
+    from sara_app.worker import CellWorker
+
+    port = free_port()
+    with Bus.router(port), CellRegistry.connect(port) as reg, Bus.client(port) as wbus:
+        worker = CellWorker("cellw", load_scenario("empty_cell", folder), wbus, status_hz=10.0)
+        thread = threading.Thread(target=worker.run, daemon=True)
+        thread.start()
+        client = TestClient(create_app(reg, folder))
+        try:
+
+            def snap() -> dict[str, Any]:
+                return dict(client.get("/api/cells/cellw").json())
+
+            _wait_until(lambda: snap().get("online"), 20.0)
+            sc = _base(folder)
+            sc["name"] = "moved_table"
+            sc["environment"][0]["center_m"] = [0.8, 0.0, 0.1]
+            r = client.post("/api/cells/cellw/scenario", json=sc)
+            assert r.status_code == 200, r.text
+            cell = _wait_until(lambda: (c := snap())["scenario"] == "moved_table" and c, 10.0)
+            assert worker.cell.scenario.environment[0].center_m == (0.8, 0.0, 0.1)
+            n = cell["verdicts_received"]
+            assert _wait_until(lambda: snap()["verdicts_received"] > n)
+        finally:
+            worker.stop_event.set()
+            thread.join(5)
