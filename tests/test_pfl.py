@@ -156,6 +156,6 @@ def test_non_finite_trajectory_is_unsafe_without_raising(pfl: PflCheck) -> None:
 
 def test_bench_rows_shape() -> None:
     rows = bench_rows(3)
-    assert len(rows) == 4
+    assert len(rows) == 5
     for name, med, p99, note in rows:
         assert name.startswith("pfl") and med > 0 and p99 >= med and "Panda" in note

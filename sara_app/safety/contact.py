@@ -217,7 +217,8 @@ class ContactResult:
     it (eq. 8, 40-43); ``contact_single``: eq. 8 for the part alone; ``env`` / ``self_``: an
     environment- / self-constrained collision through the part's stack is possible; ``cls``
     (int8): 0 none, 1 unconstrained, 2 env-constrained, 3 self-constrained (env wins when both);
-    ``stack (K, P, P)``: membership of part ``j``'s virtual body part (itself included);
+    ``stack (K, P, P)``: membership of part ``j``'s virtual body part (itself included; the
+    identity, not computed, when no contact is possible at all);
     ``stack_diameter_m (K, P)``; ``distance_m``: link-to-part surface distance (m).
     """
 
@@ -293,6 +294,13 @@ class ContactClassifier:
         gap = d_ax - rad[:, :, None] - rad[:, None, :]  # (K, N, N) surface distances
         d_rh = gap[:, :L, L:]
         contact_s = ~(d_rh > 0.0)
+        if not contact_s.any():  # no possible contact at all: nothing to classify
+            P = d_rh.shape[2]
+            none = np.zeros_like(contact_s)
+            stack = np.broadcast_to(np.eye(P, dtype=bool), (K, P, P))
+            diam = np.broadcast_to(self.diameters_m, (K, P))
+            cls0 = np.zeros(contact_s.shape, dtype=np.int8)
+            return ContactResult(none, none, none, none, cls0, stack, diam, d_rh)
         stack, diam = self._stacks(gap[:, L:, L:])
         stack_f = stack.astype(np.float32)
         contact_g = np.einsum("klm,kjm->klj", contact_s.astype(np.float32), stack_f) > 0.0

@@ -56,10 +56,9 @@ def all_pairs(caps: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     ``a`` of its closest point to ``b`` (``t = s`` transposed). The diagonal is 0."""
     K, N = caps.shape[:2]
     iu, ju = np.triu_indices(N, 1)
-    soa = caps.transpose(2, 3, 0, 1)  # (2, 3, K, N)
-    d_p, s_p, t_p = segment_pairs_soa(
-        soa[0][:, :, iu], soa[1][:, :, iu], soa[0][:, :, ju], soa[1][:, :, ju]
-    )
+    soa = np.ascontiguousarray(caps.transpose(2, 3, 0, 1))  # (2, 3, K, N)
+    a, b = np.take(soa, iu, axis=3), np.take(soa, ju, axis=3)  # contiguous (2, 3, K, pairs)
+    d_p, s_p, t_p = segment_pairs_soa(a[0], a[1], b[0], b[1])
     d = np.zeros((K, N, N))
     s = np.zeros((K, N, N))
     d[:, iu, ju] = d_p

@@ -358,4 +358,9 @@ def bench_rows(n: int = 2000) -> list[tuple[str, float, float, str]]:
     ):
         med, p99 = timeit_us(fn, n, warmup=max(10, n // 10))
         rows.append((name, med, p99, "Panda, 14 parts, 1 box, K=10"))
+    far = (sc["h_ends"] + np.array([3.0, 0.0, 0.0]), *human[1:])
+    med, p99 = timeit_us(
+        lambda: pfl.check_trajectory(q, qd, sc["qd_bound"], t, *far), n, warmup=max(10, n // 10)
+    )
+    rows.append(("pfl: full cycle, human 3 m away", med, p99, "Panda, 14 parts, 1 box, K=10"))
     return rows
