@@ -133,6 +133,11 @@ def test_check_matches_check_trajectory_and_energy_forms(pfl: PflCheck) -> None:
     args = (r_ends, r_radius, s.ends, s.p1_dot, s.omega, np.diff(t), *h, *boxes)
     b = pfl.check(*args, s.energy_J.copy(), eps_v=eps)
     c = pfl.check(*args, np.stack([s.energy_J[:-1], s.energy_J[1:]], axis=1), eps_v=eps)
+    h1 = (h[0][:1], h[1][:1])  # one human occupancy for every interval, broadcast
+    d = pfl.check(*args[:6], *h1, *boxes, s.energy_J, eps_v=eps)
+    e = pfl.check(*args[:6], np.repeat(h1[0], K, 0), np.repeat(h1[1], K, 0), *boxes,
+                  s.energy_J, eps_v=eps)  # fmt: skip
+    assert np.array_equal(d.cls, e.cls) and np.array_equal(d.margin_J, e.margin_J)
     for other in (b, c):
         assert np.array_equal(a.safe, other.safe) and np.array_equal(a.cls, other.cls)
         assert np.array_equal(a.margin_J, other.margin_J)

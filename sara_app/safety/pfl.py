@@ -26,8 +26,8 @@ boxes):
 ``s_ends``          ``(K+1, L, 2, 3)``    link capsules at the samples (radius model.radius_m)
 ``p1_dot, omega``   ``(K+1, L, 3)``       velocity of ``s_ends[..., 0, :]``; angular velocity
 ``dt``              ``(K,)``              interval lengths; ``eps_v`` from the joint limits
-``h_ends``          ``(K, P, 2, 3)``      human reachable capsule of each body part
-``h_radius``        ``(K, P)``
+``h_ends``          ``(K, P, 2, 3)``      human reachable capsule of each body part (a leading
+``h_radius``        ``(K, P)``            axis of 1 is broadcast over the K intervals)
 ``T_world_box``     ``(B, 4, 4)``         environment boxes (B may be 0)
 ``half_extents_m``  ``(B, 3)``
 ``energy_J``        ``(K+1, L)``          link energies at the samples (or ``(K, 2, L)``)
@@ -187,6 +187,9 @@ class PflCheck:
         from ``dt`` and the joint limits (see :meth:`eps_from_bounds` for tighter values).
         """
         K = r_radius.shape[0] if np.ndim(r_radius) == 2 else -1
+        if np.shape(h_ends)[:1] == (1,) and np.shape(h_radius)[:1] == (1,) and K > 1:
+            h_ends = np.broadcast_to(h_ends, (K,) + np.shape(h_ends)[1:])
+            h_radius = np.broadcast_to(h_radius, (K,) + np.shape(h_radius)[1:])
         arrays = {k: v for k, v in locals().items() if k not in ("self", "K", "eps_v")}
         self._shapes(K, **{k: np.asarray(v) for k, v in arrays.items()})
         E = np.asarray(energy_J, dtype=float)
