@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from scipy.sparse.csgraph import connected_components
 
+from sara_app.errors import ParameterError, UnknownNameError
 from sara_app.geometry import segment_box_distance, segment_segment_closest
 from sara_app.robot.energy import LinkMotion
 from sara_app.robot.model import load_robot
@@ -270,9 +271,9 @@ def test_topology_declarations_by_name() -> None:
     ur = load_robot("ur5e")
     Gu = unclampable_matrix("ur5e", ur.link_names)
     assert not Gu[ur.link_names.index("upper_arm_link"), ur.link_names.index("forearm_link")]
-    with pytest.raises(Exception, match="'kuka'"):
+    with pytest.raises(UnknownNameError, match="'kuka'"):
         unclampable_matrix("kuka", panda.link_names)
-    with pytest.raises(Exception, match="'link9'"):
+    with pytest.raises(UnknownNameError, match="'link9'"):
         unclampable_matrix("panda", panda.link_names, [("panda_link1", "link9")])
     H = human_safe_matrix(["l_hand", "l_lower_arm", "r_hand", "l_hand"], [0, 0, 0, 1])
     assert H[0, 1] and not H[0, 2] and not H[0, 3]
@@ -319,3 +320,10 @@ def test_thm_vi2_linearisation_bound_holds_on_dense_samples(name: str) -> None:
         ratios.append((err[moving] / eps[moving]).max())
         assert np.all(C >= C_paper - 1e-9)  # the spatial bound contains the planar one
     assert max(ratios) > 0.3  # the test trajectories do exercise the bound (seen: 0.49, 0.84)
+
+
+def test_classifier_parameters_are_validated() -> None:
+    with pytest.raises(ParameterError, match="human_safe has shape"):
+        ContactClassifier(np.zeros((2, 2), bool), np.zeros((3, 2), bool), np.ones(3))
+    with pytest.raises(ParameterError, match="expected > 0"):
+        ContactClassifier(np.zeros((2, 2), bool), np.zeros((1, 1), bool), np.zeros(1))

@@ -41,6 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sara_app.errors import ParameterError
 from sara_app.robot.model import RobotModel
 from sara_app.safety.contact_kernels import all_pairs, segment_box_soa
 
@@ -263,8 +264,16 @@ class ContactClassifier:
     ) -> None:
         L, P = unclampable.shape[0], human_safe.shape[0]
         self.diameters_m = np.asarray(diameters_m, dtype=float).copy()
-        if self.diameters_m.shape != (P,):
-            raise ValueError(f"diameters_m {self.diameters_m.shape}; expected ({P},)")
+        shapes = {
+            "unclampable": (np.shape(unclampable), (L, L)),
+            "human_safe": (np.shape(human_safe), (P, P)),
+            "diameters_m": (self.diameters_m.shape, (P,)),
+        }
+        for key, (got, want) in shapes.items():
+            if got != want:
+                raise ParameterError(f"{key} has shape {got}; expected {want}")
+        if not np.all(self.diameters_m > 0):
+            raise ParameterError(f"diameters_m = {self.diameters_m.tolist()}; expected > 0 (m)")
         unclamp = np.asarray(unclampable, bool) if relax_topology else np.zeros((L, L), bool)
         self._no_pair = unclamp | np.eye(L, dtype=bool)  # (i, l) can never self-clamp
         self._not_safe_h = ~np.asarray(human_safe, bool) & ~np.eye(P, dtype=bool)
