@@ -84,6 +84,8 @@ class LinkMotion:
         self._occ = occupancy or RobotOccupancy(model)
         T0 = np.asarray(model.T_world_base, dtype=float)
         self._R_wb, self._t_wb = T0[:3, :3].copy(), T0[:3, 3].copy()
+        self._identity = bool(np.array_equal(T0, np.eye(4)))
+        self._iu = np.triu_indices(self.n_dof, 1)
         self._cap = 0
         self._grow(16)
 
@@ -120,8 +122,8 @@ class LinkMotion:
         for s in range(Q.shape[0]):
             M[s] = pin.crba(pm, d, Q[s])
         M = M[: Q.shape[0]]
-        iu = np.triu_indices(self.n_dof, 1)
-        M[:, iu[1], iu[0]] = M[:, iu[0], iu[1]]  # crba fills the upper triangle
+        iu, ju = self._iu
+        M[:, ju, iu] = M[:, iu, ju]  # crba fills the upper triangle
         return M
 
     def energies(self, q: np.ndarray, q_dot: np.ndarray, M: np.ndarray | None = None) -> np.ndarray:
@@ -155,20 +157,32 @@ class LinkMotion:
         for s in range(S):
             M[s] = pin.crba(pm, d, Q[s])
             J[s] = pin.computeJointJacobians(pm, d, Q[s])  # world frame, at the world origin
-        iu = np.triu_indices(self.n_dof, 1)
-        M[:, iu[1], iu[0]] = M[:, iu[0], iu[1]]
+        iu, ju = self._iu
+        M[:, ju, iu] = M[:, iu, ju]  # crba fills the upper triangle
         T = self._energies(V, M, bad)
         if ends is None:
             ends = self._occ.link_ends(Q)
             ends[bad] = np.nan
         # Twist of link i (base axes, at the base origin): sum over its supporting joints.
-        tw = np.matmul(J * V[:, None, :], self._maskf.T).transpose(0, 2, 1)  # (S, L, 6)
-        w_base = tw[..., 3:]
-        p1_base = (ends[:, :, 0, :] - self._t_wb) @ self._R_wb  # R^T (p - t)
-        v_base = tw[..., :3] + np.cross(w_base, p1_base)
+        tw = np.matmul(J * V[:, None, :], self._maskf.T)  # (S, 6, L)
+        v, w_b = tw[:, :3], tw[:, 3:]
+        p1 = ends[:, :, 0, :].transpose(0, 2, 1)  # (S, 3, L) world
+        if not self._identity:
+            p1 = np.matmul(self._R_wb.T, p1 - self._t_wb[:, None])  # base frame
+        v = v + np.stack(  # + w x p1: velocity of the point p1
+            [
+                w_b[:, 1] * p1[:, 2] - w_b[:, 2] * p1[:, 1],
+                w_b[:, 2] * p1[:, 0] - w_b[:, 0] * p1[:, 2],
+                w_b[:, 0] * p1[:, 1] - w_b[:, 1] * p1[:, 0],
+            ],
+            axis=1,
+        )
+        if not self._identity:
+            v, w_b = np.matmul(self._R_wb, v), np.matmul(self._R_wb, w_b)
         pd, w = self._pd[:S], self._w[:S]
-        np.matmul(v_base, self._R_wb.T, out=pd)
-        np.matmul(w_base, self._R_wb.T, out=w)
-        pd[bad] = np.nan
-        w[bad] = np.nan
+        np.copyto(pd, v.transpose(0, 2, 1))
+        np.copyto(w, w_b.transpose(0, 2, 1))
+        if bad.any():
+            pd[bad] = np.nan
+            w[bad] = np.nan
         return LinkSamples(T, ends, pd, w)
