@@ -34,8 +34,14 @@ boxes):
 ==================  ====================  ======================================================
 
 Shape errors raise :class:`InputError` (a configuration bug); non-finite VALUES never raise: a
-NaN position means possible contact and clamping, a NaN energy fails eq. 7, so the verdict is
-unsafe and the shield keeps its failsafe.
+NaN capsule means possible contact (and clamping unless the robot provably cannot clamp), a NaN
+velocity disables the velocity relaxation, a NaN energy fails eq. 7; so the verdict is unsafe
+and the shield keeps its failsafe. :meth:`PflCheck.check_trajectory` returns an unsafe verdict
+for a non-finite trajectory.
+
+Buffers: :class:`LinkMotion` keeps its sample buffers (its outputs are views, valid until its
+next call); the classification allocates its (small) arrays per call, and the
+:class:`PflResult` arrays are fresh and may be kept.
 """
 
 from __future__ import annotations
