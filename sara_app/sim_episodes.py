@@ -13,7 +13,7 @@ import numpy as np
 
 from sara_app.robot.model import load_robot
 from sara_app.scenario import Scenario, parse_scenario
-from sara_app.sim import Simulation, SimMetrics
+from sara_app.sim import SimMetrics, Simulation
 
 
 def episode_scenario(rng: np.random.Generator, index: int, duration_s: float) -> Scenario:
