@@ -10,10 +10,8 @@ the new people.
 
 from __future__ import annotations
 
-import argparse
 import logging
 import math
-import signal
 import sys
 import threading
 import time
@@ -23,13 +21,14 @@ import numpy as np
 from sara_app.bus import keys
 from sara_app.bus.codec import Decoder
 from sara_app.bus.messages import ParamsAckMsg, ParamsMsg, RobotCommandMsg, SkeletonMsg
+from sara_app.bus.process import process_main
 from sara_app.bus.session import Bus, Publisher
 from sara_app.cell import base_pose
 from sara_app.errors import SaraError
 from sara_app.human.motions import HumanMotion, make_motion
 from sara_app.human.params import to_reach_params
 from sara_app.robot.model import RobotModel, load_robot
-from sara_app.scenario import Scenario, load_scenario, parse_scenario
+from sara_app.scenario import Scenario, parse_scenario
 
 log = logging.getLogger("sara_app.replayer")
 
@@ -118,24 +117,7 @@ class Replayer:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="sara_app.replayer", description="replay scenario humans")
-    ap.add_argument("--cell", default="cell1")
-    ap.add_argument("--scenario", default="standing_beside_path")
-    ap.add_argument("--port", type=int, default=7447)
-    ap.add_argument("--duration", type=float, default=None)
-    args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s replayer %(message)s")
-    try:
-        sc = load_scenario(args.scenario)
-        with Bus.client(args.port) as bus:
-            r = Replayer(args.cell, sc, bus)
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                signal.signal(sig, lambda *_: r.stop_event.set())
-            r.run(args.duration)
-    except SaraError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    return 0
+    return process_main("replayer", "replay scenario humans", Replayer, argv)
 
 
 if __name__ == "__main__":

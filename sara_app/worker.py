@@ -11,9 +11,7 @@ robot falls back to its failsafe).
 
 from __future__ import annotations
 
-import argparse
 import logging
-import signal
 import sys
 import threading
 import time
@@ -37,13 +35,14 @@ from sara_app.bus.messages import (
     StatusMsg,
     VerdictMsg,
 )
+from sara_app.bus.process import process_main
 from sara_app.bus.session import Bus
 from sara_app.cell import Cell, build_cell
 from sara_app.errors import SaraError
 from sara_app.human.velocity import VelocityEstimator
 from sara_app.robot.trajectory import JointState
 from sara_app.safety.shield import CycleResult, HumanState, Shield
-from sara_app.scenario import Scenario, check_against_robot, load_scenario, parse_scenario
+from sara_app.scenario import Scenario, check_against_robot, parse_scenario
 
 log = logging.getLogger("sara_app.worker")
 
@@ -330,24 +329,7 @@ class CellWorker:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="sara_app.worker", description="run one cell worker")
-    ap.add_argument("--cell", default="cell1")
-    ap.add_argument("--scenario", default="standing_beside_path")
-    ap.add_argument("--port", type=int, default=7447, help="zenoh router port on 127.0.0.1")
-    ap.add_argument("--duration", type=float, default=None)
-    args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s worker %(message)s")
-    try:
-        sc = load_scenario(args.scenario)
-        with Bus.client(args.port) as bus:
-            w = CellWorker(args.cell, sc, bus)
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                signal.signal(sig, lambda *_: w.stop_event.set())
-            w.run(args.duration)
-    except SaraError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    return 0
+    return process_main("worker", "run one cell worker", CellWorker, argv)
 
 
 if __name__ == "__main__":
