@@ -68,6 +68,17 @@ class Cell:
     params: ReachParams
     shield: Shield
 
+    def next_pass(self, index: int, loop: bool) -> int | None:
+        """The pass after ``index``: the next one, or (``loop``) the first one that starts where
+        the robot stands (passes alternate direction); None when the task is over."""
+        n = len(self.passes)
+        if index + 1 < n:
+            return index + 1
+        if not loop:
+            return None
+        # after an even number of passes the robot is back at the first waypoint
+        return 0 if n % 2 == 0 else 1 % n
+
 
 def build_cell(sc: Scenario) -> Cell:
     T = base_pose(sc.robot.base_xyz_m, sc.robot.base_rpy_rad)

@@ -21,11 +21,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sara_app.cell import build_cell
-from sara_app.geometry import segment_segment_distance
 from sara_app.human.motions import HumanMotion, make_motion
 from sara_app.human.velocity import VelocityEstimator
 from sara_app.robot.model import RobotModel, load_robot
 from sara_app.safety.shield import CycleResult, HumanState
+from sara_app.safety.ssm import body_distance
 from sara_app.scenario import Scenario
 
 _MOVING_RAD_S = 1e-6
@@ -85,7 +85,7 @@ class Simulation:
             if sc.robot.margin_m == 0
             else load_robot(sc.robot.name, T_world_base=cell.robot.T_world_base)
         )
-        self.passes = cell.passes
+        self.cell = cell
         self.pass_index = 0
         ps = cell.param_set
         self.params = cell.params
@@ -102,7 +102,7 @@ class Simulation:
                 h.sensor.noise_m,
                 0.0,
                 VelocityEstimator(J, ps.delta_y_m, self.params.a_max_mps2),
-                HumanState(h.id, np.zeros((J, 3)), np.zeros((J, 3)), np.full(J, np.inf), None),
+                HumanState.unmeasured(h.id, J),
             )
             for h in sc.humans
         ]
@@ -151,9 +151,7 @@ class Simulation:
             return
         ends, rad = self.truth_robot.link_capsules(q)
         for y in poses:
-            d = segment_segment_distance(y[self._parts][:, None], ends[None])
-            d -= self._half_th[:, None] + rad[None]
-            dmin = float(d.min())
+            dmin = body_distance(y, self._parts, self._half_th, ends, rad)
             self.min_sep = min(self.min_sep, dmin)
             if moving:
                 self.min_sep_moving = min(self.min_sep_moving, dmin)
@@ -186,9 +184,10 @@ class Simulation:
         self.cycles += 1
         self.t = t + self.dt
         if follower.done and self.time_to_goal_s is None:
-            if self.pass_index + 1 < len(self.passes):
-                self.pass_index += 1
-                follower.replan(self.passes[self.pass_index])
+            nxt = self.cell.next_pass(self.pass_index, loop=False)
+            if nxt is not None:
+                self.pass_index = nxt
+                follower.replan(self.cell.passes[nxt])
             else:
                 self.time_to_goal_s = self.t
 

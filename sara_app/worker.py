@@ -53,9 +53,7 @@ class _Track:
     def __init__(self, human_id: str, cell: Cell) -> None:
         J = cell.shield.reach.skeleton.n_joints
         self.estimator = VelocityEstimator(J, cell.params.delta_y_m, cell.params.a_max_mps2)
-        self.state = HumanState(
-            human_id, np.zeros((J, 3)), np.zeros((J, 3)), np.full(J, np.inf), None
-        )
+        self.state = HumanState.unmeasured(human_id, J)
 
 
 class CellWorker:
@@ -189,15 +187,12 @@ class CellWorker:
         f = self.shield.follower
         if not f.done:
             return
-        passes = self.cell.passes
-        if self.pass_index + 1 < len(passes):
-            self.pass_index += 1
-        elif self.loop_task:
-            self.pass_index = 0 if len(passes) % 2 == 0 else 1 % len(passes)
-        else:
+        nxt = self.cell.next_pass(self.pass_index, self.loop_task)
+        if nxt is None:
             return
+        self.pass_index = nxt
         try:
-            f.replan(passes[self.pass_index])
+            f.replan(self.cell.passes[nxt])
         except SaraError as e:
             log.warning("task replan failed: %s", e)
 

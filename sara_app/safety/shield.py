@@ -30,13 +30,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sara_app.errors import ParameterError, SaraError
-from sara_app.geometry import segment_segment_distance
 from sara_app.human.reach import HumanReach
 from sara_app.robot.failsafe import ShieldedTrajectory, shielded_trajectory
 from sara_app.robot.model import RobotModel
 from sara_app.robot.occupancy import RobotOccupancy
 from sara_app.robot.trajectory import JointState, PathFollower
-from sara_app.safety.ssm import SsmResult, SsmVerifier
+from sara_app.safety.ssm import SsmResult, SsmVerifier, body_distance
 
 MODES = ("intended", "failsafe", "rest", "fault")
 
@@ -51,6 +50,12 @@ class HumanState:
     v: np.ndarray
     dv: np.ndarray
     stamp_s: float | None
+
+    @classmethod
+    def unmeasured(cls, human_id: str, n_joints: int) -> HumanState:
+        """A person announced but not measured yet (a fault until the first measurement)."""
+        J = n_joints
+        return cls(human_id, np.zeros((J, 3)), np.zeros((J, 3)), np.full(J, np.inf), None)
 
 
 @dataclass
@@ -239,9 +244,7 @@ class Shield:
         """Smallest surface distance between the robot's link capsules at ``q`` and the measured
         body parts (half thickness) of the given humans (m)."""
         r_ends, r_rad = self.robot.link_capsules(q)
-        best = math.inf
-        for y in ys:
-            d = segment_segment_distance(y[self._parts][:, None], r_ends[None])
-            d -= self._half_th[:, None] + r_rad[None]
-            best = min(best, float(d.min()))
-        return best
+        return min(
+            (body_distance(y, self._parts, self._half_th, r_ends, r_rad) for y in ys),
+            default=math.inf,
+        )

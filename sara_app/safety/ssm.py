@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sara_app.errors import UnknownNameError
-from sara_app.geometry import segment_pair_distances
+from sara_app.geometry import segment_pair_distances, segment_segment_distance
 from sara_app.human.reach import MODELS, HumanReach, Occupancy
 
 
@@ -43,6 +43,21 @@ def boxes_of(ends: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return np.minimum(ends[..., 0, :], ends[..., 1, :]) - r, np.maximum(
         ends[..., 0, :], ends[..., 1, :]
     ) + r
+
+
+def body_distance(
+    y: np.ndarray,
+    part_joints: np.ndarray,
+    half_thickness_m: np.ndarray,
+    robot_ends: np.ndarray,
+    robot_radius: np.ndarray,
+) -> float:
+    """Smallest surface distance (m) between one person's body parts (joints ``y (J, 3)``,
+    ``part_joints (P, 2)``, ``half_thickness_m (P,)``) and robot capsules ``(L, 2, 3)``,
+    ``(L,)``; negative when they overlap."""
+    d = segment_segment_distance(y[part_joints][:, None], robot_ends[None])
+    d -= half_thickness_m[:, None] + robot_radius[None]
+    return float(d.min())
 
 
 class SsmVerifier:
