@@ -11,7 +11,6 @@ the new people.
 from __future__ import annotations
 
 import logging
-import math
 import sys
 import threading
 import time
@@ -25,7 +24,7 @@ from sara_app.bus.process import process_main
 from sara_app.bus.session import Bus, Publisher
 from sara_app.cell import base_pose
 from sara_app.errors import SaraError
-from sara_app.human.motions import HumanMotion, make_motion
+from sara_app.human.motions import HumanMotion, make_motion, measured
 from sara_app.human.params import to_reach_params
 from sara_app.robot.model import RobotModel, load_robot
 from sara_app.scenario import Scenario, parse_scenario
@@ -95,8 +94,7 @@ class Replayer:
             if now < self.next_s[i]:
                 continue
             self.next_s[i] = max(self.next_s[i] + 1.0 / h.sensor.rate_hz, now - 0.5)
-            if h.sensor.noise_m > 0:
-                y = y + self.rng.uniform(-1, 1, y.shape) * (h.sensor.noise_m / math.sqrt(3.0))
+            y = measured(y, h.sensor.noise_m, self.rng)
             pub = self.pubs[h.id]
             msg = SkeletonMsg.from_arrays("full", y, seq=pub.next_seq(), stamp_s=now)
             sent += pub.put(msg)

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sara_app.cell import build_cell
-from sara_app.human.motions import HumanMotion, make_motion
+from sara_app.human.motions import HumanMotion, make_motion, measured
 from sara_app.human.velocity import VelocityEstimator
 from sara_app.robot.model import RobotModel, load_robot
 from sara_app.safety.shield import CycleResult, HumanState
@@ -137,8 +137,7 @@ class Simulation:
             return
         t_m = self._hist_t[k]
         y = self._hist_y[i][k]
-        if sen.noise_m > 0:
-            y = y + self.rng.uniform(-1, 1, y.shape) * (sen.noise_m / math.sqrt(3.0))
+        y = measured(y, sen.noise_m, self.rng)
         stamp = t_m + self.params.delay_s
         if sen.state.stamp_s is not None and stamp <= sen.state.stamp_s:
             return

@@ -139,6 +139,14 @@ class Adversary:
         return self.y.copy()
 
 
+def measured(y: np.ndarray, noise_m: float, rng: np.random.Generator) -> np.ndarray:
+    """``y (J, 3)`` with sensor noise uniform in a cube whose corners lie ``noise_m`` away (so
+    every joint's error is at most ``noise_m``, the parameter set's delta_y when sound)."""
+    if noise_m <= 0:
+        return y
+    return y + rng.uniform(-1, 1, y.shape) * (noise_m / np.sqrt(3.0))
+
+
 def make_motion(spec: object, params: ReachParams) -> HumanMotion:
     """A motion source for one scenario human (``sara_app.scenario`` human models)."""
     from sara_app.scenario import AdversarialHuman, RecordingHuman, ScriptedHuman
