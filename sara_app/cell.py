@@ -55,6 +55,33 @@ def shield_settings(sc: Scenario) -> ShieldSettings:
     )
 
 
+def environment_boxes(sc: Scenario) -> tuple[np.ndarray, np.ndarray]:
+    """The scenario's boxes as ``T_world_box (B, 4, 4)`` and ``half_extents_m (B, 3)``."""
+    if not sc.environment:
+        return np.zeros((0, 4, 4)), np.zeros((0, 3))
+    T = np.stack([base_pose(b.center_m, b.rpy_rad) for b in sc.environment])
+    return T, np.array([b.size_m for b in sc.environment], dtype=float) * 0.5
+
+
+def build_safety(
+    sc: Scenario, robot: RobotModel, follower: PathFollower, reach: HumanReach
+) -> Shield:
+    """The scenario's safety mode around the follower: ``ssm`` (:class:`Shield`), ``pfl``
+    (:class:`~sara_app.safety.pfl_shield.PflShield`) or ``jssa``
+    (:class:`~sara_app.safety.jssa_mode.JssaMode`); all share the :class:`Shield` interface."""
+    settings = shield_settings(sc)
+    mode = sc.shield.mode
+    if mode == "pfl":
+        from sara_app.safety.pfl_shield import PflShield
+
+        return PflShield(robot, follower, reach, settings, sc.shield.pfl, environment_boxes(sc))
+    if mode == "jssa":
+        from sara_app.safety.jssa_mode import JssaMode
+
+        return JssaMode(robot, follower, reach, settings, sc.shield.jssa, environment_boxes(sc))
+    return Shield(robot, follower, reach, settings)
+
+
 @dataclass
 class Cell:
     """``passes``: the task's waypoint arrays ``(W, n)``, run one after the other (back and
@@ -89,5 +116,5 @@ def build_cell(sc: Scenario) -> Cell:
     follower = PathFollower(passes[0], lim, blend_distance=sc.task.blend_distance_rad)
     ps = sc.param_set()
     params = to_reach_params(ps, "full")
-    shield = Shield(robot, follower, HumanReach(params), shield_settings(sc))
+    shield = build_safety(sc, robot, follower, HumanReach(params))
     return Cell(sc, robot, lim, passes, ps, params, shield)

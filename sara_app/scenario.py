@@ -15,7 +15,14 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from sara_app.errors import SaraError, ScenarioError
 from sara_app.human.params import ParamSet, load_param_set, parse_param_set
@@ -106,13 +113,69 @@ HumanSpec = Annotated[
 ]
 
 
+SAFETY_MODES = ("ssm", "pfl", "jssa")
+SHAPES = ("blunt", "wedge", "edge", "sheet")
+Shape = Literal["blunt", "wedge", "edge", "sheet"]
+
+
+class ThresholdOverride(_Strict):
+    """One edited entry of the threshold table (seed 003 Table I cell), in J."""
+
+    region: Literal["hand", "lower_arm", "upper_arm", "torso_legs", "head"]
+    contact: Literal["constrained", "unconstrained"]
+    shape: Shape
+    energy_J: Pos
+
+
+class PflSpec(_Strict):
+    """Power and force limiting (seed 003): threshold set, edits, contact shapes, speed scaling."""
+
+    thresholds: str = "thresholds_seed003"
+    overrides: list[ThresholdOverride] = []
+    link_shapes: dict[str, Shape] = {}
+    """Worst-case contact shape per robot link name (default blunt): the tool's shape."""
+    min_speed_scale: Annotated[float, Field(gt=0, le=1)] = 0.02
+    """Below this fraction of the path's admissible speed the shield brakes instead."""
+
+    @field_validator("overrides")
+    @classmethod
+    def _unique_entries(cls, v: list[ThresholdOverride]) -> list[ThresholdOverride]:
+        keys = [(o.region, o.contact, o.shape) for o in v]
+        dup = sorted({k for k in keys if keys.count(k) > 1})
+        if dup:
+            raise ValueError(f"threshold entry {'/'.join(dup[0])} overridden twice")
+        return v
+
+
+class JssaSpec(_Strict):
+    """JSSA parameters (seed 002); see :class:`sara_app.safety.jssa.JssaParams`."""
+
+    d_min_m: Annotated[float, Field(gt=0, le=2)] = 0.05
+    lambda_1: Annotated[float, Field(gt=0, le=1e3)] = 3.0
+    lambda_2: Annotated[float, Field(ge=0, le=1e3)] = 1.0
+    constraints: Literal["single", "multi"] = "single"
+    eta_per_s: NonNeg | None = None
+
+    @model_validator(mode="after")
+    def _real_negative_roots(self) -> JssaSpec:
+        if self.lambda_1**2 < 4.0 * self.lambda_2:
+            raise ValueError(
+                f"lambda_1 = {self.lambda_1}, lambda_2 = {self.lambda_2}: expected "
+                "lambda_1^2 >= 4 lambda_2 (seed 002 Sec. 3.1: negative real roots)"
+            )
+        return self
+
+
 class ShieldSpec(_Strict):
-    mode: Literal["ssm"] = "ssm"
+    mode: Literal["ssm", "pfl", "jssa"] = "ssm"
+    """Safety mode: speed and separation monitoring, power and force limiting, or JSSA."""
     dt_s: Annotated[float, Field(ge=1e-4, le=0.05)] = 0.004
     max_interval_s: Annotated[float, Field(gt=0, le=0.1)] = 0.02
     models: list[str] = ["pos", "vel", "acc"]
     tracking_tol_rad: Annotated[float, Field(gt=0, le=0.1)] = 0.005
     skeleton_timeout_s: Annotated[float, Field(gt=0, le=5)] = 0.2
+    pfl: PflSpec = PflSpec()
+    jssa: JssaSpec = JssaSpec()
 
     @field_validator("models")
     @classmethod
@@ -273,4 +336,10 @@ def check_against_robot(sc: Scenario) -> None:
             raise ScenarioError(
                 f"task.waypoints_rad.{i}: joint {robot.joint_names[j]!r} = {q[j]:.4f} rad is "
                 f"outside its limits [{lim.q_min[j]:.4f}, {lim.q_max[j]:.4f}]"
+            )
+    for link in sc.shield.pfl.link_shapes:
+        if link not in robot.link_names:
+            raise ScenarioError(
+                f"shield.pfl.link_shapes: {link!r} is not a link of {sc.robot.name!r}; "
+                f"valid: {', '.join(robot.link_names)}"
             )

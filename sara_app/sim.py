@@ -161,8 +161,8 @@ class Simulation:
 
     def step(self) -> None:
         t = self.t
-        follower = self.shield.follower
-        q = follower.state.q
+        shield = self.shield
+        q = shield.robot_state.q
         ends, rad = self.robot.link_capsules(q)
         poses = [m.pose(t, ends, rad) for m in self.motions]
         if not self._hist_t:
@@ -174,7 +174,7 @@ class Simulation:
         for i, y in enumerate(poses):
             self._hist_y[i].append(y)
             self._sense(t, i)
-        moving = bool(np.max(np.abs(follower.state.v), initial=0.0) > _MOVING_RAD_S)
+        moving = bool(np.max(np.abs(shield.robot_state.v), initial=0.0) > _MOVING_RAD_S)
         self._collide(q, poses, moving)
         res = self.shield.cycle(t, [s.state for s in self.sensors], None, want_distance=False)
         self.last = res
@@ -182,11 +182,11 @@ class Simulation:
         self.modes[res.mode] = self.modes.get(res.mode, 0) + 1
         self.cycles += 1
         self.t = t + self.dt
-        if follower.done and self.time_to_goal_s is None:
+        if shield.task_done and self.time_to_goal_s is None:
             nxt = self.cell.next_pass(self.pass_index, loop=False)
             if nxt is not None:
                 self.pass_index = nxt
-                follower.replan(self.cell.passes[nxt])
+                shield.follower.replan(self.cell.passes[nxt])
             else:
                 self.time_to_goal_s = self.t
 

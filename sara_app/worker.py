@@ -162,20 +162,18 @@ class CellWorker:
         except SaraError as e:
             return False, str(e)
         old = self.cell
-        f = old.shield.follower
-        at_rest = f.sd <= 1e-9 and abs(f.sdd) <= 1e-7
         same_robot = sc.robot == old.scenario.robot and sc.limits == old.scenario.limits
-        if not same_robot and not at_rest:
+        if not same_robot and not old.shield.at_rest:
             return False, "robot, base pose or limits can change only while the robot is at rest"
         if same_robot:
             # keep the follower and the failsafe it holds (verified under the old parameters:
-            # the new parameters take effect from the next verified step)
-            new.shield.follower = f
-            if sc.task != old.scenario.task:
-                try:
-                    f.replan(new.passes[0])
-                except SaraError as e:
-                    return False, str(e)
+            # the new parameters and safety mode take effect from the next verified step)
+            try:
+                new.shield.adopt(old.shield)
+                if sc.task != old.scenario.task:
+                    new.shield.follower.replan(new.passes[0])
+            except SaraError as e:
+                return False, str(e)
         self.cell = new
         self.pass_index = 0
         self.tracks.clear()  # velocity bounds depend on the parameters
@@ -185,7 +183,7 @@ class CellWorker:
 
     def _advance_task(self) -> None:
         f = self.shield.follower
-        if not f.done:
+        if not self.shield.task_done:
             return
         nxt = self.cell.next_pass(self.pass_index, self.loop_task)
         if nxt is None:
@@ -226,7 +224,7 @@ class CellWorker:
                 seq=self.pub_verdict.next_seq(),
                 stamp_s=now,
                 cell=self.name,
-                safety_mode="ssm",
+                safety_mode=cast(Any, res.safety_mode),
                 mode=cast(Any, res.mode),
                 results=res.model_free,
                 skeleton_age_s=res.ages_s,
@@ -312,7 +310,7 @@ class CellWorker:
                 self.step(time.time())
             except Exception:  # noqa: BLE001 - last line of defence: brake, report, go on
                 log.exception("worker cycle failed; braking on the held failsafe")
-                self.shield.follower.brake(self.shield.settings.dt_s)
+                self.shield.brake_step()
             next_t += self.shield.settings.dt_s
             delay = next_t - time.monotonic()
             if delay > 0:

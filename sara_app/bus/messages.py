@@ -31,6 +31,7 @@ SCHEMA_VERSION = 1
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 NonNeg = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+Pos = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
 Vec3 = Annotated[list[Finite], Field(min_length=3, max_length=3)]
 Name = Annotated[str, Field(pattern=f"^{NAME_PATTERN}$")]
 JointVector = Annotated[list[Finite], Field(min_length=1, max_length=64)]
@@ -209,6 +210,10 @@ class VerdictMsg(_Msg):
     cycle_time_us: NonNeg
     faults: list[str] = []
     dropped: dict[str, Annotated[int, Field(ge=0)]] = {}
+    intervened: bool = False
+    """The safety layer changed the nominal motion (failsafe, slowed down, jerk filtered)."""
+    speed_scale: NonNeg | None = None
+    """PFL: the path-speed cap as a fraction of the admissible speed (1: full speed)."""
 
 
 class CapsulesMsg(BaseModel):
@@ -281,17 +286,61 @@ class RobotOccupancyMsg(BaseModel):
         return self
 
 
+ContactClass = Literal["unconstrained", "env-constrained", "self-constrained"]
+"""Seed 003 Sec. VI contact classes (free collision; clamped against the environment; clamped
+between robot links)."""
+
+Point = Annotated[list[Finite], Field(min_length=3, max_length=3)]
+
+
 class ContactMsg(BaseModel):
-    """One detected contact between a robot link and a human body part (for display)."""
+    """A possible contact between a robot link and a body part over the shielded trajectory
+    (PFL): its class, the link's energy and the threshold that applies (for display)."""
 
     model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
 
     human_id: Name
     body_part: str
     link: str
-    kind: Literal["constrained", "unconstrained"]
+    kind: ContactClass
+    interval: Annotated[int, Field(ge=0)] = 0
+    """The first interval of the shielded trajectory in which the contact is possible."""
     energy_j: NonNeg | None = None
     energy_limit_j: NonNeg | None = None
+
+
+class LinkEnergyMsg(BaseModel):
+    """One robot link's kinetic energy (max over the shielded trajectory, seed 003 eq. 46-48)
+    and its margin to the smallest threshold of the contacts it could make."""
+
+    model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
+
+    link: str
+    energy_j: NonNeg
+    limit_j: NonNeg | None = None
+    """None: the link cannot touch anybody over the trajectory."""
+    margin_j: Finite | None = None
+    human_id: Name | None = None
+    body_part: str | None = None
+    contact: ContactClass | None = None
+    shape: Literal["blunt", "wedge", "edge", "sheet"] = "blunt"
+
+
+class JssaMsg(BaseModel):
+    """The JSSA filter's state this cycle (seed 002): safety index, critical pair, activity."""
+
+    model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
+
+    phi_m2: Finite | None = None
+    """None when no pair exists (nobody near) or the cycle fell back to braking."""
+    active: bool
+    fallback: bool = False
+    reason: str = ""
+    link: str | None = None
+    robot_point_m: Point | None = None
+    other_point_m: Point | None = None
+    distance_m: Finite | None = None
+    d_min_m: Pos
 
 
 class OccupancyMsg(_Msg):
@@ -300,7 +349,8 @@ class OccupancyMsg(_Msg):
     humans: list[HumanOccupancyMsg] = []
     robot: RobotOccupancyMsg | None = None
     contacts: list[ContactMsg] = []
-    link_energies_j: dict[str, NonNeg] = {}
+    links: list[LinkEnergyMsg] = []
+    jssa: JssaMsg | None = None
 
 
 def _check_finite_tree(value: object, depth: int = 0) -> None:

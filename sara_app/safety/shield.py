@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -95,10 +96,24 @@ class CycleResult:
     robot_ends: np.ndarray | None = None
     robot_radius: np.ndarray | None = None
     ssm: SsmResult | None = None
+    safety_mode: str = "ssm"
+    intervened: bool = False
+    """The safety layer changed the nominal motion this cycle (failsafe, slower, filtered)."""
+    speed_scale: float = 1.0
+    """PFL: the path-speed cap used, as a fraction of the admissible speed (1: none)."""
+    pfl: Any = None
+    """PFL mode: the :class:`~sara_app.safety.pfl.PflResult` of the executed trajectory."""
+    jssa: Any = None
+    """JSSA mode: the :class:`~sara_app.safety.jssa.JssaResult` of this cycle."""
 
 
 class Shield:
-    """SSM shield around a :class:`PathFollower` (which it owns and advances)."""
+    """SSM shield around a :class:`PathFollower` (which it owns and advances).
+
+    Other safety modes subclass it and override :meth:`_plan_and_verify` (plan a shielded
+    trajectory, verify it; the commit/brake logic and the fault handling stay here)."""
+
+    safety_mode = "ssm"
 
     def __init__(
         self,
@@ -121,6 +136,48 @@ class Shield:
         self.cycles = 0
         self.fault_cycles = 0
         self.failsafe_cycles = 0
+
+    @property
+    def robot_state(self) -> JointState:
+        """The commanded joint state now (the end of the last executed step)."""
+        return self.follower.state
+
+    @property
+    def task_done(self) -> bool:
+        """At rest at the end of the current path (the task may then replan the follower)."""
+        return self.follower.done
+
+    @property
+    def at_rest(self) -> bool:
+        return self.follower.sd <= 1e-9 and abs(self.follower.sdd) <= 1e-7
+
+    def brake_step(self) -> JointState:
+        """One cycle along the held verified failsafe, outside :meth:`cycle` (the worker's last
+        line of defence when a cycle raised)."""
+        return self.follower.brake(self.settings.dt_s)
+
+    def adopt(self, previous: Shield) -> None:
+        """Take the robot over from the safety layer that ran it until now (same robot).
+
+        When the robot is on the previous follower's path (SSM <-> PFL) the follower is kept,
+        with the failsafe it holds (verified under the old layer; the new one verifies from the
+        next step). A robot off that path (after JSSA) must be at rest: the new follower then
+        starts there and heads for the old path's end. Raises :class:`ParameterError` otherwise.
+        """
+        f = previous.follower
+        now, on_path = previous.robot_state, f.state
+        if np.allclose(now.q, on_path.q, atol=1e-9) and np.allclose(now.v, on_path.v, atol=1e-9):
+            self.follower = f
+            return
+        if not previous.at_rest:
+            raise ParameterError(
+                f"switching from {previous.safety_mode} to {self.safety_mode} needs the robot "
+                "at rest (it is off its path and moving); stop it first"
+            )
+        goal = f.path.q(f.path.length)
+        self.follower = PathFollower(
+            np.vstack([now.q, goal]), f.limits, blend_distance=f.blend_distance
+        )
 
     # -- checks ---------------------------------------------------------------------------------
 
@@ -182,30 +239,20 @@ class Shield:
         ages: dict[str, float] = {}
         self._check_tracking(measured, faults)
         usable = self._check_humans(t_now, humans, faults, ages)
-        traj = ends = radius = res = None
+        traj = ends = radius = None
         verified = False
+        self._res: Any = None
         try:
-            traj = shielded_trajectory(
-                self.follower, self.settings.dt_s, max_interval_s=self.settings.max_interval_s
-            )
-            ends, radius = self.occupancy.intervals_of(traj)
-            radius += self.tracking_margin_m
             if not faults:
-                if usable:
-                    idx = np.array(usable)
-                    y = np.stack([humans[i].y for i in idx])
-                    v = np.stack([humans[i].v for i in idx])
-                    dv = np.stack([humans[i].dv for i in idx])
-                    age = np.array([ages[humans[i].id] for i in idx])
-                    res = self.verifier.verify(
-                        y, v, dv, np.maximum(age, 0.0), traj.times, ends, radius
-                    )
-                    verified = res.safe
-                else:
-                    verified = True
+                traj, ends, radius, verified = self._plan_and_verify(
+                    self._human_arrays(humans, usable, ages)
+                )
+            else:
+                traj, ends, radius = self._shielded()
         except SaraError as e:  # a planning or input failure is an unsafe cycle, not a crash
             faults.append(f"cycle failed: {e}")
             verified = False
+        res = self._res
         follower = self.follower
         if verified and traj is not None:
             command = follower.commit(traj.step)
@@ -228,17 +275,58 @@ class Shield:
             trajectory=traj,
             robot_ends=ends,
             robot_radius=radius,
-            ssm=res,
+            safety_mode=self.safety_mode,
         )
-        if res is not None:
-            for m, name in enumerate(self.verifier.models):
-                ev = res.evaluated[:, m]
-                if ev.all():
-                    out.model_free[name] = bool(res.free[:, m].all())
+        out.intervened = mode in ("failsafe", "fault")
+        self._annotate(out, res)
         if want_distance and usable:
             out.min_distance_m = self.min_distance(command.q, [humans[i].y for i in usable])
         out.cycle_time_us = (time.perf_counter() - t0) * 1e6
         return out
+
+    # -- hooks of the safety modes --------------------------------------------------------------
+
+    def _human_arrays(
+        self, humans: list[HumanState], usable: list[int], ages: dict[str, float]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """Usable humans stacked: ``y, v (H, J, 3)``, ``dv (H, J)``, ``age (H,)``; None if none."""
+        if not usable:
+            return None
+        y = np.stack([humans[i].y for i in usable])
+        v = np.stack([humans[i].v for i in usable])
+        dv = np.stack([humans[i].dv for i in usable])
+        age = np.array([max(ages[humans[i].id], 0.0) for i in usable])
+        return y, v, dv, age
+
+    def _shielded(self) -> tuple[ShieldedTrajectory, np.ndarray, np.ndarray]:
+        """The follower's next shielded trajectory and its robot capsules per interval
+        ``(K, L, 2, 3)``, ``(K, L)`` (tracking margin included)."""
+        traj = shielded_trajectory(
+            self.follower, self.settings.dt_s, max_interval_s=self.settings.max_interval_s
+        )
+        ends, radius = self.occupancy.intervals_of(traj)
+        radius += self.tracking_margin_m
+        return traj, ends, radius
+
+    def _plan_and_verify(
+        self, hum: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None
+    ) -> tuple[ShieldedTrajectory, np.ndarray, np.ndarray, bool]:
+        """Plan and verify one shielded trajectory (SSM); ``self._res`` keeps the details."""
+        traj, ends, radius = self._shielded()
+        if hum is None:
+            return traj, ends, radius, True
+        y, v, dv, age = hum
+        self._res = self.verifier.verify(y, v, dv, age, traj.times, ends, radius)
+        return traj, ends, radius, self._res.safe
+
+    def _annotate(self, out: CycleResult, res: Any) -> None:
+        """Mode-specific details of the cycle result (SSM: per-model verdicts)."""
+        if not isinstance(res, SsmResult):
+            return
+        out.ssm = res
+        for m, name in enumerate(self.verifier.models):
+            if res.evaluated[:, m].all():
+                out.model_free[name] = bool(res.free[:, m].all())
 
     def min_distance(self, q: np.ndarray, ys: list[np.ndarray]) -> float:
         """Smallest surface distance between the robot's link capsules at ``q`` and the measured
