@@ -42,7 +42,9 @@ from sara_app.errors import SaraError
 from sara_app.human.velocity import VelocityEstimator
 from sara_app.robot.trajectory import JointState
 from sara_app.safety.shield import CycleResult, HumanState, Shield
+from sara_app.safety.thresholds import link_shapes
 from sara_app.scenario import Scenario, check_against_robot, parse_scenario
+from sara_app.worker_display import jssa_state, part_labels, pfl_contacts, pfl_links
 
 log = logging.getLogger("sara_app.worker")
 
@@ -232,6 +234,8 @@ class CellWorker:
                 cycle_time_us=res.cycle_time_us,
                 faults=res.faults[:8],
                 dropped=dropped,
+                intervened=res.intervened,
+                speed_scale=res.speed_scale if res.safety_mode == "pfl" else None,
             )
         )
         if now >= self._next_display:
@@ -281,7 +285,26 @@ class CellWorker:
                 capsules=CapsulesMsg.from_arrays(res.robot_ends, res.robot_radius),
                 verified=res.verified,
             )
-        return OccupancyMsg(seq=self.pub_occ.next_seq(), stamp_s=now, humans=humans, robot=robot)
+        msg = OccupancyMsg(seq=self.pub_occ.next_seq(), stamp_s=now, humans=humans, robot=robot)
+        return self._mode_display(msg, res)
+
+    def _mode_display(self, msg: OccupancyMsg, res: CycleResult) -> OccupancyMsg:
+        """Add the PFL contacts and link energies, or the JSSA state, to a display message."""
+        links = self.cell.robot.link_names
+        sc = self.cell.scenario
+        extra: dict[str, Any] = {}
+        try:
+            if res.pfl is not None:
+                labels = part_labels(res.human_ids, self.shield.reach.skeleton.parts)
+                shapes = link_shapes(links, sc.shield.pfl.link_shapes)
+                extra["contacts"] = pfl_contacts(res.pfl, links, labels)
+                extra["links"] = pfl_links(res.pfl, links, labels, shapes)
+            if res.jssa is not None:
+                extra["jssa"] = jssa_state(res.jssa, links, sc.shield.jssa.d_min_m)
+        except (SaraError, ValueError, IndexError) as e:  # display only: never stop the loop
+            log.warning("display details dropped: %s", e)
+            return msg
+        return msg.model_copy(update=extra) if extra else msg
 
     def status_msg(self, now: float, state: str) -> StatusMsg:
         cu = np.array(self.cycle_us) if self.cycle_us else None

@@ -105,6 +105,8 @@ class CycleResult:
     """PFL mode: the :class:`~sara_app.safety.pfl.PflResult` of the executed trajectory."""
     jssa: Any = None
     """JSSA mode: the :class:`~sara_app.safety.jssa.JssaResult` of this cycle."""
+    human_ids: list[str] = field(default_factory=list)
+    """The humans the cycle used, in the order of the per-human axes of its results."""
 
 
 class Shield:
@@ -276,6 +278,7 @@ class Shield:
             robot_ends=ends,
             robot_radius=radius,
             safety_mode=self.safety_mode,
+            human_ids=[humans[i].id for i in usable] if not faults else [],
         )
         out.intervened = mode in ("failsafe", "fault")
         self._annotate(out, res)

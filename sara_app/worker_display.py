@@ -1,0 +1,121 @@
+"""What the worker publishes for display about a PFL or JSSA cycle (seed 003 contact classes and
+link energies; seed 002 safety index and critical pair), as bus messages.
+
+PFL results are ``(K, L, P)`` over intervals, robot links and body parts; ``P`` is the usable
+humans' body parts, human-major (``part_labels`` gives each one's human id and part name).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any, cast
+
+import numpy as np
+
+from sara_app.bus.messages import ContactMsg, JssaMsg, LinkEnergyMsg
+
+CLASS_BY_CODE: dict[int, str] = {1: "unconstrained", 2: "env-constrained", 3: "self-constrained"}
+"""Contact class codes of :mod:`sara_app.safety.contact` (0: none) as message names."""
+
+MAX_CONTACTS = 64
+"""At most this many contacts per message (the lowest-margin ones): a bounded display load."""
+
+
+def part_labels(human_ids: Sequence[str], part_names: Sequence[str]) -> list[tuple[str, str]]:
+    """``(human id, body part)`` of each of the ``len(human_ids) * len(part_names)`` parts."""
+    return [(h, p) for h in human_ids for p in part_names]
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+def pfl_contacts(
+    pfl: Any, link_names: Sequence[str], labels: Sequence[tuple[str, str]]
+) -> list[ContactMsg]:
+    """One message per (link, body part) that can touch over the trajectory: its class at the
+    first interval where contact is possible, the largest energy and the smallest threshold."""
+    cls = np.asarray(pfl.cls)
+    if cls.ndim != 3 or cls.shape[2] != len(labels) or cls.shape[1] != len(link_names):
+        return []
+    hit = cls > 0
+    pairs = np.argwhere(hit.any(axis=0))  # (C, 2): link, part
+    if not len(pairs):
+        return []
+    first_k = hit.argmax(axis=0)  # (L, P)
+    E = np.asarray(pfl.energy_J)  # (K, L)
+    thr = np.where(hit, np.asarray(pfl.threshold_J), np.inf)
+    margin = np.where(hit, np.asarray(pfl.margin_J), np.inf).min(axis=0)
+    order = np.argsort(margin[pairs[:, 0], pairs[:, 1]], kind="stable")[:MAX_CONTACTS]
+    out = []
+    for i, p in pairs[order]:
+        k = int(first_k[i, p])
+        human, part = labels[p]
+        lim = float(thr[:, i, p].min())
+        e = float(np.max(np.where(hit[:, i, p], E[:, i], 0.0)))
+        out.append(
+            ContactMsg(
+                human_id=human,
+                body_part=part,
+                link=link_names[i],
+                kind=cast(Any, CLASS_BY_CODE[int(cls[k, i, p])]),
+                interval=k,
+                energy_j=e if np.isfinite(e) and e >= 0 else None,
+                energy_limit_j=_finite_or_none(lim),
+            )
+        )
+    return out
+
+
+def pfl_links(
+    pfl: Any,
+    link_names: Sequence[str],
+    labels: Sequence[tuple[str, str]],
+    shapes: Sequence[str],
+) -> list[LinkEnergyMsg]:
+    """Per link: the largest energy over the trajectory and the contact with the least margin
+    (its threshold, body part, human and class); no limit when the link cannot touch anyone."""
+    E = np.asarray(pfl.energy_J)  # (K, L)
+    allowed = np.asarray(pfl.allowed_J)  # (K, L)
+    part = np.asarray(pfl.limiting_part)  # (K, L)
+    cls = np.asarray(pfl.cls)
+    out = []
+    for i, name in enumerate(link_names):
+        e_max = float(np.max(E[:, i])) if E.size else 0.0
+        msg: dict[str, Any] = {
+            "link": name,
+            "energy_j": e_max if np.isfinite(e_max) and e_max >= 0 else 0.0,
+            "shape": shapes[i],
+        }
+        margin_k = allowed[:, i] - E[:, i]
+        if np.isfinite(allowed[:, i]).any():
+            k = int(np.nanargmin(np.where(np.isfinite(allowed[:, i]), margin_k, np.inf)))
+            p = int(part[k, i])
+            msg["limit_j"] = float(allowed[k, i])
+            msg["margin_j"] = _finite_or_none(float(margin_k[k]))
+            if 0 <= p < len(labels):
+                msg["human_id"], msg["body_part"] = labels[p]
+                msg["contact"] = CLASS_BY_CODE.get(int(cls[k, i, p]))
+        out.append(LinkEnergyMsg(**msg))
+    return out
+
+
+def _point(x: np.ndarray) -> list[float] | None:
+    a = np.asarray(x, dtype=float)
+    return a.tolist() if a.shape == (3,) and np.all(np.isfinite(a)) else None
+
+
+def jssa_state(jssa: Any, link_names: Sequence[str], d_min_m: float) -> JssaMsg:
+    """The JSSA cycle's index, activity and critical pair (two surface points)."""
+    i = int(jssa.link_index)
+    return JssaMsg(
+        phi_m2=_finite_or_none(float(jssa.phi)),
+        active=bool(jssa.active),
+        fallback=bool(jssa.fallback),
+        reason=str(jssa.reason)[:200],
+        link=link_names[i] if 0 <= i < len(link_names) else None,
+        robot_point_m=_point(jssa.robot_point),
+        other_point_m=_point(jssa.other_point),
+        distance_m=_finite_or_none(float(jssa.distance_m)),
+        d_min_m=d_min_m,
+    )

@@ -1,0 +1,95 @@
+"""The worker's PFL/JSSA display messages agree with the results they summarise (a real PFL
+check on a Panda, a person and a table; a real JSSA cycle), and survive the wire format."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sara_app.bus.codec import decode
+from sara_app.bus.messages import OccupancyMsg, encode
+from sara_app.human.skeleton import skeleton
+from sara_app.safety.pfl import _bench_scene
+from sara_app.worker_display import CLASS_BY_CODE, jssa_state, part_labels, pfl_contacts, pfl_links
+
+
+@pytest.fixture(scope="module")
+def pfl_case():
+    pfl, sc = _bench_scene(10)
+    res = pfl.check_trajectory(
+        sc["q"], sc["q_dot"], sc["qd_bound"], sc["t"], sc["h_ends"], sc["h_radius"],
+        sc["T_world_box"], sc["half_extents_m"],
+    )  # fmt: skip
+    return pfl, res
+
+
+def test_contacts_cover_every_possible_contact_with_its_first_class(pfl_case):
+    pfl, res = pfl_case
+    names = pfl.model.link_names
+    labels = part_labels(["h1"], skeleton("full").parts)
+    msgs = pfl_contacts(res, names, labels)
+    hit = res.cls > 0
+    assert hit.any(), "the bench scene must have contacts for this test to mean anything"
+    expected = {(names[i], labels[p][1]) for i, p in np.argwhere(hit.any(axis=0))}
+    assert {(m.link, m.body_part) for m in msgs} == expected
+    for m in msgs:
+        i, p = names.index(m.link), labels.index((m.human_id, m.body_part))
+        k = int(np.flatnonzero(hit[:, i, p])[0])
+        assert m.interval == k
+        assert m.kind == CLASS_BY_CODE[int(res.cls[k, i, p])]
+        assert m.energy_limit_j == pytest.approx(res.threshold_J[hit[:, i, p], i, p].min())
+
+
+def test_links_report_least_margin_contact(pfl_case):
+    pfl, res = pfl_case
+    names = pfl.model.link_names
+    labels = part_labels(["h1"], skeleton("full").parts)
+    links = pfl_links(res, names, labels, ["blunt"] * len(names))
+    assert [m.link for m in links] == list(names)
+    for i, m in enumerate(links):
+        assert m.energy_j == pytest.approx(res.energy_J[:, i].max())
+        finite = np.isfinite(res.allowed_J[:, i])
+        if not finite.any():
+            assert m.limit_j is None and m.margin_j is None
+            continue
+        margins = np.where(finite, res.allowed_J[:, i] - res.energy_J[:, i], np.inf)
+        assert m.margin_j == pytest.approx(margins.min())
+        assert m.body_part in skeleton("full").parts and m.contact in CLASS_BY_CODE.values()
+
+
+def test_messages_survive_encoding(pfl_case):
+    pfl, res = pfl_case
+    names = pfl.model.link_names
+    labels = part_labels(["h1"], skeleton("full").parts)
+    msg = OccupancyMsg(
+        seq=1,
+        stamp_s=1.0,
+        contacts=pfl_contacts(res, names, labels),
+        links=pfl_links(res, names, labels, ["blunt"] * len(names)),
+    )
+    back = decode("sara/c1/occupancy", encode(msg)).msg
+    assert back == msg
+
+
+def test_mismatched_labels_give_no_contacts(pfl_case):
+    pfl, res = pfl_case
+    assert pfl_contacts(res, pfl.model.link_names, part_labels(["a", "b"], ["head"])) == []
+
+
+def test_jssa_state_from_a_real_cycle():
+    from sara_app.robot.model import load_robot
+    from sara_app.safety.jssa import JssaController
+
+    robot = load_robot("panda")
+    ctl = JssaController(robot)
+    q = np.array([0.0, -0.3, 0.0, -2.0, 0.0, 1.8, 0.8])
+    h_ends = np.array([[[0.9, 0.0, 0.3], [0.9, 0.0, 0.8]]])
+    res = ctl.step(q, np.zeros(7), np.zeros(7), np.zeros(7), h_ends, np.array([0.1]),
+                   np.zeros((1, 2, 3)), 0.004)  # fmt: skip
+    msg = jssa_state(res, robot.link_names, 0.05)
+    assert msg.link == robot.link_names[res.link_index]
+    assert msg.robot_point_m is not None and msg.other_point_m is not None
+    assert res.distance_m > 0  # apart: the two surface points are the distance apart
+    d = np.linalg.norm(np.subtract(msg.robot_point_m, msg.other_point_m))
+    assert d == pytest.approx(res.distance_m, abs=1e-6)
+    assert msg.active == res.active and msg.d_min_m == 0.05
