@@ -318,7 +318,8 @@ def save_scenario(sc: Scenario, path: str | Path) -> Path:
 
 
 def check_against_robot(sc: Scenario) -> None:
-    """Waypoints have the robot's joint count and lie inside its position limits."""
+    """Waypoints have the robot's joint count and lie inside its position limits; tool shapes
+    name links of the robot; recordings exist (checks that need more than the file itself)."""
     from sara_app.robot.model import load_robot
 
     robot = load_robot(sc.robot.name)
@@ -337,6 +338,14 @@ def check_against_robot(sc: Scenario) -> None:
                 f"task.waypoints_rad.{i}: joint {robot.joint_names[j]!r} = {q[j]:.4f} rad is "
                 f"outside its limits [{lim.q_min[j]:.4f}, {lim.q_max[j]:.4f}]"
             )
+    from sara_app.human.recordings import find_recording
+
+    for i, h in enumerate(sc.humans):
+        if isinstance(h, RecordingHuman):
+            try:
+                find_recording(h.recording)
+            except SaraError as e:
+                raise ScenarioError(f"humans.{i}.recording: {e}") from None
     for link in sc.shield.pfl.link_shapes:
         if link not in robot.link_names:
             raise ScenarioError(

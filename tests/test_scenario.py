@@ -278,3 +278,12 @@ def test_generated_scenarios_round_trip(
     sc = parse_scenario(data)
     again = parse_scenario(json.loads(json.dumps(sc.model_dump(mode="json"))))
     assert again == sc
+
+
+def test_unknown_recording_is_refused_at_load(tmp_path):
+    data = json.loads((scenarios_dir() / "cmu_walk.json").read_text())
+    data["humans"][0]["recording"] = "99_99"
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(ScenarioError, match=r"humans\.0\.recording.*99_99"):
+        load_scenario(path)

@@ -779,6 +779,15 @@ def load_recording(path_or_name: str | os.PathLike[str]) -> Recording:
     ``02.asf``), 120 Hz. ``.csv``: the project's CSV format. A bare name such as ``'02_01'``
     (or a file name that is not found) is looked up in :func:`shared_data_dir`.
     """
+    p = find_recording(path_or_name)
+    if p.suffix.lower() == ".csv":
+        return load_csv(p)
+    return load_cmu(_asf_beside(p), p)
+
+
+def find_recording(path_or_name: str | os.PathLike[str]) -> Path:
+    """The file :func:`load_recording` would read (without reading it); raises
+    :class:`RecordingError` naming the name when there is none."""
     p = Path(path_or_name)
     if not p.is_file() and not p.is_absolute() and len(p.parts) == 1:
         cand = (
@@ -799,6 +808,4 @@ def load_recording(path_or_name: str | os.PathLike[str]) -> Recording:
         )
     if not p.is_file():
         raise RecordingError(f"recording file {str(p)!r} does not exist")
-    if suffix == ".csv":
-        return load_csv(p)
-    return load_cmu(_asf_beside(p), p)
+    return p
