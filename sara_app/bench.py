@@ -157,6 +157,10 @@ def run(n: int = 2000) -> None:
         except ModuleNotFoundError:
             continue
     rows += bench_latency(min(n, 200))
+    print_rows(rows)
+
+
+def print_rows(rows: list[tuple[str, float, float, str]]) -> None:
     print(f"{'stage':48s} {'median us':>10s} {'p99 us':>10s}  note")
     for name, med, p99, note in rows:
         print(f"{name:48s} {med:10.1f} {p99:10.1f}  {note}")

@@ -8,10 +8,23 @@ import argparse
 def _bench(args: argparse.Namespace) -> None:
     from sara_app import bench
 
+    if args.view:
+        from sara_app.bench_live import bench_view_load
+
+        bench.print_rows(bench_view_load(args.scenario, args.phase_s, args.rounds))
+        return
     bench.run(args.n)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     b = sub.add_parser("bench", help="median and p99 of the hot-path stages")
     b.add_argument("-n", type=int, default=2000, help="calls per stage")
+    b.add_argument(
+        "--view",
+        action="store_true",
+        help="instead: the live worker's cycle time without and with the dashboard + browser",
+    )
+    b.add_argument("--scenario", default="punches", help="scenario of the --view benchmark")
+    b.add_argument("--phase-s", type=float, default=6.0, help="seconds per --view phase")
+    b.add_argument("--rounds", type=int, default=2, help="off/on rounds of --view")
     b.set_defaults(run=_bench)
