@@ -1,0 +1,297 @@
+"""The audit log of threshold edits: one SQLite row per requested change and its outcome.
+
+``AuditLog(path=None)`` opens (and creates, with its folder) the database; the default path is
+:func:`default_audit_path`: ``$SARA_APP_DATA/audit.sqlite`` when that variable is set, else
+``$XDG_DATA_HOME/sara_app/audit.sqlite`` (``~/.local/share/sara_app/audit.sqlite``).
+
+A row holds the time (UTC ISO 8601 and epoch seconds), the cell, the scenario, the entry
+(region / contact / shape), the old value, the requested value (``new_energy_J``; NULL when it
+was not a finite number, ``requested`` keeps its text), the source's value and key, whether the
+request exceeded the source value, whether it was confirmed, who asked (free text), where from
+(``via``: api, dashboard) and the outcome: ``applied``, ``refused`` (with the reason) or
+``no_answer`` (the worker did not answer in time: it may or may not have applied the change).
+
+Schema version ``PRAGMA user_version`` (:data:`SCHEMA_VERSION`); a newer file is refused rather
+than misread. Concurrent writers (the API's threads, the dashboard, other processes): WAL
+journal, a busy timeout and one short transaction per row, on a connection per call.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sqlite3
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from sara_app.errors import ParameterError, SaraError
+
+if TYPE_CHECKING:
+    from sara_app.safety.threshold_edit import EditPlan
+
+SCHEMA_VERSION = 1
+ENV_VAR = "SARA_APP_DATA"
+OUTCOMES = ("applied", "refused", "no_answer")
+MAX_TEXT = 2000  # reasons longer than this are cut
+MAX_USER = 200
+MAX_LIMIT = 10_000
+
+_SCHEMA = (
+    """CREATE TABLE IF NOT EXISTS threshold_changes (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    time_utc TEXT NOT NULL,
+    time_epoch_s REAL NOT NULL,
+    cell TEXT NOT NULL,
+    scenario TEXT NOT NULL,
+    region TEXT NOT NULL,
+    contact TEXT NOT NULL,
+    shape TEXT NOT NULL,
+    old_energy_J REAL,
+    new_energy_J REAL,
+    requested TEXT NOT NULL,
+    source_energy_J REAL,
+    source_key TEXT,
+    exceeds_source INTEGER NOT NULL,
+    confirmed INTEGER NOT NULL,
+    user TEXT NOT NULL,
+    via TEXT NOT NULL,
+    outcome TEXT NOT NULL CHECK (outcome IN ('applied', 'refused', 'no_answer')),
+    reason TEXT NOT NULL
+)""",
+    "CREATE INDEX IF NOT EXISTS threshold_changes_cell ON threshold_changes (cell, id)",
+)
+_COLUMNS = (
+    "id, time_utc, time_epoch_s, cell, scenario, region, contact, shape, old_energy_J, "
+    "new_energy_J, requested, source_energy_J, source_key, exceeds_source, confirmed, user, "
+    "via, outcome, reason"
+)
+
+
+class AuditError(SaraError):
+    """The audit database cannot be opened, is of a newer schema, or a write failed."""
+
+
+def default_data_dir() -> Path:
+    """``$SARA_APP_DATA``, else ``$XDG_DATA_HOME/sara_app``, else ``~/.local/share/sara_app``."""
+    env = os.environ.get(ENV_VAR)
+    if env:
+        return Path(env).expanduser()
+    xdg = os.environ.get("XDG_DATA_HOME")
+    root = Path(xdg).expanduser() if xdg else Path.home() / ".local" / "share"
+    return root / "sara_app"
+
+
+def default_audit_path() -> Path:
+    return default_data_dir() / "audit.sqlite"
+
+
+@dataclass(frozen=True)
+class AuditEntry:
+    """One row of the log (energies in J; None where unknown or not a finite number)."""
+
+    id: int
+    time_utc: str
+    time_epoch_s: float
+    cell: str
+    scenario: str
+    region: str
+    contact: str
+    shape: str
+    old_energy_J: float | None
+    new_energy_J: float | None
+    requested: str
+    source_energy_J: float | None
+    source_key: str | None
+    exceeds_source: bool
+    confirmed: bool
+    user: str
+    via: str
+    outcome: str
+    reason: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def _finite_or_none(x: object) -> float | None:
+    if isinstance(x, bool) or not isinstance(x, int | float):
+        return None
+    return float(x) if math.isfinite(float(x)) else None
+
+
+def _clean_user(user: object) -> str:
+    text = str(user).strip() if user is not None else ""
+    if len(text) > MAX_USER:
+        raise ParameterError(
+            f"user {text[:40]!r}... has {len(text)} characters; at most {MAX_USER}"
+        )
+    return text or "unknown"
+
+
+class AuditLog:
+    """The threshold-edit audit log in one SQLite file (see the module docstring)."""
+
+    def __init__(
+        self,
+        path: str | Path | None = None,
+        *,
+        clock: Callable[[], float] = time.time,
+        busy_timeout_s: float = 5.0,
+    ) -> None:
+        self.path = Path(path) if path is not None else default_audit_path()
+        self.clock = clock
+        self.busy_timeout_s = float(busy_timeout_s)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise AuditError(
+                f"audit folder {str(self.path.parent)!r} cannot be created: {e}"
+            ) from e
+        self._create()
+
+    @contextmanager
+    def _connect(self) -> Iterator[sqlite3.Connection]:
+        try:
+            con = sqlite3.connect(self.path, timeout=self.busy_timeout_s, isolation_level=None)
+        except sqlite3.Error as e:
+            raise AuditError(f"audit log {str(self.path)!r} cannot be opened: {e}") from e
+        try:
+            yield con
+        except sqlite3.Error as e:
+            raise AuditError(f"audit log {str(self.path)!r}: {e}") from e
+        finally:
+            con.close()
+
+    def _create(self) -> None:
+        with self._connect() as con:
+            con.execute("PRAGMA journal_mode=WAL")
+            con.execute("BEGIN IMMEDIATE")  # one creator at a time
+            try:
+                version = int(con.execute("PRAGMA user_version").fetchone()[0])
+                if version > SCHEMA_VERSION:
+                    raise AuditError(
+                        f"audit log {str(self.path)!r} has schema version {version}; this "
+                        f"program reads versions up to {SCHEMA_VERSION}"
+                    )
+                if version < SCHEMA_VERSION:
+                    for statement in _SCHEMA:
+                        con.execute(statement)
+                    con.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
+                con.execute("COMMIT")
+            except BaseException:
+                if con.in_transaction:
+                    con.execute("ROLLBACK")
+                raise
+
+    @property
+    def schema_version(self) -> int:
+        with self._connect() as con:
+            return int(con.execute("PRAGMA user_version").fetchone()[0])
+
+    # -- writing -------------------------------------------------------------------------------
+    def record(
+        self,
+        *,
+        cell: str,
+        scenario: str,
+        entry: tuple[str, str, str],
+        requested: object,
+        outcome: str,
+        reason: str = "",
+        old_energy_J: float | None = None,
+        source_energy_J: float | None = None,
+        source_key: str | None = None,
+        exceeds_source: bool = False,
+        confirmed: bool = False,
+        user: object = "unknown",
+        via: str = "api",
+    ) -> AuditEntry:
+        """Append one row (one short transaction); the stored entry."""
+        if outcome not in OUTCOMES:
+            raise ParameterError(f"audit outcome {outcome!r}; valid: {', '.join(OUTCOMES)}")
+        now = float(self.clock())
+        stamp = datetime.fromtimestamp(now, UTC).isoformat(timespec="microseconds")
+        row = (
+            stamp,
+            now,
+            str(cell)[:64],
+            str(scenario)[:64],
+            *(str(x)[:64] for x in entry),
+            _finite_or_none(old_energy_J),
+            _finite_or_none(requested),
+            repr(requested)[:64] if not isinstance(requested, str) else requested[:64],
+            _finite_or_none(source_energy_J),
+            source_key,
+            int(bool(exceeds_source)),
+            int(bool(confirmed)),
+            _clean_user(user),
+            str(via)[:32],
+            outcome,
+            str(reason)[:MAX_TEXT],
+        )
+        with self._connect() as con:
+            cur = con.execute(
+                f"INSERT INTO threshold_changes ({_COLUMNS.split(', ', 1)[1]}) "
+                f"VALUES ({', '.join('?' * len(row))})",
+                row,
+            )
+            rowid = cur.lastrowid
+            got = con.execute(
+                f"SELECT {_COLUMNS} FROM threshold_changes WHERE id = ?", (rowid,)
+            ).fetchone()
+        return _entry(got)
+
+    def record_plan(
+        self,
+        plan: EditPlan,
+        *,
+        cell: str,
+        outcome: str,
+        reason: str = "",
+        confirmed: bool = False,
+        user: object = "unknown",
+        via: str = "api",
+    ) -> AuditEntry:
+        """Record a validated (or confirmation-pending) edit plan and its outcome."""
+        return self.record(
+            cell=cell,
+            scenario=plan.scenario,
+            entry=plan.entry,
+            requested=plan.new_energy_J,
+            outcome=outcome,
+            reason=reason,
+            old_energy_J=plan.old_energy_J,
+            source_energy_J=plan.source_energy_J,
+            source_key=plan.source_key,
+            exceeds_source=plan.exceeds_source,
+            confirmed=confirmed,
+            user=user,
+            via=via,
+        )
+
+    # -- reading -------------------------------------------------------------------------------
+    def entries(self, cell: str | None = None, limit: int = 50) -> list[AuditEntry]:
+        """Newest first; only ``cell``'s rows when given; at most ``limit`` (1..10000)."""
+        if isinstance(limit, bool) or not isinstance(limit, int) or not 1 <= limit <= MAX_LIMIT:
+            raise ParameterError(f"audit limit {limit!r}; expected an integer in 1..{MAX_LIMIT}")
+        sql = f"SELECT {_COLUMNS} FROM threshold_changes"
+        args: tuple[Any, ...] = ()
+        if cell is not None:
+            sql += " WHERE cell = ?"
+            args = (cell,)
+        sql += " ORDER BY id DESC LIMIT ?"
+        with self._connect() as con:
+            rows = con.execute(sql, (*args, limit)).fetchall()
+        return [_entry(r) for r in rows]
+
+
+def _entry(row: tuple[Any, ...]) -> AuditEntry:
+    d = dict(zip(_COLUMNS.split(", "), row, strict=True))
+    d["exceeds_source"] = bool(d["exceeds_source"])
+    d["confirmed"] = bool(d["confirmed"])
+    return AuditEntry(**d)

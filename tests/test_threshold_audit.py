@@ -1,0 +1,134 @@
+"""The threshold audit log: a real SQLite file with a versioned schema, rows that survive a
+reopen, filters (cell, newest first, limit), concurrent writers in several processes."""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import sqlite3
+from datetime import datetime
+from pathlib import Path
+
+import pytest
+
+from sara_app.errors import ParameterError
+from sara_app.safety.threshold_audit import (
+    ENV_VAR,
+    SCHEMA_VERSION,
+    AuditError,
+    AuditLog,
+    default_audit_path,
+)
+
+
+class Clock:
+    def __init__(self, t: float) -> None:
+        self.t = t
+
+    def __call__(self) -> float:
+        self.t += 1.0
+        return self.t
+
+
+def _row(log: AuditLog, cell: str, new: float, **kw: object) -> None:
+    args: dict = {
+        "cell": cell,
+        "scenario": "demo",
+        "entry": ("hand", "constrained", "blunt"),
+        "requested": new,
+        "outcome": "applied",
+        "old_energy_J": 0.12,
+        "source_energy_J": 0.12,
+        "source_key": "iso15066",
+    }
+    log.record(**(args | kw))
+
+
+def test_schema_created_versioned_and_persistent(tmp_path: Path) -> None:
+    path = tmp_path / "sub" / "dir" / "audit.sqlite"  # folders are created
+    log = AuditLog(path, clock=Clock(1_700_000_000.0))
+    assert path.is_file() and log.schema_version == SCHEMA_VERSION
+    _row(log, "c1", 0.1, user="  ana  ", exceeds_source=False, confirmed=True, via="dashboard")
+    e = log.entries()[0]
+    assert e.time_epoch_s == 1_700_000_001.0
+    assert datetime.fromisoformat(e.time_utc).timestamp() == e.time_epoch_s
+    assert e.time_utc.endswith("+00:00")
+    assert (e.cell, e.scenario, e.region, e.contact, e.shape) == (
+        "c1",
+        "demo",
+        "hand",
+        "constrained",
+        "blunt",
+    )
+    assert (e.old_energy_J, e.new_energy_J, e.source_energy_J) == (0.12, 0.1, 0.12)
+    assert e.user == "ana" and e.confirmed and not e.exceeds_source and e.via == "dashboard"
+    again = AuditLog(path)  # reopening keeps the rows and does not recreate anything
+    assert again.entries() == [e]
+    with sqlite3.connect(path) as con:
+        assert con.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+        con.execute(f"PRAGMA user_version = {SCHEMA_VERSION + 1}")
+    with pytest.raises(AuditError, match=f"schema version {SCHEMA_VERSION + 1}"):
+        AuditLog(path)
+
+
+def test_filters_order_limit_and_validation(tmp_path: Path) -> None:
+    log = AuditLog(tmp_path / "a.sqlite", clock=Clock(0.0))
+    for i in range(12):
+        _row(log, "c1" if i % 3 else "c2", 0.01 * (i + 1))
+    _row(log, "c1", float("nan"), outcome="refused", reason="not finite", user="")
+    rows = log.entries("c1", limit=100)
+    assert len(rows) == 9 and all(r.cell == "c1" for r in rows)
+    assert [r.id for r in rows] == sorted((r.id for r in rows), reverse=True)  # newest first
+    assert rows[0].new_energy_J is None and rows[0].requested == "nan" and rows[0].user == "unknown"
+    assert [r.new_energy_J for r in log.entries("c2")] == pytest.approx([0.1, 0.07, 0.04, 0.01])
+    assert len(log.entries(limit=5)) == 5 and len(log.entries()) == 13
+    assert log.entries("nobody") == []
+    for bad in (0, -1, 10_001, 2.5, True):
+        with pytest.raises(ParameterError, match="limit"):
+            log.entries(limit=bad)  # type: ignore[arg-type]
+    with pytest.raises(ParameterError, match="outcome"):
+        _row(log, "c1", 0.1, outcome="maybe")
+    with pytest.raises(ParameterError, match="at most 200"):
+        _row(log, "c1", 0.1, user="x" * 201)
+    assert len(log.entries()) == 13  # nothing written by the refused calls
+
+
+def _writer(path: str, cell: str, n: int) -> None:
+    log = AuditLog(path, busy_timeout_s=30.0)
+    for i in range(n):
+        _row(log, cell, 0.001 * (i + 1))
+
+
+def test_concurrent_writers_in_several_processes(tmp_path: Path) -> None:
+    path = str(tmp_path / "shared.sqlite")
+    ctx = mp.get_context("spawn")
+    procs = [ctx.Process(target=_writer, args=(path, f"w{k}", 40)) for k in range(4)]
+    for p in procs:
+        p.start()
+    for p in procs:
+        p.join(60)
+    assert [p.exitcode for p in procs] == [0, 0, 0, 0]
+    log = AuditLog(path)
+    rows = log.entries(limit=1000)
+    assert len(rows) == 160 and len({r.id for r in rows}) == 160
+    for k in range(4):
+        mine = log.entries(f"w{k}", limit=1000)
+        # each writer's rows in its own order: ids increase with its values
+        want = [0.001 * i for i in range(40, 0, -1)]
+        assert [r.new_energy_J for r in mine] == pytest.approx(want)
+
+
+def test_default_path_from_environment(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(ENV_VAR, str(tmp_path / "data"))
+    assert default_audit_path() == tmp_path / "data" / "audit.sqlite"
+    log = AuditLog()
+    assert log.path == tmp_path / "data" / "audit.sqlite" and log.path.is_file()
+    monkeypatch.delenv(ENV_VAR)
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
+    assert default_audit_path() == tmp_path / "xdg" / "sara_app" / "audit.sqlite"
+
+
+def test_unwritable_location_is_an_audit_error(tmp_path: Path) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    with pytest.raises(AuditError, match="cannot be created"):
+        AuditLog(blocker / "audit.sqlite")
