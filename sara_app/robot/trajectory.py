@@ -48,6 +48,8 @@ piece before that piece, or standstill at the end of the path. A step is committ
 joint limits provably hold over it and a path-consistent failsafe stop
 (:func:`sara_app.robot.failsafe.plan_stop`) exists from its end; otherwise the follower executes
 the failsafe it already holds (recursive feasibility: the tail of a valid stop is a valid stop).
+A ``speed_cap`` (path speed, default inf; set by the PFL shield for speed scaling) lowers every
+admissible speed the follower aims for to at most the cap: the same planning, slower targets.
 
 Fallback steps (counted in ``fallback_steps``) do not happen on a path followed from rest to
 rest; after a replan they can (for instance when the new goal forces the robot to stop where the
@@ -993,6 +995,7 @@ class PathFollower:
             self.blend_distance = float(blend_distance)
         self._lim = lim
         self._t = 0.0
+        self._cap = math.inf
         self.fallback_steps = 0
         self._pending: np.ndarray | None = None
         self._goal: np.ndarray | None = None
@@ -1045,6 +1048,28 @@ class PathFollower:
     def stop(self) -> StopProfile:
         """The failsafe held for the current state (valid, path-consistent)."""
         return self._stop
+
+    @property
+    def speed_cap(self) -> float:
+        """Upper bound on the path speed s' the intended motion aims for (rad/s; default inf).
+
+        The intended motion targets ``min(V_k, speed_cap)`` on the current and every upcoming
+        piece ``k`` (``V_k``: the piece's admissible speed), so below the current speed it
+        decelerates within the path's acceleration and jerk boxes; every step is still checked
+        against the joint limits and ends with a valid failsafe, whatever the cap. It steers
+        planning only: the failsafe held is never changed. 0 brings the robot to rest along the
+        intended motion (not ``done``: raising the cap resumes)."""
+        return self._cap
+
+    @speed_cap.setter
+    def speed_cap(self, cap: float) -> None:
+        try:
+            c = float(cap)
+        except (TypeError, ValueError):
+            c = math.nan
+        if not c >= 0.0:  # NaN too
+            raise RobotModelError(f"speed_cap = {cap!r} rad/s; expected a path speed >= 0 or inf")
+        self._cap = c
 
     @property
     def admissible_speed(self) -> tuple[np.ndarray, np.ndarray]:
@@ -1121,7 +1146,8 @@ class PathFollower:
         kw = self.path.piece_index(min(s + reach + ramp + _S_TOL, S))
         A_f = min(A_box[k0 : kr + 1])
         J_f = min(J_box[k0 : kr + 1])
-        base = velocity_phases(v, a, V_box[k0], A_f, J_f)
+        cap = self._cap
+        base = velocity_phases(v, a, min(V_box[k0], cap), A_f, J_f)
         s1, v1, a1 = phases_at(s, v, a, base[0], base[1], dt)
         # constraints ahead: reach the admissible speed of every slower piece by its start,
         # braking within the boxes of the pieces up to it; standstill at the end of the path
@@ -1130,8 +1156,9 @@ class PathFollower:
         for k in range(k0 + 1, kw + 1):
             A_run = min(A_run, A_box[k])
             J_run = min(J_run, J_box[k])
-            if V_box[k] < v1 + max(a1, 0.0) ** 2 / (2.0 * J_run):
-                cons.append((self._path_s0(k), V_box[k], A_run, J_run))
+            V_k = min(V_box[k], cap)
+            if V_k < v1 + max(a1, 0.0) ** 2 / (2.0 * J_run):
+                cons.append((self._path_s0(k), V_k, A_run, J_run))
         if S - s <= reach + ramp + _S_TOL:
             cons.append((S, 0.0, min(A_f, self._A_tail[k0]), min(J_f, self._J_tail[k0])))
         # of the brakes needed now, the one that slows down most within this step satisfies
