@@ -8,8 +8,9 @@ tool frame, :func:`end_effector_frame`) to a world pose ``T_world_target (4, 4)`
   rotated by the robot's base pose);
 - step ``dq = J^T (J J^T + lambda^2 I)^-1 e`` with the columns of joints resting on a limit and
   pushed outward removed, at most ``max_step_rad`` per joint, ``q`` clamped to the limits;
-- warm-started from ``q0`` (the old waypoint); when that does not converge, ``restarts`` random
-  starts inside the limits (seeded) and the converged solution closest to ``q0`` is returned.
+- warm-started from ``q0`` (the old waypoint); when that does not converge, ``restarts`` seeded
+  random starts (alternately near ``q0`` and anywhere inside the limits) and the converged
+  solution closest to ``q0`` is returned.
 
 The result always lies inside the joint limits; ``converged`` is False (and the residuals say
 by how much) when the target is out of reach. Nothing here raises for an unreachable target;
@@ -179,7 +180,7 @@ def solve_ik(
     tol_position_m: float = 1e-4,
     tol_rotation_rad: float = 1e-3,
     max_iterations: int = 200,
-    restarts: int = 8,
+    restarts: int = 16,
     seed: int = 0,
     damping: float = 1e-3,
     max_step_rad: float = 0.2,
@@ -219,9 +220,15 @@ def solve_ik(
     rot_w = rotation_weight_m if orientation else 0.0
     solutions = []
     rng = np.random.default_rng(seed)
-    for _ in range(restarts):
+    for i in range(restarts):
         starts += 1
-        q, ep, er = solver.descend(rng.uniform(lim.q_min, lim.q_max))
+        if i % 2 == 0:  # near the warm start (solutions close to the old waypoint first)
+            q_try = np.clip(
+                q_start + rng.normal(scale=0.5, size=q_start.shape), lim.q_min, lim.q_max
+            )
+        else:
+            q_try = rng.uniform(lim.q_min, lim.q_max)
+        q, ep, er = solver.descend(q_try)
         if solver.done(ep, er):
             solutions.append(q)
         elif np.hypot(ep, rot_w * er) < np.hypot(best[1], rot_w * best[2]):
