@@ -12,6 +12,8 @@
   file (default: the one the cell runs).
 - ``GET /api/scenarios``, ``GET/PUT /api/scenarios/{name}``: list, read, save (validated;
   an existing name is replaced only with ``?overwrite=true``; the stored ``name`` is the URL's).
+- ``GET/PUT /api/cells/{cell}/thresholds``, ``GET /api/cells/{cell}/thresholds/audit``: the
+  threshold editor with its audit log (:mod:`sara_app.api.thresholds`).
 - ``GET /api/params``, ``GET /api/params/{name}``: human-model parameter sets;
   ``GET /api/thresholds``, ``GET /api/thresholds/{name}``: contact-energy threshold sets.
 - ``/docs``: OpenAPI; ``/``: the landing page from the repository's ``static/`` folder.
@@ -27,7 +29,7 @@ import os
 import re
 import tempfile
 import threading
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -37,8 +39,10 @@ from fastapi.staticfiles import StaticFiles
 
 import sara_app
 from sara_app.api.registry import CellRegistry, WorkerTimeoutError
+from sara_app.api.thresholds import add_threshold_routes
 from sara_app.errors import SaraError, ScenarioError
 from sara_app.human.params import available_param_sets, load_param_set
+from sara_app.safety.threshold_audit import AuditLog
 from sara_app.safety.thresholds import load_thresholds, threshold_set_names
 from sara_app.scenario import (
     Scenario,
@@ -113,7 +117,9 @@ def _stream(request: Request, snapshot: Any, interval_s: float, limit: int | Non
     )
 
 
-def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None:
+def known_cell_check(registry: CellRegistry) -> Callable[[str], dict[str, Any]]:
+    """``known_cell(cell)``: the cell's snapshot; HTTP 422 (bad name) or 404 (never seen)."""
+
     def known_cell(cell: str) -> dict[str, Any]:
         check_url_name("cell", cell)
         snap = registry.cell(cell)
@@ -121,6 +127,12 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
             valid = ", ".join(registry.names()) or "(none seen yet)"
             raise HTTPException(404, f"cell {cell!r} has not been seen on the bus; known: {valid}")
         return snap
+
+    return known_cell
+
+
+def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None:
+    known_cell = known_cell_check(registry)
 
     @app.get("/api/cells", tags=["cells"])
     def list_cells() -> list[dict[str, Any]]:
@@ -297,9 +309,12 @@ def create_app(
     *,
     viewer_url: str | None = None,
     static_dir: Path | str | None = STATIC_DIR,
+    audit: AuditLog | Path | str | None = None,
 ) -> FastAPI:
     """The FastAPI app; ``registry`` supplies live cells, ``scenarios_folder`` the scenarios
-    (default: the shipped ``scenarios/``), ``viewer_url`` the 3D view's address for the page."""
+    (default: the shipped ``scenarios/``), ``viewer_url`` the 3D view's address for the page,
+    ``audit`` the threshold audit log (an open log or a path; default
+    :func:`~sara_app.safety.threshold_audit.default_audit_path`, opened on first use)."""
     folder = Path(scenarios_folder) if scenarios_folder is not None else scenarios_dir()
     if not folder.is_dir():
         raise ScenarioError(f"scenarios folder {str(folder)!r} is not a directory")
@@ -326,6 +341,12 @@ def create_app(
         return {"viewer": viewer_url, "docs": "/docs"}
 
     _add_cell_routes(app, registry, folder)
+    audit_log: AuditLog | Callable[[], AuditLog] = (
+        audit if isinstance(audit, AuditLog) else (lambda: AuditLog(audit))
+    )
+    add_threshold_routes(
+        app, registry, folder, audit_log, known_cell_check(registry), check_url_name
+    )
     _add_scenario_routes(app, folder)
     _add_param_routes(app)
     if static_dir is not None and Path(static_dir).is_dir():

@@ -15,6 +15,11 @@ decoder of a worker requires ``seq`` to increase per key, so the ``seq`` used he
 clock in microseconds (kept strictly increasing): it stays ordered across restarts and against
 any other publisher that numbers its messages the same way.
 
+The registry remembers, per cell, the last scenario a worker accepted from it
+(``applied_scenario(cell)``): the base of read-modify-write edits such as threshold changes. It
+is trusted only until a status shows that the worker runs something else (another scenario name
+or a restarted worker); edits sent by other programs (the dashboard) are not seen here.
+
 ``bus=None`` gives a registry without a bus (tests, an API without cells); ``ingest(decoded)``
 feeds it messages directly. ``clock`` (default ``time.time``) is the wall clock the ages use.
 """
@@ -43,10 +48,18 @@ log = logging.getLogger("sara_app.api")
 
 MAX_CELLS = 256
 CYCLE_WINDOW = 1000  # verdicts in the rolling cycle-time window
+RESTART_TOLERANCE_S = 2.0  # a worker's start time (stamp - uptime) moving more: a restart
 
 
 class WorkerTimeoutError(SaraError):
     """A cell worker did not answer a parameter request (absent, busy or not subscribed)."""
+
+
+@dataclass
+class _Applied:
+    scenario: dict[str, Any]
+    recv_s: float  # when the worker's acceptance arrived (registry clock)
+    worker_start_s: float | None  # the worker's start time per its last status, if any
 
 
 class ParamsAnswer(NamedTuple):
@@ -91,6 +104,7 @@ class CellRegistry:
         self._acked = threading.Condition(self._lock)
         self._cells: dict[str, _Cell] = {}
         self._pending: dict[str, ParamsAckMsg | None] = {}
+        self._applied: dict[str, _Applied] = {}
         self._publishers: dict[str, Publisher] = {}
         self._last_seq = 0
         self._stop = threading.Event()
@@ -290,4 +304,37 @@ class CellRegistry:
                 f"the worker of cell {cell!r} did not answer request {request_id} "
                 f"within {timeout_s:g} s"
             )
+        if ack.accepted:
+            self._remember(cell, scenario)
         return ParamsAnswer(request_id, ack.accepted, ack.reason)
+
+    # -- the scenario a cell runs ----------------------------------------------------------
+    def _remember(self, cell: str, scenario: dict[str, Any]) -> None:
+        now_s = self.clock()
+        with self._lock:
+            c = self._cells.get(cell)
+            st = None if c is None else c.status
+            start = None if st is None else st.stamp_s - st.uptime_s
+            self._applied[cell] = _Applied(scenario, now_s, start)
+            if len(self._applied) > MAX_CELLS:
+                self._applied.pop(next(iter(self._applied)))
+
+    def applied_scenario(self, cell: str) -> dict[str, Any] | None:
+        """The last scenario ``cell``'s worker accepted from this registry, while no later
+        status contradicts it (another scenario name, or a worker started since); else None."""
+        with self._lock:
+            a = self._applied.get(cell)
+            c = self._cells.get(cell)
+            if a is None:
+                return None
+            st, st_recv = (None, None) if c is None else (c.status, c.status_recv_s)
+            if st is None or st_recv is None or st_recv <= a.recv_s:
+                return a.scenario  # nothing heard since the acceptance
+            restarted = (
+                a.worker_start_s is not None
+                and abs((st.stamp_s - st.uptime_s) - a.worker_start_s) > RESTART_TOLERANCE_S
+            )
+            if st.scenario != a.scenario.get("name") or restarted:
+                del self._applied[cell]
+                return None
+            return a.scenario

@@ -97,6 +97,7 @@ class ConfirmationRequired(ParameterError):
 
     def __init__(self, plan: EditPlan) -> None:
         self.plan = plan
+        self.audit_entry: AuditEntry | None = None  # set by apply_edit once recorded
         super().__init__(plan.warning)
 
 
@@ -292,7 +293,7 @@ def apply_edit(
     try:
         plan = plan_edit(sc, region, contact, shape, energy_J, confirm)
     except ConfirmationRequired as e:
-        audit.record_plan(e.plan, outcome="refused", reason=str(e), **common)
+        e.audit_entry = audit.record_plan(e.plan, outcome="refused", reason=str(e), **common)
         raise
     except SaraError as e:
         audit.record(

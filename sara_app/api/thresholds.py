@@ -1,0 +1,213 @@
+"""REST routes of the threshold editor (power and force limiting, seed 003 Table I).
+
+- ``GET /api/cells/{cell}/thresholds``: the effective table of the scenario the cell runs (value,
+  source value and key, overridden flag, ISO/TS 15066 Annex A reference).
+- ``PUT /api/cells/{cell}/thresholds`` (:class:`ThresholdEditBody`): one entry changed, sent to
+  the worker as a whole scenario and applied there live. 200 when the worker accepted it; 409
+  when the value exceeds its source's value and ``confirm`` is false (the detail holds the
+  warning); 422 for an invalid value or name; 502 when the worker refused; 504 when it did not
+  answer (it may still apply it: the audit row says ``no_answer``).
+- ``GET /api/cells/{cell}/thresholds/audit?limit=``: the cell's audit rows, newest first.
+
+Every PUT outcome is recorded by :func:`sara_app.safety.threshold_edit.apply_edit` (the same
+function the dashboard's panel uses). The scenario edited is the last one this service had
+accepted by the cell's worker while the cell still runs it, else the scenario file the cell
+reports running (:meth:`CellRegistry.applied_scenario`). Edits of one cell are serialised.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from fastapi import FastAPI, HTTPException, Query
+from pydantic import BaseModel, ConfigDict, Field
+
+from sara_app.api.registry import CellRegistry, WorkerTimeoutError
+from sara_app.errors import SaraError
+from sara_app.safety.threshold_audit import MAX_LIMIT, AuditLog
+from sara_app.safety.threshold_edit import ConfirmationRequired, apply_edit, threshold_view
+from sara_app.safety.thresholds import CONTACTS, REGIONS, SHAPES
+from sara_app.scenario import Scenario, load_scenario, parse_scenario, scenario_names
+
+
+class WorkerRefusedError(SaraError):
+    """The cell's worker answered the scenario request with a refusal."""
+
+
+class ThresholdEditBody(BaseModel):
+    """One threshold entry to change (names are checked by the service, which records every
+    request in the audit log, valid or not)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    region: str = Field(json_schema_extra={"enum": list(REGIONS)}, description="Table I region")
+    contact: str = Field(json_schema_extra={"enum": list(CONTACTS)})
+    shape: str = Field(json_schema_extra={"enum": list(SHAPES)})
+    energy_J: float = Field(description="admissible energy in J: a finite number > 0")
+    confirm: bool = Field(False, description="required when energy_J exceeds the source value")
+    user: str = Field("unknown", max_length=200, description="who asks (free text, audited)")
+
+
+class ThresholdEditAnswer(BaseModel):
+    cell: str
+    scenario: str
+    accepted: bool
+    edit: dict[str, Any]
+    audit: dict[str, Any]
+
+
+AuditSource = AuditLog | Callable[[], AuditLog]
+
+
+class _Editor:
+    def __init__(self, registry: CellRegistry, folder: Path, audit: AuditSource) -> None:
+        self.registry, self.folder = registry, folder
+        self._audit: AuditLog | None = None
+        self._factory: Callable[[], AuditLog] | None = None
+        if isinstance(audit, AuditLog):
+            self._audit = audit
+        else:
+            self._factory = audit
+        self._lock = threading.Lock()
+        self._cell_locks: dict[str, threading.Lock] = {}
+
+    def audit(self) -> AuditLog:
+        """The audit log (opened on first use when given as a factory)."""
+        with self._lock:
+            if self._audit is None and self._factory is not None:
+                try:
+                    self._audit = self._factory()
+                except SaraError as e:
+                    raise HTTPException(503, f"the audit log is unavailable: {e}") from None
+            if self._audit is None:
+                raise HTTPException(503, "the audit log is unavailable")
+            return self._audit
+
+    def cell_lock(self, cell: str) -> threading.Lock:
+        with self._lock:
+            return self._cell_locks.setdefault(cell, threading.Lock())
+
+    def base(self, cell: str, snap: dict[str, Any]) -> tuple[Scenario, str]:
+        """The scenario the cell runs and where it came from (``applied`` or ``file``)."""
+        data = self.registry.applied_scenario(cell)
+        if data is not None:
+            return parse_scenario(data, f"scenario applied to {cell}"), "applied"
+        name = str(snap.get("scenario") or "")
+        if name not in scenario_names(self.folder):
+            raise HTTPException(
+                409,
+                f"cell {cell!r} runs scenario {name!r}, which is neither in the scenarios "
+                "folder nor was applied through this service; send it first "
+                "(POST /api/cells/{cell}/scenario)",
+            )
+        try:
+            return load_scenario(name, self.folder), "file"
+        except SaraError as e:
+            raise HTTPException(500, f"stored scenario {name!r} is invalid: {e}") from None
+
+    def send(self, cell: str, timeout_s: float) -> Callable[[dict[str, Any]], None]:
+        def send(data: dict[str, Any]) -> None:
+            ans = self.registry.request_params(cell, data, timeout_s)
+            if not ans.accepted:
+                raise WorkerRefusedError(f"the worker of cell {cell!r} refused: {ans.reason}")
+
+        return send
+
+
+def _confirmation_detail(e: ConfirmationRequired) -> dict[str, Any]:
+    p = e.plan
+    return {
+        "message": str(e),
+        "needs_confirmation": True,
+        "region": p.region,
+        "contact": p.contact,
+        "shape": p.shape,
+        "requested_energy_J": p.new_energy_J,
+        "source_energy_J": p.source_energy_J,
+        "source_key": p.source_key,
+        "source_text": p.source_text,
+        "audit_id": None if e.audit_entry is None else e.audit_entry.id,
+    }
+
+
+def add_threshold_routes(
+    app: FastAPI,
+    registry: CellRegistry,
+    folder: Path,
+    audit: AuditSource,
+    known_cell: Callable[[str], dict[str, Any]],
+    check_name: Callable[[str, str], str],
+) -> None:
+    """Add the three threshold routes; ``known_cell(cell)`` returns the cell's snapshot or
+    raises the HTTP error (422 bad name, 404 never seen); ``check_name(kind, name)`` checks a
+    name's form only (422)."""
+    ed = _Editor(registry, folder, audit)
+    app.state.threshold_audit = ed.audit
+
+    @app.get("/api/cells/{cell}/thresholds", tags=["thresholds"])
+    def get_cell_thresholds(cell: str) -> dict[str, Any]:
+        """The cell's effective contact-energy table: per entry the value in force, its
+        source's value and key, whether it is overridden, and the ISO/TS 15066 reference."""
+        sc, origin = ed.base(cell, known_cell(cell))
+        return {"cell": cell, "base": origin, **threshold_view(sc)}
+
+    @app.put(
+        "/api/cells/{cell}/thresholds",
+        tags=["thresholds"],
+        response_model=ThresholdEditAnswer,
+        responses={
+            409: {"description": "above the source value: repeat with confirm=true"},
+            422: {"description": "invalid value or name"},
+            502: {"description": "the worker refused the edited scenario"},
+            504: {"description": "the worker did not answer (it may still apply it)"},
+        },
+    )
+    def put_cell_threshold(
+        cell: str,
+        body: ThresholdEditBody,
+        timeout_s: float = Query(3.0, gt=0.0, le=30.0),
+    ) -> ThresholdEditAnswer:
+        """Change one entry of the cell's thresholds live (validated, confirmed when above its
+        source value, sent to the worker, recorded in the audit log whatever the outcome)."""
+        snap = known_cell(cell)
+        log = ed.audit()
+        with ed.cell_lock(cell):
+            sc, _ = ed.base(cell, snap)
+            try:
+                plan, row = apply_edit(
+                    sc,
+                    body.region,
+                    body.contact,
+                    body.shape,
+                    body.energy_J,
+                    confirm=body.confirm,
+                    send=ed.send(cell, timeout_s),
+                    audit=log,
+                    cell=cell,
+                    user=body.user,
+                    via="api",
+                    no_answer=(WorkerTimeoutError,),
+                )
+            except ConfirmationRequired as e:
+                raise HTTPException(409, _confirmation_detail(e)) from None
+            except WorkerTimeoutError as e:
+                raise HTTPException(504, str(e)) from None
+            except WorkerRefusedError as e:
+                raise HTTPException(502, str(e)) from None
+            except SaraError as e:
+                raise HTTPException(422, str(e)) from None
+        return ThresholdEditAnswer(
+            cell=cell, scenario=sc.name, accepted=True, edit=plan.summary(), audit=row.to_dict()
+        )
+
+    @app.get("/api/cells/{cell}/thresholds/audit", tags=["thresholds"])
+    def get_cell_threshold_audit(
+        cell: str, limit: int = Query(50, ge=1, le=MAX_LIMIT)
+    ) -> list[dict[str, Any]]:
+        """The cell's threshold changes and refusals, newest first (also for a cell that is
+        not on the bus any more)."""
+        check_name("cell", cell)
+        return [e.to_dict() for e in ed.audit().entries(cell, limit)]

@@ -1,0 +1,249 @@
+"""The threshold editor's REST routes: effective table, validated PUT (422 invalid, 409 above the
+source value without confirmation, 200 when the worker accepts, 502 refused, 504 no answer),
+every outcome in the audit log, edits accumulate on the scenario the cell runs, concurrent PUTs
+serialised, OpenAPI. The worker here is a stand-in for ``request_params``; the real worker over
+zenoh is in ``test_live_edit.py``."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import threading
+import time
+import warnings
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+with warnings.catch_warnings():
+    warnings.filterwarnings("ignore", message=".*httpx.*deprecated")
+    from fastapi.testclient import TestClient
+
+from sara_app.api import CellRegistry, create_app
+from sara_app.api.registry import ParamsAnswer, WorkerTimeoutError
+from sara_app.bus import keys
+from sara_app.bus.codec import Decoded
+from sara_app.bus.messages import StatusMsg
+from sara_app.safety.threshold_audit import AuditLog
+from sara_app.safety.thresholds import load_thresholds
+from sara_app.scenario import parse_scenario, scenarios_dir
+
+SEED = load_thresholds("thresholds_seed003")
+HAND = {"region": "hand", "contact": "constrained", "shape": "blunt"}
+
+
+class StandInRegistry(CellRegistry):
+    """No bus: ``request_params`` answers as ``answer`` says (accept / refuse / silent)."""
+
+    def __init__(self) -> None:
+        super().__init__(None)
+        self.answer = "accept"
+        self.delay_s = 0.0
+        self.received: list[dict[str, Any]] = []
+
+    def request_params(
+        self, cell: str, scenario: dict[str, Any], timeout_s: float = 3.0
+    ) -> ParamsAnswer:
+        time.sleep(self.delay_s)
+        if self.answer == "silent":
+            raise WorkerTimeoutError(f"the worker of cell {cell!r} did not answer")
+        self.received.append(scenario)
+        if self.answer == "refuse":
+            return ParamsAnswer("r", False, "robot busy")
+        self._remember(cell, scenario)
+        return ParamsAnswer("r", True, "")
+
+    def status(self, cell: str, scenario: str, started_s: float = 100.0) -> None:
+        now = time.time()
+        msg = StatusMsg(
+            seq=int(now * 1e6),
+            stamp_s=now,
+            cell=cell,
+            state="running",
+            scenario=scenario,
+            uptime_s=now - started_s,
+        )
+        self.ingest(Decoded(keys.parse_key(keys.status_key(cell)), msg, now))
+
+
+@pytest.fixture
+def api(tmp_path: Path) -> Iterator[tuple[StandInRegistry, TestClient, AuditLog]]:
+    folder = tmp_path / "scenarios"
+    shutil.copytree(scenarios_dir(), folder)
+    reg = StandInRegistry()
+    reg.status("c1", "empty_cell")
+    audit = AuditLog(tmp_path / "audit.sqlite")
+    with TestClient(create_app(reg, folder, audit=audit)) as client:
+        yield reg, client, audit
+
+
+def _row(table: dict[str, Any], region: str, contact: str, shape: str) -> dict[str, Any]:
+    return next(
+        r
+        for r in table["entries"]
+        if (r["region"], r["contact"], r["shape"]) == (region, contact, shape)
+    )
+
+
+def test_effective_table(api: tuple[StandInRegistry, TestClient, AuditLog]) -> None:
+    _, client, _ = api
+    t = client.get("/api/cells/c1/thresholds").json()
+    assert t["cell"] == "c1" and t["scenario"] == "empty_cell" and t["base"] == "file"
+    assert t["thresholds"] == "thresholds_seed003" and len(t["entries"]) == 40
+    assert t["sources"] == SEED.sources
+    r = _row(t, "hand", "constrained", "blunt")
+    assert r["energy_J"] == r["source_energy_J"] == SEED.energy_J("hand", "constrained", "blunt")
+    assert r["source_key"] == "iso15066" and not r["overridden"]
+    assert r["iso_reference"][0]["iso_region"] == "hand"
+    assert client.get("/api/cells/nope/thresholds").status_code == 404
+    assert client.get("/api/cells/bad.name/thresholds").status_code == 422
+
+
+def test_put_outcomes_and_audit(api: tuple[StandInRegistry, TestClient, AuditLog]) -> None:
+    reg, client, audit = api
+    src = SEED.limit("hand", "constrained", "blunt")
+    # below the source: applied
+    r = client.put("/api/cells/c1/thresholds", json={**HAND, "energy_J": 0.1, "user": "ana"})
+    assert r.status_code == 200, r.text
+    body = r.json()
+    assert body["accepted"] and body["edit"]["old_energy_J"] == src.energy_J
+    assert body["audit"]["outcome"] == "applied" and body["audit"]["user"] == "ana"
+    ov = reg.received[-1]["shield"]["pfl"]["overrides"]
+    assert ov == [{**HAND, "energy_J": 0.1}]
+    parse_scenario(reg.received[-1])  # a whole, valid scenario was sent
+    # above the source without confirmation: 409 naming the source, nothing sent
+    r = client.put("/api/cells/c1/thresholds", json={**HAND, "energy_J": 0.5})
+    assert r.status_code == 409
+    d = r.json()["detail"]
+    assert d["needs_confirmation"] and d["source_key"] == "iso15066"
+    assert d["source_energy_J"] == src.energy_J and "0.12 J" in d["message"]
+    assert isinstance(d["audit_id"], int) and len(reg.received) == 1
+    # confirmed: applied, and the first edit's base is the applied scenario
+    r = client.put("/api/cells/c1/thresholds", json={**HAND, "energy_J": 0.5, "confirm": True})
+    assert r.status_code == 200 and r.json()["edit"]["old_energy_J"] == 0.1
+    assert r.json()["audit"]["exceeds_source"] and r.json()["audit"]["confirmed"]
+    # invalid values and names: 422 with the valid range / choices
+    for bad, want in (
+        ({**HAND, "energy_J": 0.0}, "> 0 J"),
+        ({**HAND, "energy_J": -2}, "> 0 J"),
+        ({**HAND, "region": "elbow", "energy_J": 0.1}, "valid choices"),
+    ):
+        r = client.put("/api/cells/c1/thresholds", json=bad)
+        assert r.status_code == 422 and want in r.json()["detail"], r.text
+    nan = json.dumps({**HAND, "energy_J": float("nan")})  # NaN token, as Python writes it
+    r = client.put(
+        "/api/cells/c1/thresholds", content=nan, headers={"content-type": "application/json"}
+    )
+    assert r.status_code == 422 and "nan" in r.json()["detail"]
+    # the worker refuses / does not answer
+    reg.answer = "refuse"
+    r = client.put("/api/cells/c1/thresholds", json={**HAND, "energy_J": 0.11})
+    assert r.status_code == 502 and "robot busy" in r.json()["detail"]
+    reg.answer = "silent"
+    r = client.put("/api/cells/c1/thresholds", json={**HAND, "energy_J": 0.11})
+    assert r.status_code == 504
+    rows = client.get("/api/cells/c1/thresholds/audit", params={"limit": 100}).json()
+    assert [x["outcome"] for x in rows] == [
+        "no_answer",
+        "refused",
+        "refused",
+        "refused",
+        "refused",
+        "refused",
+        "applied",
+        "refused",
+        "applied",
+    ]
+    assert rows[-2]["id"] == d["audit_id"] and "confirm" in rows[-2]["reason"]
+    assert [x["id"] for x in rows] == sorted((x["id"] for x in rows), reverse=True)
+    assert client.get("/api/cells/c1/thresholds/audit", params={"limit": 2}).json() == rows[:2]
+    assert rows == [e.to_dict() for e in audit.entries("c1", 100)]
+    assert client.get("/api/cells/c1/thresholds/audit", params={"limit": 0}).status_code == 422
+    # the table shows the value in force (the last accepted edit)
+    t = client.get("/api/cells/c1/thresholds").json()
+    assert t["base"] == "applied"
+    r0 = _row(t, "hand", "constrained", "blunt")
+    assert r0["energy_J"] == 0.5 and r0["overridden"] and r0["exceeds_source"]
+
+
+def test_back_to_source_removes_the_override(
+    api: tuple[StandInRegistry, TestClient, AuditLog],
+) -> None:
+    reg, client, _ = api
+    head = {"region": "head", "contact": "unconstrained", "shape": "edge"}
+    assert client.put("/api/cells/c1/thresholds", json={**HAND, "energy_J": 0.1}).is_success
+    assert client.put("/api/cells/c1/thresholds", json={**head, "energy_J": 0.05}).is_success
+    assert len(reg.received[-1]["shield"]["pfl"]["overrides"]) == 2
+    src = SEED.energy_J("hand", "constrained", "blunt")
+    r = client.put("/api/cells/c1/thresholds", json={**HAND, "energy_J": src})
+    assert r.status_code == 200 and r.json()["edit"]["removes_override"]
+    assert reg.received[-1]["shield"]["pfl"]["overrides"] == [{**head, "energy_J": 0.05}]
+
+
+def test_applied_base_dropped_when_the_cell_runs_something_else(
+    api: tuple[StandInRegistry, TestClient, AuditLog],
+) -> None:
+    reg, client, _ = api
+    assert client.put("/api/cells/c1/thresholds", json={**HAND, "energy_J": 0.1}).is_success
+    reg.status("c1", "empty_cell")  # same worker, same scenario: still the applied one
+    assert client.get("/api/cells/c1/thresholds").json()["base"] == "applied"
+    reg.status("c1", "empty_cell", started_s=time.time() - 1.0)  # restarted from its file
+    t = client.get("/api/cells/c1/thresholds").json()
+    assert t["base"] == "file" and not _row(t, "hand", "constrained", "blunt")["overridden"]
+    assert client.put("/api/cells/c1/thresholds", json={**HAND, "energy_J": 0.1}).is_success
+    reg.status("c1", "punches", started_s=time.time() - 1.0)  # another scenario (e.g. dashboard)
+    t = client.get("/api/cells/c1/thresholds").json()
+    assert t["base"] == "file" and t["scenario"] == "punches"
+    reg.status("c1", "not_in_folder")
+    r = client.get("/api/cells/c1/thresholds")
+    assert r.status_code == 409 and "not_in_folder" in r.json()["detail"]
+
+
+def test_concurrent_puts_are_serialised(api: tuple[StandInRegistry, TestClient, AuditLog]) -> None:
+    reg, client, audit = api
+    reg.delay_s = 0.02
+    shapes = ("blunt", "wedge", "edge", "sheet")
+    answers: list[int] = []
+
+    def put(shape: str) -> None:
+        body = {"region": "upper_arm", "contact": "unconstrained", "shape": shape}
+        value = SEED.energy_J("upper_arm", "unconstrained", shape) * 0.5
+        r = client.put("/api/cells/c1/thresholds", json={**body, "energy_J": value})
+        answers.append(r.status_code)
+
+    threads = [threading.Thread(target=put, args=(s,)) for s in shapes]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(30)
+    assert answers == [200] * 4
+    final = {o["shape"] for o in reg.received[-1]["shield"]["pfl"]["overrides"]}
+    assert final == set(shapes)  # no edit lost to a concurrent one
+    assert len(audit.entries("c1")) == 4
+
+
+def test_openapi_documents_the_routes(api: tuple[StandInRegistry, TestClient, AuditLog]) -> None:
+    _, client, _ = api
+    spec = client.get("/openapi.json").json()
+    assert {"get", "put"} <= set(spec["paths"]["/api/cells/{cell}/thresholds"])
+    assert "get" in spec["paths"]["/api/cells/{cell}/thresholds/audit"]
+    body = spec["components"]["schemas"]["ThresholdEditBody"]["properties"]
+    assert body["region"]["enum"] == ["hand", "lower_arm", "upper_arm", "torso_legs", "head"]
+    assert body["confirm"]["default"] is False and body["user"]["default"] == "unknown"
+    put = spec["paths"]["/api/cells/{cell}/thresholds"]["put"]
+    assert {"200", "409", "422", "502", "504"} <= set(put["responses"])
+
+
+def test_audit_log_opened_lazily_at_its_default_place(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("SARA_APP_DATA", str(tmp_path / "data"))
+    reg = StandInRegistry()
+    reg.status("c1", "empty_cell")
+    with TestClient(create_app(reg)) as client:
+        assert client.get("/api/health").is_success
+        assert not (tmp_path / "data").exists()  # nothing written until it is needed
+        assert client.get("/api/cells/c9/thresholds/audit").json() == []
+    assert (tmp_path / "data" / "audit.sqlite").is_file()
