@@ -86,8 +86,11 @@ class ThresholdsPanel:
         for dd in (self.region, self.contact, self.shape):
             dd.on_update(lambda _e: self.select())
         self.energy.on_update(lambda _e: self.update_warning())
-        self.apply_button.on_click(lambda _e: self.apply())
+        self.apply_button.on_click(self._on_apply)
         self.select()
+
+    def _on_apply(self, _event: Any) -> None:
+        self.apply()
 
     # -- state ---------------------------------------------------------------------------------
     def entry(self) -> tuple[str, str, str]:
@@ -107,8 +110,8 @@ class ThresholdsPanel:
         except SaraError as e:
             self.show_message(f"thresholds unavailable: {e}", error=True)
             return
-        self.energy.value = value
-        self.confirm.value = False
+        self.energy.value = value  # type: ignore[misc]
+        self.confirm.value = False  # type: ignore[misc]
         self.refresh()
 
     def refresh(self) -> None:
@@ -160,7 +163,7 @@ class ThresholdsPanel:
                 f"{'/'.join(self.entry())}: tick the confirmation to apply it."
             )
         else:
-            self.confirm.value = False
+            self.confirm.value = False  # type: ignore[misc]
 
     def show_message(self, text: str, error: bool = False) -> None:
         self.message.content = f"**⚠ {text}**" if error else text
@@ -197,7 +200,7 @@ class ThresholdsPanel:
             self.show_message(f"Threshold edit failed: {e!r}", error=True)
             self.refresh_history()
             return False
-        self.confirm.value = False
+        self.confirm.value = False  # type: ignore[misc]
         self.refresh()
         self.show_message(
             f"{'/'.join(entry)}: {plan.old_energy_J:g} → {plan.new_energy_J:g} J applied"
