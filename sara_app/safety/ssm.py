@@ -6,10 +6,11 @@ of every robot link capsule of the interval; the trajectory is safe when every i
 for every human. This is sound exactly when each enabled model is sound for the human's motion
 (its parameters bound it): with "any model free", one unsound model makes the verdict unsound.
 
-Hot path: per model, an axis-aligned bounding-box test of every (interval, human capsule, link)
-triple (a capsule lies inside its box, so disjoint boxes mean disjoint capsules), then exact
-segment distances only for the triples whose boxes overlap. Models are tried in the given order
-and only for intervals that no earlier model has cleared.
+Hot path: per human and model, one compiled kernel
+(:func:`sara_app.geometry_kernels.capsule_sets_check`) checks every (interval, human capsule,
+link) triple of the intervals still to clear: bounding spheres prune, exact segment distances
+decide. Models are tried in the given order and only for intervals that no earlier model has
+cleared.
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from sara_app.errors import UnknownNameError
-from sara_app.geometry import segment_pair_distances, segment_segment_distance
+from sara_app.geometry import segment_segment_distance
+from sara_app.geometry_kernels import capsule_sets_check
 from sara_app.human.reach import MODELS, HumanReach, Occupancy
 
 
@@ -28,8 +30,8 @@ class SsmResult:
     """``safe``: every interval cleared for every human. ``free (H, M, K)``: model ``m``'s set of
     human ``h`` is free of the robot on interval ``k`` (False also where it was not evaluated
     because an earlier model had cleared the interval: see ``evaluated``). ``closest_m (H, M)``:
-    the smallest exact surface distance found between that model's sets and the robot (``inf``
-    when no bounding boxes overlapped; negative: overlap)."""
+    the exact smallest surface distance between that model's sets and the robot capsules over
+    the intervals it was evaluated on (negative: overlap; ``inf`` where not evaluated)."""
 
     safe: bool
     free: np.ndarray
@@ -109,7 +111,7 @@ class SsmVerifier:
         free = np.zeros((H, M, K), dtype=bool)
         evaluated = np.zeros((H, M, K), dtype=bool)
         closest = np.full((H, M), np.inf)
-        r_lo, r_hi = boxes_of(robot_ends, robot_radius)  # (K, L, 3)
+        hit = np.empty(K, dtype=bool)
         safe = True
         for h in range(H):
             ts = times_s[:-1] + age_s[h]
@@ -118,10 +120,9 @@ class SsmVerifier:
             for m, name in enumerate(self.models):
                 todo = ~cleared
                 occ = self.occupancy(name, y[h : h + 1], v[h : h + 1], dv[h : h + 1], ts, te)
-                hit, dmin = self._collides(occ, robot_ends, robot_radius, r_lo, r_hi, todo)
+                closest[h, m] = self._collides(occ, robot_ends, robot_radius, todo, hit)
                 evaluated[h, m] = todo
                 free[h, m] = todo & ~hit
-                closest[h, m] = dmin
                 cleared |= free[h, m]
                 if cleared.all():
                     break
@@ -133,40 +134,10 @@ class SsmVerifier:
         occ: Occupancy,
         robot_ends: np.ndarray,
         robot_radius: np.ndarray,
-        r_lo: np.ndarray,
-        r_hi: np.ndarray,
         todo: np.ndarray,
-    ) -> tuple[np.ndarray, float]:
-        """``(hit (K,), closest distance)`` of one human's capsules against the robot, for the
-        intervals in ``todo``."""
-        K = robot_ends.shape[0]
-        ends = occ.ends[0]  # (K|1, C, 2, 3)
-        rad = occ.radius[0]  # (K|1, C)
-        h_lo, h_hi = boxes_of(ends, rad)  # (K|1, C, 3)
-        overlap = np.all(h_lo[:, :, None] <= r_hi[:, None], axis=-1)
-        overlap &= np.all(r_lo[:, None] <= h_hi[:, :, None], axis=-1)  # (K, C, L)
-        overlap &= todo[:, None, None]
-        k, c, l = np.nonzero(overlap)
-        hit = np.zeros(K, dtype=bool)
-        if k.size == 0:
-            return hit, float("inf")
-        ke = k if ends.shape[0] == K else np.zeros_like(k)
-        kr = k if rad.shape[0] == K else np.zeros_like(k)
-        ha, rb = ends[ke, c], robot_ends[k, l]  # (n, 2, 3) candidate pairs
-        reach = rad[kr, c] + robot_radius[k, l]
-        # Sphere lower bound: |mid_a - mid_b| - half lengths <= segment distance.
-        ma = ha.sum(axis=1)
-        ma -= rb.sum(axis=1)
-        lower = 0.5 * np.sqrt((ma * ma).sum(axis=1))
-        lower -= 0.5 * np.sqrt(((ha[:, 1] - ha[:, 0]) ** 2).sum(axis=1))
-        lower -= 0.5 * np.sqrt(((rb[:, 1] - rb[:, 0]) ** 2).sum(axis=1))
-        lower -= reach
-        near = lower <= 0.0
-        if not near.any():
-            return hit, float(lower.min())
-        d = segment_pair_distances(ha[near], rb[near])
-        d -= reach[near]
-        hit[k[near][d <= 0.0]] = True
-        if (~near).any():
-            return hit, float(min(d.min(), lower[~near].min()))
-        return hit, float(d.min())
+        hit: np.ndarray,
+    ) -> float:
+        """Writes ``hit (K,)`` (one human's capsules may touch the robot on interval ``k``, for
+        the intervals in ``todo``) and returns the exact smallest surface distance over the
+        checked intervals."""
+        return capsule_sets_check(occ.ends[0], occ.radius[0], robot_ends, robot_radius, todo, hit)

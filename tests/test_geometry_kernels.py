@@ -1,0 +1,141 @@
+"""The compiled capsule kernels (``sara_app.geometry_kernels``) against the numpy references.
+
+* ``segment_closest`` gives the distance of ``geometry.segment_segment_closest`` (points,
+  parallel, anti-parallel, collinear, nearly parallel pairs), and its parameters lie in [0, 1]
+  and realise that distance.
+* ``capsule_sets_check`` against all pairs from ``geometry.capsule_distances``: ``hit`` exactly
+  where an interval's smallest distance is <= 0 (round-off ties aside), nothing outside
+  ``todo``, the returned distance is the exact smallest one over the checked intervals, and a
+  NaN capsule always counts as a hit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from sara_app import geometry as geo
+from sara_app.geometry_kernels import capsule_sets_check, segment_closest
+
+SETTINGS = settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+BAND_M = 1e-9  # round-off ties are not compared
+
+coord = st.floats(-3.0, 3.0, allow_nan=False, allow_infinity=False)
+vec3 = st.tuples(coord, coord, coord).map(np.array)
+scale = st.floats(-2.0, 2.0, allow_nan=False).filter(lambda x: abs(x) > 1e-6 or x == 0.0)
+
+
+@st.composite
+def segment_pair(draw: st.DrawFn) -> tuple[np.ndarray, np.ndarray]:
+    kind = draw(
+        st.sampled_from(
+            ["general", "point_a", "point_b", "points", "parallel", "collinear", "near_parallel"]
+        )
+    )
+    p, d, q, e = draw(vec3), draw(vec3), draw(vec3), draw(vec3)
+    a, b = np.stack([p, p + d]), np.stack([q, q + e])
+    if kind == "point_a":
+        a = np.stack([p, p])
+    elif kind == "point_b":
+        b = np.stack([q, q])
+    elif kind == "points":
+        a, b = np.stack([p, p]), np.stack([q, q])
+    elif kind == "parallel":
+        b = np.stack([q, q + draw(scale) * d])
+    elif kind == "collinear":
+        b = np.stack([p + draw(scale) * d, p + draw(scale) * d])
+    elif kind == "near_parallel":
+        b = np.stack([q, q + draw(scale) * d + draw(st.floats(1e-12, 1e-4)) * e])
+    return a, b
+
+
+@SETTINGS
+@given(st.lists(segment_pair(), min_size=1, max_size=16))
+def test_segment_closest_equals_numpy(pairs: list) -> None:
+    for a, b in pairs:
+        tol = 1e-9 * max(1.0, float(np.abs(a).max()), float(np.abs(b).max()))
+        d, s, t = segment_closest(*a.ravel(), *b.ravel())
+        d_ref = float(geo.segment_segment_closest(a, b)[0])
+        assert abs(d - d_ref) <= tol
+        assert 0.0 <= s <= 1.0 and 0.0 <= t <= 1.0
+        pa, pb = a[0] + s * (a[1] - a[0]), b[0] + t * (b[1] - b[0])
+        assert abs(float(np.linalg.norm(pa - pb)) - d) <= tol
+
+
+@st.composite
+def capsule_sets(draw: st.DrawFn) -> dict:
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    K, C, L = draw(st.integers(1, 6)), draw(st.integers(1, 14)), draw(st.integers(1, 9))
+    Ka, Kr = draw(st.sampled_from([1, K])), draw(st.sampled_from([1, K]))
+    spread = draw(st.sampled_from([0.2, 0.6, 1.5]))
+    a0 = rng.normal(scale=spread, size=(Ka, C, 3))
+    a1 = a0 + rng.normal(scale=0.3, size=(Ka, C, 3)) * (rng.random((Ka, C, 1)) < 0.8)
+    b0 = rng.normal(scale=spread, size=(K, L, 3))
+    b1 = b0 + rng.normal(scale=0.3, size=(K, L, 3)) * (rng.random((K, L, 1)) < 0.8)
+    return dict(
+        a_ends=np.stack([a0, a1], axis=2),
+        a_rad=rng.uniform(0.01, 0.3, size=(Kr, C)),
+        b_ends=np.stack([b0, b1], axis=2),
+        b_rad=rng.uniform(0.01, 0.2, size=(K, L)),
+        todo=rng.random(K) < 0.8,
+    )
+
+
+def _brute(c: dict) -> np.ndarray:
+    K, C = c["b_ends"].shape[0], c["a_ends"].shape[1]
+    a_ends = np.broadcast_to(c["a_ends"], (K, C, 2, 3))
+    a_rad = np.broadcast_to(c["a_rad"], (K, C))
+    return np.array(
+        [
+            geo.capsule_distances(a_ends[k], a_rad[k], c["b_ends"][k], c["b_rad"][k]).min()
+            for k in range(K)
+        ]
+    )
+
+
+@SETTINGS
+@given(capsule_sets())
+def test_capsule_sets_check_matches_brute_force(c: dict) -> None:
+    K = c["b_ends"].shape[0]
+    hit = np.ones(K, dtype=bool)
+    best = capsule_sets_check(c["a_ends"], c["a_rad"], c["b_ends"], c["b_rad"], c["todo"], hit)
+    dmin = _brute(c)
+    todo = c["todo"]
+    assert not hit[~todo].any()
+    assert np.all(hit[todo & (dmin <= -BAND_M)])  # sound: every overlap is a hit
+    assert not hit[todo & (dmin > BAND_M)].any()  # and exact
+    expected = dmin[todo].min() if todo.any() else np.inf
+    assert best == expected or abs(best - expected) <= 1e-12
+
+
+@SETTINGS
+@given(capsule_sets(), st.integers(0, 3))
+def test_nan_capsule_is_a_hit(c: dict, which: int) -> None:
+    K = c["b_ends"].shape[0]
+    k = K - 1
+    c["todo"][k] = True
+    if which == 0:
+        c["b_ends"][k, 0, 1, 2] = np.nan
+    elif which == 1:
+        c["b_rad"][k, -1] = np.nan
+    elif which == 2:
+        c["a_ends"][-1, 0, 0, 0] = np.nan
+    else:
+        c["a_rad"][-1, -1] = np.nan
+    c["b_ends"][k] += 100.0  # far apart: only the NaN can make a hit
+    hit = np.zeros(K, dtype=bool)
+    capsule_sets_check(c["a_ends"], c["a_rad"], c["b_ends"], c["b_rad"], c["todo"], hit)
+    assert hit[k]
+
+
+def test_accepts_views_and_read_only_arrays() -> None:
+    """Broadcast (read-only, zero-stride) and transposed inputs need no new compilation."""
+    a = np.broadcast_to(np.array([[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]]), (3, 4, 2, 3))
+    r = np.broadcast_to(np.full(4, 0.1), (3, 4))
+    b = np.asfortranarray(np.array([[[[0.5, 0.5, 0.0], [0.5, 1.0, 0.0]]]] * 3))
+    rb = np.full((3, 1), 0.2)
+    hit = np.zeros(3, dtype=bool)
+    best = capsule_sets_check(a, r, b, rb, np.ones(3, dtype=bool), hit)
+    assert not hit.any() and abs(best - 0.2) < 1e-15
+    assert len(capsule_sets_check.signatures) == 1
