@@ -336,6 +336,24 @@ def test_intervals_of_a_trajectory_object(robot) -> None:
     np.testing.assert_array_equal(a[1], b[1])
 
 
+def test_compiled_intervals_equal_the_formula_on_pinocchio_ends(robot) -> None:
+    """The compiled pass equals the module docstring's formula evaluated with pinocchio's
+    capsule ends: mid axes ``(E_k + E_k+1) / 2`` and ``r + dt / 2 L @ qd_bound + slack``; views
+    (non-contiguous inputs) give the same result."""
+    model, occ = robot
+    rng = np.random.default_rng(5)
+    t, q, _, qd_bound = _random_trajectory(model, rng, 7, (0.001, 0.02), 0.8)
+    E = model.link_capsules_batch(q)
+    ends, radius = occ.intervals(q, qd_bound, t)
+    np.testing.assert_allclose(ends, 0.5 * (E[:-1] + E[1:]), rtol=0, atol=1e-12)
+    ref = 0.5 * np.diff(t)[:, None] * (qd_bound @ occ.lipschitz.T) + model.radius_m
+    np.testing.assert_allclose(radius, ref + ROUNDING_SLACK_M, rtol=1e-14, atol=0)
+    q_f, v_f = np.asfortranarray(q), np.asfortranarray(qd_bound)
+    ends2, radius2 = occ.intervals(q_f, v_f, t)
+    np.testing.assert_array_equal(ends2, ends)
+    np.testing.assert_array_equal(radius2, radius)
+
+
 # ---------------------------------------------------------------------------------------------
 # Errors
 

@@ -78,6 +78,7 @@ from typing import Any, Literal, cast
 
 import numpy as np
 import pinocchio as pin
+from numba import njit, types
 
 from sara_app.errors import InputError, ParameterError, RobotModelError
 from sara_app.robot.model import RobotModel
@@ -90,6 +91,106 @@ ROUNDING_SLACK_M = 1e-9
 """Added to every interval radius to absorb floating-point rounding of the axis and the bound."""
 
 _FK_CHECK_TOL_M = 1e-9
+
+
+_f8, _i8 = types.float64, types.int64
+_RO1, _RO2, _RO3, _RO4 = (types.Array(_f8, d, "A", readonly=True) for d in (1, 2, 3, 4))
+_W2, _W4 = types.Array(_f8, 2, "A"), types.Array(_f8, 4, "A")
+_ROI1 = types.Array(_i8, 1, "A", readonly=True)
+
+
+@njit(types.void(_RO2, _RO3, _ROI1, _W4), cache=True)
+def _fk_kernel(Q: np.ndarray, N: np.ndarray, parents: np.ndarray, H: np.ndarray) -> None:
+    """Joint frame poses: ``H[s, j+1] = H[s, parents[j]] @ (N0 + sin q N1 + (1 - cos q) N2)``
+    for joint positions ``Q (S, n)`` (joint order), ``N (n, 3, 16)``; rows 0..2 of ``H (S, n+1,
+    4, 4)`` are written (row 3 and ``H[:, 0]`` are the caller's)."""
+    S, n = Q.shape
+    hl = np.empty((3, 4))
+    for s in range(S):
+        for j in range(n):
+            sq = math.sin(Q[s, j])
+            cq = 1.0 - math.cos(Q[s, j])
+            for r in range(3):
+                for c in range(4):
+                    x = 4 * r + c
+                    hl[r, c] = N[j, 0, x] + sq * N[j, 1, x] + cq * N[j, 2, x]
+            p = parents[j]
+            for r in range(3):
+                for c in range(4):
+                    acc = H[s, p, r, 3] if c == 3 else 0.0
+                    for m in range(3):
+                        acc += H[s, p, r, m] * hl[m, c]
+                    H[s, j + 1, r, c] = acc
+
+
+@njit(types.void(_RO4, _ROI1, _RO3, _W4), cache=True)
+def _ends_kernel(
+    H: np.ndarray, link_joint: np.ndarray, ends_joint: np.ndarray, E: np.ndarray
+) -> None:
+    """World capsule ends ``E (S, L, 2, 3)`` from joint poses ``H (S, n+1, 4, 4)``, the joint
+    carrying each link ``link_joint (L,)`` and the ends in that joint's frame ``(L, 2, 3)``."""
+    for s in range(H.shape[0]):
+        for i in range(link_joint.shape[0]):
+            m = link_joint[i]
+            for e in range(2):
+                for r in range(3):
+                    E[s, i, e, r] = (
+                        H[s, m, r, 0] * ends_joint[i, e, 0]
+                        + H[s, m, r, 1] * ends_joint[i, e, 1]
+                        + H[s, m, r, 2] * ends_joint[i, e, 2]
+                        + H[s, m, r, 3]
+                    )
+
+
+@njit(
+    _i8(_RO2, _RO2, _RO1, _RO3, _ROI1, _ROI1, _RO3, _RO2, _RO1, _W4, _W4, _W4, _W2),
+    cache=True,
+)
+def _intervals_kernel(
+    Q: np.ndarray,
+    V: np.ndarray,
+    T: np.ndarray,
+    N: np.ndarray,
+    parents: np.ndarray,
+    link_joint: np.ndarray,
+    ends_joint: np.ndarray,
+    lipschitz: np.ndarray,
+    radius0: np.ndarray,
+    H: np.ndarray,
+    E: np.ndarray,
+    ends: np.ndarray,
+    radius: np.ndarray,
+) -> int:
+    """:meth:`RobotOccupancy.intervals` (Lipschitz bound) in one pass: checks the values (returns
+    1 for a non-finite ``Q (K+1, n)``, 2 for non-finite or non-increasing times ``T (K+1,)``, 3
+    for a non-finite or negative ``V (K, n)``, writing nothing else; 0 when valid), then fills
+    ``H``, ``E`` (joint poses and capsule ends at the samples), ``ends (K, L, 2, 3)`` (mid axes)
+    and ``radius (K, L) = dt / 2 * lipschitz @ V + radius0``."""
+    S, n = Q.shape
+    for s in range(S):
+        for j in range(n):
+            if not math.isfinite(Q[s, j]):
+                return 1
+        if not math.isfinite(T[s]) or (s > 0 and not T[s] > T[s - 1]):
+            return 2
+    for k in range(S - 1):
+        for j in range(n):
+            if not (math.isfinite(V[k, j]) and V[k, j] >= 0.0):
+                return 3
+    _fk_kernel(Q, N, parents, H)
+    _ends_kernel(H, link_joint, ends_joint, E)
+    L = link_joint.shape[0]
+    for k in range(S - 1):
+        half_dt = 0.5 * (T[k + 1] - T[k])
+        for i in range(L):
+            for e in range(2):
+                for r in range(3):
+                    ends[k, i, e, r] = 0.5 * (E[k, i, e, r] + E[k + 1, i, e, r])
+            acc = 0.0
+            for j in range(n):
+                acc += lipschitz[i, j] * V[k, j]
+            radius[k, i] = half_dt * acc + radius0[i]
+    return 0
 
 
 def _skew(a: np.ndarray) -> np.ndarray:
@@ -139,7 +240,7 @@ class RobotOccupancy:
         N[:, 1, :3, :3] = Rp @ K
         N[:, 2, :3, :3] = Rp @ K @ K
         self._N = N.reshape(n, 3, 16)
-        self._parents = [int(a) for a in parents]
+        self._parents = np.asarray(parents, dtype=np.int64)
         self._q_index = q_index
         self._q_identity = bool(np.array_equal(q_index, np.arange(n)))
         self._axes = axes
@@ -152,15 +253,8 @@ class RobotOccupancy:
             link_joint[i] = frame.parentJoint
             R, p = frame.placement.rotation, frame.placement.translation
             ends_joint[i] = model.capsules_local[i] @ R.T + p
-        self._link_joint = link_joint
-        # Block matrix mapping the stacked 3x4 joint poses to the capsule ends:
-        # rows 4m..4m+3 (joint m), column 2 i + e (end e of link i) = [end; 1] if m carries i.
-        block = np.zeros((4 * (n + 1), 2 * n_links))
-        for i in range(n_links):
-            m = int(link_joint[i])
-            block[4 * m : 4 * m + 3, 2 * i : 2 * i + 2] = ends_joint[i].T
-            block[4 * m + 3, 2 * i : 2 * i + 2] = 1.0
-        self._ends_block = block
+        self._link_joint = link_joint.astype(np.int64)
+        self._ends_joint = ends_joint
         radius = np.array(model.radius_m, dtype=float)
 
         # after[i, j, j']: joint j' carries link i and lies after joint j on its chain (j' moves
@@ -198,6 +292,7 @@ class RobotOccupancy:
         self.n_links = n_links
         radius.flags.writeable = False
         self.radius_m: np.ndarray = radius
+        self._radius0 = radius + ROUNDING_SLACK_M
         self._T0 = np.array(model.T_world_base, dtype=float)
         self._capacity = 0
         self._ensure_capacity(32)
@@ -212,10 +307,10 @@ class RobotOccupancy:
         self._capacity = S
         # World poses of the joint frames (index 0: the base), the local joint transforms
         # placement @ Rot(axis, q) and their coefficients (1, sin q, 1 - cos q).
+        # World poses of the joint frames (index 0: the base; row 3 stays [0, 0, 0, 1]).
         self._H = np.zeros((S, n + 1, 4, 4))
+        self._H[:, :, 3, 3] = 1.0
         self._H[:, 0] = self._T0
-        self._Hl = np.zeros((S, n, 4, 4))
-        self._coef = np.ones((S, n, 1, 3))
         self._E = np.empty((S, self.n_links, 2, 3))
 
     def _fk(self, Q: np.ndarray) -> np.ndarray:
@@ -223,27 +318,15 @@ class RobotOccupancy:
         the scratch buffer (valid until the next call)."""
         S = Q.shape[0]
         self._ensure_capacity(S)
-        H, coef = self._H[:S], self._coef[:S]
-        q = Q if self._q_identity else Q[:, self._q_index]
-        np.sin(q, out=coef[:, :, 0, 1])
-        np.cos(q, out=coef[:, :, 0, 2])
-        np.subtract(1.0, coef[:, :, 0, 2], out=coef[:, :, 0, 2])
-        Hl = self._Hl[:S]
-        np.matmul(coef, self._N, out=Hl.reshape(S, self.n_dof, 1, 16))
-        parents = self._parents
-        for j in range(self.n_dof):
-            np.matmul(H[:, parents[j]], Hl[:, j], out=H[:, j + 1])
+        H = self._H[:S]
+        _fk_kernel(Q if self._q_identity else Q[:, self._q_index], self._N, self._parents, H)
         return H
 
     def _ends(self, H: np.ndarray) -> np.ndarray:
-        """World capsule ends ``(S, L, 2, 3)`` from joint poses ``(S, n+1, 4, 4)``: one matrix
-        product ``(S*3, 4(n+1)) @ (4(n+1), 2L)`` with the block matrix of the homogeneous capsule
-        ends (a scratch buffer, valid until the next call)."""
-        S = H.shape[0]
-        A = H[:, :, :3, :].transpose(0, 2, 1, 3).reshape(S * 3, 4 * (self.n_dof + 1))
-        G = (A @ self._ends_block).reshape(S, 3, self.n_links, 2)
-        E = self._E[:S]
-        np.copyto(E, G.transpose(0, 2, 3, 1))
+        """World capsule ends ``(S, L, 2, 3)`` from joint poses ``(S, n+1, 4, 4)`` (a scratch
+        buffer, valid until the next call)."""
+        E = self._E[: H.shape[0]]
+        _ends_kernel(H, self._link_joint, self._ends_joint, E)
         return E
 
     def link_ends(self, q: np.ndarray) -> np.ndarray:
@@ -389,17 +472,26 @@ class RobotOccupancy:
         (configuration-independent constants, the default) or ``"local"`` (tighter, from the
         distances to the joint axes at the samples). Raises :class:`InputError` for bad inputs.
         """
-        Q, V, dt = self._check(q, qd_bound, t)
-        H = self._fk(Q)
-        E = self._ends(H)  # (K+1, L, 2, 3)
-        ends = 0.5 * (E[:-1] + E[1:])
-        if bound == "lipschitz":
-            half = (0.5 * dt)[:, None] * (V @ self.lipschitz.T)
-        elif bound == "local":
-            half = self._half_path_local(H, E, V, dt)
-        else:
+        if bound not in ("lipschitz", "local"):
             raise ParameterError(f"bound = {bound!r}; valid choices: lipschitz, local")
-        radius = half + (self.radius_m + ROUNDING_SLACK_M)
+        Q, V, T = (np.asarray(a, dtype=float) for a in (q, qd_bound, t))
+        S = Q.shape[0] if Q.ndim == 2 else 0
+        if S < 2 or Q.shape[1] != self.n_dof or V.shape != (S - 1, self.n_dof) or T.shape != (S,):
+            self._check(Q, V, T)  # raises with the shape that is wrong
+        self._ensure_capacity(S)
+        H, E = self._H[:S], self._E[:S]
+        ends = np.empty((S - 1, self.n_links, 2, 3))
+        radius = np.empty((S - 1, self.n_links))
+        Qj = Q if self._q_identity else Q[:, self._q_index]
+        status = _intervals_kernel(
+            Qj, V, T, self._N, self._parents, self._link_joint, self._ends_joint,
+            self.lipschitz, self._radius0, H, E, ends, radius,
+        )  # fmt: skip
+        if status:
+            self._check(Q, V, T)  # raises with the value that is wrong
+            raise InputError(f"trajectory rejected by the occupancy kernel (code {status})")
+        if bound == "local":
+            radius = self._half_path_local(H, E, V, T[1:] - T[:-1]) + self._radius0
         return ends, radius
 
     def intervals_of(
