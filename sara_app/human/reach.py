@@ -21,6 +21,7 @@ import numpy as np
 
 from sara_app.errors import InputError, UnknownNameError
 from sara_app.human.params import ReachParams
+from sara_app.human.reach_kernels import acc_sets, pos_sets, static_sets
 from sara_app.human.skeleton import skeleton
 
 MODELS: tuple[str, ...] = ("pos", "vel", "acc", "iso13855", "arm")
@@ -95,34 +96,37 @@ class HumanReach:
         self._buffers: dict[tuple[str, tuple[int, ...]], np.ndarray] = {}
 
     def _tables(self) -> None:
-        """Per-capsule coefficients and index tables, so each model is a few numpy calls."""
+        """Per-capsule coefficients and int64 index tables of the compiled model kernels
+        (:mod:`sara_app.human.reach_kernels`)."""
         sk, p = self.skeleton, self.params
         J = sk.n_joints
         ja, jb, ball = self.ja, self.jb, self.is_ball
+        i64 = np.int64
+        self.part_joints = np.ascontiguousarray(sk.part_joints, dtype=i64)
         # R_VEL / ISO: radius = base + speed * tau (max over the two joints, radius monotone).
         self.vel_base = p.delta_y_m + p.half_thickness_m
         self.vel_speed = np.maximum(p.v_max_mps[ja], p.v_max_mps[jb])
         self.iso_base = p.delta_y_m + p.iso_radius_m
+        self.iso_speed = np.full(sk.n_parts, p.iso_v_max_mps)
         # R_ACC: per joint X = [R(tau_b) | R(tau_b) + |v| (tau_b - tau_a) / 2]; ball parts take
         # the first, two-joint parts the second (see ``acc``). Centres C = [tau_a | mid | tau_b].
-        self.acc_ia = np.where(ball, ja, J + ja)
-        self.acc_ib = np.where(ball, jb, J + jb)
+        self.acc_ia = np.where(ball, ja, J + ja).astype(i64)
+        self.acc_ib = np.where(ball, jb, J + jb).astype(i64)
         self.acc_ends = np.stack(
             [np.where(ball, ja, J + ja), np.where(ball, 2 * J + jb, J + jb)], 1
-        )
+        ).astype(i64)
         self.a_half = 0.5 * p.a_max_mps2
-        # R_POS: all limb segments, summed per limb by a matrix product.
+        # R_POS: all limb segments; segment i belongs to limb pos_seg_limb[i].
         seg = [(a, b, i) for i, c in enumerate(sk.limb_chains) for a, b in zip(c[:-1], c[1:])]
-        self.pos_seg_a = np.array([a for a, _, _ in seg], dtype=int)
-        self.pos_seg_b = np.array([b for _, b, _ in seg], dtype=int)
-        self.pos_sum = np.zeros((len(seg), len(sk.limb_chains)))
-        self.pos_sum[np.arange(len(seg)), [i for _, _, i in seg]] = 1.0
+        self.pos_seg_a = np.array([a for a, _, _ in seg], dtype=i64)
+        self.pos_seg_b = np.array([b for _, b, _ in seg], dtype=i64)
+        self.pos_seg_limb = np.array([i for _, _, i in seg], dtype=i64)
         n_seg = np.array([len(c) - 1 for c in sk.limb_chains])
         self.pos_base = self.limb_half_th + (1 + 2 * n_seg) * p.delta_y_m
         self.pos_speed = p.v_max_mps[self.limb_root]
         self.pos_ends = np.concatenate(
             [np.repeat(self.limb_root[:, None], 2, 1), sk.part_joints[self.limb_pos_parts]]
-        )
+        ).astype(i64)
         self.pos_rbase = np.concatenate([self.pos_base, self.vel_base[self.limb_pos_parts]])
         self.pos_rspeed = np.concatenate([self.pos_speed, self.vel_speed[self.limb_pos_parts]])
         self.n_limbs = len(sk.limb_chains)
@@ -202,28 +206,26 @@ class HumanReach:
 
         Sound when every joint's speed stays below its v_max.
         """
-        tau = t_end_s + self.params.delay_s  # (K,)
-        return self._static("vel", y, tau, self.vel_base, self.vel_speed)
+        return self._static("vel", y, t_end_s, self.vel_base, self.vel_speed)
 
     def iso13855(self, y: np.ndarray, t_end_s: np.ndarray) -> Occupancy:
         """ISO 13855 expansion (seed 000 Sec. III-A): every body part's capsule at the measured
         pose, radius iso_radius + delta_y + v_iso tau. Sound when no point moves faster than
         v_iso (1.6 m/s upper body, 2.0 m/s full body): real fast motion breaks this (seed 000).
         """
-        tau = t_end_s + self.params.delay_s
-        speed = np.full(self.skeleton.n_parts, self.params.iso_v_max_mps)
-        return self._static("iso13855", y, tau, self.iso_base, speed)
+        return self._static("iso13855", y, t_end_s, self.iso_base, self.iso_speed)
 
     def _static(
-        self, name: str, y: np.ndarray, tau: np.ndarray, base: np.ndarray, speed: np.ndarray
+        self, name: str, y: np.ndarray, t_end_s: np.ndarray, base: np.ndarray, speed: np.ndarray
     ) -> Occupancy:
-        """Capsules at the measured pose whose radius grows linearly: base + speed * tau."""
-        H, K, P = y.shape[0], tau.shape[0], self.skeleton.n_parts
+        """Capsules at the measured pose whose radius grows linearly: base + speed * tau, tau =
+        t_end + delay."""
+        y = np.asarray(y, dtype=np.float64)
+        t_end_s = np.asarray(t_end_s, dtype=np.float64)
+        H, K, P = y.shape[0], t_end_s.shape[0], self.skeleton.n_parts
         ends = self._buf(name + "e", (H, P, 2, 3))
-        np.take(y, self.skeleton.part_joints, axis=1, out=ends)
         radius = self._buf(name + "r", (K, P))
-        np.multiply(tau[:, None], speed, out=radius)
-        radius += base
+        static_sets(y, self.part_joints, t_end_s, self.params.delay_s, base, speed, ends, radius)
         return Occupancy(name, ends[:, None], radius[None], self.part_names)
 
     def acc(
@@ -245,27 +247,16 @@ class HumanReach:
         below a_max and ``dv`` bounds the velocity error.
         """
         p = self.params
-        H, J = y.shape[0], y.shape[1]
-        K = t_end_s.shape[0]
-        ta = t_start_s + p.delay_s
-        tb = t_end_s + p.delay_s
-        times = np.stack([ta, 0.5 * (ta + tb), tb], axis=1)  # (K, 3): tau_a, mid, tau_b
-        # X (H, K, 2J): [R(tau_b) | R(tau_b) + |v| (tau_b - tau_a) / 2]
-        X = self._buf("acc_x", (H, K, 2 * J))
-        R = X[:, :, :J]
-        np.multiply(dv[:, None, :], tb[:, None], out=R)
-        R += self.a_half * (tb * tb)[:, None] + p.delta_y_m
-        speed = np.sqrt((v * v).sum(axis=2))
-        np.multiply(speed[:, None, :], (0.5 * (tb - ta))[:, None], out=X[:, :, J:])
-        X[:, :, J:] += R
-        radius = self._buf("acc_r", (H, K, self.skeleton.n_parts))
-        np.maximum(X[:, :, self.acc_ia], X[:, :, self.acc_ib], out=radius)
-        radius += p.half_thickness_m
-        # Centres (H, K, 3, J, 3): joint positions at tau_a, mid and tau_b.
-        C = self._buf("acc_c", (H, K, 3, J, 3))
-        np.multiply(v[:, None, None], times[None, :, :, None, None], out=C)
-        C += y[:, None, None]
-        ends = C.reshape(H, K, 3 * J, 3)[:, :, self.acc_ends]
+        y, v, dv, t_start_s, t_end_s = (
+            np.asarray(a, dtype=np.float64) for a in (y, v, dv, t_start_s, t_end_s)
+        )
+        H, K, P = y.shape[0], t_end_s.shape[0], self.skeleton.n_parts
+        ends = self._buf("acc_e", (H, K, P, 2, 3))
+        radius = self._buf("acc_r", (H, K, P))
+        acc_sets(
+            y, v, dv, t_start_s, t_end_s, p.delay_s, self.a_half, p.delta_y_m,
+            p.half_thickness_m, self.acc_ia, self.acc_ib, self.acc_ends, ends, radius,
+        )  # fmt: skip
         return Occupancy("acc", ends, radius, self.part_names)
 
     def pos(self, y: np.ndarray, t_end_s: np.ndarray) -> Occupancy:
@@ -277,19 +268,16 @@ class HumanReach:
         adds a single delta_y). Sound when the root's speed stays below its v_max and the limb
         lengths are rigid.
         """
-        tau = t_end_s + self.params.delay_s
-        H, K = y.shape[0], tau.shape[0]
-        seg = y[:, self.pos_seg_b] - y[:, self.pos_seg_a]
-        seg *= seg
-        lengths = np.sqrt(seg.sum(axis=2)) @ self.pos_sum  # (H, L)
-        C = self.pos_ends.shape[0]
+        y = np.asarray(y, dtype=np.float64)
+        t_end_s = np.asarray(t_end_s, dtype=np.float64)
+        H, K, C = y.shape[0], t_end_s.shape[0], self.pos_ends.shape[0]
         radius = self._buf("pos_r", (H, K, C))
-        np.multiply(tau[:, None], self.pos_rspeed, out=radius[0])
-        radius[0] += self.pos_rbase
-        radius[1:] = radius[0]
-        radius[:, :, : self.n_limbs] += lengths[:, None, :]
         ends = self._buf("pos_e", (H, C, 2, 3))
-        np.take(y, self.pos_ends, axis=1, out=ends)
+        pos_sets(
+            y, self.pos_seg_a, self.pos_seg_b, self.pos_seg_limb, self.pos_ends, t_end_s,
+            self.params.delay_s,
+            self.pos_rspeed, self.pos_rbase, self.n_limbs, ends, radius,
+        )  # fmt: skip
         return Occupancy("pos", ends[:, None], radius, self.pos_names)
 
     def model(

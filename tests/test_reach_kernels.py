@@ -1,0 +1,111 @@
+"""The compiled reachability kernels behind ``HumanReach.pos / vel / iso13855 / acc`` against a
+plain numpy transcription of the formulas in the method docstrings (the implementation before
+the kernels), on random skeletons, velocities, error bounds (including ``inf``: no velocity
+estimate) and intervals, for one and several humans. Soundness of the models themselves is
+tested by sampling in ``test_reach.py``."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from sara_app.human.params import load_param_set, to_reach_params
+from sara_app.human.reach import HumanReach
+
+SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+REACH = {
+    kind: HumanReach(to_reach_params(load_param_set("seed001_table1"), kind))
+    for kind in ("full", "upper")
+}
+
+
+def ref_static(r: HumanReach, y, t_end, base, speed):
+    tau = t_end + r.params.delay_s
+    return y[:, r.skeleton.part_joints], tau[:, None] * speed + base
+
+
+def ref_pos(r: HumanReach, y, t_end):
+    sk, p = r.skeleton, r.params
+    tau = t_end + p.delay_s
+    lengths = np.zeros((y.shape[0], r.n_limbs))
+    for i, chain in enumerate(sk.limb_chains):
+        for a, b in zip(chain[:-1], chain[1:]):
+            lengths[:, i] += np.linalg.norm(y[:, b] - y[:, a], axis=-1)
+    radius = np.broadcast_to(tau[:, None] * r.pos_rspeed + r.pos_rbase, (y.shape[0],) + (
+        tau.shape[0], len(r.pos_rbase))).copy()  # fmt: skip
+    radius[:, :, : r.n_limbs] += lengths[:, None, :]
+    return y[:, r.pos_ends], radius
+
+
+def ref_acc(r: HumanReach, y, v, dv, t_start, t_end):
+    p, sk = r.params, r.skeleton
+    ta, tb = t_start + p.delay_s, t_end + p.delay_s
+    R = dv[:, None, :] * tb[:, None] + (0.5 * p.a_max_mps2 * (tb * tb)[:, None] + p.delta_y_m)
+    grow = R + np.linalg.norm(v, axis=-1)[:, None, :] * (0.5 * (tb - ta))[:, None]
+    ja, jb = sk.part_joints[:, 0], sk.part_joints[:, 1]
+    ball = ja == jb
+    radius = np.where(ball, R[:, :, ja], np.maximum(grow[:, :, ja], grow[:, :, jb]))
+    radius = radius + p.half_thickness_m
+    mid = 0.5 * (ta + tb)
+    at = lambda t, j: y[:, None, j] + v[:, None, j] * t[None, :, None, None]  # noqa: E731
+    e0 = np.where(ball[None, None, :, None], at(ta, ja), at(mid, ja))
+    e1 = np.where(ball[None, None, :, None], at(tb, jb), at(mid, jb))
+    return np.stack([e0, e1], axis=3), radius
+
+
+@st.composite
+def inputs(draw: st.DrawFn) -> dict:
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    kind = draw(st.sampled_from(["full", "upper"]))
+    J = REACH[kind].skeleton.n_joints
+    H, K = draw(st.integers(1, 4)), draw(st.integers(1, 6))
+    y = rng.normal(scale=0.5, size=(H, J, 3)) + [0.0, 0.0, 1.0]
+    v = rng.normal(scale=draw(st.sampled_from([0.0, 0.5, 3.0])), size=(H, J, 3))
+    dv = rng.uniform(0.0, 0.5, size=(H, J))
+    if rng.random() < 0.3:
+        dv[rng.integers(H), rng.integers(J)] = np.inf
+    t0 = np.cumsum(rng.uniform(0.0, 0.05, K))
+    return dict(kind=kind, y=y, v=v, dv=dv, ts=t0, te=t0 + rng.uniform(0.0, 0.05, K))
+
+
+def _close(a: np.ndarray, b: np.ndarray) -> None:
+    np.testing.assert_allclose(np.broadcast_to(a, b.shape), b, rtol=1e-13, atol=1e-14)
+
+
+@SETTINGS
+@given(inputs())
+def test_kernels_equal_numpy_formulas(c: dict) -> None:
+    r = REACH[c["kind"]]
+    y, v, dv, ts, te = c["y"], c["v"], c["dv"], c["ts"], c["te"]
+    H, K = y.shape[0], te.shape[0]
+    for occ, (ends, radius) in (
+        (r.vel(y, te), ref_static(r, y, te, r.vel_base, r.vel_speed)),
+        (r.iso13855(y, te), ref_static(r, y, te, r.iso_base, r.iso_speed)),
+    ):
+        _close(occ.ends[:, 0], ends)
+        _close(occ.radius[0], radius)
+        assert occ.ends.shape == (H, 1) + ends.shape[1:] and occ.radius.shape == (
+            1,
+            K,
+            ends.shape[1],
+        )
+    occ = r.pos(y, te)
+    ends, radius = ref_pos(r, y, te)
+    _close(occ.ends[:, 0], ends)
+    _close(occ.radius, radius)
+    occ = r.acc(y, v, dv, ts, te)
+    ends, radius = ref_acc(r, y, v, dv, ts, te)
+    _close(occ.ends, ends)
+    _close(occ.radius, radius)
+
+
+def test_nan_velocity_bound_gives_nan_radius() -> None:
+    """A NaN error bound reaches the radius (never a finite, too small set)."""
+    r = REACH["full"]
+    y = np.zeros((1, 15, 3))
+    dv = np.full((1, 15), 0.1)
+    dv[0, 3] = np.nan
+    occ = r.acc(y, np.zeros_like(y), dv, np.array([0.0]), np.array([0.1]))
+    parts = np.flatnonzero((r.skeleton.part_joints == 3).any(axis=1))
+    assert parts.size and np.isnan(occ.radius[0, 0, parts]).all()
