@@ -9,10 +9,26 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from sara_app.dashboard.frame import CONTACT_ENV, CONTACT_SELF, CONTACT_UNCONSTRAINED, MODEL_NAMES
-from sara_app.dashboard.panels import RollingSeries, flatten, status_markdown, unflatten
+from sara_app.dashboard.frame import (
+    CONTACT_ENV,
+    CONTACT_SELF,
+    CONTACT_UNCONSTRAINED,
+    MODEL_NAMES,
+    LinkEnergy,
+)
+from sara_app.dashboard.panels import (
+    MARGIN_RGB,
+    RollingSeries,
+    flatten,
+    link_energy_markdown,
+    margin_level,
+    status_markdown,
+    unflatten,
+)
 from sara_app.dashboard.scene import (
     CONTACT_RGB,
+    CRITICAL_ACTIVE_RGB,
+    CRITICAL_IDLE_RGB,
     UNVERIFIED_RGB,
     VERIFIED_RGB,
     demo_frame,
@@ -178,3 +194,55 @@ def test_rolling_series_keeps_window_and_skips_nonfinite() -> None:
 
 def test_all_model_groups_exist(dash: Dashboard) -> None:
     assert dash.scene is not None and tuple(dash.scene.models) == MODEL_NAMES
+
+
+def test_margin_levels_and_link_table() -> None:
+    assert margin_level(None, None) is None and margin_level(1.0, None) is None
+    assert margin_level(float("nan"), 2.0) is None
+    assert margin_level(-1e-9, 2.0) == "negative"
+    assert margin_level(0.0, 2.0) == "small" and margin_level(0.199, 2.0) == "small"
+    assert margin_level(0.2, 2.0) == "ok"
+    links = [
+        LinkEnergy("a|b", 0.5, 0.4, -0.1, "h<1>", "l_hand", "env-constrained", "edge"),
+        LinkEnergy("c", 0.1, 2.0, 1.9, "h1", "torso", "unconstrained"),
+        LinkEnergy("d", 0.0),
+    ]
+    md = link_energy_markdown(links)
+    rows = md.splitlines()
+    assert len(rows) == 2 + 3 and all(r.count(" | ") == 6 for r in rows[2:])  # 7 columns
+    r, g, b = MARGIN_RGB["negative"]
+    assert f"rgb({r},{g},{b})" in rows[2] and "-0.100" in rows[2] and "a\\|b" in rows[2]
+    assert "h&lt;1&gt;" in rows[2] and "env-constrained" in rows[2] and "edge" in rows[2]
+    r, g, b = MARGIN_RGB["ok"]
+    assert f"rgb({r},{g},{b})" in rows[3] and "+1.900" in rows[3]
+    assert "no contact possible" in rows[4] and "rgb(" not in rows[4]
+    assert "No link energies" in link_energy_markdown([])
+
+
+def test_status_rows_of_the_safety_modes() -> None:
+    base = {"mode": "intended", "safety_mode": "ssm"}
+    md = status_markdown(base)
+    assert "Speed scale" not in md and "JSSA" not in md and "Intervening" not in md
+    md = status_markdown({**base, "intervened": False, "speed_scale": 0.255})
+    assert "Intervening | no" in md and "Speed scale (PFL) | 26 %" in md
+    jssa = {"phi_m2": None, "active": False, "fallback": False, "d_min_m": 0.05}
+    md = status_markdown({**base, "jssa": jssa})
+    assert "JSSA | inactive" in md and "JSSA phi | n/a" in md and "n/a / 0.050 m" in md
+
+
+def test_contact_parts_layer_and_critical_colour(dash: Dashboard) -> None:
+    scene = dash.scene
+    assert scene is not None
+    frame = demo_frame(5.0)
+    assert frame.contact_parts is not None and dash.update(frame)
+    assert scene.contact_parts.count == 2
+    rgb = np.asarray(scene.contact_parts.tubes.handle.batched_colors)[:2]  # type: ignore[union-attr]
+    assert [tuple(c) for c in rgb] == [CONTACT_RGB[2], CONTACT_RGB[1]]
+    assert np.all(np.asarray(scene.critical.colors) == CRITICAL_ACTIVE_RGB)
+    assert dash.update(replace(frame, critical_active=False))
+    assert np.all(np.asarray(scene.critical.colors) == CRITICAL_IDLE_RGB)
+    scene.set_visible("contacts", False)
+    assert not scene.contact_parts.visible
+    scene.set_visible("contacts", True)
+    bad = replace(frame, contact_parts=replace(frame.contact_parts, radius=np.zeros(5)))
+    assert not dash.update(bad)

@@ -42,6 +42,40 @@ class EnvBoxes:
     half_extents_m: np.ndarray
 
 
+CONTACT_CODES: dict[str, int] = {
+    "unconstrained": CONTACT_UNCONSTRAINED,
+    "env-constrained": CONTACT_ENV,
+    "self-constrained": CONTACT_SELF,
+}
+"""Contact class names of the bus messages to :attr:`DisplayFrame.contact_class` values."""
+
+
+@dataclass
+class LinkEnergy:
+    """One robot link's kinetic energy over the shielded trajectory and the PFL threshold that
+    applies to it [J]: ``limit_j`` None when the link cannot touch anybody; ``margin_j`` =
+    limit - energy; the human, body part, contact class and shape that set the limit."""
+
+    link: str
+    energy_j: float
+    limit_j: float | None = None
+    margin_j: float | None = None
+    human_id: str | None = None
+    body_part: str | None = None
+    contact: str | None = None
+    shape: str = "blunt"
+
+
+@dataclass
+class ContactParts:
+    """Body parts in possible contact, as capsules along each part's two end joints:
+    ``ends (P, 2, 3)``, ``radius (P,)``, ``contact_class (P,)`` (``CONTACT_*`` values)."""
+
+    ends: np.ndarray
+    radius: np.ndarray
+    contact_class: np.ndarray
+
+
 @dataclass
 class DisplayFrame:
     """Everything the 3D view and the status panel show for one instant.
@@ -53,8 +87,13 @@ class DisplayFrame:
     - ``contact_class (K, L)`` int8 or None: one of the ``CONTACT_*`` values per capsule;
     - ``status``: ``mode`` (str), ``safety_mode`` (str), ``min_distance_m`` (float),
       ``cycle_p50_us`` / ``cycle_p99_us`` (float), ``skeleton_age_ms`` (float, or dict human id
-      to float), ``dropped`` (int, or dict reason to count); missing keys show as "n/a";
-    - ``critical_pair (2, 3)`` or None: the two points of the JSSA critical pair;
+      to float), ``dropped`` (int, or dict reason to count), ``intervened`` (bool),
+      ``speed_scale`` (PFL, float), ``jssa`` (dict: ``phi_m2``, ``active``, ``fallback``,
+      ``reason``, ``link``, ``distance_m``, ``d_min_m``); missing keys show as "n/a";
+    - ``critical_pair (2, 3)`` or None: the JSSA critical pair (robot point, other point);
+      ``critical_active``: whether JSSA modified the command this cycle;
+    - ``links``: PFL energy and threshold per robot link (empty outside PFL);
+    - ``contact_parts``: the body parts in possible contact, or None;
     - ``boxes``: environment boxes or None.
     """
 
@@ -67,4 +106,7 @@ class DisplayFrame:
     contact_class: np.ndarray | None = None
     status: dict[str, Any] = field(default_factory=dict)
     critical_pair: np.ndarray | None = None
+    critical_active: bool = False
+    links: list[LinkEnergy] = field(default_factory=list)
+    contact_parts: ContactParts | None = None
     boxes: EnvBoxes | None = None

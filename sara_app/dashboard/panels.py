@@ -6,7 +6,9 @@ callbacks (set them as attributes or constructor arguments):
 - ``on_select_scenario(name: str)``: the "Load" button, with the dropdown's scenario name;
 - ``on_save_as(name: str)``: the "Save as" button, with the typed name;
 - ``on_params_edit(params: dict)``: the "Apply parameters" button, with the full (nested)
-  parameter dict as last given to :meth:`DashboardPanels.set_params`, edited values in place.
+  parameter dict as last given to :meth:`DashboardPanels.set_params`, edited values in place;
+- ``on_set_mode(mode: str)``: the status tab's safety-mode dropdown (``'ssm'``, ``'pfl'`` or
+  ``'jssa'``); on refusal the dropdown goes back to the last accepted mode.
 
 A callback that raises :class:`~sara_app.errors.SaraError` or ``ValueError`` (pydantic's
 ``ValidationError`` is one) is reported in the tab's message area as refused; otherwise "done"
@@ -23,14 +25,55 @@ from typing import Any
 import numpy as np
 import viser
 
-from sara_app.dashboard.frame import MODEL_NAMES
+from sara_app.dashboard.frame import (
+    CONTACT_ENV,
+    CONTACT_SELF,
+    CONTACT_UNCONSTRAINED,
+    MODEL_NAMES,
+    LinkEnergy,
+)
+from sara_app.dashboard.scene import (
+    CONTACT_RGB,
+    CRITICAL_ACTIVE_RGB,
+    CRITICAL_IDLE_RGB,
+    UNVERIFIED_RGB,
+    VERIFIED_RGB,
+)
 from sara_app.errors import SaraError
+from sara_app.scenario import SAFETY_MODES
 
 NO_SCENARIO = "(no scenarios)"
+SMALL_MARGIN = 0.1
+"""A PFL margin below this fraction of its threshold is shown amber (negative: red)."""
+MARGIN_RGB = {"ok": (20, 150, 50), "small": (220, 130, 0), "negative": (210, 0, 0)}
+
+
+def _swatch(rgb: tuple[int, int, int], text: str) -> str:
+    r, g, b = rgb
+    return f'<span style="color:rgb({r},{g},{b})">&#9632;</span> {text}'
+
+
 LEGEND_MD = (
-    "**Robot occupancy**: green = verified, red = failsafe / unverified. "
-    "With contact colours: amber = unconstrained contact, magenta = clamping against the "
-    "environment, blue = clamping between robot links."
+    "**Robot occupancy** (per interval and link): "
+    + ", ".join(
+        (
+            _swatch(VERIFIED_RGB, "verified, no contact possible"),
+            _swatch(UNVERIFIED_RGB, "failsafe / unverified"),
+        )
+    )
+    + "<br/>**Contact class** (PFL, colours the capsule where a contact is first possible and "
+    "the body part): "
+    + ", ".join(
+        (
+            _swatch(CONTACT_RGB[CONTACT_UNCONSTRAINED], "unconstrained (free collision)"),
+            _swatch(CONTACT_RGB[CONTACT_ENV], "clamped against the environment"),
+            _swatch(CONTACT_RGB[CONTACT_SELF], "clamped between robot links"),
+        )
+    )
+    + "<br/>**JSSA critical pair** (robot point to human point): "
+    + ", ".join(
+        (_swatch(CRITICAL_ACTIVE_RGB, "JSSA active"), _swatch(CRITICAL_IDLE_RGB, "inactive"))
+    )
 )
 
 
@@ -58,7 +101,72 @@ def status_markdown(status: dict[str, Any]) -> str:
         ("Skeleton age", _fmt(status.get("skeleton_age_ms"), ".1f", " ms")),
         ("Dropped messages", _fmt(status.get("dropped"), ".0f")),
     ]
+    if "intervened" in status:
+        rows.append(("Intervening", "yes" if status["intervened"] else "no"))
+    if status.get("speed_scale") is not None:
+        rows.append(("Speed scale (PFL)", _fmt(100.0 * _float(status["speed_scale"]), ".0f", " %")))
+    jssa = status.get("jssa")
+    if isinstance(jssa, dict):
+        rows += _jssa_rows(jssa)
     return "| | |\n|---|---|\n" + "\n".join(f"| {k} | {v} |" for k, v in rows)
+
+
+def _jssa_rows(jssa: dict[str, Any]) -> list[tuple[str, str]]:
+    if jssa.get("fallback"):
+        state = f"**fallback (braking)**: {_escape(str(jssa.get('reason', '')))}"
+    else:
+        state = "**active**" if jssa.get("active") else "inactive"
+    rows = [("JSSA", state), ("JSSA phi", _fmt(jssa.get("phi_m2"), ".4f", " m²"))]
+    if jssa.get("link") is not None:
+        rows.append(("JSSA critical link", _escape(str(jssa["link"]))))
+    rows.append(
+        (
+            "JSSA distance / d_min",
+            f"{_fmt(jssa.get('distance_m'), '.3f')} / {_fmt(jssa.get('d_min_m'), '.3f', ' m')}",
+        )
+    )
+    return rows
+
+
+def _escape(text: str) -> str:
+    """Plain text for a markdown table cell (no HTML, no column breaks)."""
+    return text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;").replace("|", "\\|")
+
+
+def margin_level(margin_j: float | None, limit_j: float | None) -> str | None:
+    """``'negative'``, ``'small'`` (below :data:`SMALL_MARGIN` of the limit) or ``'ok'``; None
+    when the link cannot touch anybody."""
+    if limit_j is None or margin_j is None or not np.isfinite(margin_j):
+        return None
+    if margin_j < 0.0:
+        return "negative"
+    return "small" if margin_j < SMALL_MARGIN * limit_j else "ok"
+
+
+def link_energy_markdown(links: list[LinkEnergy]) -> str:
+    """Markdown table of each link's energy, threshold and margin [J], coloured margin, and the
+    body part, human, contact class and shape that set the threshold."""
+    if not links:
+        return "*No link energies (shown in PFL mode).*"
+    head = "| Link | Energy [J] | Limit [J] | Margin [J] | Set by | Contact | Shape |\n"
+    head += "|---|---|---|---|---|---|---|\n"
+    rows = []
+    for e in links:
+        level = margin_level(e.margin_j, e.limit_j)
+        if level is None:
+            limit = margin = "—"
+            who = contact = "no contact possible"
+        else:
+            r, g, b = MARGIN_RGB[level]
+            limit = _fmt(e.limit_j, ".3f")
+            margin = f'<b style="color:rgb({r},{g},{b})">{_fmt(e.margin_j, "+.3f")}</b>'
+            who = _escape(f"{e.body_part or '?'} ({e.human_id or '?'})")
+            contact = _escape(e.contact or "?")
+        rows.append(
+            f"| {_escape(e.link)} | {_fmt(e.energy_j, '.3f')} | {limit} | {margin} | {who} "
+            f"| {contact} | {_escape(e.shape)} |"
+        )
+    return head + "\n".join(rows)
 
 
 def flatten(params: dict[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -150,22 +258,38 @@ class DashboardPanels:
         on_save_as: Callable[[str], None] | None = None,
         on_params_edit: Callable[[dict[str, Any]], None] | None = None,
         toggle_names: tuple[str, ...] = MODEL_NAMES,
+        on_set_mode: Callable[[str], None] | None = None,
     ) -> None:
         self.server = server
         self.on_select_scenario = on_select_scenario
         self.on_save_as = on_save_as
         self.on_params_edit = on_params_edit
+        self.on_set_mode = on_set_mode
+        self._mode = "ssm"
+        self._syncing = False
+        self._shown_mode: str | None = None
+        self._links_md = ""
         self.plot_period_s = plot_period_s
         self._last_plot = -np.inf
         self.min_sep = RollingSeries(1, window_s)
         self.cycle = RollingSeries(2, window_s)
+        self.phi = RollingSeries(1, window_s)
+        self.speed = RollingSeries(1, window_s)
         self._params: dict[str, Any] = {}
         self._param_inputs: dict[str, Any] = {}
         gui = server.gui
         tabs = gui.add_tab_group()
         with tabs.add_tab("Status"):
+            self.safety_mode = gui.add_dropdown(
+                "Safety mode", tuple(m.upper() for m in SAFETY_MODES), initial_value="SSM"
+            )
+            self.safety_mode.on_update(lambda _e: self._mode_selected())
+            self.mode_message = gui.add_markdown("")
             self.status = gui.add_markdown(status_markdown({}))
             self.error = gui.add_markdown("", visible=False)
+            self.links_folder = gui.add_folder("PFL: link energies and thresholds")
+            with self.links_folder:
+                self.links = gui.add_markdown(link_energy_markdown([]))
             with gui.add_folder("Show"):
                 self.toggles = {m: gui.add_checkbox(m, True) for m in toggle_names}
             for m, box in self.toggles.items():
@@ -177,8 +301,11 @@ class DashboardPanels:
             self.plot_cycle = _uplot(
                 gui, "Cycle time", ("p50 [us]", "p99 [us]"), ("royalblue", "crimson"), "us"
             )
+            self.plot_phi = _uplot(gui, "JSSA safety index", ("phi [m²]",), ("crimson",), "m²")
+            self.plot_speed = _uplot(gui, "PFL speed scale", ("scale",), ("darkorange",), "-")
         with tabs.add_tab("Scenario"):
             self._build_scenario_tab(gui)
+        self._show_mode_plots("")
 
     # ------------------------------------------------------------------------------------------
     def _build_scenario_tab(self, gui: viser.GuiApi) -> None:
@@ -203,6 +330,36 @@ class DashboardPanels:
         """The "Apply parameters" button: ``on_params_edit(params())``; True if accepted."""
         return self._invoke("Parameters", self.on_params_edit, self.params)
 
+    def select_mode(self, mode: str) -> bool:
+        """Choose a safety mode as the dropdown does (``'ssm'``, ``'pfl'``, ``'jssa'``); True
+        if accepted."""
+        self.safety_mode.value = mode.upper()  # type: ignore[misc]
+        return self._mode == mode
+
+    def _mode_selected(self) -> None:
+        if self._syncing:
+            return
+        mode = str(self.safety_mode.value).lower()
+        if mode == self._mode:
+            return
+        if self._invoke("Safety mode", self.on_set_mode, lambda: mode):
+            self._mode = mode
+            self.mode_message.content = self.message.content
+        else:
+            self.mode_message.content = self.message.content
+            self.set_safety_mode(self._mode)  # back to the accepted mode
+
+    def set_safety_mode(self, mode: str) -> None:
+        """Show ``mode`` as the accepted safety mode (no callback)."""
+        if mode not in SAFETY_MODES:
+            return
+        self._mode = mode
+        self._syncing = True
+        try:
+            self.safety_mode.value = mode.upper()  # type: ignore[misc]
+        finally:
+            self._syncing = False
+
     def _invoke(
         self, what: str, callback: Callable[[Any], None] | None, arg: Callable[[], Any]
     ) -> bool:
@@ -221,7 +378,7 @@ class DashboardPanels:
 
     def show_message(self, text: str, error: bool = False) -> None:
         """Show ``text`` in the scenario tab (bold with a warning sign when ``error``)."""
-        self.message.content = f"**⚠ {text}**" if error else text
+        self.message.content = f"**⚠ {_escape(text)}**" if error else _escape(text)
         self._messages_shown += 1
 
     def set_scenarios(self, names: list[str], current: str | None = None) -> None:
@@ -262,21 +419,45 @@ class DashboardPanels:
         return unflatten(out)
 
     # ------------------------------------------------------------------------------------------
-    def update(self, t_s: float, status: dict[str, Any]) -> None:
-        """Refresh the status table; append to the plots, sent at most every plot period."""
+    def update(
+        self, t_s: float, status: dict[str, Any], links: list[LinkEnergy] | None = None
+    ) -> None:
+        """Refresh the status table and the link-energy table; append to the plots, sent at
+        most every plot period; show the plots of the worker's safety mode."""
         self.status.content = status_markdown(status)
+        links_md = link_energy_markdown(links or [])
+        if links_md != self._links_md:
+            self.links.content = self._links_md = links_md
         self.min_sep.append(t_s, np.array([_float(status.get("min_distance_m"))]))
         self.cycle.append(
             t_s,
             np.array([_float(status.get("cycle_p50_us")), _float(status.get("cycle_p99_us"))]),
         )
+        jssa = status.get("jssa")
+        phi = jssa.get("phi_m2") if isinstance(jssa, dict) else None
+        self.phi.append(t_s, np.array([_float(phi)]))
+        self.speed.append(t_s, np.array([_float(status.get("speed_scale"))]))
+        self._show_mode_plots(str(status.get("safety_mode", "")).lower())
         now = time.monotonic()
         if now - self._last_plot >= self.plot_period_s:
             self._last_plot = now
-            for plot, series in ((self.plot_sep, self.min_sep), (self.plot_cycle, self.cycle)):
+            for plot, series in (
+                (self.plot_sep, self.min_sep),
+                (self.plot_cycle, self.cycle),
+                (self.plot_phi, self.phi),
+                (self.plot_speed, self.speed),
+            ):
                 data = series.data()
-                if data[0].shape[0] >= 2:
+                if plot.visible and data[0].shape[0] >= 2:
                     plot.data = data
+
+    def _show_mode_plots(self, mode: str) -> None:
+        if mode == self._shown_mode:
+            return
+        self._shown_mode = mode
+        self.plot_phi.visible = mode == "jssa"
+        self.plot_speed.visible = mode == "pfl"
+        self.links_folder.visible = mode == "pfl"
 
     def show_error(self, text: str | None) -> None:
         """Show (or clear, with None) a rendering error under the status table."""

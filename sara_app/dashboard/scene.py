@@ -4,8 +4,10 @@ Node layout (scene paths): ``/robot`` (URDF via :class:`viser.extras.ViserUrdf`)
 ``/humans/skeleton`` (line segments) and ``/humans/joints`` (points), ``/humans/<model>``
 (one translucent capsule group per model of :data:`MODEL_NAMES`), ``/robot_occupancy`` (one
 translucent capsule group, colour per capsule), ``/environment/boxes`` (batched unit boxes),
-``/critical_pair`` (a line). :meth:`CellScene.update` sends one :class:`DisplayFrame` in one
-``server.atomic()`` block; the robot's URDF pose is only recomputed when ``q`` changed.
+``/humans/contact_parts`` (the body parts in possible contact, coloured by contact class),
+``/critical_pair`` (a line, red while JSSA intervenes). :meth:`CellScene.update` sends one
+:class:`DisplayFrame` in one ``server.atomic()`` block; the robot's URDF pose is only recomputed
+when ``q`` changed.
 """
 
 from __future__ import annotations
@@ -31,9 +33,11 @@ from sara_app.dashboard.frame import (
     CONTACT_SELF,
     CONTACT_UNCONSTRAINED,
     MODEL_NAMES,
+    ContactParts,
     DisplayFrame,
     EnvBoxes,
     HumanDisplay,
+    LinkEnergy,
 )
 from sara_app.errors import InputError, UnknownNameError
 from sara_app.robot.model import ROBOT_NAMES, urdf_dir
@@ -53,11 +57,22 @@ CONTACT_RGB: dict[int, tuple[int, int, int]] = {
     CONTACT_SELF: (40, 90, 255),
 }
 """Occupancy colours by contact class; class 'none' keeps the verdict colour."""
+CRITICAL_ACTIVE_RGB = (230, 20, 20)
+CRITICAL_IDLE_RGB = (110, 110, 130)
+"""JSSA critical pair line: red while JSSA modifies the command, grey otherwise."""
 
-LAYERS: tuple[str, ...] = ("robot", "occupancy", "skeletons", "boxes", "critical_pair")
+LAYERS: tuple[str, ...] = (
+    "robot",
+    "occupancy",
+    "skeletons",
+    "contacts",
+    "boxes",
+    "critical_pair",
+)
 """Scene parts that can be shown or hidden besides the human models."""
 
 HUMAN_OPACITY = 0.25
+CONTACT_PART_OPACITY = 0.6
 ROBOT_OPACITY = 0.35
 BOX_OPACITY = 0.5
 Q_EPS_RAD = 1e-4
@@ -98,6 +113,21 @@ def _skeleton(humans: list[HumanDisplay]) -> tuple[np.ndarray, np.ndarray]:
         segs.append(seg[np.isfinite(seg).all(axis=(1, 2))])
         points.append(y[np.isfinite(y).all(axis=1)])
     return np.concatenate(segs), np.concatenate(points)
+
+
+def _contact_parts(parts: ContactParts | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Checked ``ends (P, 2, 3)``, ``radius (P,)`` and colours ``(P, 3)`` (P = 0 for None)."""
+    if parts is None:
+        return np.zeros((0, 2, 3)), np.zeros(0), np.zeros((0, 3), dtype=np.uint8)
+    ends, radius = capsule_arrays(parts.ends, parts.radius)
+    cc = np.asarray(parts.contact_class)
+    if cc.shape != radius.shape:
+        raise InputError(f"contact_parts class has shape {cc.shape}; expected {radius.shape}")
+    rgb = np.zeros((cc.shape[0], 3), dtype=np.uint8)
+    rgb[:] = (128, 128, 128)
+    for cls, color in CONTACT_RGB.items():
+        rgb[cc == cls] = color
+    return ends, radius, rgb
 
 
 def _boxes(boxes: EnvBoxes | None) -> tuple[np.ndarray, np.ndarray]:
@@ -159,6 +189,9 @@ class CellScene:
             for m in MODEL_NAMES
         }
         self.occupancy = CapsuleGroup(server, "/robot_occupancy", ROBOT_OPACITY, 64)
+        self.contact_parts = CapsuleGroup(
+            server, "/humans/contact_parts", CONTACT_PART_OPACITY, 8, CONTACT_RGB[1]
+        )
         self.boxes = InstanceBatch(server, "/environment/boxes", unit_box(), BOX_OPACITY, 4)
         self._boxes_shown: tuple[np.ndarray, np.ndarray] | None = None
         self.critical = server.scene.add_line_segments(
@@ -184,6 +217,8 @@ class CellScene:
                 self.occupancy.visible = visible
             elif name == "boxes":
                 self.boxes.visible = visible
+            elif name == "contacts":
+                self.contact_parts.visible = visible
             else:  # skeletons, critical_pair: shown with the next frame that has data
                 for handle in self._layer_nodes[name]:
                     handle.visible = handle.visible and bool(visible)
@@ -199,6 +234,7 @@ class CellScene:
         models = self._model_capsules(frame.humans)
         occ = self._occupancy(frame)
         boxes = _boxes(frame.boxes)
+        parts = _contact_parts(frame.contact_parts)
         pair = None if frame.critical_pair is None else np.asarray(frame.critical_pair, float)
         if pair is not None and pair.shape != (2, 3):
             raise InputError(f"critical_pair has shape {pair.shape}; expected (2, 3)")
@@ -208,8 +244,9 @@ class CellScene:
             for name, (ends, radius) in models.items():
                 self.models[name].set(ends, radius)
             self.occupancy.set(*occ)
+            self.contact_parts.set(*parts)
             self._update_boxes(*boxes)
-            self._update_critical(pair)
+            self._update_critical(pair, bool(frame.critical_active))
 
     # ------------------------------------------------------------------------------------------
     def _checked_q(self, q: np.ndarray) -> np.ndarray:
@@ -294,13 +331,15 @@ class CellScene:
         b.push(m)
         self._boxes_shown = (T.copy(), half.copy())
 
-    def _update_critical(self, p: np.ndarray | None) -> None:
+    def _update_critical(self, p: np.ndarray | None, active: bool) -> None:
         if p is None:
             self.critical.visible = False
             return
         ok = bool(np.all(np.isfinite(p)))
         if ok:
             self.critical.points = p[None]
+            rgb = CRITICAL_ACTIVE_RGB if active else CRITICAL_IDLE_RGB
+            self.critical.colors = np.broadcast_to(np.array(rgb, np.uint8), (1, 2, 3))
         self.critical.visible = ok and self.layers["critical_pair"]
 
 
@@ -342,6 +381,14 @@ def demo_frame(
     contact[-1, -3:] = (1, 2, 3)
     T_box = np.eye(4)
     T_box[:3, 3] = (0.6, -0.6, 0.35)
+    y0 = humans[0].joint_positions if humans else np.zeros((J, 3))
+    parts = ContactParts(
+        np.stack([y0[[3, 5]], y0[[6, 6]]]), np.array([0.06, 0.08]), np.array([2, 1], np.int8)
+    )
+    links = [
+        LinkEnergy(f"link{i}", 0.1 * i, 2.0 if i else None, 2.0 - 0.1 * i if i else None)
+        for i in range(L)
+    ]
     return DisplayFrame(
         t_s=t_s,
         q=0.1 * np.sin(t_s + np.arange(n_dof)) + np.array([0, 0, 0, -1.5, 0, 1.5, 0.8])[:n_dof],
@@ -358,8 +405,13 @@ def demo_frame(
             "cycle_p99_us": 1300.0,
             "skeleton_age_ms": 12.0,
             "dropped": 0,
+            "speed_scale": 0.5 + 0.5 * np.cos(t_s),
+            "jssa": {"phi_m2": 0.1 * np.sin(t_s), "active": True, "d_min_m": 0.05},
         },
         critical_pair=np.array([[0.1, 0.0, 0.9], [1.0, 0.0, 1.2]]),
+        critical_active=True,
+        links=links,
+        contact_parts=parts if humans else None,
         boxes=EnvBoxes(T_box[None], np.array([[0.3, 0.2, 0.35]])),
     )
 

@@ -46,7 +46,7 @@ class Dashboard:
     def start(self, host: str = "127.0.0.1", port: int = 8080, **callbacks: Any) -> str:
         """Start serving and return the real URL (viser moves to the next free port if
         ``port`` is taken). ``callbacks``: ``on_select_scenario``, ``on_save_as``,
-        ``on_params_edit`` (see :mod:`sara_app.dashboard.panels`)."""
+        ``on_params_edit``, ``on_set_mode`` (see :mod:`sara_app.dashboard.panels`)."""
         if self.server is not None:
             raise InputError(f"dashboard already serving at {self.url}; call stop() first")
         server = viser.ViserServer(host=host, port=port, label="SaRA cell", verbose=False)
@@ -80,7 +80,7 @@ class Dashboard:
             log.warning("display frame rejected: %s", exc)
             self.panels.show_error(f"{exc} ({self.frames_rejected} frames rejected)")
             return False
-        self.panels.update(frame.t_s, frame.status)
+        self.panels.update(frame.t_s, frame.status, frame.links)
         return True
 
     def client_count(self) -> int:
