@@ -42,7 +42,12 @@ function card(c) {
   const badge = document.createElement("span");
   badge.className = "badge";
   badge.textContent = !c.online ? "offline" : stale ? "no recent verdict" : c.mode;
-  h.append(badge);
+  const safety = document.createElement("span");
+  safety.className = "tag";
+  safety.title = "safety mode (from the latest verdict)";
+  safety.textContent = (c.safety_mode || "–").toUpperCase();
+  el.dataset.safetyMode = c.safety_mode || "";
+  h.append(safety, badge);
   const dl = document.createElement("dl");
   row(dl, "scenario", c.scenario || "–");
   row(dl, "safety mode", c.safety_mode || "–");
@@ -54,7 +59,15 @@ function card(c) {
   row(dl, "state", c.state || "–");
   row(dl, "last verdict", fmt(c.verdict_age_s, 1, "s ago"));
   row(dl, "last status", fmt(c.status_age_s, 1, "s ago"));
-  el.append(h, dl);
+  const more = document.createElement("p");
+  more.className = "more";
+  for (const [text, path] of [["thresholds", "/thresholds"], ["threshold audit", "/thresholds/audit"]]) {
+    const a = document.createElement("a");
+    a.href = "/api/cells/" + encodeURIComponent(c.cell) + path;
+    a.textContent = text;
+    more.append(a);
+  }
+  el.append(h, dl, more);
   return el;
 }
 

@@ -509,6 +509,13 @@ def test_landing_page_shows_live_status_in_chromium(folder: Path, tmp_path: Path
             page.eval("window.__sameLoad = 1")  # survives only if the page is never reloaded
             assert page.eval(f"{card}.textContent").count("empty_cell") == 1
             assert page.eval("document.getElementById('viewer-link').href") == VIEWER
+            assert page.eval(f"{card}.dataset.safetyMode") == "ssm"
+            assert page.eval(f"{card}.querySelector('h2 .tag').textContent") == "SSM"
+            hrefs = page.eval(f"[...{card}.querySelectorAll('.more a')].map(a => a.href)")
+            assert hrefs == [
+                url + "api/cells/cell1/thresholds",
+                url + "api/cells/cell1/thresholds/audit",
+            ]
             green = page.eval(f"getComputedStyle({card}).borderLeftColor")
             worker.mode = "fault"
             assert _wait_until(lambda: mode() == "fault", 10.0)
