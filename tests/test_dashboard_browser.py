@@ -19,7 +19,7 @@ from collections.abc import Callable, Iterator
 import numpy as np
 import pytest
 
-from sara_app.dashboard.frame import MODEL_NAMES
+from sara_app.dashboard.frame import CONTACT_ENV, MODEL_NAMES
 from sara_app.dashboard.scene import demo_frame
 from sara_app.dashboard.viewer import Dashboard
 
@@ -135,6 +135,12 @@ def _dominant(img: np.ndarray, channel: int, margin: int = 40) -> int:
     return int(np.sum((c - img[..., others[0]] > margin) & (c - img[..., others[1]] > margin)))
 
 
+def _magenta(img: np.ndarray, margin: int = 60) -> int:
+    """Pixels whose red and blue both exceed green by ``margin``."""
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    return int(np.sum((r - g > margin) & (b - g > margin)))
+
+
 def test_page_connects_and_renders_the_verdict(
     browser_on_dashboard: tuple[Dashboard, DevTools],
 ) -> None:
@@ -164,10 +170,30 @@ def test_page_connects_and_renders_the_verdict(
     )
     assert isinstance(red, np.ndarray)
     assert _dominant(red, 1) < _dominant(green, 1)
+    # PFL: every occupancy capsule clamped against the environment turns magenta.
+    frame = demo_frame(1.0, verified=True)
+    frame.critical_pair = None
+    frame.contact_class = np.full(frame.robot_radius.shape, CONTACT_ENV, dtype=np.int8)
+    dash.update(frame)
+    pfl = _wait(
+        lambda: shot_with(lambda im: _magenta(im) > max(500, 2 * _magenta(green))),
+        60.0,
+        "magenta (env-constrained) occupancy",
+    )
+    assert isinstance(pfl, np.ndarray) and _dominant(pfl, 1) < _dominant(green, 1)
+    # The legend's colour swatches are rendered HTML, not escaped text.
+    swatches = devtools.call(
+        "Runtime.evaluate",
+        expression="[[...document.querySelectorAll('span')].filter("
+        "e => e.style.color === 'rgb(220, 0, 220)').length,"
+        " document.body.innerText.includes('<span'), document.body.innerText.includes('■')]",
+        returnByValue=True,
+    )["result"]["value"]
+    assert swatches == [1, False, True], swatches
     # The URDF robot alone: everything else hidden, then the robot too; the images differ.
     scene = dash.scene
     assert scene is not None
-    for name in (*MODEL_NAMES, "occupancy", "skeletons", "boxes", "critical_pair"):
+    for name in (*MODEL_NAMES, "occupancy", "skeletons", "contacts", "boxes", "critical_pair"):
         scene.set_visible(name, False)
     dash.update(frame)
     red_elsewhere = _dominant(green, 0) + 50  # e.g. the axes gizmo
@@ -184,6 +210,6 @@ def test_page_connects_and_renders_the_verdict(
     if os.environ.get("SARA_SCREENSHOT_DIR"):  # for looking at them by hand
         from PIL import Image
 
-        for name, img in (("verified", green), ("failsafe", red), ("robot", robot)):
+        for name, img in (("verified", green), ("failsafe", red), ("pfl", pfl), ("robot", robot)):
             path = os.path.join(os.environ["SARA_SCREENSHOT_DIR"], f"dashboard_{name}.png")
             Image.fromarray(img.astype(np.uint8)).save(path)
