@@ -109,7 +109,9 @@ def scenario() -> Scenario:
 @pytest.fixture()
 def view(dash: Dashboard, scenario: Scenario, tmp_path: Path) -> tuple[CellView, FakeBus]:
     bus = FakeBus()
-    v = CellView(CELL, bus, dash, scenario, tmp_path, ack_timeout_s=0.5)  # type: ignore[arg-type]
+    v = CellView(
+        CELL, bus, dash, scenario, tmp_path, ack_timeout_s=0.5, audit=tmp_path / "audit.sqlite"
+    )  # type: ignore[arg-type]
     v.refresh_panels()
     return v, bus
 
@@ -423,3 +425,23 @@ def test_unreachable_or_refused_waypoint_is_not_applied(
     assert "collides with the table" in panels.message.content
     assert v.scenario.model_dump(mode="json") == old
     np.testing.assert_allclose(_waypoint_gizmos(v)[0].position, home, atol=1e-6)
+
+
+def test_threshold_editor_tab_sends_through_the_cell_view(
+    view: tuple[CellView, FakeBus], dash: Dashboard
+) -> None:
+    v, bus = view
+    panel = v.thresholds
+    assert panel is not None
+    v.refresh_panels()
+    assert v.thresholds is panel  # attached once
+    value, source = panel.source_value()
+    panel.energy.value = 0.5 * source
+    assert panel.apply()
+    overrides = bus.params.sent[-1].scenario["shield"]["pfl"]["overrides"]
+    region, contact, shape = panel.entry()
+    assert {"region": region, "contact": contact, "shape": shape, "energy_J": 0.5 * source} in (
+        overrides
+    )
+    assert v.scenario.shield.pfl.overrides[-1].energy_J == 0.5 * source
+    assert panel.audit.entries(CELL, 1)[0].new_energy_J == 0.5 * source

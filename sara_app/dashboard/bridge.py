@@ -52,10 +52,11 @@ from sara_app.dashboard.frame import (
     LinkEnergy,
 )
 from sara_app.dashboard.viewer import Dashboard
-from sara_app.errors import ScenarioError, UnknownNameError
+from sara_app.errors import SaraError, ScenarioError, UnknownNameError
 from sara_app.human.skeleton import skeleton
 from sara_app.robot.ik import end_effector_frame, pose_from_wxyz, solve_ik
 from sara_app.robot.model import RobotModel, load_robot
+from sara_app.safety.threshold_audit import AuditLog
 from sara_app.scenario import (
     SAFETY_MODES,
     Scenario,
@@ -177,7 +178,10 @@ class CellView:
         scenario: Scenario,
         scenarios_folder: Path,
         ack_timeout_s: float = 3.0,
+        audit: AuditLog | str | Path | None = None,
     ) -> None:
+        """``audit``: the threshold audit log (or its path; None: the default path shared with
+        the API) for the dashboard's threshold editor tab."""
         self.cell = keys.check_name("cell", cell)
         self.bus, self.dash = bus, dashboard
         self.scenario = scenario
@@ -197,6 +201,8 @@ class CellView:
         self._seq = 0
         self._robot_key: tuple[Any, ...] | None = None
         self._robot_model: RobotModel | None = None
+        self.audit = audit
+        self.thresholds: Any = None
 
     # -- live view ---------------------------------------------------------------------------
 
@@ -348,7 +354,35 @@ class CellView:
             panels.set_safety_mode(self.scenario.shield.mode)
             panels.set_scenarios(list(scenario_names(self.folder)), self.scenario.name)
             panels.set_params(self.editable())
+            self._attach_thresholds()
         self.add_gizmos()
+
+    def _attach_thresholds(self) -> None:
+        """The threshold editor (:mod:`sara_app.dashboard.thresholds_panel`) in its own tab,
+        sending through :meth:`send`; refreshed when the scenario changes."""
+        if self.thresholds is not None:
+            self.thresholds.select()
+            return
+        panels, server = self.dash.panels, self.dash.server
+        if panels is None or server is None:
+            return
+        from sara_app.dashboard.thresholds_panel import attach
+
+        try:
+            audit = self.audit if isinstance(self.audit, AuditLog) else AuditLog(self.audit)
+        except SaraError as e:
+            log.warning("no threshold editor: %s", e)
+            return
+        with panels.add_tab("Thresholds"):
+            self.thresholds = attach(
+                server.gui, lambda: self.scenario, self._send_and_show, audit, self.cell
+            )
+
+    def _send_and_show(self, data: dict[str, Any]) -> Scenario:
+        sc = self.send(data)
+        if self.dash.panels is not None:
+            self.dash.panels.set_params(self.editable())
+        return sc
 
     # -- robot waypoints -----------------------------------------------------------------------
 

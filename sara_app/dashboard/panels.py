@@ -278,7 +278,7 @@ class DashboardPanels:
         self._params: dict[str, Any] = {}
         self._param_inputs: dict[str, Any] = {}
         gui = server.gui
-        tabs = gui.add_tab_group()
+        self.tabs = tabs = gui.add_tab_group()
         with tabs.add_tab("Status"):
             self.safety_mode = gui.add_dropdown(
                 "Safety mode", tuple(m.upper() for m in SAFETY_MODES), initial_value="SSM"
@@ -317,6 +317,10 @@ class DashboardPanels:
         gui.add_button("Apply parameters").on_click(_click(self.apply_params))
         self.message = gui.add_markdown("")
         self._messages_shown = 0
+
+    def add_tab(self, title: str) -> Any:
+        """A new tab after the others (``with panels.add_tab("x"): gui.add_...``)."""
+        return self.tabs.add_tab(title)
 
     def load_selected(self) -> bool:
         """The "Load" button: ``on_select_scenario(dropdown value)``; True if accepted."""
