@@ -32,7 +32,7 @@ from sara_app.dashboard.bridge import CellView, contact_class_grid
 from sara_app.dashboard.frame import CONTACT_ENV, CONTACT_SELF, CONTACT_UNCONSTRAINED
 from sara_app.dashboard.scene import CONTACT_RGB, CRITICAL_ACTIVE_RGB, CRITICAL_IDLE_RGB
 from sara_app.dashboard.viewer import Dashboard
-from sara_app.errors import UnknownNameError
+from sara_app.errors import ScenarioError, UnknownNameError
 from sara_app.human.skeleton import skeleton
 from sara_app.robot.ik import end_effector_frame, pose_error
 from sara_app.scenario import Scenario, load_scenario, scenarios_dir
@@ -73,6 +73,7 @@ class FakeBus:
     def __init__(self) -> None:
         self.subs: dict[str, FakeSub] = {}
         self.refuse: Callable[[dict[str, Any]], str] = lambda sc: ""
+        self.silent = False
         self.params = FakePub(self._answer)
 
     def subscribe(self, key: str, *_a: Any, **_k: Any) -> FakeSub:
@@ -86,6 +87,8 @@ class FakeBus:
         self.subs[key].queue.append(SimpleNamespace(msg=msg))
 
     def _answer(self, msg: ParamsMsg) -> None:
+        if self.silent:
+            return
         reason = self.refuse(msg.scenario)
         ack = ParamsAckMsg(
             seq=msg.seq, stamp_s=1.0, request_id=msg.request_id, accepted=not reason, reason=reason
@@ -445,3 +448,22 @@ def test_threshold_editor_tab_sends_through_the_cell_view(
     )
     assert v.scenario.shield.pfl.overrides[-1].energy_J == 0.5 * source
     assert panel.audit.entries(CELL, 1)[0].new_energy_J == 0.5 * source
+
+
+def test_a_late_acceptance_is_followed(view: tuple[CellView, FakeBus], dash: Dashboard) -> None:
+    v, bus = view
+    bus.silent = True
+    with pytest.raises(ScenarioError, match="did not answer"):
+        v.set_mode("jssa")
+    assert v.scenario.shield.mode == "ssm"
+    late = bus.params.sent[-1]
+    other = ParamsAckMsg(seq=5, stamp_s=1.0, request_id="someoneelse", accepted=True)
+    bus.feed(keys.params_ack_key(CELL), other)
+    v.poll()
+    assert v.scenario.shield.mode == "ssm"  # not its answer
+    ack = ParamsAckMsg(seq=6, stamp_s=1.0, request_id=late.request_id, accepted=True)
+    bus.feed(keys.params_ack_key(CELL), ack)
+    v.poll()
+    assert v.scenario.shield.mode == "jssa"
+    assert dash.panels is not None and dash.panels.safety_mode.value == "JSSA"
+    assert "accepted the last edit late" in dash.panels.message.content

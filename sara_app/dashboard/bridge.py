@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import copy
 import logging
+import threading
 import time
 import uuid
 from collections import deque
@@ -177,7 +178,7 @@ class CellView:
         dashboard: Dashboard,
         scenario: Scenario,
         scenarios_folder: Path,
-        ack_timeout_s: float = 3.0,
+        ack_timeout_s: float = 5.0,
         audit: AuditLog | str | Path | None = None,
     ) -> None:
         """``audit``: the threshold audit log (or its path; None: the default path shared with
@@ -203,6 +204,8 @@ class CellView:
         self._robot_model: RobotModel | None = None
         self.audit = audit
         self.thresholds: Any = None
+        self._ack_lock = threading.Lock()
+        self._late: tuple[str, Scenario] | None = None  # (request id, scenario) unanswered
 
     # -- live view ---------------------------------------------------------------------------
 
@@ -218,6 +221,7 @@ class CellView:
         for d in self.sub_occ.drain().messages:
             if isinstance(d.msg, OccupancyMsg):
                 self.occ = d.msg
+        self._late_answer()
         if self.q is None or self.verdict is None:
             return None
         return self.frame()
@@ -292,25 +296,49 @@ class CellView:
         sc = parse_scenario(data, "edited scenario")
         check_against_robot(sc)
         rid = uuid.uuid4().hex[:16]
-        self.sub_ack.drain()
-        msg = ParamsMsg(
-            seq=self.pub_params.next_seq(),
-            stamp_s=time.time(),
-            request_id=rid,
-            scenario=sc.model_dump(mode="json"),
+        with self._ack_lock:
+            self._late = None
+            self.sub_ack.drain()
+            msg = ParamsMsg(
+                seq=self.pub_params.next_seq(),
+                stamp_s=time.time(),
+                request_id=rid,
+                scenario=sc.model_dump(mode="json"),
+            )
+            if not self.pub_params.put(msg):
+                raise ScenarioError("the scenario could not be sent to the worker (bus error)")
+            t_end = time.monotonic() + self.ack_timeout_s
+            while time.monotonic() < t_end:
+                for d in self.sub_ack.drain().messages:
+                    if isinstance(d.msg, ParamsAckMsg) and d.msg.request_id == rid:
+                        if not d.msg.accepted:
+                            raise ScenarioError(f"the worker refused it: {d.msg.reason}")
+                        self.scenario = sc
+                        return sc
+                time.sleep(0.01)
+            self._late = (rid, sc)
+        raise ScenarioError(
+            f"the worker did not answer within {self.ack_timeout_s} s (if it accepts the edit "
+            "later, the view follows)"
         )
-        if not self.pub_params.put(msg):
-            raise ScenarioError("the scenario could not be sent to the worker (bus error)")
-        t_end = time.monotonic() + self.ack_timeout_s
-        while time.monotonic() < t_end:
-            for d in self.sub_ack.drain().messages:
-                if isinstance(d.msg, ParamsAckMsg) and d.msg.request_id == rid:
-                    if not d.msg.accepted:
-                        raise ScenarioError(f"the worker refused it: {d.msg.reason}")
-                    self.scenario = sc
-                    return sc
-            time.sleep(0.01)
-        raise ScenarioError(f"the worker did not answer within {self.ack_timeout_s} s")
+
+    def _late_answer(self) -> None:
+        """Follow the worker when it accepts an edit after :meth:`send` gave up waiting."""
+        if self._late is None or not self._ack_lock.acquire(blocking=False):
+            return
+        try:
+            late, accepted = self._late, False
+            for d in self.sub_ack.drain().messages if late is not None else ():
+                if isinstance(d.msg, ParamsAckMsg) and d.msg.request_id == late[0]:
+                    self._late, accepted = None, d.msg.accepted
+                    if accepted:
+                        self.scenario = late[1]
+        finally:
+            self._ack_lock.release()
+        if accepted:
+            self.refresh_panels()
+            if self.dash.panels is not None:
+                self.dash.panels.show_message("the worker accepted the last edit late: applied")
 
     def select(self, name: str) -> None:
         sc = load_scenario(name, self.folder)
