@@ -142,3 +142,171 @@ def capsule_sets_check(
                 if d < best:
                     best = d
     return best
+
+
+_W3 = types.Array(_f8, 3, "A")
+_W4 = types.Array(_f8, 4, "A")
+_RO3 = types.Array(_f8, 3, "A", readonly=True)
+
+
+@njit(types.void(_RO4, _RO2, _RO4, _RO2, _W3), cache=True)
+def pair_distances(
+    a_ends: np.ndarray,
+    a_radius: np.ndarray,
+    b_ends: np.ndarray,
+    b_radius: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """Surface distances ``out (K, A, B)`` of every pair of capsules ``a (Ka, A, 2, 3), (Ka,
+    A)`` and ``b (Kb, B, 2, 3), (Kb, B)`` per interval, ``Ka, Kb`` in ``{1, K}`` (1: the same
+    capsules on every interval); as :func:`sara_app.geometry.capsule_distances`."""
+    K, A, B = out.shape
+    for k in range(K):
+        ka = k if a_ends.shape[0] == K else 0
+        kb = k if b_ends.shape[0] == K else 0
+        kra = k if a_radius.shape[0] == K else 0
+        krb = k if b_radius.shape[0] == K else 0
+        for i in range(A):
+            p = a_ends[ka, i]
+            for j in range(B):
+                q = b_ends[kb, j]
+                d = segment_closest(
+                    p[0, 0], p[0, 1], p[0, 2], p[1, 0], p[1, 1], p[1, 2],
+                    q[0, 0], q[0, 1], q[0, 2], q[1, 0], q[1, 1], q[1, 2],
+                )[0]  # fmt: skip
+                out[k, i, j] = d - a_radius[kra, i] - b_radius[krb, j]
+
+
+@njit(types.void(_RO4, _RO2, _W3, _W3), cache=True)
+def set_pair_distances(ends: np.ndarray, radius: np.ndarray, d: np.ndarray, s: np.ndarray) -> None:
+    """All pairs within one capsule set per interval: surface distances ``d (K, N, N)`` and
+    closest-point parameters ``s (K, N, N)`` (``s[k, a, b]`` on ``a`` towards ``b``), each
+    unordered pair computed once; the diagonal is ``-2 r`` and ``s = 0`` (as
+    :func:`sara_app.safety.contact_kernels.all_pairs` minus the radii). ``ends (Ke, N, 2, 3)``,
+    ``radius (Kr, N)`` with ``Ke, Kr`` in ``{1, K}``; when both are 1 the first interval is
+    computed once and copied."""
+    K, N = d.shape[0], d.shape[1]
+    once = ends.shape[0] == 1 and radius.shape[0] == 1
+    for k in range(K):
+        if once and k > 0:
+            d[k] = d[0]
+            s[k] = s[0]
+            continue
+        ke = k if ends.shape[0] == K else 0
+        kr = k if radius.shape[0] == K else 0
+        for a in range(N):
+            d[k, a, a] = 0.0 - radius[kr, a] - radius[kr, a]
+            s[k, a, a] = 0.0
+            p = ends[ke, a]
+            for b in range(a + 1, N):
+                q = ends[ke, b]
+                dist, sa, tb = segment_closest(
+                    p[0, 0], p[0, 1], p[0, 2], p[1, 0], p[1, 1], p[1, 2],
+                    q[0, 0], q[0, 1], q[0, 2], q[1, 0], q[1, 1], q[1, 2],
+                )  # fmt: skip
+                g = dist - radius[kr, a] - radius[kr, b]
+                d[k, a, b] = g
+                d[k, b, a] = g
+                s[k, a, b] = sa
+                s[k, b, a] = tb
+
+
+@njit(cache=True)
+def _segment_box(
+    p: np.ndarray, q: np.ndarray, R: np.ndarray, c: np.ndarray, h: np.ndarray, work: np.ndarray
+) -> tuple[float, float, float, float, float, float, float]:
+    """Closest points of segment ``[p, q]`` and one solid box (rotation ``R``, centre ``c``,
+    half extents ``h``): ``(distance, segment point xyz, box point xyz)``; ``work (3, 8)``
+    scratch. The piecewise minimisation of :func:`sara_app.safety.contact_kernels.
+    segment_box_soa`."""
+    a, d, bp = work[0], work[1], work[2]
+    for i in range(3):
+        a[i] = R[0, i] * (p[0] - c[0]) + R[1, i] * (p[1] - c[1]) + R[2, i] * (p[2] - c[2])
+        b = R[0, i] * (q[0] - c[0]) + R[1, i] * (q[1] - c[1]) + R[2, i] * (q[2] - c[2])
+        d[i] = b - a[i]
+    bp[0], bp[7] = 0.0, 1.0
+    for i in range(3):
+        ds = d[i] if abs(d[i]) > 1e-12 else 1e-12
+        for m, x in ((1 + i, (h[i] - a[i]) / ds), (4 + i, (-h[i] - a[i]) / ds)):
+            bp[m] = 0.0 if x < 0.0 else (1.0 if x > 1.0 else x)
+    for m in range(1, 8):  # insertion sort (NaN ends up in place: handled below)
+        x = bp[m]
+        n = m - 1
+        while n >= 0 and bp[n] > x:
+            bp[n + 1] = bp[n]
+            n -= 1
+        bp[n + 1] = x
+    f_best, s_best = np.inf, 0.0
+    for m in range(7):
+        lo, hi = bp[m], bp[m + 1]
+        mid = 0.5 * (lo + hi)
+        qa = qb = 0.0
+        for i in range(3):
+            x = a[i] + mid * d[i]
+            sign = (1.0 if x > h[i] else 0.0) - (1.0 if x < -h[i] else 0.0)
+            act = sign * sign
+            qa += act * d[i] * d[i]
+            qb += act * (a[i] - sign * h[i]) * d[i]
+        if qa > 0.0:
+            s = -qb / qa
+            s = lo if s < lo else (hi if s > hi else s)
+        else:
+            s = lo
+        f = 0.0
+        for i in range(3):
+            ex = abs(a[i] + s * d[i]) - h[i]
+            ex = ex if ex > 0.0 else 0.0
+            f += ex * ex
+        if f < f_best:
+            f_best, s_best = f, s
+    x0, x1, x2 = a[0] + s_best * d[0], a[1] + s_best * d[1], a[2] + s_best * d[2]
+    b0 = -h[0] if x0 < -h[0] else (h[0] if x0 > h[0] else x0)
+    b1 = -h[1] if x1 < -h[1] else (h[1] if x1 > h[1] else x1)
+    b2 = -h[2] if x2 < -h[2] else (h[2] if x2 > h[2] else x2)
+    return (
+        math.sqrt(f_best),
+        R[0, 0] * x0 + R[0, 1] * x1 + R[0, 2] * x2 + c[0],
+        R[1, 0] * x0 + R[1, 1] * x1 + R[1, 2] * x2 + c[1],
+        R[2, 0] * x0 + R[2, 1] * x1 + R[2, 2] * x2 + c[2],
+        R[0, 0] * b0 + R[0, 1] * b1 + R[0, 2] * b2 + c[0],
+        R[1, 0] * b0 + R[1, 1] * b1 + R[1, 2] * b2 + c[1],
+        R[2, 0] * b0 + R[2, 1] * b1 + R[2, 2] * b2 + c[2],
+    )
+
+
+@njit(types.void(_RO4, _RO2, _RO3, _RO2, _W3, _W4), cache=True)
+def box_distances(
+    ends: np.ndarray,
+    radius: np.ndarray,
+    T_world_box: np.ndarray,
+    half_extents_m: np.ndarray,
+    dist: np.ndarray,
+    normal: np.ndarray,
+) -> None:
+    """Capsules ``ends (K, N, 2, 3)``, ``radius (Kr, N)`` (``Kr`` in ``{1, K}``) against solid
+    boxes ``(B, 4, 4)``, ``(B, 3)``: surface distances ``dist (K, N, B)`` and, when ``normal``
+    has shape ``(K, N, B, 3)`` (else ``(0, 0, 0, 3)``), the vector from the closest box point to
+    the closest segment point (world frame, not normalised). A non-finite capsule gives NaN."""
+    K, N, B = dist.shape
+    want_normal = normal.shape[0] == K
+    work = np.empty((3, 8))
+    for k in range(K):
+        kr = k if radius.shape[0] == K else 0
+        for i in range(N):
+            p, q = ends[k, i, 0], ends[k, i, 1]
+            finite = True
+            for r in range(3):
+                finite = finite and math.isfinite(p[r]) and math.isfinite(q[r])
+            for b in range(B):
+                if not finite:
+                    dist[k, i, b] = np.nan
+                    if want_normal:
+                        normal[k, i, b, :] = np.nan
+                    continue
+                R, c = T_world_box[b, :3, :3], T_world_box[b, :3, 3]
+                res = _segment_box(p, q, R, c, half_extents_m[b], work)
+                dist[k, i, b] = res[0] - radius[kr, i]
+                if want_normal:
+                    normal[k, i, b, 0] = res[1] - res[4]
+                    normal[k, i, b, 1] = res[2] - res[5]
+                    normal[k, i, b, 2] = res[3] - res[6]

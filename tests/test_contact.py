@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.sparse.csgraph import connected_components
 
-from sara_app.errors import ParameterError, UnknownNameError
+from sara_app.errors import InputError, ParameterError, UnknownNameError
 from sara_app.geometry import segment_box_distance, segment_segment_closest
 from sara_app.robot.energy import LinkMotion
 from sara_app.robot.model import load_robot
@@ -327,3 +327,97 @@ def test_classifier_parameters_are_validated() -> None:
         ContactClassifier(np.zeros((2, 2), bool), np.zeros((3, 2), bool), np.ones(3))
     with pytest.raises(ParameterError, match="expected > 0"):
         ContactClassifier(np.zeros((2, 2), bool), np.zeros((1, 1), bool), np.zeros(1))
+
+
+# --- compiled classification against the numpy reference ------------------------------------
+
+
+def _ref_jerk_coefficients(vb: VelocityErrorBound, qd, qdd, qddd) -> np.ndarray:
+    """The spatial recursion of ``VelocityErrorBound.coefficients`` written with numpy."""
+    qd, qdd, qddd = (np.abs(x) for x in np.broadcast_arrays(qd, qdd, qddd))
+    W, A, Bj = np.zeros_like(qd), np.zeros_like(qd), np.zeros_like(qd)
+    zero = np.zeros(qd.shape[:-1])
+    for j, p in zip(vb._order, vb._parent):
+        w0, a0, b0 = (zero, zero, zero) if p < 0 else (W[..., p], A[..., p], Bj[..., p])
+        v, a, jj = qd[..., j], qdd[..., j], qddd[..., j]
+        W[..., j] = w0 + v
+        A[..., j] = a0 + a + v * w0
+        Bj[..., j] = b0 + jj + 2.0 * a * w0 + v * (a0 + w0 * w0)
+    return (Bj + 3.0 * A * W + W**3) @ vb._D
+
+
+@pytest.mark.parametrize("name", ["panda", "ur5e"])
+def test_jerk_coefficients_kernel_equals_numpy(name: str) -> None:
+    vb = VelocityErrorBound(load_robot(name))
+    rng = np.random.default_rng(7)
+    qd, qdd, qddd = rng.normal(scale=3.0, size=(3, 5, vb.n_dof))
+    C = vb.coefficients(qd, qdd, qddd)
+    np.testing.assert_allclose(C, _ref_jerk_coefficients(vb, qd, qdd, qddd), rtol=1e-13)
+    one = vb.coefficients(qd[0], qdd[0, 0], qddd[0])  # broadcasting, 1-D
+    np.testing.assert_allclose(one, _ref_jerk_coefficients(vb, qd[0], qdd[0, 0], qddd[0]))
+    qd[1, 2] = np.nan
+    assert np.isnan(vb.coefficients(qd, qdd, qddd)[1]).any()
+
+
+def _scene(rng: np.random.Generator) -> tuple[ContactClassifier, tuple]:
+    """A random interval scene around the origin: robot and human capsules, 0-2 boxes, link
+    states, topology and switches; sometimes NaN values, sometimes broadcast human capsules."""
+    K, L, P, B = rng.integers(1, 5), rng.integers(2, 9), rng.integers(2, 15), rng.integers(0, 3)
+    spread = rng.choice([0.2, 0.5, 1.0])
+    r0 = rng.normal(scale=spread, size=(K, L, 3))
+    r_ends = np.stack([r0, r0 + rng.normal(scale=0.2, size=(K, L, 3))], axis=2)
+    r_radius = rng.uniform(0.02, 0.12, (K, L))
+    s_ends = np.concatenate([r_ends, r_ends[-1:]]) + rng.normal(scale=0.01, size=(K + 1, L, 2, 3))
+    p1_dot = rng.normal(scale=rng.choice([0.05, 0.5]), size=(K + 1, L, 3))
+    omega = rng.normal(scale=rng.choice([0.1, 2.0]), size=(K + 1, L, 3))
+    eps = rng.uniform(0.0, 0.05, (K, L))
+    Kh = 1 if rng.random() < 0.3 else K
+    h0 = rng.normal(scale=spread, size=(Kh, P, 3))
+    h_ends = np.stack([h0, h0 + rng.normal(scale=0.15, size=(Kh, P, 3))], axis=2)
+    h_radius = rng.uniform(0.03, 0.15, (Kh, P))
+    if Kh == 1 and K > 1:
+        h_ends = np.broadcast_to(h_ends, (K, P, 2, 3))
+        h_radius = np.broadcast_to(h_radius, (K, P))
+    T = np.array([_random_pose(rng) for _ in range(B)]).reshape(B, 4, 4)
+    half = rng.uniform(0.02, 0.5, (B, 3))
+    if rng.random() < 0.2:  # NaN somewhere: worst case, identical in both implementations
+        which = rng.integers(4)
+        arr = (r_ends, s_ends, p1_dot, omega)[which]
+        arr[tuple(rng.integers(s) for s in arr.shape)] = np.nan
+    unclamp = rng.random((L, L)) < 0.3
+    safe = rng.random((P, P)) < 0.3
+    clf = ContactClassifier(
+        unclamp | unclamp.T,
+        safe | safe.T,
+        rng.uniform(0.05, 0.3, P),
+        relax_velocity=rng.random() < 0.8,
+        relax_diameter=rng.random() < 0.8,
+        relax_topology=rng.random() < 0.8,
+        multi_body=rng.random() < 0.8,
+    )
+    args = (r_ends, r_radius, s_ends, r_radius[0] * 0.8, p1_dot, omega, eps, h_ends, h_radius)
+    return clf, args + (T, half)
+
+
+def test_compiled_classify_equals_the_numpy_reference() -> None:
+    rng = np.random.default_rng(11)
+    n_contact = n_clamped = 0
+    for _ in range(300):
+        clf, args = _scene(rng)
+        fast, ref = clf.classify(*args), clf.classify_reference(*args)
+        for name in ("contact", "contact_single", "env", "self_", "cls", "stack"):
+            assert np.array_equal(getattr(fast, name), getattr(ref, name)), name
+        np.testing.assert_allclose(fast.stack_diameter_m, ref.stack_diameter_m, rtol=1e-14)
+        np.testing.assert_allclose(fast.distance_m, ref.distance_m, rtol=0, atol=1e-12)
+        n_contact += bool(ref.contact.any())
+        n_clamped += bool((ref.cls >= ENV_CONSTRAINED).any() and (ref.cls == UNCONSTRAINED).any())
+    assert n_contact > 150 and n_clamped > 30  # the scenes exercise every branch
+
+
+def test_classify_rejects_shapes_the_kernels_cannot_index() -> None:
+    rng = np.random.default_rng(12)
+    clf, args = _scene(rng)
+    bad = list(args)
+    bad[6] = bad[6][:, :-1]  # eps_v with one link missing
+    with pytest.raises(InputError, match="eps_v has shape"):
+        clf.classify(*bad)

@@ -3,6 +3,8 @@
 * ``segment_closest`` gives the distance of ``geometry.segment_segment_closest`` (points,
   parallel, anti-parallel, collinear, nearly parallel pairs), and its parameters lie in [0, 1]
   and realise that distance.
+* ``pair_distances`` / ``set_pair_distances`` against ``capsule_distances`` and the numpy
+  ``all_pairs``, ``box_distances`` against ``contact.segment_box_closest``.
 * ``capsule_sets_check`` against all pairs from ``geometry.capsule_distances``: ``hit`` exactly
   where an interval's smallest distance is <= 0 (round-off ties aside), nothing outside
   ``todo``, the returned distance is the exact smallest one over the checked intervals, and a
@@ -16,7 +18,15 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from sara_app import geometry as geo
-from sara_app.geometry_kernels import capsule_sets_check, segment_closest
+from sara_app.geometry_kernels import (
+    box_distances,
+    capsule_sets_check,
+    pair_distances,
+    segment_closest,
+    set_pair_distances,
+)
+from sara_app.safety.contact import segment_box_closest
+from sara_app.safety.contact_kernels import all_pairs
 
 SETTINGS = settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 BAND_M = 1e-9  # round-off ties are not compared
@@ -139,3 +149,67 @@ def test_accepts_views_and_read_only_arrays() -> None:
     best = capsule_sets_check(a, r, b, rb, np.ones(3, dtype=bool), hit)
     assert not hit.any() and abs(best - 0.2) < 1e-15
     assert len(capsule_sets_check.signatures) == 1
+
+
+@SETTINGS
+@given(capsule_sets())
+def test_pair_distances_equal_capsule_distances(c: dict) -> None:
+    K, C = c["b_ends"].shape[0], c["a_ends"].shape[1]
+    L = c["b_ends"].shape[1]
+    out = np.empty((K, C, L))
+    pair_distances(c["a_ends"], c["a_rad"], c["b_ends"], c["b_rad"], out)
+    a_ends = np.broadcast_to(c["a_ends"], (K, C, 2, 3))
+    a_rad = np.broadcast_to(c["a_rad"], (K, C))
+    for k in range(K):
+        ref = geo.capsule_distances(a_ends[k], a_rad[k], c["b_ends"][k], c["b_rad"][k])
+        np.testing.assert_allclose(out[k], ref, rtol=0, atol=1e-12)
+
+
+@SETTINGS
+@given(capsule_sets())
+def test_set_pair_distances_equal_all_pairs(c: dict) -> None:
+    ends, rad = c["a_ends"], c["a_rad"]
+    K, N = max(ends.shape[0], rad.shape[0]), ends.shape[1]
+    d, s = np.empty((2, K, N, N))
+    set_pair_distances(ends, rad, d, s)
+    e = np.broadcast_to(ends, (K, N, 2, 3))
+    r = np.broadcast_to(rad, (K, N))
+    d_ax, s_ref, _ = all_pairs(np.ascontiguousarray(e))
+    np.testing.assert_allclose(d, d_ax - r[:, :, None] - r[:, None, :], rtol=0, atol=1e-12)
+    off = ~np.eye(N, dtype=bool)
+    pa = e[:, :, None, 0] + s[..., None] * (e[:, :, None, 1] - e[:, :, None, 0])
+    pb = e[:, None, :, 0] + s.transpose(0, 2, 1)[..., None] * (e[:, None, :, 1] - e[:, None, :, 0])
+    ax = np.linalg.norm(pa - pb, axis=-1)  # the parameters realise the distance
+    np.testing.assert_allclose(ax[:, off], d_ax[:, off], rtol=0, atol=1e-12)
+    assert np.array_equal(s[:, ~off], np.zeros((K, N)))
+    np.testing.assert_allclose(s[:, off], s_ref[:, off], rtol=0, atol=1e-9)
+
+
+def _pose(rng: np.random.Generator) -> np.ndarray:
+    Q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    T = np.eye(4)
+    T[:3, :3] = Q * np.sign(np.linalg.det(Q))
+    T[:3, 3] = rng.normal(scale=0.3, size=3)
+    return T
+
+
+@SETTINGS
+@given(st.integers(0, 2**32 - 1), st.integers(0, 3))
+def test_box_distances_equal_segment_box_closest(seed: int, B: int) -> None:
+    rng = np.random.default_rng(seed)
+    K, N = int(rng.integers(1, 4)), int(rng.integers(1, 8))
+    ends = rng.normal(scale=0.6, size=(K, N, 2, 3))
+    ends[:, 0, 1] = ends[:, 0, 0]  # a ball
+    rad = rng.uniform(0.0, 0.2, (K, N))
+    T = np.array([_pose(rng) for _ in range(B)]).reshape(B, 4, 4)
+    h = rng.uniform(0.0, 0.4, (B, 3))
+    dist, normal = np.empty((K, N, B)), np.empty((K, N, B, 3))
+    box_distances(ends, rad, T, h, dist, normal)
+    d_ref, p_seg, p_box = segment_box_closest(ends.reshape(-1, 2, 3), T, h)
+    np.testing.assert_allclose(dist, d_ref.reshape(K, N, B) - rad[:, :, None], atol=1e-12)
+    ref_n = (p_seg - p_box).transpose(1, 2, 0).reshape(K, N, B, 3)
+    np.testing.assert_allclose(normal, ref_n, atol=1e-12)
+    if B:
+        ends[0, 0, 0, 1] = np.nan
+        box_distances(ends, rad, T, h, dist, np.empty((0, 0, 0, 3)))
+        assert np.isnan(dist[0, 0]).all()

@@ -164,3 +164,44 @@ def test_bench_rows_shape() -> None:
     assert len(rows) == 5
     for name, med, p99, note in rows:
         assert name.startswith("pfl") and med > 0 and p99 >= med and "Panda" in note
+
+
+def _ref_verdict(pfl: PflCheck, c, E_int: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Eq. 7 and the per-link allowed energy written with numpy (the implementation before the
+    compiled verdict)."""
+    clamped = c.cls >= 2
+    T_clamp = np.where(c.stack[:, None, :, :], pfl.T_clamp[None, :, None, :], np.inf).min(-1)
+    thr = np.where(clamped, T_clamp, pfl.T_free[None])
+    margin = thr - E_int[:, :, None]
+    safe = ~c.contact | (margin > 0.0)
+    thr_contact = np.where(c.contact, thr, np.inf)
+    part = np.argmin(thr_contact, axis=2)
+    allowed = np.take_along_axis(thr_contact, part[..., None], axis=2)[..., 0]
+    part = np.where(np.isfinite(allowed), part, -1)
+    return safe, safe.all(axis=(1, 2)), thr, margin, allowed, part
+
+
+def test_compiled_verdict_equals_the_numpy_formula() -> None:
+    model = load_robot("panda")
+    pfl = PflCheck(model, PARTS, link_shapes={"panda_hand": "edge"})
+    rng = np.random.default_rng(3)
+    seen_clamped = 0
+    for trial in range(40):
+        K = int(rng.integers(1, 5))
+        h_ends = rng.normal(scale=0.4, size=(K, len(PARTS), 2, 3)) + [0.4, 0.0, 0.4]
+        h_radius = rng.uniform(0.02, 0.1, (K, len(PARTS)))
+        T = np.eye(4)[None].copy()
+        T[0, :3, 3] = [0.5, 0.0, rng.uniform(0.0, 0.4)]
+        res = _run(pfl, rng.uniform(-1.5, 1.5, 7), (h_ends, h_radius),
+                   (T, np.array([[0.3, 0.3, 0.1]])), K)  # fmt: skip
+        E = res.energy_J.copy()
+        if trial % 5 == 0:
+            E[0, rng.integers(E.shape[1])] = np.nan  # NaN energy: unsafe where in contact
+        got = pfl._verdict(res.contact, E)
+        safe, safe_k, thr, margin, allowed, part = _ref_verdict(pfl, res.contact, E)
+        assert np.array_equal(got.safe, safe) and np.array_equal(got.safe_interval, safe_k)
+        assert np.array_equal(got.threshold_J, thr) and np.array_equal(got.allowed_J, allowed)
+        np.testing.assert_array_equal(got.margin_J, margin)
+        assert np.array_equal(got.limiting_part, part) and got.safe_all == bool(safe_k.all())
+        seen_clamped += int((res.cls >= 2).any())
+    assert seen_clamped > 5

@@ -24,10 +24,12 @@ Bad input never raises on the hot path: a sample with a non-finite ``q`` or ``q_
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
+from numba import njit, types
 
 from sara_app.errors import InputError
 from sara_app.robot.model import RobotModel
@@ -64,6 +66,80 @@ def interval_energy_J(energy_J: np.ndarray) -> np.ndarray:
     return np.maximum(energy_J[:-1], energy_J[1:])
 
 
+_f8 = types.float64
+_RO1, _RO2, _RO3, _RO4 = (types.Array(_f8, d, "A", readonly=True) for d in (1, 2, 3, 4))
+_ROI1 = types.Array(types.int64, 1, "A", readonly=True)
+_ROB1 = types.Array(types.boolean, 1, "A", readonly=True)
+_W2, _W3 = types.Array(_f8, 2, "A"), types.Array(_f8, 3, "A")
+
+
+@njit(types.void(_RO2, _RO3, _RO2, _RO4, _RO2, _ROI1, _RO4, _ROB1, _W2, _W3, _W3), cache=True)
+def _energy_twist_kernel(
+    V: np.ndarray,
+    M: np.ndarray,
+    mask: np.ndarray,
+    H: np.ndarray,
+    axes: np.ndarray,
+    v_index: np.ndarray,
+    ends: np.ndarray,
+    bad: np.ndarray,
+    T: np.ndarray,
+    pd: np.ndarray,
+    w: np.ndarray,
+) -> None:
+    """Eq. 46 and the link twists at ``S`` samples. ``V (S, n)`` joint velocities, ``M (S, n,
+    n)`` inertia matrices (upper triangle read), ``mask (L, n)`` 0/1 supports (velocity
+    order); ``H (S, n+1, 4, 4)`` world joint frames and ``axes (n, 3)`` joint axes in them
+    (kinematic order, ``v_index`` maps to the velocity order); ``ends (S, L, 2, 3)``. Writes
+    ``T (S, L)`` and, for the capsule end ``p1 = ends[..., 0, :]``, ``pd = sum_j qd_j a_j x (p1 -
+    o_j)`` and ``w = sum_j qd_j a_j`` over the supporting joints ``j`` (world axis ``a_j``,
+    origin ``o_j``), ``(S, L, 3)``. ``bad`` samples get ``T = inf`` and NaN twists."""
+    S, n = V.shape
+    L = mask.shape[0]
+    wv = np.empty(n)
+    ao = np.empty((n, 6))  # world axis and origin per joint (kinematic order)
+    for s in range(S):
+        for i in range(L):
+            for a in range(n):
+                wv[a] = V[s, a] * mask[i, a]
+            acc = 0.0
+            for a in range(n):
+                if wv[a] != 0.0:
+                    row = M[s, a, a] * wv[a]
+                    for b in range(a + 1, n):
+                        row += 2.0 * M[s, a, b] * wv[b]
+                    acc += wv[a] * row
+            T[s, i] = math.inf if bad[s] else 0.5 * acc
+        for j in range(n):
+            for r in range(3):
+                ao[j, r] = (
+                    H[s, j + 1, r, 0] * axes[j, 0]
+                    + H[s, j + 1, r, 1] * axes[j, 1]
+                    + H[s, j + 1, r, 2] * axes[j, 2]
+                )
+                ao[j, 3 + r] = H[s, j + 1, r, 3]
+        for i in range(L):
+            px, py, pz = ends[s, i, 0, 0], ends[s, i, 0, 1], ends[s, i, 0, 2]
+            vx = vy = vz = wx = wy = wz = 0.0
+            for j in range(n):
+                c = v_index[j]
+                if mask[i, c] == 0.0:
+                    continue
+                qd = V[s, c]
+                ax, ay, az = ao[j, 0], ao[j, 1], ao[j, 2]
+                rx, ry, rz = px - ao[j, 3], py - ao[j, 4], pz - ao[j, 5]
+                vx += qd * (ay * rz - az * ry)
+                vy += qd * (az * rx - ax * rz)
+                vz += qd * (ax * ry - ay * rx)
+                wx += qd * ax
+                wy += qd * ay
+                wz += qd * az
+            if bad[s]:
+                vx = vy = vz = wx = wy = wz = math.nan
+            pd[s, i, 0], pd[s, i, 1], pd[s, i, 2] = vx, vy, vz
+            w[s, i, 0], w[s, i, 1], w[s, i, 2] = wx, wy, wz
+
+
 class LinkMotion:
     """Energies and twists of every capsule link at trajectory samples, for one robot.
 
@@ -82,10 +158,9 @@ class LinkMotion:
         self.mask.flags.writeable = False
         self._maskf = self.mask.astype(float)
         self._occ = occupancy or RobotOccupancy(model)
-        T0 = np.asarray(model.T_world_base, dtype=float)
-        self._R_wb, self._t_wb = T0[:3, :3].copy(), T0[:3, 3].copy()
-        self._identity = bool(np.array_equal(T0, np.eye(4)))
         self._iu = np.triu_indices(self.n_dof, 1)
+        pm = model.pin_model
+        self._v_index = np.array([pm.idx_vs[j] for j in range(1, pm.njoints)], dtype=np.int64)
         self._cap = 0
         self._grow(16)
 
@@ -95,7 +170,6 @@ class LinkMotion:
         n, L = self.n_dof, self.n_links
         self._cap = S
         self._M = np.zeros((S, n, n))
-        self._J = np.zeros((S, 6, n))
         self._T = np.zeros((S, L))
         self._pd = np.zeros((S, L, 3))
         self._w = np.zeros((S, L, 3))
@@ -114,32 +188,24 @@ class LinkMotion:
             Q, V = np.where(bad[:, None], 0.0, Q), np.where(bad[:, None], 0.0, V)
         return Q, V, bad
 
-    def mass_matrices(self, q: np.ndarray) -> np.ndarray:
-        """``(S, n, n)`` inertia matrices ``B(q)`` (a buffer view) from ``pin.crba``."""
-        Q = np.asarray(q, dtype=float)
+    def _crba(self, Q: np.ndarray) -> np.ndarray:
+        """``pin.crba`` per sample into the buffer: ``(S, n, n)``, upper triangle filled."""
         self._grow(Q.shape[0])
         pm, d, M = self.model.pin_model, self._data, self._M
         for s in range(Q.shape[0]):
             M[s] = pin.crba(pm, d, Q[s])
-        M = M[: Q.shape[0]]
+        return M[: Q.shape[0]]
+
+    def mass_matrices(self, q: np.ndarray) -> np.ndarray:
+        """``(S, n, n)`` inertia matrices ``B(q)`` (a buffer view) from ``pin.crba``."""
+        M = self._crba(np.asarray(q, dtype=float))
         iu, ju = self._iu
         M[:, ju, iu] = M[:, iu, ju]  # crba fills the upper triangle
         return M
 
     def energies(self, q: np.ndarray, q_dot: np.ndarray, M: np.ndarray | None = None) -> np.ndarray:
         """Eq. 46 for all links: ``(S, L)`` J (a buffer view). ``M`` may pass ``B(q)``."""
-        Q, V, bad = self._inputs(q, q_dot)
-        return self._energies(V, self.mass_matrices(Q) if M is None else M, bad)
-
-    def _energies(self, V: np.ndarray, M: np.ndarray, bad: np.ndarray) -> np.ndarray:
-        S = V.shape[0]
-        self._grow(S)
-        w = V[:, None, :] * self._maskf[None]  # (S, L, n): E_i q_dot
-        T = self._T[:S]
-        np.einsum("sli,sli->sl", np.matmul(w, M), w, out=T)
-        T *= 0.5
-        T[bad] = np.inf
-        return T
+        return self._run(q, q_dot, M, None).energy_J
 
     def evaluate(
         self, q: np.ndarray, q_dot: np.ndarray, ends: np.ndarray | None = None
@@ -149,40 +215,35 @@ class LinkMotion:
         ``ends (S, L, 2, 3)``: world capsule ends at the samples when the caller already has
         them (e.g. from :meth:`RobotOccupancy.link_ends`); computed otherwise.
         """
+        return self._run(q, q_dot, None, ends)
+
+    def _run(
+        self, q: np.ndarray, q_dot: np.ndarray, M: np.ndarray | None, ends: np.ndarray | None
+    ) -> LinkSamples:
+        """One ``pin.crba`` per sample (unless ``M`` is given), then one compiled pass
+        (:func:`_energy_twist_kernel`) over the vectorised kinematics of
+        :class:`RobotOccupancy` for the energies and twists."""
         Q, V, bad = self._inputs(q, q_dot)
         S = Q.shape[0]
         self._grow(S)
-        pm, d = self.model.pin_model, self._data
-        M, J = self._M[:S], self._J[:S]
-        for s in range(S):
-            M[s] = pin.crba(pm, d, Q[s])
-            J[s] = pin.computeJointJacobians(pm, d, Q[s])  # world frame, at the world origin
-        iu, ju = self._iu
-        M[:, ju, iu] = M[:, iu, ju]  # crba fills the upper triangle
-        T = self._energies(V, M, bad)
+        if M is None:
+            M = self._crba(Q)  # upper triangle; the kernel reads only that
+        elif np.shape(M) != (S, self.n_dof, self.n_dof):
+            raise InputError(
+                f"M has shape {np.shape(M)}; expected ({S}, {self.n_dof}, {self.n_dof})"
+            )
+        H = self._occ._fk(Q)
         if ends is None:
-            ends = self._occ.link_ends(Q)
-            ends[bad] = np.nan
-        # Twist of link i (base axes, at the base origin): sum over its supporting joints.
-        tw = np.matmul(J * V[:, None, :], self._maskf.T)  # (S, 6, L)
-        v, w_b = tw[:, :3], tw[:, 3:]
-        p1 = ends[:, :, 0, :].transpose(0, 2, 1)  # (S, 3, L) world
-        if not self._identity:
-            p1 = np.matmul(self._R_wb.T, p1 - self._t_wb[:, None])  # base frame
-        v = v + np.stack(  # + w x p1: velocity of the point p1
-            [
-                w_b[:, 1] * p1[:, 2] - w_b[:, 2] * p1[:, 1],
-                w_b[:, 2] * p1[:, 0] - w_b[:, 0] * p1[:, 2],
-                w_b[:, 0] * p1[:, 1] - w_b[:, 1] * p1[:, 0],
-            ],
-            axis=1,
-        )
-        if not self._identity:
-            v, w_b = np.matmul(self._R_wb, v), np.matmul(self._R_wb, w_b)
-        pd, w = self._pd[:S], self._w[:S]
-        np.copyto(pd, v.transpose(0, 2, 1))
-        np.copyto(w, w_b.transpose(0, 2, 1))
-        if bad.any():
-            pd[bad] = np.nan
-            w[bad] = np.nan
+            ends = self._occ._ends(H).copy()
+            if bad.any():
+                ends[bad] = np.nan
+        elif np.shape(ends) != (S, self.n_links, 2, 3):
+            raise InputError(
+                f"ends has shape {np.shape(ends)}; expected ({S}, {self.n_links}, 2, 3)"
+            )
+        T, pd, w = self._T[:S], self._pd[:S], self._w[:S]
+        _energy_twist_kernel(
+            V, np.asarray(M, dtype=np.float64), self._maskf, H, self._occ._axes, self._v_index,
+            np.asarray(ends, dtype=np.float64), bad, T, pd, w,
+        )  # fmt: skip
         return LinkSamples(T, ends, pd, w)

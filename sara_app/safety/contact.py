@@ -41,9 +41,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sara_app.errors import ParameterError
+from sara_app.errors import InputError, ParameterError
+from sara_app.geometry_kernels import box_distances, pair_distances, set_pair_distances
 from sara_app.robot.model import RobotModel
-from sara_app.safety.contact_kernels import all_pairs, segment_box_soa
+from sara_app.safety.contact_kernels import (
+    all_pairs,
+    classify_kernel,
+    jerk_coefficients,
+    segment_box_soa,
+)
 
 NONE, UNCONSTRAINED, ENV_CONSTRAINED, SELF_CONSTRAINED = 0, 1, 2, 3
 CLASS_NAMES: tuple[str, ...] = ("none", "unconstrained", "env-constrained", "self-constrained")
@@ -91,10 +97,14 @@ class VelocityErrorBound:
         self.chains, self.lengths = chains, lengths
         # Vectorised form: per joint (v index) its parent joint (-1: the base) and the lever
         # matrix D (n, L): D[c, i] = the length following joint c on link i's chain.
-        self._parent = [
-            int(pm.idx_vs[pm.parents[j]]) if pm.parents[j] > 0 else -1 for j in range(1, pm.njoints)
-        ]
-        self._order = [int(pm.idx_vs[j]) for j in range(1, pm.njoints)]  # parents first
+        self._parent = np.array(
+            [
+                int(pm.idx_vs[pm.parents[j]]) if pm.parents[j] > 0 else -1
+                for j in range(1, pm.njoints)
+            ],
+            dtype=np.int64,
+        )
+        self._order = np.array([int(pm.idx_vs[j]) for j in range(1, pm.njoints)], dtype=np.int64)
         self._D = np.zeros((self.n_dof, self.n_links))
         for i, (chain, lever) in enumerate(zip(chains, lengths)):
             self._D[chain, i] = lever
@@ -106,23 +116,24 @@ class VelocityErrorBound:
         self, qd: np.ndarray, qdd: np.ndarray, qddd: np.ndarray, form: str = "spatial"
     ) -> np.ndarray:
         """``C (..., L)`` from absolute joint bounds ``(..., n)`` (rad/s, rad/s^2, rad/s^3)."""
-        qd, qdd, qddd = (np.abs(np.asarray(x, dtype=float)) for x in (qd, qdd, qddd))
+        qd, qdd, qddd = (np.asarray(x, dtype=float) for x in (qd, qdd, qddd))
         if form == "paper":
+            qd, qdd, qddd = np.abs(qd), np.abs(qdd), np.abs(qddd)
             out = np.zeros(qd.shape[:-1] + (self.n_links,))
             for i, (chain, d) in enumerate(zip(self.chains, self.lengths)):
                 out[..., i] = _paper_coefficient(chain, d, qd, qdd, qddd)
             return out
-        # Bounds on |Omega|, |alpha|, |beta| of the body after each joint (parents first).
-        W, A, Bj = np.zeros_like(qd), np.zeros_like(qd), np.zeros_like(qd)
-        zero = np.zeros(qd.shape[:-1])
-        for j, p in zip(self._order, self._parent):
-            w0, a0, b0 = (zero, zero, zero) if p < 0 else (W[..., p], A[..., p], Bj[..., p])
-            v, a, jj = qd[..., j], qdd[..., j], qddd[..., j]
-            W[..., j] = w0 + v
-            A[..., j] = a0 + a + v * w0
-            Bj[..., j] = b0 + jj + 2.0 * a * w0 + v * (a0 + w0 * w0)
-        # A point s metres further on body j adds s (|beta| + 3 |alpha||Omega| + |Omega|^3).
-        return np.asarray((Bj + 3.0 * A * W + W**3) @ self._D)
+        # Bounds on |Omega|, |alpha|, |beta| of the body after each joint (parents first); a
+        # point s metres further on body j adds s (|beta| + 3 |alpha||Omega| + |Omega|^3).
+        shape = np.broadcast_shapes(qd.shape, qdd.shape, qddd.shape)
+        qd, qdd, qddd = (np.broadcast_to(x, shape) for x in (qd, qdd, qddd))
+        if qd.shape[-1:] != (self.n_dof,):
+            raise InputError(f"joint bounds have shape {qd.shape}; expected (..., {self.n_dof})")
+        lead = qd.shape[:-1]
+        fd, fdd, fddd = (np.reshape(x, (-1, self.n_dof)) for x in (qd, qdd, qddd))
+        out = np.empty((fd.shape[0], self.n_links))
+        jerk_coefficients(fd, fdd, fddd, self._order, self._parent, self._D, out)
+        return out.reshape(lead + (self.n_links,))
 
     def eps_v(self, dt: np.ndarray, C: np.ndarray | None = None) -> np.ndarray:
         """``(K, L)`` m/s for interval lengths ``dt (K,)``; ``C`` defaults to the limits'."""
@@ -233,6 +244,9 @@ class ContactResult:
     distance_m: np.ndarray
 
 
+_NO_NORMAL = np.empty((0, 0, 0, 3))
+
+
 def _closure(adj: np.ndarray) -> np.ndarray:
     """Reflexive-transitive closure of ``(K, P, P)`` boolean adjacency (repeated squaring)."""
     P = adj.shape[-1]
@@ -294,7 +308,105 @@ class ContactClassifier:
         T_world_box: np.ndarray,
         half_extents_m: np.ndarray,
     ) -> ContactResult:
-        """Classify; shapes in the module docstring. Never raises on NaN (NaN = worst case)."""
+        """Classify; shapes in the module docstring. Never raises on NaN (NaN = worst case).
+
+        Compiled: robot-human distances first (the broad phase: when no link can touch any
+        body part nothing else is computed), then the other distances and
+        :func:`~sara_app.safety.contact_kernels.classify_kernel`. Same result as
+        :meth:`classify_reference` (tested on random scenes, round-off ties aside). Human
+        capsules broadcast over the intervals (a zero stride) are evaluated once.
+        """
+        arrays = [
+            np.asarray(a, dtype=np.float64)
+            for a in (r_ends, r_radius, s_ends, s_radius, p1_dot, omega, eps_v, h_ends,
+                      h_radius, T_world_box, half_extents_m)
+        ]  # fmt: skip
+        K, L, P, B = self._check_shapes(*arrays)
+        (r_ends, r_radius, s_ends, s_radius, p1_dot, omega, eps_v, h_ends, h_radius,
+         T_world_box, half_extents_m) = arrays  # fmt: skip
+        if K > 1 and h_ends.strides[0] == 0 and h_radius.strides[0] == 0:
+            h_ends, h_radius = h_ends[:1], h_radius[:1]
+        d_rh = np.empty((K, L, P))
+        pair_distances(r_ends, r_radius, h_ends, h_radius, d_rh)
+        if (d_rh > 0.0).all():  # no possible contact at all (NaN is contact)
+            return self._no_contact(d_rh)
+        d_hh, s_hh = np.empty((2, K, P, P))
+        set_pair_distances(h_ends, h_radius, d_hh, s_hh)
+        d_rr, s_rr = np.empty((2, K, L, L))
+        set_pair_distances(r_ends, r_radius, d_rr, s_rr)
+        d_rb, n_rb = np.empty((K, L, B)), np.empty((K, L, B, 3))
+        box_distances(r_ends, r_radius, T_world_box, half_extents_m, d_rb, n_rb)
+        d_hb = np.empty((h_ends.shape[0], P, B))
+        box_distances(h_ends, h_radius, T_world_box, half_extents_m, d_hb, _NO_NORMAL)
+        contact_s, env, self_, contact = np.empty((4, K, L, P), dtype=bool)
+        cls = np.empty((K, L, P), dtype=np.int8)
+        stack = np.empty((K, P, P), dtype=bool)
+        diam = np.empty((K, P))
+        classify_kernel(
+            d_rh, d_hh, d_rr, s_rr, r_ends, d_rb, n_rb, d_hb, s_ends, s_radius, p1_dot, omega,
+            eps_v, self._no_pair, self._not_safe_h, self.diameters_m, self.relax_velocity,
+            self.relax_diameter, self.multi_body, contact_s, env, self_, contact, cls, stack, diam,
+        )  # fmt: skip
+        return ContactResult(contact, contact_s, env, self_, cls, stack, diam, d_rh)
+
+    def _check_shapes(self, *arrays: np.ndarray) -> tuple[int, int, int, int]:
+        """``(K, L, P, B)`` of :meth:`classify`'s inputs (in its argument order); raises
+        :class:`InputError` for any shape the compiled kernels cannot index safely."""
+        K, L = np.shape(arrays[1]) if np.ndim(arrays[1]) == 2 else (-1, -1)
+        P = np.shape(arrays[8])[1] if np.ndim(arrays[8]) == 2 else -1
+        B = np.shape(arrays[9])[0] if np.ndim(arrays[9]) == 3 else -1
+        Kh = np.shape(arrays[8])[0] if P >= 0 else -1
+        want = (
+            (K, L, 2, 3), (K, L), (K + 1, L, 2, 3), (L,), (K + 1, L, 3), (K + 1, L, 3), (K, L),
+            (Kh, P, 2, 3), (Kh, P), (B, 4, 4), (B, 3),
+        )  # fmt: skip
+        names = (
+            "r_ends", "r_radius", "s_ends", "s_radius", "p1_dot", "omega", "eps_v", "h_ends",
+            "h_radius", "T_world_box", "half_extents_m",
+        )  # fmt: skip
+        for name, a, shape in zip(names, arrays, want):
+            if a.shape != shape:
+                raise InputError(
+                    f"{name} has shape {a.shape}; expected {shape} (K intervals, L links, P "
+                    "parts, B boxes)"
+                )
+        if (
+            K < 1
+            or L != self._no_pair.shape[0]
+            or P != self._not_safe_h.shape[0]
+            or Kh not in (1, K)
+        ):
+            raise InputError(
+                f"K = {K}, L = {L}, P = {P}, human intervals {Kh}; expected K >= 1, L = "
+                f"{self._no_pair.shape[0]}, P = {self._not_safe_h.shape[0]}, human intervals 1 or K"
+            )
+        return K, L, P, B
+
+    def _no_contact(self, d_rh: np.ndarray) -> ContactResult:
+        """The result when no link can touch any body part on any interval."""
+        K, _, P = d_rh.shape
+        none = np.zeros(d_rh.shape, dtype=bool)
+        stack = np.broadcast_to(np.eye(P, dtype=bool), (K, P, P))
+        diam = np.broadcast_to(self.diameters_m, (K, P))
+        cls0 = np.zeros(d_rh.shape, dtype=np.int8)
+        return ContactResult(none, none, none, none, cls0, stack, diam, d_rh)
+
+    def classify_reference(
+        self,
+        r_ends: np.ndarray,
+        r_radius: np.ndarray,
+        s_ends: np.ndarray,
+        s_radius: np.ndarray,
+        p1_dot: np.ndarray,
+        omega: np.ndarray,
+        eps_v: np.ndarray,
+        h_ends: np.ndarray,
+        h_radius: np.ndarray,
+        T_world_box: np.ndarray,
+        half_extents_m: np.ndarray,
+    ) -> ContactResult:
+        """The numpy implementation of :meth:`classify` (the readable reference the compiled
+        path is tested against)."""
         K, L = r_radius.shape
         # One all-pairs segment computation for robot and human capsules of each interval.
         caps = np.concatenate([r_ends, h_ends], axis=1)  # (K, N, 2, 3), N = L + P
@@ -304,12 +416,7 @@ class ContactClassifier:
         d_rh = gap[:, :L, L:]
         contact_s = ~(d_rh > 0.0)
         if not contact_s.any():  # no possible contact at all: nothing to classify
-            P = d_rh.shape[2]
-            none = np.zeros_like(contact_s)
-            stack = np.broadcast_to(np.eye(P, dtype=bool), (K, P, P))
-            diam = np.broadcast_to(self.diameters_m, (K, P))
-            cls0 = np.zeros(contact_s.shape, dtype=np.int8)
-            return ContactResult(none, none, none, none, cls0, stack, diam, d_rh)
+            return self._no_contact(d_rh)
         stack, diam = self._stacks(gap[:, L:, L:])
         stack_f = stack.astype(np.float32)
         contact_g = np.einsum("klm,kjm->klj", contact_s.astype(np.float32), stack_f) > 0.0

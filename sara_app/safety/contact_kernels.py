@@ -9,7 +9,10 @@ This is what brings a PFL cycle (a few thousand capsule pairs) near the 1 ms bud
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit, types
 
 _PARALLEL_SIN2 = 1e-24  # as in sara_app.geometry
 
@@ -111,3 +114,322 @@ def segment_box_soa(
     x = a + s_best * d
     cb = np.clip(x, -h, h)
     return np.sqrt(f[k, cols]), R @ x + c0, R @ cb + c0
+
+
+# --- compiled classification (numba) ---------------------------------------------------------
+# Explicit signatures (read-only 'A'-layout inputs) and cache=True: compiled or loaded from the
+# cache at import, never in a control loop. The helpers live in this file (numba's cache does not
+# see changes in other files).
+
+_f8, _b1, _i8 = types.float64, types.boolean, types.int8
+_RO = {d: types.Array(_f8, d, "A", readonly=True) for d in (1, 2, 3, 4)}
+_ROB2 = types.Array(_b1, 2, "A", readonly=True)
+_WB3, _WF2, _WI3 = types.Array(_b1, 3, "A"), types.Array(_f8, 2, "A"), types.Array(_i8, 3, "A")
+_ROI1 = types.Array(types.int64, 1, "A", readonly=True)
+
+
+@njit(cache=True)
+def _normal_speed(
+    n: tuple[float, float, float],
+    p1_dot: np.ndarray,
+    omega: np.ndarray,
+    reach: np.ndarray,
+    t: int,
+    i: int,
+    sign: float,
+) -> float:
+    """Thm VI.1 along unit ``n`` for link ``i`` at sample ``t``: ``n . p1_dot + sign * reach
+    |n x omega|`` (``sign`` -1: the slowest point of the link, +1: the fastest). Scalar
+    indexing only (array views cost reference counting in compiled loops)."""
+    nx, ny, nz = n
+    wx, wy, wz = omega[t, i, 0], omega[t, i, 1], omega[t, i, 2]
+    cx = ny * wz - nz * wy
+    cy = nz * wx - nx * wz
+    cz = nx * wy - ny * wx
+    turn = reach[t, i] * math.sqrt(cx * cx + cy * cy + cz * cz)
+    return nx * p1_dot[t, i, 0] + ny * p1_dot[t, i, 1] + nz * p1_dot[t, i, 2] + sign * turn
+
+
+@njit(cache=True)
+def _interval_speed(
+    n: tuple[float, float, float],
+    k: int,
+    i: int,
+    p1_dot: np.ndarray,
+    omega: np.ndarray,
+    reach: np.ndarray,
+    sign: float,
+) -> float:
+    """Over interval ``k`` (samples ``k`` and ``k+1``) the min (``sign`` -1) or max (+1) of
+    :func:`_normal_speed` of link ``i``; NaN if either sample gives NaN (as ``np.minimum``)."""
+    a = _normal_speed(n, p1_dot, omega, reach, k, i, sign)
+    b = _normal_speed(n, p1_dot, omega, reach, k + 1, i, sign)
+    if a != a or b != b:
+        return np.nan
+    return min(a, b) if sign < 0.0 else max(a, b)
+
+
+@njit(cache=True)
+def _unit3(x: float, y: float, z: float) -> tuple[float, float, float]:
+    """Unit vector; a zero vector gives NaN (no relaxation), as ``contact._unit``."""
+    n = math.sqrt(x * x + y * y + z * z)
+    if not n > 0.0:
+        n = np.nan
+    return x / n, y / n, z / n
+
+
+@njit(cache=True)
+def _link_normal(r_ends: np.ndarray, s_rr: np.ndarray, k: int, i: int, l: int) -> tuple:
+    """Unit normal on link ``l`` towards link ``i`` between their closest points (interval k)."""
+    s, t = s_rr[k, i, l], s_rr[k, l, i]
+    e = r_ends
+    return _unit3(
+        e[k, i, 0, 0]
+        + s * (e[k, i, 1, 0] - e[k, i, 0, 0])
+        - (e[k, l, 0, 0] + t * (e[k, l, 1, 0] - e[k, l, 0, 0])),
+        e[k, i, 0, 1]
+        + s * (e[k, i, 1, 1] - e[k, i, 0, 1])
+        - (e[k, l, 0, 1] + t * (e[k, l, 1, 1] - e[k, l, 0, 1])),
+        e[k, i, 0, 2]
+        + s * (e[k, i, 1, 2] - e[k, i, 0, 2])
+        - (e[k, l, 0, 2] + t * (e[k, l, 1, 2] - e[k, l, 0, 2])),
+    )
+
+
+@njit(cache=True)
+def _stack(d_hh: np.ndarray, not_safe_h: np.ndarray, st: np.ndarray) -> None:
+    """Virtual body parts of one interval: ``st (P, P)`` the reflexive-transitive closure
+    (Warshall) of "not separated and not a safe pair" from ``d_hh (P, P)``."""
+    P = st.shape[0]
+    for j in range(P):
+        for m in range(P):
+            st[j, m] = j == m or (not d_hh[j, m] > 0.0 and not_safe_h[j, m])
+    for m in range(P):
+        for j in range(P):
+            if st[j, m]:
+                for x in range(P):
+                    if st[m, x]:
+                        st[j, x] = True
+
+
+@njit(cache=True)
+def _env_can(
+    k: int,
+    i: int,
+    b: int,
+    d_rb: np.ndarray,
+    n_rb: np.ndarray,
+    p1_dot: np.ndarray,
+    omega: np.ndarray,
+    reach: np.ndarray,
+    eps_v: np.ndarray,
+    relax_velocity: bool,
+) -> int:
+    """1: link ``i`` may clamp against box ``b`` on interval ``k`` (it touches the box, or it
+    does not provably move away from it by more than ``eps_v``, eq. 31); else 0."""
+    if not relax_velocity or not d_rb[k, i, b] > 0.0:
+        return 1
+    n = _unit3(n_rb[k, i, b, 0], n_rb[k, i, b, 1], n_rb[k, i, b, 2])
+    v_min = _interval_speed(n, k, i, p1_dot, omega, reach, -1.0)
+    return 0 if v_min >= eps_v[k, i] else 1
+
+
+@njit(cache=True)
+def _self_can(
+    k: int,
+    i: int,
+    l: int,
+    d_rr: np.ndarray,
+    s_rr: np.ndarray,
+    r_ends: np.ndarray,
+    p1_dot: np.ndarray,
+    omega: np.ndarray,
+    reach: np.ndarray,
+    eps_v: np.ndarray,
+    no_pair: np.ndarray,
+    relax_velocity: bool,
+) -> int:
+    """1: links ``i`` and ``l`` may close on a body part on interval ``k`` (not a declared
+    unclampable pair, and not provably separating along the normal by more than both links'
+    errors, eq. 32); else 0."""
+    if no_pair[i, l]:
+        return 0
+    if not relax_velocity:
+        return 1
+    n = _link_normal(r_ends, s_rr, k, i, l)
+    gap = _interval_speed(n, k, i, p1_dot, omega, reach, -1.0)
+    gap -= _interval_speed(n, k, l, p1_dot, omega, reach, 1.0)
+    return 0 if (gap >= eps_v[k, i] + eps_v[k, l] and d_rr[k, i, l] > 0.0) else 1
+
+
+@njit(
+    _b1(
+        _RO[3], _RO[3], _RO[3], _RO[3], _RO[4], _RO[3], _RO[4], _RO[3],
+        _RO[4], _RO[1], _RO[3], _RO[3], _RO[2], _ROB2, _ROB2, _RO[1],
+        _b1, _b1, _b1, _WB3, _WB3, _WB3, _WB3, _WI3, _WB3, _WF2,
+    ),
+    cache=True,
+)  # fmt: skip
+def classify_kernel(
+    d_rh: np.ndarray,
+    d_hh: np.ndarray,
+    d_rr: np.ndarray,
+    s_rr: np.ndarray,
+    r_ends: np.ndarray,
+    d_rb: np.ndarray,
+    n_rb: np.ndarray,
+    d_hb: np.ndarray,
+    s_ends: np.ndarray,
+    s_radius: np.ndarray,
+    p1_dot: np.ndarray,
+    omega: np.ndarray,
+    eps_v: np.ndarray,
+    no_pair: np.ndarray,
+    not_safe_h: np.ndarray,
+    diameters_m: np.ndarray,
+    relax_velocity: bool,
+    relax_diameter: bool,
+    multi_body: bool,
+    contact_s: np.ndarray,
+    env: np.ndarray,
+    self_: np.ndarray,
+    contact: np.ndarray,
+    cls: np.ndarray,
+    stack: np.ndarray,
+    diam: np.ndarray,
+) -> bool:
+    """:meth:`ContactClassifier.classify_reference` as loops (the rules are documented in
+    :mod:`sara_app.safety.contact`); returns whether any contact is possible.
+
+    Geometry inputs (surface distances): robot-human ``d_rh (K, L, P)``, human-human ``d_hh (K,
+    P, P)``, robot-robot ``d_rr (K, L, L)`` with closest-point parameters ``s_rr`` (on link
+    ``i`` towards ``l``), robot capsules ``r_ends (K, L, 2, 3)``, robot-box ``d_rb (K, L, B)``
+    with box-to-link vectors ``n_rb (K, L, B, 3)``, human-box ``d_hb (Kh, P, B)`` (``Kh`` in
+    ``{1, K}``). Link samples: ``s_ends (K+1, L, 2, 3)``, ``s_radius (L,)``, ``p1_dot, omega
+    (K+1, L, 3)``, ``eps_v (K, L)``. Outputs ``(K, L, P)``: ``contact_s``, ``env``, ``self_``
+    (both restricted to the stack contact), ``contact``, ``cls``; ``stack (K, P, P)``, ``diam
+    (K, P)``. Without any possible contact the outputs are the reference's early result.
+    """
+    K, L, P = d_rh.shape
+    B = d_rb.shape[2]
+    anything = False
+    for k in range(K):
+        for i in range(L):
+            for p in range(P):
+                c = not d_rh[k, i, p] > 0.0
+                contact_s[k, i, p] = c
+                anything = anything or c
+    env[:] = False
+    self_[:] = False
+    cls[:] = 0
+    contact[:] = contact_s
+    if not anything or not multi_body:
+        for k in range(K):
+            for j in range(P):
+                diam[k, j] = diameters_m[j]
+                for m in range(P):
+                    stack[k, j, m] = j == m
+    if not anything:
+        return False
+    reach = np.empty((K + 1, L))  # lever of Thm VI.1: radius + capsule length
+    for t in range(K + 1):
+        for i in range(L):
+            e = s_ends[t, i]
+            dx, dy, dz = e[1, 0] - e[0, 0], e[1, 1] - e[0, 1], e[1, 2] - e[0, 2]
+            reach[t, i] = s_radius[i] + math.sqrt(dx * dx + dy * dy + dz * dz)
+    contact_g = np.empty((L, P), dtype=np.bool_)
+    touch_g = np.empty((P, B), dtype=np.bool_)
+    can_b = np.empty((L, B), dtype=np.int8)
+    can_l = np.empty((L, L), dtype=np.int8)
+    for k in range(K):
+        kh = k if d_hb.shape[0] == K else 0
+        st = stack[k]
+        if multi_body:
+            _stack(d_hh[k], not_safe_h, st)
+            for j in range(P):
+                acc = 0.0
+                for m in range(P):
+                    if st[j, m]:
+                        acc += diameters_m[m]
+                diam[k, j] = acc
+        for i in range(L):  # contact with the part's stack
+            for j in range(P):
+                contact_g[i, j] = False
+                for m in range(P):
+                    if contact_s[k, i, m] and st[j, m]:
+                        contact_g[i, j] = True
+                        break
+        # environment-constrained (eq. 10-11, 31, 33): the stack touches box b and link i may
+        # not provably move away from it
+        for j in range(P):
+            for b in range(B):
+                touch_g[j, b] = False
+                for m in range(P):
+                    if st[j, m] and not d_hb[kh, m, b] > 0.0:
+                        touch_g[j, b] = True
+                        break
+        can_b[:, :] = -1  # lazily evaluated: -1 unknown, 0 no, 1 yes
+        can_l[:, :] = -1
+        for i in range(L):
+            for j in range(P):
+                if not contact_g[i, j]:  # no contact through the stack: nothing to clamp
+                    continue
+                e_ok = False
+                for b in range(B):
+                    if touch_g[j, b] and not (relax_diameter and d_rb[k, i, b] > diam[k, j]):
+                        if can_b[i, b] < 0:
+                            can_b[i, b] = _env_can(
+                                k, i, b, d_rb, n_rb, p1_dot, omega, reach, eps_v, relax_velocity
+                            )
+                        if can_b[i, b]:
+                            e_ok = True
+                            break
+                s_ok = False
+                for l in range(L):
+                    if contact_g[l, j] and not (relax_diameter and d_rr[k, i, l] > diam[k, j]):
+                        if can_l[i, l] < 0:
+                            can_l[i, l] = _self_can(
+                                k, i, l, d_rr, s_rr, r_ends, p1_dot, omega, reach, eps_v,
+                                no_pair, relax_velocity,
+                            )  # fmt: skip
+                        if can_l[i, l]:
+                            s_ok = True
+                            break
+                env[k, i, j] = e_ok
+                self_[k, i, j] = s_ok
+                if e_ok or s_ok:
+                    contact[k, i, j] = True
+                    cls[k, i, j] = 2 if e_ok else 3
+                elif contact_s[k, i, j]:
+                    cls[k, i, j] = 1
+    return True
+
+
+@njit(types.void(_RO[2], _RO[2], _RO[2], _ROI1, _ROI1, _RO[2], _WF2), cache=True)
+def jerk_coefficients(
+    qd: np.ndarray,
+    qdd: np.ndarray,
+    qddd: np.ndarray,
+    order: np.ndarray,
+    parent: np.ndarray,
+    D: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """The ``"spatial"`` form of :meth:`VelocityErrorBound.coefficients`: joint bounds ``(K,
+    n)`` (absolute values taken here), joints visited in ``order`` (parents first) with
+    ``parent`` (-1: the base), lever matrix ``D (n, L)``; writes ``out (K, L)``."""
+    K, n = qd.shape
+    W, A, Bj = np.empty(n), np.empty(n), np.empty(n)
+    for k in range(K):
+        for x in range(order.shape[0]):
+            j, p = order[x], parent[x]
+            w0, a0, b0 = (0.0, 0.0, 0.0) if p < 0 else (W[p], A[p], Bj[p])
+            v, a, jj = abs(qd[k, j]), abs(qdd[k, j]), abs(qddd[k, j])
+            W[j] = w0 + v
+            A[j] = a0 + a + v * w0
+            Bj[j] = b0 + jj + 2.0 * a * w0 + v * (a0 + w0 * w0)
+        for i in range(D.shape[1]):
+            acc = 0.0
+            for j in range(n):
+                acc += (Bj[j] + 3.0 * A[j] * W[j] + W[j] * W[j] * W[j]) * D[j, i]
+            out[k, i] = acc

@@ -46,10 +46,12 @@ next call); the classification allocates its (small) arrays per call, and the
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit, types
 
 from sara_app.errors import InputError
 from sara_app.robot.energy import LinkMotion, interval_energy_J
@@ -102,6 +104,64 @@ class PflResult:
     @property
     def class_names(self) -> tuple[str, ...]:
         return CLASS_NAMES
+
+
+_f8 = types.float64
+_RO2, _RO3 = (types.Array(_f8, d, "A", readonly=True) for d in (2, 3))
+_ROB3 = types.Array(types.boolean, 3, "A", readonly=True)
+_ROI3 = types.Array(types.int8, 3, "A", readonly=True)
+_W2, _W3 = types.Array(_f8, 2, "A"), types.Array(_f8, 3, "A")
+_WB1, _WB3 = types.Array(types.boolean, 1, "A"), types.Array(types.boolean, 3, "A")
+_WI2 = types.Array(types.int64, 2, "A")
+
+
+@njit(
+    types.void(_ROB3, _ROI3, _ROB3, _RO2, _RO2, _RO2, _W3, _W3, _WB3, _WB1, _W2, _WI2),
+    cache=True,
+)
+def _verdict_kernel(
+    stack: np.ndarray,
+    cls: np.ndarray,
+    contact: np.ndarray,
+    T_clamp: np.ndarray,
+    T_free: np.ndarray,
+    E_int: np.ndarray,
+    thr: np.ndarray,
+    margin: np.ndarray,
+    safe: np.ndarray,
+    safe_k: np.ndarray,
+    allowed: np.ndarray,
+    part: np.ndarray,
+) -> None:
+    """Eq. 7 per interval ``k``, link ``i``, part ``j``: the threshold ``thr`` (constrained: the
+    smallest ``T_clamp[i, m]`` over the stack ``m`` of ``j``, where ``cls >= 2``; else
+    ``T_free[i, j]``), ``margin = thr - E_int[k, i]``, ``safe = ~contact | margin > 0`` (NaN
+    energy: unsafe), ``safe_k``; per ``(k, i)`` the smallest threshold over the parts in contact
+    (``allowed``, ``inf`` without contact) and its first part (``part``, -1 without contact)."""
+    K, L, P = cls.shape
+    for k in range(K):
+        ok_k = True
+        for i in range(L):
+            best, arg = np.inf, 0
+            for j in range(P):
+                if cls[k, i, j] >= 2:
+                    t = np.inf
+                    for m in range(P):
+                        if stack[k, j, m] and T_clamp[i, m] < t:
+                            t = T_clamp[i, m]
+                else:
+                    t = T_free[i, j]
+                thr[k, i, j] = t
+                mg = t - E_int[k, i]
+                margin[k, i, j] = mg
+                ok = not contact[k, i, j] or mg > 0.0
+                safe[k, i, j] = ok
+                ok_k = ok_k and ok
+                if contact[k, i, j] and t < best:
+                    best, arg = t, j
+            allowed[k, i] = best
+            part[k, i] = arg if math.isfinite(best) else -1
+        safe_k[k] = ok_k
 
 
 class PflCheck:
@@ -240,18 +300,16 @@ class PflCheck:
         return self.velocity_error.eps_v(dt, C)
 
     def _verdict(self, c: ContactResult, E_int: np.ndarray) -> PflResult:
-        clamped = c.cls >= 2
-        # Constrained threshold of a stack: the smallest over its members (K, L, P).
-        stack_clamp = np.where(c.stack[:, None, :, :], self.T_clamp[None, :, None, :], np.inf)
-        T_clamp = stack_clamp.min(axis=-1)
-        thr = np.where(clamped, T_clamp, self.T_free[None])
-        margin = thr - E_int[:, :, None]
-        safe = ~c.contact | (margin > 0.0)  # eq. 7 with strict "<"; NaN energy -> unsafe
-        safe_k = safe.all(axis=(1, 2))
-        thr_contact = np.where(c.contact, thr, np.inf)
-        part = np.argmin(thr_contact, axis=2)
-        allowed = np.take_along_axis(thr_contact, part[..., None], axis=2)[..., 0]
-        part = np.where(np.isfinite(allowed), part, -1)
+        K, L, P = c.cls.shape
+        thr, margin = np.empty((2, K, L, P))
+        safe = np.empty((K, L, P), dtype=bool)
+        safe_k = np.empty(K, dtype=bool)
+        allowed = np.empty((K, L))
+        part = np.empty((K, L), dtype=np.int64)
+        _verdict_kernel(
+            c.stack, c.cls, c.contact, self.T_clamp, self.T_free, E_int,
+            thr, margin, safe, safe_k, allowed, part,
+        )  # fmt: skip
         return PflResult(
             safe, safe_k, bool(safe_k.all()), c.cls, thr, E_int, margin, c, allowed, part
         )
