@@ -10,6 +10,17 @@ along the committed (or braking) step to ``t + dt``.
 Ground truth: a collision is a robot link capsule (fitted to the collision geometry, no margin)
 overlapping a true body part (capsule with the parameter set's thickness) while the robot moves.
 Contact with a robot at rest is allowed (SSM). Collisions are checked at every simulation step.
+
+PFL ground truth (:class:`ContactTruth`, evaluated in every mode, so SSM runs report it too): a
+contact between a true body part and robot link ``i`` is allowed when the link's true kinetic
+energy (eq. 46, ``1/2 q_dot^T E_i B(q) E_i q_dot`` of the executed motion) is below the threshold
+of the contact's ACTUAL class. It is clamped when the body part, or a body part stacked with it
+(touching it and not a safe pair, transitively, as in seed 003 eq. 39-43, other people's parts
+included), touches an environment box or a robot link that can clamp with ``i`` (not ``i``, not
+declared unclampable with it); the threshold is then the smallest constrained one of the stack,
+else the part's unconstrained one. This truth ignores the velocity relaxation (a link moving
+away from the table is still taken as clamping), so it is stricter than the shield's check. A
+contact whose energy reaches that threshold is harmful (``SimMetrics.harmful_contacts``).
 """
 
 from __future__ import annotations
@@ -20,13 +31,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sara_app.cell import build_cell
+from sara_app.cell import build_cell, environment_boxes
+from sara_app.geometry import capsule_box_distances, segment_pair_distances
 from sara_app.human.motions import HumanMotion, make_motion, measured
 from sara_app.human.velocity import VelocityEstimator
+from sara_app.robot.energy import LinkMotion
 from sara_app.robot.model import RobotModel, load_robot
 from sara_app.safety.shield import CycleResult, HumanState
 from sara_app.safety.ssm import body_distance
-from sara_app.scenario import Scenario
+from sara_app.safety.thresholds import ThresholdSet, load_thresholds, threshold_arrays
+from sara_app.safety.topology import human_safe_matrix, unclampable_matrix
+from sara_app.scenario import PflSpec, Scenario
 
 _MOVING_RAD_S = 1e-6
 
@@ -55,11 +70,23 @@ class SimMetrics:
     cycle_us_p50: float
     cycle_us_p99: float
     modes: dict[str, int] = field(default_factory=dict)
+    safety_mode: str = "ssm"
+    harmful_contacts: int = 0
+    """Steps x people with a contact whose link energy reaches its actual class's threshold."""
+    first_harmful_s: float | None = None
+    contacts_moving: int = 0
+    """Steps x people touching a robot link that has kinetic energy (PFL allows these)."""
+    clamped_contacts: int = 0
+    """Of those, the ones in a clamping configuration (actual class constrained)."""
+    max_energy_ratio: float = 0.0
+    """Largest link energy / actual threshold over all contacts (harmful from 1 on)."""
+    speed_scale_mean: float = 1.0
+    intervened_share: float = 0.0
 
     def lines(self) -> list[str]:
         ttg = f"{self.time_to_goal_s:.2f} s" if self.time_to_goal_s is not None else "not reached"
         return [
-            f"scenario            {self.scenario}",
+            f"scenario            {self.scenario} ({self.safety_mode})",
             f"simulated           {self.duration_s:.2f} s, {self.cycles} cycles",
             f"collisions moving   {self.collisions_moving}"
             + (f" (first at {self.first_collision_s:.3f} s)" if self.first_collision_s else ""),
@@ -67,10 +94,115 @@ class SimMetrics:
             f"(while moving {self.min_separation_moving_m:.3f} m)",
             f"failsafe share      {100 * self.failsafe_share:.1f} % of cycles"
             f" (faults: {self.fault_cycles})",
+            f"contacts (energy)   {self.contacts_moving} touching a moving link, "
+            f"{self.clamped_contacts} clamped, {self.harmful_contacts} harmful"
+            + (f" (first at {self.first_harmful_s:.3f} s)" if self.first_harmful_s else "")
+            + f"; largest energy/threshold {self.max_energy_ratio:.2f}",
+            f"intervened          {100 * self.intervened_share:.1f} % of cycles"
+            f" (mean speed scale {self.speed_scale_mean:.2f})",
             f"time to goal        {ttg}",
             f"shield cycle        p50 {self.cycle_us_p50:.0f} us, p99 {self.cycle_us_p99:.0f} us",
             "modes               " + ", ".join(f"{k} {v}" for k, v in sorted(self.modes.items())),
         ]
+
+
+def pfl_thresholds(spec: PflSpec) -> ThresholdSet:
+    """The threshold set of a scenario's PFL settings, its edits applied."""
+    ts = load_thresholds(spec.thresholds)
+    for o in spec.overrides:
+        ts = ts.with_energy(o.region, o.contact, o.shape, o.energy_J)[0]
+    return ts
+
+
+@dataclass
+class ContactVerdict:
+    """Per person: ``touching`` a link with energy, ``clamped`` (actual class), ``harmful``
+    (energy >= threshold of the actual class); ``ratio`` the largest energy / threshold."""
+
+    touching: np.ndarray
+    clamped: np.ndarray
+    harmful: np.ndarray
+    ratio: np.ndarray
+
+
+class ContactTruth:
+    """Ground truth of PFL contacts for ``n_humans`` people (see the module notes).
+
+    ``part_joints (P, 2)``, ``half_th (P,)`` m, ``part_names (P,)`` of the skeleton; thresholds
+    from ``spec`` (a scenario's :class:`PflSpec`); ``boxes`` the environment
+    ``(T_world_box (B, 4, 4), half_extents_m (B, 3))``.
+    """
+
+    def __init__(
+        self,
+        robot: RobotModel,
+        part_joints: np.ndarray,
+        half_th: np.ndarray,
+        part_names: tuple[str, ...],
+        n_humans: int,
+        spec: PflSpec,
+        boxes: tuple[np.ndarray, np.ndarray],
+    ) -> None:
+        H, P = n_humans, len(part_names)
+        self.robot, self.n_humans, self.n_parts = robot, H, P
+        self.motion = LinkMotion(robot)
+        T_free, T_clamp = threshold_arrays(
+            pfl_thresholds(spec), robot.link_names, part_names, spec.link_shapes
+        )
+        self.T_free, self.T_clamp = np.tile(T_free, (1, H)), np.tile(T_clamp, (1, H))
+        L = robot.n_links
+        self.no_clamp = unclampable_matrix(robot.name, robot.link_names) | np.eye(L, dtype=bool)
+        owner = np.repeat(np.arange(H), P)
+        self.owner = owner
+        self.safe_pair = human_safe_matrix(list(part_names) * H, owner) | np.eye(H * P, dtype=bool)
+        self.part_joints, self.half_th = part_joints, np.tile(half_th, H)
+        self.boxes = boxes
+        # index pairs, built once: every (link, part) and the part pairs that may stack
+        self._rl, self._rp = (x.ravel() for x in np.meshgrid(np.arange(L), np.arange(H * P)))
+        self._pa, self._pb = np.nonzero(np.triu(~self.safe_pair))
+
+    def evaluate(self, q: np.ndarray, v: np.ndarray, poses: list[np.ndarray]) -> ContactVerdict:
+        """Contacts of the robot at ``q, v (n,)`` with the people's true joints ``(J, 3)``."""
+        H = len(poses)
+        none = np.zeros(H, dtype=bool)
+        verdict = ContactVerdict(none, none.copy(), none.copy(), np.zeros(H))
+        r_ends, r_rad = self.robot.link_capsules(q)
+        h_ends = np.concatenate([y[self.part_joints] for y in poses])  # (H P, 2, 3)
+        rl, rp, ht = self._rl, self._rp, self.half_th
+        d = segment_pair_distances(r_ends[rl], h_ends[rp]) - r_rad[rl] - ht[rp]
+        touch_any = np.zeros((len(r_rad), len(ht)), dtype=bool)  # (L, H P)
+        touch_any[rl, rp] = d <= 0.0
+        if not touch_any.any():
+            return verdict
+        E = self.motion.energies(q[None], v[None])[0]  # (L,) J
+        touch = touch_any & (E[:, None] > 0.0)  # a link without energy cannot hurt
+        if not touch.any():
+            return verdict
+        on_box = np.zeros(len(h_ends), dtype=bool)
+        if self.boxes[0].shape[0]:
+            d_box = capsule_box_distances(h_ends, self.half_th, *self.boxes)  # (H P, B)
+            on_box = np.asarray((d_box <= 0.0).any(axis=1))
+        pa, pb = self._pa, self._pb
+        stack = np.eye(len(h_ends), dtype=bool)
+        near = segment_pair_distances(h_ends[pa], h_ends[pb]) - ht[pa] - ht[pb] <= 0.0
+        stack[pa[near], pb[near]] = stack[pb[near], pa[near]] = True
+        for _ in range(len(h_ends)):  # transitive closure (small P)
+            nxt = (stack.astype(np.int32) @ stack.astype(np.int32)) > 0
+            if np.array_equal(nxt, stack):
+                break
+            stack = nxt
+        for i, j in zip(*np.nonzero(touch), strict=True):
+            members = stack[j]
+            others = touch_any[:, members].any(axis=1) & ~self.no_clamp[i]
+            clamped = bool(on_box[members].any() or others.any())
+            thr = self.T_clamp[i, members].min() if clamped else self.T_free[i, j]
+            ratio = float(E[i] / thr)
+            h = int(self.owner[j])
+            verdict.touching[h] = True
+            verdict.clamped[h] |= clamped
+            verdict.harmful[h] |= ratio >= 1.0
+            verdict.ratio[h] = max(verdict.ratio[h], ratio)
+        return verdict
 
 
 class Simulation:
@@ -121,6 +253,20 @@ class Simulation:
         self.modes: dict[str, int] = {}
         self.last: CycleResult | None = None
         self.true_poses: list[np.ndarray] = []
+        self.truth = ContactTruth(
+            self.truth_robot,
+            self._parts,
+            self._half_th,
+            reach.skeleton.parts,
+            len(sc.humans),
+            sc.shield.pfl,
+            environment_boxes(sc),
+        )
+        self.harmful = self.contacts = self.clamped = 0
+        self.first_harmful_s: float | None = None
+        self.max_energy_ratio = 0.0
+        self._scale_sum = 0.0
+        self._intervened = 0
 
     # -- parts of a step ---------------------------------------------------------------------
 
@@ -145,19 +291,34 @@ class Simulation:
         sen.state.y, sen.state.v, sen.state.dv = y, v.copy(), dv.copy()
         sen.state.stamp_s = stamp
 
-    def _collide(self, q: np.ndarray, poses: list[np.ndarray], moving: bool) -> None:
+    def _collide(self, q: np.ndarray, v: np.ndarray, poses: list[np.ndarray], moving: bool) -> None:
         if not poses:
             return
         ends, rad = self.truth_robot.link_capsules(q)
+        touching = False
         for y in poses:
             dmin = body_distance(y, self._parts, self._half_th, ends, rad)
             self.min_sep = min(self.min_sep, dmin)
             if moving:
                 self.min_sep_moving = min(self.min_sep_moving, dmin)
                 if dmin <= 0.0:
+                    touching = True
                     self.collisions += 1
                     if self.first_collision_s is None:
                         self.first_collision_s = self.t
+        if touching:
+            self._judge(q, v, poses)
+
+    def _judge(self, q: np.ndarray, v: np.ndarray, poses: list[np.ndarray]) -> None:
+        """PFL ground truth of the contacts now (see :class:`ContactTruth`)."""
+        c = self.truth.evaluate(q, v, poses)
+        self.contacts += int(c.touching.sum())
+        self.clamped += int(c.clamped.sum())
+        n = int(c.harmful.sum())
+        self.harmful += n
+        if n and self.first_harmful_s is None:
+            self.first_harmful_s = self.t
+        self.max_energy_ratio = max(self.max_energy_ratio, float(c.ratio.max(initial=0.0)))
 
     def step(self) -> None:
         t = self.t
@@ -174,10 +335,13 @@ class Simulation:
         for i, y in enumerate(poses):
             self._hist_y[i].append(y)
             self._sense(t, i)
-        moving = bool(np.max(np.abs(shield.robot_state.v), initial=0.0) > _MOVING_RAD_S)
-        self._collide(q, poses, moving)
+        v = shield.robot_state.v
+        moving = bool(np.max(np.abs(v), initial=0.0) > _MOVING_RAD_S)
+        self._collide(q, v, poses, moving)
         res = self.shield.cycle(t, [s.state for s in self.sensors], None, want_distance=False)
         self.last = res
+        self._scale_sum += res.speed_scale
+        self._intervened += res.intervened
         self.cycle_us.append(res.cycle_time_us)
         self.modes[res.mode] = self.modes.get(res.mode, 0) + 1
         self.cycles += 1
@@ -226,4 +390,12 @@ class Simulation:
             cycle_us_p50=float(np.median(cu)),
             cycle_us_p99=float(np.percentile(cu, 99)),
             modes=dict(self.modes),
+            safety_mode=self.shield.safety_mode,
+            harmful_contacts=self.harmful,
+            first_harmful_s=self.first_harmful_s,
+            contacts_moving=self.contacts,
+            clamped_contacts=self.clamped,
+            max_energy_ratio=self.max_energy_ratio,
+            speed_scale_mean=self._scale_sum / max(self.cycles, 1),
+            intervened_share=self._intervened / max(self.cycles, 1),
         )

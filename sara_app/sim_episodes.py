@@ -2,6 +2,11 @@
 bounds. Each episode draws a robot task (random waypoints inside the joint limits), a person's
 start position and heading, a strategy, and the models the shield uses (only models the
 strategy respects: a 'limbs' adversary stretches its limbs, so R_POS and the arm model are off).
+
+``mode="pfl"`` runs the same draws with the PFL shield and a table in front of the robot (so
+clamping against the environment is possible); contacts are then allowed and the count that
+must stay zero is ``harmful`` (energy at or above the threshold of the contact's actual class,
+:class:`sara_app.sim.ContactTruth`).
 """
 
 from __future__ import annotations
@@ -15,8 +20,12 @@ from sara_app.robot.model import load_robot
 from sara_app.scenario import Scenario, parse_scenario
 from sara_app.sim import SimMetrics, Simulation
 
+TABLE = {"name": "table", "center_m": [0.65, 0.0, 0.1], "size_m": [0.5, 1.6, 0.2]}
 
-def episode_scenario(rng: np.random.Generator, index: int, duration_s: float) -> Scenario:
+
+def episode_scenario(
+    rng: np.random.Generator, index: int, duration_s: float, mode: str = "ssm"
+) -> Scenario:
     robot = load_robot("panda")
     lim = robot.limits
     lo = lim.q_min + 0.25 * (lim.q_max - lim.q_min)
@@ -42,7 +51,8 @@ def episode_scenario(rng: np.random.Generator, index: int, duration_s: float) ->
                     "sensor": {"rate_hz": float(rng.choice([60.0, 100.0, 120.0]))},
                 }
             ],
-            "shield": {"models": models},
+            "environment": [TABLE] if mode == "pfl" else [],
+            "shield": {"models": models, "mode": mode},
             "sim": {"duration_s": duration_s, "seed": int(rng.integers(1 << 30))},
         },
         f"episode {index}",
@@ -57,35 +67,108 @@ class EpisodeSummary:
     min_separation_moving_m: float = float("inf")
     failsafe_share: float = 0.0
     metrics: list[SimMetrics] = field(default_factory=list)
+    mode: str = "ssm"
+    harmful: int = 0
+    harmful_in: list[str] = field(default_factory=list)
+    contacts: int = 0
+    clamped: int = 0
+    max_energy_ratio: float = 0.0
+    intervened_share: float = 0.0
 
     def lines(self) -> list[str]:
-        return [
-            f"episodes                 {self.episodes}",
+        out = [
+            f"episodes                 {self.episodes} ({self.mode})",
             f"collisions while moving  {self.collisions}"
             + (f" in {', '.join(self.colliding)}" if self.colliding else ""),
             f"min separation moving    {self.min_separation_moving_m:.3f} m",
             f"mean failsafe share      {100 * self.failsafe_share:.1f} %",
         ]
+        if self.mode == "pfl":
+            out[1] = f"contacts while moving    {self.contacts} ({self.clamped} clamped)"
+            out += [
+                f"harmful contacts         {self.harmful}"
+                + (f" in {', '.join(self.harmful_in)}" if self.harmful_in else ""),
+                f"largest energy/threshold {self.max_energy_ratio:.2f}",
+                f"mean intervened share    {100 * self.intervened_share:.1f} %",
+            ]
+        return out
 
 
 def run_episodes(
-    n: int, *, seed: int = 0, duration_s: float = 3.0, progress: bool = False
+    n: int, *, seed: int = 0, duration_s: float = 3.0, progress: bool = False, mode: str = "ssm"
 ) -> EpisodeSummary:
     rng = np.random.default_rng(seed)
-    out = EpisodeSummary(n, 0)
-    shares = []
+    out = EpisodeSummary(n, 0, mode=mode)
+    shares, intervened = [], []
     for i in range(n):
-        sc = episode_scenario(rng, i, duration_s)
+        sc = episode_scenario(rng, i, duration_s, mode)
         m = Simulation(sc).run()
         out.metrics.append(m)
         out.collisions += m.collisions_moving
         if m.collisions_moving:
             out.colliding.append(sc.name)
+        out.harmful += m.harmful_contacts
+        if m.harmful_contacts:
+            out.harmful_in.append(sc.name)
+        out.contacts += m.contacts_moving
+        out.clamped += m.clamped_contacts
+        out.max_energy_ratio = max(out.max_energy_ratio, m.max_energy_ratio)
         out.min_separation_moving_m = min(out.min_separation_moving_m, m.min_separation_moving_m)
         shares.append(m.failsafe_share)
+        intervened.append(m.intervened_share)
         if progress:
-            print(f"\repisode {i + 1}/{n}  collisions {out.collisions}", end="", file=sys.stderr)
+            count = f"harmful {out.harmful}" if mode == "pfl" else f"collisions {out.collisions}"
+            print(f"\repisode {i + 1}/{n}  {count}", end="", file=sys.stderr)
     if progress:
         print(file=sys.stderr)
     out.failsafe_share = float(np.mean(shares)) if shares else 0.0
+    out.intervened_share = float(np.mean(intervened)) if intervened else 0.0
+    return out
+
+
+# --- safety modes compared on fixed scenarios ------------------------------------------------
+
+
+def with_mode(sc: Scenario, mode: str) -> Scenario:
+    """The scenario with another safety mode (``ssm``, ``pfl``, ``jssa``)."""
+    data = sc.model_dump(mode="json")
+    data["shield"]["mode"] = mode
+    return parse_scenario(data, f"{sc.name} in {mode} mode")
+
+
+def run_until_goal(sim: Simulation, horizon_s: float) -> SimMetrics:
+    """Step until the task is done or ``horizon_s`` simulated seconds have passed."""
+    for _ in range(int(round(horizon_s / sim.dt))):
+        sim.step()
+        if sim.time_to_goal_s is not None:
+            break
+    return sim.metrics()
+
+
+def compare_modes(
+    sc: Scenario, modes: tuple[str, ...] = ("ssm", "pfl"), horizon_s: float | None = None
+) -> dict[str, SimMetrics]:
+    """Closed-loop metrics of ``sc`` in each safety mode, each run to its goal or the horizon
+    (default: the scenario's duration)."""
+    T = sc.sim.duration_s if horizon_s is None else horizon_s
+    return {m: run_until_goal(Simulation(with_mode(sc, m)), T) for m in modes}
+
+
+def throughput_lines(results: dict[str, dict[str, SimMetrics]]) -> list[str]:
+    """The table of :func:`compare_modes` results per scenario."""
+    head = (
+        f"{'scenario':<22} {'mode':<5} {'time to goal':>12} {'min sep moving':>14} "
+        f"{'intervened':>10} {'harmful':>7} {'contacts':>8} {'cycle p50':>10}"
+    )
+    out = [head, "-" * len(head)]
+    for name, per_mode in results.items():
+        for i, (mode, m) in enumerate(per_mode.items()):
+            ttg = f"{m.time_to_goal_s:.2f} s" if m.time_to_goal_s is not None else "not reached"
+            sep = m.min_separation_moving_m
+            sep_s = f"{sep:.3f} m" if np.isfinite(sep) else "-"
+            out.append(
+                f"{name if i == 0 else '':<22} {mode:<5} {ttg:>12} {sep_s:>14} "
+                f"{100 * m.intervened_share:>9.1f}% {m.harmful_contacts:>7d} "
+                f"{m.contacts_moving:>8d} {m.cycle_us_p50:>7.0f} us"
+            )
     return out

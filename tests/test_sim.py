@@ -30,6 +30,7 @@ PLAN: dict[str, tuple[float | None, bool]] = {
     "box_pick_place": (8.2, False),
     "cmu_walk": (5.0, False),
     "adversarial": (2.0, False),
+    "close_worker": (None, True),
 }
 
 

@@ -120,7 +120,7 @@ def test_random_caps_keep_limits_and_converge(
     for (t, _, sd), c in zip(segs[1:], (cap, 0.5 * cap), strict=True):
         if f.done or t.size < 2:
             break
-        settle = t[0] + 2.175 / f._A_min + 2 * f._A_top / f._J_min + 2 * DT
+        settle = t[0] + max(sd[0] - c, 0.0) / f._A_min + 2 * f._A_top / f._J_min + 2 * DT
         late = t >= settle
         assert np.all(sd[late] <= c * (1 + 1e-9) + 1e-12)
     segs.append(_segments(f, [(math.inf, 60.0)])[0])

@@ -1,0 +1,421 @@
+"""The PFL shield (seed 003 Sec. V-VII): the robot may touch a person, but never with more kinetic
+energy than the contact's class allows; near a person it slows down instead of stopping.
+
+Every cycle (see :class:`~sara_app.safety.shield.Shield` for the commit/brake logic, the fault
+handling and the induction, all unchanged): plan the shielded trajectory (one intended step +
+its failsafe stop) at the current path-speed cap, build each person's reachable capsules per
+interval of that trajectory for each enabled model, and run :class:`~sara_app.safety.pfl.PflCheck`
+(eq. 6-7: no contact, or the link's energy below the threshold of the contact's class). The step
+is committed only when eq. 7 holds for every interval, link and body part; then the failsafe
+the follower holds is the verified one, exactly as in the SSM shield.
+
+Several models ("safe if any model proves it", per entry). The person lies in every sound
+model's set. Each rule of the classification is monotone in the human sets: a larger set
+touches more links (eq. 8), touches more boxes and links (eq. 10-13), stacks with more body
+parts (eq. 39-43: larger virtual body parts, larger summed diameters, so the diameter relaxation
+applies less) and therefore gets a class at least as severe and a threshold at least as low;
+the link energies do not depend on the human. So an entry ``(interval k, link i, part j)`` that
+one model's sets prove safe is safe for the person, whatever the other models say, and eq. 7
+holds for the person when every entry is proved by some model. Models are tried in the given
+order and the next one only over the range of intervals that still has unproved entries. As with
+SSM, this is sound only when every enabled model is sound for the person's motion.
+
+Body parts. Models whose capsules are not per body part (R_POS: one ball per limb; the arm
+model: one capsule per arm) give each body part the capsule that contains it (both of its
+joints, grown by its half thickness, per the model's coverage table ``HumanReach.coverage``;
+a capsule is convex, so it then contains the whole body part).
+
+Speed scaling. Link energies along the path scale with the square of the path speed (``v = q'
+s'``), so a violated entry with energy ``E`` and threshold ``T`` at path speed ``s'`` suggests
+the cap ``s' sqrt(T / E)``. That is a CANDIDATE only (a slower robot may lose the velocity
+relaxation and meet a more severe class; its stop covers other space): the trajectory replanned
+at the candidate (times ``cut``) is checked again, at most ``max_replans`` times per cycle. If
+none verifies, the robot brakes along the held failsafe (base class) and the candidate is kept
+as the cap for the next cycle. Interval 0 starts at the current state: an entry already too
+fast there cannot be fixed by a slower plan, so no replan is tried. After a verified cycle the
+cap rises again: at once when no contact was possible at all, else to the speed the margins
+allow (``s' sqrt(T / E)`` over the possible contacts, divided by ``hysteresis``) when that is at
+least ``hysteresis`` times the cap (so a cap that just verified near its limit stays put), by at
+most ``raise_factor`` per cycle and only ``hold_cycles`` verified cycles after a failure. The
+cap never goes below ``min_speed_scale`` times the admissible speed at the robot's position:
+there the shield brakes instead. Nobody in the cell: no cap. A robot at rest has no energy and
+always verifies (seed 003: a robot at rest cannot hurt), consistent with the SSM shield.
+
+Defaults, measured in closed loop (``sara-app pfl throughput`` and ``/tmp``-free variants of
+its scenarios): a quick rise (no hold, no rate limit) keeps PFL at least as fast as SSM, because
+whatever SSM verifies (no possible contact) PFL verifies too, while a slow rise (x1.25 per cycle
+after 10 quiet cycles) left the robot creeping after the person had moved out of reach
+(standing_beside_path: 3.67 s against SSM's 3.19 s and this setting's 3.19 s). The price is
+about 0.4 replans per cycle while a person is near (at most 2 checks per cycle).
+
+Assumptions beyond the SSM shield's: the link energies are those of the commanded motion (the
+controller tracks it; the tracking margin widens the robot's capsules only) and, as in seed 003,
+the energy over an interval is the larger of its end values (eq. 47-48).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from sara_app.errors import InputError, ParameterError
+from sara_app.human.reach import HumanReach
+from sara_app.robot.failsafe import ShieldedTrajectory
+from sara_app.robot.model import RobotModel
+from sara_app.robot.trajectory import PathFollower
+from sara_app.safety.pfl import PflCheck, PflResult
+from sara_app.safety.shield import CycleResult, Shield, ShieldSettings
+from sara_app.safety.thresholds import ThresholdSet, load_thresholds
+
+if TYPE_CHECKING:
+    from sara_app.scenario import PflSpec
+
+Humans = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def part_capsules(reach: HumanReach, model: str) -> np.ndarray:
+    """``(P,)``: for each body part, the index of a capsule of ``model`` that contains it (both
+    joints grown by the part's half thickness, from ``reach.coverage``). Raises
+    :class:`ParameterError` when a body part has none."""
+    cap, joint, margin = reach.coverage[model]
+    sk, half = reach.skeleton, reach.params.half_thickness_m
+    out = np.empty(sk.n_parts, dtype=int)
+    for p, (a, b) in enumerate(sk.part_joints):
+        ok_a = set(cap[(joint == a) & (margin >= half[p] - 1e-12)].tolist())
+        ok_b = set(cap[(joint == b) & (margin >= half[p] - 1e-12)].tolist())
+        both = sorted(ok_a & ok_b)
+        if not both:
+            raise ParameterError(
+                f"model {model!r} has no capsule containing body part {sk.parts[p]!r}; "
+                "it cannot be used for the PFL check"
+            )
+        out[p] = both[0]
+    return out
+
+
+@dataclass(frozen=True)
+class PflCycle:
+    """What the PFL shield checked this cycle: ``result`` (merged over the models; None when
+    nobody is in the cell), ``cap`` the path-speed cap of the checked trajectory (rad/s, inf:
+    none), ``speed_scale`` that cap over the admissible speed at the robot (<= 1), ``checks``
+    the PFL checks run (1 + replans), ``models_used`` how many models were evaluated."""
+
+    result: PflResult | None
+    cap: float
+    speed_scale: float
+    checks: int
+    models_used: int
+
+
+@dataclass
+class SpeedScaling:
+    """Tuning of the speed scaling (see the module notes for the measurements behind the
+    defaults)."""
+
+    cut: float = 0.9
+    """A replan's cap is this fraction of the candidate (and of the current speed at most)."""
+    hysteresis: float = 1.25
+    """Raise only when the margins allow this many times the cap, to the allowed speed over it."""
+    raise_factor: float = math.inf
+    """Largest raise per cycle (inf: straight to what the margins allow)."""
+    hold_cycles: int = 0
+    """Verified cycles after a failure before the cap may rise."""
+    free_jump: bool = True
+    """No possible contact in a verified trajectory: lift the cap at once."""
+    max_replans: int = 1
+    """Replans per cycle after a failed check (each one PFL check more)."""
+
+
+class PflShield(Shield):
+    """PFL shield with speed scaling around a :class:`PathFollower` (which it owns).
+
+    ``spec``: a :class:`sara_app.scenario.PflSpec` (thresholds set name, threshold edits,
+    contact shape per link, ``min_speed_scale``); ``boxes``: the environment as ``T_world_box
+    (B, 4, 4)``, ``half_extents_m (B, 3)``. The check is built once here (one per number of
+    people, on first use).
+    """
+
+    safety_mode = "pfl"
+
+    def __init__(
+        self,
+        robot: RobotModel,
+        follower: PathFollower,
+        reach: HumanReach,
+        settings: ShieldSettings | None = None,
+        spec: PflSpec | None = None,
+        boxes: tuple[np.ndarray, np.ndarray] | None = None,
+        scaling: SpeedScaling | None = None,
+    ) -> None:
+        super().__init__(robot, follower, reach, settings)
+        if spec is None:
+            from sara_app.scenario import PflSpec
+
+            spec = PflSpec()
+        self.spec = spec
+        self.scaling = scaling or SpeedScaling()
+        ts = load_thresholds(spec.thresholds)
+        self.above_source: list[str] = []
+        """Threshold edits above the shipped value (confirmed by the safety engineer)."""
+        for o in spec.overrides:
+            ts, above = ts.with_energy(o.region, o.contact, o.shape, o.energy_J)
+            if above:
+                self.above_source.append(f"{o.region}/{o.contact}/{o.shape} = {o.energy_J} J")
+        self.thresholds: ThresholdSet = ts
+        self.boxes = _boxes(boxes)
+        self._part_names = reach.skeleton.parts
+        self._part_maps = {m: part_capsules(reach, m) for m in self.settings.models}
+        self.pfl = PflCheck(robot, self._part_names, thresholds=ts, link_shapes=spec.link_shapes)
+        self._checks: dict[int, PflCheck] = {1: self.pfl}
+        self.cap = math.inf
+        """Path-speed cap for the next cycle (rad/s; inf: none)."""
+        self._calm = 0
+        self.replans = 0
+        self.scaled_cycles = 0
+
+    def adopt(self, previous: Shield) -> None:
+        super().adopt(previous)
+        self.cap, self._calm = math.inf, 0
+
+    # -- per-cycle work -------------------------------------------------------------------------
+
+    def _check_for(self, H: int) -> PflCheck:
+        """The check for ``H`` people (their body parts stacked, multi-body clamping across
+        people included), built on first use."""
+        c = self._checks.get(H)
+        if c is None:
+            c = PflCheck(
+                self.robot,
+                self._part_names * H,
+                thresholds=self.thresholds,
+                link_shapes=self.spec.link_shapes,
+                human_index=np.repeat(np.arange(H), len(self._part_names)),
+            )
+            self._checks[H] = c
+        return c
+
+    def _admissible_here(self) -> tuple[float, float]:
+        """``(V at the robot's position, largest V of the path)`` (rad/s)."""
+        f = self.follower
+        starts, V = f.admissible_speed
+        if V.size == 0:
+            return 0.0, 0.0
+        return float(V[f.path.piece_index(f.s)]), float(V.max())
+
+    def _plan(self, cap: float) -> tuple[ShieldedTrajectory, np.ndarray, np.ndarray]:
+        f = self.follower
+        old = f.speed_cap
+        f.speed_cap = cap
+        try:
+            return self._shielded()
+        finally:
+            f.speed_cap = old
+
+    def _plan_and_verify(
+        self, hum: Humans | None
+    ) -> tuple[ShieldedTrajectory, np.ndarray, np.ndarray, bool]:
+        V_here, V_top = self._admissible_here()
+        if hum is None:  # nobody in the cell: full speed
+            self.cap, self._calm = math.inf, self.scaling.hold_cycles
+            traj, ends, radius = self._plan(math.inf)
+            self._res = PflCycle(None, math.inf, 1.0, 0, 0)
+            return traj, ends, radius, True
+        sc = self.scaling
+        c_min = self.spec.min_speed_scale * V_here
+        cap = max(self.cap, c_min)
+        checks = 0
+        while True:
+            traj, ends, radius = self._plan(cap)
+            res, used, E0 = self._verify(traj, ends, radius, hum)
+            checks += 1
+            if res.safe_all:
+                self._after_success(res, traj, cap, c_min, V_top)
+                break
+            self._calm = 0
+            cand, fixable = _candidate(res, traj, E0)
+            cand = min(sc.cut * cand, sc.cut * min(cap, float(traj.sd.max())))
+            if not (cand >= c_min):  # NaN too
+                self.cap = c_min
+                break
+            self.cap = cand
+            if not fixable or checks > sc.max_replans:
+                break
+            cap = cand
+        self.replans += checks - 1
+        scale = min(1.0, cap / V_here) if V_here > 0 else 1.0
+        self.scaled_cycles += scale < 1.0
+        self._res = PflCycle(res, cap, scale, checks, used)
+        return traj, ends, radius, res.safe_all
+
+    def _after_success(
+        self, res: PflResult, traj: ShieldedTrajectory, cap: float, c_min: float, V_top: float
+    ) -> None:
+        """Cap for the next cycle after a verified one (raise with hysteresis)."""
+        sc = self.scaling
+        self._calm += 1
+        self.cap = cap
+        if cap == math.inf or self._calm < sc.hold_cycles:
+            return
+        allowed = _allowed_speed(res, traj)
+        if allowed == math.inf and sc.free_jump:
+            self.cap = math.inf
+        elif allowed >= sc.hysteresis * cap:
+            new = min(cap * sc.raise_factor, allowed / sc.hysteresis)
+            self.cap = math.inf if new >= V_top else max(new, cap)
+
+    def _verify(
+        self, traj: ShieldedTrajectory, ends: np.ndarray, radius: np.ndarray, hum: Humans
+    ) -> tuple[PflResult, int, np.ndarray]:
+        """Eq. 6-7 for the trajectory against every person, models merged per entry; also the
+        number of models evaluated and the link energies at the current state ``(L,)``."""
+        try:
+            return self._verify_models(traj, ends, radius, hum)
+        except (ValueError, ArithmeticError, IndexError, np.linalg.LinAlgError) as e:
+            raise InputError(f"PFL check failed on its inputs: {e}") from e
+
+    def _verify_models(
+        self, traj: ShieldedTrajectory, ends: np.ndarray, radius: np.ndarray, hum: Humans
+    ) -> tuple[PflResult, int, np.ndarray]:
+        y, v, dv, age = hum
+        pfl = self._check_for(y.shape[0])
+        smp = self.pfl.motion.evaluate(traj.q, traj.v)
+        dt = np.diff(traj.times)
+        eps = self.pfl.eps_from_bounds(dt, traj.v_bound, traj.a_bound)
+        T_box, half = self.boxes
+        K = dt.shape[0]
+        merged: _Merged | None = None
+        lo, hi = 0, K
+        used = 0
+        for name in self.settings.models:
+            h_ends, h_radius = self._human_sets(name, hum, traj.times, lo, hi)
+            r = pfl.check(
+                ends[lo:hi], radius[lo:hi], smp.ends[lo : hi + 1], smp.p1_dot[lo : hi + 1],
+                smp.omega[lo : hi + 1], dt[lo:hi], h_ends, h_radius, T_box, half,
+                smp.energy_J[lo : hi + 1], eps_v=eps[lo:hi],
+            )  # fmt: skip
+            used += 1
+            if merged is None:
+                merged = _Merged(r)
+            else:
+                merged.add(r, lo, hi)
+            todo = np.flatnonzero(~merged.safe.all(axis=(1, 2)))
+            if todo.size == 0:
+                break
+            lo, hi = int(todo[0]), int(todo[-1]) + 1
+        assert merged is not None  # at least one model (ShieldSettings / scenario validation)
+        return merged.result(), used, smp.energy_J[0].copy()
+
+    def _human_sets(
+        self, model: str, hum: Humans, times: np.ndarray, lo: int, hi: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Every person's capsule per body part for intervals ``lo:hi``: ``(k, H P, 2, 3)``,
+        ``(k, H P)``; the sets grow from each measurement time (age) to the interval ends."""
+        y, v, dv, age = hum
+        H, P, k = y.shape[0], len(self._part_names), hi - lo
+        h_ends = np.empty((k, H * P, 2, 3))
+        h_radius = np.empty((k, H * P))
+        pm = self._part_maps[model]
+        for h in range(H):
+            ts = times[lo:hi] + age[h]
+            te = times[lo + 1 : hi + 1] + age[h]
+            occ = self.verifier.occupancy(model, y[h : h + 1], v[h : h + 1], dv[h : h + 1], ts, te)
+            C = occ.radius.shape[-1]
+            e = np.broadcast_to(occ.ends[0], (k, C, 2, 3))
+            r = np.broadcast_to(occ.radius[0], (k, C))
+            h_ends[:, h * P : (h + 1) * P] = e[:, pm]
+            h_radius[:, h * P : (h + 1) * P] = r[:, pm]
+        return h_ends, h_radius
+
+    def _annotate(self, out: CycleResult, res: Any) -> None:
+        if not isinstance(res, PflCycle):
+            return
+        out.pfl = res.result
+        out.speed_scale = res.speed_scale
+        out.intervened = out.intervened or res.speed_scale < 1.0
+
+
+# --- helpers -----------------------------------------------------------------------------------
+
+
+def _boxes(boxes: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, np.ndarray]:
+    if boxes is None:
+        return np.zeros((0, 4, 4)), np.zeros((0, 3))
+    T = np.asarray(boxes[0], dtype=float)
+    half = np.asarray(boxes[1], dtype=float)
+    B = T.shape[0] if T.ndim == 3 else -1
+    if T.shape != (B, 4, 4) or half.shape != (B, 3):
+        raise ParameterError(
+            f"environment boxes {T.shape}, {half.shape}; expected (B, 4, 4) and (B, 3)"
+        )
+    if not (np.all(np.isfinite(T)) and np.all(np.isfinite(half)) and np.all(half > 0)):
+        raise ParameterError("environment boxes must be finite with half extents > 0 (m)")
+    return T, half
+
+
+def _interval_speed(traj: ShieldedTrajectory) -> np.ndarray:
+    """``(K,)`` larger path speed at the two ends of each interval (rad/s)."""
+    sd = np.abs(traj.sd)
+    return np.maximum(sd[:-1], sd[1:])
+
+
+def _speed_for(res: PflResult, traj: ShieldedTrajectory, which: np.ndarray) -> float:
+    """Smallest ``s' sqrt(T / E)`` over the entries ``which (K, L, P)`` (inf if none; NaN
+    inputs give 0)."""
+    if not which.any():
+        return math.inf
+    k, i, j = np.nonzero(which)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = res.threshold_J[k, i, j] / res.energy_J[k, i]
+        c = _interval_speed(traj)[k] * np.sqrt(ratio)
+    c = np.where(np.isnan(c), 0.0, c)
+    return float(c.min())
+
+
+def _allowed_speed(res: PflResult, traj: ShieldedTrajectory) -> float:
+    """Speed estimate at which the contacts of a verified trajectory reach their thresholds."""
+    return _speed_for(res, traj, res.cls > 0)
+
+
+def _candidate(res: PflResult, traj: ShieldedTrajectory, E0: np.ndarray) -> tuple[float, bool]:
+    """Candidate cap from the violated entries, and whether a slower plan can fix them (no
+    violated entry already too energetic at the current state: link energies ``E0 (L,)``)."""
+    bad = ~res.safe
+    cand = _speed_for(res, traj, bad)
+    stuck = bad[0] & ~(E0[:, None] < res.threshold_J[0])
+    return cand, not bool(stuck.any())
+
+
+class _Merged:
+    """Per-entry merge of the models' verdicts: an entry takes the values of the first model
+    that proves it safe; unproved entries keep the least restrictive threshold seen."""
+
+    def __init__(self, first: PflResult) -> None:
+        self.first = first
+        self.safe = first.safe.copy()
+        self.cls = first.cls.copy()
+        self.thr = first.threshold_J.copy()
+        self.energy = first.energy_J
+
+    def add(self, r: PflResult, lo: int, hi: int) -> None:
+        old = self.safe[lo:hi]
+        newly = r.safe & ~old
+        better = ~old & ~r.safe & (r.threshold_J > self.thr[lo:hi])
+        take = newly | better
+        self.cls[lo:hi] = np.where(take, r.cls, self.cls[lo:hi])
+        self.thr[lo:hi] = np.where(take, r.threshold_J, self.thr[lo:hi])
+        self.safe[lo:hi] = old | r.safe
+
+    def result(self) -> PflResult:
+        f, thr, E = self.first, self.thr, self.energy
+        safe_k = np.asarray(self.safe.all(axis=(1, 2)))
+        thr_contact = np.where(self.cls > 0, thr, np.inf)
+        part = np.argmin(thr_contact, axis=2)
+        allowed = np.take_along_axis(thr_contact, part[..., None], axis=2)[..., 0]
+        part = np.where(np.isfinite(allowed), part, -1)
+        return PflResult(
+            self.safe, safe_k, bool(safe_k.all()), self.cls, thr, E, thr - E[:, :, None],
+            f.contact, allowed, part,
+        )  # fmt: skip

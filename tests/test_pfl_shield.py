@@ -1,0 +1,246 @@
+"""The PFL shield (``sara_app.safety.pfl_shield``): per-entry "any model" merge equals the OR of
+the single-model verdicts; the rules it rests on are monotone in the human sets (sampled);
+every body part lies in the capsule a model gives it; only verified steps are committed, else
+the robot brakes exactly along the held failsafe; near a person it slows instead of stopping;
+nobody: full speed; faults and numeric failures brake, never raise; a robot at rest verifies.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from sara_app.cell import build_cell
+from sara_app.errors import ParameterError
+from sara_app.geometry import points_in_capsules
+from sara_app.human.scripted import joints, standing
+from sara_app.safety.pfl_shield import PflShield, part_capsules
+from sara_app.safety.shield import HumanState
+from sara_app.scenario import parse_scenario
+
+TABLE = {"name": "table", "center_m": [0.65, 0.0, 0.1], "size_m": [0.5, 1.6, 0.2]}
+Q = [0.3, 0.0, -1.8, 0.0, 2.1, 0.8]
+
+
+def make_shield(
+    models: tuple[str, ...] = ("acc", "vel", "pos"), env: bool = True, **pfl: object
+) -> PflShield:
+    sc = parse_scenario(
+        {
+            "name": "t",
+            "task": {"waypoints_rad": [[-0.8, *Q], [0.8, *Q]]},
+            "environment": [TABLE] if env else [],
+            "shield": {"mode": "pfl", "models": list(models), "pfl": pfl},
+        }
+    )
+    shield = build_cell(sc).shield
+    assert isinstance(shield, PflShield)
+    return shield
+
+
+def person(x: float, y: float, stamp: float, hid: str = "p") -> HumanState:
+    yj = joints(standing((x, y), math.atan2(-y, -x)))
+    return HumanState(hid, yj, np.zeros_like(yj), np.full(len(yj), 0.05), stamp)
+
+
+def run_free(shield: PflShield, n: int) -> float:
+    """``n`` cycles with nobody in the cell (the robot speeds up); returns the time."""
+    t = 0.0
+    for _ in range(n):
+        shield.cycle(t, [])
+        t += shield.settings.dt_s
+    return t
+
+
+def hum_arrays(shield: PflShield, people: list[HumanState], t: float):
+    ages = {p.id: t - float(p.stamp_s) for p in people}  # type: ignore[arg-type]
+    return shield._human_arrays(people, list(range(len(people))), ages)
+
+
+def test_any_model_merge_is_the_or_of_single_model_verdicts() -> None:
+    shield = make_shield()
+    t = run_free(shield, 60)
+    hum = hum_arrays(shield, [person(0.85, 0.0, t)], t)
+    traj, ends, radius = shield._plan(math.inf)
+    res, used, _ = shield._verify(traj, ends, radius, hum)
+    K = len(traj.times) - 1
+    smp = shield.pfl.motion.evaluate(traj.q, traj.v)
+    eps = shield.pfl.eps_from_bounds(np.diff(traj.times), traj.v_bound, traj.a_bound)
+    any_safe = np.zeros_like(res.safe)
+    for name in shield.settings.models:
+        h_e, h_r = shield._human_sets(name, hum, traj.times, 0, K)
+        r = shield.pfl.check(
+            ends, radius, smp.ends, smp.p1_dot, smp.omega, np.diff(traj.times), h_e, h_r,
+            *shield.boxes, smp.energy_J, eps_v=eps,
+        )  # fmt: skip
+        any_safe |= r.safe
+    np.testing.assert_array_equal(res.safe, any_safe)
+    assert (~res.safe).any() and used >= 2  # the case is not trivial
+    np.testing.assert_array_equal(res.safe_interval, any_safe.all(axis=(1, 2)))
+
+
+def test_classification_is_monotone_in_the_human_sets() -> None:
+    """Basis of the per-entry merge: a larger set never gives a less severe verdict."""
+    shield = make_shield()
+    t = run_free(shield, 60)
+    rng = np.random.default_rng(3)
+    traj, ends, radius = shield._plan(math.inf)
+    smp = shield.pfl.motion.evaluate(traj.q, traj.v)
+    dt = np.diff(traj.times)
+    eps = shield.pfl.eps_from_bounds(dt, traj.v_bound, traj.a_bound)
+    K = len(dt)
+    for _ in range(12):
+        x, y = rng.uniform(0.55, 1.1), rng.uniform(-0.6, 0.6)
+        hum = hum_arrays(shield, [person(x, y, t)], t)
+        h_e, h_r = shield._human_sets("vel", hum, traj.times, 0, K)
+        args = (smp.ends, smp.p1_dot, smp.omega, dt)
+        small = shield.pfl.check(
+            ends, radius, *args, h_e, h_r, *shield.boxes, smp.energy_J, eps_v=eps
+        )
+        grown = h_r + rng.uniform(0.0, 0.3, h_r.shape)
+        big = shield.pfl.check(
+            ends, radius, *args, h_e, grown, *shield.boxes, smp.energy_J, eps_v=eps
+        )
+        c_s, c_b = small.contact, big.contact
+        assert np.all(c_b.contact | ~c_s.contact)
+        clamp_s, clamp_b = small.cls >= 2, big.cls >= 2
+        assert np.all(clamp_b | ~clamp_s)
+        touched = c_s.contact
+        assert np.all(big.threshold_J[touched] <= small.threshold_J[touched])
+        assert np.all(small.safe | ~big.safe)
+
+
+@pytest.mark.parametrize("model", ["pos", "vel", "acc", "iso13855", "arm"])
+def test_every_body_part_lies_in_its_capsule(model: str) -> None:
+    shield = make_shield(models=(model,))
+    reach = shield.reach
+    pm = part_capsules(reach, model)
+    rng = np.random.default_rng(1)
+    sk, half = reach.skeleton, reach.params.half_thickness_m
+    for trial in range(4):
+        y = joints(standing((rng.uniform(-1, 1), rng.uniform(-1, 1)), rng.uniform(-3, 3)))
+        y = y + rng.normal(0, 0.02, y.shape)
+        occ = reach.model(model, y, np.zeros_like(y), np.full(len(y), 0.05), [0.0], [0.01])
+        ends, rad = occ.ends[0, 0], occ.radius[0, 0]
+        for p, (a, b) in enumerate(sk.part_joints):
+            # points of the body part capsule: on the axis plus a random offset of its radius
+            u = rng.uniform(0, 1, (200, 1))
+            d = rng.normal(size=(200, 3))
+            d *= (half[p] * rng.uniform(0, 1, (200, 1)) ** (1 / 3)) / np.linalg.norm(
+                d, axis=1, keepdims=True
+            )
+            pts = y[a] + u * (y[b] - y[a]) + d
+            inside = points_in_capsules(pts, ends[pm[p] : pm[p] + 1], rad[pm[p] : pm[p] + 1])
+            assert inside.all(), (model, sk.parts[p], trial)
+
+
+def _check_commit_or_brake(shield: PflShield, t: float, people: list[HumanState]) -> object:
+    before = shield.follower.copy()
+    out = shield.cycle(t, people)
+    if out.verified:
+        assert out.mode in ("intended", "rest", "failsafe")
+        assert out.pfl is None or out.pfl.safe_all
+        np.testing.assert_array_equal(out.command.q, before.copy().commit(out.trajectory.step).q)
+    else:
+        # not verified: exactly the held failsafe
+        np.testing.assert_array_equal(out.command.q, before.brake(shield.settings.dt_s).q)
+        np.testing.assert_array_equal(out.command.v, shield.follower.state.v)
+    assert shield.follower.speed_cap == math.inf  # the cap never leaks into the follower
+    return out
+
+
+def test_commits_only_verified_steps_and_slows_near_a_person() -> None:
+    shield = make_shield()
+    t = run_free(shield, 60)
+    sd_free = shield.follower.sd
+    assert sd_free > 1.0
+    scaled, moving_scaled, unverified = 0, 0, 0
+    dt = shield.settings.dt_s
+    for _ in range(300):
+        out = _check_commit_or_brake(shield, t, [person(0.85, 0.0, t - 0.01)])
+        t += dt
+        unverified += not out.verified
+        if out.speed_scale < 1.0:
+            scaled += 1
+            assert out.intervened
+            moving_scaled += out.verified and shield.follower.sd > 0.0
+        if shield.task_done:
+            break
+    assert scaled > 0 and moving_scaled > 0  # it slowed down and kept moving while slowed
+    assert shield.replans > 0
+
+
+def test_nobody_means_full_speed() -> None:
+    shield = make_shield()
+    for k in range(40):
+        out = shield.cycle(k * shield.settings.dt_s, [])
+        assert out.verified and out.speed_scale == 1.0 and not out.intervened
+        assert out.pfl is None
+    assert shield.cap == math.inf and shield.follower.sd > 0.5
+
+
+def test_robot_at_rest_verifies_with_a_person_touching_it() -> None:
+    shield = make_shield()
+    # a person standing on the robot base: every contact possible, but no energy
+    out = shield.cycle(0.0, [person(0.0, 0.0, 0.0)])
+    assert out.verified and out.pfl is not None and (out.pfl.cls > 0).any()
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        lambda h: HumanState(h.id, h.y * np.nan, h.v, h.dv, h.stamp_s),
+        lambda h: HumanState(h.id, h.y[:5], h.v, h.dv, h.stamp_s),
+        lambda h: HumanState(h.id, h.y, h.v, -h.dv, h.stamp_s),
+        lambda h: HumanState(h.id, h.y, h.v, h.dv, None),
+        lambda h: HumanState(h.id, h.y, h.v, h.dv, -10.0),
+    ],
+)
+def test_faults_brake_on_the_held_failsafe(bad) -> None:  # type: ignore[no-untyped-def]
+    shield = make_shield()
+    t = run_free(shield, 60)
+    before = shield.follower.copy()
+    out = shield.cycle(t, [bad(person(1.5, 0.0, t))])
+    assert out.mode == "fault" and not out.verified
+    np.testing.assert_array_equal(out.command.q, before.brake(shield.settings.dt_s).q)
+
+
+def test_numeric_failure_inside_the_check_is_a_fault(monkeypatch: pytest.MonkeyPatch) -> None:
+    shield = make_shield()
+    t = run_free(shield, 30)
+
+    def boom(*a: object, **k: object) -> None:
+        raise ValueError("broken")
+
+    monkeypatch.setattr(shield.pfl, "check", boom)
+    out = shield.cycle(t, [person(1.0, 0.0, t)])
+    assert out.mode == "fault" and any("PFL check failed" in f for f in out.faults)
+
+
+def test_a_distant_second_person_changes_no_verdict() -> None:
+    shield = make_shield()
+    t = run_free(shield, 60)
+    one = [person(0.85, 0.0, t)]
+    two = one + [person(-3.0, 3.0, t, "far")]
+    traj, ends, radius = shield._plan(math.inf)
+    r1 = shield._verify(traj, ends, radius, hum_arrays(shield, one, t))[0]
+    traj, ends, radius = shield._plan(math.inf)
+    r2 = shield._verify(traj, ends, radius, hum_arrays(shield, two, t))[0]
+    P = len(shield._part_names)
+    np.testing.assert_array_equal(r2.safe[:, :, :P], r1.safe)
+    assert r2.safe[:, :, P:].all()
+    assert 2 in shield._checks
+
+
+def test_threshold_edits_and_boxes_are_validated() -> None:
+    edit = {"region": "hand", "contact": "constrained", "shape": "blunt", "energy_J": 0.5}
+    shield = make_shield(overrides=[edit])
+    assert shield.thresholds.energy_J("hand", "constrained", "blunt") == 0.5
+    assert shield.above_source  # above the seed's 0.12 J: flagged
+    with pytest.raises(ParameterError, match="boxes"):
+        PflShield(
+            shield.robot, shield.follower, shield.reach, shield.settings, shield.spec,
+            (np.eye(4)[None], np.array([[0.1, -0.1, 0.1]])),
+        )  # fmt: skip

@@ -1,0 +1,185 @@
+"""PFL in closed loop (``sara_app.sim`` ground truth, ``sara_app.sim_episodes``): the contact
+ground truth on constructed cases (free vs clamped by the table, by a stacked body part, between
+two links; adjacent links do not clamp; no energy, no harm; energy scales with the speed
+squared); seeded adversarial episodes with a table have contacts but none harmful; a shield
+that always answers "safe" does cause harmful contacts (the counter fires); and where a person
+works close beside the path PFL reaches the goal sooner than SSM.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from sara_app.cell import build_cell, environment_boxes
+from sara_app.geometry import capsule_distances
+from sara_app.human.scripted import joints, standing
+from sara_app.safety.thresholds import load_thresholds
+from sara_app.scenario import PflSpec, load_scenario, parse_scenario
+from sara_app.sim import ContactTruth, Simulation
+from sara_app.sim_episodes import compare_modes, run_episodes, throughput_lines, with_mode
+
+TABLE = {"name": "table", "center_m": [0.65, 0.0, 0.1], "size_m": [0.5, 1.6, 0.2]}
+Q0 = np.array([0.0, 0.3, 0.0, -1.8, 0.0, 2.1, 0.8])
+V0 = np.array([0.3, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # joint 1 only: every link above it moves
+TS = load_thresholds("thresholds_seed003")
+
+
+def _truth(boxes: list[dict[str, object]]) -> ContactTruth:
+    sc = parse_scenario(
+        {"name": "t", "task": {"waypoints_rad": [Q0.tolist()]}, "environment": boxes}
+    )
+    cell = build_cell(sc)
+    sk = cell.shield.reach.skeleton
+    return ContactTruth(
+        cell.robot, sk.part_joints, cell.params.half_thickness_m, sk.parts, 1, PflSpec(),
+        environment_boxes(sc),
+    )  # fmt: skip
+
+
+def _far() -> np.ndarray:
+    return joints(standing((4.0, 4.0), 0.0))
+
+
+def _hand_link_point(truth: ContactTruth) -> np.ndarray:
+    ends, _ = truth.robot.link_capsules(Q0)
+    return ends[-1].mean(axis=0)  # middle of the panda_hand capsule axis
+
+
+def _touched(truth: ContactTruth, y: np.ndarray) -> set[str]:
+    ends, rad = truth.robot.link_capsules(Q0)
+    h = y[truth.part_joints]
+    d = capsule_distances(ends, rad, h, truth.half_th[: len(h)])
+    return {truth.robot.link_names[i] for i in np.nonzero((d <= 0).any(axis=1))[0]}
+
+
+def _energy_hand(truth: ContactTruth, v: np.ndarray) -> float:
+    return float(truth.motion.energies(Q0[None], v[None])[0, -1])
+
+
+L_WRIST, R_WRIST = 7, 8  # joints of the hand balls (FULL_JOINTS order)
+
+
+def test_free_contact_uses_the_unconstrained_threshold_and_scales_with_speed() -> None:
+    truth = _truth([])
+    y = _far()
+    y[L_WRIST] = _hand_link_point(truth) - [0.0, 0.0, 0.13]  # hand ball under the gripper
+    y[5] = y[L_WRIST] - [0.0, 0.0, 0.26]  # elbow straight below
+    assert _touched(truth, y) == {"panda_hand"}
+    c = truth.evaluate(Q0, V0, [y])
+    assert c.touching[0] and not c.clamped[0]
+    E = _energy_hand(truth, V0)
+    hand_free = TS.energy_J("hand", "unconstrained", "blunt")
+    assert c.ratio[0] == pytest.approx(E / hand_free)
+    assert c.harmful[0] == (c.ratio[0] >= 1.0)
+    c2 = truth.evaluate(Q0, 2.0 * V0, [y])
+    assert c2.ratio[0] == pytest.approx(4.0 * c.ratio[0])
+    # no energy, no harm (a robot at rest)
+    c0 = truth.evaluate(Q0, np.zeros(7), [y])
+    assert not c0.touching[0] and c0.ratio[0] == 0.0
+
+
+def _table_below(z_top: float) -> dict[str, object]:
+    ends, _ = _truth([]).robot.link_capsules(Q0)
+    x, y = ends[-1].mean(axis=0)[:2]
+    return {"name": "tbl", "center_m": [x, y, z_top - 0.05], "size_m": [0.4, 0.4, 0.1]}
+
+
+def _hand_bottom() -> np.ndarray:
+    """The lowest point of the panda_hand capsule at Q0 (its axis is horizontal)."""
+    ends, rad = _truth([]).robot.link_capsules(Q0)
+    return ends[-1].mean(axis=0) - [0.0, 0.0, rad[-1]]
+
+
+def test_hand_on_the_table_is_clamped() -> None:
+    low = _hand_bottom()
+    y = _far()
+    y[L_WRIST] = low - [0.0, 0.0, 0.09]  # hand ball (radius 0.1025) touches the gripper
+    y[5] = y[L_WRIST] + [0.3, 0.0, 0.0]
+    truth = _truth([_table_below(low[2] - 0.15)])  # ... and the table under it
+    assert _touched(truth, y) == {"panda_hand"}
+    c = truth.evaluate(Q0, V0, [y])
+    assert c.touching[0] and c.clamped[0]
+    E = _energy_hand(truth, V0)
+    assert c.ratio[0] == pytest.approx(E / TS.energy_J("hand", "constrained", "blunt"))
+    # the table 0.1 m lower: the same contact is free
+    c = _truth([_table_below(low[2] - 0.25)]).evaluate(Q0, V0, [y])
+    assert c.touching[0] and not c.clamped[0]
+    assert c.ratio[0] == pytest.approx(E / TS.energy_J("hand", "unconstrained", "blunt"))
+
+
+def test_stacked_hands_clamp_through_each_other() -> None:
+    low = _hand_bottom()
+    y = _far()
+    y[L_WRIST] = low - [0.0, 0.0, 0.09]  # touches the gripper, not the table
+    y[R_WRIST] = y[L_WRIST] - [0.0, 0.0, 0.19]  # touches the left hand and the table
+    y[5] = y[L_WRIST] + [0.3, 0.0, 0.0]
+    y[6] = y[R_WRIST] + [0.3, 0.0, 0.0]
+    truth = _truth([_table_below(low[2] - 0.09 - 0.19 - 0.05)])
+    c = truth.evaluate(Q0, V0, [y])
+    assert c.touching[0] and c.clamped[0]
+    # without the right hand under it the left hand is free
+    y[R_WRIST] = y[6] = _far()[R_WRIST]
+    c = truth.evaluate(Q0, V0, [y])
+    assert c.touching[0] and not c.clamped[0]
+
+
+def test_between_links_clamps_unless_they_are_adjacent() -> None:
+    truth = _truth([])
+    ends, rad = truth.robot.link_capsules(Q0)
+    names = truth.robot.link_names
+    y = _far()
+    # a torso segment from the base (panda_link1) to the hand: clamped between them
+    y[1] = ends[names.index("panda_link1")].mean(axis=0)
+    y[2] = _hand_link_point(truth)
+    c = truth.evaluate(Q0, V0, [y])
+    assert c.touching[0] and c.clamped[0]
+    assert {"panda_link1", "panda_hand"} <= _touched(truth, y)
+    # a hand ball touching panda_link7 and panda_hand only (declared unclampable): free
+    y = _far()
+    y[L_WRIST] = ends[names.index("panda_link7"), 1] + [0.14, 0.0, -0.08]
+    y[5] = y[L_WRIST] + [0.26, 0.0, 0.0]
+    assert _touched(truth, y) == {"panda_link7", "panda_hand"}
+    c = truth.evaluate(Q0, V0, [y])
+    assert c.touching[0] and not c.clamped[0]
+
+
+def test_adversarial_pfl_episodes_have_no_harmful_contact() -> None:
+    summary = run_episodes(8, seed=7, duration_s=1.0, mode="pfl")
+    assert summary.episodes == 8 and summary.mode == "pfl"
+    assert summary.harmful == 0, (summary.harmful_in, summary.max_energy_ratio)
+    assert summary.contacts > 0 and summary.clamped > 0  # the adversaries did touch, clamped
+    assert 0.0 < summary.max_energy_ratio < 1.0
+    assert summary.intervened_share > 0.1
+    assert "harmful contacts" in "\n".join(summary.lines())
+
+
+def test_harmful_counter_fires_with_a_shield_that_always_answers_safe() -> None:
+    sc = load_scenario("adversarial")
+    data = sc.model_dump(mode="json")
+    data["environment"] = [TABLE]
+    sim = Simulation(with_mode(parse_scenario(data), "pfl"))
+    shield = sim.shield
+
+    def blind(hum: object) -> tuple[object, ...]:
+        traj, ends, radius = shield._plan(math.inf)  # type: ignore[attr-defined]
+        return traj, ends, radius, True
+
+    shield._plan_and_verify = blind  # type: ignore[method-assign,assignment]
+    m = sim.run(2.0)
+    assert m.harmful_contacts > 0 and m.max_energy_ratio >= 1.0
+
+
+def test_close_worker_finishes_sooner_with_pfl() -> None:
+    sc = load_scenario("close_worker")
+    res = compare_modes(sc)
+    ssm, pfl = res["ssm"], res["pfl"]
+    assert pfl.time_to_goal_s is not None
+    assert ssm.time_to_goal_s is None or pfl.time_to_goal_s < ssm.time_to_goal_s
+    assert pfl.harmful_contacts == 0 and ssm.collisions_moving == 0
+    assert pfl.intervened_share > 0.0 and pfl.speed_scale_mean < 1.0
+    assert pfl.safety_mode == "pfl" and ssm.safety_mode == "ssm"
+    lines = throughput_lines({"close_worker": res})
+    assert len(lines) == 4 and "pfl" in lines[3]
