@@ -271,7 +271,7 @@ def test_pfl_frame_is_drawn_coloured_by_contact_with_the_link_table(
     assert panels.links_folder.visible and not panels.plot_phi.visible and panels.plot_speed.visible
     row5 = next(r for r in md.splitlines() if r.startswith("| panda_link5 "))
     assert "0.620" in row5 and "0.500" in row5 and "-0.120" in row5 and "rgb(210,0,0)" in row5
-    assert "l_hand (h1)" in row5 and "unconstrained" in row5
+    assert "l_hand (h1)<br/>unconstrained, blunt" in row5
     row0 = next(r for r in md.splitlines() if r.startswith("| panda_link0 "))
     assert "no contact possible" in row0
     hand = next(r for r in md.splitlines() if r.startswith("| panda_hand "))

@@ -209,10 +209,10 @@ def test_margin_levels_and_link_table() -> None:
     ]
     md = link_energy_markdown(links)
     rows = md.splitlines()
-    assert len(rows) == 2 + 3 and all(r.count(" | ") == 6 for r in rows[2:])  # 7 columns
+    assert len(rows) == 2 + 3 and all(r.count(" | ") == 4 for r in rows[2:])  # 5 columns
     r, g, b = MARGIN_RGB["negative"]
     assert f"rgb({r},{g},{b})" in rows[2] and "-0.100" in rows[2] and "a\\|b" in rows[2]
-    assert "h&lt;1&gt;" in rows[2] and "env-constrained" in rows[2] and "edge" in rows[2]
+    assert "l_hand (h&lt;1&gt;)<br/>env-constrained, edge" in rows[2]
     r, g, b = MARGIN_RGB["ok"]
     assert f"rgb({r},{g},{b})" in rows[3] and "+1.900" in rows[3]
     assert "no contact possible" in rows[4] and "rgb(" not in rows[4]

@@ -350,8 +350,6 @@ class CellView:
         validated edit path; :class:`ScenarioError` if the worker refuses it."""
         if mode not in SAFETY_MODES:
             raise UnknownNameError("safety mode", mode, SAFETY_MODES)
-        if mode == self.scenario.shield.mode:
-            return
         data = self.scenario.model_dump(mode="json")
         data["shield"]["mode"] = mode
         self.send(data)

@@ -144,27 +144,28 @@ def margin_level(margin_j: float | None, limit_j: float | None) -> str | None:
 
 
 def link_energy_markdown(links: list[LinkEnergy]) -> str:
-    """Markdown table of each link's energy, threshold and margin [J], coloured margin, and the
-    body part, human, contact class and shape that set the threshold."""
+    """Markdown table of each link's energy, threshold and margin [J] (margin coloured), and
+    the body part, human, contact class and shape that set the threshold (one narrow column)."""
     if not links:
         return "*No link energies (shown in PFL mode).*"
-    head = "| Link | Energy [J] | Limit [J] | Margin [J] | Set by | Contact | Shape |\n"
-    head += "|---|---|---|---|---|---|---|\n"
+    head = "| Link | E [J] | Limit [J] | Margin [J] | Set by |\n|---|---|---|---|---|\n"
     rows = []
     for e in links:
         level = margin_level(e.margin_j, e.limit_j)
         if level is None:
             limit = margin = "—"
-            who = contact = "no contact possible"
+            who = "no contact possible"
         else:
             r, g, b = MARGIN_RGB[level]
             limit = _fmt(e.limit_j, ".3f")
             margin = f'<b style="color:rgb({r},{g},{b})">{_fmt(e.margin_j, "+.3f")}</b>'
-            who = _escape(f"{e.body_part or '?'} ({e.human_id or '?'})")
-            contact = _escape(e.contact or "?")
+            who = (
+                _escape(f"{e.body_part or '?'} ({e.human_id or '?'})")
+                + "<br/>"
+                + _escape(f"{e.contact or '?'}, {e.shape}")
+            )
         rows.append(
-            f"| {_escape(e.link)} | {_fmt(e.energy_j, '.3f')} | {limit} | {margin} | {who} "
-            f"| {contact} | {_escape(e.shape)} |"
+            f"| {_escape(e.link)} | {_fmt(e.energy_j, '.3f')} | {limit} | {margin} | {who} |"
         )
     return head + "\n".join(rows)
 

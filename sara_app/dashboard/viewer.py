@@ -53,6 +53,7 @@ class Dashboard:
         try:
             server.initial_camera.position = self.camera[0]
             server.initial_camera.look_at = self.camera[1]
+            server.gui.configure_theme(control_width="large")  # room for the tables
             scene = CellScene(server, self.robot, self.T_world_base)
 
             def set_contact(flag: bool) -> None:
