@@ -419,3 +419,97 @@ class _Merged:
             self.safe, safe_k, bool(safe_k.all()), self.cls, thr, E, thr - E[:, :, None],
             f.contact, allowed, part,
         )  # fmt: skip
+
+
+# --- benchmark -------------------------------------------------------------------------------
+
+
+def _bench_shield(xy: tuple[float, float]) -> tuple[PflShield, PathFollower, list[Any], float]:
+    """A PFL cell (Panda, table, models acc/vel/pos) with the robot at full speed after 0.16 s,
+    and one standing full-body person at ``xy`` facing the robot base."""
+    from sara_app.cell import build_cell
+    from sara_app.human.scripted import joints, standing
+    from sara_app.safety.shield import HumanState
+    from sara_app.scenario import parse_scenario
+
+    q = [0.3, 0.0, -1.8, 0.0, 2.1, 0.8]
+    sc = parse_scenario(
+        {
+            "name": "bench",
+            "task": {"waypoints_rad": [[-1.2, *q], [1.2, *q]]},
+            "environment": [
+                {"name": "table", "center_m": [0.65, 0.0, 0.1], "size_m": [0.5, 1.6, 0.2]}
+            ],
+            "shield": {"mode": "pfl", "models": ["acc", "vel", "pos"]},
+        }
+    )
+    shield = build_cell(sc).shield
+    assert isinstance(shield, PflShield)
+    t = 0.0
+    for _ in range(40):
+        shield.cycle(t, [])
+        t += shield.settings.dt_s
+    y = joints(standing(xy, math.atan2(-xy[1], -xy[0])))
+    person = HumanState("p", y, np.zeros_like(y), np.full(len(y), 0.05), t - 0.012)
+    return shield, shield.follower.copy(), [person], t
+
+
+BENCH_CASES = {
+    "clear": (1.0, -1.0),
+    "slowed": (1.1, -0.4),
+    "braking": (0.9, -0.4),
+}
+"""Person positions (m, world) for the benchmark, robot hand at about (0.34, -0.54): the first
+check verifies / a failed check and a verified replan at a lower cap / both fail."""
+
+
+def bench_rows(n: int = 2000) -> list[tuple[str, float, float, str]]:
+    """One PFL shield cycle (plan, human sets, PFL check per model, replan, commit or brake):
+    Panda at full speed, one standing full-body person, one table, in the three
+    :data:`BENCH_CASES`; then the stages of one check in the braking case."""
+    from sara_app.bench import timeit_us
+
+    rows = []
+    for case, xy in BENCH_CASES.items():
+        shield, template, people, t = _bench_shield(xy)
+
+        def cycle(
+            shield: PflShield = shield,
+            template: PathFollower = template,
+            people: list[Any] = people,
+            t: float = t,
+        ) -> CycleResult:
+            shield.follower = template.copy()
+            shield.cap, shield._calm = math.inf, 0
+            return shield.cycle(t, people, want_distance=False)
+
+        out = cycle()
+        info = shield._res
+        d = shield.min_distance(template.state.q, [people[0].y])
+        note = f"person {d:.2f} m from the robot; {out.mode}"
+        if isinstance(info, PflCycle) and out.trajectory is not None:
+            note += (
+                f", {info.checks} check(s), speed scale {out.speed_scale:.2f}, "
+                f"K = {len(out.trajectory.times) - 1}"
+            )
+        med, p99 = timeit_us(cycle, n, warmup=max(10, n // 10))
+        rows.append((f"pfl shield cycle, {case}", med, p99, note))
+    # stages of one check (the braking case: every model evaluated)
+    shield.follower = template.copy()
+    traj, ends, radius = shield._plan(math.inf)
+    hum = shield._human_arrays(people, [0], {"p": t - float(people[0].stamp_s)})
+    assert hum is not None
+    K = len(traj.times) - 1
+    stages: list[tuple[str, Any]] = [
+        ("  shielded trajectory + occupancy", lambda: shield._plan(math.inf)),
+        ("  link energies + twists", lambda: shield.pfl.motion.evaluate(traj.q, traj.v)),
+        (
+            "  human sets, 3 models",
+            lambda: [shield._human_sets(m, hum, traj.times, 0, K) for m in shield.settings.models],
+        ),  # fmt: skip
+        ("  PFL check, all models", lambda: shield._verify(traj, ends, radius, hum)),
+    ]
+    for name, fn in stages:
+        med, p99 = timeit_us(fn, n, warmup=max(10, n // 10))
+        rows.append((name, med, p99, f"K = {K}"))
+    return rows
