@@ -305,6 +305,8 @@ def test_jssa_state_shows_phi_and_the_critical_pair(
     assert "JSSA phi | 0.0123 m²" in md and ("**active**" in md) is active
     assert "panda_link7" in md and "0.410 / 0.050 m" in md
     assert panels.plot_phi.visible and not panels.plot_speed.visible
+    t, phi = panels.phi.data()
+    assert t[-1] == frame.t_s and phi[-1] == pytest.approx(0.0123)
     assert not panels.links_folder.visible and scene.contact_parts.count == 0
     # fallback: the reason is shown; no pair: the line is hidden
     fb = JssaMsg(active=True, fallback=True, reason="QP infeasible <bounds>", d_min_m=0.05)

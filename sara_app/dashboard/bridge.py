@@ -160,6 +160,46 @@ def _on_release(gizmo: Any, callback: Any) -> None:
     gizmo.on_update(handler)
 
 
+def verdict_status(v: VerdictMsg, cycle_us: np.ndarray) -> dict[str, Any]:
+    """The status entries of a verdict (keys documented on :class:`DisplayFrame`);
+    ``cycle_us (n,)``: recent cycle times [us] for the percentiles."""
+    return {
+        "mode": v.mode,
+        "safety_mode": v.safety_mode,
+        "min_distance_m": v.min_distance_m,
+        "cycle_p50_us": float(np.median(cycle_us)) if cycle_us.size else None,
+        "cycle_p99_us": float(np.percentile(cycle_us, 99)) if cycle_us.size else None,
+        "skeleton_age_ms": {k: 1e3 * a for k, a in v.skeleton_age_s.items()},
+        "dropped": dict(v.dropped),
+        "models": dict(v.results),
+        "faults": list(v.faults),
+        "intervened": v.intervened,
+        "speed_scale": v.speed_scale,
+        "jssa": None,
+    }
+
+
+def occupancy_into(frame: DisplayFrame, occ: OccupancyMsg) -> None:
+    """Fill ``frame`` with an occupancy message: humans, robot occupancy (its verdict), PFL
+    contact classes, body parts in contact and link energies, the JSSA state and pair."""
+    for h in occ.humans:
+        models = {name: caps.arrays() for name, caps in h.models.items()}
+        y = np.asarray(h.joints_m).reshape(-1, 3)
+        frame.humans.append(HumanDisplay(h.id, y, _BONES, models))
+    if occ.robot is not None:
+        r = occ.robot
+        e, rad = r.capsules.arrays()
+        K, L = r.n_intervals, len(r.link_names)
+        frame.robot_ends, frame.robot_radius = e.reshape(K, L, 2, 3), rad.reshape(K, L)
+        frame.verified = r.verified
+        frame.contact_class = contact_class_grid(occ.contacts, r.link_names, K)
+    frame.contact_parts = contact_parts_of(occ.contacts, occ.humans)
+    frame.links = link_rows(occ.links)
+    jssa, frame.critical_pair = jssa_display(occ.jssa)
+    frame.status["jssa"] = jssa
+    frame.critical_active = bool(jssa and jssa["active"])
+
+
 def boxes_of(sc: Scenario) -> EnvBoxes | None:
     if not sc.environment:
         return None
@@ -227,62 +267,20 @@ class CellView:
         return self.frame()
 
     def frame(self) -> DisplayFrame:
-        assert self.q is not None and self.verdict is not None
+        """The frame of the latest verdict, robot command and occupancy."""
+        if self.q is None or self.verdict is None:
+            raise ScenarioError("no verdict and robot command received yet")
         v = self.verdict
-        humans, ends, radius, verified = (
-            [],
-            np.zeros((0, 0, 2, 3)),
-            np.zeros((0, 0)),
-            v.mode != "failsafe",
-        )
-        occ = self.occ
-        cc, parts, links, jssa, pair = None, None, [], None, None
-        if occ is not None:
-            for h in occ.humans:
-                models = {name: caps.arrays() for name, caps in h.models.items()}
-                y = np.asarray(h.joints_m).reshape(-1, 3)
-                humans.append(HumanDisplay(h.id, y, _BONES, models))
-            if occ.robot is not None:
-                r = occ.robot
-                e, rad = r.capsules.arrays()
-                L = len(r.link_names)
-                ends, radius = e.reshape(r.n_intervals, L, 2, 3), rad.reshape(r.n_intervals, L)
-                verified = r.verified
-                cc = contact_class_grid(occ.contacts, r.link_names, r.n_intervals)
-            parts = contact_parts_of(occ.contacts, occ.humans)
-            links = link_rows(occ.links)
-            jssa, pair = jssa_display(occ.jssa)
-        cu = np.array(self.cycle_us)
-        ages = {k: 1e3 * a for k, a in v.skeleton_age_s.items()}
-        status = {
-            "mode": v.mode,
-            "safety_mode": v.safety_mode,
-            "min_distance_m": v.min_distance_m,
-            "cycle_p50_us": float(np.median(cu)),
-            "cycle_p99_us": float(np.percentile(cu, 99)),
-            "skeleton_age_ms": ages,
-            "dropped": dict(v.dropped),
-            "models": dict(v.results),
-            "faults": list(v.faults),
-            "intervened": v.intervened,
-            "speed_scale": v.speed_scale,
-            "jssa": jssa,
-        }
-        return DisplayFrame(
+        frame = DisplayFrame(
             t_s=v.stamp_s,
             q=self.q,
-            humans=humans,
-            robot_ends=ends,
-            robot_radius=radius,
-            verified=verified,
-            contact_class=cc,
-            status=status,
-            critical_pair=pair,
-            critical_active=bool(jssa and jssa["active"]),
-            links=links,
-            contact_parts=parts,
+            verified=v.mode != "failsafe",
+            status=verdict_status(v, np.array(self.cycle_us)),
             boxes=boxes_of(self.scenario),
         )
+        if self.occ is not None:
+            occupancy_into(frame, self.occ)
+        return frame
 
     # -- editing -------------------------------------------------------------------------------
 
