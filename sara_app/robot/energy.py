@@ -163,6 +163,7 @@ class LinkMotion:
         self._v_index = np.array([pm.idx_vs[j] for j in range(1, pm.njoints)], dtype=np.int64)
         self._cap = 0
         self._grow(16)
+        self._clean = np.zeros(0, dtype=bool)
 
     def _grow(self, S: int) -> None:
         if S <= self._cap:
@@ -183,10 +184,18 @@ class LinkMotion:
             raise InputError(
                 f"q {Q.shape} and q_dot {V.shape}: expected equal shapes (S, {self.n_dof})"
             )
+        if math.isfinite(float(Q.sum()) + float(V.sum())):  # the usual case: two reductions
+            return Q, V, self._no_bad(Q.shape[0])
         bad = ~(np.isfinite(Q).all(axis=1) & np.isfinite(V).all(axis=1))
-        if bad.any():
-            Q, V = np.where(bad[:, None], 0.0, Q), np.where(bad[:, None], 0.0, V)
+        Q, V = np.where(bad[:, None], 0.0, Q), np.where(bad[:, None], 0.0, V)
         return Q, V, bad
+
+    def _no_bad(self, S: int) -> np.ndarray:
+        """A read-only all-False ``(S,)`` mask (shared)."""
+        if self._clean.shape[0] < S:
+            self._clean = np.zeros(S, dtype=bool)
+            self._clean.flags.writeable = False
+        return self._clean[:S]
 
     def _crba(self, Q: np.ndarray) -> np.ndarray:
         """``pin.crba`` per sample into the buffer: ``(S, n, n)``, upper triangle filled."""

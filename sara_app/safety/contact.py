@@ -132,13 +132,40 @@ class VelocityErrorBound:
         lead = qd.shape[:-1]
         fd, fdd, fddd = (np.reshape(x, (-1, self.n_dof)) for x in (qd, qdd, qddd))
         out = np.empty((fd.shape[0], self.n_links))
-        jerk_coefficients(fd, fdd, fddd, self._order, self._parent, self._D, out)
+        ones = np.ones(fd.shape[0])
+        jerk_coefficients(fd, fdd, fddd, self._order, self._parent, self._D, ones, out)
         return out.reshape(lead + (self.n_links,))
 
     def eps_v(self, dt: np.ndarray, C: np.ndarray | None = None) -> np.ndarray:
         """``(K, L)`` m/s for interval lengths ``dt (K,)``; ``C`` defaults to the limits'."""
         C = self.C_limits if C is None else C
         return (np.asarray(dt, dtype=float) ** 2 / 8.0)[:, None] * C
+
+    def eps_from_bounds(
+        self, dt: np.ndarray, qd: np.ndarray, qdd: np.ndarray, qddd: np.ndarray
+    ) -> np.ndarray:
+        """``eps_v (K, L)`` from ``dt (K,)`` and joint bounds ``qd (K, n)``, ``qdd`` and
+        ``qddd`` ``(K, n)`` or ``(n,)`` (the same on every interval): :meth:`eps_v` of
+        :meth:`coefficients`, in one compiled pass."""
+        dt = np.asarray(dt, dtype=np.float64)
+        qd, qdd, qddd = (np.asarray(x, dtype=np.float64) for x in (qd, qdd, qddd))
+        K, n = dt.shape[0] if dt.ndim == 1 else -1, self.n_dof
+        qdd, qddd = (x.reshape(1, n) if x.shape == (n,) else x for x in (qdd, qddd))
+        if (
+            qd.shape != (K, n)
+            or qdd.shape[1:] != (n,)
+            or qdd.shape[0] not in (1, K)
+            or (qddd.shape[1:] != (n,) or qddd.shape[0] not in (1, K))
+        ):
+            raise InputError(
+                f"dt {dt.shape}, joint bounds {qd.shape}, {qdd.shape}, {qddd.shape}; expected "
+                f"(K,), (K, {n}) and (K, {n}) or ({n},) twice"
+            )
+        out = np.empty((K, self.n_links))
+        scale = dt * dt
+        scale /= 8.0
+        jerk_coefficients(qd, qdd, qddd, self._order, self._parent, self._D, scale, out)
+        return out
 
 
 def _paper_coefficient(
@@ -293,6 +320,7 @@ class ContactClassifier:
         self._not_safe_h = ~np.asarray(human_safe, bool) & ~np.eye(P, dtype=bool)
         self.relax_velocity, self.relax_diameter = relax_velocity, relax_diameter
         self.multi_body = multi_body
+        self._identity_views: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     def classify(
         self,
@@ -350,12 +378,13 @@ class ContactClassifier:
         return ContactResult(contact, contact_s, env, self_, cls, stack, diam, d_rh)
 
     def _check_shapes(self, *arrays: np.ndarray) -> tuple[int, int, int, int]:
-        """``(K, L, P, B)`` of :meth:`classify`'s inputs (in its argument order); raises
-        :class:`InputError` for any shape the compiled kernels cannot index safely."""
-        K, L = np.shape(arrays[1]) if np.ndim(arrays[1]) == 2 else (-1, -1)
-        P = np.shape(arrays[8])[1] if np.ndim(arrays[8]) == 2 else -1
-        B = np.shape(arrays[9])[0] if np.ndim(arrays[9]) == 3 else -1
-        Kh = np.shape(arrays[8])[0] if P >= 0 else -1
+        """``(K, L, P, B)`` of :meth:`classify`'s inputs (in its argument order; ``L`` and
+        ``P`` are this classifier's); raises :class:`InputError` naming the first array whose
+        shape the compiled kernels cannot index safely."""
+        L, P = self._no_pair.shape[0], self._not_safe_h.shape[0]
+        K = arrays[1].shape[0] if arrays[1].ndim == 2 else -1
+        Kh = 1 if arrays[7].shape[:1] == (1,) else K
+        B = arrays[9].shape[0] if arrays[9].ndim == 3 else -1
         want = (
             (K, L, 2, 3), (K, L), (K + 1, L, 2, 3), (L,), (K + 1, L, 3), (K + 1, L, 3), (K, L),
             (Kh, P, 2, 3), (Kh, P), (B, 4, 4), (B, 3),
@@ -365,31 +394,26 @@ class ContactClassifier:
             "h_radius", "T_world_box", "half_extents_m",
         )  # fmt: skip
         for name, a, shape in zip(names, arrays, want):
-            if a.shape != shape:
+            if a.shape != shape or K < 1:
                 raise InputError(
-                    f"{name} has shape {a.shape}; expected {shape} (K intervals, L links, P "
-                    "parts, B boxes)"
+                    f"{name} has shape {a.shape}; expected {shape} (K >= 1 intervals, L = {L} "
+                    f"links, P = {P} parts, B boxes; human capsules may have 1 interval)"
                 )
-        if (
-            K < 1
-            or L != self._no_pair.shape[0]
-            or P != self._not_safe_h.shape[0]
-            or Kh not in (1, K)
-        ):
-            raise InputError(
-                f"K = {K}, L = {L}, P = {P}, human intervals {Kh}; expected K >= 1, L = "
-                f"{self._no_pair.shape[0]}, P = {self._not_safe_h.shape[0]}, human intervals 1 or K"
-            )
         return K, L, P, B
 
     def _no_contact(self, d_rh: np.ndarray) -> ContactResult:
         """The result when no link can touch any body part on any interval."""
-        K, _, P = d_rh.shape
+        K = d_rh.shape[0]
+        views = self._identity_views.get(K)
+        if views is None:  # read-only broadcast views, shared between results
+            P = self.diameters_m.shape[0]
+            views = self._identity_views[K] = (
+                np.broadcast_to(np.eye(P, dtype=bool), (K, P, P)),
+                np.broadcast_to(self.diameters_m, (K, P)),
+            )
         none = np.zeros(d_rh.shape, dtype=bool)
-        stack = np.broadcast_to(np.eye(P, dtype=bool), (K, P, P))
-        diam = np.broadcast_to(self.diameters_m, (K, P))
         cls0 = np.zeros(d_rh.shape, dtype=np.int8)
-        return ContactResult(none, none, none, none, cls0, stack, diam, d_rh)
+        return ContactResult(none, none, none, none, cls0, views[0], views[1], d_rh)
 
     def classify_reference(
         self,

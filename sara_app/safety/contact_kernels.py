@@ -405,7 +405,7 @@ def classify_kernel(
     return True
 
 
-@njit(types.void(_RO[2], _RO[2], _RO[2], _ROI1, _ROI1, _RO[2], _WF2), cache=True)
+@njit(types.void(_RO[2], _RO[2], _RO[2], _ROI1, _ROI1, _RO[2], _RO[1], _WF2), cache=True)
 def jerk_coefficients(
     qd: np.ndarray,
     qdd: np.ndarray,
@@ -413,18 +413,22 @@ def jerk_coefficients(
     order: np.ndarray,
     parent: np.ndarray,
     D: np.ndarray,
+    scale: np.ndarray,
     out: np.ndarray,
 ) -> None:
-    """The ``"spatial"`` form of :meth:`VelocityErrorBound.coefficients`: joint bounds ``(K,
-    n)`` (absolute values taken here), joints visited in ``order`` (parents first) with
-    ``parent`` (-1: the base), lever matrix ``D (n, L)``; writes ``out (K, L)``."""
+    """The ``"spatial"`` form of :meth:`VelocityErrorBound.coefficients`, times ``scale (K,)``
+    per row: joint bounds ``qd (K, n)``, ``qdd`` and ``qddd`` ``(K|1, n)`` (absolute values
+    taken here; one row applies to every interval), joints visited in ``order`` (parents first)
+    with ``parent`` (-1: the base), lever matrix ``D (n, L)``; writes ``out (K, L)``."""
     K, n = qd.shape
     W, A, Bj = np.empty(n), np.empty(n), np.empty(n)
     for k in range(K):
+        k2 = k if qdd.shape[0] == K else 0
+        k3 = k if qddd.shape[0] == K else 0
         for x in range(order.shape[0]):
             j, p = order[x], parent[x]
             w0, a0, b0 = (0.0, 0.0, 0.0) if p < 0 else (W[p], A[p], Bj[p])
-            v, a, jj = abs(qd[k, j]), abs(qdd[k, j]), abs(qddd[k, j])
+            v, a, jj = abs(qd[k, j]), abs(qdd[k2, j]), abs(qddd[k3, j])
             W[j] = w0 + v
             A[j] = a0 + a + v * w0
             Bj[j] = b0 + jj + 2.0 * a * w0 + v * (a0 + w0 * w0)
@@ -432,4 +436,4 @@ def jerk_coefficients(
             acc = 0.0
             for j in range(n):
                 acc += (Bj[j] + 3.0 * A[j] * W[j] + W[j] * W[j] * W[j]) * D[j, i]
-            out[k, i] = acc
+            out[k, i] = acc * scale[k]

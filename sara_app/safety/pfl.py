@@ -209,28 +209,6 @@ class PflCheck:
         self.motion = LinkMotion(model, self.occupancy)
         self._s_radius = np.asarray(model.radius_m, dtype=float)
 
-    def _shapes(self, K: int, **arrays: np.ndarray) -> None:
-        L, P = self.n_links, self.n_parts
-        want = {
-            "r_ends": (K, L, 2, 3),
-            "r_radius": (K, L),
-            "s_ends": (K + 1, L, 2, 3),
-            "p1_dot": (K + 1, L, 3),
-            "omega": (K + 1, L, 3),
-            "dt": (K,),
-            "h_ends": (K, P, 2, 3),
-            "h_radius": (K, P),
-        }
-        for key, shape in want.items():
-            if arrays[key].shape != shape:
-                raise InputError(f"{key} has shape {arrays[key].shape}; expected {shape}")
-        B = arrays["T_world_box"].shape[0]
-        if arrays["T_world_box"].shape != (B, 4, 4) or arrays["half_extents_m"].shape != (B, 3):
-            raise InputError(
-                f"boxes {arrays['T_world_box'].shape}, {arrays['half_extents_m'].shape}; "
-                "expected (B, 4, 4) and (B, 3)"
-            )
-
     def check(
         self,
         r_ends: np.ndarray,
@@ -253,11 +231,9 @@ class PflCheck:
         from ``dt`` and the joint limits (see :meth:`eps_from_bounds` for tighter values).
         """
         K = r_radius.shape[0] if np.ndim(r_radius) == 2 else -1
-        if np.shape(h_ends)[:1] == (1,) and np.shape(h_radius)[:1] == (1,) and K > 1:
-            h_ends = np.broadcast_to(h_ends, (K,) + np.shape(h_ends)[1:])
-            h_radius = np.broadcast_to(h_radius, (K,) + np.shape(h_radius)[1:])
-        arrays = {k: v for k, v in locals().items() if k not in ("self", "K", "eps_v")}
-        self._shapes(K, **{k: np.asarray(v) for k, v in arrays.items()})
+        if np.shape(dt) != (K,):
+            raise InputError(f"dt has shape {np.shape(dt)}; expected ({K},)")
+        # the classifier checks the other shapes (human capsules (1, P): every interval)
         E = np.asarray(energy_J, dtype=float)
         if E.shape == (K + 1, self.n_links):
             E_int = interval_energy_J(E)
@@ -292,12 +268,7 @@ class PflCheck:
         lim = self.model.limits
         qdd = lim.a_max if qdd_bound is None else qdd_bound
         qddd = lim.j_max if qddd_bound is None else qddd_bound
-        C = self.velocity_error.coefficients(
-            qd_bound,
-            np.broadcast_to(qdd, np.shape(qd_bound)),
-            np.broadcast_to(qddd, np.shape(qd_bound)),
-        )
-        return self.velocity_error.eps_v(dt, C)
+        return self.velocity_error.eps_from_bounds(dt, qd_bound, qdd, qddd)
 
     def _verdict(self, c: ContactResult, E_int: np.ndarray) -> PflResult:
         K, L, P = c.cls.shape
@@ -330,18 +301,24 @@ class PflCheck:
         (K+1,)``, ``qd_bound (K, n)`` rigorous speed bounds per interval (e.g. a
         ``ShieldedTrajectory``'s ``q, v, v_bound, times``); ``qdd_bound (K, n)`` (its
         ``a_bound``) tightens the Thm VI.2 error (jerk from the joint limits)."""
-        arrays = [np.asarray(a, dtype=float) for a in (q, q_dot, qd_bound, t)]
-        if all(np.isfinite(a).all() for a in arrays):
+        q, q_dot, qd_bound, t = (np.asarray(a, dtype=float) for a in (q, q_dot, qd_bound, t))
+        try:
+            if not math.isfinite(float(q_dot.sum())):
+                raise InputError("q_dot is not finite")
             r_ends, r_radius = self.occupancy.intervals(q, qd_bound, t)
-        else:  # unknown robot occupancy: contact with everything, the verdict is unsafe
-            K = arrays[2].shape[0]
+        except InputError:
+            if all(np.isfinite(a).all() for a in (q, q_dot, qd_bound, t)):
+                raise  # a shape or ordering error: the caller's bug
+            # a non-finite trajectory: contact with everything, the verdict is unsafe
+            K = qd_bound.shape[0]
             r_ends = np.full((K, self.n_links, 2, 3), np.nan)
             r_radius = np.full((K, self.n_links), np.nan)
         samples = self.motion.evaluate(q, q_dot)
+        dt = t[1:] - t[:-1]
         return self.check(
-            r_ends, r_radius, samples.ends, samples.p1_dot, samples.omega, np.diff(t),
+            r_ends, r_radius, samples.ends, samples.p1_dot, samples.omega, dt,
             h_ends, h_radius, T_world_box, half_extents_m, samples.energy_J,
-            eps_v=self.eps_from_bounds(np.diff(t), qd_bound, qdd_bound),
+            eps_v=self.eps_from_bounds(dt, qd_bound, qdd_bound),
         )  # fmt: skip
 
 
