@@ -54,6 +54,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit, types
 
 from sara_app.errors import RobotModelError
 from sara_app.robot.trajectory import (
@@ -506,12 +507,59 @@ def _interval_bounds(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per-interval bounds ``(max |v_j|, max |a_j|)``, ``(K, n)`` each, from the samples."""
     vmax, amax = prof.interval_maxima(t, sd, sdd)
-    np.maximum(vmax, 0.0, out=vmax)
     D1, M1, M2 = path.interval_bounds(s, dq)
-    v_bound = D1 * vmax[:, None]
-    a_bound = M2 * (vmax * vmax)[:, None] + M1 * amax[:, None]
+    K, n = D1.shape
+    v_bound, a_bound = np.empty((2, K, n))
+    _bounds_kernel(vmax, amax, D1, M1, M2, v_bound, a_bound)
+    return v_bound, a_bound
+
+
+_f8 = types.float64
+_RO1, _RO2 = (types.Array(_f8, d, "A", readonly=True) for d in (1, 2))
+_W1, _W2 = types.Array(_f8, 1, "A"), types.Array(_f8, 2, "A")
+
+
+@njit(types.void(_RO1, _RO1, _RO2, _RO2, _RO2, _W2, _W2), cache=True)
+def _bounds_kernel(
+    vmax: np.ndarray,
+    amax: np.ndarray,
+    D1: np.ndarray,
+    M1: np.ndarray,
+    M2: np.ndarray,
+    v_bound: np.ndarray,
+    a_bound: np.ndarray,
+) -> None:
+    """``v_bound = D1 max(s', 0)``, ``a_bound = M2 max(s', 0)^2 + M1 max|s''|``, both padded by
+    ``_BOUND_PAD`` (relative) and 1e-15 (absolute), per interval ``k`` and joint ``j``."""
     pad = 1.0 + _BOUND_PAD
-    return v_bound * pad + 1e-15, a_bound * pad + 1e-15
+    for k in range(D1.shape[0]):
+        vm = vmax[k]
+        if vm < 0.0:  # NaN stays NaN
+            vm = 0.0
+        for j in range(D1.shape[1]):
+            v_bound[k, j] = D1[k, j] * vm * pad + 1e-15
+            a_bound[k, j] = (M2[k, j] * (vm * vm) + M1[k, j] * amax[k]) * pad + 1e-15
+
+
+@njit(types.void(_f8, _f8, _W1), cache=True)
+def _sample_times(dt: float, T: float, times: np.ndarray) -> None:
+    """``times (m+2,)``: 0, ``dt``, then ``dt + T i / m`` for ``i = 1..m``."""
+    m = times.shape[0] - 2
+    times[0] = 0.0
+    times[1] = dt
+    for i in range(1, m + 1):
+        times[i + 1] = dt + T * (i / m)
+
+
+@njit(types.void(_RO1, _RO1, _RO2, _RO2, _W2, _W2), cache=True)
+def _joint_samples(
+    sd: np.ndarray, sdd: np.ndarray, dq: np.ndarray, d2q: np.ndarray, v: np.ndarray, a: np.ndarray
+) -> None:
+    """Joint velocity ``v = q' s'`` and acceleration ``a = q'' s'^2 + q' s''`` ``(K+1, n)``."""
+    for k in range(dq.shape[0]):
+        for j in range(dq.shape[1]):
+            v[k, j] = dq[k, j] * sd[k]
+            a[k, j] = d2q[k, j] * (sd[k] * sd[k]) + dq[k, j] * sdd[k]
 
 
 @dataclass(frozen=True)
@@ -569,15 +617,12 @@ def shielded_trajectory(
             raise RobotModelError(f"n_intervals = {n_intervals!r}; expected an integer >= 1")
         m = n_intervals if T > 0 else 0
     times = np.empty(m + 2)
-    times[0] = 0.0
-    times[1] = step.dt
-    if m:
-        times[2:] = step.dt + T * (np.arange(1, m + 1) / m)
+    _sample_times(step.dt, T, times)
     prof = step.profile.then(stop.profile)
     s, sd, sdd = prof.evaluate(times)
     q, dq, d2q = follower.path._derivatives_array(s, 2)
-    v = dq * sd[:, None]
-    a = d2q * (sd * sd)[:, None] + dq * sdd[:, None]
+    v, a = np.empty((2,) + dq.shape)
+    _joint_samples(sd, sdd, dq, d2q, v, a)
     v_bound, a_bound = _interval_bounds(follower.path, prof, times, s, sd, sdd, dq)
     return ShieldedTrajectory(
         times=times,
