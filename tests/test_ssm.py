@@ -20,7 +20,7 @@ from sara_app import geometry as geo
 from sara_app.human.params import load_param_set, to_reach_params
 from sara_app.human.reach import MODELS, HumanReach
 from sara_app.human.scripted import aim_arm, joints, standing
-from sara_app.safety.ssm import SsmVerifier, boxes_of
+from sara_app.safety.ssm import SsmVerifier, body_distance, boxes_of
 
 SETTINGS = settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 PARAMS = to_reach_params(load_param_set("seed001_table1"), "full")
@@ -206,3 +206,19 @@ def test_boxes_contain_capsules(c: dict) -> None:
     pts = ends[None, :, :, 0] + s * (ends[None, :, :, 1] - ends[None, :, :, 0])
     pts = pts + u * radius[None, :, :, None]
     assert np.all(pts >= lo - 1e-12) and np.all(pts <= hi + 1e-12)
+
+
+@SETTINGS
+@given(cell())
+def test_body_distance_is_the_smallest_capsule_distance(c: dict) -> None:
+    """``body_distance`` (the shield's display minimum and the simulator's collision check)
+    equals the brute-force minimum over all (body part, link) capsule pairs."""
+    sk, half = REACH.skeleton, PARAMS.half_thickness_m
+    y, ends, radius = c["y"][0], c["ends"][0], c["radius"][0]
+    parts = y[sk.part_joints]
+    brute = geo.capsule_distances(parts, half, ends, radius).min()
+    got = body_distance(y, sk.part_joints, half, ends, radius)
+    assert abs(got - brute) <= 1e-12
+    y_nan = y.copy()
+    y_nan[3, 1] = np.nan
+    assert np.isnan(body_distance(y_nan, sk.part_joints, half, ends, radius))

@@ -19,9 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sara_app.errors import UnknownNameError
-from sara_app.geometry import segment_segment_distance
-from sara_app.geometry_kernels import capsule_sets_check
+from sara_app.errors import InputError, UnknownNameError
+from sara_app.geometry_kernels import capsule_sets_check, pair_distances
 from sara_app.human.reach import MODELS, HumanReach, Occupancy
 
 
@@ -57,8 +56,19 @@ def body_distance(
     """Smallest surface distance (m) between one person's body parts (joints ``y (J, 3)``,
     ``part_joints (P, 2)``, ``half_thickness_m (P,)``) and robot capsules ``(L, 2, 3)``,
     ``(L,)``; negative when they overlap."""
-    d = segment_segment_distance(y[part_joints][:, None], robot_ends[None])
-    d -= half_thickness_m[:, None] + robot_radius[None]
+    P, L = len(part_joints), len(robot_radius)
+    if np.shape(robot_ends) != (L, 2, 3) or np.shape(half_thickness_m) != (P,):
+        raise InputError(
+            f"robot capsules {np.shape(robot_ends)}, {np.shape(robot_radius)} and half "
+            f"thicknesses {np.shape(half_thickness_m)}; expected (L, 2, 3), (L,) and ({P},)"
+        )
+    d = np.empty((1, P, L))
+    parts = np.asarray(y, dtype=np.float64)[part_joints][None]  # (1, P, 2, 3)
+    pair_distances(
+        parts, np.asarray(half_thickness_m, dtype=np.float64)[None],
+        np.asarray(robot_ends, dtype=np.float64)[None],
+        np.asarray(robot_radius, dtype=np.float64)[None], d,
+    )  # fmt: skip
     return float(d.min())
 
 
@@ -106,8 +116,24 @@ class SsmVerifier:
         robot_radius: np.ndarray,
     ) -> SsmResult:
         """``y, v (H, J, 3)``, ``dv (H, J)``, ``age_s (H,)`` (command time minus measurement
-        time), ``times_s (K+1,)`` from now, robot ``(K, L, 2, 3)``, ``(K, L)``."""
-        H, M, K = y.shape[0], len(self.models), robot_ends.shape[0]
+        time), ``times_s (K+1,)`` from now, robot ``(K, L, 2, 3)``, ``(K, L)``; other shapes
+        raise :class:`InputError`."""
+        robot_ends = np.asarray(robot_ends, dtype=np.float64)
+        robot_radius = np.asarray(robot_radius, dtype=np.float64)
+        H, M, K = np.shape(y)[0], len(self.models), robot_ends.shape[0]
+        L = robot_ends.shape[1] if robot_ends.ndim == 4 else -1
+        J = self.reach.skeleton.n_joints
+        shapes = (np.shape(y), np.shape(v), np.shape(dv), np.shape(age_s), np.shape(times_s))
+        if (
+            shapes != ((H, J, 3), (H, J, 3), (H, J), (H,), (K + 1,))
+            or robot_ends.shape != (K, L, 2, 3)
+            or robot_radius.shape != (K, L)
+        ):
+            raise InputError(
+                f"y, v, dv, age_s, times_s have shapes {shapes} and the robot {robot_ends.shape}, "
+                f"{robot_radius.shape}; expected ({H}, {J}, 3) twice, ({H}, {J}), ({H},), (K+1,), "
+                "(K, L, 2, 3) and (K, L)"
+            )
         free = np.zeros((H, M, K), dtype=bool)
         evaluated = np.zeros((H, M, K), dtype=bool)
         closest = np.full((H, M), np.inf)
