@@ -6,11 +6,14 @@ the REST service's registry on another):
   far into a reason to brake, and lowering it again lets the robot work;
 - new task waypoints over the API move the robot's occupancy capsules to the new path;
 - a threshold edit over PUT is acknowledged and is then part of the worker's scenario, on top of
-  the earlier edit (the edit starts from the scenario the worker runs, not from the file).
+  the earlier edit (the edit starts from the scenario the worker runs, not from the file);
+- in PFL mode, thresholds lowered over PUT below the links' energies make the robot brake near a
+  person it passed (slowed down) before.
 """
 
 from __future__ import annotations
 
+import itertools
 import shutil
 import threading
 import time
@@ -34,6 +37,7 @@ from sara_app.human.params import load_param_set
 from sara_app.human.skeleton import skeleton
 from sara_app.robot.model import load_robot
 from sara_app.safety.threshold_audit import AuditLog
+from sara_app.safety.thresholds import CONTACTS, REGIONS
 from sara_app.scenario import load_scenario, scenarios_dir
 from sara_app.worker import CellWorker
 
@@ -197,3 +201,31 @@ def test_waypoint_edit_moves_the_robot_occupancy(live: Live) -> None:
     assert outside < 0.02, outside
     cmds = live.collect(live.cmds, RobotCommandMsg, 0.5)
     assert np.all(np.abs([m.q[0] for m in cmds]) <= 0.1 + 1e-6)
+
+
+def test_pfl_threshold_lowered_below_the_link_energies_makes_the_robot_brake(
+    live: Live,
+) -> None:
+    """PFL mode, a person 0.8 m in front of the robot: the robot passes them slowed down (it
+    never brakes in simulation) at the source thresholds; with every blunt threshold lowered over
+    PUT to 1 uJ, far below any moving link's energy, the worker brakes instead."""
+    shield = {**live.worker.cell.scenario.shield.model_dump(mode="json"), "mode": "pfl"}
+    r = live.client.post(f"/api/cells/{CELL}/scenario", json=_scenario_with(live, shield=shield))
+    assert r.status_code == 200, r.text
+    person = Person(live.port, 0.8)
+    try:
+        v = live.collect(live.verdicts, VerdictMsg, 2.0)
+        assert v and {m.safety_mode for m in v} == {"pfl"}
+        share_before = sum(m.mode == "failsafe" for m in v) / len(v)
+        assert share_before < 0.4  # about 0 in simulation; a loaded machine delays cycles
+        assert min(m.speed_scale for m in v if m.speed_scale is not None) < 0.5  # it slows
+        for region, contact in itertools.product(REGIONS, CONTACTS):
+            body = {"region": region, "contact": contact, "shape": "blunt", "energy_J": 1e-6}
+            r = live.client.put(f"/api/cells/{CELL}/thresholds", json=body)
+            assert r.status_code == 200, r.text
+        assert len(live.worker.cell.scenario.shield.pfl.overrides) == 10
+        assert live.worker.cell.scenario.shield.mode == "pfl"
+        share_after = live.failsafe_share(2.0)
+        assert share_after > max(0.5, share_before + 0.3), (share_before, share_after)
+    finally:
+        person.close()
