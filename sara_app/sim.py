@@ -97,7 +97,7 @@ class SimMetrics:
             f"contacts (energy)   {self.contacts_moving} touching a moving link, "
             f"{self.clamped_contacts} clamped, {self.harmful_contacts} harmful"
             + (f" (first at {self.first_harmful_s:.3f} s)" if self.first_harmful_s else "")
-            + f"; largest energy/threshold {self.max_energy_ratio:.2f}",
+            + f"; largest energy/threshold {self.max_energy_ratio:.3f}",
             f"intervened          {100 * self.intervened_share:.1f} % of cycles"
             f" (mean speed scale {self.speed_scale_mean:.2f})",
             f"time to goal        {ttg}",

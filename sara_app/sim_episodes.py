@@ -88,7 +88,7 @@ class EpisodeSummary:
             out += [
                 f"harmful contacts         {self.harmful}"
                 + (f" in {', '.join(self.harmful_in)}" if self.harmful_in else ""),
-                f"largest energy/threshold {self.max_energy_ratio:.2f}",
+                f"largest energy/threshold {self.max_energy_ratio:.3f}",
                 f"mean intervened share    {100 * self.intervened_share:.1f} %",
             ]
         return out

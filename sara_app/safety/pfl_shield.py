@@ -41,12 +41,12 @@ cap never goes below ``min_speed_scale`` times the admissible speed at the robot
 there the shield brakes instead. Nobody in the cell: no cap. A robot at rest has no energy and
 always verifies (seed 003: a robot at rest cannot hurt), consistent with the SSM shield.
 
-Defaults, measured in closed loop (``sara-app pfl throughput`` and ``/tmp``-free variants of
-its scenarios): a quick rise (no hold, no rate limit) keeps PFL at least as fast as SSM, because
-whatever SSM verifies (no possible contact) PFL verifies too, while a slow rise (x1.25 per cycle
-after 10 quiet cycles) left the robot creeping after the person had moved out of reach
-(standing_beside_path: 3.67 s against SSM's 3.19 s and this setting's 3.19 s). The price is
-about 0.4 replans per cycle while a person is near (at most 2 checks per cycle).
+Defaults, measured in closed loop (``sara-app pfl throughput``): a quick rise (no hold, no rate
+limit) keeps PFL at least as fast as SSM, because whatever SSM verifies (no possible contact) PFL
+verifies too; a slow rise (x1.25 per cycle after 10 quiet cycles) left the robot creeping after
+the person had moved out of reach (standing_beside_path: 3.67 s, against 3.19 s for SSM and for
+these defaults). The price is about 0.4 replans per cycle while a person is near (at most
+``1 + max_replans`` = 2 checks per cycle).
 
 Assumptions beyond the SSM shield's: the link energies are those of the commanded motion (the
 controller tracks it; the tracking margin widens the robot's capsules only) and, as in seed 003,
@@ -134,8 +134,8 @@ class PflShield(Shield):
 
     ``spec``: a :class:`sara_app.scenario.PflSpec` (thresholds set name, threshold edits,
     contact shape per link, ``min_speed_scale``); ``boxes``: the environment as ``T_world_box
-    (B, 4, 4)``, ``half_extents_m (B, 3)``. The check is built once here (one per number of
-    people, on first use).
+    (B, 4, 4)``, ``half_extents_m (B, 3)``. The checks are built here, one per number of
+    people (1 and 2; more on first use, about 10 ms each).
     """
 
     safety_mode = "pfl"
@@ -170,6 +170,7 @@ class PflShield(Shield):
         self._part_maps = {m: part_capsules(reach, m) for m in self.settings.models}
         self.pfl = PflCheck(robot, self._part_names, thresholds=ts, link_shapes=spec.link_shapes)
         self._checks: dict[int, PflCheck] = {1: self.pfl}
+        self._check_for(2)  # ~10 ms each: built here, not in a control cycle (more: on use)
         self.cap = math.inf
         """Path-speed cap for the next cycle (rad/s; inf: none)."""
         self._calm = 0
