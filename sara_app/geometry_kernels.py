@@ -189,8 +189,10 @@ def set_pair_distances(ends: np.ndarray, radius: np.ndarray, d: np.ndarray, s: n
     once = ends.shape[0] == 1 and radius.shape[0] == 1
     for k in range(K):
         if once and k > 0:
-            d[k] = d[0]
-            s[k] = s[0]
+            for a in range(N):
+                for b in range(N):
+                    d[k, a, b] = d[0, a, b]
+                    s[k, a, b] = s[0, a, b]
             continue
         ke = k if ends.shape[0] == K else 0
         kr = k if radius.shape[0] == K else 0
@@ -227,8 +229,10 @@ def _segment_box(
     bp[0], bp[7] = 0.0, 1.0
     for i in range(3):
         ds = d[i] if abs(d[i]) > 1e-12 else 1e-12
-        for m, x in ((1 + i, (h[i] - a[i]) / ds), (4 + i, (-h[i] - a[i]) / ds)):
-            bp[m] = 0.0 if x < 0.0 else (1.0 if x > 1.0 else x)
+        x = (h[i] - a[i]) / ds
+        bp[1 + i] = 0.0 if x < 0.0 else (1.0 if x > 1.0 else x)
+        x = (-h[i] - a[i]) / ds
+        bp[4 + i] = 0.0 if x < 0.0 else (1.0 if x > 1.0 else x)
     for m in range(1, 8):  # insertion sort (NaN ends up in place: handled below)
         x = bp[m]
         n = m - 1
@@ -301,7 +305,8 @@ def box_distances(
                 if not finite:
                     dist[k, i, b] = np.nan
                     if want_normal:
-                        normal[k, i, b, :] = np.nan
+                        for r in range(3):
+                            normal[k, i, b, r] = np.nan
                     continue
                 R, c = T_world_box[b, :3, :3], T_world_box[b, :3, 3]
                 res = _segment_box(p, q, R, c, half_extents_m[b], work)

@@ -74,7 +74,8 @@ def pos_sets(
     H, C, K = y.shape[0], cap_joints.shape[0], t_end_s.shape[0]
     lengths = np.zeros(n_limbs)
     for h in range(H):
-        lengths[:] = 0.0
+        for c in range(n_limbs):
+            lengths[c] = 0.0
         for i in range(seg_a.shape[0]):
             dx = y[h, seg_b[i], 0] - y[h, seg_a[i], 0]
             dy = y[h, seg_b[i], 1] - y[h, seg_a[i], 1]

@@ -197,13 +197,13 @@ def _link_normal(r_ends: np.ndarray, s_rr: np.ndarray, k: int, i: int, l: int) -
 
 
 @njit(cache=True)
-def _stack(d_hh: np.ndarray, not_safe_h: np.ndarray, st: np.ndarray) -> None:
-    """Virtual body parts of one interval: ``st (P, P)`` the reflexive-transitive closure
-    (Warshall) of "not separated and not a safe pair" from ``d_hh (P, P)``."""
+def _stack(d_hh: np.ndarray, k: int, not_safe_h: np.ndarray, st: np.ndarray) -> None:
+    """Virtual body parts of interval ``k``: ``st (P, P)`` the reflexive-transitive closure
+    (Warshall) of "not separated and not a safe pair" from ``d_hh[k] (P, P)``."""
     P = st.shape[0]
     for j in range(P):
         for m in range(P):
-            st[j, m] = j == m or (not d_hh[j, m] > 0.0 and not_safe_h[j, m])
+            st[j, m] = j == m or (not d_hh[k, j, m] > 0.0 and not_safe_h[j, m])
     for m in range(P):
         for j in range(P):
             if st[j, m]:
@@ -318,11 +318,11 @@ def classify_kernel(
             for p in range(P):
                 c = not d_rh[k, i, p] > 0.0
                 contact_s[k, i, p] = c
+                contact[k, i, p] = c
+                env[k, i, p] = False
+                self_[k, i, p] = False
+                cls[k, i, p] = 0
                 anything = anything or c
-    env[:] = False
-    self_[:] = False
-    cls[:] = 0
-    contact[:] = contact_s
     if not anything or not multi_body:
         for k in range(K):
             for j in range(P):
@@ -345,7 +345,7 @@ def classify_kernel(
         kh = k if d_hb.shape[0] == K else 0
         st = stack[k]
         if multi_body:
-            _stack(d_hh[k], not_safe_h, st)
+            _stack(d_hh, k, not_safe_h, st)
             for j in range(P):
                 acc = 0.0
                 for m in range(P):
@@ -368,8 +368,11 @@ def classify_kernel(
                     if st[j, m] and not d_hb[kh, m, b] > 0.0:
                         touch_g[j, b] = True
                         break
-        can_b[:, :] = -1  # lazily evaluated: -1 unknown, 0 no, 1 yes
-        can_l[:, :] = -1
+        for i in range(L):  # lazily evaluated: -1 unknown, 0 no, 1 yes
+            for b in range(B):
+                can_b[i, b] = -1
+            for l in range(L):
+                can_l[i, l] = -1
         for i in range(L):
             for j in range(P):
                 if not contact_g[i, j]:  # no contact through the stack: nothing to clamp
