@@ -43,9 +43,14 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from sara_app.errors import ParameterError
 from sara_app.geometry import segment_segment_closest
-from sara_app.robot.model import RobotModel
-from sara_app.safety.jssa_index import index_terms, linear_constraints, safety_index
-from sara_app.safety.jssa_kinematics import PointKinematics
+from sara_app.robot.model import JointLimits, RobotModel
+from sara_app.safety.jssa_index import (
+    index_terms,
+    linear_constraints,
+    safety_index,
+    sliding_correction,
+)
+from sara_app.safety.jssa_kinematics import PointKinematics, cross3
 from sara_app.safety.jssa_qp import brake_jerk, project_halfspace_box, project_polytope_box
 
 
@@ -65,6 +70,9 @@ class JssaParams(BaseModel):
     max_constraints: int = Field(default=16, ge=1, le=256)
     brake_omega_per_s: float = Field(default=10.0, gt=0.0)
     jerk_scale: float = Field(default=1.0, gt=0.0, le=1.0)
+    sliding: bool = False
+    """Correct ``d''`` for closest points that slide along the capsule axes (not in the paper;
+    see :mod:`sara_app.safety.jssa_index`). Off: the paper's eq. 12 (material points)."""
 
     @model_validator(mode="after")
     def _real_negative_roots(self) -> JssaParams:
@@ -116,7 +124,8 @@ class JssaResult:
 class Pairs:
     """Critical pairs of one cycle, ``K`` of them (world frame): robot axis points ``p_r`` with
     velocity, acceleration, drift jerk ``(K, 3)`` and Jacobian ``J_r (K, 3, n)``; other axis
-    points ``p_o`` with velocity ``v_o`` ``(K, 3)``; radius sums ``r_sum (K,)``."""
+    points ``p_o`` with velocity ``v_o`` ``(K, 3)``; radius sums ``r_sum (K,)``; ``slide (K,)``
+    the sliding correction of ``d''`` (:func:`~sara_app.safety.jssa_index.sliding_correction`)."""
 
     p_r: np.ndarray
     v_r: np.ndarray
@@ -126,6 +135,7 @@ class Pairs:
     p_o: np.ndarray
     v_o: np.ndarray
     r_sum: np.ndarray
+    slide: np.ndarray | float = 0.0
 
 
 def integrate(
@@ -180,11 +190,20 @@ def _or_zeros(x: object, n: int) -> np.ndarray:
 
 
 class JssaController:
-    """Per-cycle JSSA filter for one robot. Not thread-safe (owns buffers)."""
+    """Per-cycle JSSA filter for one robot. Not thread-safe (owns buffers).
 
-    def __init__(self, robot: RobotModel, params: JssaParams | None = None) -> None:
+    ``limits``: the joint velocity, acceleration and jerk limits of the jerk box (default the
+    robot's own; a cell passes its task's scaled limits)."""
+
+    def __init__(
+        self,
+        robot: RobotModel,
+        params: JssaParams | None = None,
+        limits: JointLimits | None = None,
+    ) -> None:
         self.robot = robot
         self.params = params or JssaParams()
+        self.limits = robot.limits if limits is None else limits
         n = robot.n_dof
         w = self.params.weights
         if w is not None and len(w) != n:
@@ -194,7 +213,7 @@ class JssaController:
         self.weights = np.ones(n) if w is None else np.array(w, dtype=float)
         self.kin = PointKinematics(robot)
         self.moving_links = _moving_links(robot, self.kin)
-        self.jerk_hi = self.params.jerk_scale * np.asarray(robot.limits.j_max, dtype=float)
+        self.jerk_hi = self.params.jerk_scale * np.asarray(self.limits.j_max, dtype=float)
         self.jerk_lo = -self.jerk_hi
         self._ends = np.zeros((robot.n_links, 2, 3))
         self._r_moving = np.asarray(robot.radius_m)[self.moving_links]
@@ -211,6 +230,11 @@ class JssaController:
 
     def _brake(self, q_dot: np.ndarray, q_ddot: np.ndarray, reason: str) -> JssaResult:
         self.stats["fallback"] += 1
+        return self.brake(q_dot, q_ddot, reason)
+
+    def brake(self, q_dot: np.ndarray, q_ddot: np.ndarray, reason: str) -> JssaResult:
+        """The fallback brake (:func:`~sara_app.safety.jssa_qp.brake_jerk`) as a result, not
+        counted as a fallback of the filter (callers braking for their own faults)."""
         u = brake_jerk(q_dot, q_ddot, self.jerk_lo, self.jerk_hi, self.params.brake_omega_per_s)
         return JssaResult(jerk=u, phi=float("inf"), active=True, fallback=True, reason=reason)
 
@@ -316,7 +340,15 @@ class JssaController:
         links = self.moving_links[li]
         self.kin.update(q, q_dot, q_ddot)
         v_r, a_r, c_r, J_r = self.kin.points(links, p_r)
-        pairs = Pairs(p_r, v_r, a_r, c_r, J_r, p_o, v_o, r_sum)
+        slide: np.ndarray | float = 0.0
+        if p.sliding:
+            axis_r, axis_o = e_r[:, 1] - e_r[:, 0], e_o[:, 1] - e_o[:, 0]
+            axis_r_dot = cross3(self.kin.angular_velocity(links), axis_r)
+            slide = sliding_correction(
+                p_r - p_o, v_r - v_o, axis_r, axis_r_dot, axis_o,
+                v_o_ends[:, 1] - v_o_ends[:, 0], sk[:, 0], tk[:, 0],
+            )  # fmt: skip
+        pairs = Pairs(p_r, v_r, a_r, c_r, J_r, p_o, v_o, r_sum, slide)
         res, d, d_dot, d_ddot, phi_k = self._filter(q_dot, q_ddot, u0, pairs, tau)
         k = int(np.argmin(d))  # the critical pair (minimum distance)
         nrm = (p_r[k] - p_o[k]) / max(float(np.linalg.norm(p_r[k] - p_o[k])), 1e-12)
@@ -336,7 +368,7 @@ class JssaController:
         """The admissible jerk box ``(lo, hi)`` ``(n,)`` for this cycle (see the module doc)."""
         if not self.params.joint_limits:
             return self.jerk_lo, self.jerk_hi
-        lim = self.robot.limits
+        lim = self.limits
         j, a_max, v_max = self.jerk_hi, lim.a_max, lim.v_max
         a_hi = np.minimum(a_max, np.sqrt(2.0 * j * np.maximum(v_max - q_dot, 0.0)))
         a_lo = -np.minimum(a_max, np.sqrt(2.0 * j * np.maximum(v_max + q_dot, 0.0)))
@@ -352,7 +384,7 @@ class JssaController:
         Returns the result and the pairs' current ``d, d', d'', phi`` ``(K,)``."""
         p = self.params
         lo, hi = self.jerk_box(q_dot, q_ddot, tau)
-        d, d_dot, d_ddot = index_terms(pr.p_r - pr.p_o, pr.v_r - pr.v_o, pr.a_r, pr.r_sum)
+        d, d_dot, d_ddot = index_terms(pr.p_r - pr.p_o, pr.v_r - pr.v_o, pr.a_r, pr.r_sum, pr.slide)
         phi_k = safety_index(d, d_dot, d_ddot, p.d_min_m, p.lambda_1, p.lambda_2)
         phi0, g = linear_constraints(
             pr.p_r,
@@ -367,6 +399,7 @@ class JssaController:
             p.d_min_m,
             p.lambda_1,
             p.lambda_2,
+            pr.slide,
         )
         bound = 0.0 if p.eta_per_s is None else np.maximum(phi_k - p.eta_per_s * tau, 0.0)
         b = bound - phi0

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sara_app.robot.model import RobotModel
+from sara_app.robot.model import JointLimits, RobotModel
 from sara_app.safety.jssa import JssaController, JssaParams, JssaResult, Pairs
 from sara_app.safety.jssa_index import index_gradient, index_terms, safety_index
 
@@ -28,9 +28,15 @@ class SsaController(JssaController):
     ``params.lambda_2`` is ignored (SSA has no second-derivative term) and only ``single`` mode
     exists (the seed's baseline); the seed uses ``lambda_1 = 3``."""
 
-    def __init__(self, robot: RobotModel, params: JssaParams | None = None) -> None:
+    def __init__(
+        self,
+        robot: RobotModel,
+        params: JssaParams | None = None,
+        limits: JointLimits | None = None,
+    ) -> None:
         params = params or JssaParams()
-        super().__init__(robot, params.model_copy(update={"lambda_2": 0.0, "mode": "single"}))
+        update = {"lambda_2": 0.0, "mode": "single"}
+        super().__init__(robot, params.model_copy(update=update), limits)
         self.stats["saturated"] = 0
 
     def _filter(
