@@ -31,6 +31,7 @@ from sara_app.bus.messages import (
     RobotCommandMsg,
     RobotOccupancyMsg,
     RobotStateMsg,
+    ScenarioStateMsg,
     SkeletonMsg,
     StatusMsg,
     VerdictMsg,
@@ -96,6 +97,8 @@ class CellWorker:
         self.pub_occ = bus.publisher(keys.occupancy_key(self.name), express=False)
         self.pub_ack = bus.publisher(keys.params_ack_key(self.name))
         self.pub_status = bus.publisher(keys.status_key(self.name))
+        self.pub_scenario = bus.publisher(keys.scenario_key(self.name))
+        self.scenario_revision = 0
 
     @property
     def shield(self) -> Shield:
@@ -145,6 +148,8 @@ class CellWorker:
         for d in self.sub_params.drain().messages:
             if isinstance(d.msg, ParamsMsg):
                 ok, reason = self.apply(d.msg.scenario)
+                if ok:  # the new state first: an editor that sees the ack can build on it
+                    self.pub_scenario.put(self.scenario_msg(time.time()))
                 self.pub_ack.put(
                     ParamsAckMsg(
                         seq=self.pub_ack.next_seq(),
@@ -179,6 +184,7 @@ class CellWorker:
         self.cell = new
         self.pass_index = 0
         self.tracks.clear()  # velocity bounds depend on the parameters
+        self.scenario_revision += 1
         return True, ""
 
     # -- the cycle -----------------------------------------------------------------------------
@@ -244,6 +250,7 @@ class CellWorker:
         if now >= self._next_status:
             self._next_status = now + self.status_period
             self.pub_status.put(self.status_msg(now, "running"))
+            self.pub_scenario.put(self.scenario_msg(now))
 
     def occupancy_msg(self, now: float, res: CycleResult) -> OccupancyMsg:
         """Human sets over the whole shielded trajectory (one interval from the measurement to
@@ -305,6 +312,15 @@ class CellWorker:
             log.warning("display details dropped: %s", e)
             return msg
         return msg.model_copy(update=extra) if extra else msg
+
+    def scenario_msg(self, now: float) -> ScenarioStateMsg:
+        return ScenarioStateMsg(
+            seq=self.pub_scenario.next_seq(),
+            stamp_s=now,
+            cell=self.name,
+            revision=self.scenario_revision,
+            scenario=self.cell.scenario.model_dump(mode="json"),
+        )
 
     def status_msg(self, now: float, state: str) -> StatusMsg:
         cu = np.array(self.cycle_us) if self.cycle_us else None

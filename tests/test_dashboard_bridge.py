@@ -469,3 +469,31 @@ def test_a_late_acceptance_is_followed(view: tuple[CellView, FakeBus], dash: Das
     assert v.scenario.shield.mode == "jssa"
     assert dash.panels is not None and dash.panels.safety_mode.value == "JSSA"
     assert "accepted the last edit late" in dash.panels.message.content
+
+
+def test_view_follows_the_scenario_the_worker_announces(view) -> None:
+    """An edit made elsewhere (the API) reaches the view through the worker's announcement, so
+    the view's next edit builds on it instead of sending a stale scenario back."""
+    from sara_app.bus.messages import ScenarioStateMsg
+
+    v, bus = view
+    data = v.scenario.model_dump(mode="json")
+    data["shield"]["skeleton_timeout_s"] = 0.123
+    bus.feed(
+        keys.scenario_key(CELL),
+        ScenarioStateMsg(seq=1, stamp_s=2.0, cell=CELL, revision=3, scenario=data),
+    )
+    v.poll()
+    assert v.scenario.shield.skeleton_timeout_s == 0.123 and v.scenario_revision == 3
+    v.set_mode("pfl")
+    sent = bus.params.sent[-1].scenario
+    assert sent["shield"]["mode"] == "pfl" and sent["shield"]["skeleton_timeout_s"] == 0.123
+    # params seq numbers are clock based (the API numbers them the same way on the same key)
+    assert bus.params.sent[-1].seq > 1_600_000_000 * 10**6
+    bad = dict(data, robot={"name": "nonexistent"})
+    bus.feed(
+        keys.scenario_key(CELL),
+        ScenarioStateMsg(seq=2, stamp_s=3.0, cell=CELL, revision=4, scenario=bad),
+    )
+    v.poll()  # unreadable: kept what it had, no exception
+    assert v.scenario.shield.mode == "pfl"

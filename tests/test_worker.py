@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from sara_app.bus import keys
-from sara_app.bus.messages import ParamsAckMsg, ParamsMsg, VerdictMsg
+from sara_app.bus.messages import ParamsAckMsg, ParamsMsg, ScenarioStateMsg, VerdictMsg
 from sara_app.bus.session import Bus, free_port
 from sara_app.scenario import load_scenario
 from sara_app.worker import CellWorker
@@ -134,6 +134,7 @@ def test_stopped_stream_is_a_fault_until_fresh_again(cell) -> None:
 def test_live_scenario_update_acknowledged_or_refused(cell) -> None:
     port, worker, verdicts, tb = cell
     acks = tb.subscribe(keys.params_ack_key("cell1"), fifo=True)
+    states = tb.subscribe(keys.scenario_key("cell1"), fifo=True)
     pub = tb.publisher(keys.params_key("cell1"))
     good = load_scenario("standing_beside_path").model_dump(mode="json")
     good["shield"]["models"] = ["vel"]
@@ -151,3 +152,7 @@ def test_live_scenario_update_acknowledged_or_refused(cell) -> None:
     assert answers["r0"].accepted
     assert not answers["r1"].accepted and "waypoints_rad" in answers["r1"].reason
     assert worker.shield.verifier.models == ("vel",)  # the good one applied, the bad one not
+    # the worker announces what it runs, so every editor builds on the accepted scenario
+    got = [d.msg for d in states.drain().messages if isinstance(d.msg, ScenarioStateMsg)]
+    assert got and got[-1].revision == 1 and got[-1].scenario["shield"]["models"] == ["vel"]
+    assert got[-1].scenario == worker.cell.scenario.model_dump(mode="json")

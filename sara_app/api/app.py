@@ -196,17 +196,22 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
         base: str | None = Query(None, description="scenario file to start from"),
         timeout_s: float = Query(3.0, gt=0.0, le=30.0),
     ) -> dict[str, Any]:
-        """Parameter update: ``changes`` applied to the scenario file ``base`` (default: the
-        one the cell reports running), validated as a whole and sent to the worker.
+        """Parameter update: ``changes`` applied to the scenario the cell runs now (as its
+        worker announces it, edits from the dashboard included), or to the scenario file
+        ``base`` when given (or when the worker has not announced one yet); validated as a whole
+        and sent to the worker.
 
         Object-valued sections are merged key by key, other fields replaced: e.g.
         ``{"shield": {"skeleton_timeout_s": 0.1}}``, ``{"human_params": "cmu_calibrated"}``, or
-        ``{"human_params": {"delay_s": 0.05}}`` (the named set's values with that change).
-        Edits made elsewhere and not saved to that file are not part of the result."""
+        ``{"human_params": {"delay_s": 0.05}}`` (the named set's values with that change)."""
         check_url_name("cell", cell)
-        base = base or str(known_cell(cell).get("scenario") or "")
-        check_known("scenario", base, sorted(set(scenario_names(folder))))
-        data = load_scenario(base, folder).model_dump(mode="json")
+        running = None if base else registry.applied_scenario(cell)
+        if running is not None:
+            data = running
+        else:
+            base = base or str(known_cell(cell).get("scenario") or "")
+            check_known("scenario", base, sorted(set(scenario_names(folder))))
+            data = load_scenario(base, folder).model_dump(mode="json")
         hp = data["human_params"]
         if isinstance(hp, str) and isinstance(changes.get("human_params"), dict):
             # a partial edit of a named set: start from the set's values, under a new name

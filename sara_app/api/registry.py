@@ -15,10 +15,12 @@ decoder of a worker requires ``seq`` to increase per key, so the ``seq`` used he
 clock in microseconds (kept strictly increasing): it stays ordered across restarts and against
 any other publisher that numbers its messages the same way.
 
-The registry remembers, per cell, the last scenario a worker accepted from it
-(``applied_scenario(cell)``): the base of read-modify-write edits such as threshold changes. It
-is trusted only until a status shows that the worker runs something else (another scenario name
-or a restarted worker); edits sent by other programs (the dashboard) are not seen here.
+``applied_scenario(cell)`` is the base of read-modify-write edits such as threshold changes: the
+scenario the worker announces on ``sara/<cell>/scenario`` (at start, after every accepted edit
+from anyone, and with each heartbeat), so edits from the dashboard are seen too. Before any
+announcement it falls back to the last scenario the worker accepted from this registry, trusted
+only until a status shows that the worker runs something else (another scenario name or a
+restarted worker).
 
 ``bus=None`` gives a registry without a bus (tests, an API without cells); ``ingest(decoded)``
 feeds it messages directly. ``clock`` (default ``time.time``) is the wall clock the ages use.
@@ -40,7 +42,13 @@ from pydantic import ValidationError
 
 from sara_app.bus import keys
 from sara_app.bus.codec import Decoded
-from sara_app.bus.messages import ParamsAckMsg, ParamsMsg, StatusMsg, VerdictMsg
+from sara_app.bus.messages import (
+    ParamsAckMsg,
+    ParamsMsg,
+    ScenarioStateMsg,
+    StatusMsg,
+    VerdictMsg,
+)
 from sara_app.bus.session import Bus, Publisher, Subscription
 from sara_app.errors import InputError, SaraError
 
@@ -105,6 +113,7 @@ class CellRegistry:
         self._cells: dict[str, _Cell] = {}
         self._pending: dict[str, ParamsAckMsg | None] = {}
         self._applied: dict[str, _Applied] = {}
+        self._announced: dict[str, ScenarioStateMsg] = {}
         self._publishers: dict[str, Publisher] = {}
         self._last_seq = 0
         self._stop = threading.Event()
@@ -115,6 +124,7 @@ class CellRegistry:
                 bus.subscribe(keys.all_status_keys(), capacity=256),
                 bus.subscribe(f"{keys.ROOT}/*/verdict", capacity=4096),
                 bus.subscribe(f"{keys.ROOT}/*/params/ack", capacity=256, fifo=True),
+                bus.subscribe(f"{keys.ROOT}/*/scenario", capacity=64),
             ]
 
     @classmethod
@@ -176,6 +186,11 @@ class CellRegistry:
                 if msg.request_id in self._pending:
                     self._pending[msg.request_id] = msg
                     self._acked.notify_all()
+                return
+            if isinstance(msg, ScenarioStateMsg):
+                old = self._announced.get(d.key.cell)
+                if old is None or msg.stamp_s >= old.stamp_s:  # newest wins, restarts too
+                    self._announced[d.key.cell] = msg
                 return
             if not isinstance(msg, StatusMsg | VerdictMsg):
                 return
@@ -321,8 +336,12 @@ class CellRegistry:
 
     def applied_scenario(self, cell: str) -> dict[str, Any] | None:
         """The last scenario ``cell``'s worker accepted from this registry, while no later
-        status contradicts it (another scenario name, or a worker started since); else None."""
+        status contradicts it (another scenario name, or a worker started since); else None.
+        The worker's own announcement (see the module notes) takes precedence."""
         with self._lock:
+            announced = self._announced.get(cell)
+            if announced is not None:
+                return dict(announced.scenario)
             a = self._applied.get(cell)
             c = self._cells.get(cell)
             if a is None:

@@ -13,6 +13,7 @@ key                                        dir.    payload (``sara_app.bus.messa
 ``sara/<cell>/params``                     in      ``ParamsMsg``: a full scenario / parameter update
 ``sara/<cell>/params/ack``                 out     ``ParamsAckMsg``: the worker accepts or rejects
 ``sara/<cell>/status``                     out     ``StatusMsg``: worker heartbeat, about 1 Hz
+``sara/<cell>/scenario``                   out     ``ScenarioStateMsg``: the scenario it runs
 =========================================  ======  ================================================
 
 "in"/"out" are seen from the cell worker. ``<cell>`` and ``<id>`` are names of 1-64 characters
@@ -46,6 +47,7 @@ Kind = Literal[
     "params",
     "params_ack",
     "status",
+    "scenario",
 ]
 KINDS: tuple[str, ...] = get_args(Kind)
 
@@ -59,6 +61,7 @@ _SUFFIX: dict[str, str] = {
     "params": "params",
     "params_ack": "params/ack",
     "status": "status",
+    "scenario": "scenario",
 }
 _BY_SUFFIX: dict[str, str] = {v: k for k, v in _SUFFIX.items() if "{id}" not in v}
 
@@ -121,6 +124,10 @@ def params_ack_key(cell: str) -> str:
 
 def status_key(cell: str) -> str:
     return key("status", cell)
+
+
+def scenario_key(cell: str) -> str:
+    return key("scenario", cell)
 
 
 def cell_keys(cell: str) -> str:

@@ -399,6 +399,23 @@ class StatusMsg(_Msg):
     cycle_time_p99_us: NonNeg | None = None
 
 
+class ScenarioStateMsg(_Msg):
+    """The scenario the worker runs now (key ``sara/<cell>/scenario``): published at start,
+    after every accepted update and with each status heartbeat, so that every editor (dashboard,
+    API) builds its next edit on what the cell really runs. ``revision`` counts accepted
+    updates since the worker started."""
+
+    cell: Name
+    revision: Annotated[int, Field(ge=0)]
+    scenario: dict[str, Any]
+
+    @field_validator("scenario")
+    @classmethod
+    def _finite(cls, v: dict[str, Any]) -> dict[str, Any]:
+        _check_finite_tree(v)
+        return v
+
+
 Message = (
     SkeletonMsg
     | RobotStateMsg
@@ -408,6 +425,7 @@ Message = (
     | ParamsMsg
     | ParamsAckMsg
     | StatusMsg
+    | ScenarioStateMsg
 )
 
 MODELS_BY_KIND: dict[str, type[_Msg]] = {
@@ -419,6 +437,7 @@ MODELS_BY_KIND: dict[str, type[_Msg]] = {
     "params": ParamsMsg,
     "params_ack": ParamsAckMsg,
     "status": StatusMsg,
+    "scenario": ScenarioStateMsg,
 }
 
 

@@ -39,6 +39,7 @@ from sara_app.bus.messages import (
     ParamsAckMsg,
     ParamsMsg,
     RobotCommandMsg,
+    ScenarioStateMsg,
     VerdictMsg,
 )
 from sara_app.bus.session import Bus
@@ -233,6 +234,8 @@ class CellView:
         self.sub_verdict = bus.subscribe(keys.verdict_key(cell), dec)
         self.sub_cmd = bus.subscribe(keys.robot_command_key(cell), dec)
         self.sub_ack = bus.subscribe(keys.params_ack_key(cell), dec, fifo=True)
+        self.sub_scenario = bus.subscribe(keys.scenario_key(cell), dec)
+        self.scenario_revision: int | None = None
         self.pub_params = bus.publisher(keys.params_key(cell))
         self.q: np.ndarray | None = None
         self.occ: OccupancyMsg | None = None
@@ -262,6 +265,7 @@ class CellView:
             if isinstance(d.msg, OccupancyMsg):
                 self.occ = d.msg
         self._late_answer()
+        self._follow_worker()
         if self.q is None or self.verdict is None:
             return None
         return self.frame()
@@ -298,7 +302,7 @@ class CellView:
             self._late = None
             self.sub_ack.drain()
             msg = ParamsMsg(
-                seq=self.pub_params.next_seq(),
+                seq=self._next_seq(),
                 stamp_s=time.time(),
                 request_id=rid,
                 scenario=sc.model_dump(mode="json"),
@@ -319,6 +323,32 @@ class CellView:
             f"the worker did not answer within {self.ack_timeout_s} s (if it accepts the edit "
             "later, the view follows)"
         )
+
+    def _next_seq(self) -> int:
+        # clock-based, like the API's: both publish on the params key, the worker keeps order
+        self._seq = max(self._seq + 1, time.time_ns() // 1000)
+        return self._seq
+
+    def _follow_worker(self) -> None:
+        """Adopt the scenario the worker announces when it differs from ours (an edit made over
+        the API or by another dashboard), so our next edit builds on what the cell runs."""
+        msgs = [d.msg for d in self.sub_scenario.drain().messages]
+        state = next((m for m in reversed(msgs) if isinstance(m, ScenarioStateMsg)), None)
+        if state is None or not self._ack_lock.acquire(blocking=False):
+            return
+        try:
+            if state.scenario == self.scenario.model_dump(mode="json"):
+                self.scenario_revision = state.revision
+                return
+            try:
+                sc = parse_scenario(state.scenario, "the worker's scenario")
+            except ScenarioError as e:
+                log.warning("the worker announced a scenario this view cannot read: %s", e)
+                return
+            self.scenario, self.scenario_revision = sc, state.revision
+        finally:
+            self._ack_lock.release()
+        self.refresh_panels()
 
     def _late_answer(self) -> None:
         """Follow the worker when it accepts an edit after :meth:`send` gave up waiting."""
