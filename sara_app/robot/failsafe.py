@@ -562,6 +562,17 @@ def _joint_samples(
             a[k, j] = d2q[k, j] * (sd[k] * sd[k]) + dq[k, j] * sdd[k]
 
 
+def _warm_up() -> None:
+    """First-call dispatch of the compiled helpers at import, not in a control loop."""
+    z1, z2 = np.zeros(2), np.zeros((2, 1))
+    _bounds_kernel(z1[:1], z1[:1], z2[:1], z2[:1], z2[:1], np.empty((1, 1)), np.empty((1, 1)))
+    _sample_times(0.004, 0.0, np.empty(2))
+    _joint_samples(z1, z1, z2, z2, np.empty((2, 1)), np.empty((2, 1)))
+
+
+_warm_up()
+
+
 @dataclass(frozen=True)
 class ShieldedTrajectory:
     """One intended control step followed by the failsafe stop from its end.

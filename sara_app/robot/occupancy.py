@@ -343,6 +343,8 @@ class RobotOccupancy:
         Q[0] = 0.0
         ours = self.link_ends(Q)
         ref = self.model.link_capsules_batch(Q)
+        # also the first-call dispatch of the interval kernel, here rather than in a control loop
+        self.intervals(Q[:2], np.zeros((1, self.n_dof)), np.array([0.0, 0.01]))
         err = float(np.max(np.abs(ours - ref)))
         if not err <= _FK_CHECK_TOL_M:
             raise RobotModelError(

@@ -208,6 +208,23 @@ class PflCheck:
         self.occupancy = RobotOccupancy(model)
         self.motion = LinkMotion(model, self.occupancy)
         self._s_radius = np.asarray(model.radius_m, dtype=float)
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """One check at construction with every body part on the robot's first link (contact,
+        clamping against a box under it): the compiled kernels' first-call dispatch (about a
+        millisecond) happens here, not in the first control cycle."""
+        q = np.zeros((3, self.model.n_dof))
+        t = np.array([0.0, 0.01, 0.02])
+        ends = self.occupancy.link_ends(q[:1])[0]
+        h_ends = np.broadcast_to(ends[-1], (2, self.n_parts, 2, 3)).copy()
+        T_box = np.eye(4)[None].copy()
+        T_box[0, :3, 3] = ends[-1, 0]
+        bound = np.full((2, self.model.n_dof), 0.1)
+        self.check_trajectory(
+            q, np.zeros_like(q), bound, t, h_ends, np.full((2, self.n_parts), 0.05), T_box,
+            np.full((1, 3), 0.05), qdd_bound=bound,
+        )  # fmt: skip
 
     def check(
         self,

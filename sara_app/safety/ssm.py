@@ -81,6 +81,19 @@ class SsmVerifier:
             raise UnknownNameError("reachability model", bad[0], MODELS)
         self.reach = reach
         self.models = tuple(models)
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """One verification and one :func:`body_distance` at construction (every model, a robot
+        capsule on the person): the compiled kernels' first-call dispatch happens here, not in
+        the first control cycle."""
+        sk = self.reach.skeleton
+        y = np.zeros((1, sk.n_joints, 3))
+        ends, radius = np.zeros((2, 1, 2, 3)), np.full((2, 1), 0.1)
+        self.verify(y, y, np.zeros((1, sk.n_joints)), np.zeros(1), np.array([0.0, 0.01, 0.02]),
+                    ends, radius)  # fmt: skip
+        half = self.reach.params.half_thickness_m
+        body_distance(y[0], sk.part_joints, half, ends[0], radius[0])
 
     def occupancy(
         self,
@@ -118,12 +131,14 @@ class SsmVerifier:
         """``y, v (H, J, 3)``, ``dv (H, J)``, ``age_s (H,)`` (command time minus measurement
         time), ``times_s (K+1,)`` from now, robot ``(K, L, 2, 3)``, ``(K, L)``; other shapes
         raise :class:`InputError`."""
-        robot_ends = np.asarray(robot_ends, dtype=np.float64)
-        robot_radius = np.asarray(robot_radius, dtype=np.float64)
-        H, M, K = np.shape(y)[0], len(self.models), robot_ends.shape[0]
+        y, v, dv, age_s, times_s, robot_ends, robot_radius = (
+            np.asarray(a, dtype=np.float64)
+            for a in (y, v, dv, age_s, times_s, robot_ends, robot_radius)
+        )
+        H, M, K = y.shape[0], len(self.models), robot_ends.shape[0]
         L = robot_ends.shape[1] if robot_ends.ndim == 4 else -1
         J = self.reach.skeleton.n_joints
-        shapes = (np.shape(y), np.shape(v), np.shape(dv), np.shape(age_s), np.shape(times_s))
+        shapes = (y.shape, v.shape, dv.shape, age_s.shape, times_s.shape)
         if (
             shapes != ((H, J, 3), (H, J, 3), (H, J), (H,), (K + 1,))
             or robot_ends.shape != (K, L, 2, 3)
@@ -138,18 +153,19 @@ class SsmVerifier:
         evaluated = np.zeros((H, M, K), dtype=bool)
         closest = np.full((H, M), np.inf)
         hit = np.empty(K, dtype=bool)
+        cleared = np.empty(K, dtype=bool)
         safe = True
         for h in range(H):
-            ts = times_s[:-1] + age_s[h]
-            te = times_s[1:] + age_s[h]
-            cleared = np.zeros(K, dtype=bool)
+            tau = times_s + age_s[h]  # interval starts tau[:-1], ends tau[1:]
+            cleared[:] = False
+            yh, vh, dvh = y[h : h + 1], v[h : h + 1], dv[h : h + 1]
             for m, name in enumerate(self.models):
-                todo = ~cleared
-                occ = self.occupancy(name, y[h : h + 1], v[h : h + 1], dv[h : h + 1], ts, te)
+                todo = evaluated[h, m]
+                np.logical_not(cleared, out=todo)
+                occ = self.occupancy(name, yh, vh, dvh, tau[:-1], tau[1:])
                 closest[h, m] = self._collides(occ, robot_ends, robot_radius, todo, hit)
-                evaluated[h, m] = todo
-                free[h, m] = todo & ~hit
-                cleared |= free[h, m]
+                np.greater(todo, hit, out=free[h, m])  # evaluated and no hit
+                np.logical_or(cleared, free[h, m], out=cleared)
                 if cleared.all():
                     break
             safe = safe and bool(cleared.all())
