@@ -236,3 +236,63 @@ def test_sliding_correction_gives_the_second_derivative_of_the_capsule_distance(
         errors_material.append(abs(d2_material[0] - fd2))
         assert slide[0] >= 0.0
     assert max(errors_material) > 0.1  # eq. 12 alone misses the sliding
+
+
+def test_compiled_constraint_terms_equal_the_index_functions() -> None:
+    from sara_app.safety import jssa_kernels
+    from sara_app.safety.jssa_index import linear_constraints
+    from sara_app.safety.jssa_kernels import constraint_terms
+
+    rng = np.random.default_rng(3)
+    K, n = 5, 7
+    p_r, v_r, a_r, c_r, p_o, v_o = rng.normal(0, 0.5, (6, K, 3))
+    J_r = rng.normal(0, 0.3, (K, 3, n))
+    r_sum, slide = rng.uniform(0.05, 0.2, K), rng.uniform(0.0, 0.3, K)
+    args = (0.004, 0.05, 3.0, 1.0)
+    out = [np.empty(K) for _ in range(5)] + [np.empty((K, n))]
+    constraint_terms(p_r, v_r, a_r, c_r, J_r, p_o, v_o, r_sum, slide, *args, *out)
+    d, d1, d2 = index_terms(p_r - p_o, v_r - v_o, a_r, r_sum, slide)
+    phi0, g = linear_constraints(p_r, v_r, a_r, c_r, J_r, p_o, v_o, r_sum, *args, slide)
+    expect = (d, d1, d2, safety_index(d, d1, d2, 0.05, 3.0, 1.0), phi0, g)
+    for got, want in zip(out, expect):
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+    # the sliding correction, with interior, boundary and parallel closest points
+    from sara_app.safety.jssa_index import sliding_correction
+
+    axis_r, omega, axis_o, axis_o_dot = rng.normal(0, 0.3, (4, K, 3))
+    axis_o[0] = 2.0 * axis_r[0]  # parallel
+    s, t = np.array([0.5, 0.0, 0.3, 1.0, 0.7]), np.array([0.4, 0.6, 1.0, 0.0, 0.2])
+    slide_c = np.empty(K)
+    jssa_kernels.sliding_terms(
+        p_r - p_o, v_r - v_o, axis_r, omega, axis_o, axis_o_dot, s, t, slide_c
+    )  # fmt: skip
+    want = sliding_correction(
+        p_r - p_o, v_r - v_o, axis_r, np.cross(omega, axis_r), axis_o, axis_o_dot, s, t
+    )  # fmt: skip
+    np.testing.assert_allclose(slide_c, want, rtol=1e-12, atol=1e-15)
+    assert slide_c[3] == 0.0 and np.all(slide_c[[0, 1, 2, 4]] > 0)
+
+
+def test_compiled_projection_equals_the_exact_one() -> None:
+    from sara_app.safety import jssa_kernels
+    from sara_app.safety.jssa_qp import FEAS_TOL
+
+    rng = np.random.default_rng(11)
+    n_infeasible = 0
+    for _ in range(300):
+        n = 7
+        u0, g = rng.normal(0, 100, n), rng.normal(0, 1, n)
+        g[rng.random(n) < 0.2] = 0.0
+        w = rng.uniform(0.5, 2.0, n)
+        hi = rng.uniform(10, 200, n)
+        lo = -rng.uniform(10, 200, n)
+        b = float(rng.normal(0, 150))
+        u_ref, mu_ref, ok = project_halfspace_box(u0, w, g, b, lo, hi)
+        u = np.empty(n)
+        mu = jssa_kernels.project_halfspace_box(u0, w, g, b, lo, hi, FEAS_TOL, u)
+        assert (mu < np.inf) == ok
+        n_infeasible += not ok
+        np.testing.assert_allclose(u, u_ref, rtol=1e-12, atol=1e-9)
+        if ok:
+            assert mu == pytest.approx(mu_ref, rel=1e-12, abs=1e-15)
+    assert 0 < n_infeasible < 300

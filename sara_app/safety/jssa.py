@@ -42,16 +42,11 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from sara_app.errors import ParameterError
-from sara_app.geometry import segment_segment_closest
+from sara_app.geometry_kernels import pair_distances, segment_closest
 from sara_app.robot.model import JointLimits, RobotModel
-from sara_app.safety.jssa_index import (
-    index_terms,
-    linear_constraints,
-    safety_index,
-    sliding_correction,
-)
-from sara_app.safety.jssa_kinematics import PointKinematics, cross3
-from sara_app.safety.jssa_qp import brake_jerk, project_halfspace_box, project_polytope_box
+from sara_app.safety.jssa_kernels import constraint_terms, project_halfspace_box, sliding_terms
+from sara_app.safety.jssa_kinematics import PointKinematics
+from sara_app.safety.jssa_qp import FEAS_TOL, brake_jerk, project_polytope_box
 
 
 class JssaParams(BaseModel):
@@ -178,6 +173,18 @@ def _moving_links(robot: RobotModel, kin: PointKinematics) -> np.ndarray:
         J = kin.points(links, ends.reshape(-1, 3))[3]  # (2L, 3, n)
         moved |= np.abs(J).reshape(robot.n_links, -1).max(axis=1) > STATIC_LINK_M_PER_RAD
     return np.flatnonzero(moved)
+
+
+def _closest_params(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closest-point parameters ``(K, 1)`` on segments ``a`` and ``b`` ``(K, 2, 3)`` (compiled
+    :func:`sara_app.geometry_kernels.segment_closest`, one call per pair)."""
+    K = a.shape[0]
+    s, t = np.empty((K, 1)), np.empty((K, 1))
+    for k in range(K):
+        (ax, ay, az), (bx, by, bz) = a[k].tolist()
+        (cx, cy, cz), (dx, dy, dz) = b[k].tolist()
+        _, s[k, 0], t[k, 0] = segment_closest(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz)
+    return s, t
 
 
 def _or_zeros(x: object, n: int) -> np.ndarray:
@@ -321,8 +328,9 @@ class JssaController:
             return JssaResult(jerk=np.clip(u0, lo, hi), phi=-np.inf, active=False, fallback=False)
         ends, _ = self.robot.link_capsules(q, out_ends=self._ends)
         r_ends = ends[self.moving_links]
-        axis, s, t = segment_segment_closest(r_ends[:, None], o_ends[None])
-        dist = axis - self._r_moving[:, None] - o_r[None, :]
+        dist3 = np.empty((1, r_ends.shape[0], o_ends.shape[0]))
+        pair_distances(r_ends[None], self._r_moving[None], o_ends[None], o_r[None], dist3)
+        dist = dist3[0]
         if p.mode == "single":
             flat = np.array([int(np.argmin(dist))])
         else:
@@ -331,8 +339,8 @@ class JssaController:
             if flat.size == 0:
                 flat = order[:1]
         li, oi = np.unravel_index(flat, dist.shape)
-        sk, tk = s[li, oi][:, None], t[li, oi][:, None]
         e_r, e_o, v_o_ends = r_ends[li], o_ends[oi], o_v[oi]
+        sk, tk = _closest_params(e_r, e_o)
         p_r = e_r[:, 0] + sk * (e_r[:, 1] - e_r[:, 0])
         p_o = e_o[:, 0] + tk * (e_o[:, 1] - e_o[:, 0])
         v_o = v_o_ends[:, 0] + tk * (v_o_ends[:, 1] - v_o_ends[:, 0])
@@ -340,13 +348,11 @@ class JssaController:
         links = self.moving_links[li]
         self.kin.update(q, q_dot, q_ddot)
         v_r, a_r, c_r, J_r = self.kin.points(links, p_r)
-        slide: np.ndarray | float = 0.0
+        slide = np.zeros(len(links))
         if p.sliding:
-            axis_r, axis_o = e_r[:, 1] - e_r[:, 0], e_o[:, 1] - e_o[:, 0]
-            axis_r_dot = cross3(self.kin.angular_velocity(links), axis_r)
-            slide = sliding_correction(
-                p_r - p_o, v_r - v_o, axis_r, axis_r_dot, axis_o,
-                v_o_ends[:, 1] - v_o_ends[:, 0], sk[:, 0], tk[:, 0],
+            sliding_terms(
+                p_r - p_o, v_r - v_o, e_r[:, 1] - e_r[:, 0], self.kin.angular_velocity(links),
+                e_o[:, 1] - e_o[:, 0], v_o_ends[:, 1] - v_o_ends[:, 0], sk[:, 0], tk[:, 0], slide,
             )  # fmt: skip
         pairs = Pairs(p_r, v_r, a_r, c_r, J_r, p_o, v_o, r_sum, slide)
         res, d, d_dot, d_ddot, phi_k = self._filter(q_dot, q_ddot, u0, pairs, tau)
@@ -384,23 +390,14 @@ class JssaController:
         Returns the result and the pairs' current ``d, d', d'', phi`` ``(K,)``."""
         p = self.params
         lo, hi = self.jerk_box(q_dot, q_ddot, tau)
-        d, d_dot, d_ddot = index_terms(pr.p_r - pr.p_o, pr.v_r - pr.v_o, pr.a_r, pr.r_sum, pr.slide)
-        phi_k = safety_index(d, d_dot, d_ddot, p.d_min_m, p.lambda_1, p.lambda_2)
-        phi0, g = linear_constraints(
-            pr.p_r,
-            pr.v_r,
-            pr.a_r,
-            pr.c_r,
-            pr.J_r,
-            pr.p_o,
-            pr.v_o,
-            pr.r_sum,
-            tau,
-            p.d_min_m,
-            p.lambda_1,
-            p.lambda_2,
-            pr.slide,
-        )
+        K, n = pr.J_r.shape[0], pr.J_r.shape[2]
+        d, d_dot, d_ddot, phi_k, phi0 = (np.empty(K) for _ in range(5))
+        g = np.empty((K, n))
+        slide = np.broadcast_to(np.asarray(pr.slide, dtype=float), (K,)).copy()
+        constraint_terms(
+            pr.p_r, pr.v_r, pr.a_r, pr.c_r, pr.J_r, pr.p_o, pr.v_o, pr.r_sum, slide,
+            tau, p.d_min_m, p.lambda_1, p.lambda_2, d, d_dot, d_ddot, phi_k, phi0, g,
+        )  # fmt: skip
         bound = 0.0 if p.eta_per_s is None else np.maximum(phi_k - p.eta_per_s * tau, 0.0)
         b = bound - phi0
         if not (np.all(np.isfinite(g)) and np.all(np.isfinite(b))):
@@ -416,7 +413,9 @@ class JssaController:
         if g.shape[0] == 0:
             u, ok = np.clip(u0, lo, hi), True
         elif p.mode == "single":
-            u, _, ok = project_halfspace_box(u0, self.weights, g[0], float(b[0]), lo, hi)
+            u = np.empty(self.n)
+            mu = project_halfspace_box(u0, self.weights, g[0], float(b[0]), lo, hi, FEAS_TOL, u)
+            ok = mu < np.inf
         else:
             u, ok = project_polytope_box(u0, self.weights, g, b, lo, hi)
         if not ok:

@@ -27,28 +27,10 @@ import numpy as np
 import pinocchio as pin
 
 from sara_app.robot.model import RobotModel
+from sara_app.safety.jssa_kernels import point_terms
 
 DRIFT_STEP_S = 1e-4
 """Time step ``h`` of the central difference for the drift jerk ``c``."""
-
-
-def _cross(p: np.ndarray, A: np.ndarray) -> np.ndarray:
-    """``p x A`` column by column: ``p (K, 3)``, ``A (K or 1, 3, n)`` -> ``(K, 3, n)``
-    (np.cross costs ~25 us of axis handling per call at these sizes)."""
-    px, py, pz = p[:, 0, None], p[:, 1, None], p[:, 2, None]
-    ax, ay, az = A[:, 0, :], A[:, 1, :], A[:, 2, :]
-    return np.stack([py * az - pz * ay, pz * ax - px * az, px * ay - py * ax], axis=1)
-
-
-def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise ``a x b`` of ``(..., 3)`` arrays (no np.cross axis handling)."""
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    out[..., 0] = a1 * b2 - a2 * b1
-    out[..., 1] = a2 * b0 - a0 * b2
-    out[..., 2] = a0 * b1 - a1 * b0
-    return out
 
 
 class PointKinematics:
@@ -83,6 +65,7 @@ class PointKinematics:
         T = robot.T_world_base
         self._R_wb = np.ascontiguousarray(T[:3, :3])
         self._t_wb = T[:3, 3].copy()
+        self._identity_base = bool(np.array_equal(self._R_wb, np.eye(3)))
         self._J = np.zeros((6, self.n))  # J at t (base frame)
         self._V = np.zeros((3, L, 6))  # spatial velocity per state and link
         self._A = np.zeros((3, L, 6))  # spatial acceleration per state and link
@@ -111,30 +94,20 @@ class PointKinematics:
         """World-frame angular velocities ``(K, 3)`` of links ``link_idx (K,)`` at ``t``."""
         return self._V[0, link_idx, 3:] @ self._R_wb.T
 
-    def _acc(self, k: int, li: np.ndarray, p_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Velocity and acceleration ``(K, 3)`` (base frame) of points ``p_b`` at state ``k``."""
-        V, A = self._V[k, li], self._A[k, li]
-        w = V[:, 3:]
-        v = V[:, :3] + cross3(w, p_b)
-        a = A[:, :3] + cross3(A[:, 3:], p_b) + cross3(w, v)
-        return v, a
-
     def points(
         self, link_idx: np.ndarray, p_world: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Velocity ``(K, 3)``, acceleration ``(K, 3)``, drift jerk ``c (K, 3)`` and Jacobian
         ``J_p (K, 3, n)`` (all world frame) of points ``p_world (K, 3)`` fixed in links
-        ``link_idx (K,)``, at the state of the last :meth:`update`."""
-        mask = self.support_mask[link_idx]
-        p_b = (p_world - self._t_wb) @ self._R_wb  # R^T (p - t), row vectors
-        v, a = self._acc(0, link_idx, p_b)
-        h = self.h
-        p_k = p_b + 0.5 * h * h * a
-        a_plus = self._acc(1, link_idx, p_k + h * v)[1]
-        a_minus = self._acc(2, link_idx, p_k - h * v)[1]
-        c = (a_plus - a_minus) / (2.0 * h)
-        J = self._J
-        Jp = J[None, :3, :] - _cross(p_b, J[None, 3:, :])
-        Jp *= mask[:, None, :]
+        ``link_idx (K,)``, at the state of the last :meth:`update` (compiled:
+        :func:`sara_app.safety.jssa_kernels.point_terms`)."""
+        K = len(link_idx)
+        p_b = (np.asarray(p_world, dtype=float) - self._t_wb) @ self._R_wb  # R^T (p - t)
+        v, a, c = np.empty((K, 3)), np.empty((K, 3)), np.empty((K, 3))
+        Jp = np.empty((K, 3, self.n))
+        li = np.asarray(link_idx, dtype=np.int64)
+        point_terms(self._V, self._A, self._J, self.support_mask, li, p_b, self.h, v, a, c, Jp)
+        if self._identity_base:
+            return v, a, c, Jp
         R = self._R_wb
         return v @ R.T, a @ R.T, c @ R.T, np.matmul(R, Jp)
