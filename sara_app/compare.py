@@ -87,10 +87,13 @@ class _Recorder:
         return best
 
 
-def with_mode(sc: Scenario, mode: str) -> Scenario:
-    """The scenario with its safety mode replaced (validated again)."""
+def with_mode(sc: Scenario, mode: str, jssa_constraints: str | None = None) -> Scenario:
+    """The scenario with its safety mode (and optionally JSSA's constraint mode, ``single`` or
+    ``multi``) replaced, validated again."""
     data = sc.model_dump(mode="json")
     data["shield"]["mode"] = mode
+    if jssa_constraints is not None:
+        data["shield"]["jssa"]["constraints"] = jssa_constraints
     return parse_scenario(data, f"{sc.name} ({mode})")
 
 
@@ -101,13 +104,14 @@ def run_mode(
     *,
     acc_tol_mps2: float = ACC_TOL_MPS2,
     window_s: float = WINDOW_S,
+    jssa_constraints: str | None = None,
 ) -> ModeRow:
     """One closed-loop run of ``sc`` under ``mode`` (until the goal or the duration)."""
     from sara_app.sim import Simulation
 
     row = ModeRow(sc.name, mode)
     try:
-        sim = Simulation(with_mode(sc, mode))
+        sim = Simulation(with_mode(sc, mode, jssa_constraints))
     except (SaraError, ImportError) as e:
         row.error = f"{type(e).__name__}: {e}"
         return row
@@ -168,8 +172,10 @@ def compare(
     modes: tuple[str, ...] = MODES,
     duration_s: float | None = None,
     progress: bool = False,
+    jssa_constraints: str | None = None,
 ) -> list[ModeRow]:
-    """Rows for every scenario (default: the shipped ones) and mode, scenario-major."""
+    """Rows for every scenario (default: the shipped ones) and mode, scenario-major;
+    ``jssa_constraints`` overrides the scenarios' JSSA constraint mode."""
     import sys
 
     rows = []
@@ -178,7 +184,7 @@ def compare(
         for mode in modes:
             if progress:
                 print(f"{name} / {mode} ...", file=sys.stderr, flush=True)
-            rows.append(run_mode(sc, mode, duration_s))
+            rows.append(run_mode(sc, mode, duration_s, jssa_constraints=jssa_constraints))
     return rows
 
 

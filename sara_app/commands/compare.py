@@ -19,7 +19,9 @@ def _compare(args: argparse.Namespace) -> int:
     for m in modes:
         if m not in MODES:
             raise UnknownNameError("safety mode", m, MODES)
-    rows = compare(names, modes, args.duration, progress=not args.quiet)
+    rows = compare(
+        names, modes, args.duration, progress=not args.quiet, jssa_constraints=args.jssa_constraints
+    )
     print(format_table(rows))
     return 0
 
@@ -36,6 +38,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=float,
         default=None,
         help="seconds per run (default: each scenario's duration); a run ends at the goal",
+    )
+    p.add_argument(
+        "--jssa-constraints",
+        choices=("single", "multi"),
+        default=None,
+        help="JSSA constraint mode for every scenario (default: each scenario's own)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(run=_compare)

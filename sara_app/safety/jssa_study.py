@@ -27,6 +27,7 @@ from typing import NamedTuple
 import numpy as np
 
 from sara_app.geometry import capsule_distances
+from sara_app.human.scripted import PELVIS_Z_M
 from sara_app.robot.model import RobotModel, load_robot
 from sara_app.safety.jssa import JssaController, JssaParams, integrate
 from sara_app.safety.ssa import SsaController
@@ -44,36 +45,25 @@ class HumanSample(NamedTuple):
 
 HumanFn = Callable[[float], HumanSample]
 
-# Standing pose in the body frame (x forward, y left, z up), relative to the pelvis; arms held
-# forward as when reaching towards a workbench. Joint order of the ``full`` skeleton.
-_BODY_JOINTS = {
-    "head": (0.0, 0.0, 0.68),
-    "neck": (0.0, 0.0, 0.50),
-    "pelvis": (0.0, 0.0, 0.0),
-    "l_shoulder": (0.0, 0.19, 0.48),
-    "r_shoulder": (0.0, -0.19, 0.48),
-    "l_elbow": (0.18, 0.22, 0.30),
-    "r_elbow": (0.15, -0.22, 0.25),
-    "l_wrist": (0.42, 0.20, 0.32),
-    "r_wrist": (0.38, -0.20, 0.20),
-    "l_hip": (0.0, 0.10, -0.03),
-    "r_hip": (0.0, -0.10, -0.03),
-    "l_knee": (0.0, 0.11, -0.45),
-    "r_knee": (0.0, -0.11, -0.45),
-    "l_ankle": (0.0, 0.11, -0.87),
-    "r_ankle": (0.0, -0.11, -0.87),
-}
-PELVIS_HEIGHT_M = 0.95
+# The standing body of the scripted motions (sara_app.human.scripted), arms held forward as when
+# reaching towards a workbench: wrist targets relative to the pelvis (x forward, y left, z up).
+_WRISTS_M = {"l": (0.42, 0.20, 0.32), "r": (0.38, -0.20, 0.20)}
 
 
 def _human_geometry() -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
+    """Body-part capsule ends relative to the pelvis ``(P, 2, 3)`` (facing +x), radii ``(P,)``
+    (half the thickness of ``seed001_table1``) and part names, of the ``full`` skeleton."""
     from sara_app.human.params import load_param_set, to_reach_params
+    from sara_app.human.scripted import aim_arm, joints, standing
     from sara_app.human.skeleton import skeleton
 
     sk = skeleton("full")
-    joints = np.array([_BODY_JOINTS[j] for j in sk.joints])
+    pose = standing((0.0, 0.0), 0.0)
+    for side, target in _WRISTS_M.items():
+        pose = aim_arm(pose, side, pose.pelvis + np.array(target))
+    y = joints(pose) - pose.pelvis
     radius = to_reach_params(load_param_set("seed001_table1"), "full").half_thickness_m
-    return joints[sk.part_joints], np.asarray(radius, dtype=float), sk.parts
+    return y[sk.part_joints], np.asarray(radius, dtype=float), sk.parts
 
 
 _BODY_ENDS, _BODY_RADIUS, BODY_PARTS = _human_geometry()
@@ -86,7 +76,7 @@ def rigid_human(
     ``vel_xy``, ``acc_xy`` ``(2,)`` (no rotation, so every point shares them)."""
     c, s = np.cos(yaw), np.sin(yaw)
     R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    pelvis = np.array([pelvis_xy[0], pelvis_xy[1], PELVIS_HEIGHT_M])
+    pelvis = np.array([pelvis_xy[0], pelvis_xy[1], PELVIS_Z_M])
     ends = _BODY_ENDS @ R.T + pelvis
     m = ends.shape[0]
     vel = np.broadcast_to(np.array([vel_xy[0], vel_xy[1], 0.0]), (m, 2, 3)).copy()
