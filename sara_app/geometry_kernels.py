@@ -177,40 +177,48 @@ def pair_distances(
                 out[k, i, j] = d - a_radius[kra, i] - b_radius[krb, j]
 
 
+@njit(cache=True)
+def _same_ends(ends: np.ndarray, k: int) -> bool:
+    """``ends[k]`` equals ``ends[k - 1]`` exactly (``k >= 1``; NaN never equals)."""
+    for i in range(ends.shape[1]):
+        for e in range(2):
+            for r in range(3):
+                if not ends[k, i, e, r] == ends[k - 1, i, e, r]:
+                    return False
+    return True
+
+
 @njit(types.void(_RO4, _RO2, _W3, _W3), cache=True)
 def set_pair_distances(ends: np.ndarray, radius: np.ndarray, d: np.ndarray, s: np.ndarray) -> None:
     """All pairs within one capsule set per interval: surface distances ``d (K, N, N)`` and
     closest-point parameters ``s (K, N, N)`` (``s[k, a, b]`` on ``a`` towards ``b``), each
     unordered pair computed once; the diagonal is ``-2 r`` and ``s = 0`` (as
     :func:`sara_app.safety.contact_kernels.all_pairs` minus the radii). ``ends (Ke, N, 2, 3)``,
-    ``radius (Kr, N)`` with ``Ke, Kr`` in ``{1, K}``; when both are 1 the first interval is
-    computed once and copied."""
+    ``radius (Kr, N)`` with ``Ke, Kr`` in ``{1, K}``. The segment computation is reused from the
+    previous interval when its capsule axes are exactly the same (a set whose radii grow)."""
     K, N = d.shape[0], d.shape[1]
-    once = ends.shape[0] == 1 and radius.shape[0] == 1
+    axis = np.empty((N, N))
     for k in range(K):
-        if once and k > 0:
-            for a in range(N):
-                for b in range(N):
-                    d[k, a, b] = d[0, a, b]
-                    s[k, a, b] = s[0, a, b]
-            continue
         ke = k if ends.shape[0] == K else 0
         kr = k if radius.shape[0] == K else 0
+        reuse = k > 0 and (ke == 0 or _same_ends(ends, ke))
         for a in range(N):
             d[k, a, a] = 0.0 - radius[kr, a] - radius[kr, a]
             s[k, a, a] = 0.0
             p = ends[ke, a]
             for b in range(a + 1, N):
-                q = ends[ke, b]
-                dist, sa, tb = segment_closest(
-                    p[0, 0], p[0, 1], p[0, 2], p[1, 0], p[1, 1], p[1, 2],
-                    q[0, 0], q[0, 1], q[0, 2], q[1, 0], q[1, 1], q[1, 2],
-                )  # fmt: skip
-                g = dist - radius[kr, a] - radius[kr, b]
+                if reuse:
+                    s[k, a, b] = s[k - 1, a, b]
+                    s[k, b, a] = s[k - 1, b, a]
+                else:
+                    q = ends[ke, b]
+                    axis[a, b], s[k, a, b], s[k, b, a] = segment_closest(
+                        p[0, 0], p[0, 1], p[0, 2], p[1, 0], p[1, 1], p[1, 2],
+                        q[0, 0], q[0, 1], q[0, 2], q[1, 0], q[1, 1], q[1, 2],
+                    )  # fmt: skip
+                g = axis[a, b] - radius[kr, a] - radius[kr, b]
                 d[k, a, b] = g
                 d[k, b, a] = g
-                s[k, a, b] = sa
-                s[k, b, a] = tb
 
 
 @njit(cache=True)
@@ -294,8 +302,17 @@ def box_distances(
     K, N, B = dist.shape
     want_normal = normal.shape[0] == K
     work = np.empty((3, 8))
+    axis = np.empty((N, B))
     for k in range(K):
         kr = k if radius.shape[0] == K else 0
+        if k > 0 and _same_ends(ends, k):  # the same axes as the previous interval
+            for i in range(N):
+                for b in range(B):
+                    dist[k, i, b] = axis[i, b] - radius[kr, i]
+                    if want_normal:
+                        for r in range(3):
+                            normal[k, i, b, r] = normal[k - 1, i, b, r]
+            continue
         for i in range(N):
             p, q = ends[k, i, 0], ends[k, i, 1]
             finite = True
@@ -303,6 +320,7 @@ def box_distances(
                 finite = finite and math.isfinite(p[r]) and math.isfinite(q[r])
             for b in range(B):
                 if not finite:
+                    axis[i, b] = np.nan
                     dist[k, i, b] = np.nan
                     if want_normal:
                         for r in range(3):
@@ -310,6 +328,7 @@ def box_distances(
                     continue
                 R, c = T_world_box[b, :3, :3], T_world_box[b, :3, 3]
                 res = _segment_box(p, q, R, c, half_extents_m[b], work)
+                axis[i, b] = res[0]
                 dist[k, i, b] = res[0] - radius[kr, i]
                 if want_normal:
                     normal[k, i, b, 0] = res[1] - res[4]

@@ -375,6 +375,8 @@ def _scene(rng: np.random.Generator) -> tuple[ContactClassifier, tuple]:
     h0 = rng.normal(scale=spread, size=(Kh, P, 3))
     h_ends = np.stack([h0, h0 + rng.normal(scale=0.15, size=(Kh, P, 3))], axis=2)
     h_radius = rng.uniform(0.03, 0.15, (Kh, P))
+    if Kh == K and rng.random() < 0.3:
+        h_ends[1:] = h_ends[0]  # static axes, growing radii (the R_VEL / R_POS sets)
     if Kh == 1 and K > 1:
         h_ends = np.broadcast_to(h_ends, (K, P, 2, 3))
         h_radius = np.broadcast_to(h_radius, (K, P))

@@ -83,8 +83,11 @@ def capsule_sets(draw: st.DrawFn) -> dict:
     a1 = a0 + rng.normal(scale=0.3, size=(Ka, C, 3)) * (rng.random((Ka, C, 1)) < 0.8)
     b0 = rng.normal(scale=spread, size=(K, L, 3))
     b1 = b0 + rng.normal(scale=0.3, size=(K, L, 3)) * (rng.random((K, L, 1)) < 0.8)
+    a_ends = np.stack([a0, a1], axis=2)
+    if Ka == K and draw(st.booleans()):  # the same axes on every interval, radii differ
+        a_ends = np.repeat(a_ends[:1], K, axis=0)
     return dict(
-        a_ends=np.stack([a0, a1], axis=2),
+        a_ends=a_ends,
         a_rad=rng.uniform(0.01, 0.3, size=(Kr, C)),
         b_ends=np.stack([b0, b1], axis=2),
         b_rad=rng.uniform(0.01, 0.2, size=(K, L)),
@@ -200,6 +203,8 @@ def test_box_distances_equal_segment_box_closest(seed: int, B: int) -> None:
     K, N = int(rng.integers(1, 4)), int(rng.integers(1, 8))
     ends = rng.normal(scale=0.6, size=(K, N, 2, 3))
     ends[:, 0, 1] = ends[:, 0, 0]  # a ball
+    if rng.random() < 0.5:
+        ends[1:] = ends[0]  # the same axes on every interval (computed once, radii differ)
     rad = rng.uniform(0.0, 0.2, (K, N))
     T = np.array([_pose(rng) for _ in range(B)]).reshape(B, 4, 4)
     h = rng.uniform(0.0, 0.4, (B, 3))
