@@ -149,18 +149,20 @@ _W4 = types.Array(_f8, 4, "A")
 _RO3 = types.Array(_f8, 3, "A", readonly=True)
 
 
-@njit(types.void(_RO4, _RO2, _RO4, _RO2, _W3), cache=True)
+@njit(types.boolean(_RO4, _RO2, _RO4, _RO2, _W3), cache=True)
 def pair_distances(
     a_ends: np.ndarray,
     a_radius: np.ndarray,
     b_ends: np.ndarray,
     b_radius: np.ndarray,
     out: np.ndarray,
-) -> None:
+) -> bool:
     """Surface distances ``out (K, A, B)`` of every pair of capsules ``a (Ka, A, 2, 3), (Ka,
     A)`` and ``b (Kb, B, 2, 3), (Kb, B)`` per interval, ``Ka, Kb`` in ``{1, K}`` (1: the same
-    capsules on every interval); as :func:`sara_app.geometry.capsule_distances`."""
+    capsules on every interval); as :func:`sara_app.geometry.capsule_distances`. Returns
+    whether any pair may touch (a distance <= 0 or NaN)."""
     K, A, B = out.shape
+    touch = False
     for k in range(K):
         ka = k if a_ends.shape[0] == K else 0
         kb = k if b_ends.shape[0] == K else 0
@@ -174,7 +176,10 @@ def pair_distances(
                     p[0, 0], p[0, 1], p[0, 2], p[1, 0], p[1, 1], p[1, 2],
                     q[0, 0], q[0, 1], q[0, 2], q[1, 0], q[1, 1], q[1, 2],
                 )[0]  # fmt: skip
-                out[k, i, j] = d - a_radius[kra, i] - b_radius[krb, j]
+                g = d - a_radius[kra, i] - b_radius[krb, j]
+                out[k, i, j] = g
+                touch = touch or not g > 0.0
+    return touch
 
 
 @njit(cache=True)

@@ -160,7 +160,8 @@ def test_pair_distances_equal_capsule_distances(c: dict) -> None:
     K, C = c["b_ends"].shape[0], c["a_ends"].shape[1]
     L = c["b_ends"].shape[1]
     out = np.empty((K, C, L))
-    pair_distances(c["a_ends"], c["a_rad"], c["b_ends"], c["b_rad"], out)
+    touch = pair_distances(c["a_ends"], c["a_rad"], c["b_ends"], c["b_rad"], out)
+    assert touch == bool((out <= 0.0).any())
     a_ends = np.broadcast_to(c["a_ends"], (K, C, 2, 3))
     a_rad = np.broadcast_to(c["a_rad"], (K, C))
     for k in range(K):

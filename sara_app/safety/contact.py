@@ -355,8 +355,7 @@ class ContactClassifier:
         if K > 1 and h_ends.strides[0] == 0 and h_radius.strides[0] == 0:
             h_ends, h_radius = h_ends[:1], h_radius[:1]
         d_rh = np.empty((K, L, P))
-        pair_distances(r_ends, r_radius, h_ends, h_radius, d_rh)
-        if (d_rh > 0.0).all():  # no possible contact at all (NaN is contact)
+        if not pair_distances(r_ends, r_radius, h_ends, h_radius, d_rh):  # NaN is contact
             return self._no_contact(d_rh)
         d_hh, s_hh = np.empty((2, K, P, P))
         set_pair_distances(h_ends, h_radius, d_hh, s_hh)
@@ -393,12 +392,14 @@ class ContactClassifier:
             "r_ends", "r_radius", "s_ends", "s_radius", "p1_dot", "omega", "eps_v", "h_ends",
             "h_radius", "T_world_box", "half_extents_m",
         )  # fmt: skip
-        for name, a, shape in zip(names, arrays, want):
-            if a.shape != shape or K < 1:
-                raise InputError(
-                    f"{name} has shape {a.shape}; expected {shape} (K >= 1 intervals, L = {L} "
-                    f"links, P = {P} parts, B boxes; human capsules may have 1 interval)"
-                )
+        if K < 1 or tuple(a.shape for a in arrays) != want:
+            name, a, shape = next(
+                x for x in zip(names, arrays, want) if x[1].shape != x[2] or K < 1
+            )
+            raise InputError(
+                f"{name} has shape {a.shape}; expected {shape} (K >= 1 intervals, L = {L} "
+                f"links, P = {P} parts, B boxes; human capsules may have 1 interval)"
+            )
         return K, L, P, B
 
     def _no_contact(self, d_rh: np.ndarray) -> ContactResult:
