@@ -66,9 +66,9 @@ of the two lines is below their mean, ``(d_ij(t_k) + d_ij(t_k+1) + dt G_ij) / 2`
 On random motions about three quarters of the Lipschitz enlargement (down to a third); costs one
 evaluation of the distances of all capsule ends to all joint axes per sample.
 
-Forward kinematics is a vectorised numpy product along the joint chain, all samples at once
-(checked against pinocchio at construction): the only Python loop in :meth:`RobotOccupancy.
-intervals` is over the ``n`` joints; none over samples, links or capsules.
+Forward kinematics (Rodrigues products along the joint chain, all samples), the capsule ends and
+the Lipschitz interval capsules are one compiled pass (:mod:`sara_app.robot.occupancy_kernels`,
+checked against pinocchio at construction); :meth:`RobotOccupancy.intervals` has no Python loop.
 """
 
 from __future__ import annotations
@@ -78,10 +78,10 @@ from typing import Any, Literal, cast
 
 import numpy as np
 import pinocchio as pin
-from numba import njit, types
 
 from sara_app.errors import InputError, ParameterError, RobotModelError
 from sara_app.robot.model import RobotModel
+from sara_app.robot.occupancy_kernels import ends_kernel, fk_kernel, intervals_kernel
 
 __all__ = ["ROUNDING_SLACK_M", "Bound", "RobotOccupancy"]
 
@@ -91,106 +91,6 @@ ROUNDING_SLACK_M = 1e-9
 """Added to every interval radius to absorb floating-point rounding of the axis and the bound."""
 
 _FK_CHECK_TOL_M = 1e-9
-
-
-_f8, _i8 = types.float64, types.int64
-_RO1, _RO2, _RO3, _RO4 = (types.Array(_f8, d, "A", readonly=True) for d in (1, 2, 3, 4))
-_W2, _W4 = types.Array(_f8, 2, "A"), types.Array(_f8, 4, "A")
-_ROI1 = types.Array(_i8, 1, "A", readonly=True)
-
-
-@njit(types.void(_RO2, _RO3, _ROI1, _W4), cache=True)
-def _fk_kernel(Q: np.ndarray, N: np.ndarray, parents: np.ndarray, H: np.ndarray) -> None:
-    """Joint frame poses: ``H[s, j+1] = H[s, parents[j]] @ (N0 + sin q N1 + (1 - cos q) N2)``
-    for joint positions ``Q (S, n)`` (joint order), ``N (n, 3, 16)``; rows 0..2 of ``H (S, n+1,
-    4, 4)`` are written (row 3 and ``H[:, 0]`` are the caller's)."""
-    S, n = Q.shape
-    hl = np.empty((3, 4))
-    for s in range(S):
-        for j in range(n):
-            sq = math.sin(Q[s, j])
-            cq = 1.0 - math.cos(Q[s, j])
-            for r in range(3):
-                for c in range(4):
-                    x = 4 * r + c
-                    hl[r, c] = N[j, 0, x] + sq * N[j, 1, x] + cq * N[j, 2, x]
-            p = parents[j]
-            for r in range(3):
-                for c in range(4):
-                    acc = H[s, p, r, 3] if c == 3 else 0.0
-                    for m in range(3):
-                        acc += H[s, p, r, m] * hl[m, c]
-                    H[s, j + 1, r, c] = acc
-
-
-@njit(types.void(_RO4, _ROI1, _RO3, _W4), cache=True)
-def _ends_kernel(
-    H: np.ndarray, link_joint: np.ndarray, ends_joint: np.ndarray, E: np.ndarray
-) -> None:
-    """World capsule ends ``E (S, L, 2, 3)`` from joint poses ``H (S, n+1, 4, 4)``, the joint
-    carrying each link ``link_joint (L,)`` and the ends in that joint's frame ``(L, 2, 3)``."""
-    for s in range(H.shape[0]):
-        for i in range(link_joint.shape[0]):
-            m = link_joint[i]
-            for e in range(2):
-                for r in range(3):
-                    E[s, i, e, r] = (
-                        H[s, m, r, 0] * ends_joint[i, e, 0]
-                        + H[s, m, r, 1] * ends_joint[i, e, 1]
-                        + H[s, m, r, 2] * ends_joint[i, e, 2]
-                        + H[s, m, r, 3]
-                    )
-
-
-@njit(
-    _i8(_RO2, _RO2, _RO1, _RO3, _ROI1, _ROI1, _RO3, _RO2, _RO1, _W4, _W4, _W4, _W2),
-    cache=True,
-)
-def _intervals_kernel(
-    Q: np.ndarray,
-    V: np.ndarray,
-    T: np.ndarray,
-    N: np.ndarray,
-    parents: np.ndarray,
-    link_joint: np.ndarray,
-    ends_joint: np.ndarray,
-    lipschitz: np.ndarray,
-    radius0: np.ndarray,
-    H: np.ndarray,
-    E: np.ndarray,
-    ends: np.ndarray,
-    radius: np.ndarray,
-) -> int:
-    """:meth:`RobotOccupancy.intervals` (Lipschitz bound) in one pass: checks the values (returns
-    1 for a non-finite ``Q (K+1, n)``, 2 for non-finite or non-increasing times ``T (K+1,)``, 3
-    for a non-finite or negative ``V (K, n)``, writing nothing else; 0 when valid), then fills
-    ``H``, ``E`` (joint poses and capsule ends at the samples), ``ends (K, L, 2, 3)`` (mid axes)
-    and ``radius (K, L) = dt / 2 * lipschitz @ V + radius0``."""
-    S, n = Q.shape
-    for s in range(S):
-        for j in range(n):
-            if not math.isfinite(Q[s, j]):
-                return 1
-        if not math.isfinite(T[s]) or (s > 0 and not T[s] > T[s - 1]):
-            return 2
-    for k in range(S - 1):
-        for j in range(n):
-            if not (math.isfinite(V[k, j]) and V[k, j] >= 0.0):
-                return 3
-    _fk_kernel(Q, N, parents, H)
-    _ends_kernel(H, link_joint, ends_joint, E)
-    L = link_joint.shape[0]
-    for k in range(S - 1):
-        half_dt = 0.5 * (T[k + 1] - T[k])
-        for i in range(L):
-            for e in range(2):
-                for r in range(3):
-                    ends[k, i, e, r] = 0.5 * (E[k, i, e, r] + E[k + 1, i, e, r])
-            acc = 0.0
-            for j in range(n):
-                acc += lipschitz[i, j] * V[k, j]
-            radius[k, i] = half_dt * acc + radius0[i]
-    return 0
 
 
 def _skew(a: np.ndarray) -> np.ndarray:
@@ -319,14 +219,14 @@ class RobotOccupancy:
         S = Q.shape[0]
         self._ensure_capacity(S)
         H = self._H[:S]
-        _fk_kernel(Q if self._q_identity else Q[:, self._q_index], self._N, self._parents, H)
+        fk_kernel(Q if self._q_identity else Q[:, self._q_index], self._N, self._parents, H)
         return H
 
     def _ends(self, H: np.ndarray) -> np.ndarray:
         """World capsule ends ``(S, L, 2, 3)`` from joint poses ``(S, n+1, 4, 4)`` (a scratch
         buffer, valid until the next call)."""
         E = self._E[: H.shape[0]]
-        _ends_kernel(H, self._link_joint, self._ends_joint, E)
+        ends_kernel(H, self._link_joint, self._ends_joint, E)
         return E
 
     def link_ends(self, q: np.ndarray) -> np.ndarray:
@@ -485,7 +385,7 @@ class RobotOccupancy:
         ends = np.empty((S - 1, self.n_links, 2, 3))
         radius = np.empty((S - 1, self.n_links))
         Qj = Q if self._q_identity else Q[:, self._q_index]
-        status = _intervals_kernel(
+        status = intervals_kernel(
             Qj, V, T, self._N, self._parents, self._link_joint, self._ends_joint,
             self.lipschitz, self._radius0, H, E, ends, radius,
         )  # fmt: skip

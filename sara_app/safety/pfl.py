@@ -57,12 +57,7 @@ from sara_app.errors import InputError
 from sara_app.robot.energy import LinkMotion, interval_energy_J
 from sara_app.robot.model import RobotModel
 from sara_app.robot.occupancy import RobotOccupancy
-from sara_app.safety.contact import (
-    CLASS_NAMES,
-    ContactClassifier,
-    ContactResult,
-    VelocityErrorBound,
-)
+from sara_app.safety.contact import CLASS_NAMES, ContactClassifier, ContactResult
 from sara_app.safety.thresholds import (
     ThresholdSet,
     diameters_m,
@@ -70,6 +65,7 @@ from sara_app.safety.thresholds import (
     threshold_arrays,
 )
 from sara_app.safety.topology import human_safe_matrix, unclampable_matrix
+from sara_app.safety.velocity_error import VelocityErrorBound
 
 
 @dataclass(frozen=True)
