@@ -37,7 +37,7 @@ _ROB1 = types.Array(types.boolean, 1, "A", readonly=True)
 _WB1 = types.Array(types.boolean, 1, "A")
 
 
-@njit(cache=True)
+@njit(types.UniTuple(types.float64, 3)(*([types.float64] * 12)), cache=True)
 def segment_closest(
     p1x: float, p1y: float, p1z: float, q1x: float, q1y: float, q1z: float,
     p2x: float, p2y: float, p2z: float, q2x: float, q2y: float, q2z: float,
