@@ -1,0 +1,87 @@
+"""Switching a live cell worker between SSM, PFL and JSSA: the robot keeps its state across
+every switch, the verdicts name the mode in force, and leaving JSSA off the task's path waits
+for the robot to be at rest (refused with the reason, nothing half-applied)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sara_app.bus import keys
+from sara_app.bus.messages import OccupancyMsg, VerdictMsg
+from sara_app.bus.session import Bus, free_port
+from sara_app.scenario import load_scenario
+from sara_app.worker import CellWorker
+
+
+@pytest.fixture()
+def worker():
+    port = free_port()
+    with Bus.router(port) as hub, Bus.client(port) as wb:
+        w = CellWorker("modes", load_scenario("standing_beside_path"), wb, loop_task=False)
+        sub = hub.subscribe(keys.verdict_key("modes"), fifo=True, capacity=10000)
+        yield w, sub
+
+
+def _with_mode(w: CellWorker, mode: str) -> dict:
+    data = w.cell.scenario.model_dump(mode="json")
+    data["shield"]["mode"] = mode
+    return data
+
+
+def _run(w: CellWorker, t: float, n: int) -> float:
+    for _ in range(n):
+        w.step(t)
+        t += w.shield.settings.dt_s
+    return t
+
+
+def test_modes_switch_live_and_keep_the_robot_state(worker) -> None:
+    w, verdicts = worker
+    t = _run(w, 1000.0, 100)
+    assert np.max(np.abs(w.shield.robot_state.v)) > 0.05  # moving when we switch
+    follower = w.shield.follower
+    q_before = w.shield.robot_state.q.copy()
+
+    ok, why = w.apply(_with_mode(w, "pfl"))
+    assert ok, why
+    assert w.shield.safety_mode == "pfl" and w.shield.follower is follower  # same failsafe
+    np.testing.assert_array_equal(w.shield.robot_state.q, q_before)
+    t = _run(w, t, 20)
+    assert w.last is not None and w.last.safety_mode == "pfl" and w.last.pfl is None  # nobody
+
+    q_before = w.shield.robot_state.q.copy()
+    ok, why = w.apply(_with_mode(w, "jssa"))
+    assert ok, why
+    assert w.shield.safety_mode == "jssa"
+    np.testing.assert_array_equal(w.shield.robot_state.q, q_before)
+    t = _run(w, t, 20)
+    assert w.last is not None and w.last.safety_mode == "jssa" and w.last.jssa is not None
+    occ = w.occupancy_msg(t, w.last)
+    assert isinstance(occ, OccupancyMsg) and occ.jssa is not None and not occ.jssa.active
+
+    # on the path (nobody near: JSSA tracked the reference exactly): SSM takes over at once
+    on_path = w.cell.scenario.model_dump(mode="json")
+    ok, why = w.apply(_with_mode(w, "ssm"))
+    assert ok, why
+    ok, why = w.apply(on_path)  # and back to JSSA
+    assert ok, why
+    t = _run(w, t, 5)
+    # pushed off the path (as JSSA does near people) and moving: SSM must wait for rest
+    w.shield._q = w.shield._q + 2e-3  # type: ignore[attr-defined]
+    ok, why = w.apply(_with_mode(w, "ssm"))
+    assert not ok and "at rest" in why and w.shield.safety_mode == "jssa"
+    for _ in range(5000):
+        t = _run(w, t, 1)
+        if w.shield.at_rest and w.shield.task_done:
+            break
+    assert w.shield.at_rest
+    q_rest = w.shield.robot_state.q.copy()
+    ok, why = w.apply(_with_mode(w, "ssm"))
+    assert ok, why
+    np.testing.assert_allclose(w.shield.robot_state.q, q_rest, atol=1e-9)
+    assert w.shield.safety_mode == "ssm"
+    t = _run(w, t, 5)
+    assert w.last is not None and w.last.safety_mode == "ssm" and w.last.mode != "fault"
+    seen = {d.msg.safety_mode for d in verdicts.drain().messages if isinstance(d.msg, VerdictMsg)}
+    assert {"pfl", "jssa"} <= seen
