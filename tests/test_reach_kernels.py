@@ -7,9 +7,11 @@ tested by sampling in ``test_reach.py``."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from sara_app.errors import InputError
 from sara_app.human.params import load_param_set, to_reach_params
 from sara_app.human.reach import HumanReach
 
@@ -109,3 +111,17 @@ def test_nan_velocity_bound_gives_nan_radius() -> None:
     occ = r.acc(y, np.zeros_like(y), dv, np.array([0.0]), np.array([0.1]))
     parts = np.flatnonzero((r.skeleton.part_joints == 3).any(axis=1))
     assert parts.size and np.isnan(occ.radius[0, 0, parts]).all()
+
+
+def test_shapes_the_kernels_cannot_index_raise_input_error() -> None:
+    r = REACH["full"]
+    t = np.array([0.1])
+    with pytest.raises(InputError, match="joint positions"):
+        r.vel(np.zeros((1, 14, 3)), t)  # one joint missing
+    with pytest.raises(InputError, match="joint positions"):
+        r.pos(np.zeros((15, 3)), t)  # no human axis
+    y = np.zeros((1, 15, 3))
+    with pytest.raises(InputError, match="dv"):
+        r.acc(y, y, np.zeros((1, 14)), np.array([0.0]), t)
+    with pytest.raises(InputError, match="t_start_s"):
+        r.acc(y, y, np.zeros((1, 15)), np.array([0.0, 0.1]), t)

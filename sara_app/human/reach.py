@@ -139,6 +139,18 @@ class HumanReach:
             b = self._buffers[key] = np.empty(shape)
         return b
 
+    def _arrays(self, y: np.ndarray, t_end_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``y (H, J, 3)`` and ``t_end_s (K,)`` as float64; a shape the compiled kernels cannot
+        index raises :class:`InputError` (values are the callers' to check, see ``model``)."""
+        y = np.asarray(y, dtype=np.float64)
+        t_end_s = np.asarray(t_end_s, dtype=np.float64)
+        if y.ndim != 3 or y.shape[1:] != (self.skeleton.n_joints, 3) or t_end_s.ndim != 1:
+            raise InputError(
+                f"joint positions {y.shape} and interval ends {t_end_s.shape}; expected (H, "
+                f"{self.skeleton.n_joints}, 3) and (K,)"
+            )
+        return y, t_end_s
+
     def _coverage(self, model: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Which joints each capsule of ``model`` must contain, and with which margin.
 
@@ -220,8 +232,7 @@ class HumanReach:
     ) -> Occupancy:
         """Capsules at the measured pose whose radius grows linearly: base + speed * tau, tau =
         t_end + delay."""
-        y = np.asarray(y, dtype=np.float64)
-        t_end_s = np.asarray(t_end_s, dtype=np.float64)
+        y, t_end_s = self._arrays(y, t_end_s)
         H, K, P = y.shape[0], t_end_s.shape[0], self.skeleton.n_parts
         ends = self._buf(name + "e", (H, P, 2, 3))
         radius = self._buf(name + "r", (K, P))
@@ -247,9 +258,13 @@ class HumanReach:
         below a_max and ``dv`` bounds the velocity error.
         """
         p = self.params
-        y, v, dv, t_start_s, t_end_s = (
-            np.asarray(a, dtype=np.float64) for a in (y, v, dv, t_start_s, t_end_s)
-        )
+        y, t_end_s = self._arrays(y, t_end_s)
+        v, dv, t_start_s = (np.asarray(a, dtype=np.float64) for a in (v, dv, t_start_s))
+        if v.shape != y.shape or dv.shape != y.shape[:2] or t_start_s.shape != t_end_s.shape:
+            raise InputError(
+                f"v {v.shape}, dv {dv.shape}, t_start_s {t_start_s.shape}; expected {y.shape}, "
+                f"{y.shape[:2]} and {t_end_s.shape}"
+            )
         H, K, P = y.shape[0], t_end_s.shape[0], self.skeleton.n_parts
         ends = self._buf("acc_e", (H, K, P, 2, 3))
         radius = self._buf("acc_r", (H, K, P))
@@ -268,8 +283,7 @@ class HumanReach:
         adds a single delta_y). Sound when the root's speed stays below its v_max and the limb
         lengths are rigid.
         """
-        y = np.asarray(y, dtype=np.float64)
-        t_end_s = np.asarray(t_end_s, dtype=np.float64)
+        y, t_end_s = self._arrays(y, t_end_s)
         H, K, C = y.shape[0], t_end_s.shape[0], self.pos_ends.shape[0]
         radius = self._buf("pos_r", (H, K, C))
         ends = self._buf("pos_e", (H, C, 2, 3))
