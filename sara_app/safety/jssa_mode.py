@@ -11,18 +11,24 @@ Per cycle (``dt = settings.dt_s``):
 3. the humans' body-part capsules (measured joints, half thickness of the parameter set) are
    moved to the present with their measured velocities (constant velocity, eq. 4: the skeleton
    stamped ``s`` shows the pose at ``s - delay``, so it is extrapolated over
-   ``t_now - s + delay``), and carry those velocities at their ends;
+   ``t_now - s + delay``), and carry those velocities at their ends (the velocity error
+   bound ``dv`` is not used: JSSA has no set-valued human model);
 4. JSSA projects the nominal jerk (eq. 13-14) and the robot state integrates it (eq. 1).
 
-Reference. The follower is advanced along its intended, jerk-limited path motion only while the
-robot tracks it: when the largest joint error exceeds ``HOLD_ERROR_RAD`` (JSSA is holding the
-robot back or pushing it aside) the reference brakes along its own failsafe stop (smooth, within
-the path's limits) and stays there until the error is back under ``RESUME_ERROR_RAD``. Without
-this the reference would run ahead while a person blocks the robot, and once released the
-tracking law would chase it with saturated jerks, overshooting (the paper replans its buffer for
-the same reason, Sec. 3.3). The tracking law is linear with a triple pole (critically damped, no
-overshoot while unsaturated), and the reference never moves faster than the path allows, so the
-nominal jerk stays within the box except right after a large deviation.
+Reference. The follower advances along its intended, jerk-limited path motion at a path speed
+governed by the tracking error ``e`` (largest joint error): no cap while ``e <=
+RESUME_ERROR_RAD``, then a cap (:attr:`PathFollower.speed_cap`, set for the step and restored
+after it) falling linearly from the path's top admissible speed to 0 at ``HOLD_ERROR_RAD``. When
+JSSA holds the robot back or pushes it aside, the reference slows down within its own
+acceleration and jerk limits and waits, and it speeds up again as the robot catches up: it
+settles where its speed matches the progress JSSA allows. Without this the reference would run
+ahead while a person blocks the robot, and once released the tracking law would chase it with
+saturated jerks, overshooting (the paper replans its buffer for the same reason, Sec. 3.3).
+
+Tracking law: linear with a triple pole (critically damped, no overshoot while unsaturated);
+far from the reference the position error is scaled down to ``TRACK_CLIP_RAD`` (the robot then
+approaches at about ``omega * TRACK_CLIP_RAD / 3`` rad/s instead of saturating the jerk box,
+where a linear law on a triple integrator can oscillate).
 
 Rest. When the reference stands still and the robot is within ``SETTLE_*`` of it, the robot's
 state is set to the reference exactly (a jump of at most 1e-5 rad, 1e-4 rad/s, 1e-3 rad/s^2, far
@@ -35,12 +41,17 @@ scenario the path passes 0.066 m above the table, within ``d_min`` plus any caps
 box: in ``single`` mode the table would be the critical pair in most cycles and hide the person
 (the paper's sparse-obstacle assumption, Sec. 3.1), and JSSA would bend the task off its path.
 
-The guarantee differs from SSM and PFL. JSSA keeps ``d >= d_min`` only while every person moves
-at constant velocity between measurements (eq. 4), up to the linearisation of eq. 13 and the
-continuous-to-discrete gap the paper leaves open; there is no verified failsafe and no
-reachable-set over-approximation: a person who accelerates toward the robot (every real motion
-does) can get closer than ``d_min``, and contact with a moving robot is possible. Faults brake,
-but the brake itself is not checked against the people.
+The guarantee differs from SSM and PFL. JSSA keeps its index ``phi <= 0``, which is meant to
+keep ``d >= d_min`` while every person moves at constant velocity (eq. 4), up to the
+linearisation of eq. 13 and the continuous-to-discrete gap the paper leaves open. There is no
+verified failsafe and no reachable-set over-approximation: a person who accelerates toward the
+robot (every real motion does) can get closer than ``d_min``, and contact with a moving robot is
+possible. Even at constant velocity ``d >= d_min`` is not guaranteed: ``phi <= 0`` implies it
+only for states reachable from rest (the paper's ``X_S*``), and with one constraint (the
+paper's ``single``) a second pair that closes in fast is unconstrained until it becomes the
+closest (tests/test_jssa_mode.py shows a crossing where that ends below ``d_min``; ``multi``, one
+constraint per pair, kept ``d_min`` in the randomised crossings tried). Faults brake, but the
+brake itself is not checked against the people.
 """
 
 from __future__ import annotations
@@ -64,9 +75,9 @@ TRACK_OMEGA_PER_S = 20.0
 TRACK_CLIP_RAD = 0.04
 """Position errors are scaled down to this largest joint error before the tracking law."""
 HOLD_ERROR_RAD = 0.02
-"""Largest joint tracking error above which the reference brakes (rad)."""
+"""Largest joint tracking error at which the reference's speed cap reaches 0 (rad)."""
 RESUME_ERROR_RAD = 0.005
-"""Largest joint tracking error under which a held reference resumes (rad)."""
+"""Largest joint tracking error up to which the reference runs uncapped (rad)."""
 GOAL_Q_RAD, GOAL_V_RAD_S = 1e-3, 1e-2
 """Convergence to the end of the reference that counts as the task (pass) done."""
 SETTLE_Q_RAD, SETTLE_V_RAD_S, SETTLE_A_RAD_S2 = 1e-5, 1e-4, 1e-3
@@ -90,6 +101,17 @@ def tracking_jerk(
     if big > TRACK_CLIP_RAD:  # far away: approach at about w * clip / 3 rad/s (see above)
         e_q = e_q * (TRACK_CLIP_RAD / big)
     return u_ff - (w**3 * e_q + 3.0 * w * w * (v - ref.v) + 3.0 * w * (a - ref.a))
+
+
+def reference_cap(err_rad: float, follower: PathFollower) -> float:
+    """Path-speed cap (rad/s) of the reference for a tracking error ``err_rad``: ``inf`` up to
+    ``RESUME_ERROR_RAD``, then linear from the path's top admissible speed to 0 at
+    ``HOLD_ERROR_RAD``."""
+    if err_rad <= RESUME_ERROR_RAD:
+        return math.inf
+    V = follower.admissible_speed[1]
+    top = float(V.max()) if V.size else 0.0
+    return top * max(0.0, (HOLD_ERROR_RAD - err_rad) / (HOLD_ERROR_RAD - RESUME_ERROR_RAD))
 
 
 def jssa_params(spec: JssaSpec) -> JssaParams:
@@ -130,7 +152,6 @@ class JssaMode(Shield):
         self._delay_s = float(reach.params.delay_s)
         st = follower.state
         self._q, self._v, self._a = st.q.copy(), st.v.copy(), st.a.copy()
-        self._held = False
         self.last: JssaResult | None = None
 
     # -- state ----------------------------------------------------------------------------------
@@ -162,7 +183,6 @@ class JssaMode(Shield):
         self.follower = previous.follower
         st = previous.robot_state
         self._q, self._v, self._a = (np.array(x, dtype=float) for x in (st.q, st.v, st.a))
-        self._held = False
 
     def brake_step(self) -> JointState:
         dt = self.settings.dt_s
@@ -190,16 +210,18 @@ class JssaMode(Shield):
             )
 
     def _nominal(self, dt: float) -> np.ndarray:
-        """Advance the reference one step (or brake it, see the module notes) and return the
-        nominal jerk ``(n,)`` that tracks it."""
+        """Advance the reference one step at the governed speed (see the module notes) and
+        return the nominal jerk ``(n,)`` that tracks it."""
         f = self.follower
         ref = f.state
         err = float(np.max(np.abs(self._q - ref.q)))
-        if self._held and err <= RESUME_ERROR_RAD:
-            self._held = False
-        elif not self._held and err > HOLD_ERROR_RAD:
-            self._held = True
-        ref_next = f.brake(dt) if self._held else f.step(dt)
+        cap = reference_cap(err, f)
+        outer = f.speed_cap
+        f.speed_cap = min(outer, cap)
+        try:
+            ref_next = f.step(dt)
+        finally:
+            f.speed_cap = outer
         return tracking_jerk((self._q, self._v, self._a), ref, ref_next, dt)
 
     def human_capsules(
@@ -260,7 +282,7 @@ class JssaMode(Shield):
         if res is None or faults:
             res = self.controller.brake(self._v, self._a, "; ".join(faults))
             try:
-                self.follower.brake(dt)  # the reference waits
+                self.follower.brake(dt)  # the reference waits on its failsafe
             except SaraError:
                 pass
         self._advance(res.jerk, dt)
@@ -320,7 +342,7 @@ def _bench_cycle(mode: JssaMode, humans: list[HumanState]) -> Callable[[], objec
 
     def one() -> object:
         mode.follower = f0.copy()
-        mode._q, mode._v, mode._a, mode._held = q0, v0, a0, False
+        mode._q, mode._v, mode._a = q0, v0, a0
         return mode.cycle(0.61, humans, want_distance=False)
 
     return one
