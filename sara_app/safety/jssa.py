@@ -17,11 +17,12 @@ Constraint. By default (``eta_per_s = None``, the paper's eq. 13) ``phi_{k+1} <=
 avoids demanding a jump back into the set in one cycle.
 
 Jerk box. The paper's ``U`` is the jerk box ``|u| <= j_max``. With ``joint_limits`` (default)
-the box is narrowed, per joint, so that the next acceleration stays in
-``[-a_lo, a_hi]`` with ``a_hi = min(a_max, sqrt(2 j_max (v_max - q')))`` (and the mirror image):
-the acceleration limit, and a velocity limit reachable by a jerk-limited ramp down of the
-acceleration. It is always non-empty and inside the jerk box, so the exact one-constraint
-solution still applies. Position limits are not enforced (nor are they in the paper).
+the box is narrowed, per joint, so that the next acceleration ``a1`` stays in ``[-a_lo, a_hi]``:
+``a_max``, and the largest ``a1`` whose velocity at the end of the step (eq. 1) plus a
+jerk-limited ramp of ``a1`` down to 0 stays under ``v_max`` (``v + tau (a + a1) / 2 +
+a1^2 / (2 j_max) <= v_max``), and the mirror image. It is always non-empty and inside the jerk
+box, so the exact one-constraint solution still applies. Position limits are not enforced (nor
+are they in the paper).
 
 Fallback. Invalid inputs (NaN, wrong shapes, missing human data), an infeasible projection or a
 non-finite intermediate give the brake of :func:`sara_app.safety.jssa_qp.brake_jerk`; the result
@@ -185,6 +186,13 @@ def _closest_params(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarra
         (cx, cy, cz), (dx, dy, dz) = b[k].tolist()
         _, s[k, 0], t[k, 0] = segment_closest(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz)
     return s, t
+
+
+def _ramp_acc(room: np.ndarray, j: np.ndarray, tau: float) -> np.ndarray:
+    """Largest next acceleration ``a1 (n,)`` with ``tau a1 / 2 + a1^2 / (2 j) <= room``: the
+    velocity at the end of the step (eq. 1: ``v + tau (a + a1) / 2``) plus a jerk-``j`` ramp of
+    ``a1`` down to 0 stays below the limit (``room = v_max - v - tau a / 2``)."""
+    return j * (np.sqrt(0.25 * tau * tau + 2.0 * np.maximum(room, 0.0) / j) - 0.5 * tau)
 
 
 def _or_zeros(x: object, n: int) -> np.ndarray:
@@ -376,8 +384,9 @@ class JssaController:
             return self.jerk_lo, self.jerk_hi
         lim = self.limits
         j, a_max, v_max = self.jerk_hi, lim.a_max, lim.v_max
-        a_hi = np.minimum(a_max, np.sqrt(2.0 * j * np.maximum(v_max - q_dot, 0.0)))
-        a_lo = -np.minimum(a_max, np.sqrt(2.0 * j * np.maximum(v_max + q_dot, 0.0)))
+        a_hi = np.minimum(a_max, _ramp_acc(v_max - q_dot - 0.5 * tau * q_ddot, j, tau))
+        a_lo = -np.minimum(a_max, _ramp_acc(v_max + q_dot + 0.5 * tau * q_ddot, j, tau))
+        a_hi = np.maximum(a_hi, a_lo)
         hi = np.minimum(j, np.maximum((a_hi - q_ddot) / tau, -j))
         lo = np.maximum(-j, np.minimum((a_lo - q_ddot) / tau, j))
         return lo, hi
