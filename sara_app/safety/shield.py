@@ -187,8 +187,9 @@ class Shield:
         if measured is None:
             return
         q = np.asarray(measured.q, dtype=float)
-        expected = self.follower.state.q
-        if q.shape != expected.shape or not np.all(np.isfinite(q)):
+        f = self.follower
+        expected = f.path.q(f.s)
+        if q.shape != expected.shape or not math.isfinite(float(q.sum())):
             faults.append(f"robot state malformed: q shape {q.shape}, expected {expected.shape}")
             return
         err = float(np.max(np.abs(q - expected)))
@@ -213,9 +214,9 @@ class Shield:
             shapes = (np.shape(h.y), np.shape(h.v), np.shape(h.dv))
             if shapes != ((J, 3), (J, 3), (J,)):
                 faults.append(f"human {h.id!r}: arrays {shapes}, expected ({J}, 3) and ({J},)")
-            elif not (np.all(np.isfinite(h.y)) and np.all(np.isfinite(h.v))):
+            elif not math.isfinite(float(h.y.sum()) + float(h.v.sum())):  # any NaN/inf shows
                 faults.append(f"human {h.id!r}: non-finite joint positions or velocities")
-            elif np.any(np.isnan(h.dv)) or np.any(h.dv < 0):
+            elif not float(h.dv.min()) >= 0.0:  # NaN fails too
                 faults.append(f"human {h.id!r}: velocity error bound invalid")
             elif age > s.skeleton_timeout_s:
                 faults.append(f"human {h.id!r}: skeleton {age:.3f} s old > {s.skeleton_timeout_s}")
@@ -295,6 +296,9 @@ class Shield:
         """Usable humans stacked: ``y, v (H, J, 3)``, ``dv (H, J)``, ``age (H,)``; None if none."""
         if not usable:
             return None
+        if len(usable) == 1:  # the common case, without the copies of a stack
+            h = humans[usable[0]]
+            return h.y[None], h.v[None], h.dv[None], np.array([max(ages[h.id], 0.0)])
         y = np.stack([humans[i].y for i in usable])
         v = np.stack([humans[i].v for i in usable])
         dv = np.stack([humans[i].dv for i in usable])
