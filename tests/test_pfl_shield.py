@@ -244,3 +244,36 @@ def test_threshold_edits_and_boxes_are_validated() -> None:
             shield.robot, shield.follower, shield.reach, shield.settings, shield.spec,
             (np.eye(4)[None], np.array([[0.1, -0.1, 0.1]])),
         )  # fmt: skip
+
+
+def test_interval_energy_bound_covers_dense_samples() -> None:
+    """The energy per interval passed to the check covers the link energies densely sampled
+    inside every interval (the speed peaks inside the first failsafe interval, where the end
+    samples of seed 003 eq. 47-48 alone miss it)."""
+    from sara_app.robot.trajectory import PathFollower
+
+    shield = make_shield()
+    lim = shield.robot.limits
+    rng = np.random.default_rng(11)
+    missed_by_ends = 0.0
+    for _ in range(25):
+        lo = lim.q_min + 0.25 * (lim.q_max - lim.q_min)
+        hi = lim.q_max - 0.25 * (lim.q_max - lim.q_min)
+        f = PathFollower(rng.uniform(lo, hi, (3, 7)), shield.follower.limits)
+        for _ in range(int(rng.integers(5, 150))):
+            if rng.uniform() < 0.1:
+                f.speed_cap = rng.uniform(0.05, 2.5)
+            f.step(shield.settings.dt_s)
+        shield.follower = f
+        traj, _, _ = shield._plan(math.inf)
+        E_s = shield.pfl.motion.evaluate(traj.q, traj.v).energy_J.copy()
+        bound = shield._interval_energy(traj, E_s).max(axis=1)
+        prof = traj.step.profile.then(traj.stop.profile)
+        for k in range(len(traj.times) - 1):
+            s, sd, _ = prof.evaluate(np.linspace(traj.times[k], traj.times[k + 1], 40))
+            q, dq = traj.step.path.derivatives(s, 1)
+            dense = shield.pfl.motion.energies(q, dq * sd[:, None]).max(axis=0)
+            assert np.all(dense <= bound[k] + 1e-12), (k, dense / bound[k])
+            ends = np.maximum(E_s[k], E_s[k + 1])
+            missed_by_ends = max(missed_by_ends, float(np.max(dense - ends)))
+    assert missed_by_ends > 0.0  # the end samples alone would have missed energy

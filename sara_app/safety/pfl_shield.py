@@ -75,6 +75,12 @@ if TYPE_CHECKING:
 
 Humans = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
+G_MARGIN = 1e-3
+"""Relative margin on the sampled configuration factor of the link energies within an interval
+(:meth:`PflShield._interval_energy`). Measured: over 1620 intervals of random shielded
+trajectories (Panda, blends, caps, stops), densely sampled energies exceeded the bound without
+margin by at most 3e-5 relative (eq. 47-48's end samples alone: by up to 20 %)."""
+
 
 def part_capsules(reach: HumanReach, model: str) -> np.ndarray:
     """``(P,)``: for each body part, the index of a capsule of ``model`` that contains it (both
@@ -98,10 +104,12 @@ def part_capsules(reach: HumanReach, model: str) -> np.ndarray:
 
 @dataclass(frozen=True)
 class PflCycle:
-    """What the PFL shield checked this cycle: ``result`` (merged over the models; None when
-    nobody is in the cell), ``cap`` the path-speed cap of the checked trajectory (rad/s, inf:
-    none), ``speed_scale`` that cap over the admissible speed at the robot (<= 1), ``checks``
-    the PFL checks run (1 + replans), ``models_used`` how many models were evaluated."""
+    """What the PFL shield checked this cycle: ``result`` (merged over the models: each entry
+    from the first model that proves it safe, an unproved one with the highest threshold seen;
+    ``result.contact`` is the first model's; None when nobody is in the cell), ``cap`` the
+    path-speed cap of the checked trajectory (rad/s, inf: none), ``speed_scale`` that cap over
+    the admissible speed at the robot (<= 1), ``checks`` the PFL checks run (1 + replans),
+    ``models_used`` how many models were evaluated."""
 
     result: PflResult | None
     cap: float
@@ -283,6 +291,8 @@ class PflShield(Shield):
         y, v, dv, age = hum
         pfl = self._check_for(y.shape[0])
         smp = self.pfl.motion.evaluate(traj.q, traj.v)
+        E0 = smp.energy_J[0].copy()
+        energy = self._interval_energy(traj, smp.energy_J.copy())
         dt = np.diff(traj.times)
         eps = self.pfl.eps_from_bounds(dt, traj.v_bound, traj.a_bound)
         T_box, half = self.boxes
@@ -295,7 +305,7 @@ class PflShield(Shield):
             r = pfl.check(
                 ends[lo:hi], radius[lo:hi], smp.ends[lo : hi + 1], smp.p1_dot[lo : hi + 1],
                 smp.omega[lo : hi + 1], dt[lo:hi], h_ends, h_radius, T_box, half,
-                smp.energy_J[lo : hi + 1], eps_v=eps[lo:hi],
+                energy[lo:hi], eps_v=eps[lo:hi],
             )  # fmt: skip
             used += 1
             if merged is None:
@@ -307,7 +317,33 @@ class PflShield(Shield):
                 break
             lo, hi = int(todo[0]), int(todo[-1]) + 1
         assert merged is not None  # at least one model (ShieldSettings / scenario validation)
-        return merged.result(), used, smp.energy_J[0].copy()
+        return merged.result(), used, E0
+
+    def _interval_energy(self, traj: ShieldedTrajectory, E_s: np.ndarray) -> np.ndarray:
+        """Link energy bound per interval ``(K, 2, L)`` (J) from the sample energies ``E_s
+        (K+1, L)``: ``1/2 max s'^2 g_i(s)`` with the exact path-speed peak of the interval and
+        the configuration factor ``g_i = q'^T E_i B E_i q'`` at its two ends.
+
+        Seed 003 eq. 47-48 take the energies at the interval ends only; but a stop starts with
+        ``s'' > 0`` (the acceleration ramps down at the jerk limit), so the speed peaks INSIDE
+        the first failsafe interval and the end samples miss it (seen in closed loop: 5 %
+        above the threshold in the middle of a 16 ms interval). The speed peak is now exact;
+        ``g_i`` is still sampled at the interval ends (it varies with the configuration only,
+        over the short path stretch of an interval), with the relative margin
+        :data:`G_MARGIN`: the remaining, measured shortcut."""
+        prof = traj.step.profile.then(traj.stop.profile)
+        sd_max, _ = prof.interval_maxima(traj.times, traj.sd, traj.sdd)
+        sd = traj.sd
+        g = np.empty_like(E_s)
+        fast = sd > 1e-3
+        g[fast] = 2.0 * E_s[fast] / (sd[fast] * sd[fast])[:, None]
+        slow = np.flatnonzero(~fast)
+        if slow.size:
+            dq = traj.step.path.derivatives(traj.s[slow], 1)[1]
+            g[slow] = 2.0 * self.pfl.motion.energies(traj.q[slow], dq)
+        peak = (0.5 * (1.0 + G_MARGIN)) * (sd_max * sd_max)[:, None, None]
+        peak = peak * np.stack([g[:-1], g[1:]], axis=1)
+        return np.maximum(peak, np.stack([E_s[:-1], E_s[1:]], axis=1))
 
     def _human_sets(
         self, model: str, hum: Humans, times: np.ndarray, lo: int, hi: int
