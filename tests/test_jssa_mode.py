@@ -175,10 +175,10 @@ def test_switch_ssm_to_jssa_and_back() -> None:
         # continuous: the velocity changes by at most a_max dt + j_max dt^2 / 2 per cycle
         assert np.all(np.abs(res.command.v - prev.v) <= lim.a_max * dt + lim.j_max * dt * dt)
         prev = res.command
-    # nobody around: JSSA tracks the path exactly (constant speed), so SSM keeps the follower
+    # JSSA verified no failsafe: even on the path, SSM takes over only at rest
     back = Shield(ssm.robot, ssm.follower, ssm.reach, ssm.settings)
-    back.adopt(jssa)
-    assert back.follower is jssa.follower
+    with pytest.raises(ParameterError, match="at rest"):
+        back.adopt(jssa)
     # a person pushes the robot off its path: back to SSM only at rest
     t0 = 90 * dt
     _, state = walker(0.8, 0.9, 0.8, jssa.reach.params.delay_s, t0)

@@ -161,22 +161,35 @@ class Shield:
     def adopt(self, previous: Shield) -> None:
         """Take the robot over from the safety layer that ran it until now (same robot).
 
-        When the robot is on the previous follower's path (SSM <-> PFL) the follower is kept,
-        with the failsafe it holds (verified under the old layer; the new one verifies from the
-        next step). A robot off that path (after JSSA) must be at rest: the new follower then
-        starts there and heads for the old path's end. Raises :class:`ParameterError` otherwise.
+        From SSM or PFL the follower is kept with the failsafe it holds: that stop was verified
+        under the previous mode's criterion, which therefore still covers the robot until the
+        new mode commits its first verified step (SSM -> PFL: an SSM-verified stop touches
+        nobody, so it is PFL-safe too; PFL -> SSM: the held stop may allow contacts below the
+        energy thresholds until then). From JSSA nothing was verified: the robot must be at
+        rest; the new follower then starts where it stands (on or off the old path) and heads
+        for the old path's end. Raises :class:`ParameterError` otherwise.
         """
         f = previous.follower
-        now, on_path = previous.robot_state, f.state
-        if np.allclose(now.q, on_path.q, atol=1e-9) and np.allclose(now.v, on_path.v, atol=1e-9):
-            self.follower = f
-            return
+        now = previous.robot_state
+        if previous.safety_mode != "jssa":
+            on_path = f.state
+            if np.allclose(now.q, on_path.q, atol=1e-9) and np.allclose(
+                now.v, on_path.v, atol=1e-9
+            ):
+                self.follower = f
+                return
         if not previous.at_rest:
             raise ParameterError(
                 f"switching from {previous.safety_mode} to {self.safety_mode} needs the robot "
-                "at rest (it is off its path and moving); stop it first"
+                f"at rest ({previous.safety_mode} holds no verified failsafe for it); stop "
+                "it first"
             )
         goal = f.path.q(f.path.length)
+        if np.allclose(now.q, goal, atol=1e-9):
+            self.follower = PathFollower(
+                np.vstack([goal]), f.limits, blend_distance=f.blend_distance
+            )
+            return
         self.follower = PathFollower(
             np.vstack([now.q, goal]), f.limits, blend_distance=f.blend_distance
         )
