@@ -19,6 +19,7 @@ from collections.abc import Callable, Iterator
 import numpy as np
 import pytest
 
+from sara_app.bench_live import CHROMIUM_FLAGS
 from sara_app.dashboard.frame import CONTACT_ENV, MODEL_NAMES
 from sara_app.dashboard.scene import demo_frame
 from sara_app.dashboard.viewer import Dashboard
@@ -27,17 +28,7 @@ CHROMIUM = "/usr/bin/chromium"
 pytestmark = pytest.mark.skipif(
     not os.path.exists(CHROMIUM), reason=f"{CHROMIUM} is absent (apt-get install chromium)"
 )
-FLAGS = (
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--enable-unsafe-swiftshader",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-    "--window-size=960,600",
-)
+FLAGS = CHROMIUM_FLAGS
 
 
 def _free_port() -> int:

@@ -21,7 +21,7 @@ import math
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
 from sara_app.bus.keys import NAME_PATTERN
@@ -366,17 +366,15 @@ def _check_finite_tree(value: object, depth: int = 0) -> None:
             _check_finite_tree(v, depth + 1)
 
 
+FiniteTree = Annotated[dict[str, Any], AfterValidator(lambda v: (_check_finite_tree(v), v)[1])]
+"""A JSON object (a scenario) whose numbers are all finite."""
+
+
 class ParamsMsg(_Msg):
     """A full scenario or parameter update for the worker (key ``sara/<cell>/params``)."""
 
     request_id: Name
-    scenario: dict[str, Any]
-
-    @field_validator("scenario")
-    @classmethod
-    def _finite(cls, v: dict[str, Any]) -> dict[str, Any]:
-        _check_finite_tree(v)
-        return v
+    scenario: FiniteTree
 
 
 class ParamsAckMsg(_Msg):
@@ -407,13 +405,7 @@ class ScenarioStateMsg(_Msg):
 
     cell: Name
     revision: Annotated[int, Field(ge=0)]
-    scenario: dict[str, Any]
-
-    @field_validator("scenario")
-    @classmethod
-    def _finite(cls, v: dict[str, Any]) -> dict[str, Any]:
-        _check_finite_tree(v)
-        return v
+    scenario: FiniteTree
 
 
 Message = (
