@@ -135,6 +135,7 @@ class Shield:
         self.tracking_margin_m = self.occupancy.lipschitz @ np.full(robot.n_dof, s.tracking_tol_rad)
         self._half_th = reach.params.half_thickness_m
         self._parts = reach.skeleton.part_joints
+        self._commanded: tuple[PathFollower, float, np.ndarray] | None = None
         self.cycles = 0
         self.fault_cycles = 0
         self.failsafe_cycles = 0
@@ -201,7 +202,11 @@ class Shield:
             return
         q = np.asarray(measured.q, dtype=float)
         f = self.follower
-        expected = f.path.q(f.s)
+        cached = self._commanded
+        if cached is not None and cached[0] is f and cached[1] == f.s:
+            expected = cached[2]  # the last command: where the follower stands
+        else:
+            expected = f.path.q(f.s)
         if q.shape != expected.shape or not math.isfinite(float(q.sum())):
             faults.append(f"robot state malformed: q shape {q.shape}, expected {expected.shape}")
             return
@@ -276,6 +281,7 @@ class Shield:
         else:
             command = follower.brake(self.settings.dt_s)
             mode = "fault" if faults else "failsafe"
+        self._commanded = (follower, follower.s, command.q)
         if mode != "fault" and follower.sd <= 1e-9 and abs(follower.sdd) <= 1e-7:
             mode = "rest" if (follower.done or verified) else mode
         self.cycles += 1
