@@ -129,6 +129,12 @@ def serve(
         hub.close()
 
 
+def _interrupt(signum: int, _frame: object) -> None:
+    """SIGTERM ends ``serve`` like Ctrl-C, so its worker and replayer are stopped too (they run
+    in their own sessions and would otherwise outlive it)."""
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
 def main_for_cli(
     scenario: str,
     cell: str,
@@ -139,6 +145,7 @@ def main_for_cli(
 ) -> int:
     logging.basicConfig(level=logging.WARNING)
     os.environ.setdefault("PYTHONUNBUFFERED", "1")
+    signal.signal(signal.SIGTERM, _interrupt)  # a service manager's stop: like Ctrl-C
     try:
         return serve(
             scenario,

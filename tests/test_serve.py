@@ -9,6 +9,9 @@ import subprocess
 import sys
 import time
 import urllib.request
+from pathlib import Path
+
+import pytest
 
 from sara_app.bus.session import free_port
 
@@ -18,7 +21,24 @@ def _get(url: str) -> tuple[int, bytes]:
         return r.status, r.read()
 
 
-def test_serve_runs_the_default_cell_and_stops_on_ctrl_c() -> None:
+def _children(zenoh_port: int) -> list[str]:
+    """Command lines of running worker/replayer processes started for this zenoh port."""
+    out = []
+    for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
+        try:
+            args = cmdline.read_bytes().split(b"\0")
+        except OSError:
+            continue
+        text = b" ".join(args).decode(errors="replace")
+        if ("sara_app.worker" in text or "sara_app.replayer" in text) and (
+            f"--port {zenoh_port}" in text
+        ):
+            out.append(text)
+    return out
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(sig: signal.Signals) -> None:
     zp, vp, ap = free_port(), free_port(), free_port()
     cmd = [sys.executable, "-m", "sara_app.cli", "serve", "--zenoh-port", str(zp),
            "--viewer-port", str(vp), "--api-port", str(ap)]  # fmt: skip
@@ -42,8 +62,9 @@ def test_serve_runs_the_default_cell_and_stops_on_ctrl_c() -> None:
         assert status == 200 and b"<html" in page.lower()
         status, _ = _get(f"http://127.0.0.1:{ap}/")
         assert status == 200
+        assert len(_children(zp)) == 2
     finally:
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(sig)
         out, _ = proc.communicate(timeout=30)
     assert proc.returncode == 0, out
     assert f"http://127.0.0.1:{vp}" in out
@@ -53,3 +74,7 @@ def test_serve_runs_the_default_cell_and_stops_on_ctrl_c() -> None:
     with socket.socket() as s:
         s.settimeout(1)
         assert s.connect_ex(("127.0.0.1", zp)) != 0
+    t_end = time.monotonic() + 10
+    while _children(zp) and time.monotonic() < t_end:
+        time.sleep(0.2)
+    assert _children(zp) == []
