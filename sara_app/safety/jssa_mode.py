@@ -196,18 +196,8 @@ class JssaMode(Shield):
 
     # -- parts of a cycle -----------------------------------------------------------------------
 
-    def _check_tracking(self, measured: JointState | None, faults: list[str]) -> None:
-        if measured is None:
-            return
-        q = np.asarray(measured.q, dtype=float)
-        if q.shape != self._q.shape or not np.all(np.isfinite(q)):
-            faults.append(f"robot state malformed: q shape {q.shape}, expected {self._q.shape}")
-            return
-        err = float(np.max(np.abs(q - self._q)))
-        if err > self.settings.tracking_tol_rad:
-            faults.append(
-                f"tracking error {err:.4f} rad > tolerance {self.settings.tracking_tol_rad} rad"
-            )
+    def _commanded_q(self) -> np.ndarray:
+        return self._q  # the robot follows JSSA's integrated state, not the path
 
     def _nominal(self, dt: float) -> np.ndarray:
         """Advance the reference one step at the governed speed (see the module notes) and
@@ -296,9 +286,7 @@ class JssaMode(Shield):
             mode = "rest"
         else:
             mode = "intended"
-        self.cycles += 1
-        self.fault_cycles += mode == "fault"
-        self.failsafe_cycles += mode in ("failsafe", "fault")
+        self._count(mode)
         command = self.robot_state
         out = CycleResult(
             t_s=t_now,

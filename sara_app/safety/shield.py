@@ -201,12 +201,7 @@ class Shield:
         if measured is None:
             return
         q = np.asarray(measured.q, dtype=float)
-        f = self.follower
-        cached = self._commanded
-        if cached is not None and cached[0] is f and cached[1] == f.s:
-            expected = cached[2]  # the last command: where the follower stands
-        else:
-            expected = f.path.q(f.s)
+        expected = self._commanded_q()
         if q.shape != expected.shape or not math.isfinite(float(q.sum())):
             faults.append(f"robot state malformed: q shape {q.shape}, expected {expected.shape}")
             return
@@ -215,6 +210,20 @@ class Shield:
             faults.append(
                 f"tracking error {err:.4f} rad > tolerance {self.settings.tracking_tol_rad} rad"
             )
+
+    def _commanded_q(self) -> np.ndarray:
+        """``(n,)`` the joint position last commanded (what a measured state must track)."""
+        f = self.follower
+        cached = self._commanded
+        if cached is not None and cached[0] is f and cached[1] == f.s:
+            return cached[2]  # the last command: the follower still stands where it left it
+        return f.path.q(f.s)
+
+    def _count(self, mode: str) -> None:
+        """Per-mode cycle counters."""
+        self.cycles += 1
+        self.fault_cycles += mode == "fault"
+        self.failsafe_cycles += mode in ("failsafe", "fault")
 
     def _check_humans(
         self, t_now: float, humans: list[HumanState], faults: list[str], ages: dict[str, float]
@@ -284,9 +293,7 @@ class Shield:
         self._commanded = (follower, follower.s, command.q)
         if mode != "fault" and follower.sd <= 1e-9 and abs(follower.sdd) <= 1e-7:
             mode = "rest" if (follower.done or verified) else mode
-        self.cycles += 1
-        self.fault_cycles += mode == "fault"
-        self.failsafe_cycles += mode in ("failsafe", "fault")
+        self._count(mode)
         out = CycleResult(
             t_s=t_now,
             mode=mode,
