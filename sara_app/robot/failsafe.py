@@ -72,6 +72,7 @@ from sara_app.robot.trajectory import (
     sub_piece_room,
     velocity_phases,
 )
+from sara_app.robot.trajectory_kernels import shielded_samples_kernel
 
 __all__ = [
     "JointStopProfile",
@@ -562,6 +563,44 @@ def _joint_samples(
             a[k, j] = d2q[k, j] * (sd[k] * sd[k]) + dq[k, j] * sdd[k]
 
 
+_Samples = tuple[
+    np.ndarray, tuple[np.ndarray, ...], np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray
+]
+
+
+def _samples(path: PathTrajectory, step: FollowerStep, m: int) -> _Samples:
+    """Samples of ``step`` + its failsafe in ``m`` intervals, compiled: ``(times, (s, s', s''),
+    q, v, a, v_bound, a_bound)``."""
+    head, stop = step.profile, step.stop.profile
+    s0, v0, a0 = head.start
+    K = m + 1
+    n = path.n_joints
+    times = np.empty(K + 1)
+    ps = np.empty((3, K + 1))
+    joint = np.empty((5, K + 1, n))
+    bounds = np.empty((2, K, n))
+    shielded_samples_kernel(
+        step.dt, stop.duration, s0, v0, a0, np.array(head.durs + stop.durs),
+        np.array(head.jerks + stop.jerks), *path.piece_tables, _BOUND_PAD, times, ps, joint,
+        bounds,
+    )  # fmt: skip
+    return times, tuple(ps), joint[0], joint[3], joint[4], bounds[0], bounds[1]
+
+
+def _samples_reference(path: PathTrajectory, step: FollowerStep, m: int) -> _Samples:
+    """:func:`_samples` composed of the profile's and the path's numpy methods."""
+    T = step.stop.duration_s
+    times = np.empty(m + 2)
+    _sample_times(step.dt, T, times)
+    prof = step.profile.then(step.stop.profile)
+    s, sd, sdd = prof.evaluate(times)
+    q, dq, d2q = path._derivatives_array(s, 2)
+    v, a = np.empty((2,) + dq.shape)
+    _joint_samples(sd, sdd, dq, d2q, v, a)
+    v_bound, a_bound = _interval_bounds(path, prof, times, s, sd, sdd, dq)
+    return times, (s, sd, sdd), q, v, a, v_bound, a_bound
+
+
 def _warm_up() -> None:
     """First-call dispatch of the compiled helpers at import, not in a control loop."""
     z1, z2 = np.zeros(2), np.zeros((2, 1))
@@ -609,12 +648,15 @@ def shielded_trajectory(
     n_intervals: int | None = None,
     *,
     max_interval_s: float = 0.01,
+    reference: bool = False,
 ) -> ShieldedTrajectory:
     """The follower's next step of ``dt`` seconds (follower unchanged) + the failsafe after it.
 
     The failsafe part is split into ``n_intervals`` equal intervals (default: as few as keep
     every interval at most ``max_interval_s`` long; none if the robot is at rest after the
-    step). The intended step is always one interval.
+    step). The intended step is always one interval. ``reference``: sample with the numpy
+    composition of the profile and path methods instead of the compiled kernel (the same
+    formulas; for tests).
     """
     step = follower.peek(dt)
     stop = step.stop
@@ -627,14 +669,8 @@ def shielded_trajectory(
         if not isinstance(n_intervals, int) or n_intervals < 1:
             raise RobotModelError(f"n_intervals = {n_intervals!r}; expected an integer >= 1")
         m = n_intervals if T > 0 else 0
-    times = np.empty(m + 2)
-    _sample_times(step.dt, T, times)
-    prof = step.profile.then(stop.profile)
-    s, sd, sdd = prof.evaluate(times)
-    q, dq, d2q = follower.path._derivatives_array(s, 2)
-    v, a = np.empty((2,) + dq.shape)
-    _joint_samples(sd, sdd, dq, d2q, v, a)
-    v_bound, a_bound = _interval_bounds(follower.path, prof, times, s, sd, sdd, dq)
+    samples = _samples_reference if reference or not follower.path.n_pieces else _samples
+    times, (s, sd, sdd), q, v, a, v_bound, a_bound = samples(follower.path, step, m)
     return ShieldedTrajectory(
         times=times,
         q=q,

@@ -618,6 +618,7 @@ class PathTrajectory:
             ],
             axis=1,
         )  # (P, 5, 4 n)
+        self._piece_tables = (p.s0, p.length, self._poly, self.M1, self.M2, qs0)
 
     # -- geometry ----------------------------------------------------------------------------
 
@@ -633,6 +634,15 @@ class PathTrajectory:
     @property
     def piece_is_blend(self) -> np.ndarray:
         return np.zeros(0, bool) if self._p is None else self._p.blend.copy()
+
+    @property
+    def piece_tables(self) -> tuple[np.ndarray, ...]:
+        """Per-piece tables for compiled kernels: starts, lengths ``(P,)``, quartic coefficients
+        ``(P, 5, 4 n)`` of ``[q | dq/ds | d2q/ds2 | d3q/ds3]`` in ``tau = s - s_k``, maxima of
+        ``|dq/ds|``, ``|d2q/ds2|`` ``(P, n)`` and ``dq/ds`` at every piece start ``(P, n)``."""
+        if self._p is None:
+            raise RobotModelError("a path of one point has no pieces")
+        return self._piece_tables
 
     def piece_index(self, s: float) -> int:
         """Index of the piece containing ``s`` (scalar)."""
