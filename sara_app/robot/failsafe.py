@@ -579,10 +579,11 @@ def _samples(path: PathTrajectory, step: FollowerStep, m: int) -> _Samples:
     ps = np.empty((3, K + 1))
     joint = np.empty((5, K + 1, n))
     bounds = np.empty((2, K, n))
+    p_s0, p_len, poly, M1, M2, qs = path.piece_tables
     shielded_samples_kernel(
         step.dt, stop.duration, s0, v0, a0, np.array(head.durs + stop.durs),
-        np.array(head.jerks + stop.jerks), *path.piece_tables, _BOUND_PAD, times, ps, joint,
-        bounds,
+        np.array(head.jerks + stop.jerks), p_s0, p_len, poly, M1, M2, qs, _BOUND_PAD, times,
+        ps, joint, bounds,
     )  # fmt: skip
     return times, tuple(ps), joint[0], joint[3], joint[4], bounds[0], bounds[1]
 

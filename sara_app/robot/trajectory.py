@@ -1264,8 +1264,12 @@ class PathFollower:
         prof = ScalarProfile(s, v, a, d, j)
         return FollowerStep(dt, self.path, prof, prof.end, held.advanced(dt), True)
 
-    def commit(self, step: FollowerStep) -> JointState:
-        """Apply a step from :meth:`peek` (of this follower, in its current state)."""
+    def commit(self, step: FollowerStep, at_end: JointState | None = None) -> JointState:
+        """Apply a step from :meth:`peek` (of this follower, in its current state).
+
+        ``at_end``: the joint state at the end of the step if the caller already sampled it
+        (a shielded trajectory's sample 1); returned as is unless the path ends with this step.
+        """
         if step.path is not self.path or step.profile.start != (self._s, self._v, self._a):
             raise RobotModelError(
                 "step was planned for another path or state; call peek() again before commit()"
@@ -1282,7 +1286,8 @@ class PathFollower:
             if pending is not None:
                 self._pending = None
                 self._start_from_rest(pending)
-        return self.state
+            return self.state
+        return self.state if at_end is None else at_end
 
     def step(self, dt: float) -> JointState:
         """Advance ``dt`` seconds along the path; returns the joint state at the end."""

@@ -285,7 +285,7 @@ class Shield:
         res = self._res
         follower = self.follower
         if verified and traj is not None:
-            command = follower.commit(traj.step)
+            command = follower.commit(traj.step, JointState(traj.q[1], traj.v[1], traj.a[1]))
             mode = "failsafe" if traj.step.fallback else "intended"
         else:
             command = follower.brake(self.settings.dt_s)
