@@ -28,8 +28,9 @@ from sara_app.bus.messages import (
     VerdictMsg,
 )
 from sara_app.bus.session import Drained
-from sara_app.dashboard.bridge import CellView, contact_class_grid
+from sara_app.dashboard.bridge import CellView
 from sara_app.dashboard.frame import CONTACT_ENV, CONTACT_SELF, CONTACT_UNCONSTRAINED
+from sara_app.dashboard.from_messages import contact_class_grid
 from sara_app.dashboard.scene import CONTACT_RGB, CRITICAL_ACTIVE_RGB, CRITICAL_IDLE_RGB
 from sara_app.dashboard.viewer import Dashboard
 from sara_app.errors import ScenarioError, UnknownNameError

@@ -4,20 +4,20 @@ accepts it: never half-applied).
 
 Editing: pick a scenario, switch the safety mode (SSM / PFL / JSSA), change any field in the
 parameter panel, drag environment boxes, people's start positions and the robot's task waypoints
-(the tool frame's pose; inverse kinematics from the old waypoint, :mod:`sara_app.robot.ik`) with
-gizmos, save as a new scenario file. Every change is validated as a whole scenario
+(the tool frame's pose) with gizmos (:mod:`sara_app.dashboard.gizmos`), save as a new scenario
+file. Every change is validated as a whole scenario
 (:func:`sara_app.scenario.parse_scenario` + robot checks), sent on ``sara/<cell>/params`` and
 kept only if the worker's ``params/ack`` accepts it; an unreachable waypoint pose is refused
 before anything is sent.
 
-Display: PFL contacts colour the occupancy capsule (interval, link) where each contact is first
-possible and the body part, by contact class; link energies go to the panel's table; the JSSA
-state to the status table, its critical pair to a line.
+Display (:mod:`sara_app.dashboard.from_messages`): PFL contacts colour the occupancy capsule
+(interval, link) where each contact is first possible and the body part, by contact class; link
+energies go to the panel's table; the JSSA state to the status table, its critical pair to a
+line.
 """
 
 from __future__ import annotations
 
-import copy
 import logging
 import threading
 import time
@@ -31,10 +31,6 @@ import numpy as np
 from sara_app.bus import keys
 from sara_app.bus.codec import Decoder
 from sara_app.bus.messages import (
-    ContactMsg,
-    HumanOccupancyMsg,
-    JssaMsg,
-    LinkEnergyMsg,
     OccupancyMsg,
     ParamsAckMsg,
     ParamsMsg,
@@ -43,21 +39,12 @@ from sara_app.bus.messages import (
     VerdictMsg,
 )
 from sara_app.bus.session import Bus
-from sara_app.cell import base_pose
-from sara_app.dashboard.capsules import rotation_to_wxyz
-from sara_app.dashboard.frame import (
-    CONTACT_CODES,
-    ContactParts,
-    DisplayFrame,
-    EnvBoxes,
-    HumanDisplay,
-    LinkEnergy,
-)
+from sara_app.dashboard.frame import DisplayFrame
+from sara_app.dashboard.from_messages import boxes_of, occupancy_into, verdict_status
+from sara_app.dashboard.gizmos import GizmoEditing
 from sara_app.dashboard.viewer import Dashboard
 from sara_app.errors import SaraError, ScenarioError, UnknownNameError
-from sara_app.human.skeleton import skeleton
-from sara_app.robot.ik import end_effector_frame, pose_from_wxyz, solve_ik
-from sara_app.robot.model import RobotModel, load_robot
+from sara_app.robot.model import RobotModel
 from sara_app.safety.threshold_audit import AuditLog
 from sara_app.scenario import (
     SAFETY_MODES,
@@ -71,145 +58,9 @@ from sara_app.scenario import (
 
 log = logging.getLogger("sara_app.dashboard")
 _EDIT_EXCLUDE = ("schema_version", "name", "description")
-_BONES = skeleton("full").part_joints[
-    skeleton("full").part_joints[:, 0] != skeleton("full").part_joints[:, 1]
-]
 
 
-PART_RADIUS_M = 0.07
-"""Radius of the capsule that highlights a body part in possible contact (display only)."""
-
-
-def contact_class_grid(
-    contacts: list[ContactMsg], link_names: list[str], n_intervals: int
-) -> np.ndarray:
-    """``(K, L)`` int8 ``CONTACT_*`` values: a contact at interval ``k`` on a link marks capsule
-    ``(k, link)``; several contacts on one capsule: the most constrained class (self > env >
-    unconstrained). Contacts naming an unknown link or an interval beyond ``K`` are skipped."""
-    grid = np.zeros((n_intervals, len(link_names)), dtype=np.int8)
-    index = {name: i for i, name in enumerate(link_names)}
-    for c in contacts:
-        i = index.get(c.link)
-        if i is not None and c.interval < n_intervals:
-            grid[c.interval, i] = max(grid[c.interval, i], CONTACT_CODES[c.kind])
-    return grid
-
-
-def contact_parts_of(
-    contacts: list[ContactMsg], humans: list[HumanOccupancyMsg]
-) -> ContactParts | None:
-    """The body parts in possible contact as capsules between each part's end joints (most
-    constrained class per part); parts of unknown humans or names are skipped."""
-    classes: dict[tuple[str, str], int] = {}
-    for c in contacts:
-        key = (c.human_id, c.body_part)
-        classes[key] = max(classes.get(key, 0), CONTACT_CODES[c.kind])
-    if not classes:
-        return None
-    by_id = {h.id: h for h in humans}
-    ends, codes = [], []
-    for (hid, part), code in classes.items():
-        h = by_id.get(hid)
-        if h is None:
-            continue
-        sk = skeleton(h.kind)
-        if part not in sk.parts:
-            continue
-        y = np.asarray(h.joints_m).reshape(-1, 3)
-        ends.append(y[sk.part_joints[sk.parts.index(part)]])
-        codes.append(code)
-    if not ends:
-        return None
-    return ContactParts(np.stack(ends), np.full(len(ends), PART_RADIUS_M), np.array(codes))
-
-
-def link_rows(links: list[LinkEnergyMsg]) -> list[LinkEnergy]:
-    return [
-        LinkEnergy(
-            e.link,
-            e.energy_j,
-            e.limit_j,
-            e.margin_j,
-            e.human_id,
-            e.body_part,
-            e.contact,
-            e.shape,
-        )
-        for e in links
-    ]
-
-
-def jssa_display(j: JssaMsg | None) -> tuple[dict[str, Any] | None, np.ndarray | None]:
-    """The status entry of a JSSA state and its critical pair ``(2, 3)`` (robot point, other
-    point; None when either is missing)."""
-    if j is None:
-        return None, None
-    status = j.model_dump(exclude={"robot_point_m", "other_point_m"})
-    pair = None
-    if j.robot_point_m is not None and j.other_point_m is not None:
-        pair = np.array([j.robot_point_m, j.other_point_m])
-    return status, pair
-
-
-def _on_release(gizmo: Any, callback: Any) -> None:
-    """Call ``callback(event)`` when the user lets go of ``gizmo`` (drag phase "end")."""
-
-    def handler(event: Any) -> None:
-        if getattr(event, "phase", "end") == "end":
-            callback(event)
-
-    gizmo.on_update(handler)
-
-
-def verdict_status(v: VerdictMsg, cycle_us: np.ndarray) -> dict[str, Any]:
-    """The status entries of a verdict (keys documented on :class:`DisplayFrame`);
-    ``cycle_us (n,)``: recent cycle times [us] for the percentiles."""
-    return {
-        "mode": v.mode,
-        "safety_mode": v.safety_mode,
-        "min_distance_m": v.min_distance_m,
-        "cycle_p50_us": float(np.median(cycle_us)) if cycle_us.size else None,
-        "cycle_p99_us": float(np.percentile(cycle_us, 99)) if cycle_us.size else None,
-        "skeleton_age_ms": {k: 1e3 * a for k, a in v.skeleton_age_s.items()},
-        "dropped": dict(v.dropped),
-        "models": dict(v.results),
-        "faults": list(v.faults),
-        "intervened": v.intervened,
-        "speed_scale": v.speed_scale,
-        "jssa": None,
-    }
-
-
-def occupancy_into(frame: DisplayFrame, occ: OccupancyMsg) -> None:
-    """Fill ``frame`` with an occupancy message: humans, robot occupancy (its verdict), PFL
-    contact classes, body parts in contact and link energies, the JSSA state and pair."""
-    for h in occ.humans:
-        models = {name: caps.arrays() for name, caps in h.models.items()}
-        y = np.asarray(h.joints_m).reshape(-1, 3)
-        frame.humans.append(HumanDisplay(h.id, y, _BONES, models))
-    if occ.robot is not None:
-        r = occ.robot
-        e, rad = r.capsules.arrays()
-        K, L = r.n_intervals, len(r.link_names)
-        frame.robot_ends, frame.robot_radius = e.reshape(K, L, 2, 3), rad.reshape(K, L)
-        frame.verified = r.verified
-        frame.contact_class = contact_class_grid(occ.contacts, r.link_names, K)
-    frame.contact_parts = contact_parts_of(occ.contacts, occ.humans)
-    frame.links = link_rows(occ.links)
-    jssa, frame.critical_pair = jssa_display(occ.jssa)
-    frame.status["jssa"] = jssa
-    frame.critical_active = bool(jssa and jssa["active"])
-
-
-def boxes_of(sc: Scenario) -> EnvBoxes | None:
-    if not sc.environment:
-        return None
-    T = np.stack([base_pose(b.center_m, b.rpy_rad) for b in sc.environment])
-    half = np.array([b.size_m for b in sc.environment]) * 0.5
-    return EnvBoxes(T, half)
-
-
-class CellView:
+class CellView(GizmoEditing):
     """Feeds one :class:`Dashboard` from one cell's messages; owns the scenario being edited."""
 
     def __init__(
@@ -437,133 +288,3 @@ class CellView:
         if self.dash.panels is not None:
             self.dash.panels.set_params(self.editable())
         return sc
-
-    # -- robot waypoints -----------------------------------------------------------------------
-
-    def robot(self) -> RobotModel:
-        """The scenario's robot at its base pose (reloaded when the robot or base changes)."""
-        r = self.scenario.robot
-        key = (r.name, tuple(r.base_xyz_m), tuple(r.base_rpy_rad))
-        if self._robot_model is None or key != self._robot_key:
-            T = base_pose(r.base_xyz_m, r.base_rpy_rad)
-            self._robot_model = load_robot(r.name, T_world_base=T)
-            self._robot_key = key
-        return self._robot_model
-
-    def waypoint_poses(self) -> np.ndarray:
-        """World poses ``(W, 4, 4)`` of the tool frame at the task's waypoints."""
-        robot = self.robot()
-        frame = end_effector_frame(robot)
-        wps = self.scenario.task.waypoints_rad
-        return np.stack([robot.frame_pose(np.asarray(q, dtype=float), frame) for q in wps])
-
-    def move_waypoint(self, i: int, T_world_target: np.ndarray) -> np.ndarray:
-        """Solve waypoint ``i`` for a tool pose ``T_world_target (4, 4)`` (warm start: the old
-        waypoint) and send the edited scenario; the new joint positions. Raises
-        :class:`ScenarioError` (nothing sent) when the pose is out of reach."""
-        wps = self.scenario.task.waypoints_rad
-        if not 0 <= i < len(wps):
-            raise ScenarioError(f"waypoint {i} does not exist; the task has {len(wps)}")
-        robot = self.robot()
-        res = solve_ik(robot, T_world_target, np.asarray(wps[i], dtype=float))
-        if not res.converged:
-            p = np.round(np.asarray(T_world_target)[:3, 3], 3).tolist()
-            raise ScenarioError(
-                f"waypoint {i}: the tool pose at {p} m is out of reach of the {robot.name} "
-                f"(closest found: {1e3 * res.position_error_m:.1f} mm and "
-                f"{np.degrees(res.rotation_error_rad):.1f} deg away); the waypoint is unchanged"
-            )
-        data = self.scenario.model_dump(mode="json")
-        data["task"]["waypoints_rad"][i] = [float(x) for x in res.q]
-        self.send(data)
-        return res.q
-
-    # -- gizmos --------------------------------------------------------------------------------
-
-    def add_gizmos(self) -> None:
-        """Drag handles for environment boxes, people's start positions and the robot's task
-        waypoints (at the tool frame's pose)."""
-        server = self.dash.server
-        if server is None:
-            return
-        for g in self.gizmos:
-            g.remove()
-        self.gizmos = []
-        self._add_waypoint_gizmos(server)
-        for i, b in enumerate(self.scenario.environment):
-            g = server.scene.add_transform_controls(
-                f"/edit/box_{i}", scale=0.3, position=b.center_m, disable_rotations=True
-            )
-            _on_release(g, self._on_box_drag(i, g))
-            self.gizmos.append(g)
-        for i, h in enumerate(self.scenario.humans):
-            pos = getattr(h, "position_m", None)
-            if pos is None:
-                continue
-            g = server.scene.add_transform_controls(
-                f"/edit/human_{i}",
-                scale=0.3,
-                position=(pos[0], pos[1], 0.0),
-                disable_rotations=True,
-                active_axes=(True, True, False),
-            )
-            _on_release(g, self._on_human_drag(i, g))
-            self.gizmos.append(g)
-
-    def _add_waypoint_gizmos(self, server: Any) -> None:
-        try:
-            poses = self.waypoint_poses()
-        except (ScenarioError, ValueError) as e:  # a robot that cannot be loaded: no handles
-            log.warning("no waypoint gizmos: %s", e)
-            return
-        wxyz = rotation_to_wxyz(poses[:, :3, :3])
-        for i, T in enumerate(poses):
-            g = server.scene.add_transform_controls(
-                f"/edit/waypoint_{i}", scale=0.15, position=T[:3, 3], wxyz=wxyz[i]
-            )
-            label = server.scene.add_label(f"/edit/waypoint_{i}/label", f"waypoint {i}")
-            _on_release(g, self._on_waypoint_drag(i, g))
-            self.gizmos += [label, g]
-
-    def _on_waypoint_drag(self, i: int, g: Any) -> Any:
-        def cb(_event: Any) -> None:
-            def apply() -> None:
-                T = pose_from_wxyz(np.asarray(g.wxyz), np.asarray(g.position))
-                self.move_waypoint(i, T)
-
-            self._report(f"waypoint {i}", apply)
-
-        return cb
-
-    def _report(self, what: str, fn: Any) -> None:
-        panels = self.dash.panels
-        try:
-            fn()
-            if panels is not None:
-                panels.show_message(f"{what}: applied")
-        except (ScenarioError, ValueError) as e:
-            if panels is not None:
-                panels.show_message(f"{what} refused: {e}", error=True)
-            self.add_gizmos()  # back to the accepted positions
-
-    def _on_box_drag(self, i: int, g: Any) -> Any:
-        def cb(_event: Any) -> None:
-            def apply() -> None:
-                data = self.scenario.model_dump(mode="json")
-                data["environment"][i]["center_m"] = [float(x) for x in g.position]
-                self.send(data)
-
-            self._report(f"box {i}", apply)
-
-        return cb
-
-    def _on_human_drag(self, i: int, g: Any) -> Any:
-        def cb(_event: Any) -> None:
-            def apply() -> None:
-                data = copy.deepcopy(self.scenario.model_dump(mode="json"))
-                data["humans"][i]["position_m"] = [float(g.position[0]), float(g.position[1])]
-                self.send(data)
-
-            self._report(f"person {i}", apply)
-
-        return cb
