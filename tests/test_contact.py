@@ -423,3 +423,37 @@ def test_classify_rejects_shapes_the_kernels_cannot_index() -> None:
     bad[6] = bad[6][:, :-1]  # eps_v with one link missing
     with pytest.raises(InputError, match="eps_v has shape"):
         clf.classify(*bad)
+
+
+def test_classify_humans_over_a_range_equals_classify_of_the_slice() -> None:
+    """The shield's path: the robot side validated once, human sets per interval range (and
+    static axes with growing radii given as ``(1, P, 2, 3)`` ends) give exactly what
+    :meth:`ContactClassifier.classify` gives for the sliced, broadcast inputs."""
+    rng = np.random.default_rng(13)
+    ranged = 0
+    for _ in range(120):
+        clf, args = _scene(rng)
+        r_ends, r_radius, s_ends, s_radius, p1_dot, omega, eps, h_ends, h_radius, T, half = args
+        K = r_radius.shape[0]
+        robot = clf.robot_side(r_ends, r_radius, s_ends, s_radius, p1_dot, omega, eps, T, half)
+        lo = int(rng.integers(0, K))
+        hi = int(rng.integers(lo + 1, K + 1))
+        k = hi - lo
+        he, hr = np.asarray(h_ends)[lo:hi], np.asarray(h_radius)[lo:hi]
+        static = rng.random() < 0.5
+        if static:  # one set of axes for every interval, radii per interval
+            he = np.broadcast_to(he[:1], he.shape)
+        fast = clf.classify_humans(robot, he[:1] if static else he, hr, lo, hi)
+        ref = clf.classify(
+            r_ends[lo:hi], r_radius[lo:hi], s_ends[lo : hi + 1], s_radius,
+            p1_dot[lo : hi + 1], omega[lo : hi + 1], eps[lo:hi], np.ascontiguousarray(he),
+            np.ascontiguousarray(hr), T, half,
+        )  # fmt: skip
+        for name in ("contact", "contact_single", "env", "self_", "cls", "stack"):
+            assert np.array_equal(getattr(fast, name), getattr(ref, name)), name
+        np.testing.assert_array_equal(fast.distance_m, ref.distance_m)
+        assert fast.cls.shape[0] == k
+        ranged += k < K
+    assert ranged > 30
+    with pytest.raises(InputError, match="interval range"):
+        clf.classify_humans(robot, h_ends, h_radius, 0, K + 1)

@@ -107,3 +107,93 @@ def test_bad_samples_are_infinite_energy_not_errors(robot: tuple[RobotModel, Lin
 def test_interval_energy_is_the_larger_end() -> None:
     T = np.array([[0.0, 1.0], [2.0, 0.5], [1.0, 3.0]])
     assert np.array_equal(interval_energy_J(T), [[2.0, 1.0], [2.0, 3.0]])
+
+
+def test_path_speed_peaks_equal_the_profile_interval_maxima() -> None:
+    """The compiled peak search equals ``ScalarProfile.then(...).interval_maxima`` (the numpy
+    reference) on random jerk profiles and sample times."""
+    from sara_app.robot.energy import path_speed_peaks
+    from sara_app.robot.trajectory import ScalarProfile
+
+    rng = np.random.default_rng(21)
+    inside = 0
+    for _ in range(200):
+        n1, n2 = rng.integers(1, 4), rng.integers(1, 5)
+        durs, jerks = list(rng.uniform(0.001, 0.05, n1)), list(rng.normal(0, 200, n1))
+        p1 = ScalarProfile(0.3, rng.uniform(0, 2), rng.uniform(-5, 5), durs, jerks)
+        s, v, a = p1.end
+        p2 = ScalarProfile(s, v, a, list(rng.uniform(0.001, 0.1, n2)),
+                           list(rng.normal(0, 200, n2)))  # fmt: skip
+        prof = p1.then(p2)
+        times = np.sort(rng.uniform(0, prof.duration * 1.1, int(rng.integers(2, 12))))
+        _, sd, sdd = prof.evaluate(times)
+        ref, _ = prof.interval_maxima(times, sd, sdd)
+        got = path_speed_peaks((p1, p2), times, sd)
+        np.testing.assert_array_equal(got, ref)
+        inside += int(np.any(ref > np.maximum(sd[:-1], sd[1:])))
+    assert inside > 20  # peaks inside intervals occur
+
+
+def test_path_interval_energy_equals_the_numpy_formula() -> None:
+    from sara_app.robot.energy import G_MARGIN, path_interval_energy_J
+
+    rng = np.random.default_rng(22)
+    for trial in range(50):
+        K, L = int(rng.integers(1, 10)), int(rng.integers(1, 9))
+        g = rng.uniform(0, 3, (K + 1, L))
+        sd = rng.uniform(-1e-3, 2, K + 1)
+        sd_max = np.maximum(np.maximum(sd[:-1], sd[1:]), rng.uniform(0, 2.5, K))
+        E = 0.5 * sd[:, None] ** 2 * g * rng.uniform(0.99, 1.01, (K + 1, L))
+        if trial % 5 == 0:
+            [g, E][trial % 2][rng.integers(K + 1), rng.integers(L)] = np.nan
+        m = np.maximum(np.maximum(np.abs(sd[:-1]), np.abs(sd[1:])), sd_max)
+        ref = 0.5 * (1 + G_MARGIN) * (m * m)[:, None] * np.maximum(g[:-1], g[1:])
+        ref = np.maximum(ref, np.maximum(E[:-1], E[1:]))
+        ref = np.where(np.isnan(ref), np.inf, ref)
+        got = path_interval_energy_J(g, E, sd, sd_max)
+        np.testing.assert_allclose(got, ref, rtol=1e-15, atol=0)
+
+
+def test_evaluate_path_equals_evaluate_of_the_joint_velocity(
+    robot: tuple[RobotModel, LinkMotion],
+) -> None:
+    model, motion = robot
+    q, dq = _samples(model, 6, seed=7)
+    sd = np.array([0.0, 0.3, 1.0, 2.0, 1e-9, 0.7])
+    plain = motion.evaluate(q, dq * sd[:, None])
+    T, pd, w = plain.energy_J.copy(), plain.p1_dot.copy(), plain.omega.copy()
+    path = motion.evaluate_path(q, dq, sd)
+    np.testing.assert_allclose(path.energy_J, T, rtol=1e-12, atol=1e-300)
+    np.testing.assert_allclose(path.p1_dot, pd, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(path.omega, w, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(path.g_J, 2.0 * motion.energies(q, dq), rtol=1e-12)
+    sd[2] = np.nan
+    bad = motion.evaluate_path(q, dq, sd)
+    assert np.all(np.isinf(bad.energy_J[2, 1:])) and np.all(np.isnan(bad.p1_dot[2]))
+    assert np.all(np.isfinite(bad.energy_J[[0, 1, 3]]))
+
+
+def test_bounded_interval_energy_equals_the_numpy_formula(
+    robot: tuple[RobotModel, LinkMotion],
+) -> None:
+    from sara_app.robot.energy import G_MARGIN, bounded_interval_energy_J
+
+    model, motion = robot
+    rng = np.random.default_rng(23)
+    K = 4
+    q, v = _samples(model, K + 1, seed=8)
+    E = motion.energies(q, v).copy()
+    qdd = rng.uniform(0, 20, (K, model.n_dof))
+    dt = rng.uniform(0.001, 0.02, K)
+    got = bounded_interval_energy_J(motion, q, E, qdd, dt)
+    mask = support_mask(model)
+    for k in range(K):
+        delta = qdd[k] * dt[k] / 2
+        for i in range(model.n_links):
+            d = np.where(mask[i], delta, 0.0)
+            ends = []
+            for e in (k, k + 1):
+                A = np.abs(model.mass_matrix(q[e]))
+                x = np.sqrt(2 * E[e, i]) + np.sqrt(d @ A @ d)
+                ends.append(0.5 * x * x)
+            assert got[k, i] == pytest.approx((1 + G_MARGIN) * max(ends), rel=1e-10, abs=1e-14)

@@ -7,6 +7,7 @@ import pytest
 
 from sara_app.errors import InputError
 from sara_app.human.skeleton import skeleton
+from sara_app.robot.energy import bounded_interval_energy_J
 from sara_app.robot.model import load_robot
 from sara_app.safety.contact import ENV_CONSTRAINED, NONE, UNCONSTRAINED
 from sara_app.safety.pfl import PflCheck, PflResult, bench_rows
@@ -131,16 +132,20 @@ def test_check_matches_check_trajectory_and_energy_forms(pfl: PflCheck) -> None:
     s = pfl.motion.evaluate(q, qd)
     eps = pfl.eps_from_bounds(np.diff(t), bound)
     args = (r_ends, r_radius, s.ends, s.p1_dot, s.omega, np.diff(t), *h, *boxes)
-    b = pfl.check(*args, s.energy_J.copy(), eps_v=eps)
+    E_int = bounded_interval_energy_J(pfl.motion, q, s.energy_J, np.broadcast_to(
+        pfl.model.limits.a_max, (K, 7)), np.diff(t))  # fmt: skip
+    assert np.all(E_int >= np.maximum(s.energy_J[:-1], s.energy_J[1:]))
+    b = pfl.check(*args, E_int, eps_v=eps)
+    ends_form = pfl.check(*args, s.energy_J.copy(), eps_v=eps)
     c = pfl.check(*args, np.stack([s.energy_J[:-1], s.energy_J[1:]], axis=1), eps_v=eps)
+    assert np.array_equal(ends_form.margin_J, c.margin_J)
     h1 = (h[0][:1], h[1][:1])  # one human occupancy for every interval, broadcast
     d = pfl.check(*args[:6], *h1, *boxes, s.energy_J, eps_v=eps)
     e = pfl.check(*args[:6], np.repeat(h1[0], K, 0), np.repeat(h1[1], K, 0), *boxes,
                   s.energy_J, eps_v=eps)  # fmt: skip
     assert np.array_equal(d.cls, e.cls) and np.array_equal(d.margin_J, e.margin_J)
-    for other in (b, c):
-        assert np.array_equal(a.safe, other.safe) and np.array_equal(a.cls, other.cls)
-        assert np.array_equal(a.margin_J, other.margin_J)
+    assert np.array_equal(a.safe, b.safe) and np.array_equal(a.cls, b.cls)
+    assert np.array_equal(a.margin_J, b.margin_J) and np.array_equal(a.cls, c.cls)
     with pytest.raises(InputError, match="h_radius has shape"):
         pfl.check(*args[:7], h[1][:, :3], *boxes, s.energy_J)
     with pytest.raises(InputError, match="energy_J has shape"):
@@ -205,3 +210,101 @@ def test_compiled_verdict_equals_the_numpy_formula() -> None:
         assert np.array_equal(got.limiting_part, part) and got.safe_all == bool(safe_k.all())
         seen_clamped += int((res.cls >= 2).any())
     assert seen_clamped > 5
+
+
+def test_check_trajectory_energy_covers_the_motion_between_samples(pfl: PflCheck) -> None:
+    """Soundness of :meth:`PflCheck.check_trajectory`'s interval energy: along trajectories of
+    bounded acceleration (a cubic per joint, ``|q''|`` bounded per interval by the larger end
+    value since ``q''`` is linear), densely sampled link energies stay below it, while the end
+    samples alone (eq. 47-48) miss energy."""
+    rng = np.random.default_rng(5)
+    missed = 0.0
+    for _ in range(20):
+        K = int(rng.integers(1, 4))
+        T = rng.uniform(0.01, 0.05) * K
+        c = rng.normal(size=(4, 7)) * [[0.3], [1.0], [4.0], [30.0]]
+        c[0] += Q0
+
+        def motion(tt: np.ndarray, c: np.ndarray = c) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            tt = tt[:, None]
+            q = c[0] + tt * (c[1] + tt * (c[2] + tt * c[3]))
+            return q, c[1] + tt * (2 * c[2] + 3 * tt * c[3]), 2 * c[2] + 6 * tt * c[3]
+
+        t = np.linspace(0.0, T, K + 1)
+        q, qd, qdd = motion(t)
+        qdd_bound = np.maximum(np.abs(qdd[:-1]), np.abs(qdd[1:]))
+        E_s = pfl.motion.evaluate(q, qd).energy_J.copy()
+        bound = bounded_interval_energy_J(pfl.motion, q, E_s, qdd_bound, np.diff(t))
+        for k in range(K):
+            qq, vv, _ = motion(np.linspace(t[k], t[k + 1], 60))
+            dense = pfl.motion.energies(qq, vv).max(axis=0)
+            assert np.all(dense <= bound[k] + 1e-12), (k, dense / bound[k])
+            missed = max(missed, float(np.max(dense - np.maximum(E_s[k], E_s[k + 1]))))
+    assert missed > 0.0
+
+
+def _ref_merge(results: list[tuple[PflResult, int, int]]) -> tuple[np.ndarray, ...]:
+    """The per-entry model merge written with numpy (the implementation before the compiled
+    merge): an entry takes the first proving model's class and threshold; an unproved one the
+    highest threshold seen."""
+    first = results[0][0]
+    safe, cls, thr = first.safe.copy(), first.cls.copy(), first.threshold_J.copy()
+    for r, lo, hi in results[1:]:
+        old = safe[lo:hi]
+        take = (r.safe & ~old) | (~old & ~r.safe & (r.threshold_J > thr[lo:hi]))
+        cls[lo:hi] = np.where(take, r.cls, cls[lo:hi])
+        thr[lo:hi] = np.where(take, r.threshold_J, thr[lo:hi])
+        safe[lo:hi] = old | r.safe
+    thr_contact = np.where(cls > 0, thr, np.inf)
+    part = np.argmin(thr_contact, axis=2)
+    allowed = np.take_along_axis(thr_contact, part[..., None], axis=2)[..., 0]
+    part = np.where(np.isfinite(allowed), part, -1)
+    return safe, cls, thr, allowed, part
+
+
+def test_merged_check_equals_the_numpy_merge_of_single_model_checks() -> None:
+    model = load_robot("panda")
+    pfl = PflCheck(model, PARTS, link_shapes={"panda_hand": "edge"})
+    rng = np.random.default_rng(4)
+    merged_models = 0
+    for _ in range(40):
+        K = int(rng.integers(1, 6))
+        t = np.arange(K + 1) * 0.005
+        q_dot = rng.uniform(-1.5, 1.5, 7)
+        q = Q0 + t[:, None] * q_dot
+        qd = np.broadcast_to(q_dot, q.shape)
+        bound = np.broadcast_to(np.abs(q_dot), (K, 7))
+        r_ends, r_radius = pfl.occupancy.intervals(q, bound, t)
+        smp = pfl.motion.evaluate(q, qd)
+        E = np.maximum(smp.energy_J[:-1], smp.energy_J[1:]) * rng.uniform(0.5, 3.0)
+        eps = pfl.eps_from_bounds(np.diff(t), bound)
+        T = np.eye(4)[None].copy()
+        T[0, :3, 3] = [0.5, 0.0, rng.uniform(0.0, 0.4)]
+        boxes = (T, np.array([[0.3, 0.3, 0.1]]))
+        base = rng.normal(scale=0.3, size=(K, len(PARTS), 2, 3)) + [0.4, 0.0, 0.4]
+        check = pfl.merged(r_ends, r_radius, smp, np.diff(t), eps, *boxes, E)
+        singles = []
+        for m in range(3):  # nested sets: every model sound for the same person
+            lo, hi = check.todo
+            if lo >= hi:
+                break
+            radius = rng.uniform(0.02, 0.08, (K, len(PARTS))) + 0.1 * (2 - m)
+            args = (r_ends, r_radius, smp.ends, smp.p1_dot, smp.omega, np.diff(t))
+            single = pfl.check(*args, base, radius, *boxes, E, eps_v=eps)
+            singles.append((PflResult(*(
+                getattr(single, f)[lo:hi] if f in ("safe", "cls", "threshold_J") else
+                getattr(single, f) for f in PflResult.__dataclass_fields__
+            )), lo, hi))  # fmt: skip
+            check.add(base[lo:hi], radius[lo:hi])
+        res = check.result()
+        safe, cls, thr, allowed, part = _ref_merge(singles)
+        assert np.array_equal(res.safe, safe) and np.array_equal(res.cls, cls)
+        assert np.array_equal(res.threshold_J, thr) and np.array_equal(res.allowed_J, allowed)
+        assert np.array_equal(res.limiting_part, part)
+        np.testing.assert_array_equal(res.margin_J, thr - E[:, :, None])
+        assert np.array_equal(res.safe_interval, safe.all(axis=(1, 2)))
+        assert res.safe_all == bool(safe.all())
+        bad = np.flatnonzero(~safe.all(axis=(1, 2)))
+        assert check.todo == ((int(bad[0]), int(bad[-1]) + 1) if bad.size else (K, K))
+        merged_models += len(singles) > 1
+    assert merged_models > 10

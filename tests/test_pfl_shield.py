@@ -16,6 +16,7 @@ from sara_app.cell import build_cell
 from sara_app.errors import ParameterError
 from sara_app.geometry import points_in_capsules
 from sara_app.human.scripted import joints, standing
+from sara_app.robot.trajectory import JointState
 from sara_app.safety.pfl_shield import PflShield, part_capsules
 from sara_app.safety.shield import HumanState
 from sara_app.scenario import parse_scenario
@@ -66,14 +67,14 @@ def test_any_model_merge_is_the_or_of_single_model_verdicts() -> None:
     traj, ends, radius = shield._plan(math.inf)
     res, used, _ = shield._verify(traj, ends, radius, hum)
     K = len(traj.times) - 1
-    smp = shield.pfl.motion.evaluate(traj.q, traj.v)
+    smp, energy = shield._link_energies(traj)
     eps = shield.pfl.eps_from_bounds(np.diff(traj.times), traj.v_bound, traj.a_bound)
     any_safe = np.zeros_like(res.safe)
     for name in shield.settings.models:
         h_e, h_r = shield._human_sets(name, hum, traj.times, 0, K)
         r = shield.pfl.check(
             ends, radius, smp.ends, smp.p1_dot, smp.omega, np.diff(traj.times), h_e, h_r,
-            *shield.boxes, smp.energy_J, eps_v=eps,
+            *shield.boxes, energy, eps_v=eps,
         )  # fmt: skip
         any_safe |= r.safe
     np.testing.assert_array_equal(res.safe, any_safe)
@@ -142,7 +143,11 @@ def _check_commit_or_brake(shield: PflShield, t: float, people: list[HumanState]
     if out.verified:
         assert out.mode in ("intended", "rest", "failsafe")
         assert out.pfl is None or out.pfl.safe_all
-        np.testing.assert_array_equal(out.command.q, before.copy().commit(out.trajectory.step).q)
+        traj = out.trajectory
+        at_end = JointState(traj.q[1], traj.v[1], traj.a[1])  # the shield's own sample
+        np.testing.assert_array_equal(out.command.q, before.copy().commit(traj.step, at_end).q)
+        on_path = before.copy().commit(traj.step).q  # and that sample is the step's end
+        np.testing.assert_allclose(out.command.q, on_path, rtol=0.0, atol=1e-12)
     else:
         # not verified: exactly the held failsafe
         np.testing.assert_array_equal(out.command.q, before.brake(shield.settings.dt_s).q)
@@ -214,7 +219,7 @@ def test_numeric_failure_inside_the_check_is_a_fault(monkeypatch: pytest.MonkeyP
     def boom(*a: object, **k: object) -> None:
         raise ValueError("broken")
 
-    monkeypatch.setattr(shield.pfl, "check", boom)
+    monkeypatch.setattr(shield.pfl, "merged", boom)
     out = shield.cycle(t, [person(1.0, 0.0, t)])
     assert out.mode == "fault" and any("PFL check failed" in f for f in out.faults)
 
@@ -267,7 +272,7 @@ def test_interval_energy_bound_covers_dense_samples() -> None:
         shield.follower = f
         traj, _, _ = shield._plan(math.inf)
         E_s = shield.pfl.motion.evaluate(traj.q, traj.v).energy_J.copy()
-        bound = shield._interval_energy(traj, E_s).max(axis=1)
+        bound = shield._link_energies(traj)[1]
         prof = traj.step.profile.then(traj.stop.profile)
         for k in range(len(traj.times) - 1):
             s, sd, _ = prof.evaluate(np.linspace(traj.times[k], traj.times[k + 1], 40))

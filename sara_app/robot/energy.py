@@ -8,11 +8,22 @@ contact with it can transfer is (eq. 46)::
 ``B`` the joint-space inertia matrix (``pin.crba``) and ``E_i`` the diagonal 0/1 matrix that keeps
 the joints supporting joint ``m`` (for a serial chain the joints ``1..m``). The base link has
 ``T = 0``; the last link's ``T`` is the robot's whole kinetic energy ``1/2 q_dot^T B q_dot``.
-Eq. 47-48 take the larger energy at the two ends of each interval: :func:`interval_energy_J`.
+Eq. 47-48 take the larger energy at the two ends of each interval (:func:`interval_energy_J`);
+that misses the energy between the samples (a stop starts with ``s'' > 0``, so the path speed
+peaks INSIDE the first failsafe interval: seen in closed loop 5 % above a threshold). The sound
+interval energies used by the PFL check:
 
-Between-sample shortcut (named, as DESIGN.md asks): like seed 003, the energy over an interval is
-taken as the larger of its end values; the energy can peak between samples (by a second-order
-amount for short intervals). Keep intervals short or add a margin to the thresholds.
+- along a path (``q' = dq/ds s'``, the shielded trajectory): :func:`path_interval_energy_J`,
+  ``1/2 (1 + G_MARGIN) max s'^2 max(g(k), g(k+1))`` with the EXACT path-speed peak of the
+  interval (:func:`path_speed_peaks`) and the configuration factor ``g_i = q'^T E_i B E_i q'``
+  (``q' = dq/ds``) at the interval ends;
+- any sampled trajectory with a bound on ``|q''|``: :func:`bounded_interval_energy_J` (the
+  velocity stays within ``|q''| dt / 2`` of the nearer end sample; triangle inequality in the
+  energy norm).
+
+Remaining shortcut (named, as DESIGN.md asks): the inertia matrix ``B(q)`` (and ``g``) is
+sampled at the interval ends, with the relative margin :data:`G_MARGIN` measured on shielded
+trajectories (``tests/test_pfl_shield.py`` checks it against dense sampling).
 
 :class:`LinkMotion` also returns, at the same samples, the world-frame velocity of each link
 capsule's first end ``p1`` and the link's angular velocity ``omega`` (the inputs of seed 003
@@ -41,13 +52,16 @@ class LinkSamples:
     """Link quantities at ``S`` samples (views into the owner's buffers; copy to keep).
 
     ``energy_J (S, L)``; ``ends (S, L, 2, 3)`` world capsule ends (m); ``p1_dot (S, L, 3)``
-    velocity of ``ends[..., 0, :]`` (m/s); ``omega (S, L, 3)`` link angular velocity (rad/s).
+    velocity of ``ends[..., 0, :]`` (m/s); ``omega (S, L, 3)`` link angular velocity (rad/s);
+    ``g_J (S, L)`` the quadratic form ``V^T E_i B E_i V`` of the given velocity direction ``V``
+    (``2 energy_J`` for plain joint velocities; the configuration factor for ``V = dq/ds``).
     """
 
     energy_J: np.ndarray
     ends: np.ndarray
     p1_dot: np.ndarray
     omega: np.ndarray
+    g_J: np.ndarray
 
 
 def support_mask(model: RobotModel) -> np.ndarray:
@@ -61,8 +75,16 @@ def support_mask(model: RobotModel) -> np.ndarray:
     return mask
 
 
+G_MARGIN = 1e-3
+"""Relative margin on the configuration factor sampled at the interval ends (the inertia
+matrix along the short path stretch of one interval). Measured: over 1620 intervals of random
+shielded trajectories (Panda, blends, caps, stops), densely sampled energies exceeded the bound
+without margin by at most 3e-5 relative (eq. 47-48's end samples alone: by up to 20 %)."""
+
+
 def interval_energy_J(energy_J: np.ndarray) -> np.ndarray:
-    """Eq. 47-48: ``(K+1, L)`` sample energies -> ``(K, L)`` max of both interval ends."""
+    """Eq. 47-48: ``(K+1, L)`` sample energies -> ``(K, L)`` max of both interval ends (the
+    seed's form; it misses energy peaks between the samples, see the module notes)."""
     return np.maximum(energy_J[:-1], energy_J[1:])
 
 
@@ -70,12 +92,179 @@ _f8 = types.float64
 _RO1, _RO2, _RO3, _RO4 = (types.Array(_f8, d, "A", readonly=True) for d in (1, 2, 3, 4))
 _ROI1 = types.Array(types.int64, 1, "A", readonly=True)
 _ROB1 = types.Array(types.boolean, 1, "A", readonly=True)
-_W2, _W3 = types.Array(_f8, 2, "A"), types.Array(_f8, 3, "A")
+_W1, _W2, _W3 = types.Array(_f8, 1, "A"), types.Array(_f8, 2, "A"), types.Array(_f8, 3, "A")
 
 
-@njit(types.void(_RO2, _RO3, _RO2, _RO4, _RO2, _ROI1, _RO4, _ROB1, _W2, _W3, _W3), cache=True)
+@njit(types.void(_f8, _f8, _RO1, _RO1, _RO1, _RO1, _W1), cache=True)
+def _speed_peak_kernel(
+    v0: float,
+    a0: float,
+    durs: np.ndarray,
+    jerks: np.ndarray,
+    times: np.ndarray,
+    sd: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """``out (K,)``: exact ``max s'`` over each ``[times[k], times[k+1]]`` of the profile that
+    starts with ``(s', s'') = (v0, a0)`` and runs phases of ``durs`` with constant ``jerks``
+    (zero jerk after the last), given ``sd = s'(times)`` ``(K+1,)``: the larger end value, or
+    the phase-interior maximum where ``s'' = 0`` (the ``s'`` part of
+    ``ScalarProfile.interval_maxima``, with the same arithmetic). NaN stays NaN."""
+    K = out.shape[0]
+    for k in range(K):
+        a, b = sd[k], sd[k + 1]
+        out[k] = a if (a > b or b != b) else b
+    t, v, a = 0.0, v0, a0
+    for i in range(durs.shape[0]):
+        T, j = durs[i], jerks[i]
+        if j != 0.0:
+            tau = -a / j
+            if 0.0 < tau < T:
+                tp = t + tau
+                val = v + tau * (a + 0.5 * tau * j)
+                k = np.searchsorted(times, tp, side="right") - 1
+                if 0 <= k < K and val > out[k]:
+                    out[k] = val
+        v += T * (a + 0.5 * T * j)
+        a += T * j
+        t += T
+
+
+def path_speed_peaks(profiles: tuple, times: np.ndarray, sd: np.ndarray) -> np.ndarray:
+    """``(K,)`` exact largest path speed ``s'`` over each interval of ``times (K+1,)`` for the
+    concatenation of the ``ScalarProfile`` s in ``profiles`` (e.g. a shielded trajectory's
+    ``(step.profile, stop.profile)``, as ``ScalarProfile.then`` joins them), ``sd = s'(times)``."""
+    v0, a0 = profiles[0].start[1:]
+    durs = np.array([d for p in profiles for d in p.durs], dtype=np.float64)
+    jerks = np.array([j for p in profiles for j in p.jerks], dtype=np.float64)
+    times = np.asarray(times, dtype=np.float64)
+    sd = np.asarray(sd, dtype=np.float64)
+    if times.ndim != 1 or sd.shape != times.shape or durs.shape != jerks.shape:
+        raise InputError(f"times {times.shape} and sd {sd.shape}: expected equal (K+1,) shapes")
+    out = np.empty(max(times.shape[0] - 1, 0))
+    _speed_peak_kernel(float(v0), float(a0), durs, jerks, times, sd, out)
+    return out
+
+
+@njit(types.void(_RO2, _RO2, _RO1, _RO1, _W2), cache=True)
+def _path_energy_kernel(
+    g: np.ndarray, E: np.ndarray, sd: np.ndarray, sd_max: np.ndarray, out: np.ndarray
+) -> None:
+    """:func:`path_interval_energy_J` into ``out (K, L)``; any NaN input gives ``inf``."""
+    K, L = out.shape
+    c = 0.5 * (1.0 + G_MARGIN)
+    for k in range(K):
+        m = max(abs(sd[k]), abs(sd[k + 1]))
+        if sd_max[k] > m:
+            m = sd_max[k]
+        bad_k = sd[k] != sd[k] or sd[k + 1] != sd[k + 1] or sd_max[k] != sd_max[k]
+        for i in range(L):
+            ga, gb = g[k, i], g[k + 1, i]
+            ea, eb = E[k, i], E[k + 1, i]
+            if bad_k or ga != ga or gb != gb or ea != ea or eb != eb:
+                out[k, i] = math.inf
+                continue
+            v = c * (m * m) * max(ga, gb)
+            out[k, i] = max(v, ea, eb)
+
+
+def path_interval_energy_J(
+    g_J: np.ndarray, energy_J: np.ndarray, sd: np.ndarray, sd_max: np.ndarray
+) -> np.ndarray:
+    """Link energy bound per interval ``(K, L)`` (J) for a motion along a path: ``1/2 (1 +
+    G_MARGIN) m_k^2 max(g(k), g(k+1))``, ``m_k`` the largest ``|s'|`` over the interval
+    (``sd (K+1,)`` at the samples, ``sd_max (K,)`` from :func:`path_speed_peaks`), ``g_J
+    (K+1, L)`` the configuration factors ``q'^T E_i B E_i q'`` (``q' = dq/ds``,
+    :meth:`LinkMotion.evaluate_path`), and at least the sample energies ``energy_J (K+1,
+    L)``. A NaN anywhere gives ``inf`` for the entry (unsafe wherever contact is possible)."""
+    g = np.asarray(g_J, dtype=np.float64)
+    E = np.asarray(energy_J, dtype=np.float64)
+    sd = np.asarray(sd, dtype=np.float64)
+    sd_max = np.asarray(sd_max, dtype=np.float64)
+    K = sd_max.shape[0] if sd_max.ndim == 1 else -1
+    if g.ndim != 2 or g.shape[0] != K + 1 or E.shape != g.shape or sd.shape != (K + 1,):
+        raise InputError(
+            f"g_J {g.shape}, energy_J {E.shape}, sd {sd.shape}, sd_max {sd_max.shape}: "
+            "expected (K+1, L), (K+1, L), (K+1,), (K,)"
+        )
+    out = np.empty((K, g.shape[1]))
+    _path_energy_kernel(g, E, sd, sd_max, out)
+    return out
+
+
+@njit(types.void(_RO3, _RO2, _RO2, _RO2, _RO1, _W2), cache=True)
+def _bounded_energy_kernel(
+    M: np.ndarray,
+    mask: np.ndarray,
+    E: np.ndarray,
+    delta: np.ndarray,
+    scale: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """:func:`bounded_interval_energy_J` into ``out (K, L)`` from the inertia matrices ``M
+    (K+1, n, n)`` (upper triangle read), supports ``mask (L, n)``, sample energies ``E (K+1,
+    L)`` and velocity deviations ``delta (K, n)``; ``scale (1,)`` = 1 + G_MARGIN. NaN: inf."""
+    K, L = out.shape
+    n = M.shape[1]
+    for k in range(K):
+        for i in range(L):
+            best = 0.0
+            bad = False
+            for e in (k, k + 1):
+                r2 = 0.0  # delta^T |E_i B E_i| delta
+                for a in range(n):
+                    if mask[i, a] == 0.0:
+                        continue
+                    da = abs(delta[k, a])
+                    r2 += M[e, a, a] * da * da
+                    for b in range(a + 1, n):
+                        if mask[i, b] != 0.0:
+                            r2 += 2.0 * abs(M[e, a, b]) * da * abs(delta[k, b])
+                x = math.sqrt(2.0 * E[e, i]) + math.sqrt(r2)
+                v = 0.5 * x * x
+                if v != v:
+                    bad = True
+                elif v > best:
+                    best = v
+            out[k, i] = math.inf if bad else best * scale[0]
+
+
+def bounded_interval_energy_J(
+    motion: LinkMotion, q: np.ndarray, energy_J: np.ndarray, qdd_bound: np.ndarray, dt: np.ndarray
+) -> np.ndarray:
+    """Link energy bound per interval ``(K, L)`` (J) for any sampled joint trajectory: ``q
+    (K+1, n)``, its sample energies ``energy_J (K+1, L)`` (:meth:`LinkMotion.evaluate`), a
+    rigorous bound ``qdd_bound (K, n)`` on ``|q''|`` over each interval and the interval
+    lengths ``dt (K,)``. On the half interval next to each end the velocity lies within
+    ``delta = qdd_bound dt / 2`` of that end's, so (triangle inequality in the energy norm
+    ``|x|_A = sqrt(x^T A x)``, ``A = E_i B E_i``) ``sqrt(2 T) <= sqrt(2 T_end) + sqrt(delta^T
+    |A| delta)``; the larger end bound, times ``1 + G_MARGIN`` (``B`` sampled at the ends).
+    The inertia matrices come from ``motion`` (its buffer)."""
+    Q = np.asarray(q, dtype=np.float64)
+    E = np.asarray(energy_J, dtype=np.float64)
+    qdd = np.asarray(qdd_bound, dtype=np.float64)
+    dt = np.asarray(dt, dtype=np.float64)
+    K = dt.shape[0] if dt.ndim == 1 else -1
+    n, L = motion.n_dof, motion.n_links
+    if Q.shape != (K + 1, n) or E.shape != (K + 1, L) or qdd.shape != (K, n):
+        raise InputError(
+            f"q {Q.shape}, energy_J {E.shape}, qdd_bound {qdd.shape}, dt {dt.shape}: expected "
+            f"({K + 1}, {n}), ({K + 1}, {L}), ({K}, {n}), (K,)"
+        )
+    M = motion._crba(np.where(np.isfinite(Q), Q, 0.0))
+    delta = qdd * (0.5 * dt)[:, None]
+    out = np.empty((K, L))
+    _bounded_energy_kernel(M, motion._maskf, E, delta, np.array([1.0 + G_MARGIN]), out)
+    return out
+
+
+@njit(
+    types.void(_RO2, _RO1, _RO3, _RO2, _RO4, _RO2, _ROI1, _RO4, _ROB1, _W2, _W2, _W3, _W3),
+    cache=True,
+)
 def _energy_twist_kernel(
     V: np.ndarray,
+    scale: np.ndarray,
     M: np.ndarray,
     mask: np.ndarray,
     H: np.ndarray,
@@ -83,22 +272,27 @@ def _energy_twist_kernel(
     v_index: np.ndarray,
     ends: np.ndarray,
     bad: np.ndarray,
+    G: np.ndarray,
     T: np.ndarray,
     pd: np.ndarray,
     w: np.ndarray,
 ) -> None:
-    """Eq. 46 and the link twists at ``S`` samples. ``V (S, n)`` joint velocities, ``M (S, n,
-    n)`` inertia matrices (upper triangle read), ``mask (L, n)`` 0/1 supports (velocity
-    order); ``H (S, n+1, 4, 4)`` world joint frames and ``axes (n, 3)`` joint axes in them
-    (kinematic order, ``v_index`` maps to the velocity order); ``ends (S, L, 2, 3)``. Writes
-    ``T (S, L)`` and, for the capsule end ``p1 = ends[..., 0, :]``, ``pd = sum_j qd_j a_j x (p1 -
-    o_j)`` and ``w = sum_j qd_j a_j`` over the supporting joints ``j`` (world axis ``a_j``,
-    origin ``o_j``), ``(S, L, 3)``. ``bad`` samples get ``T = inf`` and NaN twists."""
+    """Eq. 46 and the link twists at ``S`` samples of the joint velocity ``scale[s] V[s]``.
+    ``V (S, n)`` joint velocity directions, ``scale (S,)`` (``1`` for plain velocities; the
+    path speed ``s'`` when ``V = dq/ds``), ``M (S, n, n)`` inertia matrices (upper triangle
+    read), ``mask (L, n)`` 0/1 supports (velocity order); ``H (S, n+1, 4, 4)`` world joint
+    frames and ``axes (n, 3)`` joint axes in them (kinematic order, ``v_index`` maps to the
+    velocity order); ``ends (S, L, 2, 3)``. Writes ``G (S, L)`` = ``V^T E_i M E_i V``, ``T =
+    scale^2 G / 2`` and, for the capsule end ``p1 = ends[..., 0, :]``, ``pd = sum_j qd_j a_j x
+    (p1 - o_j)`` and ``w = sum_j qd_j a_j`` over the supporting joints ``j`` (world axis
+    ``a_j``, origin ``o_j``, ``qd = scale V``), ``(S, L, 3)``. ``bad`` samples get ``G = T =
+    inf`` and NaN twists."""
     S, n = V.shape
     L = mask.shape[0]
     wv = np.empty(n)
     ao = np.empty((n, 6))  # world axis and origin per joint (kinematic order)
     for s in range(S):
+        sc = scale[s]
         for i in range(L):
             for a in range(n):
                 wv[a] = V[s, a] * mask[i, a]
@@ -109,7 +303,11 @@ def _energy_twist_kernel(
                     for b in range(a + 1, n):
                         row += 2.0 * M[s, a, b] * wv[b]
                     acc += wv[a] * row
-            T[s, i] = math.inf if bad[s] else 0.5 * acc
+            if bad[s]:
+                G[s, i] = T[s, i] = math.inf
+            else:
+                G[s, i] = acc
+                T[s, i] = 0.5 * acc if sc == 1.0 else 0.5 * (sc * sc) * acc
         for j in range(n):
             for r in range(3):
                 ao[j, r] = (
@@ -125,7 +323,7 @@ def _energy_twist_kernel(
                 c = v_index[j]
                 if mask[i, c] == 0.0:
                     continue
-                qd = V[s, c]
+                qd = V[s, c] * sc
                 ax, ay, az = ao[j, 0], ao[j, 1], ao[j, 2]
                 rx, ry, rz = px - ao[j, 3], py - ao[j, 4], pz - ao[j, 5]
                 vx += qd * (ay * rz - az * ry)
@@ -172,6 +370,9 @@ class LinkMotion:
         self._cap = S
         self._M = np.zeros((S, n, n))
         self._T = np.zeros((S, L))
+        self._G = np.zeros((S, L))
+        self._ones = np.ones(S)
+        self._ones.flags.writeable = False
         self._pd = np.zeros((S, L, 3))
         self._w = np.zeros((S, L, 3))
 
@@ -226,8 +427,25 @@ class LinkMotion:
         """
         return self._run(q, q_dot, None, ends)
 
+    def evaluate_path(
+        self, q: np.ndarray, dq_ds: np.ndarray, sd: np.ndarray, ends: np.ndarray | None = None
+    ) -> LinkSamples:
+        """:meth:`evaluate` for a motion along a path: joint velocity ``dq_ds (S, n)`` times
+        the path speed ``sd (S,)``; ``g_J`` are then the configuration factors ``q'^T E_i B
+        E_i q'`` (``q' = dq/ds``) of :func:`path_interval_energy_J`. A non-finite ``sd``
+        marks its sample bad (infinite energy, NaN twists)."""
+        sd = np.asarray(sd, dtype=np.float64)
+        if sd.shape != (np.shape(q)[0],):
+            raise InputError(f"sd has shape {sd.shape}; expected ({np.shape(q)[0]},)")
+        return self._run(q, dq_ds, None, ends, sd)
+
     def _run(
-        self, q: np.ndarray, q_dot: np.ndarray, M: np.ndarray | None, ends: np.ndarray | None
+        self,
+        q: np.ndarray,
+        q_dot: np.ndarray,
+        M: np.ndarray | None,
+        ends: np.ndarray | None,
+        scale: np.ndarray | None = None,
     ) -> LinkSamples:
         """One ``pin.crba`` per sample (unless ``M`` is given), then one compiled pass
         (:func:`_energy_twist_kernel`) over the vectorised kinematics of
@@ -235,6 +453,11 @@ class LinkMotion:
         Q, V, bad = self._inputs(q, q_dot)
         S = Q.shape[0]
         self._grow(S)
+        if scale is None:
+            scale = self._ones[:S]
+        elif not math.isfinite(float(scale.sum())):
+            bad = bad | ~np.isfinite(scale)
+            scale = np.where(bad, 0.0, scale)
         if M is None:
             M = self._crba(Q)  # upper triangle; the kernel reads only that
         elif np.shape(M) != (S, self.n_dof, self.n_dof):
@@ -250,9 +473,9 @@ class LinkMotion:
             raise InputError(
                 f"ends has shape {np.shape(ends)}; expected ({S}, {self.n_links}, 2, 3)"
             )
-        T, pd, w = self._T[:S], self._pd[:S], self._w[:S]
+        G, T, pd, w = self._G[:S], self._T[:S], self._pd[:S], self._w[:S]
         _energy_twist_kernel(
-            V, np.asarray(M, dtype=np.float64), self._maskf, H, self._occ._axes, self._v_index,
-            np.asarray(ends, dtype=np.float64), bad, T, pd, w,
+            V, scale, np.asarray(M, dtype=np.float64), self._maskf, H, self._occ._axes,
+            self._v_index, np.asarray(ends, dtype=np.float64), bad, G, T, pd, w,
         )  # fmt: skip
-        return LinkSamples(T, ends, pd, w)
+        return LinkSamples(T, ends, pd, w, G)

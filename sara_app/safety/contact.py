@@ -54,6 +54,7 @@ __all__ = [
     "UNCONSTRAINED",
     "ContactClassifier",
     "ContactResult",
+    "RobotSide",
     "VelocityErrorBound",
     "segment_box_closest",
 ]
@@ -151,6 +152,45 @@ class ContactResult:
 _NO_NORMAL = np.empty((0, 0, 0, 3))
 
 
+class RobotSide:
+    """The robot's inputs of one classification (float64, shapes checked by
+    :meth:`ContactClassifier.robot_side`) and, computed on first use and then kept, its
+    robot-only geometry: link-link surface distances and closest-point parameters ``d_rr,
+    s_rr (K, L, L)``, link-box distances ``d_rb (K, L, B)`` and box-to-link vectors ``n_rb
+    (K, L, B, 3)`` (the same for every human set checked against this trajectory)."""
+
+    def __init__(
+        self,
+        r_ends: np.ndarray,
+        r_radius: np.ndarray,
+        s_ends: np.ndarray,
+        s_radius: np.ndarray,
+        p1_dot: np.ndarray,
+        omega: np.ndarray,
+        eps_v: np.ndarray,
+        T_world_box: np.ndarray,
+        half_extents_m: np.ndarray,
+    ) -> None:
+        self.r_ends, self.r_radius, self.s_ends, self.s_radius = r_ends, r_radius, s_ends, s_radius
+        self.p1_dot, self.omega, self.eps_v = p1_dot, omega, eps_v
+        self.T_world_box, self.half_extents_m = T_world_box, half_extents_m
+        self.K, self.L = r_radius.shape
+        self.B = T_world_box.shape[0]
+        self._geometry: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    def geometry(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(d_rr, s_rr, d_rb, n_rb)`` (computed on the first call)."""
+        if self._geometry is None:
+            K, L, B = self.K, self.L, self.B
+            d_rr, s_rr = np.empty((2, K, L, L))
+            set_pair_distances(self.r_ends, self.r_radius, d_rr, s_rr)
+            d_rb, n_rb = np.empty((K, L, B)), np.empty((K, L, B, 3))
+            box_distances(self.r_ends, self.r_radius, self.T_world_box, self.half_extents_m,
+                          d_rb, n_rb)  # fmt: skip
+            self._geometry = (d_rr, s_rr, d_rb, n_rb)
+        return self._geometry
+
+
 def _closure(adj: np.ndarray) -> np.ndarray:
     """Reflexive-transitive closure of ``(K, P, P)`` boolean adjacency (repeated squaring)."""
     P = adj.shape[-1]
@@ -215,69 +255,101 @@ class ContactClassifier:
     ) -> ContactResult:
         """Classify; shapes in the module docstring. Never raises on NaN (NaN = worst case).
 
-        Compiled: robot-human distances first (the broad phase: when no link can touch any
-        body part nothing else is computed), then the other distances and
+        :meth:`robot_side` then :meth:`classify_humans` (compiled): robot-human distances
+        first (the broad phase: when no link can touch any body part nothing else is
+        computed), then the other distances and
         :func:`~sara_app.safety.contact_kernels.classify_kernel`. Same result as
-        :meth:`classify_reference` (tested on random scenes, round-off ties aside). Human
-        capsules broadcast over the intervals (a zero stride) are evaluated once.
+        :meth:`classify_reference` (tested on random scenes, round-off ties aside).
         """
+        robot = self.robot_side(
+            r_ends, r_radius, s_ends, s_radius, p1_dot, omega, eps_v, T_world_box, half_extents_m
+        )
+        return self.classify_humans(robot, h_ends, h_radius)
+
+    def robot_side(
+        self,
+        r_ends: np.ndarray,
+        r_radius: np.ndarray,
+        s_ends: np.ndarray,
+        s_radius: np.ndarray,
+        p1_dot: np.ndarray,
+        omega: np.ndarray,
+        eps_v: np.ndarray,
+        T_world_box: np.ndarray,
+        half_extents_m: np.ndarray,
+    ) -> RobotSide:
+        """The robot's inputs of :meth:`classify` (one trajectory) validated once, for several
+        :meth:`classify_humans` calls (e.g. one per human-set model); raises
+        :class:`InputError` naming the first array of the wrong shape."""
         arrays = [
             np.asarray(a, dtype=np.float64)
-            for a in (r_ends, r_radius, s_ends, s_radius, p1_dot, omega, eps_v, h_ends,
-                      h_radius, T_world_box, half_extents_m)
+            for a in (r_ends, r_radius, s_ends, s_radius, p1_dot, omega, eps_v, T_world_box,
+                      half_extents_m)
         ]  # fmt: skip
-        K, L, P, B = self._check_shapes(*arrays)
-        (r_ends, r_radius, s_ends, s_radius, p1_dot, omega, eps_v, h_ends, h_radius,
-         T_world_box, half_extents_m) = arrays  # fmt: skip
-        if K > 1 and h_ends.strides[0] == 0 and h_radius.strides[0] == 0:
-            h_ends, h_radius = h_ends[:1], h_radius[:1]
-        d_rh = np.empty((K, L, P))
-        if not pair_distances(r_ends, r_radius, h_ends, h_radius, d_rh):  # NaN is contact
-            return self._no_contact(d_rh)
-        d_hh, s_hh = np.empty((2, K, P, P))
-        set_pair_distances(h_ends, h_radius, d_hh, s_hh)
-        d_rr, s_rr = np.empty((2, K, L, L))
-        set_pair_distances(r_ends, r_radius, d_rr, s_rr)
-        d_rb, n_rb = np.empty((K, L, B)), np.empty((K, L, B, 3))
-        box_distances(r_ends, r_radius, T_world_box, half_extents_m, d_rb, n_rb)
-        d_hb = np.empty((h_ends.shape[0], P, B))
-        box_distances(h_ends, h_radius, T_world_box, half_extents_m, d_hb, _NO_NORMAL)
-        contact_s, env, self_, contact = np.empty((4, K, L, P), dtype=bool)
-        cls = np.empty((K, L, P), dtype=np.int8)
-        stack = np.empty((K, P, P), dtype=bool)
-        diam = np.empty((K, P))
-        classify_kernel(
-            d_rh, d_hh, d_rr, s_rr, r_ends, d_rb, n_rb, d_hb, s_ends, s_radius, p1_dot, omega,
-            eps_v, self._no_pair, self._not_safe_h, self.diameters_m, self.relax_velocity,
-            self.relax_diameter, self.multi_body, contact_s, env, self_, contact, cls, stack, diam,
-        )  # fmt: skip
-        return ContactResult(contact, contact_s, env, self_, cls, stack, diam, d_rh)
-
-    def _check_shapes(self, *arrays: np.ndarray) -> tuple[int, int, int, int]:
-        """``(K, L, P, B)`` of :meth:`classify`'s inputs (in its argument order; ``L`` and
-        ``P`` are this classifier's); raises :class:`InputError` naming the first array whose
-        shape the compiled kernels cannot index safely."""
-        L, P = self._no_pair.shape[0], self._not_safe_h.shape[0]
+        L = self._no_pair.shape[0]
         K = arrays[1].shape[0] if arrays[1].ndim == 2 else -1
-        Kh = 1 if arrays[7].shape[:1] == (1,) else K
-        B = arrays[9].shape[0] if arrays[9].ndim == 3 else -1
-        want = (
-            (K, L, 2, 3), (K, L), (K + 1, L, 2, 3), (L,), (K + 1, L, 3), (K + 1, L, 3), (K, L),
-            (Kh, P, 2, 3), (Kh, P), (B, 4, 4), (B, 3),
-        )  # fmt: skip
-        names = (
-            "r_ends", "r_radius", "s_ends", "s_radius", "p1_dot", "omega", "eps_v", "h_ends",
-            "h_radius", "T_world_box", "half_extents_m",
-        )  # fmt: skip
+        B = arrays[7].shape[0] if arrays[7].ndim == 3 else -1
+        want = ((K, L, 2, 3), (K, L), (K + 1, L, 2, 3), (L,), (K + 1, L, 3), (K + 1, L, 3),
+                (K, L), (B, 4, 4), (B, 3))  # fmt: skip
+        names = ("r_ends", "r_radius", "s_ends", "s_radius", "p1_dot", "omega", "eps_v",
+                 "T_world_box", "half_extents_m")  # fmt: skip
         if K < 1 or tuple(a.shape for a in arrays) != want:
             name, a, shape = next(
                 x for x in zip(names, arrays, want) if x[1].shape != x[2] or K < 1
             )
             raise InputError(
                 f"{name} has shape {a.shape}; expected {shape} (K >= 1 intervals, L = {L} "
-                f"links, P = {P} parts, B boxes; human capsules may have 1 interval)"
+                "links, B boxes)"
             )
-        return K, L, P, B
+        return RobotSide(*arrays)
+
+    def classify_humans(
+        self, robot: RobotSide, h_ends: np.ndarray, h_radius: np.ndarray, lo: int = 0, hi: int = -1
+    ) -> ContactResult:
+        """:meth:`classify` of intervals ``lo:hi`` (``hi = -1``: to the end) of a
+        :meth:`robot_side` against human capsules ``h_ends (1|k, P, 2, 3)``, ``h_radius (1|k,
+        P)`` (``k = hi - lo``; 1: the same on every interval; a zero stride counts as 1). The
+        robot-only distances are computed once per ``robot``. Results are ``(k, ...)``."""
+        hi = robot.K if hi < 0 else hi
+        if not 0 <= lo < hi <= robot.K:
+            raise InputError(f"interval range {lo}:{hi}; expected 0 <= lo < hi <= {robot.K}")
+        k, L, P, B = hi - lo, robot.L, self._not_safe_h.shape[0], robot.B
+        h_ends = np.asarray(h_ends, dtype=np.float64)
+        h_radius = np.asarray(h_radius, dtype=np.float64)
+        if k > 1 and h_ends.ndim == 4 and h_ends.strides[0] == 0:
+            h_ends = h_ends[:1]
+        if k > 1 and h_radius.ndim == 2 and h_radius.strides[0] == 0:
+            h_radius = h_radius[:1]
+        for name, a, tail in (("h_ends", h_ends, (P, 2, 3)), ("h_radius", h_radius, (P,))):
+            if a.shape[1:] != tail or a.shape[0] not in (1, k):
+                raise InputError(
+                    f"{name} has shape {a.shape}; expected ({k}, {', '.join(map(str, tail))}) "
+                    f"or a leading 1 (P = {P} parts; intervals {lo}:{hi})"
+                )
+        r_ends, r_radius = robot.r_ends[lo:hi], robot.r_radius[lo:hi]
+        d_rh = np.empty((k, L, P))
+        if not pair_distances(r_ends, r_radius, h_ends, h_radius, d_rh):  # NaN is contact
+            return self._no_contact(d_rh)
+        d_hh, s_hh = np.empty((2, k, P, P))
+        set_pair_distances(h_ends, h_radius, d_hh, s_hh)
+        d_rr, s_rr, d_rb, n_rb = robot.geometry()
+        Kh = max(h_ends.shape[0], h_radius.shape[0])
+        if h_ends.shape[0] < Kh:  # static axes, growing radii: a zero-stride view
+            h_ends = np.broadcast_to(h_ends, (Kh, P, 2, 3))
+        d_hb = np.empty((Kh, P, B))
+        box_distances(h_ends, h_radius, robot.T_world_box, robot.half_extents_m, d_hb, _NO_NORMAL)
+        contact_s, env, self_, contact = np.empty((4, k, L, P), dtype=bool)
+        cls = np.empty((k, L, P), dtype=np.int8)
+        stack = np.empty((k, P, P), dtype=bool)
+        diam = np.empty((k, P))
+        classify_kernel(
+            d_rh, d_hh, d_rr[lo:hi], s_rr[lo:hi], r_ends, d_rb[lo:hi], n_rb[lo:hi], d_hb,
+            robot.s_ends[lo : hi + 1], robot.s_radius, robot.p1_dot[lo : hi + 1],
+            robot.omega[lo : hi + 1], robot.eps_v[lo:hi], self._no_pair, self._not_safe_h,
+            self.diameters_m, self.relax_velocity, self.relax_diameter, self.multi_body,
+            contact_s, env, self_, contact, cls, stack, diam,
+        )  # fmt: skip
+        return ContactResult(contact, contact_s, env, self_, cls, stack, diam, d_rh)
 
     def _no_contact(self, d_rh: np.ndarray) -> ContactResult:
         """The result when no link can touch any body part on any interval."""

@@ -54,10 +54,15 @@ import numpy as np
 from numba import njit, types
 
 from sara_app.errors import InputError
-from sara_app.robot.energy import LinkMotion, interval_energy_J
+from sara_app.robot.energy import (
+    LinkMotion,
+    LinkSamples,
+    bounded_interval_energy_J,
+    interval_energy_J,
+)
 from sara_app.robot.model import RobotModel
 from sara_app.robot.occupancy import RobotOccupancy
-from sara_app.safety.contact import CLASS_NAMES, ContactClassifier, ContactResult
+from sara_app.safety.contact import CLASS_NAMES, ContactClassifier, ContactResult, RobotSide
 from sara_app.safety.thresholds import (
     ThresholdSet,
     diameters_m,
@@ -109,6 +114,91 @@ _ROI3 = types.Array(types.int8, 3, "A", readonly=True)
 _W2, _W3 = types.Array(_f8, 2, "A"), types.Array(_f8, 3, "A")
 _WB1, _WB3 = types.Array(types.boolean, 1, "A"), types.Array(types.boolean, 3, "A")
 _WI2 = types.Array(types.int64, 2, "A")
+_WI1, _WI83 = types.Array(types.int64, 1, "A"), types.Array(types.int8, 3, "A")
+
+
+@njit(
+    types.void(_ROB3, _ROI3, _ROB3, _RO2, _RO2, _RO2, types.int64, _WB3, _WI83, _W3, _WI1),
+    cache=True,
+)
+def _merge_kernel(
+    stack: np.ndarray,
+    cls: np.ndarray,
+    contact: np.ndarray,
+    T_clamp: np.ndarray,
+    T_free: np.ndarray,
+    E_int: np.ndarray,
+    lo: int,
+    safe: np.ndarray,
+    cls_m: np.ndarray,
+    thr_m: np.ndarray,
+    todo: np.ndarray,
+) -> None:
+    """Merge one more model's classification of intervals ``lo:lo+k`` (``stack (k, P, P)``,
+    ``cls, contact (k, L, P)``) into the merged verdict ``safe, cls_m, thr_m (K, L, P)``: an
+    entry not yet proved takes this model's class and threshold (as in :func:`_verdict_kernel`)
+    when this model proves it (eq. 7 with ``E_int (K, L)``) or when its threshold is higher.
+    ``todo (2,)``: first and last interval with an unproved entry (-1, -1: none)."""
+    k_n, L, P = cls.shape
+    first, last = -1, -1
+    for kk in range(k_n):
+        k = lo + kk
+        ok_k = True
+        for i in range(L):
+            for j in range(P):
+                if safe[k, i, j]:
+                    continue
+                if cls[kk, i, j] >= 2:
+                    t = np.inf
+                    for m in range(P):
+                        if stack[kk, j, m] and T_clamp[i, m] < t:
+                            t = T_clamp[i, m]
+                else:
+                    t = T_free[i, j]
+                if not contact[kk, i, j] or t - E_int[k, i] > 0.0:
+                    safe[k, i, j] = True
+                    cls_m[k, i, j] = cls[kk, i, j]
+                    thr_m[k, i, j] = t
+                else:
+                    ok_k = False
+                    if t > thr_m[k, i, j]:
+                        cls_m[k, i, j] = cls[kk, i, j]
+                        thr_m[k, i, j] = t
+        if not ok_k:
+            if first < 0:
+                first = k
+            last = k
+    todo[0], todo[1] = first, last
+
+
+@njit(types.void(_ROI3, _RO3, _RO2, _ROB3, _W3, _WB1, _W2, _WI2), cache=True)
+def _summary_kernel(
+    cls: np.ndarray,
+    thr: np.ndarray,
+    E_int: np.ndarray,
+    safe: np.ndarray,
+    margin: np.ndarray,
+    safe_k: np.ndarray,
+    allowed: np.ndarray,
+    part: np.ndarray,
+) -> None:
+    """The per-entry and per-link summaries of a merged verdict (as :func:`_verdict_kernel`
+    from the merged ``cls, thr, safe (K, L, P)``): ``margin = thr - E_int``, ``safe_k``, and
+    per ``(k, i)`` the smallest threshold over the parts in contact and its first part."""
+    K, L, P = cls.shape
+    for k in range(K):
+        ok_k = True
+        for i in range(L):
+            best, arg = np.inf, 0
+            for j in range(P):
+                t = thr[k, i, j]
+                margin[k, i, j] = t - E_int[k, i]
+                ok_k = ok_k and safe[k, i, j]
+                if cls[k, i, j] > 0 and t < best:
+                    best, arg = t, j
+            allowed[k, i] = best
+            part[k, i] = arg if math.isfinite(best) else -1
+        safe_k[k] = ok_k
 
 
 @njit(
@@ -247,16 +337,7 @@ class PflCheck:
         if np.shape(dt) != (K,):
             raise InputError(f"dt has shape {np.shape(dt)}; expected ({K},)")
         # the classifier checks the other shapes (human capsules (1, P): every interval)
-        E = np.asarray(energy_J, dtype=float)
-        if E.shape == (K + 1, self.n_links):
-            E_int = interval_energy_J(E)
-        elif E.shape == (K, 2, self.n_links):
-            E_int = E.max(axis=1)
-        else:
-            raise InputError(
-                f"energy_J has shape {E.shape}; expected ({K + 1}, {self.n_links}) or "
-                f"({K}, 2, {self.n_links})"
-            )
+        E_int = self._interval_energies(energy_J, K)
         if eps_v is None:
             eps_v = self.velocity_error.eps_v(dt)
         elif np.shape(eps_v) != (K, self.n_links):
@@ -266,6 +347,43 @@ class PflCheck:
             h_ends, h_radius, T_world_box, half_extents_m,
         )  # fmt: skip
         return self._verdict(c, E_int)
+
+    def _interval_energies(self, energy_J: np.ndarray, K: int) -> np.ndarray:
+        """``(K, L)`` interval energies from the forms :meth:`check` accepts."""
+        E = np.asarray(energy_J, dtype=float)
+        if E.shape == (K, self.n_links):
+            return E.copy()
+        if E.shape == (K + 1, self.n_links):
+            return interval_energy_J(E)
+        if E.shape == (K, 2, self.n_links):
+            return E.max(axis=1)
+        raise InputError(
+            f"energy_J has shape {E.shape}; expected ({K}, {self.n_links}) (interval bounds), "
+            f"({K + 1}, {self.n_links}) (samples) or ({K}, 2, {self.n_links})"
+        )
+
+    def merged(
+        self,
+        r_ends: np.ndarray,
+        r_radius: np.ndarray,
+        samples: LinkSamples,
+        dt: np.ndarray,
+        eps_v: np.ndarray,
+        T_world_box: np.ndarray,
+        half_extents_m: np.ndarray,
+        energy_J: np.ndarray,
+    ) -> MergedCheck:
+        """A :class:`MergedCheck` of one trajectory (inputs as in :meth:`check`; ``samples``
+        with ``ends, p1_dot, omega`` at the ``K+1`` samples, ``energy_J`` any form of
+        :meth:`check`, ``eps_v (K, L)``), to which human sets are added model by model."""
+        K = r_radius.shape[0] if np.ndim(r_radius) == 2 else -1
+        if np.shape(dt) != (K,):
+            raise InputError(f"dt has shape {np.shape(dt)}; expected ({K},)")
+        robot = self.classifier.robot_side(
+            r_ends, r_radius, samples.ends, self._s_radius, samples.p1_dot, samples.omega,
+            eps_v, T_world_box, half_extents_m,
+        )  # fmt: skip
+        return MergedCheck(self, robot, self._interval_energies(energy_J, K))
 
     def eps_from_bounds(
         self,
@@ -313,7 +431,10 @@ class PflCheck:
         """:meth:`check` of a sampled joint trajectory: ``q, q_dot (K+1, n)`` at times ``t
         (K+1,)``, ``qd_bound (K, n)`` rigorous speed bounds per interval (e.g. a
         ``ShieldedTrajectory``'s ``q, v, v_bound, times``); ``qdd_bound (K, n)`` (its
-        ``a_bound``) tightens the Thm VI.2 error (jerk from the joint limits)."""
+        ``a_bound``; default the joint acceleration limits) bounds ``|q''|`` over each
+        interval: it tightens the Thm VI.2 error (jerk from the joint limits) and bounds the
+        link energies BETWEEN the samples
+        (:func:`~sara_app.robot.energy.bounded_interval_energy_J`)."""
         q, q_dot, qd_bound, t = (np.asarray(a, dtype=float) for a in (q, q_dot, qd_bound, t))
         try:
             if not math.isfinite(float(q_dot.sum())):
@@ -328,10 +449,76 @@ class PflCheck:
             r_radius = np.full((K, self.n_links), np.nan)
         samples = self.motion.evaluate(q, q_dot)
         dt = t[1:] - t[:-1]
+        qdd = self.model.limits.a_max if qdd_bound is None else np.asarray(qdd_bound, float)
+        qdd = np.broadcast_to(np.abs(qdd), qd_bound.shape)
+        energy = bounded_interval_energy_J(self.motion, q, samples.energy_J, qdd, dt)
         return self.check(
             r_ends, r_radius, samples.ends, samples.p1_dot, samples.omega, dt,
-            h_ends, h_radius, T_world_box, half_extents_m, samples.energy_J,
+            h_ends, h_radius, T_world_box, half_extents_m, energy,
             eps_v=self.eps_from_bounds(dt, qd_bound, qdd_bound),
+        )  # fmt: skip
+
+
+class MergedCheck:
+    """Eq. 6-7 for one trajectory against several human-set models, merged per entry ("safe if
+    any model proves it"; the rules are monotone in the human sets, see
+    :mod:`sara_app.safety.pfl_shield`). Built by :meth:`PflCheck.merged`; :meth:`add` one
+    model's sets (the first over every interval, later ones over the range still unproved);
+    :meth:`result`: each entry from the first model that proves it safe, an unproved one with
+    the highest threshold seen; ``contact`` is the first model's. The robot-only geometry is
+    computed once for all models."""
+
+    def __init__(self, pfl: PflCheck, robot: RobotSide, E_int: np.ndarray) -> None:
+        self.pfl, self.robot, self.E_int = pfl, robot, E_int
+        self.first: PflResult | None = None
+        self.models = 0
+        self._cls: np.ndarray | None = None
+        self._todo = np.empty(2, dtype=np.int64)
+        self.todo = (0, robot.K)
+        """Interval range ``lo:hi`` with unproved entries (``(K, K)``: every entry proved)."""
+
+    def add(self, h_ends: np.ndarray, h_radius: np.ndarray) -> tuple[int, int]:
+        """Classify and merge one model's human capsules for the intervals :attr:`todo` (shapes
+        as in :meth:`ContactClassifier.classify_humans`); returns the new :attr:`todo`."""
+        lo, hi = self.todo
+        if lo >= hi:
+            return self.todo
+        c = self.pfl.classifier.classify_humans(self.robot, h_ends, h_radius, lo, hi)
+        self.models += 1
+        first = self.first
+        if first is None:
+            first = self.first = self.pfl._verdict(c, self.E_int)
+            bad = np.flatnonzero(~first.safe_interval)
+            K = self.robot.K
+            self.todo = (int(bad[0]), int(bad[-1]) + 1) if bad.size else (K, K)
+            return self.todo
+        if self._cls is None:
+            self._cls = first.cls.copy()
+        _merge_kernel(
+            c.stack, c.cls, c.contact, self.pfl.T_clamp, self.pfl.T_free, self.E_int, lo,
+            first.safe, self._cls, first.threshold_J, self._todo,
+        )  # fmt: skip
+        a, b = int(self._todo[0]), int(self._todo[1])
+        self.todo = (a, b + 1) if a >= 0 else (self.robot.K, self.robot.K)
+        return self.todo
+
+    def result(self) -> PflResult:
+        """The merged verdict (fresh arrays); raises :class:`InputError` before any :meth:`add`."""
+        f = self.first
+        if f is None:
+            raise InputError("no human set was checked (add at least one model)")
+        if self._cls is None:
+            return f
+        K, L, P = f.cls.shape
+        margin = np.empty((K, L, P))
+        safe_k = np.empty(K, dtype=bool)
+        allowed = np.empty((K, L))
+        part = np.empty((K, L), dtype=np.int64)
+        _summary_kernel(self._cls, f.threshold_J, self.E_int, f.safe, margin, safe_k, allowed,
+                        part)  # fmt: skip
+        return PflResult(
+            f.safe, safe_k, bool(safe_k.all()), self._cls, f.threshold_J, self.E_int, margin,
+            f.contact, allowed, part,
         )  # fmt: skip
 
 

@@ -49,8 +49,15 @@ these defaults). The price is about 0.4 replans per cycle while a person is near
 ``1 + max_replans`` = 2 checks per cycle).
 
 Assumptions beyond the SSM shield's: the link energies are those of the commanded motion (the
-controller tracks it; the tracking margin widens the robot's capsules only) and, as in seed 003,
-the energy over an interval is the larger of its end values (eq. 47-48).
+controller tracks it; the tracking margin widens the robot's capsules only). The energy over an
+interval is bounded with the exact path-speed peak and the configuration factor at the interval
+ends plus the measured margin ``G_MARGIN`` (:func:`sara_app.robot.energy.path_interval_energy_J`;
+seed 003's eq. 47-48 end values alone miss the speed peak inside the first failsafe interval).
+
+Speed: the robot-only work of a check (link energies and twists, interval energies, link-link
+and link-box distances) is done once per checked trajectory and shared by the models
+(:class:`~sara_app.safety.pfl.MergedCheck`); each model adds its human-side distances, one
+compiled classification and one compiled merge over the intervals still unproved.
 """
 
 from __future__ import annotations
@@ -63,6 +70,12 @@ import numpy as np
 
 from sara_app.errors import InputError, ParameterError
 from sara_app.human.reach import HumanReach
+from sara_app.robot.energy import (
+    G_MARGIN,
+    LinkSamples,
+    path_interval_energy_J,
+    path_speed_peaks,
+)
 from sara_app.robot.failsafe import ShieldedTrajectory
 from sara_app.robot.model import RobotModel
 from sara_app.robot.trajectory import PathFollower
@@ -75,11 +88,7 @@ if TYPE_CHECKING:
 
 Humans = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
-G_MARGIN = 1e-3
-"""Relative margin on the sampled configuration factor of the link energies within an interval
-(:meth:`PflShield._interval_energy`). Measured: over 1620 intervals of random shielded
-trajectories (Panda, blends, caps, stops), densely sampled energies exceeded the bound without
-margin by at most 3e-5 relative (eq. 47-48's end samples alone: by up to 20 %)."""
+__all__ = ["G_MARGIN", "PflCycle", "PflShield", "SpeedScaling", "bench_rows", "part_capsules"]
 
 
 def part_capsules(reach: HumanReach, model: str) -> np.ndarray:
@@ -288,73 +297,54 @@ class PflShield(Shield):
     def _verify_models(
         self, traj: ShieldedTrajectory, ends: np.ndarray, radius: np.ndarray, hum: Humans
     ) -> tuple[PflResult, int, np.ndarray]:
-        y, v, dv, age = hum
-        pfl = self._check_for(y.shape[0])
-        smp = self.pfl.motion.evaluate(traj.q, traj.v)
+        pfl = self._check_for(hum[0].shape[0])
+        smp, energy = self._link_energies(traj)
         E0 = smp.energy_J[0].copy()
-        energy = self._interval_energy(traj, smp.energy_J.copy())
         dt = np.diff(traj.times)
         eps = self.pfl.eps_from_bounds(dt, traj.v_bound, traj.a_bound)
-        T_box, half = self.boxes
-        K = dt.shape[0]
-        merged: _Merged | None = None
-        lo, hi = 0, K
-        used = 0
+        check = pfl.merged(ends, radius, smp, dt, eps, *self.boxes, energy)
         for name in self.settings.models:
+            lo, hi = check.todo
             h_ends, h_radius = self._human_sets(name, hum, traj.times, lo, hi)
-            r = pfl.check(
-                ends[lo:hi], radius[lo:hi], smp.ends[lo : hi + 1], smp.p1_dot[lo : hi + 1],
-                smp.omega[lo : hi + 1], dt[lo:hi], h_ends, h_radius, T_box, half,
-                energy[lo:hi], eps_v=eps[lo:hi],
-            )  # fmt: skip
-            used += 1
-            if merged is None:
-                merged = _Merged(r)
-            else:
-                merged.add(r, lo, hi)
-            todo = np.flatnonzero(~merged.safe.all(axis=(1, 2)))
-            if todo.size == 0:
+            lo, hi = check.add(h_ends, h_radius)
+            if lo >= hi:
                 break
-            lo, hi = int(todo[0]), int(todo[-1]) + 1
-        assert merged is not None  # at least one model (ShieldSettings / scenario validation)
-        return merged.result(), used, E0
+        return check.result(), check.models, E0
 
-    def _interval_energy(self, traj: ShieldedTrajectory, E_s: np.ndarray) -> np.ndarray:
-        """Link energy bound per interval ``(K, 2, L)`` (J) from the sample energies ``E_s
-        (K+1, L)``: ``1/2 max s'^2 g_i(s)`` with the exact path-speed peak of the interval and
-        the configuration factor ``g_i = q'^T E_i B E_i q'`` at its two ends.
-
-        Seed 003 eq. 47-48 take the energies at the interval ends only; but a stop starts with
-        ``s'' > 0`` (the acceleration ramps down at the jerk limit), so the speed peaks INSIDE
-        the first failsafe interval and the end samples miss it (seen in closed loop: 5 %
-        above the threshold in the middle of a 16 ms interval). The speed peak is now exact;
-        ``g_i`` is still sampled at the interval ends (it varies with the configuration only,
-        over the short path stretch of an interval), with the relative margin
-        :data:`G_MARGIN`: the remaining, measured shortcut."""
-        prof = traj.step.profile.then(traj.stop.profile)
-        sd_max, _ = prof.interval_maxima(traj.times, traj.sd, traj.sdd)
+    def _link_energies(self, traj: ShieldedTrajectory) -> tuple[LinkSamples, np.ndarray]:
+        """Link energies, twists and capsules at the samples (buffer views of the check's
+        :class:`~sara_app.robot.energy.LinkMotion`) and the energy bound per interval ``(K, L)``
+        (J): :func:`~sara_app.robot.energy.path_interval_energy_J` with the exact path-speed
+        peak of each interval and the configuration factor ``q'^T E_i B E_i q'`` at its ends
+        (plus ``G_MARGIN``). The path tangent ``q' = v / s'`` where the robot moves (``v = q'
+        s'`` exactly, up to rounding far below the margin), from the path elsewhere."""
         sd = traj.sd
-        g = np.empty_like(E_s)
-        fast = sd > 1e-3
-        g[fast] = 2.0 * E_s[fast] / (sd[fast] * sd[fast])[:, None]
-        slow = np.flatnonzero(~fast)
-        if slow.size:
-            dq = traj.step.path.derivatives(traj.s[slow], 1)[1]
-            g[slow] = 2.0 * self.pfl.motion.energies(traj.q[slow], dq)
-        peak = (0.5 * (1.0 + G_MARGIN)) * (sd_max * sd_max)[:, None, None]
-        peak = peak * np.stack([g[:-1], g[1:]], axis=1)
-        return np.maximum(peak, np.stack([E_s[:-1], E_s[1:]], axis=1))
+        fast = sd > 1e-6
+        dq = traj.v / np.where(fast, sd, 1.0)[:, None]
+        if not fast.all():
+            path = traj.step.path
+            for k in np.flatnonzero(~fast).tolist():
+                dq[k] = path.derivatives(float(traj.s[k]), 1)[1]
+        smp = self.pfl.motion.evaluate_path(traj.q, dq, sd)
+        sd_max = path_speed_peaks((traj.step.profile, traj.stop.profile), traj.times, sd)
+        return smp, path_interval_energy_J(smp.g_J, smp.energy_J, sd, sd_max)
 
     def _human_sets(
         self, model: str, hum: Humans, times: np.ndarray, lo: int, hi: int
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Every person's capsule per body part for intervals ``lo:hi``: ``(k, H P, 2, 3)``,
-        ``(k, H P)``; the sets grow from each measurement time (age) to the interval ends."""
+        """Every person's capsule per body part for intervals ``lo:hi``: ``(k|1, H P, 2, 3)``,
+        ``(k|1, H P)`` (a leading 1: the same on every interval); the sets grow from each
+        measurement time (age) to the interval ends."""
         y, v, dv, age = hum
         H, P, k = y.shape[0], len(self._part_names), hi - lo
+        pm = self._part_maps[model]
+        if H == 1:  # the common case: no broadcast copies
+            occ = self.verifier.occupancy(
+                model, y, v, dv, times[lo:hi] + age[0], times[lo + 1 : hi + 1] + age[0]
+            )
+            return occ.ends[0][:, pm], occ.radius[0][:, pm]
         h_ends = np.empty((k, H * P, 2, 3))
         h_radius = np.empty((k, H * P))
-        pm = self._part_maps[model]
         for h in range(H):
             ts = times[lo:hi] + age[h]
             te = times[lo + 1 : hi + 1] + age[h]
@@ -423,39 +413,6 @@ def _candidate(res: PflResult, traj: ShieldedTrajectory, E0: np.ndarray) -> tupl
     cand = _speed_for(res, traj, bad)
     stuck = bad[0] & ~(E0[:, None] < res.threshold_J[0])
     return cand, not bool(stuck.any())
-
-
-class _Merged:
-    """Per-entry merge of the models' verdicts: an entry takes the values of the first model
-    that proves it safe; unproved entries keep the least restrictive threshold seen."""
-
-    def __init__(self, first: PflResult) -> None:
-        self.first = first
-        self.safe = first.safe.copy()
-        self.cls = first.cls.copy()
-        self.thr = first.threshold_J.copy()
-        self.energy = first.energy_J
-
-    def add(self, r: PflResult, lo: int, hi: int) -> None:
-        old = self.safe[lo:hi]
-        newly = r.safe & ~old
-        better = ~old & ~r.safe & (r.threshold_J > self.thr[lo:hi])
-        take = newly | better
-        self.cls[lo:hi] = np.where(take, r.cls, self.cls[lo:hi])
-        self.thr[lo:hi] = np.where(take, r.threshold_J, self.thr[lo:hi])
-        self.safe[lo:hi] = old | r.safe
-
-    def result(self) -> PflResult:
-        f, thr, E = self.first, self.thr, self.energy
-        safe_k = np.asarray(self.safe.all(axis=(1, 2)))
-        thr_contact = np.where(self.cls > 0, thr, np.inf)
-        part = np.argmin(thr_contact, axis=2)
-        allowed = np.take_along_axis(thr_contact, part[..., None], axis=2)[..., 0]
-        part = np.where(np.isfinite(allowed), part, -1)
-        return PflResult(
-            self.safe, safe_k, bool(safe_k.all()), self.cls, thr, E, thr - E[:, :, None],
-            f.contact, allowed, part,
-        )  # fmt: skip
 
 
 # --- benchmark -------------------------------------------------------------------------------
