@@ -57,21 +57,17 @@ import numpy as np
 from numba import njit, types
 
 from sara_app.errors import RobotModelError
-from sara_app.robot.trajectory import (
-    LIMIT_MARGIN,
-    FollowerStep,
-    JointLimits,
-    PathFollower,
+from sara_app.robot.joints import LIMIT_MARGIN, REST_A, REST_V, S_TOL, limit_arrays
+from sara_app.robot.model import JointLimits
+from sara_app.robot.path import (
     PathTables,
     PathTrajectory,
-    ScalarProfile,
-    limit_arrays,
     path_tables,
-    phases_end,
     piece_room,
     sub_piece_room,
-    velocity_phases,
 )
+from sara_app.robot.profile import ScalarProfile, phases_end, velocity_phases
+from sara_app.robot.trajectory import FollowerStep, PathFollower
 from sara_app.robot.trajectory_kernels import shielded_samples_kernel
 
 __all__ = [
@@ -85,9 +81,6 @@ __all__ = [
     "straight_line_stop_duration",
 ]
 
-_REST_V = 1e-9
-_REST_A = 1e-7
-_S_TOL = 1e-9
 _BOUND_PAD = 1e-12  # relative padding of the interval bounds against rounding
 
 
@@ -217,7 +210,7 @@ def _check_candidate(
     prof = ScalarProfile(s, v0, a0, durs, jerks)
     S = path.length
     s_end = prof.end[0]
-    if s_end > S + _S_TOL:
+    if s_end > S + S_TOL:
         return None, -1.0, -1.0  # runs off the end of the path
     if a0 > 0.0:
         t_pk = a0 / J
@@ -271,13 +264,13 @@ def plan_stop(
     v0 = _finite("sd", sd)
     a0 = _finite("sdd", sdd)
     S = path.length
-    if s < -_S_TOL or s > S + _S_TOL:
+    if s < -S_TOL or s > S + S_TOL:
         raise RobotModelError(f"s = {s!r} rad; expected a path coordinate in [0, {S:.6g}]")
     if v0 < -1e-12:
         raise RobotModelError(f"sd = {v0!r} rad/s; expected a path speed >= 0")
     s = min(max(s, 0.0), S)
     v0 = max(v0, 0.0)
-    if v0 <= _REST_V and abs(a0) <= _REST_A:
+    if v0 <= REST_V and abs(a0) <= REST_A:
         return rest_stop(path, s)
     if path.n_pieces == 0:
         raise RobotModelError(f"path of length 0 cannot move at sd = {v0!r}, sdd = {a0!r}")
@@ -458,9 +451,9 @@ def plan_joint_stop(q: object, v: object, a: object, limits: JointLimits) -> Joi
             raise RobotModelError(f"{name}[{j}] = {arr[j]}; expected a finite value")
     lim = limit_arrays(limits, n)
     nv, na = float(np.linalg.norm(v0)), float(np.linalg.norm(a0))
-    if nv <= _REST_V and na <= _REST_A:
+    if nv <= REST_V and na <= REST_A:
         return JointStopProfile(q0, np.zeros(n), np.zeros(n), [([], [])] * n, True)
-    u = v0 / nv if nv > _REST_V else a0 / na
+    u = v0 / nv if nv > REST_V else a0 / na
     sd, sdd = float(v0 @ u), float(a0 @ u)
     straight = np.linalg.norm(v0 - sd * u) <= 1e-9 * (1.0 + nv) and np.linalg.norm(
         a0 - sdd * u

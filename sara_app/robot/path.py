@@ -1,0 +1,587 @@
+"""A :class:`PathTrajectory` is a polyline through joint-space waypoints ``(W, n)`` whose
+corners are replaced by blends, parameterised by a path coordinate ``s`` in ``[0, S]`` (rad, the
+Euclidean joint-space arc length on the straight parts). On a straight piece
+``q(s) = p + (s - s_k) u`` with a unit direction ``u``. A corner at waypoint ``w`` between unit
+directions ``u_in`` and ``u_out`` is replaced, from ``w - d u_in`` to ``w + d u_out`` (length
+``L = 2 d`` in ``s``), by the curve whose tangent turns from ``u_in`` to ``u_out`` with a cubic
+smoothstep ``h(x) = 3 x^2 - 2 x^3``, ``x = (s - s_k) / L``::
+
+    dq/ds   = u_in + h(x) (u_out - u_in)
+    d2q/ds2 = h'(x) (u_out - u_in) / L          h'  = 6 x (1 - x),  |h'|  <= 3/2
+    d3q/ds3 = h''(x) (u_out - u_in) / L^2       h'' = 6 - 12 x,     |h''| <= 6
+
+``d2q/ds2`` is zero at both ends of a blend, so the path is C2 in ``s`` with a bounded
+(piecewise continuous) third derivative: a jerk-limited time-scaling never has to stop at a
+corner. Every tangent is a convex combination of ``u_in`` and ``u_out``, so
+``|dq_j/ds| <= max(|u_in_j|, |u_out_j|)`` (blends never ask more joint speed per unit path speed
+than the straight parts next to them) and ``dq_j/ds`` is monotone along a blend. The blend lies in
+the triangle ``(w - d u_in, w, w + d u_out)`` (its barycentric weights are
+``(1 - x)^3 (1 + x)``, ``2 x - 4 H(x)``, ``2 H(x)`` with ``H(x) = x^3 - x^4 / 2``, all >= 0), so
+the whole path lies in the convex hull of its waypoints: waypoints inside the joint position box
+put the whole path inside it. The blend misses the corner by ``3 d |u_out - u_in| / 16``
+(at most ``3 d / 8``). ``d`` is ``blend_distance`` (default 0.1 rad), shortened to half of each
+neighbouring segment (the first and last segments keep at least half their length straight).
+
+Time-scaling. Along the path ``v = q' s'``, ``a = q'' s'^2 + q' s''``,
+``j = q''' s'^3 + 3 q'' s' s'' + q' s'''`` (primes: derivatives in ``s``; ``s'``, ``s''``,
+``s'''``: path speed, acceleration, jerk). For every piece ``k`` the per-joint maxima
+``M1 = max|q'|``, ``M2 = max|q''|``, ``M3 = max|q'''|`` over the piece give a box
+``(V_k, A_k, J_k)`` such that ``0 <= s' <= V_k``, ``|s''| <= A_k``, ``|s'''| <= J_k`` on the
+piece keeps every joint within its velocity, acceleration and jerk limits::
+
+    A_k = min_j (a_j - M2_j V_k^2) / M1_j
+    J_k = min_j (j_j - M3_j V_k^3 - 3 M2_j V_k A_k) / M1_j
+
+On straight pieces (``M2 = M3 = 0``) this is exact: ``V_k = min_j v_j / |u_j|`` and the
+full acceleration and jerk budgets. On blends, ``V_k`` (the admissible path speed) is the largest
+speed that leaves at least ``tangential_share`` (default 0.5) of every joint's acceleration and
+jerk budget to ``s''`` and ``s'''``. The boxes are computed once per path.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from sara_app.errors import RobotModelError
+from sara_app.robot.joints import (
+    LIMIT_MARGIN,
+    S_TOL,
+    LimitArrays,
+    check_waypoints,
+    limit_arrays,
+)
+from sara_app.robot.model import JointLimits
+
+__all__ = [
+    "PathTables",
+    "PathTrajectory",
+    "path_tables",
+    "piece_boxes",
+    "piece_room",
+    "sub_piece_room",
+]
+
+
+def _h(x: np.ndarray) -> np.ndarray:
+    return x * x * (3.0 - 2.0 * x)
+
+
+def _dh(x: np.ndarray) -> np.ndarray:
+    return 6.0 * x * (1.0 - x)
+
+
+def _ddh(x: np.ndarray) -> np.ndarray:
+    return 6.0 - 12.0 * x
+
+
+@dataclass
+class _Pieces:
+    """Piece table: ``q(s) = org + L (x u + H(x) dl)``, ``x = x0 + (s - s0) / L`` in [x0, x1]."""
+
+    s0: np.ndarray  # (P,) start of each piece in s
+    length: np.ndarray  # (P,) length in s
+    org: np.ndarray  # (P, n)
+    L: np.ndarray  # (P,)
+    x0: np.ndarray  # (P,)
+    u: np.ndarray  # (P, n)
+    dl: np.ndarray  # (P, n) u_out - u_in (zero on straight pieces)
+    blend: np.ndarray  # (P,) bool
+
+    @staticmethod
+    def concat(parts: list[_Pieces]) -> _Pieces:
+        names = ("s0", "length", "org", "L", "x0", "u", "dl", "blend")
+        return _Pieces(*(np.concatenate([getattr(p, k) for p in parts]) for k in names))
+
+
+def _polyline_pieces(
+    points: np.ndarray, blend_distance: float, s_start: float, first_full: bool
+) -> _Pieces:
+    """Pieces of a blended polyline (consecutive duplicates removed by the caller)."""
+    n = points.shape[1]
+    seg = np.diff(points, axis=0)
+    ln = np.linalg.norm(seg, axis=1)
+    u = seg / ln[:, None]
+    m = len(ln)
+    # blend half-length per interior corner i (between segment i-1 and i), i = 1..m-1
+    share = np.full(m, 0.5)
+    if first_full and m > 1:
+        share[0] = 1.0
+    d = np.zeros(m + 1)
+    for i in range(1, m):
+        d[i] = min(blend_distance, share[i - 1] * ln[i - 1], 0.5 * ln[i])
+    rows: list[tuple[float, np.ndarray, float, float, np.ndarray, np.ndarray, bool]] = []
+    zero = np.zeros(n)
+    for i in range(m):
+        lin = ln[i] - d[i] - d[i + 1]
+        if lin > S_TOL * 1e-3:
+            rows.append((lin, points[i] + d[i] * u[i], lin, 0.0, u[i], zero, False))
+        if i + 1 < m and d[i + 1] > 0.0:
+            dd = d[i + 1]
+            org = points[i + 1] - dd * u[i]
+            rows.append((2.0 * dd, org, 2.0 * dd, 0.0, u[i], u[i + 1] - u[i], True))
+    lengths = np.array([r[0] for r in rows])
+    s0 = s_start + np.concatenate([[0.0], np.cumsum(lengths)[:-1]])
+    return _Pieces(
+        s0=s0,
+        length=lengths,
+        org=np.array([r[1] for r in rows]).reshape(-1, n),
+        L=np.array([r[2] for r in rows]),
+        x0=np.array([r[3] for r in rows]),
+        u=np.array([r[4] for r in rows]).reshape(-1, n),
+        dl=np.array([r[5] for r in rows]).reshape(-1, n),
+        blend=np.array([r[6] for r in rows], dtype=bool),
+    )
+
+
+def _dedupe(points: np.ndarray) -> np.ndarray:
+    keep = [0]
+    for i in range(1, len(points)):
+        if np.linalg.norm(points[i] - points[keep[-1]]) > S_TOL:
+            keep.append(i)
+    return points[keep]
+
+
+class PathTrajectory:
+    """Blended polyline through joint-space waypoints ``(W, n)``, parameterised by ``s``.
+
+    ``q(s)``, ``dq(s)``, ``d2q(s)``, ``d3q(s)`` accept a scalar or an array of path coordinates
+    (clamped to ``[0, S]``) and return ``(n,)`` or ``(K, n)``. With ``limits`` the waypoints are
+    checked against the joint position box (the path stays in their convex hull, see the module
+    notes). ``blend_distance`` (rad, > 0) is the corner blend half-length ``d``.
+    """
+
+    def __init__(
+        self,
+        waypoints: object,
+        *,
+        blend_distance: float = 0.1,
+        limits: JointLimits | None = None,
+    ) -> None:
+        if not (isinstance(blend_distance, int | float) and math.isfinite(blend_distance)):
+            raise RobotModelError(f"blend_distance = {blend_distance!r}; expected a number > 0")
+        if blend_distance <= 0:
+            raise RobotModelError(
+                f"blend_distance = {blend_distance!r} rad; expected > 0 (corners must be blended)"
+            )
+        wps = check_waypoints(waypoints, limits)
+        self.waypoints = wps
+        self.blend_distance = float(blend_distance)
+        pts = _dedupe(wps)
+        if len(pts) >= 2:
+            pieces = _polyline_pieces(pts, self.blend_distance, 0.0, first_full=False)
+        else:
+            pieces = None
+        self._setup(pts[0], pieces)
+
+    @classmethod
+    def _from_pieces(
+        cls, waypoints: np.ndarray, blend_distance: float, start: np.ndarray, pieces: _Pieces
+    ) -> PathTrajectory:
+        self = cls.__new__(cls)
+        self.waypoints = waypoints
+        self.blend_distance = blend_distance
+        self._setup(start, pieces)
+        return self
+
+    def _setup(self, start: np.ndarray, pieces: _Pieces | None) -> None:
+        self.n_joints = int(start.shape[0])
+        self._start = np.array(start, dtype=float)
+        self._p = pieces
+        self._tables: PathTables | None = None
+        if pieces is None:
+            self.length = 0.0
+            self._s0_list: list[float] = [0.0]
+            return
+        p = pieces
+        self.length = float(p.s0[-1] + p.length[-1])
+        self._s0_list = [float(x) for x in p.s0]
+        self._invL = 1.0 / p.L
+        self._x1 = p.x0 + p.length * self._invL
+        self._x0_list = p.x0.tolist()
+        self._x1_list = self._x1.tolist()
+        self._L_list = p.L.tolist()
+        self._invL_list = self._invL.tolist()
+        # per-piece maxima of |q'|, |q''|, |q'''| over the piece's x range
+        x0, x1 = p.x0, self._x1
+        qs0 = p.u + _h(x0)[:, None] * p.dl
+        qs1 = p.u + _h(x1)[:, None] * p.dl
+        self.M1 = np.maximum(np.abs(qs0), np.abs(qs1))
+        dh_max = _dh(np.clip(0.5, x0, x1))
+        ddh_max = np.maximum(np.abs(_ddh(x0)), np.abs(_ddh(x1)))
+        adl = np.abs(p.dl)
+        self.M2 = adl * (dh_max * self._invL)[:, None]
+        self.M3 = adl * (ddh_max * self._invL**2)[:, None]
+        with np.errstate(divide="ignore"):
+            self.invM1 = np.where(self.M1 > 0.0, 1.0 / np.where(self.M1 > 0, self.M1, 1.0), np.inf)
+        self._qs_start = qs0  # dq/ds at each piece start (continuous across pieces)
+        # q as a quartic in tau = s - s_k (H(x0 + y) expanded, y = tau / L)
+        L = p.L[:, None]
+        x0c = x0[:, None]
+        c0 = p.org + L * (x0c * p.u + (x0c**3 - 0.5 * x0c**4) * p.dl)
+        c1 = p.u + (3 * x0c**2 - 2 * x0c**3) * p.dl
+        c2 = (3 * x0c - 3 * x0c**2) / L * p.dl
+        c3 = (1 - 2 * x0c) / L**2 * p.dl
+        c4 = -0.5 / L**3 * p.dl
+        # coefficient blocks per power of tau (rows) for [q | dq | d2q | d3q] (columns)
+        z = np.zeros_like(c0)
+        self._poly = np.stack(
+            [
+                np.hstack([c0, c1, 2 * c2, 6 * c3]),
+                np.hstack([c1, 2 * c2, 6 * c3, 24 * c4]),
+                np.hstack([c2, 3 * c3, 12 * c4, z]),
+                np.hstack([c3, 4 * c4, z, z]),
+                np.hstack([c4, z, z, z]),
+            ],
+            axis=1,
+        )  # (P, 5, 4 n)
+        self._piece_tables = (p.s0, p.length, self._poly, self.M1, self.M2, qs0)
+
+    # -- geometry ----------------------------------------------------------------------------
+
+    @property
+    def n_pieces(self) -> int:
+        return 0 if self._p is None else len(self._s0_list)
+
+    @property
+    def piece_starts(self) -> np.ndarray:
+        """Start of every piece in ``s`` (``(P,)``)."""
+        return np.array(self._s0_list)
+
+    @property
+    def piece_is_blend(self) -> np.ndarray:
+        return np.zeros(0, bool) if self._p is None else self._p.blend.copy()
+
+    @property
+    def piece_tables(self) -> tuple[np.ndarray, ...]:
+        """Per-piece tables for compiled kernels: starts, lengths ``(P,)``, quartic coefficients
+        ``(P, 5, 4 n)`` of ``[q | dq/ds | d2q/ds2 | d3q/ds3]`` in ``tau = s - s_k``, maxima of
+        ``|dq/ds|``, ``|d2q/ds2|`` ``(P, n)`` and ``dq/ds`` at every piece start ``(P, n)``."""
+        if self._p is None:
+            raise RobotModelError("a path of one point has no pieces")
+        return self._piece_tables
+
+    def piece_index(self, s: float) -> int:
+        """Index of the piece containing ``s`` (scalar)."""
+        return max(bisect.bisect_right(self._s0_list, s) - 1, 0)
+
+    def derivatives(self, s: object, order: int = 2) -> list[np.ndarray]:
+        """``[q, dq/ds, ..., d^order q/ds^order]`` at ``s`` (``order`` <= 3)."""
+        if isinstance(s, float | int) and self._p is not None and math.isfinite(s):
+            return self._derivatives_at(float(s), order)
+        s_arr = np.asarray(s, dtype=float)
+        scalar = s_arr.ndim == 0
+        s_arr = np.atleast_1d(s_arr)
+        if not np.all(np.isfinite(s_arr)):
+            raise RobotModelError(f"path coordinate s = {s!r}; expected finite values")
+        out = self._derivatives_array(s_arr, order)
+        return [o[0] for o in out] if scalar else out
+
+    def _derivatives_array(self, s_arr: np.ndarray, order: int) -> list[np.ndarray]:
+        """:meth:`derivatives` for a finite float array (no checks)."""
+        shape = (*s_arr.shape, self.n_joints)
+        p = self._p
+        if p is None:
+            out = [np.broadcast_to(self._start, shape).copy()]
+            out += [np.zeros(shape) for _ in range(order)]
+        else:
+            # every piece is a quartic in tau = s - s_k: one product with the monomials
+            flat = s_arr.reshape(-1)
+            k = np.searchsorted(p.s0, flat, side="right") - 1
+            np.maximum(k, 0, out=k)
+            np.minimum(k, len(p.s0) - 1, out=k)
+            tau = flat - p.s0[k]
+            np.maximum(tau, 0.0, out=tau)
+            np.minimum(tau, p.length[k], out=tau)
+            n = self.n_joints
+            m = (order + 1) * n
+            mono = np.vander(tau, 5, increasing=True)[:, None, :]
+            vals = np.matmul(mono, self._poly[k, :, :m])[:, 0, :]
+            out = [vals[:, i * n : (i + 1) * n].reshape(shape) for i in range(order + 1)]
+        return out
+
+    def _derivatives_at(self, s: float, order: int) -> list[np.ndarray]:
+        """Scalar fast path of :meth:`derivatives`."""
+        p = self._p
+        assert p is not None
+        k = self.piece_index(s)
+        x0 = self._x0_list[k]
+        x = min(max(x0 + (s - self._s0_list[k]) * self._invL_list[k], x0), self._x1_list[k])
+        L = self._L_list[k]
+        u, dl = p.u[k], p.dl[k]
+        x2 = x * x
+        out = [p.org[k] + L * (x * u + (x2 * x - 0.5 * x2 * x2) * dl)]
+        if order >= 1:
+            out.append(u + (x2 * (3.0 - 2.0 * x)) * dl)
+        if order >= 2:
+            out.append((6.0 * x * (1.0 - x) / L) * dl)
+        if order >= 3:
+            out.append(((6.0 - 12.0 * x) / (L * L)) * dl)
+        return out
+
+    def q(self, s: object) -> np.ndarray:
+        return self.derivatives(s, 0)[0]
+
+    def dq(self, s: object) -> np.ndarray:
+        return self.derivatives(s, 1)[1]
+
+    def d2q(self, s: object) -> np.ndarray:
+        return self.derivatives(s, 2)[2]
+
+    def d3q(self, s: object) -> np.ndarray:
+        return self.derivatives(s, 3)[3]
+
+    def interval_bounds(
+        self, s: np.ndarray, dq: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For every ``[s_k, s_k+1]`` of non-decreasing path samples ``s`` ``(K+1,)`` with
+        ``dq = dq/ds(s)``: ``(D1, M1, M2)``, each ``(K, n)``.
+
+        ``D1`` is the exact ``max |dq_j/ds|`` over the interval (``dq_j/ds`` is monotone on
+        every piece: the extremes are at the ends and at piece starts inside); ``M1``, ``M2``
+        are the piece maxima of ``|dq_j/ds|``, ``|d2q_j/ds2|`` over the pieces it touches.
+        """
+        ad = np.abs(dq)
+        D1 = np.maximum(ad[:-1], ad[1:])
+        if self._p is None:
+            z = np.zeros_like(D1)
+            return D1, z, z
+        P = self.n_pieces
+        k = np.searchsorted(self._p.s0, s, side="right") - 1
+        np.maximum(k, 0, out=k)
+        np.minimum(k, P - 1, out=k)
+        k0, k1 = k[:-1], k[1:]
+        M1 = np.maximum(self.M1[k0], self.M1[k1])
+        M2 = np.maximum(self.M2[k0], self.M2[k1])
+        for i in np.flatnonzero(k1 != k0).tolist():
+            a, b = int(k0[i]), int(k1[i])
+            inner = self._qs_start[a + 1 : b + 1]
+            D1[i] = np.maximum(D1[i], np.abs(inner).max(axis=0))
+            if b - a > 1:
+                M1[i] = self.M1[a : b + 1].max(axis=0)
+                M2[i] = self.M2[a : b + 1].max(axis=0)
+        return D1, M1, M2
+
+    # -- composition (replanning) -------------------------------------------------------------
+
+    def continued(
+        self,
+        s_now: float,
+        s_b: float,
+        points: np.ndarray,
+        waypoints: np.ndarray,
+        blend_distance: float,
+    ) -> PathTrajectory:
+        """This path over ``[s_now, s_b]`` (re-based: ``s_now`` becomes 0), then a blended
+        polyline from ``q(s_b)`` through ``points (m, n)`` (``m`` may be 0) whose first segment
+        stays straight. ``waypoints``: the request the new path serves (its ``waypoints``)."""
+        prefix = self._clipped(s_now, s_b)
+        q_now = self.q(s_now)
+        wps = np.vstack([q_now[None, :], waypoints])
+        if len(points) == 0:
+            if prefix is None:
+                raise RobotModelError("nothing to continue: an empty stretch and no new points")
+            return PathTrajectory._from_pieces(wps, blend_distance, q_now, prefix)
+        pts = _dedupe(np.vstack([self.q(s_b)[None, :], points]))
+        tail = _polyline_pieces(pts, blend_distance, s_b - s_now, first_full=True)
+        pieces = tail if prefix is None else _Pieces.concat([prefix, tail])
+        return PathTrajectory._from_pieces(wps, blend_distance, q_now, pieces)
+
+    def _clipped(self, s_a: float, s_b: float) -> _Pieces | None:
+        """The pieces over ``[s_a, s_b]``, re-based so ``s_a`` becomes 0."""
+        p = self._p
+        if p is None or s_b - s_a <= S_TOL * 1e-3:
+            return None
+        k0, k1 = self.piece_index(s_a), self.piece_index(s_b)
+        if k1 > k0 and s_b - self._s0_list[k1] <= S_TOL * 1e-3:
+            k1 -= 1
+        ks = np.arange(k0, k1 + 1)
+        starts = np.maximum(p.s0[ks], s_a)
+        ends = np.minimum(p.s0[ks] + p.length[ks], s_b)
+        keep = ends - starts > 0.0
+        ks, starts, ends = ks[keep], starts[keep], ends[keep]
+        x0 = p.x0[ks] + (starts - p.s0[ks]) * self._invL[ks]
+        return _Pieces(
+            s0=starts - s_a,
+            length=ends - starts,
+            org=p.org[ks],
+            L=p.L[ks],
+            x0=x0,
+            u=p.u[ks],
+            dl=p.dl[ks],
+            blend=p.blend[ks],
+        )
+
+
+# ----------------------------------------------------------------------------------------------
+# Admissible path-speed boxes (time-scaling)
+
+
+class PathTables:
+    """Per-piece data of a path under given limits, as Python floats for scalar hot loops.
+
+    ``lin[k]``: piece ``k`` is straight; ``v_lin, a_lin, j_lin``: its exact path limits then;
+    ``rows[k]``: per-joint tuples ``(M1, M2, M3, 1/M1, v_max, a_max, j_max)``.
+    """
+
+    __slots__ = ("source", "lim", "lin", "v_lin", "a_lin", "j_lin", "rows", "u", "dl")
+
+    def __init__(self, path: PathTrajectory, limits: JointLimits) -> None:
+        self.source = limits
+        lim = limit_arrays(limits, path.n_joints)
+        self.lim = lim
+        self.lin: list[bool] = []
+        self.v_lin: list[float] = []
+        self.a_lin: list[float] = []
+        self.j_lin: list[float] = []
+        self.rows: list[list[tuple[float, ...]]] = []
+        self.u: list[list[float]] = []
+        self.dl: list[list[float]] = []
+        if path.n_pieces == 0 or path._p is None:
+            return
+        self.u = path._p.u.tolist()
+        self.dl = path._p.dl.tolist()
+        with np.errstate(divide="ignore", invalid="ignore"):
+            v_lin = np.min(lim.v * path.invM1, axis=1)
+            a_lin = np.min(lim.a * path.invM1, axis=1)
+            j_lin = np.min(lim.j * path.invM1, axis=1)
+        self.v_lin = [float(x) for x in v_lin]
+        self.a_lin = [float(x) for x in a_lin]
+        self.j_lin = [float(x) for x in j_lin]
+        self.lin = [
+            bool(x) for x in (np.max(path.M2, axis=1) == 0) & (np.max(path.M3, axis=1) == 0)
+        ]
+        cols = (lim.v, lim.a, lim.j)
+        for k in range(path.n_pieces):
+            self.rows.append(
+                list(
+                    zip(
+                        path.M1[k].tolist(),
+                        path.M2[k].tolist(),
+                        path.M3[k].tolist(),
+                        path.invM1[k].tolist(),
+                        *(c.tolist() for c in cols),
+                        strict=True,
+                    )
+                )
+            )
+
+
+def path_tables(path: PathTrajectory, limits: JointLimits) -> PathTables:
+    """:class:`PathTables` of ``path`` under ``limits`` (cached on the path per limits object)."""
+    cached = getattr(path, "_tables", None)
+    if cached is not None and cached.source is limits:
+        return cached
+    tables = PathTables(path, limits)
+    path._tables = tables
+    return tables
+
+
+def piece_room(tab: PathTables, k: int, w: float, am: float) -> tuple[float, float]:
+    """``(A, J)`` room on piece ``k`` at path speed <= ``w`` and ``|s''|`` <= ``am``:
+    ``min_j (a_j - M2 w^2) / M1`` and ``min_j (j_j - M3 w^3 - 3 M2 w am) / M1``;
+    ``(-1, -1)`` if the speed alone breaks a joint velocity limit."""
+    if tab.lin[k]:
+        if w > tab.v_lin[k]:
+            return -1.0, -1.0
+        return tab.a_lin[k], tab.j_lin[k]
+    w2 = w * w
+    w3 = w2 * w
+    A = math.inf
+    J = math.inf
+    for m1, m2, m3, im1, vj, aj, jj in tab.rows[k]:
+        if m1 * w > vj:
+            return -1.0, -1.0
+        ar = (aj - m2 * w2) * im1
+        jr = (jj - m3 * w3 - 3.0 * m2 * w * am) * im1
+        if ar < A:
+            A = ar
+        if jr < J:
+            J = jr
+    return A, J
+
+
+def sub_piece_room(
+    path: PathTrajectory, tab: PathTables, k: int, sa: float, sb: float, w: float, am: float
+) -> tuple[float, float]:
+    """:func:`piece_room` with the maxima of ``|q'|``, ``|q''|``, ``|q'''|`` taken over
+    ``[sa, sb]`` inside piece ``k`` only. The extremes are exact: along a blend ``q'`` is
+    monotone, ``h'`` is concave with its peak at the middle and ``h''`` is linear."""
+    if tab.lin[k]:
+        return piece_room(tab, k, w, am)
+    s0 = path._s0_list[k]
+    x_lo, x_hi = path._x0_list[k], path._x1_list[k]
+    iL = path._invL_list[k]
+    xa = min(max(x_lo + (sa - s0) * iL, x_lo), x_hi)
+    xb = min(max(x_lo + (sb - s0) * iL, xa), x_hi)
+    ha, hb = xa * xa * (3.0 - 2.0 * xa), xb * xb * (3.0 - 2.0 * xb)
+    xm = min(max(0.5, xa), xb)
+    dh = 6.0 * xm * (1.0 - xm) * iL
+    ddh = max(abs(6.0 - 12.0 * xa), abs(6.0 - 12.0 * xb)) * iL * iL
+    w2 = w * w
+    w3 = w2 * w
+    A = math.inf
+    J = math.inf
+    for (_, _, _, _, vj, aj, jj), uj, dj in zip(tab.rows[k], tab.u[k], tab.dl[k], strict=True):
+        m1 = max(abs(uj + ha * dj), abs(uj + hb * dj))
+        adj = abs(dj)
+        m2 = adj * dh
+        if m1 * w > vj:
+            return -1.0, -1.0
+        if m1 > 0.0:
+            ar = (aj - m2 * w2) / m1
+            jr = (jj - adj * ddh * w3 - 3.0 * m2 * w * am) / m1
+            if ar < A:
+                A = ar
+            if jr < J:
+                J = jr
+    return A, J
+
+
+def piece_boxes(
+    path: PathTrajectory, lim: LimitArrays, tangential_share: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(V, A, J)`` per piece: path speed, acceleration and jerk limits that keep every joint
+    within its limits on that piece (see the module notes)."""
+    M1, M2, M3 = path.M1, path.M2, path.M3
+    iM1 = path.invM1
+    rho = tangential_share
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v_vel = np.min(np.where(M1 > 0, lim.v / np.where(M1 > 0, M1, 1.0), np.inf), axis=1)
+        v_acc = np.min(
+            np.where(M2 > 0, np.sqrt((1 - rho) * lim.a / np.where(M2 > 0, M2, 1.0)), np.inf),
+            axis=1,
+        )
+        a_lin = np.min(lim.a * iM1, axis=1)
+        # jerk: M3 V^3 + 3 M2 a_lin V <= (1 - rho) j, per joint; unique positive root of a
+        # cubic with non-negative coefficients (stable Cardano form, then two Newton steps)
+        c3 = M3
+        c1 = 3.0 * M2 * a_lin[:, None]
+        r = (1 - rho) * lim.j
+        v_j = np.full(M1.shape, np.inf)
+        lin_only = (c3 == 0) & (c1 > 0)
+        v_j = np.where(lin_only, r / np.where(c1 > 0, c1, 1.0), v_j)
+        cub = c3 > 0
+        c3s = np.where(cub, c3, 1.0)
+        pp = c1 / c3s
+        qq = r / c3s
+        disc = np.sqrt(0.25 * qq * qq + pp**3 / 27.0)
+        aa = np.cbrt(0.5 * qq + disc)
+        bb = np.cbrt(disc - 0.5 * qq)
+        root = qq / (aa * aa + aa * bb + bb * bb)
+        for _ in range(2):
+            f = root**3 + pp * root - qq
+            root = root - f / (3.0 * root * root + pp)
+        v_j = np.where(cub, root, v_j)
+    V = np.minimum(np.minimum(v_vel, v_acc), np.min(v_j, axis=1))
+    V = V * (1.0 - LIMIT_MARGIN)
+    A = np.min((lim.a - M2 * (V * V)[:, None]) * iM1, axis=1)
+    A = np.maximum(A, 0.0) * (1.0 - LIMIT_MARGIN)
+    J = np.min((lim.j - M3 * (V**3)[:, None] - 3.0 * M2 * (V * A)[:, None]) * iM1, axis=1)
+    J = J * (1.0 - LIMIT_MARGIN)
+    if np.any(A <= 0) or np.any(J <= 0) or np.any(V <= 0):  # pragma: no cover - by construction
+        raise RobotModelError("path has a piece with no admissible path speed; check the limits")
+    return V, A, J
