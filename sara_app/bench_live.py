@@ -4,7 +4,13 @@ no more than 10 % worse), measured on the live stack of ``sara-app serve``.
 A Zenoh router, a cell worker and a replayer run as in ``serve``; the worker's verdicts (one per
 cycle, with its own cycle time) are collected in alternating phases: without a view, then with
 the viser dashboard fed at 20 Hz and a headless Debian chromium rendering it, and so on. Phases
-alternate so that drifts of the machine's load hit both sides alike.
+alternate (their order rotates each round) so that drifts of the machine's load hit all sides
+alike.
+
+The view runs in two variants: at lowered CPU priority (nice ``serve.DISPLAY_NICE``, as ``sara-app
+serve`` runs its display side; the browser too, standing for an operator's browser that normally
+runs on another machine) and at the worker's own priority (everything competing equally for the
+cores). The replayer runs at ``serve.REPLAYER_NICE`` in every phase, as in ``serve``.
 """
 
 from __future__ import annotations
@@ -17,6 +23,7 @@ import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from typing import cast
 
 import numpy as np
 
@@ -58,90 +65,112 @@ def _collect(hub: Bus, cell: str, seconds: float) -> np.ndarray:
     return np.array(out)
 
 
+class _Display(threading.Thread):
+    """The dashboard fed at 20 Hz, built and run on a thread of its own whose CPU priority is
+    lowered by ``nice`` first (as ``sara-app serve`` runs its display side): viser's threads
+    are started from it and inherit that priority."""
+
+    def __init__(self, hub: Bus, cell: str, scenario: str, nice: int) -> None:
+        super().__init__(daemon=True)
+        self.hub, self.cell, self.scenario, self.nice = hub, cell, scenario, nice
+        self.url: str | None = None
+        self.ready = threading.Event()
+        self.stop_event = threading.Event()
+
+    def run(self) -> None:
+        from sara_app.cell import base_pose
+        from sara_app.dashboard.bridge import CellView
+        from sara_app.dashboard.viewer import Dashboard
+        from sara_app.scenario import load_scenario, scenarios_dir
+        from sara_app.serve import lower_thread_priority
+
+        lower_thread_priority(self.nice)
+        sc = load_scenario(self.scenario)
+        T = base_pose(sc.robot.base_xyz_m, sc.robot.base_rpy_rad)
+        dash = Dashboard(robot=sc.robot.name, T_world_base=T)
+        try:
+            view = CellView(self.cell, self.hub, dash, sc, scenarios_dir())
+            self.url = dash.start(port=free_port())
+            self.ready.set()
+            while not self.stop_event.is_set():
+                frame = view.poll()
+                if frame is not None:
+                    dash.update(frame)
+                self.stop_event.wait(0.05)
+        finally:
+            self.ready.set()
+            dash.stop()
+
+
 @contextmanager
-def _view(hub: Bus, cell: str, scenario: str, browser: str | None) -> Iterator[str]:
-    """The dashboard fed at 20 Hz in a thread of this process, and a browser on it."""
-    from sara_app.cell import base_pose
-    from sara_app.dashboard.bridge import CellView
-    from sara_app.dashboard.viewer import Dashboard
-    from sara_app.scenario import load_scenario, scenarios_dir
+def _view(hub: Bus, cell: str, scenario: str, browser: str | None, nice: int) -> Iterator[str]:
+    """The dashboard (at ``nice``) and a headless browser on it (at ``nice`` too)."""
+    from sara_app.serve import start_process
 
-    sc = load_scenario(scenario)
-    dash = Dashboard(
-        robot=sc.robot.name, T_world_base=base_pose(sc.robot.base_xyz_m, sc.robot.base_rpy_rad)
-    )
-    view = CellView(cell, hub, dash, sc, scenarios_dir())
-    url = dash.start(port=free_port())
-    stop = threading.Event()
-
-    def feed() -> None:
-        while not stop.is_set():
-            frame = view.poll()
-            if frame is not None:
-                dash.update(frame)
-            stop.wait(0.05)
-
-    th = threading.Thread(target=feed, daemon=True)
-    th.start()
+    display = _Display(hub, cell, scenario, nice)
+    display.start()
+    display.ready.wait(60)
     proc = None
     profile = tempfile.mkdtemp(prefix="sara-bench-chromium-")
-    if browser:
-        proc = subprocess.Popen(
-            [browser, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", url],
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
     try:
+        if display.url is None:
+            raise RuntimeError("the dashboard did not start")
+        if browser:
+            cmd = [browser, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", display.url]
+            proc = start_process(cmd, nice, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         time.sleep(3.0)  # page load and first render before measuring
-        yield url
+        yield display.url
     finally:
-        stop.set()
-        th.join(5)
+        display.stop_event.set()
         if proc is not None:
             proc.terminate()
             proc.wait(10)
-        dash.stop()
+        display.join(10)
         shutil.rmtree(profile, ignore_errors=True)
+
+
+def _stats(a: np.ndarray) -> tuple[float, float]:
+    return float(np.median(a)), float(np.percentile(a, 99))
 
 
 def bench_view_load(
     scenario: str = "punches", phase_s: float = 6.0, rounds: int = 2
 ) -> list[tuple[str, float, float, str]]:
-    """Rows: worker cycle time without and with the dashboard + browser, and the ratio."""
-    from sara_app.serve import _spawn, _stop
+    """Rows: worker cycle time without a view, with the dashboard + browser at lowered priority
+    (as ``serve`` runs them) and at the worker's own priority, and the ratios to no view."""
+    from sara_app.serve import DISPLAY_NICE, REPLAYER_NICE, _spawn, _stop
 
     port = free_port()
     cell = "benchview"
     browser = chromium_path()
-    off: list[np.ndarray] = []
-    on: list[np.ndarray] = []
+    phases: dict[object, list[np.ndarray]] = {"off": [], DISPLAY_NICE: [], 0: []}
+    order: list[object] = ["off", DISPLAY_NICE, 0]
     with Bus.router(port) as hub:
         procs = [
             _spawn("sara_app.worker", cell, scenario, port),
-            _spawn("sara_app.replayer", cell, scenario, port),
+            _spawn("sara_app.replayer", cell, scenario, port, nice=REPLAYER_NICE),
         ]
         try:
             _collect(hub, cell, 3.0)  # start-up
-            for _ in range(rounds):
-                off.append(_collect(hub, cell, phase_s))
-                with _view(hub, cell, scenario, browser):
-                    on.append(_collect(hub, cell, phase_s))
+            for r in range(rounds):
+                for kind in order[r % 3 :] + order[: r % 3]:  # rotate: no phase always first
+                    if kind == "off":
+                        phases[kind].append(_collect(hub, cell, phase_s))
+                        continue
+                    with _view(hub, cell, scenario, browser, int(cast(int, kind))):
+                        phases[kind].append(_collect(hub, cell, phase_s))
         finally:
             _stop(procs)
-    a, b = np.concatenate(off), np.concatenate(on)
-    if not (a.size and b.size):
+    data = {k: np.concatenate(v) if v else np.empty(0) for k, v in phases.items()}
+    if not all(a.size for a in data.values()):
         return [("worker cycle, view on vs off", float("nan"), float("nan"), "no verdicts")]
-    note = "browser" if browser else "NO browser found: dashboard only"
-    rows = [
-        ("worker cycle, no view", float(np.median(a)), float(np.percentile(a, 99)), scenario),
-        (
-            "worker cycle, dashboard + " + ("browser" if browser else "no browser"),
-            float(np.median(b)),
-            float(np.percentile(b, 99)),
-            note,
-        ),
-    ]
-    r50 = np.median(b) / np.median(a) - 1.0
-    r99 = np.percentile(b, 99) / np.percentile(a, 99) - 1.0
-    rows.append(("  view on vs off (ratio - 1)", 100 * r50, 100 * r99, "in %, target <= 10 %"))
+    what = "dashboard + browser" if browser else "dashboard (NO browser found)"
+    m0, p0 = _stats(data["off"])
+    rows = [("worker cycle, no view", m0, p0, f"{scenario}, {data['off'].size} cycles")]
+    for kind, label in ((DISPLAY_NICE, f"nice {DISPLAY_NICE} as in serve"), (0, "same priority")):
+        m, p = _stats(data[kind])
+        rows.append((f"worker cycle, {what}, {label}", m, p, f"{data[kind].size} cycles"))
+        rows.append(
+            ("  vs no view (ratio - 1)", 100 * (m / m0 - 1), 100 * (p / p0 - 1), "%, target <= 10")
+        )
     return rows

@@ -3,17 +3,29 @@
 Processes: this one (a Zenoh router on 127.0.0.1, the viser dashboard and the FastAPI service),
 a cell worker and a replayer (the scenario's people, published over Zenoh as a tracker would).
 The safety loop runs in the worker process and never waits for the view. Ctrl-C stops all.
+
+CPU priority: the safety worker comes first. Every child runs in a session of its own (a
+terminal's Ctrl-C reaches only this process, which stops them in order). With Linux's session
+autogroups (``/proc/sys/kernel/sched_autogroup_enabled``) the scheduler first shares the CPUs
+fairly between sessions, so a worker alone in its session keeps the right to run at once when it
+wakes, however busy the other sessions are; nice values rank processes within a session only.
+The worker keeps the normal priority; the replayer (a stand-in for a tracker that normally runs
+elsewhere) runs at nice ``REPLAYER_NICE``, its session's autogroup too; the display side of this
+process (the dashboard, the API and the threads they start) at nice ``DISPLAY_NICE``, the router's
+zenoh I/O threads (started before) at the normal one.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+import shutil
 import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 from sara_app.bus.session import Bus
 from sara_app.cell import base_pose
@@ -22,9 +34,46 @@ from sara_app.scenario import load_scenario, scenarios_dir
 
 log = logging.getLogger("sara_app.serve")
 DEFAULT_SCENARIO = "punches"
+REPLAYER_NICE = 5
+"""Nice increment of the replayer process (the worker keeps the normal priority)."""
+DISPLAY_NICE = 10
+"""Nice increment of the display side: dashboard, API (and a benchmark's browser)."""
 
 
-def _spawn(module: str, cell: str, scenario: str, port: int) -> subprocess.Popen[bytes]:
+def niced(cmd: list[str], nice: int) -> list[str]:
+    """``cmd`` run at ``nice`` more than the caller (through POSIX ``nice``; as is when the
+    increment is 0 or ``nice`` is missing)."""
+    tool = shutil.which("nice") if nice > 0 else None
+    if nice > 0 and tool is None:
+        log.warning("no 'nice' command: %s runs at normal priority", cmd[0])
+    return [tool, "-n", str(int(nice)), *cmd] if tool else cmd
+
+
+def start_process(cmd: list[str], nice: int = 0, **popen: Any) -> subprocess.Popen[bytes]:
+    """Start ``cmd`` in a session of its own, ``nice`` lower in priority than the caller, its
+    session's autogroup (where the kernel has them) lowered by ``nice`` as well."""
+    proc = subprocess.Popen(niced(cmd, nice), start_new_session=True, **popen)
+    if nice > 0:  # Popen returns after exec: the child's setsid() has made its autogroup
+        try:
+            Path(f"/proc/{proc.pid}/autogroup").write_text(str(int(nice)))
+        except OSError:
+            pass  # no autogroups here (or not permitted): the nice value alone applies
+    return proc
+
+
+def lower_thread_priority(nice: int) -> int:
+    """Raise the calling thread's nice value by ``nice`` (on Linux threads started from it
+    afterwards inherit it); returns the resulting nice value (unchanged when not permitted)."""
+    try:
+        return os.nice(nice) if nice > 0 else os.nice(0)
+    except OSError as e:
+        log.warning("cannot lower the display priority: %s", e)
+        return os.nice(0)
+
+
+def _spawn(
+    module: str, cell: str, scenario: str, port: int, nice: int = 0
+) -> subprocess.Popen[bytes]:
     cmd = [
         sys.executable,
         "-m",
@@ -36,7 +85,7 @@ def _spawn(module: str, cell: str, scenario: str, port: int) -> subprocess.Popen
         "--port",
         str(port),
     ]
-    return subprocess.Popen(cmd, start_new_session=True)
+    return start_process(cmd, nice)
 
 
 def _stop(procs: list[subprocess.Popen[bytes]]) -> None:
@@ -61,8 +110,13 @@ def serve(
     api_port: int = 8000,
     duration_s: float | None = None,
     frame_hz: float = 20.0,
+    display_nice: int = DISPLAY_NICE,
 ) -> int:
-    """Run everything until Ctrl-C (or ``duration_s``); returns the exit code."""
+    """Run everything until Ctrl-C (or ``duration_s``); returns the exit code.
+
+    Lowers the calling thread's CPU priority by ``display_nice`` once the worker and the
+    replayer are started (the dashboard and the API run on it and on threads it starts): call
+    it from a process of its own, as ``sara-app serve`` does."""
     from sara_app.api.app import create_app
     from sara_app.api.registry import CellRegistry
     from sara_app.api.server import ApiServer
@@ -81,8 +135,9 @@ def serve(
     try:
         procs = [
             _spawn("sara_app.worker", cell, scenario, zenoh_port),
-            _spawn("sara_app.replayer", cell, scenario, zenoh_port),
+            _spawn("sara_app.replayer", cell, scenario, zenoh_port, nice=REPLAYER_NICE),
         ]
+        lower_thread_priority(display_nice)  # after the spawns: children inherit the caller's
         view = CellView(cell, hub, dash, sc, folder)
         viewer_url = dash.start(
             port=viewer_port,

@@ -4,6 +4,7 @@ the API, the 3D view is served, and Ctrl-C (SIGINT) stops every process."""
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -14,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from sara_app.bus.session import free_port
+from sara_app.serve import REPLAYER_NICE, lower_thread_priority, start_process
 
 
 def _get(url: str) -> tuple[int, bytes]:
@@ -23,7 +25,12 @@ def _get(url: str) -> tuple[int, bytes]:
 
 def _children(zenoh_port: int) -> list[str]:
     """Command lines of running worker/replayer processes started for this zenoh port."""
-    out = []
+    return list(_child_pids(zenoh_port).values())
+
+
+def _child_pids(zenoh_port: int) -> dict[int, str]:
+    """pid -> command line of the running worker/replayer processes for this zenoh port."""
+    out = {}
     for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
         try:
             args = cmdline.read_bytes().split(b"\0")
@@ -33,7 +40,7 @@ def _children(zenoh_port: int) -> list[str]:
         if ("sara_app.worker" in text or "sara_app.replayer" in text) and (
             f"--port {zenoh_port}" in text
         ):
-            out.append(text)
+            out[int(cmdline.parent.name)] = text
     return out
 
 
@@ -62,7 +69,12 @@ def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(sig: signal.Signals) ->
         assert status == 200 and b"<html" in page.lower()
         status, _ = _get(f"http://127.0.0.1:{ap}/")
         assert status == 200
-        assert len(_children(zp)) == 2
+        kids = _child_pids(zp)
+        assert len(kids) == 2
+        for pid, text in kids.items():  # the safety worker first: the replayer runs niced
+            want = 0 if "sara_app.worker" in text else REPLAYER_NICE
+            assert os.getpriority(os.PRIO_PROCESS, pid) - os.getpriority(os.PRIO_PROCESS, 0) == want
+            assert os.getsid(pid) != os.getsid(proc.pid)  # a session (autogroup) of its own
     finally:
         proc.send_signal(sig)
         out, _ = proc.communicate(timeout=30)
@@ -78,3 +90,37 @@ def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(sig: signal.Signals) ->
     while _children(zp) and time.monotonic() < t_end:
         time.sleep(0.2)
     assert _children(zp) == []
+
+
+def test_start_process_lowers_priority_in_a_session_of_its_own() -> None:
+    base = os.getpriority(os.PRIO_PROCESS, 0)
+    proc = start_process([sys.executable, "-c", "import time; time.sleep(30)"], nice=7)
+    try:
+        assert os.getpriority(os.PRIO_PROCESS, proc.pid) == min(base + 7, 19)
+        assert os.getsid(proc.pid) == proc.pid != os.getsid(0)
+        group = Path(f"/proc/{proc.pid}/autogroup")
+        if group.exists():  # kernels with session autogroups: the group is lowered too
+            assert group.read_text().split()[-1] == str(7)
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="nice values are per thread on Linux")
+def test_lower_thread_priority_acts_on_the_calling_thread_only() -> None:
+    import threading
+
+    seen: list[int] = []
+
+    def lowered() -> None:
+        seen.append(lower_thread_priority(3))
+        child = threading.Thread(target=lambda: seen.append(os.nice(0)))
+        child.start()
+        child.join()
+
+    before = os.nice(0)
+    t = threading.Thread(target=lowered)
+    t.start()
+    t.join()
+    assert seen == [min(before + 3, 19)] * 2  # its own threads inherit it
+    assert os.nice(0) == before  # the main thread keeps its priority (Linux: per thread)
