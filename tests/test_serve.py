@@ -96,6 +96,9 @@ def test_start_process_lowers_priority_in_a_session_of_its_own() -> None:
     base = os.getpriority(os.PRIO_PROCESS, 0)
     proc = start_process([sys.executable, "-c", "import time; time.sleep(30)"], nice=7)
     try:
+        t_end = time.monotonic() + 10  # `nice` lowers it, then executes the command
+        while os.getpriority(os.PRIO_PROCESS, proc.pid) == base and time.monotonic() < t_end:
+            time.sleep(0.01)
         assert os.getpriority(os.PRIO_PROCESS, proc.pid) == min(base + 7, 19)
         assert os.getsid(proc.pid) == proc.pid != os.getsid(0)
         group = Path(f"/proc/{proc.pid}/autogroup")
