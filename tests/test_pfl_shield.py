@@ -282,3 +282,38 @@ def test_interval_energy_bound_covers_dense_samples() -> None:
             ends = np.maximum(E_s[k], E_s[k + 1])
             missed_by_ends = max(missed_by_ends, float(np.max(dense - ends)))
     assert missed_by_ends > 0.0  # the end samples alone would have missed energy
+
+
+def _ref_speed_for(res, sd: np.ndarray, which: np.ndarray) -> float:  # type: ignore[no-untyped-def]
+    """The numpy formula the compiled candidate search replaced."""
+    if not which.any():
+        return math.inf
+    k, i, j = np.nonzero(which)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = res.threshold_J[k, i, j] / res.energy_J[k, i]
+        c = np.maximum(np.abs(sd[:-1]), np.abs(sd[1:]))[k] * np.sqrt(ratio)
+    return float(np.where(np.isnan(c), 0.0, c).min())
+
+
+def test_compiled_speed_candidates_equal_the_numpy_formula() -> None:
+    from types import SimpleNamespace
+
+    from sara_app.safety.pfl_shield import _allowed_speed, _candidate
+
+    rng = np.random.default_rng(8)
+    for trial in range(60):
+        K, L, P = int(rng.integers(1, 6)), int(rng.integers(1, 5)), int(rng.integers(1, 6))
+        cls = rng.integers(0, 4, (K, L, P)).astype(np.int8) * (rng.random((K, L, P)) < 0.5)
+        thr = rng.choice([0.12, 0.49, 1.3, 2.0], (K, L, P))
+        E = rng.uniform(0.0, 2.5, (K, L)) * (rng.random((K, L)) < 0.9)
+        if trial % 7 == 0:
+            E[0, 0] = np.nan
+        safe = (cls == 0) | (thr > E[:, :, None])
+        res = SimpleNamespace(safe=safe, cls=cls, threshold_J=thr, energy_J=E)
+        sd = np.abs(rng.normal(size=K + 1)) * (rng.random(K + 1) < 0.8)
+        traj = SimpleNamespace(sd=sd)
+        E0 = rng.uniform(0, 1, L)
+        cand, fixable = _candidate(res, traj, E0)  # type: ignore[arg-type]
+        assert cand == _ref_speed_for(res, sd, ~safe)
+        assert fixable == (not (~safe[0] & ~(E0[:, None] < thr[0])).any())
+        assert _allowed_speed(res, traj) == _ref_speed_for(res, sd, cls > 0)  # type: ignore[arg-type]

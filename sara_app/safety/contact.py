@@ -230,6 +230,8 @@ class ContactClassifier:
         for key, (got, want) in shapes.items():
             if got != want:
                 raise ParameterError(f"{key} has shape {got}; expected {want}")
+        if not np.array_equal(np.asarray(human_safe, bool), np.asarray(human_safe, bool).T):
+            raise ParameterError("human_safe must be symmetric (a safe pair is unordered)")
         if not np.all(self.diameters_m > 0):
             raise ParameterError(f"diameters_m = {self.diameters_m.tolist()}; expected > 0 (m)")
         unclamp = np.asarray(unclampable, bool) if relax_topology else np.zeros((L, L), bool)
@@ -238,6 +240,7 @@ class ContactClassifier:
         self.relax_velocity, self.relax_diameter = relax_velocity, relax_diameter
         self.multi_body = multi_body
         self._identity_views: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._zero_radius = np.zeros((1, P))
 
     def classify(
         self,
@@ -333,11 +336,15 @@ class ContactClassifier:
         d_hh, s_hh = np.empty((2, k, P, P))
         set_pair_distances(h_ends, h_radius, d_hh, s_hh)
         d_rr, s_rr, d_rb, n_rb = robot.geometry()
-        Kh = max(h_ends.shape[0], h_radius.shape[0])
-        if h_ends.shape[0] < Kh:  # static axes, growing radii: a zero-stride view
-            h_ends = np.broadcast_to(h_ends, (Kh, P, 2, 3))
-        d_hb = np.empty((Kh, P, B))
-        box_distances(h_ends, h_radius, robot.T_world_box, robot.half_extents_m, d_hb, _NO_NORMAL)
+        if h_ends.shape[0] < h_radius.shape[0]:  # static axes, growing radii
+            axis = np.empty((1, P, B))  # axis-to-box distances, once
+            box_distances(h_ends, self._zero_radius, robot.T_world_box, robot.half_extents_m,
+                          axis, _NO_NORMAL)  # fmt: skip
+            d_hb = axis - h_radius[:, :, None]
+        else:
+            d_hb = np.empty((h_ends.shape[0], P, B))
+            box_distances(h_ends, h_radius, robot.T_world_box, robot.half_extents_m, d_hb,
+                          _NO_NORMAL)  # fmt: skip
         contact_s, env, self_, contact = np.empty((4, k, L, P), dtype=bool)
         cls = np.empty((k, L, P), dtype=np.int8)
         stack = np.empty((k, P, P), dtype=bool)

@@ -197,19 +197,40 @@ def _link_normal(r_ends: np.ndarray, s_rr: np.ndarray, k: int, i: int, l: int) -
 
 
 @njit(cache=True)
-def _stack(d_hh: np.ndarray, k: int, not_safe_h: np.ndarray, st: np.ndarray) -> None:
-    """Virtual body parts of interval ``k``: ``st (P, P)`` the reflexive-transitive closure
-    (Warshall) of "not separated and not a safe pair" from ``d_hh[k] (P, P)``."""
-    P = st.shape[0]
+def _components(
+    d_hh: np.ndarray,
+    k: int,
+    not_safe_h: np.ndarray,
+    multi_body: bool,
+    comp: np.ndarray,
+    queue: np.ndarray,
+) -> int:
+    """Virtual body parts of interval ``k``: ``comp (P,)`` labels the connected components of
+    "not separated (``d_hh[k]``) and not a safe pair" (breadth-first, labels in order of the
+    smallest member); without ``multi_body`` every part is its own component. Returns the
+    number of components. For a symmetric relation (``d_hh`` is; ``not_safe_h`` is checked at
+    construction) the component is the reflexive-transitive closure of the reference."""
+    P = comp.shape[0]
     for j in range(P):
-        for m in range(P):
-            st[j, m] = j == m or (not d_hh[k, j, m] > 0.0 and not_safe_h[j, m])
-    for m in range(P):
-        for j in range(P):
-            if st[j, m]:
-                for x in range(P):
-                    if st[m, x]:
-                        st[j, x] = True
+        comp[j] = -1
+    n = 0
+    for j in range(P):
+        if comp[j] >= 0:
+            continue
+        comp[j] = n
+        if multi_body:
+            queue[0] = j
+            head, tail = 0, 1
+            while head < tail:
+                a = queue[head]
+                head += 1
+                for m in range(P):
+                    if comp[m] < 0 and not d_hh[k, a, m] > 0.0 and not_safe_h[a, m]:
+                        comp[m] = n
+                        queue[tail] = m
+                        tail += 1
+        n += 1
+    return n
 
 
 @njit(cache=True)
@@ -316,20 +337,19 @@ def classify_kernel(
     for k in range(K):
         for i in range(L):
             for p in range(P):
-                c = not d_rh[k, i, p] > 0.0
-                contact_s[k, i, p] = c
-                contact[k, i, p] = c
+                near = not d_rh[k, i, p] > 0.0
+                contact_s[k, i, p] = near
+                contact[k, i, p] = near
                 env[k, i, p] = False
                 self_[k, i, p] = False
                 cls[k, i, p] = 0
-                anything = anything or c
-    if not anything or not multi_body:
+                anything = anything or near
+    if not anything:
         for k in range(K):
             for j in range(P):
                 diam[k, j] = diameters_m[j]
                 for m in range(P):
                     stack[k, j, m] = j == m
-    if not anything:
         return False
     reach = np.empty((K + 1, L))  # lever of Thm VI.1: radius + capsule length
     for t in range(K + 1):
@@ -337,72 +357,89 @@ def classify_kernel(
             e = s_ends[t, i]
             dx, dy, dz = e[1, 0] - e[0, 0], e[1, 1] - e[0, 1], e[1, 2] - e[0, 2]
             reach[t, i] = s_radius[i] + math.sqrt(dx * dx + dy * dy + dz * dz)
+    comp = np.empty(P, dtype=np.int64)
+    queue = np.empty(P, dtype=np.int64)
+    diam_c = np.empty(P)
+    # per link and virtual body part (component): contact through it, clamping verdicts
     contact_g = np.empty((L, P), dtype=np.bool_)
     touch_g = np.empty((P, B), dtype=np.bool_)
+    e_ok = np.empty((L, P), dtype=np.bool_)
+    s_ok = np.empty((L, P), dtype=np.bool_)
     can_b = np.empty((L, B), dtype=np.int8)
     can_l = np.empty((L, L), dtype=np.int8)
     for k in range(K):
         kh = k if d_hb.shape[0] == K else 0
-        st = stack[k]
-        if multi_body:
-            _stack(d_hh, k, not_safe_h, st)
-            for j in range(P):
-                acc = 0.0
-                for m in range(P):
-                    if st[j, m]:
-                        acc += diameters_m[m]
-                diam[k, j] = acc
-        for i in range(L):  # contact with the part's stack
-            for j in range(P):
-                contact_g[i, j] = False
-                for m in range(P):
-                    if contact_s[k, i, m] and st[j, m]:
-                        contact_g[i, j] = True
-                        break
+        n_c = _components(d_hh, k, not_safe_h, multi_body, comp, queue)
+        for c in range(n_c):
+            diam_c[c] = 0.0
+        for m in range(P):  # ascending members: the same sum as the closure's row
+            diam_c[comp[m]] += diameters_m[m]
+        for j in range(P):
+            diam[k, j] = diam_c[comp[j]]
+            for m in range(P):
+                stack[k, j, m] = comp[j] == comp[m]
+        any_k = False
+        for i in range(L):  # contact with the stack
+            for c in range(n_c):
+                contact_g[i, c] = False
+            for m in range(P):
+                if contact_s[k, i, m]:
+                    contact_g[i, comp[m]] = True
+                    any_k = True
+        if not any_k:
+            continue
         # environment-constrained (eq. 10-11, 31, 33): the stack touches box b and link i may
         # not provably move away from it
-        for j in range(P):
+        for c in range(n_c):
             for b in range(B):
-                touch_g[j, b] = False
-                for m in range(P):
-                    if st[j, m] and not d_hb[kh, m, b] > 0.0:
-                        touch_g[j, b] = True
-                        break
+                touch_g[c, b] = False
+        for m in range(P):
+            for b in range(B):
+                if not d_hb[kh, m, b] > 0.0:
+                    touch_g[comp[m], b] = True
         for i in range(L):  # lazily evaluated: -1 unknown, 0 no, 1 yes
             for b in range(B):
                 can_b[i, b] = -1
             for l in range(L):
                 can_l[i, l] = -1
         for i in range(L):
-            for j in range(P):
-                if not contact_g[i, j]:  # no contact through the stack: nothing to clamp
+            for c in range(n_c):
+                if not contact_g[i, c]:  # no contact through the stack: nothing to clamp
                     continue
-                e_ok = False
+                eo = False
                 for b in range(B):
-                    if touch_g[j, b] and not (relax_diameter and d_rb[k, i, b] > diam[k, j]):
+                    if touch_g[c, b] and not (relax_diameter and d_rb[k, i, b] > diam_c[c]):
                         if can_b[i, b] < 0:
                             can_b[i, b] = _env_can(
                                 k, i, b, d_rb, n_rb, p1_dot, omega, reach, eps_v, relax_velocity
                             )
                         if can_b[i, b]:
-                            e_ok = True
+                            eo = True
                             break
-                s_ok = False
+                so = False
                 for l in range(L):
-                    if contact_g[l, j] and not (relax_diameter and d_rr[k, i, l] > diam[k, j]):
+                    if contact_g[l, c] and not (relax_diameter and d_rr[k, i, l] > diam_c[c]):
                         if can_l[i, l] < 0:
                             can_l[i, l] = _self_can(
                                 k, i, l, d_rr, s_rr, r_ends, p1_dot, omega, reach, eps_v,
                                 no_pair, relax_velocity,
                             )  # fmt: skip
                         if can_l[i, l]:
-                            s_ok = True
+                            so = True
                             break
-                env[k, i, j] = e_ok
-                self_[k, i, j] = s_ok
-                if e_ok or s_ok:
+                e_ok[i, c] = eo
+                s_ok[i, c] = so
+        for i in range(L):
+            for j in range(P):
+                c = comp[j]
+                if not contact_g[i, c]:
+                    continue
+                eo, so = e_ok[i, c], s_ok[i, c]
+                env[k, i, j] = eo
+                self_[k, i, j] = so
+                if eo or so:
                     contact[k, i, j] = True
-                    cls[k, i, j] = 2 if e_ok else 3
+                    cls[k, i, j] = 2 if eo else 3
                 elif contact_s[k, i, j]:
                     cls[k, i, j] = 1
     return True

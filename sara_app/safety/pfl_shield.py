@@ -67,6 +67,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numba import njit, types
 
 from sara_app.errors import InputError, ParameterError
 from sara_app.human.reach import HumanReach
@@ -382,37 +383,50 @@ def _boxes(boxes: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, np.
     return T, half
 
 
-def _interval_speed(traj: ShieldedTrajectory) -> np.ndarray:
-    """``(K,)`` larger path speed at the two ends of each interval (rad/s)."""
-    sd = np.abs(traj.sd)
-    return np.maximum(sd[:-1], sd[1:])
+_B3 = types.Array(types.boolean, 3, "A", readonly=True)
+_I3 = types.Array(types.int8, 3, "A", readonly=True)
+_F3, _F2, _F1 = (types.Array(types.float64, d, "A", readonly=True) for d in (3, 2, 1))
 
 
-def _speed_for(res: PflResult, traj: ShieldedTrajectory, which: np.ndarray) -> float:
-    """Smallest ``s' sqrt(T / E)`` over the entries ``which (K, L, P)`` (inf if none; NaN
-    inputs give 0)."""
-    if not which.any():
-        return math.inf
-    k, i, j = np.nonzero(which)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = res.threshold_J[k, i, j] / res.energy_J[k, i]
-        c = _interval_speed(traj)[k] * np.sqrt(ratio)
-    c = np.where(np.isnan(c), 0.0, c)
-    return float(c.min())
+@njit(types.float64(types.boolean, _B3, _I3, _F3, _F2, _F1), cache=True, error_model="numpy")
+def _speed_kernel(
+    violated: bool,
+    safe: np.ndarray,
+    cls: np.ndarray,
+    thr: np.ndarray,
+    E: np.ndarray,
+    sd: np.ndarray,
+) -> float:
+    """Smallest ``s' sqrt(T / E)`` over the entries ``(k, i, j)`` that are unsafe (``violated``)
+    or in contact (``cls > 0``), with ``s'`` the larger path speed at the ends of interval
+    ``k`` (``sd (K+1,)``), ``T = thr[k, i, j]``, ``E = E[k, i]``; ``inf`` if none; a NaN
+    candidate counts as 0 (as the numpy reference in the tests)."""
+    K, L, P = cls.shape
+    best = np.inf
+    for k in range(K):
+        speed = max(abs(sd[k]), abs(sd[k + 1]))
+        for i in range(L):
+            for j in range(P):
+                if (not safe[k, i, j]) if violated else cls[k, i, j] > 0:
+                    c = speed * math.sqrt(thr[k, i, j] / E[k, i])
+                    if c != c:
+                        c = 0.0
+                    if c < best:
+                        best = c
+    return best
 
 
 def _allowed_speed(res: PflResult, traj: ShieldedTrajectory) -> float:
     """Speed estimate at which the contacts of a verified trajectory reach their thresholds."""
-    return _speed_for(res, traj, res.cls > 0)
+    return float(_speed_kernel(False, res.safe, res.cls, res.threshold_J, res.energy_J, traj.sd))
 
 
 def _candidate(res: PflResult, traj: ShieldedTrajectory, E0: np.ndarray) -> tuple[float, bool]:
     """Candidate cap from the violated entries, and whether a slower plan can fix them (no
     violated entry already too energetic at the current state: link energies ``E0 (L,)``)."""
-    bad = ~res.safe
-    cand = _speed_for(res, traj, bad)
-    stuck = bad[0] & ~(E0[:, None] < res.threshold_J[0])
-    return cand, not bool(stuck.any())
+    cand = _speed_kernel(True, res.safe, res.cls, res.threshold_J, res.energy_J, traj.sd)
+    stuck = ~res.safe[0] & ~(E0[:, None] < res.threshold_J[0])
+    return float(cand), not bool(stuck.any())
 
 
 # --- benchmark -------------------------------------------------------------------------------
