@@ -454,6 +454,19 @@ def test_classify_humans_over_a_range_equals_classify_of_the_slice() -> None:
         np.testing.assert_array_equal(fast.distance_m, ref.distance_m)
         assert fast.cls.shape[0] == k
         ranged += k < K
+        # a second human set against the same robot side (its clamping caches now filled)
+        he2 = np.ascontiguousarray(he) + rng.normal(scale=0.1, size=he.shape)
+        hr2 = np.ascontiguousarray(hr) * rng.uniform(0.5, 2.0)
+        again = clf.classify_humans(robot, he2, hr2, lo, hi)
+        fresh = clf.classify(
+            r_ends[lo:hi], r_radius[lo:hi], s_ends[lo : hi + 1], s_radius,
+            p1_dot[lo : hi + 1], omega[lo : hi + 1], eps[lo:hi], he2, hr2, T, half,
+        )  # fmt: skip
+        for name in ("contact", "env", "self_", "cls", "stack"):
+            assert np.array_equal(getattr(again, name), getattr(fresh, name)), name
     assert ranged > 30
     with pytest.raises(InputError, match="interval range"):
         clf.classify_humans(robot, h_ends, h_radius, 0, K + 1)
+    other, _ = _scene(rng)
+    with pytest.raises(InputError, match="another classifier"):
+        other.classify_humans(robot, h_ends, h_radius)

@@ -177,6 +177,14 @@ class RobotSide:
         self.K, self.L = r_radius.shape
         self.B = T_world_box.shape[0]
         self._geometry: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        self.owner: object = None
+        """The classifier whose :meth:`ContactClassifier.robot_side` made this (its switches
+        and topology shape the cached clamping predicates)."""
+        self.can_box = np.full((self.K, self.L, self.B), -1, dtype=np.int8)
+        """Lazily filled: link ``i`` may clamp against box ``b`` on interval ``k`` (1/0; -1 not
+        evaluated), shared by the human sets classified against this robot side."""
+        self.can_link = np.full((self.K, self.L, self.L), -1, dtype=np.int8)
+        """Lazily filled: links ``i, l`` may close on a body part on interval ``k``."""
 
     def geometry(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``(d_rr, s_rr, d_rb, n_rb)`` (computed on the first call)."""
@@ -304,7 +312,9 @@ class ContactClassifier:
                 f"{name} has shape {a.shape}; expected {shape} (K >= 1 intervals, L = {L} "
                 "links, B boxes)"
             )
-        return RobotSide(*arrays)
+        robot = RobotSide(*arrays)
+        robot.owner = self
+        return robot
 
     def classify_humans(
         self, robot: RobotSide, h_ends: np.ndarray, h_radius: np.ndarray, lo: int = 0, hi: int = -1
@@ -314,6 +324,8 @@ class ContactClassifier:
         P)`` (``k = hi - lo``; 1: the same on every interval; a zero stride counts as 1). The
         robot-only distances are computed once per ``robot``. Results are ``(k, ...)``."""
         hi = robot.K if hi < 0 else hi
+        if robot.owner is not self:
+            raise InputError("robot side made by another classifier; call robot_side() here")
         if not 0 <= lo < hi <= robot.K:
             raise InputError(f"interval range {lo}:{hi}; expected 0 <= lo < hi <= {robot.K}")
         k, L, P, B = hi - lo, robot.L, self._not_safe_h.shape[0], robot.B
@@ -354,7 +366,8 @@ class ContactClassifier:
             robot.s_ends[lo : hi + 1], robot.s_radius, robot.p1_dot[lo : hi + 1],
             robot.omega[lo : hi + 1], robot.eps_v[lo:hi], self._no_pair, self._not_safe_h,
             self.diameters_m, self.relax_velocity, self.relax_diameter, self.multi_body,
-            contact_s, env, self_, contact, cls, stack, diam,
+            contact_s, env, self_, contact, cls, stack, diam, robot.can_box[lo:hi],
+            robot.can_link[lo:hi],
         )  # fmt: skip
         return ContactResult(contact, contact_s, env, self_, cls, stack, diam, d_rh)
 

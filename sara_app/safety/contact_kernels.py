@@ -287,7 +287,7 @@ def _self_can(
     _b1(
         _RO[3], _RO[3], _RO[3], _RO[3], _RO[4], _RO[3], _RO[4], _RO[3],
         _RO[4], _RO[1], _RO[3], _RO[3], _RO[2], _ROB2, _ROB2, _RO[1],
-        _b1, _b1, _b1, _WB3, _WB3, _WB3, _WB3, _WI3, _WB3, _WF2,
+        _b1, _b1, _b1, _WB3, _WB3, _WB3, _WB3, _WI3, _WB3, _WF2, _WI3, _WI3,
     ),
     cache=True,
 )  # fmt: skip
@@ -318,6 +318,8 @@ def classify_kernel(
     cls: np.ndarray,
     stack: np.ndarray,
     diam: np.ndarray,
+    can_b: np.ndarray,
+    can_l: np.ndarray,
 ) -> bool:
     """:meth:`ContactClassifier.classify_reference` as loops (the rules are documented in
     :mod:`sara_app.safety.contact`); returns whether any contact is possible.
@@ -330,6 +332,11 @@ def classify_kernel(
     (K+1, L, 3)``, ``eps_v (K, L)``. Outputs ``(K, L, P)``: ``contact_s``, ``env``, ``self_``
     (both restricted to the stack contact), ``contact``, ``cls``; ``stack (K, P, P)``, ``diam
     (K, P)``. Without any possible contact the outputs are the reference's early result.
+
+    ``can_b (K, L, B)``, ``can_l (K, L, L)`` (int8): caches of the robot-only clamping
+    predicates (:func:`_env_can`, :func:`_self_can`; -1 not evaluated yet, 0 no, 1 yes), filled
+    lazily; they depend on the robot inputs and the classifier's switches only, so one cache
+    serves every human set checked against the same robot inputs.
     """
     K, L, P = d_rh.shape
     B = d_rb.shape[2]
@@ -365,8 +372,6 @@ def classify_kernel(
     touch_g = np.empty((P, B), dtype=np.bool_)
     e_ok = np.empty((L, P), dtype=np.bool_)
     s_ok = np.empty((L, P), dtype=np.bool_)
-    can_b = np.empty((L, B), dtype=np.int8)
-    can_l = np.empty((L, L), dtype=np.int8)
     for k in range(K):
         kh = k if d_hb.shape[0] == K else 0
         n_c = _components(d_hh, k, not_safe_h, multi_body, comp, queue)
@@ -397,11 +402,6 @@ def classify_kernel(
             for b in range(B):
                 if not d_hb[kh, m, b] > 0.0:
                     touch_g[comp[m], b] = True
-        for i in range(L):  # lazily evaluated: -1 unknown, 0 no, 1 yes
-            for b in range(B):
-                can_b[i, b] = -1
-            for l in range(L):
-                can_l[i, l] = -1
         for i in range(L):
             for c in range(n_c):
                 if not contact_g[i, c]:  # no contact through the stack: nothing to clamp
@@ -409,22 +409,22 @@ def classify_kernel(
                 eo = False
                 for b in range(B):
                     if touch_g[c, b] and not (relax_diameter and d_rb[k, i, b] > diam_c[c]):
-                        if can_b[i, b] < 0:
-                            can_b[i, b] = _env_can(
+                        if can_b[k, i, b] < 0:
+                            can_b[k, i, b] = _env_can(
                                 k, i, b, d_rb, n_rb, p1_dot, omega, reach, eps_v, relax_velocity
                             )
-                        if can_b[i, b]:
+                        if can_b[k, i, b]:
                             eo = True
                             break
                 so = False
                 for l in range(L):
                     if contact_g[l, c] and not (relax_diameter and d_rr[k, i, l] > diam_c[c]):
-                        if can_l[i, l] < 0:
-                            can_l[i, l] = _self_can(
+                        if can_l[k, i, l] < 0:
+                            can_l[k, i, l] = _self_can(
                                 k, i, l, d_rr, s_rr, r_ends, p1_dot, omega, reach, eps_v,
                                 no_pair, relax_velocity,
                             )  # fmt: skip
-                        if can_l[i, l]:
+                        if can_l[k, i, l]:
                             so = True
                             break
                 e_ok[i, c] = eo
