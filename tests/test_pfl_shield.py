@@ -273,6 +273,12 @@ def test_interval_energy_bound_covers_dense_samples() -> None:
         traj, _, _ = shield._plan(math.inf)
         E_s = shield.pfl.motion.evaluate(traj.q, traj.v).energy_J.copy()
         bound = shield._link_energies(traj)[1]
+        # _link_energies takes the path tangent as v / s' where the robot moves: v = q' s'
+        tangent = traj.step.path.derivatives(traj.s, 1)[1]
+        moving = traj.sd > 1e-6
+        np.testing.assert_allclose(
+            traj.v[moving] / traj.sd[moving, None], tangent[moving], rtol=1e-12, atol=1e-12
+        )
         prof = traj.step.profile.then(traj.stop.profile)
         for k in range(len(traj.times) - 1):
             s, sd, _ = prof.evaluate(np.linspace(traj.times[k], traj.times[k + 1], 40))

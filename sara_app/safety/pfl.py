@@ -2,9 +2,17 @@
 
 ``c_safe,i,j = ~contact  |  (free & T_i < T_free,i^j)  |  (clamped & T_i < T_clamp,i^j)`` for
 every interval ``k``, robot link ``i`` and body part ``j`` (eq. 7), with the contact classes of
-:mod:`sara_app.safety.contact` and ``T_i`` the larger link energy at the interval's two ends
-(:mod:`sara_app.robot.energy`, eq. 47-48). A clamped stack of body parts (virtual body part)
-gets the smallest constrained threshold of its members.
+:mod:`sara_app.safety.contact` and ``T_i`` the link's energy over the interval
+(:mod:`sara_app.robot.energy`): :meth:`PflCheck.check` takes it as given (an interval bound
+``(K, L)``, or seed 003's eq. 47-48 end samples); :meth:`PflCheck.check_trajectory` bounds it
+between the samples from ``|q''|`` and the shield (:mod:`sara_app.safety.pfl_shield`) with the
+exact path-speed peak. A clamped stack of body parts (virtual body part) gets the smallest
+constrained threshold of its members.
+
+Several human-set models against one trajectory: :meth:`PflCheck.merged` returns a
+:class:`MergedCheck` that validates the robot's inputs and computes its robot-only geometry
+once, then classifies each model's sets over the intervals still unproved and merges per entry
+(compiled).
 
 Usage (built once per cell, :meth:`PflCheck.check` every control cycle)::
 
@@ -30,7 +38,8 @@ boxes):
 ``h_radius``        ``(K, P)``            axis of 1 is broadcast over the K intervals)
 ``T_world_box``     ``(B, 4, 4)``         environment boxes (B may be 0)
 ``half_extents_m``  ``(B, 3)``
-``energy_J``        ``(K+1, L)``          link energies at the samples (or ``(K, 2, L)``)
+``energy_J``        ``(K, L)``            interval energy bounds (or ``(K+1, L)`` samples,
+                                          eq. 47-48, or ``(K, 2, L)``)
 ==================  ====================  ======================================================
 
 Shape errors raise :class:`InputError` (a configuration bug); non-finite VALUES never raise: a
