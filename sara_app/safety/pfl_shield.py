@@ -474,21 +474,31 @@ check verifies / a failed check and a verified replan at a lower cap / both fail
 def bench_rows(n: int = 2000) -> list[tuple[str, float, float, str]]:
     """One PFL shield cycle (plan, human sets, PFL check per model, replan, commit or brake):
     Panda at full speed, one standing full-body person, one table, in the three
-    :data:`BENCH_CASES`; then the stages of one check in the braking case."""
+    :data:`BENCH_CASES` (every cycle from the same state with no cap: the worst case, a
+    failed check at full speed first), plus the slowed case in the steady state of a closed
+    loop (the cap found by the previous cycle kept: one check); then the stages of one check
+    in the braking case."""
     from sara_app.bench import timeit_us
 
     rows = []
-    for case, xy in BENCH_CASES.items():
+    cases = [(case, xy, False) for case, xy in BENCH_CASES.items()]
+    cases.append(("slowed, cap held", BENCH_CASES["slowed"], True))
+    for case, xy, hold in cases:
         shield, template, people, t = _bench_shield(xy)
+        shield.cycle(t, people, want_distance=False)
+        info = shield._res
+        held = info.cap if hold and isinstance(info, PflCycle) else math.inf
+        shield.follower = template.copy()
 
         def cycle(
             shield: PflShield = shield,
             template: PathFollower = template,
             people: list[Any] = people,
             t: float = t,
+            held: float = held,
         ) -> CycleResult:
             shield.follower = template.copy()
-            shield.cap, shield._calm = math.inf, 0
+            shield.cap, shield._calm = held, 0
             return shield.cycle(t, people, want_distance=False)
 
         out = cycle()
@@ -503,6 +513,9 @@ def bench_rows(n: int = 2000) -> list[tuple[str, float, float, str]]:
             )
         med, p99 = timeit_us(cycle, n, warmup=max(10, n // 10))
         rows.append((f"pfl shield cycle, {case}", med, p99, note))
+        if case == "braking":
+            braking = (shield, template, people, t)
+    shield, template, people, t = braking
     # stages of one check (the braking case: every model evaluated)
     shield.follower = template.copy()
     traj, ends, radius = shield._plan(math.inf)
