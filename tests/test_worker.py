@@ -156,3 +156,21 @@ def test_live_scenario_update_acknowledged_or_refused(cell) -> None:
     got = [d.msg for d in states.drain().messages if isinstance(d.msg, ScenarioStateMsg)]
     assert got and got[-1].revision == 1 and got[-1].scenario["shield"]["models"] == ["vel"]
     assert got[-1].scenario == worker.cell.scenario.model_dump(mode="json")
+
+
+def test_control_period_changes_live(cell) -> None:
+    """A faster control loop is a scenario setting (``shield.dt_s``), applied over the bus."""
+    _, worker, _, tb = cell
+    acks = tb.subscribe(keys.params_ack_key("cell1"), fifo=True)
+    data = load_scenario("standing_beside_path").model_dump(mode="json")
+    data["shield"]["dt_s"] = 0.002
+    tb.publisher(keys.params_key("cell1")).put(
+        ParamsMsg(seq=0, stamp_s=time.time(), request_id="dt", scenario=data)
+    )
+    t_end = time.monotonic() + 5
+    ack = None
+    while ack is None and time.monotonic() < t_end:
+        ack = next((d.msg for d in acks.drain().messages if isinstance(d.msg, ParamsAckMsg)), None)
+        time.sleep(0.02)
+    assert ack is not None and ack.accepted, ack
+    assert worker.shield.settings.dt_s == 0.002

@@ -1,8 +1,22 @@
-"""Bus costs for ``sara-app bench``: encode/decode per message kind, in-process put -> drain."""
+"""Bus costs for ``sara-app bench``: encode/decode per message kind, in-process put -> drain, and
+the end-to-end latency from a skeleton's publication to the reception of the first verdict that
+used it, through a zenoh router and a cell worker process (all on 127.0.0.1).
+
+Latency set-up (issue 4: p99 at most 5 ms at 120 Hz input): this process hosts the router (as
+``sara-app serve`` does), publishes one person's skeletons at 120 Hz from a thread, paced on the
+clock (not waiting for the answers), and stamps each verdict when zenoh delivers it (callback
+subscriber; decoding comes after the run). The worker runs ``empty_cell`` with the person 1.5 m
+from the robot base, in a session of its own as under ``serve``. A skeleton that arrives during
+a cycle waits for the next one: the latency is about ``U(0, dt)`` plus one cycle plus two zenoh
+hops, so its p99 is bounded below by almost one control period. The control period is set over
+the bus (a ``params`` update of ``shield.dt_s``, as an engineer would); the default is 4 ms.
+"""
 
 from __future__ import annotations
 
-from typing import cast
+import threading
+import time
+from typing import Any, cast
 
 import numpy as np
 
@@ -14,8 +28,11 @@ from sara_app.bus.messages import (
     CapsulesMsg,
     HumanOccupancyMsg,
     OccupancyMsg,
+    ParamsAckMsg,
+    ParamsMsg,
     RobotOccupancyMsg,
     SkeletonMsg,
+    VerdictMsg,
     encode,
 )
 
@@ -70,6 +87,134 @@ def _loopback_row(n: int) -> Row:
     return "bus: skeleton build+put+drain, one session", med, p99, "in-process zenoh"
 
 
+LATENCY_SCENARIO = "empty_cell"
+LATENCY_DT_S = (0.004, 0.002, 0.001)
+"""Control periods of the latency rows: the scenarios' default, then faster loops (the mission's
+1 kHz); a row says whether the worker kept up (cycle p99 below the period, every cycle run)."""
+
+
+def _set_dt(bus: Any, pub: Any, cell: str, dt_s: float) -> bool:
+    """Send the cell's scenario with ``shield.dt_s`` changed on ``pub`` (the params key); True
+    once the worker accepted it."""
+    from sara_app.scenario import load_scenario
+
+    data = load_scenario(LATENCY_SCENARIO).model_dump(mode="json")
+    data["shield"]["dt_s"] = dt_s
+    acks = bus.subscribe(keys.params_ack_key(cell), fifo=True)
+    rid = f"bench-dt-{int(dt_s * 1e6)}"
+    pub.put(ParamsMsg(seq=pub.next_seq(), stamp_s=time.time(), request_id=rid, scenario=data))
+    t_end = time.monotonic() + 10.0
+    try:
+        while time.monotonic() < t_end:
+            for d in acks.drain().messages:
+                if isinstance(d.msg, ParamsAckMsg) and d.msg.request_id == rid:
+                    return d.msg.accepted
+            time.sleep(0.01)
+        return False
+    finally:
+        acks.close()
+
+
+def _publish_at(pub: Any, rate_hz: float, n: int, out: dict[float, int]) -> None:
+    """Publish ``n`` skeletons of a standing person at ``rate_hz``; ``out``: stamp -> index."""
+    from sara_app.human.scripted import joints, standing
+
+    y = joints(standing((1.5, 0.0), 0.0))
+    period = 1.0 / rate_hz
+    t_next = time.monotonic()
+    for i in range(n):
+        delay = t_next - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        t_pub = time.time()
+        out[t_pub] = i
+        pub.put(SkeletonMsg.from_arrays("full", y, seq=pub.next_seq(), stamp_s=t_pub))
+        t_next += period
+
+
+def _latency_run(
+    bus: Any, pub: Any, cell: str, n: int, rate_hz: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Latencies (us) of ``n`` skeletons sent on ``pub``, and the cycle times (us) of the
+    verdicts meanwhile."""
+    received: list[tuple[float, bytes]] = []
+
+    def on_verdict(sample: Any) -> None:  # a zenoh thread: stamp and keep, decode later
+        received.append((time.time(), sample.payload.to_bytes()))
+
+    sub = bus.session.declare_subscriber(keys.verdict_key(cell), on_verdict)
+    sent: dict[float, int] = {}
+    try:
+        th = threading.Thread(target=_publish_at, args=(pub, rate_hz, n, sent), daemon=True)
+        th.start()
+        th.join()
+        time.sleep(0.2)  # the last answers
+    finally:
+        sub.undeclare()
+    dec = Decoder()
+    first: dict[int, float] = {}
+    cycles = []
+    stamps = np.array(sorted(sent))
+    for t_recv, payload in received:
+        d = dec.decode(keys.verdict_key(cell), payload)
+        if d is None or not isinstance(d.msg, VerdictMsg):
+            continue
+        cycles.append(d.msg.cycle_time_us)
+        age = d.msg.skeleton_age_s.get("p")
+        if age is None or not len(stamps):
+            continue
+        t_skel = d.msg.stamp_s - age  # the stamp of the skeleton the verdict used
+        j = int(np.clip(np.searchsorted(stamps, t_skel), 1, len(stamps) - 1))
+        k = j if abs(stamps[j] - t_skel) < abs(stamps[j - 1] - t_skel) else j - 1
+        if abs(stamps[k] - t_skel) < 1e-6:
+            i = sent[float(stamps[k])]
+            first.setdefault(i, (t_recv - float(stamps[k])) * 1e6)
+    return np.array(list(first.values())), np.array(cycles)
+
+
+def bench_latency(
+    n: int = 600, rate_hz: float = 120.0, dts_s: tuple[float, ...] = LATENCY_DT_S
+) -> list[Row]:
+    """Skeleton publication -> verdict reception, p50/p99 (us), per control period."""
+    from sara_app.bus.session import Bus, free_port
+    from sara_app.serve import _spawn, _stop
+
+    port = free_port()
+    cell = "benchlat"
+    rows: list[Row] = []
+    with Bus.router(port) as hub:
+        worker = _spawn("sara_app.worker", cell, LATENCY_SCENARIO, port)
+        try:
+            first = hub.subscribe(keys.verdict_key(cell))
+            t_end = time.monotonic() + 60
+            while not first.drain().messages and time.monotonic() < t_end:
+                time.sleep(0.05)
+            first.close()
+            pub = hub.publisher(keys.skeleton_key(cell, "p"))  # one numbering for all runs
+            params = hub.publisher(keys.params_key(cell))
+            for dt_s in dts_s:
+                name = f"skeleton -> verdict, {rate_hz:.0f} Hz in, dt {dt_s * 1e3:g} ms"
+                if not _set_dt(hub, params, cell, dt_s):
+                    rows.append((name, float("nan"), float("nan"), "dt update refused"))
+                    continue
+                time.sleep(0.5)  # settle
+                lat, cyc = _latency_run(hub, pub, cell, n, rate_hz)
+                if not lat.size or not cyc.size:
+                    rows.append((name, float("nan"), float("nan"), "no verdict matched"))
+                    continue
+                run_hz = cyc.size / (n / rate_hz + 0.2)
+                c99 = float(np.percentile(cyc, 99))
+                keeps_up = c99 < dt_s * 1e6 and run_hz > 0.9 / dt_s
+                note = (
+                    f"{lat.size}/{n} matched; worker cycle p99 {c99:.0f} us, "
+                    f"{run_hz:.0f} verdicts/s: {'keeps up' if keeps_up else 'does NOT keep up'}"
+                )
+                rows.append((name, float(np.median(lat)), float(np.percentile(lat, 99)), note))
+        finally:
+            _stop([worker])
+    return rows
+
+
 def bench_rows(n: int = 2000) -> list[Row]:
     """Median and p99 microseconds of the bus stages."""
     ex = example_messages()
@@ -88,4 +233,5 @@ def bench_rows(n: int = 2000) -> list[Row]:
     med, p99 = timeit_us(skel.to_arrays, n=n)
     rows.append(("bus: skeleton message -> (J, 3) arrays", med, p99, "9 joints + velocities"))
     rows.append(_loopback_row(n))
+    rows += bench_latency(min(n, 600))
     return rows
