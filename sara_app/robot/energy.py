@@ -344,8 +344,11 @@ class LinkMotion:
     Built once per model (own ``pinocchio.Data``, masks, buffers grown on demand). Not
     thread-safe. Typical use per control cycle with a shielded trajectory ``traj``::
 
-        samples = motion.evaluate(traj.q, traj.v)          # (K+1, ...) arrays
-        T_interval = interval_energy_J(samples.energy_J)   # (K, L)
+        samples = motion.evaluate_path(traj.q, dq_ds, traj.sd)   # (K+1, ...) arrays
+        sd_max = path_speed_peaks((traj.step.profile, traj.stop.profile), traj.times, traj.sd)
+        T_interval = path_interval_energy_J(samples.g_J, samples.energy_J, traj.sd, sd_max)
+
+    (``dq_ds``: the path tangent at the samples; see ``PflShield._link_energies``).
     """
 
     def __init__(self, model: RobotModel, occupancy: RobotOccupancy | None = None) -> None:
