@@ -8,7 +8,9 @@ until the task's goal or the duration. Per run (:class:`ModeRow`):
 - share of cycles in which the safety layer intervened (``CycleResult.intervened``: SSM/PFL
   failsafe or fault, PFL slowed, JSSA filter active or braking);
 - collisions while moving (simulation steps with a true overlap and the robot moving; PFL
-  allows contacts below its energy thresholds, so its count is not a failure by itself);
+  allows contacts below its energy thresholds, so its count is not a failure by itself) and,
+  of those, the harmful contacts (link energy at or above the threshold of the contact's true
+  class: a failure in every mode);
 - for JSSA: steps with the robot moving and the true distance below ``d_min``, split by whether
   the closest person broke JSSA's constant-velocity assumption (eq. 4) in the last
   ``window_s``: some true joint acceleration above ``acc_tol_mps2`` (second differences of the
@@ -21,13 +23,17 @@ A mode that cannot be built (its module missing or failing) gives a row with ``e
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from sara_app.errors import SaraError
 from sara_app.safety.ssm import body_distance
 from sara_app.scenario import Scenario, load_scenario, parse_scenario, scenario_names
+
+if TYPE_CHECKING:
+    from sara_app.sim import SimMetrics
 
 MODES = ("ssm", "pfl", "jssa")
 ACC_TOL_MPS2 = 0.5
@@ -46,6 +52,7 @@ class ModeRow:
     time_to_goal_s: float | None = None
     intervened_share: float = 0.0
     collisions_moving: int = 0
+    harmful_contacts: int = 0
     fault_cycles: int = 0
     below_d_min: int | None = None
     below_broken: int | None = None
@@ -53,7 +60,8 @@ class ModeRow:
     cycle_us_p50: float = 0.0
     cycle_us_p99: float = 0.0
     error: str = ""
-    extra: dict[str, float] = field(default_factory=dict)
+    metrics: SimMetrics | None = None
+    """All the run's metrics (speed scale, contacts, energies, ...)."""
 
 
 class _Recorder:
@@ -139,6 +147,8 @@ def run_mode(
     row.time_to_goal_s = m.time_to_goal_s
     row.intervened_share = intervened / max(m.cycles, 1)
     row.collisions_moving = m.collisions_moving
+    row.harmful_contacts = m.harmful_contacts
+    row.metrics = m
     row.fault_cycles = m.fault_cycles
     row.cycle_us_p50, row.cycle_us_p99 = m.cycle_us_p50, m.cycle_us_p99
     if d_min is not None:
@@ -198,7 +208,7 @@ def format_table(rows: list[ModeRow]) -> str:
     """One line per (scenario, mode); JSSA's ``< d_min`` steps as ``total (broken/kept)``."""
     head = (
         f"{'scenario':22s} {'mode':5s} {'min sep m':>9s} {'goal s':>7s} {'interv %':>8s} "
-        f"{'coll':>5s} {'faults':>6s} {'<d_min (cv broken/kept)':>24s} {'p50 us':>7s} "
+        f"{'coll':>5s} {'harm':>5s} {'faults':>6s} {'<d_min (cv broken/kept)':>24s} {'p50 us':>7s} "
         f"{'p99 us':>7s}"
     )
     lines = [head, "-" * len(head)]
@@ -212,13 +222,14 @@ def format_table(rows: list[ModeRow]) -> str:
         lines.append(
             f"{r.scenario:22s} {r.mode:5s} {_f(r.min_sep_moving_m, '.3f'):>9s} "
             f"{_f(r.time_to_goal_s, '.2f', 'no'):>7s} {100 * r.intervened_share:8.1f} "
-            f"{r.collisions_moving:5d} {r.fault_cycles:6d} {below:>24s} "
+            f"{r.collisions_moving:5d} {r.harmful_contacts:5d} {r.fault_cycles:6d} {below:>24s} "
             f"{r.cycle_us_p50:7.0f} {r.cycle_us_p99:7.0f}"
         )
     lines += [
         "min sep: true separation while moving (inf: no person); goal: time to goal (no: not "
         "reached in the run); interv: cycles the layer changed the motion; coll: steps with a "
-        "true overlap while moving (PFL allows contacts under its energy limits); <d_min: JSSA "
+        "true overlap while moving (PFL allows contacts under its energy limits); harm: contacts "
+        "whose link energy reaches the threshold of the contact's true class; <d_min: JSSA "
         f"steps moving closer than d_min, closest person accelerating > {ACC_TOL_MPS2} m/s^2 "
         f"within {WINDOW_S} s (broke constant velocity) or not (kept)",
     ]

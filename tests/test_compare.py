@@ -48,7 +48,8 @@ def test_table_over_two_scenarios_and_the_modes() -> None:
             assert r.mode == "pfl"
             continue
         assert r.cycles == 150 and 0.0 <= r.intervened_share <= 1.0
-        assert r.collisions_moving == 0 and r.fault_cycles == 0
+        assert r.collisions_moving == 0 and r.fault_cycles == 0 and r.harmful_contacts == 0
+        assert r.metrics is not None and r.metrics.safety_mode == r.mode
         assert (r.below_d_min is None) == (r.mode != "jssa")
         if r.below_d_min is not None:
             assert r.below_d_min == r.below_broken + r.below_kept
@@ -94,3 +95,12 @@ def test_command_prints_the_table_and_rejects_unknown_names(capsys) -> None:
     assert "empty_cell" in out and "jssa" in out
     assert main(["compare", "--scenarios", "nowhere", "--quiet"]) == 2
     assert main(["compare", "--modes", "magic", "--quiet"]) == 2
+
+
+def test_pfl_throughput_is_the_comparison_of_ssm_and_pfl(capsys) -> None:
+    rc = main(["pfl", "throughput", "empty_cell", "--duration", "0.1", "--quiet"])
+    assert rc == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert "harm" in lines[0]
+    assert [ln.split()[:2] for ln in lines[2:4]] == [["empty_cell", "ssm"], ["empty_cell", "pfl"]]
+    assert main(["pfl", "throughput", "nowhere", "--quiet"]) == 2

@@ -1,11 +1,11 @@
 """``sara-app pfl episodes``: randomised adversarial episodes under the PFL shield (counts
-harmful contacts); ``sara-app pfl throughput``: time to goal and interventions of the shipped
-scenarios under SSM and PFL, as a table."""
+harmful contacts); ``sara-app pfl throughput``: the comparison table of ``sara-app compare``
+for SSM and PFL (time to goal, interventions, contacts and harmful contacts); it fails on a
+harmful contact, an SSM collision or a mode that could not run."""
 
 from __future__ import annotations
 
 import argparse
-import sys
 
 
 def _episodes(args: argparse.Namespace) -> int:
@@ -19,25 +19,19 @@ def _episodes(args: argparse.Namespace) -> int:
 
 
 def _throughput(args: argparse.Namespace) -> int:
-    from sara_app.scenario import load_scenario, scenario_names
-    from sara_app.sim_episodes import compare_modes, throughput_lines
+    from sara_app.compare import compare, format_table
+    from sara_app.errors import UnknownNameError
+    from sara_app.scenario import scenario_names
 
-    names = args.scenarios or list(scenario_names())
-    results = {}
-    for name in names:
-        if not args.quiet:
-            print(f"running {name} ...", file=sys.stderr, flush=True)
-        results[name] = compare_modes(load_scenario(name), tuple(args.modes), args.duration)
-    print("\n".join(throughput_lines(results)))
-    print(
-        "\ntime to goal: until the task's last pass ends (or the horizon: 'not reached'); "
-        "intervened: cycles braking or slowed below the admissible speed; harmful: contacts "
-        "whose link energy reaches the threshold of the contact's actual class; contacts: "
-        "steps touching a moving link (allowed in PFL)."
-    )
-    harmful = sum(m.harmful_contacts for r in results.values() for m in r.values())
-    ssm_hits = sum(r["ssm"].collisions_moving for r in results.values() if "ssm" in r)
-    return 1 if harmful or ssm_hits else 0
+    valid = scenario_names()
+    for n in args.scenarios:
+        if n not in valid:
+            raise UnknownNameError("scenario", n, valid)
+    rows = compare(args.scenarios or None, tuple(args.modes), args.duration, not args.quiet)
+    print(format_table(rows))
+    failed = [r for r in rows if r.error or r.harmful_contacts]
+    failed += [r for r in rows if r.mode == "ssm" and r.collisions_moving]
+    return 1 if failed else 0
 
 
 def register(sub: argparse._SubParsersAction) -> None:
