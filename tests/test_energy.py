@@ -109,31 +109,6 @@ def test_interval_energy_is_the_larger_end() -> None:
     assert np.array_equal(interval_energy_J(T), [[2.0, 1.0], [2.0, 3.0]])
 
 
-def test_path_speed_peaks_equal_the_profile_interval_maxima() -> None:
-    """The compiled peak search equals ``ScalarProfile.then(...).interval_maxima`` (the numpy
-    reference) on random jerk profiles and sample times."""
-    from sara_app.robot.energy import path_speed_peaks
-    from sara_app.robot.trajectory import ScalarProfile
-
-    rng = np.random.default_rng(21)
-    inside = 0
-    for _ in range(200):
-        n1, n2 = rng.integers(1, 4), rng.integers(1, 5)
-        durs, jerks = list(rng.uniform(0.001, 0.05, n1)), list(rng.normal(0, 200, n1))
-        p1 = ScalarProfile(0.3, rng.uniform(0, 2), rng.uniform(-5, 5), durs, jerks)
-        s, v, a = p1.end
-        p2 = ScalarProfile(s, v, a, list(rng.uniform(0.001, 0.1, n2)),
-                           list(rng.normal(0, 200, n2)))  # fmt: skip
-        prof = p1.then(p2)
-        times = np.sort(rng.uniform(0, prof.duration * 1.1, int(rng.integers(2, 12))))
-        _, sd, sdd = prof.evaluate(times)
-        ref, _ = prof.interval_maxima(times, sd, sdd)
-        got = path_speed_peaks((p1, p2), times, sd)
-        np.testing.assert_array_equal(got, ref)
-        inside += int(np.any(ref > np.maximum(sd[:-1], sd[1:])))
-    assert inside > 20  # peaks inside intervals occur
-
-
 def test_path_interval_energy_equals_the_numpy_formula() -> None:
     from sara_app.robot.energy import G_MARGIN, path_interval_energy_J
 

@@ -10,7 +10,7 @@ from panda_limits import DT, PANDA
 from sara_app.robot.failsafe import shielded_trajectory
 from sara_app.robot.trajectory import PathFollower
 
-FIELDS = ("times", "q", "v", "a", "s", "sd", "sdd", "v_bound", "a_bound")
+FIELDS = ("times", "q", "dq", "v", "a", "s", "sd", "sdd", "v_bound", "a_bound", "sd_max")
 
 
 def _random_followers(seed: int, count: int) -> list[PathFollower]:
@@ -27,16 +27,30 @@ def _random_followers(seed: int, count: int) -> list[PathFollower]:
         starts = f.path.piece_starts
         ahead = starts[1:] if len(starts) > 1 else [f.path.length]
         target = float(rng.choice(ahead)) - float(rng.uniform(0.0, 0.1))
-        while f.s < target and not f.done:
+        # or stop while still speeding up (the failsafe then peaks inside its first interval)
+        steps = int(rng.integers(1, 40)) if rng.random() < 0.3 else 10**6
+        while f.s < target and not f.done and steps > 0:
             f.step(DT * 4)
+            steps -= 1
         out.append(f)
     return out
+
+
+def _check_speed_peaks(traj) -> None:
+    """``sd_max`` bounds the path speed densely sampled over every interval and is attained
+    (up to the sampling of a quadratic peak)."""
+    prof = traj.step.profile.then(traj.stop.profile)
+    for k in range(len(traj.times) - 1):
+        t = np.linspace(traj.times[k], traj.times[k + 1], 201)
+        sd = prof.evaluate(t)[1]
+        assert sd.max() <= traj.sd_max[k] * (1 + 1e-12) + 1e-15
+        assert traj.sd_max[k] <= sd.max() + 1e-3 * max(abs(traj.sd_max[k]), 1e-3)
 
 
 @pytest.mark.parametrize("seed", range(4))
 def test_compiled_samples_equal_reference(seed: int) -> None:
     rng = np.random.default_rng(100 + seed)
-    crossings = 0
+    crossings = peaks = 0
     for f in _random_followers(seed, 25):
         max_s = float(rng.choice([0.002, 0.01, 0.05]))
         n = None if rng.random() < 0.7 else int(rng.integers(1, 12))
@@ -53,7 +67,10 @@ def test_compiled_samples_equal_reference(seed: int) -> None:
             assert np.all(getattr(fast, name) >= getattr(ref, name) * (1 - 1e-12) - 1e-15)
         k = np.searchsorted(f.path.piece_starts, ref.s, side="right")
         crossings += int(np.count_nonzero(np.diff(k)))
+        peaks += int(np.any(ref.sd_max > np.maximum(ref.sd[:-1], ref.sd[1:])))
+        _check_speed_peaks(fast)
     assert crossings > 0  # intervals that cross piece starts were exercised
+    assert peaks > 0  # path-speed peaks inside intervals too
 
 
 def test_fallback_step_equal_reference() -> None:

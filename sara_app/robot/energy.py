@@ -15,7 +15,7 @@ interval energies used by the PFL check:
 
 - along a path (``q' = dq/ds s'``, the shielded trajectory): :func:`path_interval_energy_J`,
   ``1/2 (1 + G_MARGIN) max s'^2 max(g(k), g(k+1))`` with the EXACT path-speed peak of the
-  interval (:func:`path_speed_peaks`) and the configuration factor ``g_i = q'^T E_i B E_i q'``
+  interval (``ShieldedTrajectory.sd_max``) and the configuration factor ``g_i = q'^T E_i B E_i q'``
   (``q' = dq/ds``) at the interval ends;
 - any sampled trajectory with a bound on ``|q''|``: :func:`bounded_interval_energy_J` (the
   velocity stays within ``|q''| dt / 2`` of the nearer end sample; triangle inequality in the
@@ -95,57 +95,6 @@ _ROB1 = types.Array(types.boolean, 1, "A", readonly=True)
 _W1, _W2, _W3 = types.Array(_f8, 1, "A"), types.Array(_f8, 2, "A"), types.Array(_f8, 3, "A")
 
 
-@njit(types.void(_f8, _f8, _RO1, _RO1, _RO1, _RO1, _W1), cache=True)
-def _speed_peak_kernel(
-    v0: float,
-    a0: float,
-    durs: np.ndarray,
-    jerks: np.ndarray,
-    times: np.ndarray,
-    sd: np.ndarray,
-    out: np.ndarray,
-) -> None:
-    """``out (K,)``: exact ``max s'`` over each ``[times[k], times[k+1]]`` of the profile that
-    starts with ``(s', s'') = (v0, a0)`` and runs phases of ``durs`` with constant ``jerks``
-    (zero jerk after the last), given ``sd = s'(times)`` ``(K+1,)``: the larger end value, or
-    the phase-interior maximum where ``s'' = 0`` (the ``s'`` part of
-    ``ScalarProfile.interval_maxima``, with the same arithmetic). NaN stays NaN."""
-    K = out.shape[0]
-    for k in range(K):
-        a, b = sd[k], sd[k + 1]
-        out[k] = a if (a > b or b != b) else b
-    t, v, a = 0.0, v0, a0
-    for i in range(durs.shape[0]):
-        T, j = durs[i], jerks[i]
-        if j != 0.0:
-            tau = -a / j
-            if 0.0 < tau < T:
-                tp = t + tau
-                val = v + tau * (a + 0.5 * tau * j)
-                k = np.searchsorted(times, tp, side="right") - 1
-                if 0 <= k < K and val > out[k]:
-                    out[k] = val
-        v += T * (a + 0.5 * T * j)
-        a += T * j
-        t += T
-
-
-def path_speed_peaks(profiles: tuple, times: np.ndarray, sd: np.ndarray) -> np.ndarray:
-    """``(K,)`` exact largest path speed ``s'`` over each interval of ``times (K+1,)`` for the
-    concatenation of the ``ScalarProfile`` s in ``profiles`` (e.g. a shielded trajectory's
-    ``(step.profile, stop.profile)``, as ``ScalarProfile.then`` joins them), ``sd = s'(times)``."""
-    v0, a0 = profiles[0].start[1:]
-    durs = np.array([d for p in profiles for d in p.durs], dtype=np.float64)
-    jerks = np.array([j for p in profiles for j in p.jerks], dtype=np.float64)
-    times = np.asarray(times, dtype=np.float64)
-    sd = np.asarray(sd, dtype=np.float64)
-    if times.ndim != 1 or sd.shape != times.shape or durs.shape != jerks.shape:
-        raise InputError(f"times {times.shape} and sd {sd.shape}: expected equal (K+1,) shapes")
-    out = np.empty(max(times.shape[0] - 1, 0))
-    _speed_peak_kernel(float(v0), float(a0), durs, jerks, times, sd, out)
-    return out
-
-
 @njit(types.void(_RO2, _RO2, _RO1, _RO1, _W2), cache=True)
 def _path_energy_kernel(
     g: np.ndarray, E: np.ndarray, sd: np.ndarray, sd_max: np.ndarray, out: np.ndarray
@@ -173,10 +122,11 @@ def path_interval_energy_J(
 ) -> np.ndarray:
     """Link energy bound per interval ``(K, L)`` (J) for a motion along a path: ``1/2 (1 +
     G_MARGIN) m_k^2 max(g(k), g(k+1))``, ``m_k`` the largest ``|s'|`` over the interval
-    (``sd (K+1,)`` at the samples, ``sd_max (K,)`` from :func:`path_speed_peaks`), ``g_J
-    (K+1, L)`` the configuration factors ``q'^T E_i B E_i q'`` (``q' = dq/ds``,
-    :meth:`LinkMotion.evaluate_path`), and at least the sample energies ``energy_J (K+1,
-    L)``. A NaN anywhere gives ``inf`` for the entry (unsafe wherever contact is possible)."""
+    (``sd (K+1,)`` at the samples, ``sd_max (K,)`` the exact peaks:
+    ``ShieldedTrajectory.sd_max``), ``g_J (K+1, L)`` the configuration factors
+    ``q'^T E_i B E_i q'`` (``q' = dq/ds``, :meth:`LinkMotion.evaluate_path`), and at least the
+    sample energies ``energy_J (K+1, L)``. A NaN anywhere gives ``inf`` for the entry (unsafe
+    wherever contact is possible)."""
     g = np.asarray(g_J, dtype=np.float64)
     E = np.asarray(energy_J, dtype=np.float64)
     sd = np.asarray(sd, dtype=np.float64)
@@ -344,11 +294,8 @@ class LinkMotion:
     Built once per model (own ``pinocchio.Data``, masks, buffers grown on demand). Not
     thread-safe. Typical use per control cycle with a shielded trajectory ``traj``::
 
-        samples = motion.evaluate_path(traj.q, dq_ds, traj.sd)   # (K+1, ...) arrays
-        sd_max = path_speed_peaks((traj.step.profile, traj.stop.profile), traj.times, traj.sd)
-        T_interval = path_interval_energy_J(samples.g_J, samples.energy_J, traj.sd, sd_max)
-
-    (``dq_ds``: the path tangent at the samples; see ``PflShield._link_energies``).
+        samples = motion.evaluate_path(traj.q, traj.dq, traj.sd)   # (K+1, ...) arrays
+        T_interval = path_interval_energy_J(samples.g_J, samples.energy_J, traj.sd, traj.sd_max)
     """
 
     def __init__(self, model: RobotModel, occupancy: RobotOccupancy | None = None) -> None:

@@ -557,13 +557,14 @@ def _joint_samples(
 
 
 _Samples = tuple[
-    np.ndarray, tuple[np.ndarray, ...], np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray
-]
+    np.ndarray, tuple[np.ndarray, ...], np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+    np.ndarray, np.ndarray,
+]  # fmt: skip
 
 
 def _samples(path: PathTrajectory, step: FollowerStep, m: int) -> _Samples:
     """Samples of ``step`` + its failsafe in ``m`` intervals, compiled: ``(times, (s, s', s''),
-    q, v, a, v_bound, a_bound)``."""
+    q, dq/ds, v, a, v_bound, a_bound, sd_max)``."""
     head, stop = step.profile, step.stop.profile
     s0, v0, a0 = head.start
     K = m + 1
@@ -572,13 +573,14 @@ def _samples(path: PathTrajectory, step: FollowerStep, m: int) -> _Samples:
     ps = np.empty((3, K + 1))
     joint = np.empty((5, K + 1, n))
     bounds = np.empty((2, K, n))
+    sd_max = np.empty(K)
     p_s0, p_len, poly, M1, M2, qs = path.piece_tables
     shielded_samples_kernel(
         step.dt, stop.duration, s0, v0, a0, np.array(head.durs + stop.durs),
         np.array(head.jerks + stop.jerks), p_s0, p_len, poly, M1, M2, qs, _BOUND_PAD, times,
-        ps, joint, bounds,
+        ps, joint, bounds, sd_max,
     )  # fmt: skip
-    return times, tuple(ps), joint[0], joint[3], joint[4], bounds[0], bounds[1]
+    return times, tuple(ps), joint[0], joint[1], joint[3], joint[4], bounds[0], bounds[1], sd_max
 
 
 def _samples_reference(path: PathTrajectory, step: FollowerStep, m: int) -> _Samples:
@@ -592,7 +594,8 @@ def _samples_reference(path: PathTrajectory, step: FollowerStep, m: int) -> _Sam
     v, a = np.empty((2,) + dq.shape)
     _joint_samples(sd, sdd, dq, d2q, v, a)
     v_bound, a_bound = _interval_bounds(path, prof, times, s, sd, sdd, dq)
-    return times, (s, sd, sdd), q, v, a, v_bound, a_bound
+    sd_max = prof.interval_maxima(times, sd, sdd)[0]
+    return times, (s, sd, sdd), q, dq, v, a, v_bound, a_bound, sd_max
 
 
 def _warm_up() -> None:
@@ -614,6 +617,8 @@ class ShieldedTrajectory:
     ``s``, ``sd``, ``sdd`` the path state there; samples ``0..failsafe_index`` are the intended
     step, ``failsafe_index..K`` the failsafe. ``v_bound``, ``a_bound`` ``(K, n)``: rigorous
     bounds on ``|v_j(t)|`` and ``|a_j(t)|`` over each ``[times[k], times[k+1]]``.
+    ``dq`` ``(K+1, n)``: the path tangent ``dq/ds`` at the samples (``v = dq s'``);
+    ``sd_max`` ``(K,)``: the exact largest path speed ``s'`` over each interval.
     ``step``: the follower step to commit if this trajectory is verified
     (``follower.commit(traj.step)``); ``stop``: the failsafe from the end of the step.
     """
@@ -628,6 +633,8 @@ class ShieldedTrajectory:
     failsafe_index: int
     v_bound: np.ndarray
     a_bound: np.ndarray
+    dq: np.ndarray
+    sd_max: np.ndarray
     step: FollowerStep
     stop: StopProfile
 
@@ -664,7 +671,7 @@ def shielded_trajectory(
             raise RobotModelError(f"n_intervals = {n_intervals!r}; expected an integer >= 1")
         m = n_intervals if T > 0 else 0
     samples = _samples_reference if reference or not follower.path.n_pieces else _samples
-    times, (s, sd, sdd), q, v, a, v_bound, a_bound = samples(follower.path, step, m)
+    times, (s, sd, sdd), q, dq, v, a, v_bound, a_bound, sd_max = samples(follower.path, step, m)
     return ShieldedTrajectory(
         times=times,
         q=q,
@@ -676,6 +683,8 @@ def shielded_trajectory(
         failsafe_index=1,
         v_bound=v_bound,
         a_bound=a_bound,
+        dq=dq,
+        sd_max=sd_max,
         step=step,
         stop=stop,
     )

@@ -39,7 +39,7 @@ def _count_le(sorted_x: np.ndarray, x: float) -> int:
 
 
 _SAMPLES_SIG = types.void(
-    *(_f8,) * 5, _RO1, _RO1, _RO1, _RO1, _RO3, _RO2, _RO2, _RO2, _f8, _W1, _W2, _W3, _W3
+    *(_f8,) * 5, _RO1, _RO1, _RO1, _RO1, _RO3, _RO2, _RO2, _RO2, _f8, _W1, _W2, _W3, _W3, _W1
 )
 
 
@@ -63,6 +63,7 @@ def shielded_samples_kernel(
     path: np.ndarray,
     joint: np.ndarray,
     bounds: np.ndarray,
+    sd_max: np.ndarray,
 ) -> None:
     """Fill the samples of one step of ``dt`` + a failsafe of ``T`` seconds.
 
@@ -74,7 +75,8 @@ def shielded_samples_kernel(
 
     Writes ``times (K+1,)`` (0, ``dt``, then ``K-1`` equal failsafe intervals), ``path (3, K+1)``
     = ``s, s', s''``, ``joint (5, K+1, n)`` = ``q, dq/ds, d2q/ds2, v, a`` and ``bounds (2, K, n)``
-    = rigorous ``max |v_j|``, ``max |a_j|`` over every interval.
+    = rigorous ``max |v_j|``, ``max |a_j|`` over every interval, ``sd_max (K,)`` = the exact
+    largest path speed ``s'`` over every interval.
     """
     P = durs.shape[0]
     m = times.shape[0] - 2
@@ -110,7 +112,7 @@ def shielded_samples_kernel(
         path[1, k] = vb[i] + tau * (ab[i] + 0.5 * tau * j)
         path[2, k] = ab[i] + tau * j
     # interval maxima of s' and |s''|: ends, phase breaks, and s'' = 0 inside a phase
-    vmax = np.empty(K)
+    vmax = sd_max
     amax = np.empty(K)
     for k in range(K):
         vmax[k] = max(path[1, k], path[1, k + 1])
@@ -170,7 +172,7 @@ def _warm_up() -> None:
     shielded_samples_kernel(
         0.004, 0.01, 0.0, 1.0, 0.0, -one, one, np.zeros(1), one, np.zeros((1, 5, 3)),
         np.ones((1, 1)), np.ones((1, 1)), np.ones((1, 1)), 1e-12,
-        times, np.empty((3, 3)), np.empty((5, 3, 1)), np.empty((2, 2, 1)),
+        times, np.empty((3, 3)), np.empty((5, 3, 1)), np.empty((2, 2, 1)), np.empty(2),
     )  # fmt: skip
 
 

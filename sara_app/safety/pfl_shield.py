@@ -75,7 +75,6 @@ from sara_app.robot.energy import (
     G_MARGIN,
     LinkSamples,
     path_interval_energy_J,
-    path_speed_peaks,
 )
 from sara_app.robot.failsafe import ShieldedTrajectory
 from sara_app.robot.model import RobotModel
@@ -316,19 +315,10 @@ class PflShield(Shield):
         """Link energies, twists and capsules at the samples (buffer views of the check's
         :class:`~sara_app.robot.energy.LinkMotion`) and the energy bound per interval ``(K, L)``
         (J): :func:`~sara_app.robot.energy.path_interval_energy_J` with the exact path-speed
-        peak of each interval and the configuration factor ``q'^T E_i B E_i q'`` at its ends
-        (plus ``G_MARGIN``). The path tangent ``q' = v / s'`` where the robot moves (``v = q'
-        s'`` exactly, up to rounding far below the margin), from the path elsewhere."""
-        sd = traj.sd
-        fast = sd > 1e-6
-        dq = traj.v / np.where(fast, sd, 1.0)[:, None]
-        if not fast.all():
-            path = traj.step.path
-            for k in np.flatnonzero(~fast).tolist():
-                dq[k] = path.derivatives(float(traj.s[k]), 1)[1]
-        smp = self.pfl.motion.evaluate_path(traj.q, dq, sd)
-        sd_max = path_speed_peaks((traj.step.profile, traj.stop.profile), traj.times, sd)
-        return smp, path_interval_energy_J(smp.g_J, smp.energy_J, sd, sd_max)
+        peak of each interval (``traj.sd_max``) and the configuration factor ``q'^T E_i B E_i q'``
+        at its ends (plus ``G_MARGIN``), ``q' = traj.dq`` the path tangent at the samples."""
+        smp = self.pfl.motion.evaluate_path(traj.q, traj.dq, traj.sd)
+        return smp, path_interval_energy_J(smp.g_J, smp.energy_J, traj.sd, traj.sd_max)
 
     def _human_sets(
         self, model: str, hum: Humans, times: np.ndarray, lo: int, hi: int
