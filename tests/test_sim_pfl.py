@@ -14,12 +14,13 @@ import numpy as np
 import pytest
 
 from sara_app.cell import build_cell, environment_boxes
+from sara_app.compare import format_table, run_mode, with_mode
 from sara_app.geometry import capsule_distances
 from sara_app.human.scripted import joints, standing
 from sara_app.safety.thresholds import load_thresholds
 from sara_app.scenario import PflSpec, load_scenario, parse_scenario
 from sara_app.sim import ContactTruth, Simulation
-from sara_app.sim_episodes import compare_modes, run_episodes, throughput_lines, with_mode
+from sara_app.sim_episodes import run_episodes
 
 TABLE = {"name": "table", "center_m": [0.65, 0.0, 0.1], "size_m": [0.5, 1.6, 0.2]}
 Q0 = np.array([0.0, 0.3, 0.0, -1.8, 0.0, 2.1, 0.8])
@@ -174,12 +175,13 @@ def test_harmful_counter_fires_with_a_shield_that_always_answers_safe() -> None:
 
 def test_close_worker_finishes_sooner_with_pfl() -> None:
     sc = load_scenario("close_worker")
-    res = compare_modes(sc)
-    ssm, pfl = res["ssm"], res["pfl"]
+    rows = [run_mode(sc, mode) for mode in ("ssm", "pfl")]
+    ssm, pfl = (r.metrics for r in rows)
+    assert ssm is not None and pfl is not None
     assert pfl.time_to_goal_s is not None
     assert ssm.time_to_goal_s is None or pfl.time_to_goal_s < ssm.time_to_goal_s
     assert pfl.harmful_contacts == 0 and ssm.collisions_moving == 0
     assert pfl.intervened_share > 0.0 and pfl.speed_scale_mean < 1.0
     assert pfl.safety_mode == "pfl" and ssm.safety_mode == "ssm"
-    lines = throughput_lines({"close_worker": res})
-    assert len(lines) == 4 and "pfl" in lines[3]
+    lines = format_table(rows).splitlines()
+    assert lines[2].split()[:2] == ["close_worker", "ssm"] and lines[3].split()[1] == "pfl"
