@@ -78,78 +78,6 @@ STAGE_MODULES = (
 )
 
 
-def bench_latency(n: int = 200) -> list[tuple[str, float, float, str]]:
-    """End to end: a skeleton published by a client -> the verdict that used it received by a
-    client, through a zenoh router and a cell worker process (all on 127.0.0.1)."""
-    import subprocess
-    import sys
-
-    from sara_app.bus import keys
-    from sara_app.bus.messages import SkeletonMsg, VerdictMsg
-    from sara_app.bus.session import Bus, free_port
-    from sara_app.human.scripted import joints, standing
-
-    port = free_port()
-    lat = []
-    with Bus.router(port) as hub:
-        worker = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "sara_app.worker",
-                "--cell",
-                "bench",
-                "--scenario",
-                "empty_cell",
-                "--port",
-                str(port),
-            ]  # fmt: skip
-        )
-        try:
-            sub = hub.subscribe(keys.verdict_key("bench"), fifo=True, capacity=10000)
-            pub = hub.publisher(keys.skeleton_key("bench", "p"))
-            y = joints(standing((1.5, 0.0), 0.0))
-            t_wait = time.monotonic() + 30
-            while not sub.drain().messages and time.monotonic() < t_wait:
-                time.sleep(0.05)
-            for i in range(n):
-                t_pub = time.time()
-                pub.put(SkeletonMsg.from_arrays("full", y, seq=i, stamp_s=t_pub))
-                t_end = time.monotonic() + 1.0
-                got = None
-                while got is None and time.monotonic() < t_end:
-                    for d in sub.drain().messages:
-                        m = d.msg
-                        if isinstance(m, VerdictMsg) and "p" in m.skeleton_age_s:
-                            if abs(m.stamp_s - m.skeleton_age_s["p"] - t_pub) < 1e-6:
-                                got = d.recv_s - t_pub
-                    time.sleep(0.0002)
-                if got is not None:
-                    lat.append(got * 1e6)
-                time.sleep(0.01)
-        finally:
-            worker.terminate()
-            worker.wait(10)
-    if not lat:
-        return [
-            (
-                "skeleton -> verdict (zenoh, worker process)",
-                float("nan"),
-                float("nan"),
-                "no verdict received",
-            )
-        ]
-    a = np.array(lat)
-    return [
-        (
-            "skeleton -> verdict (zenoh, worker process)",
-            float(np.median(a)),
-            float(np.percentile(a, 99)),
-            f"{len(a)}/{n} matched",
-        )
-    ]
-
-
 def run(n: int = 2000) -> None:
     import importlib
 
@@ -159,7 +87,6 @@ def run(n: int = 2000) -> None:
             rows += importlib.import_module(mod).bench_rows(n)
         except ModuleNotFoundError:
             continue
-    rows += bench_latency(min(n, 200))
     print_rows(rows)
 
 

@@ -286,3 +286,25 @@ def test_executed_motion_inside_verified_occupancy(
             box_r = rv.robot_radius[k] - sh.tracking_margin_m
             assert np.all(_contained(ends, rad, rv.robot_ends[k], box_r)), (t_abs, k)
     assert "failsafe" in modes and "intended" in modes
+
+
+def test_min_distance_is_the_distance_at_the_command() -> None:
+    """The verdict's minimum distance (reusing the occupancy's kinematics when the step was
+    verified) equals the distance computed from scratch at the commanded configuration, for
+    verified and braking cycles alike."""
+    from sara_app.safety.ssm import body_distance
+
+    sh = make_shield()
+    parts, half = sh.reach.skeleton.part_joints, REACH.params.half_thickness_m
+    t, modes = 0.0, set()
+    for i in range(150):
+        xy = (1.5 - 0.008 * i, 0.3)  # walks in: verified cycles first, then braking
+        h = person(xy, t - 0.01)
+        res = sh.cycle(t, [h], sh.follower.state)
+        ends, rad = ROBOT.link_capsules(res.command.q)
+        want = body_distance(h.y, parts, half, ends, rad)
+        assert res.min_distance_m is not None
+        assert abs(res.min_distance_m - want) <= 1e-12
+        modes.add(res.mode)
+        t += DT
+    assert {"intended", "failsafe"} <= modes

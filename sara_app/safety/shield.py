@@ -364,7 +364,11 @@ class Shield:
     def min_distance(self, q: np.ndarray, ys: list[np.ndarray]) -> float:
         """Smallest surface distance between the robot's link capsules at ``q`` and the measured
         body parts (half thickness) of the given humans (m)."""
-        r_ends, r_rad = self.robot.link_capsules(q)
+        r_ends = self.occupancy.sampled_ends(q)  # the verified step's end: kinematics done
+        if r_ends is None:
+            r_ends, r_rad = self.robot.link_capsules(q)
+        else:
+            r_rad = self.robot.radius_m
         return min(
             (body_distance(y, self._parts, self._half_th, r_ends, r_rad) for y in ys),
             default=math.inf,
