@@ -138,7 +138,7 @@ def bench_view_load(
 ) -> list[tuple[str, float, float, str]]:
     """Rows: worker cycle time without a view, with the dashboard + browser at lowered priority
     (as ``serve`` runs them) and at the worker's own priority, and the ratios to no view."""
-    from sara_app.serve import DISPLAY_NICE, REPLAYER_NICE, _spawn, _stop
+    from sara_app.serve import DISPLAY_NICE, REPLAYER_NICE, WORKER_RT_PRIORITY, _spawn, _stop
 
     port = free_port()
     cell = "benchview"
@@ -147,7 +147,7 @@ def bench_view_load(
     order: list[object] = ["off", DISPLAY_NICE, 0]
     with Bus.router(port) as hub:
         procs = [
-            _spawn("sara_app.worker", cell, scenario, port),
+            _spawn("sara_app.worker", cell, scenario, port, rt_priority=WORKER_RT_PRIORITY),
             _spawn("sara_app.replayer", cell, scenario, port, nice=REPLAYER_NICE),
         ]
         try:

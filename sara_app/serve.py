@@ -4,15 +4,16 @@ Processes: this one (a Zenoh router on 127.0.0.1, the viser dashboard and the Fa
 a cell worker and a replayer (the scenario's people, published over Zenoh as a tracker would).
 The safety loop runs in the worker process and never waits for the view. Ctrl-C stops all.
 
-CPU priority: the safety worker comes first. Every child runs in a session of its own (a
-terminal's Ctrl-C reaches only this process, which stops them in order). With Linux's session
-autogroups (``/proc/sys/kernel/sched_autogroup_enabled``) the scheduler first shares the CPUs
-fairly between sessions, so a worker alone in its session keeps the right to run at once when it
-wakes, however busy the other sessions are; nice values rank processes within a session only.
-The worker keeps the normal priority; the replayer (a stand-in for a tracker that normally runs
-elsewhere) runs at nice ``REPLAYER_NICE``, its session's autogroup too; the display side of this
-process (the dashboard, the API and the threads they start) at nice ``DISPLAY_NICE``, the router's
-zenoh I/O threads (started before) at the normal one.
+CPU priority: the safety worker comes first. Every child runs in a session of its own (a terminal's
+Ctrl-C reaches only this process, which stops them in order). With Linux's session autogroups
+(``/proc/sys/kernel/sched_autogroup_enabled``) the scheduler first shares the CPUs fairly between
+sessions, so a worker alone in its session keeps the right to run at once when it wakes, however
+busy the other sessions are; nice values rank processes within a session only. The worker's control
+loop runs under ``SCHED_FIFO`` (priority ``WORKER_RT_PRIORITY``) where the system permits it, else
+at the normal priority (its zenoh I/O threads always do); the replayer (a stand-in for a tracker
+that normally runs elsewhere) runs at nice ``REPLAYER_NICE``, its session's autogroup too; the
+display side of this process (the dashboard, the API and the threads they start) at nice
+``DISPLAY_NICE``, the router's zenoh I/O threads (started before) at the normal one.
 """
 
 from __future__ import annotations
@@ -38,6 +39,8 @@ REPLAYER_NICE = 5
 """Nice increment of the replayer process (the worker keeps the normal priority)."""
 DISPLAY_NICE = 10
 """Nice increment of the display side: dashboard, API (and a benchmark's browser)."""
+WORKER_RT_PRIORITY = 10
+"""SCHED_FIFO priority of the worker's control loop (normal scheduling where not permitted)."""
 
 
 def niced(cmd: list[str], nice: int) -> list[str]:
@@ -72,7 +75,7 @@ def lower_thread_priority(nice: int) -> int:
 
 
 def _spawn(
-    module: str, cell: str, scenario: str, port: int, nice: int = 0
+    module: str, cell: str, scenario: str, port: int, nice: int = 0, rt_priority: int = 0
 ) -> subprocess.Popen[bytes]:
     cmd = [
         sys.executable,
@@ -84,6 +87,8 @@ def _spawn(
         scenario,
         "--port",
         str(port),
+        "--rt-priority",
+        str(rt_priority),
     ]
     return start_process(cmd, nice)
 
@@ -134,7 +139,7 @@ def serve(
     registry = None
     try:
         procs = [
-            _spawn("sara_app.worker", cell, scenario, zenoh_port),
+            _spawn("sara_app.worker", cell, scenario, zenoh_port, rt_priority=WORKER_RT_PRIORITY),
             _spawn("sara_app.replayer", cell, scenario, zenoh_port, nice=REPLAYER_NICE),
         ]
         lower_thread_priority(display_nice)  # after the spawns: children inherit the caller's

@@ -8,6 +8,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 import urllib.request
 from pathlib import Path
@@ -75,6 +76,9 @@ def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(sig: signal.Signals) ->
             want = 0 if "sara_app.worker" in text else REPLAYER_NICE
             assert os.getpriority(os.PRIO_PROCESS, pid) - os.getpriority(os.PRIO_PROCESS, 0) == want
             assert os.getsid(pid) != os.getsid(proc.pid)  # a session (autogroup) of its own
+            policy = os.sched_getscheduler(pid)  # of the main thread: the loop
+            rt = "sara_app.worker" in text and _rt_permitted()
+            assert policy == (os.SCHED_FIFO if rt else os.SCHED_OTHER), (text, policy)
     finally:
         proc.send_signal(sig)
         out, _ = proc.communicate(timeout=30)
@@ -90,6 +94,34 @@ def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(sig: signal.Signals) ->
     while _children(zp) and time.monotonic() < t_end:
         time.sleep(0.2)
     assert _children(zp) == []
+
+
+def _rt_permitted() -> bool:
+    """Whether this system lets a process take SCHED_FIFO (tried in a child process)."""
+    code = "import os; os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))"
+    return subprocess.run([sys.executable, "-c", code], capture_output=True).returncode == 0
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="scheduling classes are per thread on Linux")
+def test_set_realtime_acts_on_the_calling_thread_where_permitted() -> None:
+    from sara_app.bus.process import set_realtime
+    from sara_app.errors import SaraError
+
+    seen: list[tuple[bool, int]] = []
+
+    def loop() -> None:
+        seen.append((set_realtime(3, "test"), os.sched_getscheduler(0)))
+
+    t = threading.Thread(target=loop)
+    t.start()
+    t.join()
+    ok, policy = seen[0]
+    assert ok == _rt_permitted()
+    assert policy == (os.SCHED_FIFO if ok else os.SCHED_OTHER)
+    assert os.sched_getscheduler(0) == os.SCHED_OTHER  # the calling thread only
+    for bad in (-1, 100):
+        with pytest.raises(SaraError, match="rt priority"):
+            set_realtime(bad)
 
 
 def test_start_process_lowers_priority_in_a_session_of_its_own() -> None:

@@ -1,10 +1,12 @@
 """The ``main`` of a cell process (worker, replayer): arguments, a zenoh client session, stop on
-SIGINT/SIGTERM, domain errors as exit code 2."""
+SIGINT/SIGTERM, domain errors as exit code 2, optionally a real-time scheduling class for the
+loop."""
 
 from __future__ import annotations
 
 import argparse
 import logging
+import os
 import signal
 import sys
 import threading
@@ -33,6 +35,12 @@ def process_main(
     ap.add_argument("--scenario", default="standing_beside_path")
     ap.add_argument("--port", type=int, default=7447, help="zenoh router port on 127.0.0.1")
     ap.add_argument("--duration", type=float, default=None)
+    ap.add_argument(
+        "--rt-priority",
+        type=int,
+        default=0,
+        help="run the loop thread under SCHED_FIFO at this priority (1-99; 0: normal scheduling)",
+    )
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format=f"%(asctime)s {name} %(message)s")
     try:
@@ -41,8 +49,31 @@ def process_main(
             proc = factory(args.cell, sc, bus)
             for sig in (signal.SIGINT, signal.SIGTERM):
                 signal.signal(sig, lambda *_: proc.stop_event.set())
+            if args.rt_priority:
+                set_realtime(args.rt_priority, name)
             proc.run(args.duration)
     except SaraError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     return 0
+
+
+def set_realtime(priority: int, name: str = "process") -> bool:
+    """Put the calling thread under ``SCHED_FIFO`` at ``priority`` (1-99): it then runs as soon
+    as it wakes, ahead of every normally scheduled thread (display, browser, other jobs), while
+    threads started before (the zenoh session's I/O) keep their class. Linux keeps 5 % of each
+    second for normal threads (``sched_rt_runtime_us``), so a runaway loop cannot lock the
+    machine. Returns False, with a warning, where it is not permitted (no CAP_SYS_NICE, other
+    systems): the loop then runs at normal priority."""
+    log = logging.getLogger(f"sara_app.{name}")
+    lo = os.sched_get_priority_min(os.SCHED_FIFO) if hasattr(os, "SCHED_FIFO") else 1
+    hi = os.sched_get_priority_max(os.SCHED_FIFO) if hasattr(os, "SCHED_FIFO") else 99
+    if not lo <= priority <= hi:
+        raise SaraError(f"rt priority = {priority}; expected {lo} to {hi} (0: off)")
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (AttributeError, OSError) as e:
+        log.warning("real-time scheduling not permitted (%s): the loop runs at normal priority", e)
+        return False
+    log.info("loop thread under SCHED_FIFO, priority %d", priority)
+    return True
