@@ -177,13 +177,15 @@ def bench_latency(
 ) -> list[Row]:
     """Skeleton publication -> verdict reception, p50/p99 (us), per control period."""
     from sara_app.bus.session import Bus, free_port
-    from sara_app.serve import _spawn, _stop
+    from sara_app.serve import WORKER_RT_PRIORITY, _spawn, _stop
 
     port = free_port()
     cell = "benchlat"
     rows: list[Row] = []
     with Bus.router(port) as hub:
-        worker = _spawn("sara_app.worker", cell, LATENCY_SCENARIO, port)
+        worker = _spawn(
+            "sara_app.worker", cell, LATENCY_SCENARIO, port, rt_priority=WORKER_RT_PRIORITY
+        )
         try:
             first = hub.subscribe(keys.verdict_key(cell))
             t_end = time.monotonic() + 60
