@@ -82,6 +82,34 @@ def test_any_model_merge_is_the_or_of_single_model_verdicts() -> None:
     np.testing.assert_array_equal(res.safe_interval, any_safe.all(axis=(1, 2)))
 
 
+def test_model_order_changes_the_work_not_the_verdict() -> None:
+    """Every order of the models proves the same entries safe; after a completed check the
+    model that completed it is tried first."""
+    from itertools import permutations
+
+    shield = make_shield()
+    t = run_free(shield, 60)
+    moved = failed = 0
+    for x in (0.85, 1.1, 1.4):  # failing, and (further away) completing checks
+        hum = hum_arrays(shield, [person(x, 0.0, t)], t)
+        traj, ends, radius = shield._plan(math.inf)
+        verdicts = []
+        for order in permutations(("acc", "vel", "pos")):
+            shield._model_order = list(order)
+            res, used, _ = shield._verify(traj, ends, radius, hum)
+            verdicts.append(res.safe)
+            if res.safe_all:
+                assert shield._model_order[0] == order[used - 1]
+                assert sorted(shield._model_order) == ["acc", "pos", "vel"]
+                moved += used > 1
+            else:
+                failed += 1
+                assert shield._model_order == list(order)  # a failed check keeps the order
+        for v in verdicts[1:]:
+            np.testing.assert_array_equal(v, verdicts[0])
+    assert moved and failed
+
+
 def test_classification_is_monotone_in_the_human_sets() -> None:
     """Basis of the per-entry merge: a larger set never gives a less severe verdict."""
     shield = make_shield()
