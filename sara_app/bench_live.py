@@ -54,15 +54,35 @@ def chromium_path() -> str | None:
 
 
 def _collect(hub: Bus, cell: str, seconds: float) -> np.ndarray:
-    """Cycle times (us) of the verdicts received over ``seconds``."""
+    """``(n, 3)``: cycle time (us), stamp (s) and sequence number of the verdicts received over
+    ``seconds``."""
     sub = hub.subscribe(keys.verdict_key(cell), fifo=True, capacity=100_000)
-    out: list[float] = []
+    out: list[tuple[float, float, int]] = []
     t_end = time.monotonic() + seconds
     while time.monotonic() < t_end:
         time.sleep(0.05)
-        out += [d.msg.cycle_time_us for d in sub.drain().messages if isinstance(d.msg, VerdictMsg)]
+        out += [
+            (d.msg.cycle_time_us, d.msg.stamp_s, d.msg.seq)
+            for d in sub.drain().messages
+            if isinstance(d.msg, VerdictMsg)
+        ]
     sub.close()
-    return np.array(out)
+    return np.array(out, dtype=float).reshape(-1, 3)
+
+
+def _missed(phases: list[np.ndarray], dt_s: float) -> tuple[int, int]:
+    """Over phases of :func:`_collect`: cycles the worker did not run in time (the control
+    period's slots between its first and last verdict without a verdict sequence number) and
+    verdicts lost on the way (sequence numbers never received)."""
+    skipped = dropped = 0
+    for a in phases:
+        if len(a) < 2:
+            continue
+        seq_span = int(a[-1, 2] - a[0, 2]) + 1
+        slots = int(round((a[-1, 1] - a[0, 1]) / dt_s)) + 1
+        skipped += max(slots - seq_span, 0)
+        dropped += seq_span - len(a)
+    return skipped, dropped
 
 
 class _Display(threading.Thread):
@@ -138,6 +158,7 @@ def bench_view_load(
 ) -> list[tuple[str, float, float, str]]:
     """Rows: worker cycle time without a view, with the dashboard + browser at lowered priority
     (as ``serve`` runs them) and at the worker's own priority, and the ratios to no view."""
+    from sara_app.scenario import load_scenario
     from sara_app.serve import DISPLAY_NICE, REPLAYER_NICE, WORKER_RT_PRIORITY, _spawn, _stop
 
     port = free_port()
@@ -161,15 +182,22 @@ def bench_view_load(
                         phases[kind].append(_collect(hub, cell, phase_s))
         finally:
             _stop(procs)
-    data = {k: np.concatenate(v) if v else np.empty(0) for k, v in phases.items()}
+    data = {k: np.concatenate(v)[:, 0] if v else np.empty(0) for k, v in phases.items()}
+    dt_s = load_scenario(scenario).shield.dt_s
+    missed = {k: _missed(v, dt_s) for k, v in phases.items()}
     if not all(a.size for a in data.values()):
         return [("worker cycle, view on vs off", float("nan"), float("nan"), "no verdicts")]
     what = "dashboard + browser" if browser else "dashboard (NO browser found)"
     m0, p0 = _stats(data["off"])
-    rows = [("worker cycle, no view", m0, p0, f"{scenario}, {data['off'].size} cycles")]
+
+    def cycles(k: object) -> str:
+        skipped, dropped = missed[k]
+        return f"{data[k].size} verdicts; {skipped} cycles late by > 1 period, {dropped} lost"
+
+    rows = [("worker cycle, no view", m0, p0, f"{scenario}, {cycles('off')}")]
     for kind, label in ((DISPLAY_NICE, f"nice {DISPLAY_NICE} as in serve"), (0, "same priority")):
         m, p = _stats(data[kind])
-        rows.append((f"worker cycle, {what}, {label}", m, p, f"{data[kind].size} cycles"))
+        rows.append((f"worker cycle, {what}, {label}", m, p, cycles(kind)))
         rows.append(
             ("  vs no view (ratio - 1)", 100 * (m / m0 - 1), 100 * (p / p0 - 1), "%, target <= 10")
         )
