@@ -48,6 +48,7 @@ from sara_app.scenario import Scenario, check_against_robot, parse_scenario
 from sara_app.worker_display import jssa_state, part_labels, pfl_contacts, pfl_links
 
 log = logging.getLogger("sara_app.worker")
+_MIN_SLEEP_S = 20e-6  # the least the loop sleeps per cycle, even when late (s)
 
 
 class _Track:
@@ -352,9 +353,10 @@ class CellWorker:
                 self.shield.brake_step()
             next_t += self.shield.settings.dt_s
             delay = next_t - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
-            elif delay < -self.shield.settings.dt_s:
+            # never a busy loop: under SCHED_FIFO an overrunning worker would otherwise keep its
+            # CPU from every normally scheduled thread (zenoh I/O included)
+            time.sleep(max(delay, _MIN_SLEEP_S))
+            if delay < -self.shield.settings.dt_s:
                 self.overruns += 1
                 next_t = time.monotonic()
         self.pub_status.put(self.status_msg(time.time(), "stopping"))

@@ -174,3 +174,31 @@ def test_control_period_changes_live(cell) -> None:
         time.sleep(0.02)
     assert ack is not None and ack.accepted, ack
     assert worker.shield.settings.dt_s == 0.002
+
+
+def test_an_overrunning_loop_still_sleeps_every_cycle(monkeypatch) -> None:
+    """Cycles longer than the control period: the loop counts overruns and still sleeps a
+    little each cycle (under SCHED_FIFO a busy loop would starve the zenoh threads)."""
+    import sara_app.worker as wmod
+
+    port = free_port()
+    with Bus.router(port), Bus.client(port) as wb:
+        worker = CellWorker("cell1", load_scenario("standing_beside_path"), wb)
+        dt = worker.shield.settings.dt_s
+        naps: list[float] = []
+        real_sleep = time.sleep
+
+        def slow_step(now: float) -> None:
+            t_end = time.perf_counter() + 2.5 * dt
+            while time.perf_counter() < t_end:
+                pass
+
+        def nap(s: float) -> None:
+            naps.append(s)
+            real_sleep(s)
+
+        monkeypatch.setattr(worker, "step", slow_step)
+        monkeypatch.setattr(wmod.time, "sleep", nap)
+        worker.run(duration_s=20 * dt)
+    assert len(naps) >= 5 and min(naps) >= wmod._MIN_SLEEP_S
+    assert worker.overruns >= 3
