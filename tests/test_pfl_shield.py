@@ -110,6 +110,43 @@ def test_model_order_changes_the_work_not_the_verdict() -> None:
     assert moved and failed
 
 
+def test_a_lazy_check_is_conservative_and_finishes_to_the_full_one() -> None:
+    """``first_only`` stops a failing check after one model: it proves a subset of what every
+    model proves; finishing it adds the other models and gives the full check."""
+    shield = make_shield()
+    t = run_free(shield, 60)
+    hum = hum_arrays(shield, [person(0.85, 0.0, t)], t)
+    traj, ends, radius = shield._plan(math.inf)
+    for first in ("acc", "vel", "pos"):
+        order = [first] + [m for m in ("acc", "vel", "pos") if m != first]
+        shield._model_order = list(order)
+        full, used_full, _ = shield._verify(traj, ends, radius, hum)
+        assert not full.safe_all and used_full == 3
+        shield._model_order = list(order)
+        lazy, used, _ = shield._verify(traj, ends, radius, hum, first_only=True)
+        assert used == 1 and not lazy.safe_all
+        assert not (lazy.safe & ~full.safe).any()  # nothing proved that the full check does not
+        done, used, _ = shield._finish_check()
+        assert used == 3
+        np.testing.assert_array_equal(done.safe, full.safe)
+
+
+def test_a_failed_lazy_first_check_rotates_the_first_checks_order() -> None:
+    """A cycle whose first check fails on its first model and replans: the next cycle's first
+    check starts with another model (a lazy check never completes, so it could not learn); the
+    replans keep an order of their own."""
+    from sara_app.safety.pfl_shield import BENCH_CASES, PflCycle, _bench_shield
+
+    shield, template, people, t = _bench_shield(BENCH_CASES["slowed"])
+    shield._orders[0][:] = ["acc", "vel", "pos"]
+    out = shield.cycle(t, people, want_distance=False)
+    info = shield._res
+    assert isinstance(info, PflCycle) and info.checks == 2 and out.verified
+    assert shield._orders[0] == ["vel", "pos", "acc"]
+    assert shield._orders[1][0] in ("acc", "vel", "pos")
+    assert shield._orders[0] is not shield._orders[1]
+
+
 def test_classification_is_monotone_in_the_human_sets() -> None:
     """Basis of the per-entry merge: a larger set never gives a less severe verdict."""
     shield = make_shield()

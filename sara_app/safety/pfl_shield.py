@@ -19,9 +19,13 @@ one model's sets prove safe is safe for the person, whatever the other models sa
 holds for the person when every entry is proved by some model. The next model is tried only
 over the range of intervals that still has unproved entries. The order does not change what is
 proved safe, only how many models a check needs: the model that completed the last successful
-check goes first (in closed loop about one model per check instead of 1.3-1.9; the dashboard's
-contact classes are the first model's). As with SSM, this is sound only when every enabled
-model is sound for the person's motion.
+check goes first, with one order for a cycle's first check and one for its replans (in closed
+loop about one model per check instead of 1.3-1.9; the dashboard's contact classes are the
+first model's). A first check that a replan can follow stops after its first model when that
+one leaves entries unproved (conservative: fewer proofs; the other models rescued 4 of 1552 such
+checks in closed loop) and the next cycle tries another model first; when no replan can follow
+it completes with every model. As with SSM, this is sound only when every enabled model is sound
+for the person's motion.
 
 Body parts. Models whose capsules are not per body part (R_POS: one ball per limb; the arm
 model: one capsule per arm) give each body part the capsule that contains it (both of its
@@ -82,7 +86,7 @@ from sara_app.robot.energy import (
 from sara_app.robot.failsafe import ShieldedTrajectory
 from sara_app.robot.model import RobotModel
 from sara_app.robot.trajectory import PathFollower
-from sara_app.safety.pfl import PflCheck, PflResult
+from sara_app.safety.pfl import MergedCheck, PflCheck, PflResult
 from sara_app.safety.shield import CycleResult, Shield, ShieldSettings
 from sara_app.safety.thresholds import ThresholdSet, load_thresholds
 
@@ -188,8 +192,12 @@ class PflShield(Shield):
         self.boxes = _boxes(boxes)
         self._part_names = reach.skeleton.parts
         self._part_maps = {m: part_capsules(reach, m) for m in self.settings.models}
-        self._model_order = list(self.settings.models)
-        """The order a check tries the models: the last one that completed a check first."""
+        self._orders = (list(self.settings.models), list(self.settings.models))
+        """Model orders of a cycle's first check and of its replans (a slower trajectory is
+        often proved by another model): the last one that completed such a check first."""
+        self._model_order = self._orders[0]
+        """The order the open check tries the models."""
+        self._open: tuple[MergedCheck, Humans, np.ndarray, np.ndarray] | None = None
         self.pfl = PflCheck(robot, self._part_names, thresholds=ts, link_shapes=spec.link_shapes)
         self._checks: dict[int, PflCheck] = {1: self.pfl}
         self._check_for(2)  # ~10 ms each: built here, not in a control cycle (more: on use)
@@ -252,14 +260,25 @@ class PflShield(Shield):
         checks = 0
         while True:
             traj, ends, radius = self._plan(cap)
-            res, used, E0 = self._verify(traj, ends, radius, hum)
+            self._model_order = self._orders[checks > 0]
+            # a replan can follow: stop a failing check after its first model (the others
+            # rescued 4 of 1552 failed first checks in closed loop, the replan checks them all)
+            lazy = checks < sc.max_replans
+            res, used, E0 = self._verify(traj, ends, radius, hum, first_only=lazy)
             checks += 1
+            if not res.safe_all:
+                cand, fixable = self._next_cap(res, traj, E0, cap)
+                if lazy and used < len(self._model_order):
+                    if fixable and cand >= c_min:  # a replan follows; next time another first
+                        self._model_order.append(self._model_order.pop(0))
+                    else:  # no replan follows: every model counts
+                        res, used, E0 = self._finish_check()
+                        if not res.safe_all:
+                            cand, fixable = self._next_cap(res, traj, E0, cap)
             if res.safe_all:
                 self._after_success(res, traj, cap, c_min, V_top)
                 break
             self._calm = 0
-            cand, fixable = _candidate(res, traj, E0)
-            cand = min(sc.cut * cand, sc.cut * min(cap, float(traj.sd.max())))
             if not (cand >= c_min):  # NaN too
                 self.cap = c_min
                 break
@@ -272,6 +291,15 @@ class PflShield(Shield):
         self.scaled_cycles += scale < 1.0
         self._res = PflCycle(res, cap, scale, checks, used)
         return traj, ends, radius, res.safe_all
+
+    def _next_cap(
+        self, res: PflResult, traj: ShieldedTrajectory, E0: np.ndarray, cap: float
+    ) -> tuple[float, bool]:
+        """After a failed check at ``cap``: the replan's cap (``cut`` times the candidate, and at
+        most ``cut`` times the current cap and top speed) and whether a replan can fix it."""
+        cand, fixable = _candidate(res, traj, E0)
+        cut = self.scaling.cut
+        return min(cut * cand, cut * min(cap, float(traj.sd.max()))), fixable
 
     def _after_success(
         self, res: PflResult, traj: ShieldedTrajectory, cap: float, c_min: float, V_top: float
@@ -290,32 +318,52 @@ class PflShield(Shield):
             self.cap = math.inf if new >= V_top else max(new, cap)
 
     def _verify(
-        self, traj: ShieldedTrajectory, ends: np.ndarray, radius: np.ndarray, hum: Humans
+        self,
+        traj: ShieldedTrajectory,
+        ends: np.ndarray,
+        radius: np.ndarray,
+        hum: Humans,
+        first_only: bool = False,
     ) -> tuple[PflResult, int, np.ndarray]:
         """Eq. 6-7 for the trajectory against every person, models merged per entry; also the
-        number of models evaluated and the link energies at the current state ``(L,)``."""
+        number of models evaluated and the link energies at the current state ``(L,)``.
+        ``first_only``: stop after the first model even if it leaves entries unproved
+        (:meth:`_finish_check` adds the others; a failed result is then conservative)."""
         try:
-            return self._verify_models(traj, ends, radius, hum)
+            pfl = self._check_for(hum[0].shape[0])
+            smp, energy = self._link_energies(traj)
+            E0 = smp.energy_J[0].copy()
+            dt = np.diff(traj.times)
+            eps = self.pfl.eps_from_bounds(dt, traj.v_bound, traj.a_bound)
+            check = pfl.merged(ends, radius, smp, dt, eps, *self.boxes, energy)
+            self._open = (check, hum, traj.times, E0)
+            return self._add_models(first_only)
         except (ValueError, ArithmeticError, IndexError, np.linalg.LinAlgError) as e:
             raise InputError(f"PFL check failed on its inputs: {e}") from e
 
-    def _verify_models(
-        self, traj: ShieldedTrajectory, ends: np.ndarray, radius: np.ndarray, hum: Humans
-    ) -> tuple[PflResult, int, np.ndarray]:
-        pfl = self._check_for(hum[0].shape[0])
-        smp, energy = self._link_energies(traj)
-        E0 = smp.energy_J[0].copy()
-        dt = np.diff(traj.times)
-        eps = self.pfl.eps_from_bounds(dt, traj.v_bound, traj.a_bound)
-        check = pfl.merged(ends, radius, smp, dt, eps, *self.boxes, energy)
+    def _finish_check(self) -> tuple[PflResult, int, np.ndarray]:
+        """The last :meth:`_verify` with every model (after ``first_only``)."""
+        try:
+            return self._add_models(False)
+        except (ValueError, ArithmeticError, IndexError, np.linalg.LinAlgError) as e:
+            raise InputError(f"PFL check failed on its inputs: {e}") from e
+
+    def _add_models(self, first_only: bool) -> tuple[PflResult, int, np.ndarray]:
+        """Add models to the open check in :attr:`_model_order` until every entry is proved (the
+        model that completes it moves to the front) or, with ``first_only``, after one."""
+        if self._open is None:
+            raise InputError("no PFL check is open (call _verify first)")
+        check, hum, times, E0 = self._open
         order = self._model_order
-        for i, name in enumerate(order):
+        for i in range(check.models, len(order)):
             lo, hi = check.todo
-            h_ends, h_radius = self._human_sets(name, hum, traj.times, lo, hi)
+            h_ends, h_radius = self._human_sets(order[i], hum, times, lo, hi)
             lo, hi = check.add(h_ends, h_radius)
             if lo >= hi:
                 if i:
                     order.insert(0, order.pop(i))
+                break
+            if first_only:
                 break
         return check.result(), check.models, E0
 
