@@ -18,7 +18,8 @@ from sara_app.errors import (
     UnknownNameError,
 )
 from sara_app.geometry import point_segment_distance
-from sara_app.robot.model import RobotModel, fit_capsule, load_robot, robot_names, urdf_dir
+from sara_app.robot.capsule_fit import fit_capsule
+from sara_app.robot.model import RobotModel, load_robot, robot_names, urdf_dir
 
 URDF_DIR = Path(__file__).resolve().parent.parent / "urdf"
 

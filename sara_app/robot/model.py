@@ -1,34 +1,11 @@
 """Robot model: pinocchio kinematics and dynamics plus link capsules fitted once from the URDF.
 
 A :class:`RobotModel` is built from a URDF whose joints are revolute or prismatic with position,
-velocity and effort limits in ``<limit>``, and whose acceleration and jerk limits are in a custom
-top-level element that pinocchio and yourdfpy ignore::
-
-    <sara_limits>
-      <joint name="joint1" acceleration="15.0" jerk="7500.0"/>   <!-- rad/s^2, rad/s^3 -->
-    </sara_limits>
-
-Link capsules. Every URDF link with collision geometry (the base included) carries one capsule,
-fitted in the link's frame to that link's primitives (box, cylinder, sphere, mesh, and the common
-``<capsule radius length>`` extension). The fit encloses the TRUE primitives, not a tessellation:
-each primitive is represented by support points ``p_k`` and one slack ``rho`` such that the
-primitive lies in ``conv{p_k} + ball(rho)``:
-
-- box: its 8 corners, ``rho = 0`` (a box is the convex hull of its corners);
-- cylinder: ``n`` points on each rim circle, ``rho = r (1 - cos(pi / n))`` (every rim point is
-  within the chord sagitta of a chord point, and the cylinder is the hull of its rims);
-- sphere: its centre, ``rho = r``; capsule: its two end centres, ``rho = r``;
-- mesh: its vertices, ``rho = 0``.
-
-A capsule is convex and its distance function is convex, so if every ``p_k`` is within
-``R - rho`` of the segment, the whole primitive is within ``R``. The radius is always recomputed
-as ``max_k (dist(p_k, segment) + rho_k)``; the optimisation only moves the segment.
-
-Fit: principal axes of the support points; for each candidate axis the two end insets are
-chosen on a grid (the radius as a function of the insets separates into a function of each end,
-so this is a pair of 1-D problems) to minimise the capsule volume; the best candidate is polished
-by Nelder-Mead over both end points (radius recomputed for every trial). The fitted capsules are
-cached per URDF file; per configuration only the end points are transformed.
+velocity and effort limits in ``<limit>`` and acceleration and jerk limits in a ``<sara_limits>``
+element (:mod:`sara_app.robot.urdf`). Every URDF link with collision geometry (the base
+included) carries one capsule enclosing its true collision primitives
+(:mod:`sara_app.robot.capsule_fit`), fitted once per URDF file; per configuration only the end
+points are transformed.
 
 Frames and conventions: capsule ends ``(L, 2, 3)`` and radii ``(L,)`` as in
 :mod:`sara_app.geometry`; world frame = ``T_world_base @`` pinocchio's frame placements (the
@@ -46,21 +23,13 @@ from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
-from scipy.optimize import minimize
 
 from sara_app.errors import InputError, ParameterError, RobotModelError, UnknownNameError
-from sara_app.geometry import point_segment_distance
+from sara_app.robot.capsule_fit import fitted_capsules
+from sara_app.robot.urdf import parse_sara_limits
 
 ROBOT_NAMES: tuple[str, ...] = ("panda", "ur5e")
 """Robots shipped in the repository's ``urdf/`` folder (``<name>.urdf``)."""
-
-CYLINDER_RIM_POINTS = 128
-"""Support points per cylinder rim circle; the sagitta slack is ``r (1 - cos(pi / n))``."""
-
-ENCLOSURE_SLACK_M = 1e-9
-"""Added to every fitted radius to absorb floating-point rounding in the enclosure."""
-
-_GRID = 129
 
 
 @dataclass(frozen=True)
@@ -113,307 +82,6 @@ class JointLimits:
     @property
     def n_dof(self) -> int:
         return int(self.q_min.shape[0])
-
-
-# ----------------------------------------------------------------------------------------------
-# URDF parsing helpers
-
-
-def _floats(text: str | None, n: int, what: str, default: float = 0.0) -> np.ndarray:
-    if text is None:
-        return np.full(n, default)
-    try:
-        values = np.array([float(x) for x in text.split()])
-    except ValueError:
-        raise RobotModelError(f"{what} = {text!r}; expected {n} numbers") from None
-    if values.shape != (n,) or not np.all(np.isfinite(values)):
-        raise RobotModelError(f"{what} = {text!r}; expected {n} finite numbers")
-    return values
-
-
-def _rpy_matrix(rpy: np.ndarray) -> np.ndarray:
-    """URDF fixed-axis roll-pitch-yaw: ``Rz(yaw) @ Ry(pitch) @ Rx(roll)``."""
-    cr, sr = np.cos(rpy[0]), np.sin(rpy[0])
-    cp, sp = np.cos(rpy[1]), np.sin(rpy[1])
-    cy, sy = np.cos(rpy[2]), np.sin(rpy[2])
-    return np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
-
-
-def _origin(element: ET.Element, what: str) -> np.ndarray:
-    T = np.eye(4)
-    origin = element.find("origin")
-    if origin is not None:
-        T[:3, :3] = _rpy_matrix(_floats(origin.get("rpy"), 3, f"{what} origin rpy"))
-        T[:3, 3] = _floats(origin.get("xyz"), 3, f"{what} origin xyz")
-    return T
-
-
-def _positive(element: ET.Element, attr: str, what: str) -> float:
-    text = element.get(attr)
-    try:
-        value = float(text) if text is not None else float("nan")
-    except ValueError:
-        value = float("nan")
-    if not (np.isfinite(value) and value > 0):
-        raise RobotModelError(f"{what} {attr} = {text!r}; expected a positive number")
-    return value
-
-
-def _circle(radius: float, z: float, n: int) -> np.ndarray:
-    phi = 2.0 * np.pi * np.arange(n) / n
-    return np.stack([radius * np.cos(phi), radius * np.sin(phi), np.full(n, z)], axis=1)
-
-
-def _primitive_support(
-    geometry: ET.Element, what: str, urdf_dir: Path
-) -> tuple[np.ndarray, float, np.ndarray]:
-    """``(support points (k, 3), rho, axis points (m, 3))`` of one primitive, in its own frame.
-
-    The primitive lies in ``conv(support) + ball(rho)``; the axis points only steer the fit.
-    """
-    shapes = list(geometry)
-    if len(shapes) != 1:
-        raise RobotModelError(f"{what}: <geometry> has {len(shapes)} children; expected one")
-    shape = shapes[0]
-    kind = shape.tag
-    if kind == "box":
-        half = 0.5 * _floats(shape.get("size"), 3, f"{what} box size", default=float("nan"))
-        if np.any(half <= 0):
-            raise RobotModelError(f"{what} box size = {2 * half}; expected positive sizes")
-        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
-        corners = signs * half
-        return corners, 0.0, corners
-    if kind == "cylinder":
-        r = _positive(shape, "radius", f"{what} cylinder")
-        h = 0.5 * _positive(shape, "length", f"{what} cylinder")
-        n = CYLINDER_RIM_POINTS
-        rims = np.concatenate([_circle(r, -h, n), _circle(r, h, n)])
-        return rims, r * (1.0 - np.cos(np.pi / n)), rims
-    if kind == "sphere":
-        r = _positive(shape, "radius", f"{what} sphere")
-        return np.zeros((1, 3)), r, np.concatenate([np.eye(3) * r, -np.eye(3) * r])
-    if kind == "capsule":
-        r = _positive(shape, "radius", f"{what} capsule")
-        h = 0.5 * _positive(shape, "length", f"{what} capsule")
-        centres = np.array([[0.0, 0.0, -h], [0.0, 0.0, h]])
-        tips = np.array([[0.0, 0.0, -h - r], [0.0, 0.0, h + r]])
-        return centres, r, np.concatenate([tips, _circle(r, -h, 8), _circle(r, h, 8)])
-    if kind == "mesh":
-        return _mesh_support(shape, what, urdf_dir)
-    raise RobotModelError(
-        f"{what}: geometry <{kind}>; valid choices: box, cylinder, sphere, capsule, mesh"
-    )
-
-
-def _mesh_support(
-    shape: ET.Element, what: str, urdf_dir: Path
-) -> tuple[np.ndarray, float, np.ndarray]:
-    import trimesh
-
-    filename = shape.get("filename") or ""
-    if filename.startswith("package://"):
-        raise RobotModelError(
-            f"{what} mesh filename = {filename!r}; package:// paths are not resolved, expected a "
-            "path relative to the URDF file or file://"
-        )
-    path = Path(filename.removeprefix("file://"))
-    if not path.is_absolute():
-        path = urdf_dir / path
-    if not path.is_file():
-        raise RobotModelError(f"{what} mesh file {str(path)!r} not found")
-    scale = _floats(shape.get("scale"), 3, f"{what} mesh scale", default=1.0)
-    try:
-        mesh = trimesh.load(str(path), force="mesh")
-    except Exception as exc:  # any loader failure means a bad robot description
-        raise RobotModelError(f"{what} mesh file {str(path)!r} cannot be read: {exc}") from exc
-    if not isinstance(mesh, trimesh.Trimesh):
-        raise RobotModelError(f"{what} mesh file {str(path)!r} is not a triangle mesh")
-    vertices = np.array(mesh.vertices, dtype=np.float64) * scale
-    if vertices.shape[0] == 0:
-        raise RobotModelError(f"{what} mesh file {str(path)!r} has no vertices")
-    return vertices, 0.0, vertices
-
-
-def _transform(T: np.ndarray, points: np.ndarray) -> np.ndarray:
-    return points @ T[:3, :3].T + T[:3, 3]
-
-
-def _link_supports(
-    root: ET.Element, urdf_dir: Path
-) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Per link with collision geometry: ``(points (K, 3), rho (K,), axis points (M, 3))``."""
-    supports: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-    for link in root.findall("link"):
-        name = link.get("name", "")
-        pts, rho, axis_pts = [], [], []
-        for i, collision in enumerate(link.findall("collision")):
-            what = f"link {name!r} collision {i}"
-            geometry = collision.find("geometry")
-            if geometry is None:
-                raise RobotModelError(f"{what} has no <geometry>; expected one")
-            support, slack, guide = _primitive_support(geometry, what, urdf_dir)
-            T = _origin(collision, what)
-            pts.append(_transform(T, support))
-            rho.append(np.full(len(support), slack))
-            axis_pts.append(_transform(T, guide))
-        if pts:
-            supports[name] = (np.concatenate(pts), np.concatenate(rho), np.concatenate(axis_pts))
-    return supports
-
-
-def _parse_sara_limits(
-    root: ET.Element, joint_names: tuple[str, ...], path: Path
-) -> tuple[np.ndarray, np.ndarray]:
-    """Acceleration and jerk limits ``(n_dof,)`` each from ``<sara_limits>``."""
-    entries: dict[str, tuple[float, float]] = {}
-    for block in root.findall("sara_limits"):
-        for joint in block.findall("joint"):
-            name = joint.get("name", "")
-            if name not in joint_names:
-                raise RobotModelError(
-                    f"<sara_limits> in {path} names joint {name!r}, which is not an actuated "
-                    f"joint; valid choices: {', '.join(joint_names)}"
-                )
-            if name in entries:
-                raise RobotModelError(f"<sara_limits> in {path} lists joint {name!r} twice")
-            what = f"<sara_limits> joint {name!r} in {path}:"
-            entries[name] = (
-                _positive(joint, "acceleration", what),
-                _positive(joint, "jerk", what),
-            )
-    missing = [name for name in joint_names if name not in entries]
-    if missing:
-        raise RobotModelError(
-            f"joint {missing[0]!r} has no acceleration/jerk limits in {path}"
-            + (f" (nor {', '.join(repr(m) for m in missing[1:])})" if len(missing) > 1 else "")
-            + f'; expected <sara_limits><joint name="{missing[0]}" acceleration="..." '
-            'jerk="..."/></sara_limits> inside <robot>'
-        )
-    a = np.array([entries[name][0] for name in joint_names])
-    j = np.array([entries[name][1] for name in joint_names])
-    return a, j
-
-
-# ----------------------------------------------------------------------------------------------
-# Capsule fitting
-
-
-def enclosing_radius(points: np.ndarray, rho: np.ndarray, ends: np.ndarray) -> float:
-    """Smallest radius of the capsule on segment ``ends (2, 3)`` containing every
-    ``ball(points[k], rho[k])``."""
-    return float(np.max(point_segment_distance(points, ends) + rho))
-
-
-def _volume(length: np.ndarray | float, radius: np.ndarray | float) -> np.ndarray | float:
-    return np.pi * radius**2 * length + 4.0 / 3.0 * np.pi * radius**3
-
-
-def _best_insets(
-    t: np.ndarray, perp2: np.ndarray, rho: np.ndarray, lo: float, hi: float
-) -> tuple[float, float, float]:
-    """Grid search of the segment ``[a, b]`` on a fixed line: ``(volume, a, b)``.
-
-    ``R(a, b) = max(G(a), H(b))`` with ``G(a) = max_k sqrt(perp_k^2 + max(a - t_k, 0)^2) + rho_k``
-    and ``H`` the mirror image: points below ``a`` are the only ones ``a`` affects.
-    """
-    best = (np.inf, lo, hi)
-    for _ in range(3):  # refine around the best cell
-        a = np.linspace(lo, hi, _GRID)
-        G = np.max(np.sqrt(perp2 + np.maximum(a[:, None] - t, 0.0) ** 2) + rho, axis=1)
-        H = np.max(np.sqrt(perp2 + np.maximum(t - a[:, None], 0.0) ** 2) + rho, axis=1)
-        R = np.maximum(G[:, None], H[None, :])
-        length = a[None, :] - a[:, None]
-        V = np.where(length >= 0, _volume(np.maximum(length, 0.0), R), np.inf)
-        i, j = np.unravel_index(int(np.argmin(V)), V.shape)
-        if V[i, j] < best[0]:
-            best = (float(V[i, j]), float(a[i]), float(a[j]))
-        step = (hi - lo) / (_GRID - 1)
-        lo, hi = max(lo, min(a[i], a[j]) - step), min(hi, max(a[i], a[j]) + step)
-        if hi - lo < 1e-7:
-            break
-    return best
-
-
-def fit_capsule(
-    points: np.ndarray, rho: np.ndarray | float = 0.0, axis_points: np.ndarray | None = None
-) -> tuple[np.ndarray, float]:
-    """A small capsule ``(ends (2, 3), radius)`` containing every ``ball(points[k], rho[k])``.
-
-    ``axis_points`` (default: ``points``) only steer the choice of the principal axes. The
-    returned radius is the exact enclosing radius for the returned ends plus
-    :data:`ENCLOSURE_SLACK_M`, so containment does not depend on the optimisation's quality.
-    """
-    P = np.asarray(points, dtype=float).reshape(-1, 3)
-    rho_arr = np.broadcast_to(np.asarray(rho, dtype=float), P.shape[:1]).copy()
-    if P.shape[0] == 0 or not np.all(np.isfinite(P)) or np.any(rho_arr < 0):
-        raise InputError(f"fit_capsule: {P.shape[0]} points / rho invalid; expected finite data")
-    guide = P if axis_points is None else np.asarray(axis_points, dtype=float).reshape(-1, 3)
-    centre = guide.mean(axis=0)
-    _, vecs = np.linalg.eigh(np.cov((guide - centre).T) if len(guide) > 1 else np.eye(3))
-    best_vol, best_ends = np.inf, np.stack([centre, centre])
-    d = P - centre
-    for axis in vecs.T[::-1]:  # principal axis first
-        t = d @ axis
-        perp2 = np.maximum(np.einsum("ki,ki->k", d, d) - t * t, 0.0)
-        vol, a, b = _best_insets(t, perp2, rho_arr, float(t.min()), float(t.max()))
-        if vol < best_vol:
-            best_vol, best_ends = vol, np.stack([centre + a * axis, centre + b * axis])
-
-    def objective(x: np.ndarray) -> float:
-        p0, seg = x[:3], x[3:] - x[:3]
-        rel = P - p0
-        ss = float(seg @ seg)
-        s = np.clip(rel @ seg / ss, 0.0, 1.0) if ss > 1e-24 else np.zeros(len(P))
-        gap = rel - s[:, None] * seg
-        r = float(np.max(np.sqrt(np.einsum("ki,ki->k", gap, gap)) + rho_arr))
-        return float(_volume(np.sqrt(ss), r))
-
-    # Nelder-Mead polish over both end points, restarted once with a smaller simplex.
-    x = best_ends.ravel()
-    f = objective(x)
-    size = max(float(np.ptp(P, axis=0).max()), 1e-3)
-    for step in (0.05 * size, 0.01 * size):
-        res = minimize(
-            objective,
-            x,
-            method="Nelder-Mead",
-            options={
-                "initial_simplex": np.vstack([x, x + step * np.eye(6)]),
-                "xatol": 1e-6,
-                "fatol": 1e-11,
-                "maxiter": 3000,
-            },
-        )
-        if res.fun < f:
-            x, f = res.x, float(res.fun)
-    ends = x.reshape(2, 3)
-    return ends, enclosing_radius(P, rho_arr, ends) + ENCLOSURE_SLACK_M
-
-
-_FIT_CACHE: dict[tuple[str, int, int], tuple[tuple[str, ...], np.ndarray, np.ndarray]] = {}
-
-
-def _fitted_capsules(
-    path: Path, root: ET.Element
-) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
-    stat = path.stat()
-    key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size)
-    if key not in _FIT_CACHE:
-        supports = _link_supports(root, path.parent)
-        names = tuple(supports)
-        ends = np.zeros((len(names), 2, 3))
-        radii = np.zeros(len(names))
-        for i, name in enumerate(names):
-            ends[i], radii[i] = fit_capsule(*supports[name])
-        _FIT_CACHE[key] = (names, ends, radii)
-    names, ends, radii = _FIT_CACHE[key]
-    return names, ends.copy(), radii.copy()
 
 
 # ----------------------------------------------------------------------------------------------
@@ -501,9 +169,9 @@ class RobotModel:
                         f"joint {jn!r} {label} limit = {arr[i]}; expected a positive value in "
                         "<limit>"
                     )
-        a_max, j_max = _parse_sara_limits(root, joint_names, path)
+        a_max, j_max = parse_sara_limits(root, joint_names, path)
 
-        link_names, local, radius = _fitted_capsules(path, root)
+        link_names, local, radius = fitted_capsules(path, root)
         frame_ids = []
         for ln in link_names:
             if not model.existBodyName(ln):
