@@ -10,12 +10,9 @@ import numpy as np
 import pytest
 
 from sara_app.errors import InputError, RecordingError
+from sara_app.human.cmu import CMU_TO_WORLD, cmu_rest_bones, load_cmu, load_cmu_bones
 from sara_app.human.recordings import (
-    CMU_TO_WORLD,
     Recording,
-    cmu_rest_bones,
-    load_cmu,
-    load_cmu_bones,
     load_csv,
     load_recording,
     save_csv,
