@@ -13,13 +13,9 @@ from hypothesis import strategies as st
 from panda_limits import DT, HOME, PANDA, H, check_limits  # noqa: E402
 
 from sara_app.errors import RobotModelError
-from sara_app.robot.failsafe import (
-    plan_joint_stop,
-    plan_stop,
-    shielded_trajectory,
-    straight_line_stop_duration,
-)
+from sara_app.robot.failsafe import plan_joint_stop, plan_stop, straight_line_stop_duration
 from sara_app.robot.model import JointLimits
+from sara_app.robot.shielded import shielded_trajectory
 from sara_app.robot.trajectory import PathFollower, PathTrajectory
 
 waypoint_sets = (

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from panda_limits import DT, PANDA
 
-from sara_app.robot.failsafe import shielded_trajectory
+from sara_app.robot.shielded import shielded_trajectory
 from sara_app.robot.trajectory import PathFollower
 
 FIELDS = ("times", "q", "dq", "v", "a", "s", "sd", "sdd", "v_bound", "a_bound", "sd_max")

@@ -51,7 +51,6 @@ with ``dq_j/ds`` monotone on every piece (exact maximum from the ends and the pi
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from numba import njit, types
@@ -67,21 +66,20 @@ from sara_app.robot.path import (
     sub_piece_room,
 )
 from sara_app.robot.profile import ScalarProfile, phases_end, velocity_phases
-from sara_app.robot.trajectory import FollowerStep, PathFollower
-from sara_app.robot.trajectory_kernels import shielded_samples_kernel
 
 __all__ = [
+    "BOUND_PAD",
     "JointStopProfile",
-    "ShieldedTrajectory",
     "StopProfile",
+    "interval_bounds",
     "plan_joint_stop",
     "plan_stop",
     "rest_stop",
-    "shielded_trajectory",
     "straight_line_stop_duration",
 ]
 
-_BOUND_PAD = 1e-12  # relative padding of the interval bounds against rounding
+BOUND_PAD = 1e-12
+"""Relative padding of the interval bounds against rounding."""
 
 
 def _finite(name: str, x: object) -> float:
@@ -131,7 +129,7 @@ class StopProfile:
         t = np.asarray(times, dtype=float)
         s, sd, sdd = self.profile.evaluate(t)
         dq = self.path.derivatives(s, 1)[1]
-        return _interval_bounds(self.path, self.profile, t, s, sd, sdd, dq)[0]
+        return interval_bounds(self.path, self.profile, t, s, sd, sdd, dq)[0]
 
     def advanced(self, dt: float) -> StopProfile:
         """The rest of this stop after ``dt`` seconds (still a valid stop)."""
@@ -429,7 +427,7 @@ class JointStopProfile:
                 sel = i_j == col
                 cand = np.where(inside[:, sel], vz[sel][None, :], 0.0).max(axis=1)
                 out[:, col] = np.maximum(out[:, col], cand)
-        return out * (1.0 + _BOUND_PAD) + 1e-15
+        return out * (1.0 + BOUND_PAD) + 1e-15
 
 
 def plan_joint_stop(q: object, v: object, a: object, limits: JointLimits) -> JointStopProfile:
@@ -487,10 +485,10 @@ def plan_joint_stop(q: object, v: object, a: object, limits: JointLimits) -> Joi
 
 
 # ----------------------------------------------------------------------------------------------
-# Shielded trajectory
+# Rigorous bounds between samples
 
 
-def _interval_bounds(
+def interval_bounds(
     path: PathTrajectory,
     prof: ScalarProfile,
     t: np.ndarray,
@@ -524,8 +522,8 @@ def _bounds_kernel(
     a_bound: np.ndarray,
 ) -> None:
     """``v_bound = D1 max(s', 0)``, ``a_bound = M2 max(s', 0)^2 + M1 max|s''|``, both padded by
-    ``_BOUND_PAD`` (relative) and 1e-15 (absolute), per interval ``k`` and joint ``j``."""
-    pad = 1.0 + _BOUND_PAD
+    ``BOUND_PAD`` (relative) and 1e-15 (absolute), per interval ``k`` and joint ``j``."""
+    pad = 1.0 + BOUND_PAD
     for k in range(D1.shape[0]):
         vm = vmax[k]
         if vm < 0.0:  # NaN stays NaN
@@ -535,156 +533,10 @@ def _bounds_kernel(
             a_bound[k, j] = (M2[k, j] * (vm * vm) + M1[k, j] * amax[k]) * pad + 1e-15
 
 
-@njit(types.void(_f8, _f8, _W1), cache=True)
-def _sample_times(dt: float, T: float, times: np.ndarray) -> None:
-    """``times (m+2,)``: 0, ``dt``, then ``dt + T i / m`` for ``i = 1..m``."""
-    m = times.shape[0] - 2
-    times[0] = 0.0
-    times[1] = dt
-    for i in range(1, m + 1):
-        times[i + 1] = dt + T * (i / m)
-
-
-@njit(types.void(_RO1, _RO1, _RO2, _RO2, _W2, _W2), cache=True)
-def _joint_samples(
-    sd: np.ndarray, sdd: np.ndarray, dq: np.ndarray, d2q: np.ndarray, v: np.ndarray, a: np.ndarray
-) -> None:
-    """Joint velocity ``v = q' s'`` and acceleration ``a = q'' s'^2 + q' s''`` ``(K+1, n)``."""
-    for k in range(dq.shape[0]):
-        for j in range(dq.shape[1]):
-            v[k, j] = dq[k, j] * sd[k]
-            a[k, j] = d2q[k, j] * (sd[k] * sd[k]) + dq[k, j] * sdd[k]
-
-
-_Samples = tuple[
-    np.ndarray, tuple[np.ndarray, ...], np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-    np.ndarray, np.ndarray,
-]  # fmt: skip
-
-
-def _samples(path: PathTrajectory, step: FollowerStep, m: int) -> _Samples:
-    """Samples of ``step`` + its failsafe in ``m`` intervals, compiled: ``(times, (s, s', s''),
-    q, dq/ds, v, a, v_bound, a_bound, sd_max)``."""
-    head, stop = step.profile, step.stop.profile
-    s0, v0, a0 = head.start
-    K = m + 1
-    n = path.n_joints
-    times = np.empty(K + 1)
-    ps = np.empty((3, K + 1))
-    joint = np.empty((5, K + 1, n))
-    bounds = np.empty((2, K, n))
-    sd_max = np.empty(K)
-    p_s0, p_len, poly, M1, M2, qs = path.piece_tables
-    shielded_samples_kernel(
-        step.dt, stop.duration, s0, v0, a0, np.array(head.durs + stop.durs),
-        np.array(head.jerks + stop.jerks), p_s0, p_len, poly, M1, M2, qs, _BOUND_PAD, times,
-        ps, joint, bounds, sd_max,
-    )  # fmt: skip
-    return times, tuple(ps), joint[0], joint[1], joint[3], joint[4], bounds[0], bounds[1], sd_max
-
-
-def _samples_reference(path: PathTrajectory, step: FollowerStep, m: int) -> _Samples:
-    """:func:`_samples` composed of the profile's and the path's numpy methods."""
-    T = step.stop.duration_s
-    times = np.empty(m + 2)
-    _sample_times(step.dt, T, times)
-    prof = step.profile.then(step.stop.profile)
-    s, sd, sdd = prof.evaluate(times)
-    q, dq, d2q = path._derivatives_array(s, 2)
-    v, a = np.empty((2,) + dq.shape)
-    _joint_samples(sd, sdd, dq, d2q, v, a)
-    v_bound, a_bound = _interval_bounds(path, prof, times, s, sd, sdd, dq)
-    sd_max = prof.interval_maxima(times, sd, sdd)[0]
-    return times, (s, sd, sdd), q, dq, v, a, v_bound, a_bound, sd_max
-
-
 def _warm_up() -> None:
-    """First-call dispatch of the compiled helpers at import, not in a control loop."""
-    z1, z2 = np.zeros(2), np.zeros((2, 1))
-    _bounds_kernel(z1[:1], z1[:1], z2[:1], z2[:1], z2[:1], np.empty((1, 1)), np.empty((1, 1)))
-    _sample_times(0.004, 0.0, np.empty(2))
-    _joint_samples(z1, z1, z2, z2, np.empty((2, 1)), np.empty((2, 1)))
+    """First-call dispatch of the compiled helper at import, not in a control loop."""
+    z1, z2 = np.zeros(1), np.zeros((1, 1))
+    _bounds_kernel(z1, z1, z2, z2, z2, np.empty((1, 1)), np.empty((1, 1)))
 
 
 _warm_up()
-
-
-@dataclass(frozen=True)
-class ShieldedTrajectory:
-    """One intended control step followed by the failsafe stop from its end.
-
-    ``times`` ``(K+1,)`` (s, from the current state); ``q``, ``v``, ``a`` ``(K+1, n)`` there;
-    ``s``, ``sd``, ``sdd`` the path state there; samples ``0..failsafe_index`` are the intended
-    step, ``failsafe_index..K`` the failsafe. ``v_bound``, ``a_bound`` ``(K, n)``: rigorous
-    bounds on ``|v_j(t)|`` and ``|a_j(t)|`` over each ``[times[k], times[k+1]]``.
-    ``dq`` ``(K+1, n)``: the path tangent ``dq/ds`` at the samples (``v = dq s'``);
-    ``sd_max`` ``(K,)``: the exact largest path speed ``s'`` over each interval.
-    ``step``: the follower step to commit if this trajectory is verified
-    (``follower.commit(traj.step)``); ``stop``: the failsafe from the end of the step.
-    """
-
-    times: np.ndarray
-    q: np.ndarray
-    v: np.ndarray
-    a: np.ndarray
-    s: np.ndarray
-    sd: np.ndarray
-    sdd: np.ndarray
-    failsafe_index: int
-    v_bound: np.ndarray
-    a_bound: np.ndarray
-    dq: np.ndarray
-    sd_max: np.ndarray
-    step: FollowerStep
-    stop: StopProfile
-
-    @property
-    def duration_s(self) -> float:
-        return float(self.times[-1])
-
-
-def shielded_trajectory(
-    follower: PathFollower,
-    dt: float,
-    n_intervals: int | None = None,
-    *,
-    max_interval_s: float = 0.01,
-    reference: bool = False,
-) -> ShieldedTrajectory:
-    """The follower's next step of ``dt`` seconds (follower unchanged) + the failsafe after it.
-
-    The failsafe part is split into ``n_intervals`` equal intervals (default: as few as keep
-    every interval at most ``max_interval_s`` long; none if the robot is at rest after the
-    step). The intended step is always one interval. ``reference``: sample with the numpy
-    composition of the profile and path methods instead of the compiled kernel (the same
-    formulas; for tests).
-    """
-    step = follower.peek(dt)
-    stop = step.stop
-    T = stop.duration_s
-    if n_intervals is None:
-        if not (math.isfinite(max_interval_s) and max_interval_s > 0):
-            raise RobotModelError(f"max_interval_s = {max_interval_s!r}; expected a time > 0")
-        m = max(1, math.ceil(T / max_interval_s - 1e-9)) if T > 0 else 0
-    else:
-        if not isinstance(n_intervals, int) or n_intervals < 1:
-            raise RobotModelError(f"n_intervals = {n_intervals!r}; expected an integer >= 1")
-        m = n_intervals if T > 0 else 0
-    samples = _samples_reference if reference or not follower.path.n_pieces else _samples
-    times, (s, sd, sdd), q, dq, v, a, v_bound, a_bound, sd_max = samples(follower.path, step, m)
-    return ShieldedTrajectory(
-        times=times,
-        q=q,
-        v=v,
-        a=a,
-        s=s,
-        sd=sd,
-        sdd=sdd,
-        failsafe_index=1,
-        v_bound=v_bound,
-        a_bound=a_bound,
-        dq=dq,
-        sd_max=sd_max,
-        step=step,
-        stop=stop,
-    )

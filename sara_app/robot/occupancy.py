@@ -417,7 +417,7 @@ class RobotOccupancy:
         self, trajectory: object, *, bound: Bound = "lipschitz"
     ) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`intervals` of a sampled trajectory object with arrays ``times (K+1,)``,
-        ``q (K+1, n)`` and ``v_bound (K, n)`` (e.g. ``sara_app.robot.failsafe.ShieldedTrajectory``,
+        ``q (K+1, n)`` and ``v_bound (K, n)`` (e.g. ``sara_app.robot.shielded.ShieldedTrajectory``,
         whose ``v_bound`` is a rigorous per-interval bound on ``|q_dot|``)."""
         missing = [a for a in ("times", "q", "v_bound") if not hasattr(trajectory, a)]
         if missing:

@@ -4,7 +4,7 @@ rigorous per-interval bounds on joint speed and acceleration, in one pass.
 
 The formulas are those of :class:`sara_app.robot.trajectory.ScalarProfile` (``evaluate``,
 ``interval_maxima``), :class:`~sara_app.robot.trajectory.PathTrajectory` (quartic pieces,
-``interval_bounds``) and ``sara_app.robot.failsafe._bounds_kernel``; ``shielded_trajectory``
+``interval_bounds``) and ``sara_app.robot.failsafe._bounds_kernel``; ``sara_app.robot.shielded``
 keeps the numpy composition of those as its reference, and ``tests/test_trajectory_kernels.py``
 checks the two equal on random paths and states.
 

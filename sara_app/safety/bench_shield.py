@@ -20,8 +20,8 @@ from sara_app.bench import timeit_us
 from sara_app.human.params import load_param_set, to_reach_params
 from sara_app.human.reach import HumanReach
 from sara_app.human.scripted import joints, standing
-from sara_app.robot.failsafe import shielded_trajectory
 from sara_app.robot.model import load_robot
+from sara_app.robot.shielded import shielded_trajectory
 from sara_app.robot.trajectory import PathFollower
 from sara_app.safety.shield import CycleResult, HumanState, Shield, ShieldSettings
 

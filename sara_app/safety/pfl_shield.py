@@ -83,8 +83,8 @@ from sara_app.robot.energy import (
     LinkSamples,
     path_interval_energy_J,
 )
-from sara_app.robot.failsafe import ShieldedTrajectory
 from sara_app.robot.model import RobotModel
+from sara_app.robot.shielded import ShieldedTrajectory
 from sara_app.robot.trajectory import PathFollower
 from sara_app.safety.pfl import MergedCheck, PflCheck, PflResult
 from sara_app.safety.shield import CycleResult, Shield, ShieldSettings

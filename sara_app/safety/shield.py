@@ -32,9 +32,9 @@ import numpy as np
 
 from sara_app.errors import ParameterError, SaraError
 from sara_app.human.reach import HumanReach
-from sara_app.robot.failsafe import ShieldedTrajectory, shielded_trajectory
 from sara_app.robot.model import RobotModel
 from sara_app.robot.occupancy import RobotOccupancy
+from sara_app.robot.shielded import ShieldedTrajectory, shielded_trajectory
 from sara_app.robot.trajectory import JointState, PathFollower
 from sara_app.safety.ssm import SsmResult, SsmVerifier, body_distance
 

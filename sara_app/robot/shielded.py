@@ -1,0 +1,180 @@
+"""The shielded trajectory (seed 000 Sec. II, seed 003 Sec. III-B): one intended control step of the
+path follower followed by the failsafe stop from its end, sampled for verification: sample
+times, path and joint states, and rigorous per-interval bounds on joint speed and acceleration
+(:func:`sara_app.robot.failsafe.interval_bounds`), from one compiled pass
+(:mod:`sara_app.robot.trajectory_kernels`) with the numpy composition as its reference.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit, types
+
+from sara_app.errors import RobotModelError
+from sara_app.robot.failsafe import BOUND_PAD, StopProfile, interval_bounds
+from sara_app.robot.path import PathTrajectory
+from sara_app.robot.trajectory import FollowerStep, PathFollower
+from sara_app.robot.trajectory_kernels import shielded_samples_kernel
+
+__all__ = ["ShieldedTrajectory", "shielded_trajectory"]
+
+_f8 = types.float64
+_RO1, _RO2 = (types.Array(_f8, d, "A", readonly=True) for d in (1, 2))
+_W1, _W2 = types.Array(_f8, 1, "A"), types.Array(_f8, 2, "A")
+
+
+@njit(types.void(_f8, _f8, _W1), cache=True)
+def _sample_times(dt: float, T: float, times: np.ndarray) -> None:
+    """``times (m+2,)``: 0, ``dt``, then ``dt + T i / m`` for ``i = 1..m``."""
+    m = times.shape[0] - 2
+    times[0] = 0.0
+    times[1] = dt
+    for i in range(1, m + 1):
+        times[i + 1] = dt + T * (i / m)
+
+
+@njit(types.void(_RO1, _RO1, _RO2, _RO2, _W2, _W2), cache=True)
+def _joint_samples(
+    sd: np.ndarray, sdd: np.ndarray, dq: np.ndarray, d2q: np.ndarray, v: np.ndarray, a: np.ndarray
+) -> None:
+    """Joint velocity ``v = q' s'`` and acceleration ``a = q'' s'^2 + q' s''`` ``(K+1, n)``."""
+    for k in range(dq.shape[0]):
+        for j in range(dq.shape[1]):
+            v[k, j] = dq[k, j] * sd[k]
+            a[k, j] = d2q[k, j] * (sd[k] * sd[k]) + dq[k, j] * sdd[k]
+
+
+_Samples = tuple[
+    np.ndarray, tuple[np.ndarray, ...], np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+    np.ndarray, np.ndarray,
+]  # fmt: skip
+
+
+def _samples(path: PathTrajectory, step: FollowerStep, m: int) -> _Samples:
+    """Samples of ``step`` + its failsafe in ``m`` intervals, compiled: ``(times, (s, s', s''),
+    q, dq/ds, v, a, v_bound, a_bound, sd_max)``."""
+    head, stop = step.profile, step.stop.profile
+    s0, v0, a0 = head.start
+    K = m + 1
+    n = path.n_joints
+    times = np.empty(K + 1)
+    ps = np.empty((3, K + 1))
+    joint = np.empty((5, K + 1, n))
+    bounds = np.empty((2, K, n))
+    sd_max = np.empty(K)
+    p_s0, p_len, poly, M1, M2, qs = path.piece_tables
+    shielded_samples_kernel(
+        step.dt, stop.duration, s0, v0, a0, np.array(head.durs + stop.durs),
+        np.array(head.jerks + stop.jerks), p_s0, p_len, poly, M1, M2, qs, BOUND_PAD, times,
+        ps, joint, bounds, sd_max,
+    )  # fmt: skip
+    return times, tuple(ps), joint[0], joint[1], joint[3], joint[4], bounds[0], bounds[1], sd_max
+
+
+def _samples_reference(path: PathTrajectory, step: FollowerStep, m: int) -> _Samples:
+    """:func:`_samples` composed of the profile's and the path's numpy methods."""
+    T = step.stop.duration_s
+    times = np.empty(m + 2)
+    _sample_times(step.dt, T, times)
+    prof = step.profile.then(step.stop.profile)
+    s, sd, sdd = prof.evaluate(times)
+    q, dq, d2q = path._derivatives_array(s, 2)
+    v, a = np.empty((2,) + dq.shape)
+    _joint_samples(sd, sdd, dq, d2q, v, a)
+    v_bound, a_bound = interval_bounds(path, prof, times, s, sd, sdd, dq)
+    sd_max = prof.interval_maxima(times, sd, sdd)[0]
+    return times, (s, sd, sdd), q, dq, v, a, v_bound, a_bound, sd_max
+
+
+def _warm_up() -> None:
+    """First-call dispatch of the compiled helpers at import, not in a control loop."""
+    z1, z2 = np.zeros(2), np.zeros((2, 1))
+    _sample_times(0.004, 0.0, np.empty(2))
+    _joint_samples(z1, z1, z2, z2, np.empty((2, 1)), np.empty((2, 1)))
+
+
+_warm_up()
+
+
+@dataclass(frozen=True)
+class ShieldedTrajectory:
+    """One intended control step followed by the failsafe stop from its end.
+
+    ``times`` ``(K+1,)`` (s, from the current state); ``q``, ``v``, ``a`` ``(K+1, n)`` there;
+    ``s``, ``sd``, ``sdd`` the path state there; samples ``0..failsafe_index`` are the intended
+    step, ``failsafe_index..K`` the failsafe. ``v_bound``, ``a_bound`` ``(K, n)``: rigorous
+    bounds on ``|v_j(t)|`` and ``|a_j(t)|`` over each ``[times[k], times[k+1]]``.
+    ``dq`` ``(K+1, n)``: the path tangent ``dq/ds`` at the samples (``v = dq s'``);
+    ``sd_max`` ``(K,)``: the exact largest path speed ``s'`` over each interval.
+    ``step``: the follower step to commit if this trajectory is verified
+    (``follower.commit(traj.step)``); ``stop``: the failsafe from the end of the step.
+    """
+
+    times: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    s: np.ndarray
+    sd: np.ndarray
+    sdd: np.ndarray
+    failsafe_index: int
+    v_bound: np.ndarray
+    a_bound: np.ndarray
+    dq: np.ndarray
+    sd_max: np.ndarray
+    step: FollowerStep
+    stop: StopProfile
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.times[-1])
+
+
+def shielded_trajectory(
+    follower: PathFollower,
+    dt: float,
+    n_intervals: int | None = None,
+    *,
+    max_interval_s: float = 0.01,
+    reference: bool = False,
+) -> ShieldedTrajectory:
+    """The follower's next step of ``dt`` seconds (follower unchanged) + the failsafe after it.
+
+    The failsafe part is split into ``n_intervals`` equal intervals (default: as few as keep
+    every interval at most ``max_interval_s`` long; none if the robot is at rest after the
+    step). The intended step is always one interval. ``reference``: sample with the numpy
+    composition of the profile and path methods instead of the compiled kernel (the same
+    formulas; for tests).
+    """
+    step = follower.peek(dt)
+    stop = step.stop
+    T = stop.duration_s
+    if n_intervals is None:
+        if not (math.isfinite(max_interval_s) and max_interval_s > 0):
+            raise RobotModelError(f"max_interval_s = {max_interval_s!r}; expected a time > 0")
+        m = max(1, math.ceil(T / max_interval_s - 1e-9)) if T > 0 else 0
+    else:
+        if not isinstance(n_intervals, int) or n_intervals < 1:
+            raise RobotModelError(f"n_intervals = {n_intervals!r}; expected an integer >= 1")
+        m = n_intervals if T > 0 else 0
+    samples = _samples_reference if reference or not follower.path.n_pieces else _samples
+    times, (s, sd, sdd), q, dq, v, a, v_bound, a_bound, sd_max = samples(follower.path, step, m)
+    return ShieldedTrajectory(
+        times=times,
+        q=q,
+        v=v,
+        a=a,
+        s=s,
+        sd=sd,
+        sdd=sdd,
+        failsafe_index=1,
+        v_bound=v_bound,
+        a_bound=a_bound,
+        dq=dq,
+        sd_max=sd_max,
+        step=step,
+        stop=stop,
+    )
