@@ -2,8 +2,8 @@
 step followed by its failsafe, the joint states along the path at the sample times, and the
 rigorous per-interval bounds on joint speed and acceleration, in one pass.
 
-The formulas are those of :class:`sara_app.robot.trajectory.ScalarProfile` (``evaluate``,
-``interval_maxima``), :class:`~sara_app.robot.trajectory.PathTrajectory` (quartic pieces,
+The formulas are those of :class:`sara_app.robot.profile.ScalarProfile` (``evaluate``,
+``interval_maxima``), :class:`~sara_app.robot.path.PathTrajectory` (quartic pieces,
 ``interval_bounds``) and ``sara_app.robot.failsafe._bounds_kernel``; ``sara_app.robot.shielded``
 keeps the numpy composition of those as its reference, and ``tests/test_trajectory_kernels.py``
 checks the two equal on random paths and states.
