@@ -126,6 +126,30 @@ _WI2 = types.Array(types.int64, 2, "A")
 _WI1, _WI83 = types.Array(types.int64, 1, "A"), types.Array(types.int8, 3, "A")
 
 
+_I8 = types.int64
+
+
+@njit(_f8(_ROB3, _ROI3, _RO2, _RO2, _I8, _I8, _I8), cache=True, inline="always")
+def _threshold(
+    stack: np.ndarray,
+    cls: np.ndarray,
+    T_clamp: np.ndarray,
+    T_free: np.ndarray,
+    k: int,
+    i: int,
+    j: int,
+) -> float:
+    """Eq. 7's threshold of entry ``(k, i, j)``: constrained (``cls >= 2``) the smallest
+    ``T_clamp[i, m]`` over the stack ``m`` of part ``j``, else ``T_free[i, j]``."""
+    if cls[k, i, j] < 2:
+        return T_free[i, j]
+    t = np.inf
+    for m in range(stack.shape[2]):
+        if stack[k, j, m] and T_clamp[i, m] < t:
+            t = T_clamp[i, m]
+    return t
+
+
 @njit(
     types.void(_ROB3, _ROI3, _ROB3, _RO2, _RO2, _RO2, types.int64, _WB3, _WI83, _W3, _WI1),
     cache=True,
@@ -157,13 +181,7 @@ def _merge_kernel(
             for j in range(P):
                 if safe[k, i, j]:
                     continue
-                if cls[kk, i, j] >= 2:
-                    t = np.inf
-                    for m in range(P):
-                        if stack[kk, j, m] and T_clamp[i, m] < t:
-                            t = T_clamp[i, m]
-                else:
-                    t = T_free[i, j]
+                t = _threshold(stack, cls, T_clamp, T_free, kk, i, j)
                 if not contact[kk, i, j] or t - E_int[k, i] > 0.0:
                     safe[k, i, j] = True
                     cls_m[k, i, j] = cls[kk, i, j]
@@ -239,13 +257,7 @@ def _verdict_kernel(
         for i in range(L):
             best, arg = np.inf, 0
             for j in range(P):
-                if cls[k, i, j] >= 2:
-                    t = np.inf
-                    for m in range(P):
-                        if stack[k, j, m] and T_clamp[i, m] < t:
-                            t = T_clamp[i, m]
-                else:
-                    t = T_free[i, j]
+                t = _threshold(stack, cls, T_clamp, T_free, k, i, j)
                 thr[k, i, j] = t
                 mg = t - E_int[k, i]
                 margin[k, i, j] = mg
