@@ -11,7 +11,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, types
 
 from sara_app.errors import RobotModelError
 from sara_app.robot.failsafe import BOUND_PAD, StopProfile, interval_bounds
@@ -20,32 +19,6 @@ from sara_app.robot.trajectory import FollowerStep, PathFollower
 from sara_app.robot.trajectory_kernels import shielded_samples_kernel
 
 __all__ = ["ShieldedTrajectory", "shielded_trajectory"]
-
-_f8 = types.float64
-_RO1, _RO2 = (types.Array(_f8, d, "A", readonly=True) for d in (1, 2))
-_W1, _W2 = types.Array(_f8, 1, "A"), types.Array(_f8, 2, "A")
-
-
-@njit(types.void(_f8, _f8, _W1), cache=True)
-def _sample_times(dt: float, T: float, times: np.ndarray) -> None:
-    """``times (m+2,)``: 0, ``dt``, then ``dt + T i / m`` for ``i = 1..m``."""
-    m = times.shape[0] - 2
-    times[0] = 0.0
-    times[1] = dt
-    for i in range(1, m + 1):
-        times[i + 1] = dt + T * (i / m)
-
-
-@njit(types.void(_RO1, _RO1, _RO2, _RO2, _W2, _W2), cache=True)
-def _joint_samples(
-    sd: np.ndarray, sdd: np.ndarray, dq: np.ndarray, d2q: np.ndarray, v: np.ndarray, a: np.ndarray
-) -> None:
-    """Joint velocity ``v = q' s'`` and acceleration ``a = q'' s'^2 + q' s''`` ``(K+1, n)``."""
-    for k in range(dq.shape[0]):
-        for j in range(dq.shape[1]):
-            v[k, j] = dq[k, j] * sd[k]
-            a[k, j] = d2q[k, j] * (sd[k] * sd[k]) + dq[k, j] * sdd[k]
-
 
 _Samples = tuple[
     np.ndarray, tuple[np.ndarray, ...], np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
@@ -78,25 +51,16 @@ def _samples_reference(path: PathTrajectory, step: FollowerStep, m: int) -> _Sam
     """:func:`_samples` composed of the profile's and the path's numpy methods."""
     T = step.stop.duration_s
     times = np.empty(m + 2)
-    _sample_times(step.dt, T, times)
+    times[0], times[1] = 0.0, step.dt
+    times[2:] = step.dt + T * (np.arange(1, m + 1) / max(m, 1))
     prof = step.profile.then(step.stop.profile)
     s, sd, sdd = prof.evaluate(times)
     q, dq, d2q = path._derivatives_array(s, 2)
-    v, a = np.empty((2,) + dq.shape)
-    _joint_samples(sd, sdd, dq, d2q, v, a)
+    v = dq * sd[:, None]
+    a = d2q * (sd * sd)[:, None] + dq * sdd[:, None]
     v_bound, a_bound = interval_bounds(path, prof, times, s, sd, sdd, dq)
     sd_max = prof.interval_maxima(times, sd, sdd)[0]
     return times, (s, sd, sdd), q, dq, v, a, v_bound, a_bound, sd_max
-
-
-def _warm_up() -> None:
-    """First-call dispatch of the compiled helpers at import, not in a control loop."""
-    z1, z2 = np.zeros(2), np.zeros((2, 1))
-    _sample_times(0.004, 0.0, np.empty(2))
-    _joint_samples(z1, z1, z2, z2, np.empty((2, 1)), np.empty((2, 1)))
-
-
-_warm_up()
 
 
 @dataclass(frozen=True)
