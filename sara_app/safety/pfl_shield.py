@@ -70,6 +70,8 @@ compiled classification and one compiled merge over the intervals still unproved
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -329,7 +331,7 @@ class PflShield(Shield):
         number of models evaluated and the link energies at the current state ``(L,)``.
         ``first_only``: stop after the first model even if it leaves entries unproved
         (:meth:`_finish_check` adds the others; a failed result is then conservative)."""
-        try:
+        with _inputs_checked():
             pfl = self._check_for(hum[0].shape[0])
             smp, energy = self._link_energies(traj)
             E0 = smp.energy_J[0].copy()
@@ -338,15 +340,11 @@ class PflShield(Shield):
             check = pfl.merged(ends, radius, smp, dt, eps, *self.boxes, energy)
             self._open = (check, hum, traj.times, E0)
             return self._add_models(first_only)
-        except (ValueError, ArithmeticError, IndexError, np.linalg.LinAlgError) as e:
-            raise InputError(f"PFL check failed on its inputs: {e}") from e
 
     def _finish_check(self) -> tuple[PflResult, int, np.ndarray]:
         """The last :meth:`_verify` with every model (after ``first_only``)."""
-        try:
+        with _inputs_checked():
             return self._add_models(False)
-        except (ValueError, ArithmeticError, IndexError, np.linalg.LinAlgError) as e:
-            raise InputError(f"PFL check failed on its inputs: {e}") from e
 
     def _add_models(self, first_only: bool) -> tuple[PflResult, int, np.ndarray]:
         """Add models to the open check in :attr:`_model_order` until every entry is proved (the
@@ -412,6 +410,15 @@ class PflShield(Shield):
 
 
 # --- helpers -----------------------------------------------------------------------------------
+
+
+@contextmanager
+def _inputs_checked() -> Iterator[None]:
+    """A numeric failure inside a PFL check is an input error of the cycle (a fault)."""
+    try:
+        yield
+    except (ValueError, ArithmeticError, IndexError, np.linalg.LinAlgError) as e:
+        raise InputError(f"PFL check failed on its inputs: {e}") from e
 
 
 def _boxes(boxes: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, np.ndarray]:
