@@ -42,6 +42,7 @@ from sara_app.cell import Cell, build_cell
 from sara_app.errors import SaraError
 from sara_app.human.velocity import VelocityEstimator
 from sara_app.robot.trajectory import JointState
+from sara_app.safety.pfl_shield import PflShield
 from sara_app.safety.shield import CycleResult, HumanState, Shield
 from sara_app.safety.thresholds import link_shapes
 from sara_app.scenario import Scenario, check_against_robot, parse_scenario
@@ -303,10 +304,13 @@ class CellWorker:
         extra: dict[str, Any] = {}
         try:
             if res.pfl is not None:
+                pfl = res.pfl
+                if isinstance(self.shield, PflShield) and res.trajectory is not None:
+                    pfl = self.shield.with_energies(pfl, res.trajectory)  # skipped when clear
                 labels = part_labels(res.human_ids, self.shield.reach.skeleton.parts)
                 shapes = link_shapes(links, sc.shield.pfl.link_shapes)
-                extra["contacts"] = pfl_contacts(res.pfl, links, labels)
-                extra["links"] = pfl_links(res.pfl, links, labels, shapes)
+                extra["contacts"] = pfl_contacts(pfl, links, labels)
+                extra["links"] = pfl_links(pfl, links, labels, shapes)
             if res.jssa is not None:
                 extra["jssa"] = jssa_state(res.jssa, links, sc.shield.jssa.d_min_m)
         except (SaraError, ValueError, IndexError) as e:  # display only: never stop the loop

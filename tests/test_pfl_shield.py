@@ -82,6 +82,49 @@ def test_any_model_merge_is_the_or_of_single_model_verdicts() -> None:
     np.testing.assert_array_equal(res.safe_interval, any_safe.all(axis=(1, 2)))
 
 
+@pytest.mark.parametrize(("x", "possible"), [(0.85, True), (1.4, True), (3.0, False)])
+def test_deferred_energies_change_no_verdict(x: float, possible: bool) -> None:
+    """The check obtains the link energies and twists only when a human set may touch a link:
+    its verdict and classes equal the eager check's (all models, every entry); without a
+    possible contact it never evaluates them and says so, and ``with_energies`` fills them
+    (for the display) equal to the eager check's."""
+    shield = make_shield()
+    t = run_free(shield, 60)
+    hum = hum_arrays(shield, [person(x, 0.0, t)], t)
+    traj, ends, radius = shield._plan(math.inf)
+    calls = []
+    real = shield._link_energies
+    shield._link_energies = lambda tr: calls.append(1) or real(tr)  # type: ignore[method-assign]
+    res, used, _ = shield._verify(traj, ends, radius, hum)
+    del shield._link_energies
+    K = len(traj.times) - 1
+    dt = np.diff(traj.times)
+    smp, energy = shield._link_energies(traj)
+    eps = shield.pfl.eps_from_bounds(dt, traj.v_bound, traj.a_bound)
+    eager = shield.pfl.merged(ends, radius, smp, dt, eps, *shield.boxes, energy)
+    for m in shield._model_order[:used]:
+        lo, hi = eager.todo
+        if lo >= hi:
+            break
+        h_e, h_r = shield._human_sets(m, hum, traj.times, lo, hi)
+        eager.add(h_e, h_r)
+    ref = eager.result()
+    assert bool(res.contact.contact.any()) == possible  # the case is what it says
+    assert len(calls) == int(possible) and res.energy_known == possible
+    for name in ("safe", "cls", "threshold_J", "allowed_J", "limiting_part"):
+        np.testing.assert_array_equal(getattr(res, name), getattr(ref, name), err_msg=name)
+    filled = shield.with_energies(res, traj)
+    assert filled.energy_known
+    np.testing.assert_array_equal(filled.energy_J, ref.energy_J)
+    np.testing.assert_array_equal(filled.margin_J, ref.margin_J)
+    if not possible:
+        assert np.isnan(res.energy_J).all() and res.safe_all
+        assert np.isfinite(filled.energy_J).all() and filled.energy_J.max() > 0  # it moves
+    else:
+        assert filled is res
+    assert K == res.energy_J.shape[0]
+
+
 def test_model_order_changes_the_work_not_the_verdict() -> None:
     """Every order of the models proves the same entries safe; after a completed check the
     model that completed it is tried first."""
@@ -277,15 +320,20 @@ def test_faults_brake_on_the_held_failsafe(bad) -> None:  # type: ignore[no-unty
     np.testing.assert_array_equal(out.command.q, before.brake(shield.settings.dt_s).q)
 
 
-def test_numeric_failure_inside_the_check_is_a_fault(monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.parametrize("where", ["merged_deferred", "_link_energies"])
+def test_numeric_failure_inside_the_check_is_a_fault(
+    monkeypatch: pytest.MonkeyPatch, where: str
+) -> None:
+    """A numeric failure while the check is built, or in the link energies it obtains only
+    when a contact is possible (the person is close enough here), is a fault of the cycle."""
     shield = make_shield()
     t = run_free(shield, 30)
 
     def boom(*a: object, **k: object) -> None:
         raise ValueError("broken")
 
-    monkeypatch.setattr(shield.pfl, "merged", boom)
-    out = shield.cycle(t, [person(1.0, 0.0, t)])
+    monkeypatch.setattr(shield.pfl if where == "merged_deferred" else shield, where, boom)
+    out = shield.cycle(t, [person(0.6, 0.0, t)])
     assert out.mode == "fault" and any("PFL check failed" in f for f in out.faults)
 
 

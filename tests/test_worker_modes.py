@@ -82,3 +82,27 @@ def test_modes_switch_live_and_keep_the_robot_state(worker) -> None:
     assert w.last is not None and w.last.safety_mode == "ssm" and w.last.mode != "fault"
     seen = {d.msg.safety_mode for d in verdicts.drain().messages if isinstance(d.msg, VerdictMsg)}
     assert {"pfl", "jssa"} <= seen
+
+
+def test_pfl_display_shows_link_energies_the_check_skipped(worker) -> None:
+    """With nobody able to touch the robot the PFL check skips the link energies; the display
+    message still carries each link's energy (computed for it, equal to the check's own)."""
+    import math
+
+    from sara_app.human.scripted import joints, standing
+    from sara_app.safety.shield import HumanState
+
+    w, _ = worker
+    ok, why = w.apply(_with_mode(w, "pfl"))
+    assert ok, why
+    t = _run(w, 1000.0, 100)
+    y = joints(standing((3.0, 2.5), math.pi))
+    far = HumanState("far", y, np.zeros_like(y), np.full(len(y), 0.05), t - 0.004)
+    res = w.shield.cycle(t, [far])
+    assert res.pfl is not None and not res.pfl.energy_known and res.trajectory is not None
+    occ = w.occupancy_msg(t, res)
+    assert occ.links is not None and len(occ.links) == len(w.cell.robot.link_names)
+    E = w.shield.with_energies(res.pfl, res.trajectory).energy_J  # type: ignore[attr-defined]
+    got = np.array([m.energy_j for m in occ.links])
+    np.testing.assert_allclose(got, E.max(axis=0))
+    assert got.max() > 0.0 and all(m.limit_j is None for m in occ.links)  # moving, no contact

@@ -37,6 +37,7 @@ Rules (``~`` = not; every predicate is written so that NaN input gives the conse
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -152,30 +153,38 @@ class ContactResult:
 _NO_NORMAL = np.empty((0, 0, 0, 3))
 
 
+MotionArrays = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+"""``(s_ends (K+1, L, 2, 3), s_radius (L,), p1_dot (K+1, L, 3), omega (K+1, L, 3), eps_v (K,
+L))``: the link states at the samples that the clamping rules need."""
+
+
 class RobotSide:
     """The robot's inputs of one classification (float64, shapes checked by
     :meth:`ContactClassifier.robot_side`) and, computed on first use and then kept, its
     robot-only geometry: link-link surface distances and closest-point parameters ``d_rr,
     s_rr (K, L, L)``, link-box distances ``d_rb (K, L, B)`` and box-to-link vectors ``n_rb
-    (K, L, B, 3)`` (the same for every human set checked against this trajectory)."""
+    (K, L, B, 3)`` (the same for every human set checked against this trajectory).
+
+    The link states at the samples (:data:`MotionArrays`) may be deferred: ``motion`` a
+    function that returns them, called by :meth:`need_motion` when a human set may touch a
+    link (without a possible contact the classification needs only the interval capsules)."""
 
     def __init__(
         self,
         r_ends: np.ndarray,
         r_radius: np.ndarray,
-        s_ends: np.ndarray,
-        s_radius: np.ndarray,
-        p1_dot: np.ndarray,
-        omega: np.ndarray,
-        eps_v: np.ndarray,
+        motion: MotionArrays | Callable[[], MotionArrays],
         T_world_box: np.ndarray,
         half_extents_m: np.ndarray,
     ) -> None:
-        self.r_ends, self.r_radius, self.s_ends, self.s_radius = r_ends, r_radius, s_ends, s_radius
-        self.p1_dot, self.omega, self.eps_v = p1_dot, omega, eps_v
+        self.r_ends, self.r_radius = r_ends, r_radius
         self.T_world_box, self.half_extents_m = T_world_box, half_extents_m
         self.K, self.L = r_radius.shape
         self.B = T_world_box.shape[0]
+        self._motion = motion
+        self.s_ends = self.s_radius = self.p1_dot = self.omega = self.eps_v = _NONE
+        if not callable(motion):
+            self._set_motion(motion)
         self._geometry: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         self.owner: object = None
         """The classifier whose :meth:`ContactClassifier.robot_side` made this (its switches
@@ -185,6 +194,27 @@ class RobotSide:
         evaluated), shared by the human sets classified against this robot side."""
         self.can_link = np.full((self.K, self.L, self.L), -1, dtype=np.int8)
         """Lazily filled: links ``i, l`` may close on a body part on interval ``k``."""
+
+    @property
+    def has_motion(self) -> bool:
+        """Whether the link states are known (given, or :meth:`need_motion` was called)."""
+        return not callable(self._motion)
+
+    def need_motion(self) -> None:
+        """Obtain the deferred link states (once); raises :class:`InputError` on wrong shapes."""
+        if callable(self._motion):
+            self._set_motion(self._motion())
+
+    def _set_motion(self, motion: MotionArrays) -> None:
+        K, L = self.K, self.L
+        arrays = [np.asarray(a, dtype=np.float64) for a in motion]
+        _check_shapes(
+            ("s_ends", "s_radius", "p1_dot", "omega", "eps_v"), arrays,
+            ((K + 1, L, 2, 3), (L,), (K + 1, L, 3), (K + 1, L, 3), (K, L)),
+            f"K = {K} intervals, L = {L} links",
+        )  # fmt: skip
+        self.s_ends, self.s_radius, self.p1_dot, self.omega, self.eps_v = arrays
+        self._motion = motion
 
     def geometry(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``(d_rr, s_rr, d_rb, n_rb)`` (computed on the first call)."""
@@ -197,6 +227,18 @@ class RobotSide:
                           d_rb, n_rb)  # fmt: skip
             self._geometry = (d_rr, s_rr, d_rb, n_rb)
         return self._geometry
+
+
+_NONE = np.empty(0)
+
+
+def _check_shapes(
+    names: Sequence[str], arrays: Sequence[np.ndarray], want: Sequence[tuple[int, ...]], what: str
+) -> None:
+    """Raise :class:`InputError` naming the first array whose shape is not the wanted one."""
+    for name, a, shape in zip(names, arrays, want):
+        if a.shape != shape:
+            raise InputError(f"{name} has shape {a.shape}; expected {shape} ({what})")
 
 
 def _closure(adj: np.ndarray) -> np.ndarray:
@@ -292,27 +334,34 @@ class ContactClassifier:
         """The robot's inputs of :meth:`classify` (one trajectory) validated once, for several
         :meth:`classify_humans` calls (e.g. one per human-set model); raises
         :class:`InputError` naming the first array of the wrong shape."""
+        motion = (s_ends, s_radius, p1_dot, omega, eps_v)
+        return self.robot_side_deferred(r_ends, r_radius, motion, T_world_box, half_extents_m)
+
+    def robot_side_deferred(
+        self,
+        r_ends: np.ndarray,
+        r_radius: np.ndarray,
+        motion: MotionArrays | Callable[[], MotionArrays],
+        T_world_box: np.ndarray,
+        half_extents_m: np.ndarray,
+    ) -> RobotSide:
+        """:meth:`robot_side` with the link states at the samples ``motion`` given, or as a
+        function that returns them, called only when some human set may touch a link."""
         arrays = [
-            np.asarray(a, dtype=np.float64)
-            for a in (r_ends, r_radius, s_ends, s_radius, p1_dot, omega, eps_v, T_world_box,
-                      half_extents_m)
-        ]  # fmt: skip
+            np.asarray(a, dtype=np.float64) for a in (r_ends, r_radius, T_world_box, half_extents_m)
+        ]
         L = self._no_pair.shape[0]
         K = arrays[1].shape[0] if arrays[1].ndim == 2 else -1
-        B = arrays[7].shape[0] if arrays[7].ndim == 3 else -1
-        want = ((K, L, 2, 3), (K, L), (K + 1, L, 2, 3), (L,), (K + 1, L, 3), (K + 1, L, 3),
-                (K, L), (B, 4, 4), (B, 3))  # fmt: skip
-        names = ("r_ends", "r_radius", "s_ends", "s_radius", "p1_dot", "omega", "eps_v",
-                 "T_world_box", "half_extents_m")  # fmt: skip
-        if K < 1 or tuple(a.shape for a in arrays) != want:
-            name, a, shape = next(
-                x for x in zip(names, arrays, want) if x[1].shape != x[2] or K < 1
-            )
+        B = arrays[2].shape[0] if arrays[2].ndim == 3 else -1
+        if K < 1:
             raise InputError(
-                f"{name} has shape {a.shape}; expected {shape} (K >= 1 intervals, L = {L} "
-                "links, B boxes)"
+                f"r_radius has shape {arrays[1].shape}; expected (K, {L}) with K >= 1 intervals"
             )
-        robot = RobotSide(*arrays)
+        _check_shapes(
+            ("r_ends", "r_radius", "T_world_box", "half_extents_m"), arrays,
+            ((K, L, 2, 3), (K, L), (B, 4, 4), (B, 3)), f"K = {K} intervals, L = {L} links, B boxes",
+        )  # fmt: skip
+        robot = RobotSide(arrays[0], arrays[1], motion, arrays[2], arrays[3])
         robot.owner = self
         return robot
 
@@ -345,6 +394,7 @@ class ContactClassifier:
         d_rh = np.empty((k, L, P))
         if not pair_distances(r_ends, r_radius, h_ends, h_radius, d_rh):  # NaN is contact
             return self._no_contact(d_rh)
+        robot.need_motion()
         d_hh, s_hh = np.empty((2, k, P, P))
         set_pair_distances(h_ends, h_radius, d_hh, s_hh)
         d_rr, s_rr, d_rb, n_rb = robot.geometry()

@@ -12,7 +12,8 @@ constrained threshold of its members.
 Several human-set models against one trajectory: :meth:`PflCheck.merged` returns a
 :class:`MergedCheck` that validates the robot's inputs and computes its robot-only geometry
 once, then classifies each model's sets over the intervals still unproved and merges per entry
-(compiled).
+(compiled); :meth:`PflCheck.merged_deferred` obtains the link states and energies only when a
+human set may touch a link.
 
 Usage (built once per cell, :meth:`PflCheck.check` every control cycle)::
 
@@ -56,8 +57,9 @@ next call); the classification allocates its (small) arrays per call, and the
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 from numba import njit, types
@@ -71,7 +73,13 @@ from sara_app.robot.energy import (
 )
 from sara_app.robot.model import RobotModel
 from sara_app.robot.occupancy import RobotOccupancy
-from sara_app.safety.contact import CLASS_NAMES, ContactClassifier, ContactResult, RobotSide
+from sara_app.safety.contact import (
+    CLASS_NAMES,
+    ContactClassifier,
+    ContactResult,
+    MotionArrays,
+    RobotSide,
+)
 from sara_app.safety.thresholds import (
     ThresholdSet,
     diameters_m,
@@ -110,6 +118,10 @@ class PflResult:
     contact: ContactResult
     allowed_J: np.ndarray
     limiting_part: np.ndarray
+    energy_known: bool = True
+    """False: no link could touch anybody, so the check skipped the link energies
+    (``energy_J`` and ``margin_J`` are NaN; :meth:`PflShield.with_energies` fills them for
+    display)."""
 
     @property
     def class_names(self) -> tuple[str, ...]:
@@ -126,28 +138,31 @@ _WI2 = types.Array(types.int64, 2, "A")
 _WI1, _WI83 = types.Array(types.int64, 1, "A"), types.Array(types.int8, 3, "A")
 
 
-_I8 = types.int64
-
-
-@njit(_f8(_ROB3, _ROI3, _RO2, _RO2, _I8, _I8, _I8), cache=True, inline="always")
-def _threshold(
+@njit(types.void(_ROB3, _ROI3, _RO2, _RO2, _W3), cache=True)
+def _thresholds(
     stack: np.ndarray,
     cls: np.ndarray,
     T_clamp: np.ndarray,
     T_free: np.ndarray,
-    k: int,
-    i: int,
-    j: int,
-) -> float:
-    """Eq. 7's threshold of entry ``(k, i, j)``: constrained (``cls >= 2``) the smallest
-    ``T_clamp[i, m]`` over the stack ``m`` of part ``j``, else ``T_free[i, j]``."""
-    if cls[k, i, j] < 2:
-        return T_free[i, j]
-    t = np.inf
-    for m in range(stack.shape[2]):
-        if stack[k, j, m] and T_clamp[i, m] < t:
-            t = T_clamp[i, m]
-    return t
+    thr: np.ndarray,
+) -> None:
+    """Eq. 7's threshold ``thr (k, L, P)`` of every entry of a classification ``stack (k, P,
+    P)``, ``cls (k, L, P)``: constrained (``cls >= 2``) the smallest ``T_clamp[i, m]`` over the
+    stack ``m`` of part ``j``, else ``T_free[i, j]``. One pass filling an array, not a helper
+    per entry: a compiled call with array arguments costs ~20 ns (reference counting), which
+    made the verdict 4x slower."""
+    K, L, P = cls.shape
+    for k in range(K):
+        for i in range(L):
+            for j in range(P):
+                if cls[k, i, j] < 2:
+                    t = T_free[i, j]
+                else:
+                    t = np.inf
+                    for m in range(P):
+                        if stack[k, j, m] and T_clamp[i, m] < t:
+                            t = T_clamp[i, m]
+                thr[k, i, j] = t
 
 
 @njit(
@@ -174,6 +189,8 @@ def _merge_kernel(
     ``todo (2,)``: first and last interval with an unproved entry (-1, -1: none)."""
     k_n, L, P = cls.shape
     first, last = -1, -1
+    thr = np.empty((k_n, L, P))
+    _thresholds(stack, cls, T_clamp, T_free, thr)
     for kk in range(k_n):
         k = lo + kk
         ok_k = True
@@ -181,7 +198,7 @@ def _merge_kernel(
             for j in range(P):
                 if safe[k, i, j]:
                     continue
-                t = _threshold(stack, cls, T_clamp, T_free, kk, i, j)
+                t = thr[kk, i, j]
                 if not contact[kk, i, j] or t - E_int[k, i] > 0.0:
                     safe[k, i, j] = True
                     cls_m[k, i, j] = cls[kk, i, j]
@@ -252,14 +269,15 @@ def _verdict_kernel(
     energy: unsafe), ``safe_k``; per ``(k, i)`` the smallest threshold over the parts in contact
     (``allowed``, ``inf`` without contact) and its first part (``part``, -1 without contact)."""
     K, L, P = cls.shape
+    _thresholds(stack, cls, T_clamp, T_free, thr)
     for k in range(K):
         ok_k = True
         for i in range(L):
             best, arg = np.inf, 0
+            e = E_int[k, i]
             for j in range(P):
-                t = _threshold(stack, cls, T_clamp, T_free, k, i, j)
-                thr[k, i, j] = t
-                mg = t - E_int[k, i]
+                t = thr[k, i, j]
+                mg = t - e
                 margin[k, i, j] = mg
                 ok = not contact[k, i, j] or mg > 0.0
                 safe[k, i, j] = ok
@@ -406,6 +424,36 @@ class PflCheck:
         )  # fmt: skip
         return MergedCheck(self, robot, self._interval_energies(energy_J, K))
 
+    def merged_deferred(
+        self,
+        r_ends: np.ndarray,
+        r_radius: np.ndarray,
+        dt: np.ndarray,
+        T_world_box: np.ndarray,
+        half_extents_m: np.ndarray,
+        link_state: Callable[[], tuple[LinkSamples, np.ndarray, np.ndarray]],
+    ) -> MergedCheck:
+        """:meth:`merged` with the link states deferred: ``link_state()`` returns ``(samples,
+        eps_v, energy_J)`` and is called only when some human set may touch a link (a check
+        without a possible contact needs neither the energies nor the twists; its result has
+        ``energy_known`` False)."""
+        K = r_radius.shape[0] if np.ndim(r_radius) == 2 else -1
+        if np.shape(dt) != (K,):
+            raise InputError(f"dt has shape {np.shape(dt)}; expected ({K},)")
+        check = MergedCheck(self, None, None)
+
+        def motion() -> MotionArrays:
+            samples, eps_v, energy_J = link_state()
+            check.samples = samples
+            check.E_int = self._interval_energies(energy_J, K)
+            return samples.ends, self._s_radius, samples.p1_dot, samples.omega, eps_v
+
+        check.robot = self.classifier.robot_side_deferred(
+            r_ends, r_radius, motion, T_world_box, half_extents_m
+        )
+        check.todo = (0, K)
+        return check
+
     def eps_from_bounds(
         self,
         dt: np.ndarray,
@@ -422,7 +470,7 @@ class PflCheck:
         qddd = lim.j_max if qddd_bound is None else qddd_bound
         return self.velocity_error.eps_from_bounds(dt, qd_bound, qdd, qddd)
 
-    def _verdict(self, c: ContactResult, E_int: np.ndarray) -> PflResult:
+    def _verdict(self, c: ContactResult, E_int: np.ndarray, known: bool = True) -> PflResult:
         K, L, P = c.cls.shape
         thr, margin = np.empty((2, K, L, P))
         safe = np.empty((K, L, P), dtype=bool)
@@ -434,7 +482,7 @@ class PflCheck:
             thr, margin, safe, safe_k, allowed, part,
         )  # fmt: skip
         return PflResult(
-            safe, safe_k, bool(safe_k.all()), c.cls, thr, E_int, margin, c, allowed, part
+            safe, safe_k, bool(safe_k.all()), c.cls, thr, E_int, margin, c, allowed, part, known
         )
 
     def check_trajectory(
@@ -489,13 +537,18 @@ class MergedCheck:
     the highest threshold seen; ``contact`` is the first model's. The robot-only geometry is
     computed once for all models."""
 
-    def __init__(self, pfl: PflCheck, robot: RobotSide, E_int: np.ndarray) -> None:
-        self.pfl, self.robot, self.E_int = pfl, robot, E_int
+    def __init__(self, pfl: PflCheck, robot: RobotSide | None, E_int: np.ndarray | None) -> None:
+        self.pfl = pfl
+        self.robot = cast(RobotSide, robot)  # None only while merged_deferred builds it
+        self.E_int = E_int
+        """Interval energies ``(K, L)``; None while deferred and not needed yet."""
+        self.samples: LinkSamples | None = None
+        """The link samples of a deferred check once obtained."""
         self.first: PflResult | None = None
         self.models = 0
         self._cls: np.ndarray | None = None
         self._todo = np.empty(2, dtype=np.int64)
-        self.todo = (0, robot.K)
+        self.todo = (0, robot.K if robot is not None else 0)
         """Interval range ``lo:hi`` with unproved entries (``(K, K)``: every entry proved)."""
 
     def add(self, h_ends: np.ndarray, h_radius: np.ndarray) -> tuple[int, int]:
@@ -508,13 +561,18 @@ class MergedCheck:
         self.models += 1
         first = self.first
         if first is None:
-            first = self.first = self.pfl._verdict(c, self.E_int)
+            E = self.E_int
+            if E is None:  # deferred and no contact possible: the energies do not matter
+                E = np.full((self.robot.K, self.robot.L), np.nan)
+            first = self.first = self.pfl._verdict(c, E, self.E_int is not None)
             bad = np.flatnonzero(~first.safe_interval)
             K = self.robot.K
             self.todo = (int(bad[0]), int(bad[-1]) + 1) if bad.size else (K, K)
             return self.todo
         if self._cls is None:
             self._cls = first.cls.copy()
+        if self.E_int is None:  # unproved entries of the first model mean possible contact
+            raise InputError("a deferred check has unproved entries but no link energies")
         _merge_kernel(
             c.stack, c.cls, c.contact, self.pfl.T_clamp, self.pfl.T_free, self.E_int, lo,
             first.safe, self._cls, first.threshold_J, self._todo,
@@ -530,15 +588,16 @@ class MergedCheck:
             raise InputError("no human set was checked (add at least one model)")
         if self._cls is None:
             return f
+        E = cast(np.ndarray, self.E_int)  # known: a merge needs it (add)
         K, L, P = f.cls.shape
         margin = np.empty((K, L, P))
         safe_k = np.empty(K, dtype=bool)
         allowed = np.empty((K, L))
         part = np.empty((K, L), dtype=np.int64)
-        _summary_kernel(self._cls, f.threshold_J, self.E_int, f.safe, margin, safe_k, allowed,
+        _summary_kernel(self._cls, f.threshold_J, E, f.safe, margin, safe_k, allowed,
                         part)  # fmt: skip
         return PflResult(
-            f.safe, safe_k, bool(safe_k.all()), self._cls, f.threshold_J, self.E_int, margin,
+            f.safe, safe_k, bool(safe_k.all()), self._cls, f.threshold_J, E, margin,
             f.contact, allowed, part,
         )  # fmt: skip
 

@@ -64,7 +64,11 @@ seed 003's eq. 47-48 end values alone miss the speed peak inside the first fails
 Speed: the robot-only work of a check (link energies and twists, interval energies, link-link
 and link-box distances) is done once per checked trajectory and shared by the models
 (:class:`~sara_app.safety.pfl.MergedCheck`); each model adds its human-side distances, one
-compiled classification and one compiled merge over the intervals still unproved.
+compiled classification and one compiled merge over the intervals still unproved. The link
+energies and twists are obtained only when some human set may touch a link (the broad phase of
+the classification): a check without a possible contact verifies whatever the energies, which
+is most checks near a person that verify and every check with the person farther away; the
+dashboard gets them from :meth:`PflShield.with_energies`, outside the check.
 """
 
 from __future__ import annotations
@@ -72,7 +76,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -199,7 +203,10 @@ class PflShield(Shield):
         often proved by another model): the last one that completed such a check first."""
         self._model_order = self._orders[0]
         """The order the open check tries the models."""
-        self._open: tuple[MergedCheck, Humans, np.ndarray, np.ndarray] | None = None
+        self._open: tuple[MergedCheck, Humans, np.ndarray] | None = None
+        self._no_energy = np.zeros(robot.n_links)
+        """Link energies at the current state of a check that did not need them (no contact
+        possible, so the check verified: they are not used)."""
         self.pfl = PflCheck(robot, self._part_names, thresholds=ts, link_shapes=spec.link_shapes)
         self._checks: dict[int, PflCheck] = {1: self.pfl}
         self._check_for(2)  # ~10 ms each: built here, not in a control cycle (more: on use)
@@ -328,17 +335,21 @@ class PflShield(Shield):
         first_only: bool = False,
     ) -> tuple[PflResult, int, np.ndarray]:
         """Eq. 6-7 for the trajectory against every person, models merged per entry; also the
-        number of models evaluated and the link energies at the current state ``(L,)``.
+        number of models evaluated and the link energies at the current state ``(L,)`` (a view,
+        valid until the next check; zeros when no contact was possible, then unused).
         ``first_only``: stop after the first model even if it leaves entries unproved
         (:meth:`_finish_check` adds the others; a failed result is then conservative)."""
         with _inputs_checked():
             pfl = self._check_for(hum[0].shape[0])
-            smp, energy = self._link_energies(traj)
-            E0 = smp.energy_J[0].copy()
             dt = np.diff(traj.times)
-            eps = self.pfl.eps_from_bounds(dt, traj.v_bound, traj.a_bound)
-            check = pfl.merged(ends, radius, smp, dt, eps, *self.boxes, energy)
-            self._open = (check, hum, traj.times, E0)
+
+            def link_state() -> tuple[LinkSamples, np.ndarray, np.ndarray]:
+                smp, energy = self._link_energies(traj)
+                return smp, self.pfl.eps_from_bounds(dt, traj.v_bound, traj.a_bound), energy
+
+            # the link energies and twists only when some human set may touch a link
+            check = pfl.merged_deferred(ends, radius, dt, *self.boxes, link_state)
+            self._open = (check, hum, traj.times)
             return self._add_models(first_only)
 
     def _finish_check(self) -> tuple[PflResult, int, np.ndarray]:
@@ -351,7 +362,7 @@ class PflShield(Shield):
         model that completes it moves to the front) or, with ``first_only``, after one."""
         if self._open is None:
             raise InputError("no PFL check is open (call _verify first)")
-        check, hum, times, E0 = self._open
+        check, hum, times = self._open
         order = self._model_order
         for i in range(check.models, len(order)):
             lo, hi = check.todo
@@ -363,6 +374,7 @@ class PflShield(Shield):
                 break
             if first_only:
                 break
+        E0 = check.samples.energy_J[0] if check.samples is not None else self._no_energy
         return check.result(), check.models, E0
 
     def _link_energies(self, traj: ShieldedTrajectory) -> tuple[LinkSamples, np.ndarray]:
@@ -400,6 +412,21 @@ class PflShield(Shield):
             h_ends[:, h * P : (h + 1) * P] = e[:, pm]
             h_radius[:, h * P : (h + 1) * P] = r[:, pm]
         return h_ends, h_radius
+
+    def with_energies(self, result: PflResult, traj: ShieldedTrajectory) -> PflResult:
+        """``result`` with the link energies over ``traj``, the trajectory it checked, where the
+        check skipped them (no link could touch anybody): for the display, outside the
+        check. Raises :class:`InputError` when ``traj`` does not match the result."""
+        if result.energy_known:
+            return result
+        with _inputs_checked():
+            _, E = self._link_energies(traj)
+        if E.shape != result.energy_J.shape:
+            raise InputError(
+                f"trajectory energies {E.shape} do not match the PFL result {result.energy_J.shape}"
+            )
+        margin = result.threshold_J - E[:, :, None]
+        return replace(result, energy_J=E, margin_J=margin, energy_known=True)
 
     def _annotate(self, out: CycleResult, res: Any) -> None:
         if not isinstance(res, PflCycle):
