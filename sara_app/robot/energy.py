@@ -5,7 +5,8 @@ contact with it can transfer is (eq. 46)::
 
     T_i(q, q_dot) = 1/2 q_dot^T E_i B(q) E_i q_dot,
 
-``B`` the joint-space inertia matrix (``pin.crba``) and ``E_i`` the diagonal 0/1 matrix that keeps
+``B`` the joint-space inertia matrix (``pin.crba``; here the compiled CRBA of
+:mod:`sara_app.robot.crba_kernel`) and ``E_i`` the diagonal 0/1 matrix that keeps
 the joints supporting joint ``m`` (for a serial chain the joints ``1..m``). The base link has
 ``T = 0``; the last link's ``T`` is the robot's whole kinetic energy ``1/2 q_dot^T B q_dot``.
 Eq. 47-48 take the larger energy at the two ends of each interval (:func:`interval_energy_J`);
@@ -43,6 +44,7 @@ import pinocchio as pin
 from numba import njit, types
 
 from sara_app.errors import InputError
+from sara_app.robot.crba_kernel import CompiledCrba
 from sara_app.robot.model import RobotModel
 from sara_app.robot.occupancy import RobotOccupancy
 
@@ -309,6 +311,11 @@ class LinkMotion:
         self._iu = np.triu_indices(self.n_dof, 1)
         pm = model.pin_model
         self._v_index = np.array([pm.idx_vs[j] for j in range(1, pm.njoints)], dtype=np.int64)
+        crba = CompiledCrba(pm)
+        self._compiled_crba = crba if crba.supported else None
+        self.crba_backend = "compiled" if crba.supported else f"pin.crba loop ({crba.reason})"
+        """Which CRBA fills the inertia matrices: the compiled one (:mod:`crba_kernel`) or,
+        for a model it does not support, ``pin.crba`` per sample (with the reason)."""
         self._cap = 0
         self._grow(16)
         self._clean = np.zeros(0, dtype=bool)
@@ -349,6 +356,18 @@ class LinkMotion:
         return self._clean[:S]
 
     def _crba(self, Q: np.ndarray) -> np.ndarray:
+        """Inertia matrices ``(S, n, n)`` at ``Q (S, n)`` float64 into the buffer (a view; at
+        least the upper triangle filled): the compiled CRBA (both triangles), or ``pin.crba``
+        per sample for a model the compiled one does not support (:attr:`crba_backend`)."""
+        S = Q.shape[0]
+        self._grow(S)
+        M = self._M[:S]
+        if self._compiled_crba is None:
+            return self._crba_pinocchio(Q)
+        self._compiled_crba.compute(Q, M)
+        return M
+
+    def _crba_pinocchio(self, Q: np.ndarray) -> np.ndarray:
         """``pin.crba`` per sample into the buffer: ``(S, n, n)``, upper triangle filled."""
         self._grow(Q.shape[0])
         pm, d, M = self.model.pin_model, self._data, self._M
@@ -357,10 +376,15 @@ class LinkMotion:
         return M[: Q.shape[0]]
 
     def mass_matrices(self, q: np.ndarray) -> np.ndarray:
-        """``(S, n, n)`` inertia matrices ``B(q)`` (a buffer view) from ``pin.crba``."""
-        M = self._crba(np.asarray(q, dtype=float))
-        iu, ju = self._iu
-        M[:, ju, iu] = M[:, iu, ju]  # crba fills the upper triangle
+        """``(S, n, n)`` inertia matrices ``B(q)`` (a buffer view) at ``q (S, n)``; a
+        non-finite ``q`` row gives non-finite entries (no exception)."""
+        Q = np.asarray(q, dtype=np.float64)
+        if Q.ndim != 2 or Q.shape[1] != self.n_dof:
+            raise InputError(f"q has shape {Q.shape}; expected (S, {self.n_dof}) joint positions")
+        M = self._crba(Q)
+        if self._compiled_crba is None:
+            iu, ju = self._iu
+            M[:, ju, iu] = M[:, iu, ju]  # pin.crba fills the upper triangle
         return M
 
     def energies(self, q: np.ndarray, q_dot: np.ndarray, M: np.ndarray | None = None) -> np.ndarray:
@@ -397,7 +421,7 @@ class LinkMotion:
         ends: np.ndarray | None,
         scale: np.ndarray | None = None,
     ) -> LinkSamples:
-        """One ``pin.crba`` per sample (unless ``M`` is given), then one compiled pass
+        """The inertia matrices (:meth:`_crba`, unless ``M`` is given), then one compiled pass
         (:func:`_energy_twist_kernel`) over the vectorised kinematics of
         :class:`RobotOccupancy` for the energies and twists."""
         Q, V, bad = self._inputs(q, q_dot)
@@ -429,3 +453,20 @@ class LinkMotion:
             self._v_index, np.asarray(ends, dtype=np.float64), bad, G, T, pd, w,
         )  # fmt: skip
         return LinkSamples(T, ends, pd, w, G)
+
+
+def bench_rows(n: int = 2000) -> list[tuple[str, float, float, str]]:
+    """Inertia matrices of the Panda at 10 samples: ``pin.crba`` loop vs the compiled CRBA."""
+    from sara_app.bench import timeit_us
+    from sara_app.robot.model import load_robot
+
+    model = load_robot("panda")
+    motion = LinkMotion(model)
+    lim = model.limits
+    Q = np.random.default_rng(0).uniform(lim.q_min, lim.q_max, (10, model.n_dof))
+    med0, p990 = timeit_us(lambda: motion._crba_pinocchio(Q), n)
+    med1, p991 = timeit_us(lambda: motion._crba(Q), n)
+    return [
+        ("energy: inertia matrices, pin.crba loop (S=10)", med0, p990, "panda"),
+        ("energy: inertia matrices, _crba (S=10)", med1, p991, f"panda, {motion.crba_backend}"),
+    ]
