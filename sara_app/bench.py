@@ -67,6 +67,7 @@ def bench_reach(n: int = 2000) -> list[tuple[str, float, float, str]]:
 # modules with a ``bench_rows(n)`` of their own, in print order
 STAGE_MODULES = (
     "sara_app.safety.bench_shield",
+    "sara_app.robot.energy",
     "sara_app.safety.pfl",
     "sara_app.safety.pfl_shield",
     "sara_app.safety.jssa",
