@@ -51,6 +51,7 @@ with ``dq_j/ds`` monotone on every piece (exact maximum from the ends and the pi
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 
 import numpy as np
 from numba import njit, types
@@ -108,7 +109,7 @@ class StopProfile:
         self.A = A
         self.J = J
         self.duration_s = profile.duration
-        self.s_start = profile.start[0]
+        self.s_start = profile.sb_l[0]
         self.s_end = profile.end[0]
 
     def path_samples(self, times: object) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -158,7 +159,7 @@ def _entry_bounds(prof: ScalarProfile, b: float, t_pk: float, vp: float) -> tupl
     s, v, a = prof.start
     t0 = 0.0
     j = 0.0
-    for T, j in zip(prof.durs, prof.jerks, strict=True):
+    for T, j in zip(prof.durs, prof.jerks):
         s1 = s + T * (v + T * (0.5 * a + T * j / 6.0))
         if s1 >= b:
             break
@@ -186,8 +187,9 @@ def _entry_bounds(prof: ScalarProfile, b: float, t_pk: float, vp: float) -> tupl
     t_in = t0 + tau
     w = vp if t_in < t_pk else v + tau * (a + 0.5 * tau * j)
     am = abs(a + tau * j)
-    for x, tb in zip(prof.ab_l[1:], prof.tb_l[1:], strict=True):
-        if tb >= t_in and abs(x) > am:
+    tbs = prof.tb_l
+    for i, x in enumerate(prof.ab_l):
+        if i and tbs[i] >= t_in and abs(x) > am:
             am = abs(x)
     return w, am
 
@@ -215,10 +217,20 @@ def _check_candidate(
         vp = v0 + a0 * a0 / (2.0 * J)
     else:
         t_pk, vp = 0.0, v0
-    amax0 = max(abs(x) for x in prof.ab_l)
-    k0 = path.piece_index(s)
-    k1 = path.piece_index(min(s_end, S))
+    # below, "if x > m: m = x" is max(m, x) and "if x < m: m = x" min(m, x), NaN included
+    ab = prof.ab_l
+    amax0 = abs(ab[0])
+    for x in ab:
+        x = abs(x)
+        if x > amax0:
+            amax0 = x
     starts = path._s0_list
+    k0 = bisect_right(starts, s) - 1  # path.piece_index
+    k1 = bisect_right(starts, S if S < s_end else s_end) - 1
+    if k0 < 0:
+        k0 = 0
+    if k1 < 0:
+        k1 = 0
     ok = True
     A2 = J2 = math.inf
     for k in range(k0, k1 + 1):
@@ -236,8 +248,10 @@ def _check_candidate(
             return None, -1.0, -1.0
         if am > Ak:
             ok = False
-        A2 = min(A2, Ak)
-        J2 = min(J2, Jk)
+        if Ak < A2:
+            A2 = Ak
+        if Jk < J2:
+            J2 = Jk
     ok = ok and J <= J2
     return (prof if ok else None), A2, J2
 
@@ -258,25 +272,38 @@ def plan_stop(
     past the end of the path). ``hint``: extra ``(A, J)`` path limits to try.
     """
     tab = path_tables(path, limits)
-    s = _finite("s", s)
-    v0 = _finite("sd", sd)
-    a0 = _finite("sdd", sdd)
+    return _plan_stop(path, tab, _finite("s", s), _finite("sd", sd), _finite("sdd", sdd), hint)
+
+
+def _plan_stop(
+    path: PathTrajectory,
+    tab: PathTables,
+    s: float,
+    v0: float,
+    a0: float,
+    hint: tuple[float, float] | None,
+) -> StopProfile:
+    """:func:`plan_stop` from a finite float state ``(s, s', s'')`` and the path's tables."""
     S = path.length
     if s < -S_TOL or s > S + S_TOL:
         raise RobotModelError(f"s = {s!r} rad; expected a path coordinate in [0, {S:.6g}]")
     if v0 < -1e-12:
         raise RobotModelError(f"sd = {v0!r} rad/s; expected a path speed >= 0")
-    s = min(max(s, 0.0), S)
-    v0 = max(v0, 0.0)
+    # "0.0 if 0.0 > x else x" is max(x, 0.0) and "S if S < x else x" min(x, S), NaN included
+    s = 0.0 if 0.0 > s else s
+    s = S if S < s else s
+    v0 = 0.0 if 0.0 > v0 else v0
     if v0 <= REST_V and abs(a0) <= REST_A:
         return rest_stop(path, s)
     if path.n_pieces == 0:
         raise RobotModelError(f"path of length 0 cannot move at sd = {v0!r}, sdd = {a0!r}")
     # first candidate: the exact limits of the current piece at the speed the stop can reach
-    k0 = path.piece_index(s)
-    w = v0 + max(a0, 0.0) ** 2 / (2.0 * tab.j_lin[k0])
+    k0 = bisect_right(path._s0_list, s) - 1  # path.piece_index
+    k0 = 0 if k0 < 0 else k0
+    w = v0 + (0.0 if 0.0 > a0 else a0) ** 2 / (2.0 * tab.j_lin[k0])
     A, _ = piece_room(tab, k0, w, 0.0)
-    _, J = piece_room(tab, k0, w, max(A, abs(a0)))
+    aa = abs(a0)
+    _, J = piece_room(tab, k0, w, aa if aa > A else A)
     shrink = 1.0 - LIMIT_MARGIN
     A *= shrink
     J *= shrink

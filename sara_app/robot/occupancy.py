@@ -380,11 +380,15 @@ class RobotOccupancy:
         """
         if bound not in ("lipschitz", "local"):
             raise ParameterError(f"bound = {bound!r}; valid choices: lipschitz, local")
-        Q, V, T = (np.asarray(a, dtype=float) for a in (q, qd_bound, t))
+        Q = np.asarray(q, dtype=float)
+        V = np.asarray(qd_bound, dtype=float)
+        T = np.asarray(t, dtype=float)
         S = Q.shape[0] if Q.ndim == 2 else 0
-        if S < 2 or Q.shape[1] != self.n_dof or V.shape != (S - 1, self.n_dof) or T.shape != (S,):
+        n = self.n_dof
+        if S < 2 or Q.shape[1] != n or V.shape != (S - 1, n) or T.shape != (S,):
             self._check(Q, V, T)  # raises with the shape that is wrong
-        self._ensure_capacity(S)
+        if S > self._capacity:
+            self._ensure_capacity(S)
         self._n_sampled = 0
         H, E = self._H[:S], self._E[:S]
         ends = np.empty((S - 1, self.n_links, 2, 3))
@@ -419,14 +423,18 @@ class RobotOccupancy:
         """:meth:`intervals` of a sampled trajectory object with arrays ``times (K+1,)``,
         ``q (K+1, n)`` and ``v_bound (K, n)`` (e.g. ``sara_app.robot.shielded.ShieldedTrajectory``,
         whose ``v_bound`` is a rigorous per-interval bound on ``|q_dot|``)."""
-        missing = [a for a in ("times", "q", "v_bound") if not hasattr(trajectory, a)]
-        if missing:
+        traj = cast(Any, trajectory)
+        try:
+            q, v_bound, times = traj.q, traj.v_bound, traj.times
+        except AttributeError:
+            missing = [a for a in ("times", "q", "v_bound") if not hasattr(trajectory, a)]
+            if not missing:
+                raise
             raise InputError(
                 f"trajectory {type(trajectory).__name__} has no {', '.join(missing)}; expected "
                 "arrays times (K+1,), q (K+1, n) and v_bound (K, n)"
-            )
-        traj = cast(Any, trajectory)
-        return self.intervals(traj.q, traj.v_bound, traj.times, bound=bound)
+            ) from None
+        return self.intervals(q, v_bound, times, bound=bound)
 
     def swept(
         self,

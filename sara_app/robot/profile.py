@@ -34,33 +34,50 @@ def velocity_phases(
     d = 1.0 if dv > 0.0 else -1.0
     ap = d * a0
     dv_total = d * (vt - v0)
+    # phases of positive duration only, jerks signed by d (a zero jerk keeps the sign of d)
     if ap > A:
+        t1 = (ap - A) / J
         hold = (dv_total - ap * ap / two_j) / A
-        durs = [(ap - A) / J, max(hold, 0.0), A / J]
-        jerks = [-J, 0.0, -J]
-    else:
-        p = math.sqrt(max(J * dv_total + 0.5 * ap * ap, 0.0))
-        if p <= A:
-            durs = [(p - ap) / J, p / J]
-            jerks = [J, -J]
-        else:
-            hold = (dv_total - (2.0 * A * A - ap * ap) / two_j) / A
-            durs = [(A - ap) / J, max(hold, 0.0), A / J]
-            jerks = [J, 0.0, -J]
-    out_d: list[float] = []
-    out_j: list[float] = []
-    for t, j in zip(durs, jerks, strict=True):
-        if t > 0.0:
-            out_d.append(t)
-            out_j.append(d * j)
-    return out_d, out_j
+        return _three(t1, hold, A / J, -J, -J, d)
+    p2 = J * dv_total + 0.5 * ap * ap
+    p = math.sqrt(0.0 if 0.0 > p2 else p2)  # max(p2, 0.0), NaN kept
+    if p <= A:
+        t1 = (p - ap) / J
+        t2 = p / J
+        if t1 > 0.0:
+            if t2 > 0.0:
+                return [t1, t2], [d * J, d * -J]
+            return [t1], [d * J]
+        if t2 > 0.0:
+            return [t2], [d * -J]
+        return [], []
+    hold = (dv_total - (2.0 * A * A - ap * ap) / two_j) / A
+    return _three((A - ap) / J, hold, A / J, J, -J, d)
+
+
+def _three(
+    t1: float, hold: float, t3: float, j1: float, j3: float, d: float
+) -> tuple[list[float], list[float]]:
+    """Phases ``(t1, j1), (hold, 0), (t3, j3)`` of positive duration, jerks times ``d``."""
+    durs: list[float] = []
+    jerks: list[float] = []
+    if t1 > 0.0:
+        durs.append(t1)
+        jerks.append(d * j1)
+    if hold > 0.0:  # max(hold, 0.0) > 0.0
+        durs.append(hold)
+        jerks.append(d * 0.0)
+    if t3 > 0.0:
+        durs.append(t3)
+        jerks.append(d * j3)
+    return durs, jerks
 
 
 def phases_end(
     s: float, v: float, a: float, durs: list[float], jerks: list[float]
 ) -> tuple[float, float, float]:
     """State ``(s, v, a)`` at the end of the phases."""
-    for t, j in zip(durs, jerks, strict=True):
+    for t, j in zip(durs, jerks):
         s += t * (v + t * (0.5 * a + t * j / 6.0))
         v += t * (a + 0.5 * t * j)
         a += t * j
@@ -71,7 +88,7 @@ def phases_at(
     s: float, v: float, a: float, durs: list[float], jerks: list[float], t: float
 ) -> tuple[float, float, float]:
     """State at time ``t`` (after the last phase the motion goes on with zero jerk)."""
-    for T, j in zip(durs, jerks, strict=True):
+    for T, j in zip(durs, jerks):
         if t <= T:
             return (
                 s + t * (v + t * (0.5 * a + t * j / 6.0)),
@@ -90,16 +107,23 @@ def phase_maxima(
 ) -> tuple[float, float, float]:
     """Exact ``max s'``, ``max |s''|``, ``max |jerk|`` over the phases from ``(v, a)``."""
     vmax, amax, jmax = v, abs(a), 0.0
-    for T, j in zip(durs, jerks, strict=True):
+    for T, j in zip(durs, jerks):  # "if x > m: m = x" is max(m, x), NaN handling included
         if j != 0.0:
             tau = -a / j
             if 0.0 < tau < T:
-                vmax = max(vmax, v + tau * (a + 0.5 * tau * j))
-            jmax = max(jmax, abs(j))
+                x = v + tau * (a + 0.5 * tau * j)
+                if x > vmax:
+                    vmax = x
+            x = abs(j)
+            if x > jmax:
+                jmax = x
         v += T * (a + 0.5 * T * j)
         a += T * j
-        vmax = max(vmax, v)
-        amax = max(amax, abs(a))
+        if v > vmax:
+            vmax = v
+        x = abs(a)
+        if x > amax:
+            amax = x
     return vmax, amax, jmax
 
 
@@ -108,7 +132,7 @@ def cut_phases(durs: list[float], jerks: list[float], t: float) -> tuple[list[fl
     out_d: list[float] = []
     out_j: list[float] = []
     rest = t
-    for T, j in zip(durs, jerks, strict=True):
+    for T, j in zip(durs, jerks):
         if rest <= 0.0:
             break
         take = T if T < rest else rest
@@ -125,21 +149,27 @@ class ScalarProfile:
     """Piecewise-constant-jerk motion of a scalar ``s(t)``, ``t >= 0``, from ``(s0, v0, a0)``.
 
     Phase ``i`` runs over ``[tb[i], tb[i+1]]`` with jerk ``jerk[i]``; ``sb, vb, ab`` are the
-    states at the breaks. After the last phase the motion continues with zero jerk (for a stop
-    that is rest). Evaluation is vectorised over times.
+    states at the breaks; ``start``, ``end``: ``(s, s', s'')`` at 0 and at ``duration``. After
+    the last phase the motion continues with zero jerk (for a stop that is rest). Evaluation is
+    vectorised over times.
     """
 
-    __slots__ = ("durs", "jerks", "tb_l", "sb_l", "vb_l", "ab_l", "duration", "end", "_np")
+    __slots__ = (
+        "durs", "jerks", "tb_l", "sb_l", "vb_l", "ab_l", "duration", "start", "end", "_np",
+    )  # fmt: skip
 
     def __init__(
         self, s0: float, v0: float, a0: float, durs: list[float], jerks: list[float]
     ) -> None:
-        self.durs = list(durs)
-        self.jerks = list(jerks)
+        self.durs = durs = list(durs)
+        self.jerks = jerks = list(jerks)
+        if len(durs) != len(jerks):
+            raise ValueError(f"{len(durs)} phase durations but {len(jerks)} jerks")
+        self.start = (s0, v0, a0)
         tb = [0.0]
         sb, vb, ab = [s0], [v0], [a0]
         s, v, a, t = s0, v0, a0, 0.0
-        for T, j in zip(durs, jerks, strict=True):
+        for T, j in zip(durs, jerks):
             s += T * (v + T * (0.5 * a + T * j / 6.0))
             v += T * (a + 0.5 * T * j)
             a += T * j
@@ -186,10 +216,6 @@ class ScalarProfile:
         """Jerk per phase, plus 0 after the end ``(P+1,)``."""
         return self._arrays()[4]
 
-    @property
-    def start(self) -> tuple[float, float, float]:
-        return self.sb_l[0], self.vb_l[0], self.ab_l[0]
-
     def state_at(self, t: float) -> tuple[float, float, float]:
         s0, v0, a0 = self.start
         return phases_at(s0, v0, a0, self.durs, self.jerks, t)
@@ -213,7 +239,7 @@ class ScalarProfile:
         durs: list[float] = []
         jerks: list[float] = []
         acc = 0.0
-        for T, j in zip(self.durs, self.jerks, strict=True):
+        for T, j in zip(self.durs, self.jerks):
             start, acc = acc, acc + T
             if acc > t0:
                 durs.append(acc - max(start, t0))

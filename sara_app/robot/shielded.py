@@ -38,13 +38,14 @@ def _samples(path: PathTrajectory, step: FollowerStep, m: int) -> _Samples:
     joint = np.empty((5, K + 1, n))
     bounds = np.empty((2, K, n))
     sd_max = np.empty(K)
-    p_s0, p_len, poly, M1, M2, qs = path.piece_tables
+    phases = np.array((head.durs + stop.durs, head.jerks + stop.jerks))  # (2, P)
+    p_s0, p_len, poly, M1, M2, qs = path._piece_tables  # path.piece_tables: n_pieces >= 1
     shielded_samples_kernel(
-        step.dt, stop.duration, s0, v0, a0, np.array(head.durs + stop.durs),
-        np.array(head.jerks + stop.jerks), p_s0, p_len, poly, M1, M2, qs, BOUND_PAD, times,
-        ps, joint, bounds, sd_max,
+        step.dt, stop.duration, s0, v0, a0, phases[0], phases[1], p_s0, p_len, poly, M1, M2,
+        qs, BOUND_PAD, times, ps, joint, bounds, sd_max,
     )  # fmt: skip
-    return times, tuple(ps), joint[0], joint[1], joint[3], joint[4], bounds[0], bounds[1], sd_max
+    s, sd, sdd = ps
+    return times, (s, sd, sdd), joint[0], joint[1], joint[3], joint[4], bounds[0], bounds[1], sd_max
 
 
 def _samples_reference(path: PathTrajectory, step: FollowerStep, m: int) -> _Samples:
@@ -126,19 +127,11 @@ def shielded_trajectory(
         m = n_intervals if T > 0 else 0
     samples = _samples_reference if reference or not follower.path.n_pieces else _samples
     times, (s, sd, sdd), q, dq, v, a, v_bound, a_bound, sd_max = samples(follower.path, step, m)
-    return ShieldedTrajectory(
-        times=times,
-        q=q,
-        v=v,
-        a=a,
-        s=s,
-        sd=sd,
-        sdd=sdd,
-        failsafe_index=1,
-        v_bound=v_bound,
-        a_bound=a_bound,
-        dq=dq,
-        sd_max=sd_max,
-        step=step,
-        stop=stop,
-    )
+    # ShieldedTrajectory(...) with the fields set at once instead of one frozen-dataclass
+    # __setattr__ each (the same object, a third of the cost)
+    traj = object.__new__(ShieldedTrajectory)
+    traj.__dict__.update(
+        times=times, q=q, v=v, a=a, s=s, sd=sd, sdd=sdd, failsafe_index=1, v_bound=v_bound,
+        a_bound=a_bound, dq=dq, sd_max=sd_max, step=step, stop=stop,
+    )  # fmt: skip
+    return traj

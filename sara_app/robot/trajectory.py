@@ -34,6 +34,7 @@ scalar jerk-limited profiles in :mod:`sara_app.robot.profile`.
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -49,7 +50,7 @@ from sara_app.robot.joints import (
     limit_arrays,
 )
 from sara_app.robot.model import JointLimits
-from sara_app.robot.path import PathTrajectory, piece_boxes
+from sara_app.robot.path import PathTables, PathTrajectory, path_tables, piece_boxes
 from sara_app.robot.profile import (
     ScalarProfile,
     cut_phases,
@@ -83,6 +84,21 @@ class FollowerStep:
     fallback: bool
 
 
+def _follower_step(
+    dt: float,
+    path: PathTrajectory,
+    profile: ScalarProfile,
+    end: tuple[float, float, float],
+    stop: StopProfile,
+    fallback: bool,
+) -> FollowerStep:
+    """``FollowerStep(dt, path, profile, end, stop, fallback)``, the fields set at once instead
+    of one frozen-dataclass ``__setattr__`` each (the same object, a third of the cost)."""
+    step = object.__new__(FollowerStep)
+    step.__dict__.update(dt=dt, path=path, profile=profile, end=end, stop=stop, fallback=fallback)
+    return step
+
+
 class PathFollower:
     """Online jerk-limited follower of a :class:`PathTrajectory` under :class:`JointLimits`.
 
@@ -100,9 +116,9 @@ class PathFollower:
         blend_distance: float = 0.1,
         tangential_share: float = 0.5,
     ) -> None:
-        from sara_app.robot.failsafe import plan_stop, rest_stop
+        from sara_app.robot.failsafe import _plan_stop, rest_stop
 
-        self._plan_stop = plan_stop
+        self._plan_stop = _plan_stop
         self._rest_stop = rest_stop
         if not (0.0 < tangential_share < 1.0):
             raise RobotModelError(
@@ -136,6 +152,10 @@ class PathFollower:
         self.path = path
         self._S = path.length
         self._s, self._v, self._a = s, v, a
+        # per-path constants of the planning hot path
+        self._n_pieces = path.n_pieces
+        self._starts = path._s0_list
+        self._tab: PathTables = path_tables(path, self.limits)
         if path.n_pieces:
             V, A, J = piece_boxes(path, self._lim, self.tangential_share)
             self._V = [float(x) for x in V]
@@ -144,6 +164,7 @@ class PathFollower:
             self._A_min = min(self._A)
             self._A_top = max(self._A)
             self._J_min = min(self._J)
+            self._ramp_c = 2.0 * self._A_top / self._J_min  # of the look-ahead in _intended
             # smallest box from each piece to the end of the path
             self._A_tail = np.minimum.accumulate(A[::-1])[::-1].tolist()
             self._J_tail = np.minimum.accumulate(J[::-1])[::-1].tolist()
@@ -190,6 +211,9 @@ class PathFollower:
 
     @speed_cap.setter
     def speed_cap(self, cap: float) -> None:
+        if type(cap) is float and cap >= 0.0:  # the common case, as below
+            self._cap = cap
+            return
         try:
             c = float(cap)
         except (TypeError, ValueError):
@@ -259,33 +283,52 @@ class PathFollower:
 
     def _intended(self, dt: float) -> tuple[list[float], list[float], float, float]:
         """Phases of the intended motion from the current state, and the path limits used."""
+        # (min and max spelt "b if b < a else a" and "b if b > a else a": the same values,
+        # NaN included, without the calls; bisect_right(starts, x) - 1 is path.piece_index)
         s, v, a = self._s, self._v, self._a
         S = self._S
         A_box, J_box, V_box = self._A, self._J, self._V
-        k0 = self.path.piece_index(s)
+        starts = self._starts
+        k0 = bisect_right(starts, s) - 1
+        k0 = 0 if k0 < 0 else k0
         # look-ahead: any stop from here with the smallest box of the path, and a shorter
         # window in which an acceleration must already fit the box (time to ramp it down)
-        Ag, Jg = self._A_min, self._J_min
-        d, j = velocity_phases(v, a, 0.0, Ag, Jg) if v > 0 or a != 0 else ([], [])
-        reach = max(phases_end(0.0, v, a, d, j)[0], 0.0) if d else 0.0
-        ramp = (abs(v) + abs(a) * dt) * (2.0 * self._A_top / Jg + 2.0 * dt)
-        kr = self.path.piece_index(min(s + ramp + S_TOL, S))
-        kw = self.path.piece_index(min(s + reach + ramp + S_TOL, S))
-        A_f = min(A_box[k0 : kr + 1])
-        J_f = min(J_box[k0 : kr + 1])
+        if v > 0 or a != 0:
+            d, j = velocity_phases(v, a, 0.0, self._A_min, self._J_min)
+            reach = phases_end(0.0, v, a, d, j)[0] if d else 0.0
+            reach = 0.0 if 0.0 > reach else reach
+        else:
+            reach = 0.0
+        ramp = (abs(v) + abs(a) * dt) * (self._ramp_c + 2.0 * dt)
+        x = s + ramp + S_TOL
+        kr = bisect_right(starts, S if S < x else x) - 1
+        x = s + reach + ramp + S_TOL
+        kw = bisect_right(starts, S if S < x else x) - 1
+        kr = 0 if kr < 0 else kr
+        kw = 0 if kw < 0 else kw
+        if kr == k0:
+            A_f, J_f = A_box[k0], J_box[k0]
+        else:
+            A_f, J_f = min(A_box[k0 : kr + 1]), min(J_box[k0 : kr + 1])
         cap = self._cap
-        base = velocity_phases(v, a, min(V_box[k0], cap), A_f, J_f)
+        x = V_box[k0]
+        base = velocity_phases(v, a, cap if cap < x else x, A_f, J_f)
         s1, v1, a1 = phases_at(s, v, a, base[0], base[1], dt)
         # constraints ahead: reach the admissible speed of every slower piece by its start,
         # braking within the boxes of the pieces up to it; standstill at the end of the path
         cons: list[tuple[float, float, float, float]] = []
-        A_run, J_run = A_f, J_f
-        for k in range(k0 + 1, kw + 1):
-            A_run = min(A_run, A_box[k])
-            J_run = min(J_run, J_box[k])
-            V_k = min(V_box[k], cap)
-            if V_k < v1 + max(a1, 0.0) ** 2 / (2.0 * J_run):
-                cons.append((self._path_s0(k), V_k, A_run, J_run))
+        if kw > k0:
+            A_run, J_run = A_f, J_f
+            a1_sq = (0.0 if 0.0 > a1 else a1) ** 2
+            for k in range(k0 + 1, kw + 1):
+                x = A_box[k]
+                A_run = x if x < A_run else A_run
+                x = J_box[k]
+                J_run = x if x < J_run else J_run
+                x = V_box[k]
+                V_k = cap if cap < x else x
+                if V_k < v1 + a1_sq / (2.0 * J_run):
+                    cons.append((starts[k], V_k, A_run, J_run))
         if S - s <= reach + ramp + S_TOL:
             cons.append((S, 0.0, min(A_f, self._A_tail[k0]), min(J_f, self._J_tail[k0])))
         # of the brakes needed now, the one that slows down most within this step satisfies
@@ -310,9 +353,16 @@ class PathFollower:
         """Joint limits hold over the step (rigorous: piece maxima and profile maxima, taken
         per piece over the part of the step spent in it)."""
         s0, v0, a0 = prof.start
-        k0, k1 = self.path.piece_index(s0), self.path.piece_index(s1)
+        starts = self._starts
+        k0 = bisect_right(starts, s0) - 1  # path.piece_index
+        k1 = bisect_right(starts, s1) - 1
+        k0 = 0 if k0 < 0 else k0
+        k1 = 0 if k1 < 0 else k1
         if k1 == k0:
-            return self._piece_ok(k0, *phase_maxima(v0, a0, prof.durs, prof.jerks))
+            vmax, amax, jmax = phase_maxima(v0, a0, prof.durs, prof.jerks)
+            if vmax <= self._V[k0] and amax <= self._A[k0] and jmax <= self._J[k0]:
+                return True  # _piece_ok's first test
+            return self._piece_ok(k0, vmax, amax, jmax)
         T = prof.duration
         t_in = 0.0
         for k in range(k0, k1 + 1):
@@ -353,33 +403,38 @@ class PathFollower:
 
     def peek(self, dt: float) -> FollowerStep:
         """Plan one control step of ``dt`` seconds without changing the follower."""
-        if not (isinstance(dt, int | float) and math.isfinite(dt) and dt > 0):
-            raise RobotModelError(f"dt = {dt!r} s; expected a finite time step > 0")
-        dt = float(dt)
+        if not (type(dt) is float and 0.0 < dt < math.inf):  # else the full check
+            if not (isinstance(dt, int | float) and math.isfinite(dt) and dt > 0):
+                raise RobotModelError(f"dt = {dt!r} s; expected a finite time step > 0")
+            dt = float(dt)
         s, v, a = self._s, self._v, self._a
-        if self.done or self.path.n_pieces == 0:
-            prof = ScalarProfile(s, 0.0, 0.0, [dt], [0.0])
-            return FollowerStep(dt, self.path, prof, (s, 0.0, 0.0), self._stop, False)
+        S = self._S
+        path = self.path
+        if (S - s <= S_TOL and v <= REST_V and abs(a) <= REST_A) or self._n_pieces == 0:
+            prof = ScalarProfile(s, 0.0, 0.0, [dt], [0.0])  # done (at rest at the end)
+            return _follower_step(dt, path, prof, (s, 0.0, 0.0), self._stop, False)
         durs, jerks, A_f, J_f = self._intended(dt)
         d, j = cut_phases(durs, jerks, dt)
         prof = ScalarProfile(s, v, a, d, j)
         s1, v1, a1 = prof.end
         if abs(v1) <= 1e-12 and abs(a1) <= 1e-9:
-            v1, a1 = max(v1, 0.0), 0.0
-        if self._S - s1 <= S_TOL and v1 <= REST_V:
-            s1 = min(s1, self._S)
-        if v1 >= 0.0 and s1 <= self._S + S_TOL and self._step_ok(prof, s1):
-            try:
-                stop = self._plan_stop(self.path, s1, v1, a1, self.limits, hint=(A_f, J_f))
-            except RobotModelError:
-                stop = None
-            if stop is not None:
-                return FollowerStep(dt, self.path, prof, (s1, v1, a1), stop, False)
+            v1, a1 = (0.0 if 0.0 > v1 else v1), 0.0
+        if S - s1 <= S_TOL and v1 <= REST_V:
+            s1 = S if S < s1 else s1
+        if v1 >= 0.0 and s1 <= S + S_TOL and self._step_ok(prof, s1):
+            # plan_stop without its input conversion (a non-finite state fails it: fallback)
+            if math.isfinite(s1) and math.isfinite(v1) and math.isfinite(a1):
+                try:
+                    stop = self._plan_stop(path, self._tab, s1, v1, a1, (A_f, J_f))
+                except RobotModelError:
+                    stop = None
+                if stop is not None:
+                    return _follower_step(dt, path, prof, (s1, v1, a1), stop, False)
         # fallback: the failsafe already held
         held = self._stop
         d, j = cut_phases(held.profile.durs, held.profile.jerks, dt)
         prof = ScalarProfile(s, v, a, d, j)
-        return FollowerStep(dt, self.path, prof, prof.end, held.advanced(dt), True)
+        return _follower_step(dt, path, prof, prof.end, held.advanced(dt), True)
 
     def commit(self, step: FollowerStep, at_end: JointState | None = None) -> JointState:
         """Apply a step from :meth:`peek` (of this follower, in its current state).
