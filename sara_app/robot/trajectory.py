@@ -42,6 +42,7 @@ import numpy as np
 
 from sara_app.errors import RobotModelError
 from sara_app.robot.joints import (
+    LIMIT_MARGIN,
     REST_A,
     REST_V,
     S_TOL,
@@ -51,6 +52,24 @@ from sara_app.robot.joints import (
 )
 from sara_app.robot.model import JointLimits
 from sara_app.robot.path import PathTables, PathTrajectory, path_tables, piece_boxes
+from sara_app.robot.planning_kernels import (
+    FALLBACK,
+    O_END,
+    O_HD,
+    O_HJ,
+    O_NH,
+    O_NS,
+    O_SA,
+    O_SD,
+    O_SJ,
+    O_SJERK,
+    O_SS,
+    O_SV,
+    OUT_LEN,
+    PC_COLS,
+    STEP_REST,
+    peek_kernel,
+)
 from sara_app.robot.profile import (
     ScalarProfile,
     cut_phases,
@@ -62,6 +81,11 @@ from sara_app.robot.profile import (
 
 if TYPE_CHECKING:
     from sara_app.robot.failsafe import StopProfile
+
+_CONSTS = np.array([S_TOL, REST_V, REST_A, LIMIT_MARGIN, 2.0, 3.0])
+"""The constants :func:`~sara_app.robot.planning_kernels.peek_kernel` reads (in the order of its
+``C_*`` indices; the exponents at run time, see that module)."""
+_CONSTS.flags.writeable = False
 
 __all__ = ["FollowerStep", "JointState", "PathFollower", "PathTrajectory", "time_scaling"]
 
@@ -116,10 +140,11 @@ class PathFollower:
         blend_distance: float = 0.1,
         tangential_share: float = 0.5,
     ) -> None:
-        from sara_app.robot.failsafe import _plan_stop, rest_stop
+        from sara_app.robot.failsafe import StopProfile, _plan_stop, rest_stop
 
         self._plan_stop = _plan_stop
         self._rest_stop = rest_stop
+        self._stop_profile = StopProfile
         if not (0.0 < tangential_share < 1.0):
             raise RobotModelError(
                 f"tangential_share = {tangential_share!r}; expected a fraction in (0, 1)"
@@ -168,9 +193,32 @@ class PathFollower:
             # smallest box from each piece to the end of the path
             self._A_tail = np.minimum.accumulate(A[::-1])[::-1].tolist()
             self._J_tail = np.minimum.accumulate(J[::-1])[::-1].tolist()
+            self._ktab = self._kernel_tables()
         else:
             self._V, self._A, self._J = [], [], []
         self._stop = stop if stop is not None else self._rest_stop(path, s)
+
+    def _kernel_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The path as :func:`~sara_app.robot.planning_kernels.peek_kernel` reads it: per piece
+        ``pc (P, PC_COLS)`` (start, boxes, tail boxes, straight-piece limits, blend
+        parameters), ``rows (P, n, 7)`` (the stop tables' per-joint rows) and ``geo (P, 2, n)``
+        (``u``, ``dl``); the values of the lists the Python methods read."""
+        path, tab = self.path, self._tab
+        p = path._p
+        if p is None:
+            raise RobotModelError("a path of one point has no pieces")
+        pc = np.empty((path.n_pieces, PC_COLS))
+        cols = (
+            path._s0_list, self._V, self._A, self._J, self._A_tail, self._J_tail, tab.lin,
+            tab.v_lin, tab.a_lin, tab.j_lin, path._x0_list, path._x1_list, path._invL_list,
+        )  # fmt: skip
+        for i, col in enumerate(cols):
+            pc[:, i] = col
+        rows = np.array(tab.rows, dtype=float).reshape(path.n_pieces, path.n_joints, 7)
+        geo = np.ascontiguousarray(np.stack([p.u, p.dl], axis=1), dtype=float)
+        for arr in (pc, rows, geo):
+            arr.flags.writeable = False
+        return pc, rows, geo
 
     @property
     def s(self) -> float:
@@ -401,8 +449,11 @@ class PathFollower:
             and np.all(M3 * vmax**3 + 3 * M2 * vmax * amax + M1 * jmax <= lim.j)
         )
 
-    def peek(self, dt: float) -> FollowerStep:
-        """Plan one control step of ``dt`` seconds without changing the follower."""
+    def peek(self, dt: float, *, reference: bool = False) -> FollowerStep:
+        """Plan one control step of ``dt`` seconds without changing the follower.
+
+        Planned by :func:`~sara_app.robot.planning_kernels.peek_kernel`; ``reference``: by the
+        Python methods instead (the same formulas; for tests)."""
         if not (type(dt) is float and 0.0 < dt < math.inf):  # else the full check
             if not (isinstance(dt, int | float) and math.isfinite(dt) and dt > 0):
                 raise RobotModelError(f"dt = {dt!r} s; expected a finite time step > 0")
@@ -413,6 +464,8 @@ class PathFollower:
         if (S - s <= S_TOL and v <= REST_V and abs(a) <= REST_A) or self._n_pieces == 0:
             prof = ScalarProfile(s, 0.0, 0.0, [dt], [0.0])  # done (at rest at the end)
             return _follower_step(dt, path, prof, (s, 0.0, 0.0), self._stop, False)
+        if not reference:
+            return self._peek_compiled(dt)
         durs, jerks, A_f, J_f = self._intended(dt)
         d, j = cut_phases(durs, jerks, dt)
         prof = ScalarProfile(s, v, a, d, j)
@@ -435,6 +488,34 @@ class PathFollower:
         d, j = cut_phases(held.profile.durs, held.profile.jerks, dt)
         prof = ScalarProfile(s, v, a, d, j)
         return _follower_step(dt, path, prof, prof.end, held.advanced(dt), True)
+
+    def _peek_compiled(self, dt: float) -> FollowerStep:
+        """:meth:`peek` of a follower that is not done, planned by the compiled kernel."""
+        s, v, a = self._s, self._v, self._a
+        path = self.path
+        out = np.empty(OUT_LEN)
+        status = peek_kernel(
+            s, v, a, dt, self._cap, self._S, self._A_min, self._J_min, self._ramp_c,
+            *self._ktab, _CONSTS, out,
+        )  # fmt: skip
+        o = out.tolist()
+        n = int(o[O_NH])
+        if status == FALLBACK:  # the failsafe already held
+            held = self._stop
+            d, j = cut_phases(held.profile.durs, held.profile.jerks, dt)
+            prof = ScalarProfile(s, v, a, d, j)
+            return _follower_step(dt, path, prof, prof.end, held.advanced(dt), True)
+        prof = ScalarProfile(s, v, a, o[O_HD : O_HD + n], o[O_HJ : O_HJ + n])
+        end = (o[O_END], o[O_END + 1], o[O_END + 2])
+        if status == STEP_REST:
+            stop = self._rest_stop(path, o[O_SS])
+        else:
+            m = int(o[O_NS])
+            d, j = o[O_SD : O_SD + m], o[O_SJ : O_SJ + m]
+            stop = self._stop_profile(
+                path, ScalarProfile(o[O_SS], o[O_SV], end[2], d, j), o[O_SA], o[O_SJERK]
+            )
+        return _follower_step(dt, path, prof, end, stop, False)
 
     def commit(self, step: FollowerStep, at_end: JointState | None = None) -> JointState:
         """Apply a step from :meth:`peek` (of this follower, in its current state).

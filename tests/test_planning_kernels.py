@@ -1,0 +1,163 @@
+"""The compiled step planning (``PathFollower.peek``, :mod:`sara_app.robot.planning_kernels`)
+equals the Python methods (``peek(dt, reference=True)``) bit for bit, on states reached by
+following random blended paths (speed caps, brakes before slower pieces and the path end,
+replans, steps across piece starts) and on arbitrary path states (fallbacks when no step or stop
+is valid); and the velocity-change phases both use keep their defining properties."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from panda_limits import PANDA
+
+from sara_app.robot import planning_kernels as pk
+from sara_app.robot.profile import phase_maxima, phases_end, velocity_phases
+from sara_app.robot.trajectory import _CONSTS, FollowerStep, PathFollower
+
+
+def _bits(x: object) -> object:
+    """Exact comparable form: floats by their hex digits (-0.0 and NaN payloads included)."""
+    if isinstance(x, float):
+        return x.hex()
+    if isinstance(x, list | tuple):
+        return [_bits(y) for y in x]
+    return x
+
+
+def _step_bits(st: FollowerStep) -> object:
+    p, sp = st.profile, st.stop.profile
+    return _bits(
+        [
+            st.dt, st.fallback, st.end, p.start, p.durs, p.jerks, p.tb_l, p.sb_l, p.vb_l, p.ab_l,
+            st.stop.A, st.stop.J, sp.start, sp.durs, sp.jerks, sp.ab_l, st.stop.duration_s,
+            st.stop.s_start, st.stop.s_end,
+        ]
+    )  # fmt: skip
+
+
+def _same(f: PathFollower, dt: float) -> FollowerStep:
+    fast, ref = f.peek(dt), f.peek(dt, reference=True)
+    assert _step_bits(fast) == _step_bits(ref), (f.s, f.sd, f.sdd, f.speed_cap, dt)
+    assert fast.path is ref.path is f.path
+    return fast
+
+
+def _follower(rng: np.random.Generator) -> PathFollower:
+    W = int(rng.integers(2, 6))
+    u = rng.uniform(0.15, 0.85, (W, 7))
+    wps = PANDA.q_min + (PANDA.q_max - PANDA.q_min) * u
+    return PathFollower(wps, PANDA, blend_distance=float(rng.uniform(0.01, 0.3)))
+
+
+class _Count:
+    def __init__(self) -> None:
+        self.fit_brake = self.crossings = self.fallbacks = self.rest = 0
+
+    def note(self, f: PathFollower, st: FollowerStep) -> None:
+        starts = f.path._s0_list
+        k0 = max(int(np.searchsorted(starts, f.s, side="right")) - 1, 0)
+        k1 = max(int(np.searchsorted(starts, st.end[0], side="right")) - 1, 0)
+        self.crossings += k1 != k0
+        self.fallbacks += st.fallback
+        self.rest += (not st.fallback) and st.stop.duration_s == 0.0
+
+
+@pytest.fixture
+def count(monkeypatch: pytest.MonkeyPatch) -> _Count:
+    """Counts the reference's brakes fitted inside a step (the compiled bisection's cases)."""
+    c = _Count()
+    fit = PathFollower._fit_brake
+
+    def counted(self: PathFollower, *args: object) -> object:
+        c.fit_brake += 1
+        return fit(self, *args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(PathFollower, "_fit_brake", counted)
+    return c
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_followed_paths_plan_alike(seed: int, count: _Count) -> None:
+    rng = np.random.default_rng(seed)
+    for _ in range(6):
+        f = _follower(rng)
+        dt = float(rng.choice([0.001, 0.004, 0.02]))
+        replan_at = int(rng.integers(20, 120))
+        for i in range(3000):
+            if i % 17 == 0:  # caps: none, slower, a stop along the intended motion
+                f.speed_cap = float(rng.choice([math.inf, rng.uniform(0.05, 1.5), 0.0]))
+            st = _same(f, dt)
+            count.note(f, st)
+            f.brake(dt) if rng.random() < 0.05 else f.commit(st)
+            if i == replan_at:
+                f.replan(PANDA.q_min + (PANDA.q_max - PANDA.q_min) * rng.uniform(0.2, 0.8, (2, 7)))
+            if f.done:
+                count.note(f, _same(f, dt))
+                break
+    assert count.fit_brake > 0 and count.crossings > 0 and count.rest > 0
+
+
+def test_arbitrary_states_plan_alike(count: _Count) -> None:
+    """Any path state, reachable or not (too fast, accelerating hard, braking backwards, past
+    the end): both plan the same step, stop or fallback."""
+    rng = np.random.default_rng(11)
+    for _ in range(10):
+        f = _follower(rng)
+        V_top, A_top = max(f._V), max(f._A)
+        for _ in range(250):
+            g = f.copy()
+            g._s = float(rng.uniform(-1e-9, 1.0) * f.path.length)
+            g._v = float(rng.choice([0.0, 1e-10, rng.uniform(0.0, 1.5 * V_top)]))
+            g._a = float(rng.choice([0.0, rng.uniform(-2.0, 2.0) * A_top]))
+            g.speed_cap = float(rng.choice([math.inf, rng.uniform(0.0, V_top)]))
+            st = _same(g, float(rng.choice([0.001, 0.004, 0.02, 0.1])))
+            count.note(g, st)
+    assert count.fallbacks > 0 and count.fit_brake > 0 and count.crossings > 0
+
+
+def test_velocity_phases_compiled_alike_and_sound() -> None:
+    """The compiled velocity change equals ``velocity_phases`` bit for bit, and both reach the
+    target speed at zero acceleration with positive durations, jerks of +-J (or a signed zero)
+    and ``|s''|`` within ``max(A, |a0|)``."""
+    rng = np.random.default_rng(5)
+    special = [0.0, -0.0, 1e-300, 1.0, -1.0, 1e-12]
+    for _ in range(20000):
+        v0, a0, vt = (
+            float(rng.choice(special)) if rng.random() < 0.15 else float(rng.uniform(-5, 5))
+            for _ in range(3)
+        )
+        A, J = float(rng.uniform(0.1, 20.0)), float(rng.uniform(1.0, 5000.0))
+        durs, jerks = velocity_phases(v0, a0, vt, A, J)
+        ph = pk._vphases(v0, a0, vt, A, J)
+        n = int(ph[0])
+        assert _bits([durs, jerks]) == _bits([list(ph[1 : 1 + n]), list(ph[4 : 4 + n])])
+        assert all(t > 0.0 for t in durs) and all(abs(j) in (0.0, J) for j in jerks)
+        _, v1, a1 = phases_end(0.0, v0, a0, durs, jerks)
+        scale = 1.0 + abs(v0) + abs(vt) + a0 * a0 / J
+        assert abs(v1 - vt) <= 1e-9 * scale and abs(a1) <= 1e-9 * (1.0 + abs(a0))
+        assert phase_maxima(v0, a0, durs, jerks)[1] <= max(A, abs(a0)) * (1 + 1e-12)
+
+
+def test_powers_as_python_computes_them() -> None:
+    """Python's ``x ** 2`` and ``x ** 3`` of a float are the C library's ``pow``, which differs
+    from ``x * x`` (``x * x * x``) in the last bit for some ``x``: at joint limits set exactly
+    to what ``PathFollower._piece_ok`` computes for such ``x``, the kernel's test agrees with it
+    where products would not."""
+    rng = np.random.default_rng(3)
+    odd = [x for x in rng.uniform(0.1, 10.0, 100000).tolist() if x**2 != x * x]
+    assert len(odd) > 20
+    pc = np.full((1, pk.PC_COLS), -1.0)  # the box test fails: the per-joint test decides
+    pc[0, pk.S0] = 0.0
+    flips = 0
+    for vmax in odd[:200]:
+        m1, m2, m3, amax, jmax = rng.uniform(0.1, 1.0, 5).tolist()
+        lim_a = m2 * vmax**2 + m1 * amax  # numpy's M2 * vmax**2 + M1 * amax, one joint
+        lim_j = m3 * vmax**3 + 3 * m2 * vmax * amax + m1 * jmax
+        rows = np.array([[[m1, m2, m3, 1.0 / m1, 2.0 * m1 * vmax, lim_a, lim_j]]])
+        assert pk._piece_ok(0, vmax, amax, jmax, pc, rows, _CONSTS)
+        rows[0, 0, 5] = np.nextafter(lim_a, -np.inf)
+        assert not pk._piece_ok(0, vmax, amax, jmax, pc, rows, _CONSTS)
+        flips += m2 * (vmax * vmax) + m1 * amax != lim_a
+    assert flips > 0  # with products the test would have decided otherwise
