@@ -28,13 +28,12 @@ def _bits(x: object) -> object:
 
 def _step_bits(st: FollowerStep) -> object:
     p, sp = st.profile, st.stop.profile
-    return _bits(
-        [
-            st.dt, st.fallback, st.end, p.start, p.durs, p.jerks, p.tb_l, p.sb_l, p.vb_l, p.ab_l,
-            st.stop.A, st.stop.J, sp.start, sp.durs, sp.jerks, sp.ab_l, st.stop.duration_s,
-            st.stop.s_start, st.stop.s_end,
-        ]
-    )  # fmt: skip
+    fields = [st.dt, st.fallback, st.end, st.stop.A, st.stop.J, st.stop.duration_s]
+    fields += [st.stop.s_start, st.stop.s_end]
+    for prof in (p, sp):  # everything a profile holds (the compiled one gets its breaks given)
+        fields += [prof.start, prof.end, prof.duration, prof.durs, prof.jerks]
+        fields += [prof.tb_l, prof.sb_l, prof.vb_l, prof.ab_l]
+    return _bits(fields)
 
 
 def _same(f: PathFollower, dt: float) -> FollowerStep:

@@ -27,7 +27,7 @@ import math
 import numpy as np
 from numba import njit, types
 
-__all__ = ["CONSTS", "OUT_LEN", "PC_COLS", "peek_kernel"]
+__all__ = ["CONSTS", "OUT_LEN", "PC_COLS", "peek_kernel", "profile_record"]
 
 # columns of the per-piece table ``pc (P, PC_COLS)``
 S0, V, A, J, A_TAIL, J_TAIL, LIN, V_LIN, A_LIN, J_LIN, X0, X1, INV_L = range(13)
@@ -35,13 +35,33 @@ PC_COLS = 13
 # ``consts``: S_TOL, REST_V, REST_A, LIMIT_MARGIN (sara_app.robot.joints) and the exponents 2, 3
 C_STOL, C_REST_V, C_REST_A, C_MARGIN, C_TWO, C_THREE = range(6)
 CONSTS = 6
-# ``out``: the step's phases (count, durations, jerks), its end state, the stop
-H_MAX = 16
-O_NH, O_HD, O_HJ = 0, 1, 1 + H_MAX
-O_END = 1 + 2 * H_MAX  # s1, s1', s1''
-O_NS, O_SD, O_SJ = O_END + 3, O_END + 4, O_END + 7  # stop phases (at most 3)
-O_SA, O_SJERK, O_SS, O_SV = O_END + 10, O_END + 11, O_END + 12, O_END + 13
-OUT_LEN = O_END + 14
+# ``out``: the step's profile, the stop's profile (records of ``profile_record``), the step's
+# end state and the stop's limits A, J
+H_MAX = 16  # scratch phase lists
+H_CAP, S_CAP = 8, 3  # phases of a step (a brake fitted in: at most 4 + 3, cut at dt: + 1), a stop
+O_HEAD = 0
+O_STOP = O_HEAD + 1 + 2 * H_CAP + 4 * (H_CAP + 1)
+O_END = O_STOP + 1 + 2 * S_CAP + 4 * (S_CAP + 1)  # s1, s1', s1''
+O_LIM = O_END + 3  # the stop's A, J
+OUT_LEN = O_LIM + 2
+
+
+def profile_record(o: list[float], off: int, cap: int) -> tuple[list[float], ...]:
+    """``(durs, jerks, tb, sb, vb, ab)`` of the profile record at ``o[off:]`` (``out`` as a
+    list; ``cap``: H_CAP or S_CAP): the count, ``cap`` durations, ``cap`` jerks, then
+    ``cap + 1`` break times, positions, speeds, accelerations."""
+    n = int(o[off])
+    d = off + 1
+    j = d + cap
+    t = j + cap
+    m = n + 1
+    c = cap + 1
+    return (
+        o[d : d + n], o[j : j + n], o[t : t + m], o[t + c : t + c + m],
+        o[t + 2 * c : t + 2 * c + m], o[t + 3 * c : t + 3 * c + m],
+    )  # fmt: skip
+
+
 STEP, STEP_REST, FALLBACK = 0, 1, 2  # peek_kernel's status
 
 _f8, _b1, _ip = types.float64, types.boolean, types.intp
@@ -767,6 +787,40 @@ def _step_ok(
 # -- one step ----------------------------------------------------------------------------------
 
 
+@njit(types.void(_W1, _ip, _ip, _f8, _f8, _f8, _W1, _W1, _ip), cache=True)
+def _record(
+    out: np.ndarray,
+    off: int,
+    cap: int,
+    s: float,
+    v: float,
+    a: float,
+    durs: np.ndarray,
+    jerks: np.ndarray,
+    n: int,
+) -> None:
+    """The profile record (see ``profile_record``) of ``n`` phases from ``(s, v, a)``; its
+    breaks as ``ScalarProfile.__init__`` computes them."""
+    out[off] = n
+    d = off + 1
+    j = d + cap
+    t = j + cap
+    c = cap + 1
+    tb = 0.0
+    out[t], out[t + c], out[t + 2 * c], out[t + 3 * c] = tb, s, v, a
+    for i in range(n):
+        T = durs[i]
+        jk = jerks[i]
+        out[d + i] = T
+        out[j + i] = jk
+        s += T * (v + T * (0.5 * a + T * jk / 6.0))
+        v += T * (a + 0.5 * T * jk)
+        a += T * jk
+        tb += T
+        k = t + 1 + i
+        out[k], out[k + c], out[k + 2 * c], out[k + 3 * c] = tb, s, v, a
+
+
 @njit(
     _ip(*(_f8,) * 9, _RO2, _RO3, _RO3, _RO1, _W1),
     cache=True,
@@ -793,9 +847,9 @@ def peek_kernel(
     Path ``pc (P, PC_COLS)``, ``rows (P, n, 7)``, ``geo (P, 2, n)`` (see
     ``PathFollower._kernel_tables``); ``cap``: the speed cap; ``A_min``, ``J_min``,
     ``ramp_c``: the follower's look-ahead constants. Writes ``out (OUT_LEN,)``: the step's
-    phases (``O_NH``, ``O_HD``, ``O_HJ``) always, its end state (``O_END``) and the stop
-    (phases ``O_NS``, ``O_SD``, ``O_SJ``, limits ``O_SA``, ``O_SJERK``, start ``O_SS``,
-    ``O_SV``) for STEP, the rest position ``O_SS`` for STEP_REST; returns the status (FALLBACK:
+    profile (record ``O_HEAD``) always, its end state (``O_END``) and the stop (profile record
+    ``O_STOP``, limits ``O_LIM``) for STEP, the stop's start (the rest position for
+    STEP_REST) for both; returns the status (FALLBACK:
     the step is not valid, the follower's held failsafe takes over).
     """
     pd = np.empty(H_MAX)
@@ -808,18 +862,13 @@ def peek_kernel(
         s, v, a, dt, cap, S, A_min, J_min, ramp_c, pc, consts, pd, pj, td, tj
     )
     n = _cut(pd, pj, n_plan, dt, hd, hj)
-    out[O_NH] = n
-    for i in range(n):
-        out[O_HD + i] = hd[i]
-        out[O_HJ + i] = hj[i]
+    if n > H_CAP:  # never (see H_CAP); keeps the record in bounds
+        return FALLBACK
+    _record(out, O_HEAD, H_CAP, s, v, a, hd, hj, n)
     # the step's end (ScalarProfile.end) and peek's snapping of it
-    s1, v1, a1 = s, v, a
-    for i in range(n):
-        T = hd[i]
-        j = hj[i]
-        s1 += T * (v1 + T * (0.5 * a1 + T * j / 6.0))
-        v1 += T * (a1 + 0.5 * T * j)
-        a1 += T * j
+    e = O_HEAD + 1 + 2 * H_CAP + n
+    c = H_CAP + 1
+    s1, v1, a1 = out[e + c], out[e + 2 * c], out[e + 3 * c]
     if abs(v1) <= 1e-12 and abs(a1) <= 1e-9:
         v1, a1 = (0.0 if 0.0 > v1 else v1), 0.0
     s_tol = consts[C_STOL]
@@ -835,12 +884,11 @@ def peek_kernel(
     if not (math.isfinite(s1) and math.isfinite(v1) and math.isfinite(a1)):
         return FALLBACK
     status, ph, A_s, J_s, s_c, v_c = _plan_stop(s1, v1, a1, A_f, J_f, S, pc, rows, geo, consts)
-    out[O_NS] = ph[0]
-    for i in range(3):
-        out[O_SD + i] = ph[1 + i]
-        out[O_SJ + i] = ph[4 + i]
-    out[O_SA] = A_s
-    out[O_SJERK] = J_s
-    out[O_SS] = s_c
-    out[O_SV] = v_c
+    m = int(ph[0])
+    for i in range(m):
+        td[i] = ph[1 + i]
+        tj[i] = ph[4 + i]
+    _record(out, O_STOP, S_CAP, s_c, v_c, a1, td, tj, m)
+    out[O_LIM] = A_s
+    out[O_LIM + 1] = J_s
     return status

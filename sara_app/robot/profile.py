@@ -183,6 +183,28 @@ class ScalarProfile:
         self.end = (s, v, a)
         self._np: tuple[np.ndarray, ...] | None = None
 
+    @classmethod
+    def _from_breaks(
+        cls,
+        durs: list[float],
+        jerks: list[float],
+        tb: list[float],
+        sb: list[float],
+        vb: list[float],
+        ab: list[float],
+    ) -> ScalarProfile:
+        """The profile whose phases are ``durs``, ``jerks`` and whose break tables (``P + 1``
+        each) are ``tb, sb, vb, ab`` as ``__init__`` computes them (a compiled caller, with the
+        same recurrences); the lists are kept, not copied."""
+        prof = cls.__new__(cls)
+        prof.durs, prof.jerks = durs, jerks
+        prof.tb_l, prof.sb_l, prof.vb_l, prof.ab_l = tb, sb, vb, ab
+        prof.duration = tb[-1]
+        prof.start = (sb[0], vb[0], ab[0])
+        prof.end = (sb[-1], vb[-1], ab[-1])
+        prof._np = None
+        return prof
+
     def _arrays(self) -> tuple[np.ndarray, ...]:
         if self._np is None:
             self._np = (

@@ -38,11 +38,11 @@ def _samples(path: PathTrajectory, step: FollowerStep, m: int) -> _Samples:
     joint = np.empty((5, K + 1, n))
     bounds = np.empty((2, K, n))
     sd_max = np.empty(K)
-    phases = np.array((head.durs + stop.durs, head.jerks + stop.jerks))  # (2, P)
+    phases = np.array(head.durs + stop.durs + head.jerks + stop.jerks)  # durations, jerks
     p_s0, p_len, poly, M1, M2, qs = path._piece_tables  # path.piece_tables: n_pieces >= 1
     shielded_samples_kernel(
-        step.dt, stop.duration, s0, v0, a0, phases[0], phases[1], p_s0, p_len, poly, M1, M2,
-        qs, BOUND_PAD, times, ps, joint, bounds, sd_max,
+        step.dt, stop.duration, s0, v0, a0, phases, p_s0, p_len, poly, M1, M2, qs, BOUND_PAD,
+        times, ps, joint, bounds, sd_max,
     )  # fmt: skip
     s, sd, sdd = ps
     return times, (s, sd, sdd), joint[0], joint[1], joint[3], joint[4], bounds[0], bounds[1], sd_max

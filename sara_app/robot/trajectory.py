@@ -54,21 +54,17 @@ from sara_app.robot.model import JointLimits
 from sara_app.robot.path import PathTables, PathTrajectory, path_tables, piece_boxes
 from sara_app.robot.planning_kernels import (
     FALLBACK,
+    H_CAP,
     O_END,
-    O_HD,
-    O_HJ,
-    O_NH,
-    O_NS,
-    O_SA,
-    O_SD,
-    O_SJ,
-    O_SJERK,
-    O_SS,
-    O_SV,
+    O_HEAD,
+    O_LIM,
+    O_STOP,
     OUT_LEN,
     PC_COLS,
+    S_CAP,
     STEP_REST,
     peek_kernel,
+    profile_record,
 )
 from sara_app.robot.profile import (
     ScalarProfile,
@@ -499,22 +495,18 @@ class PathFollower:
             *self._ktab, _CONSTS, out,
         )  # fmt: skip
         o = out.tolist()
-        n = int(o[O_NH])
         if status == FALLBACK:  # the failsafe already held
             held = self._stop
             d, j = cut_phases(held.profile.durs, held.profile.jerks, dt)
             prof = ScalarProfile(s, v, a, d, j)
             return _follower_step(dt, path, prof, prof.end, held.advanced(dt), True)
-        prof = ScalarProfile(s, v, a, o[O_HD : O_HD + n], o[O_HJ : O_HJ + n])
+        prof = ScalarProfile._from_breaks(*profile_record(o, O_HEAD, H_CAP))
         end = (o[O_END], o[O_END + 1], o[O_END + 2])
+        stop_prof = ScalarProfile._from_breaks(*profile_record(o, O_STOP, S_CAP))
         if status == STEP_REST:
-            stop = self._rest_stop(path, o[O_SS])
+            stop = self._rest_stop(path, stop_prof.start[0])
         else:
-            m = int(o[O_NS])
-            d, j = o[O_SD : O_SD + m], o[O_SJ : O_SJ + m]
-            stop = self._stop_profile(
-                path, ScalarProfile(o[O_SS], o[O_SV], end[2], d, j), o[O_SA], o[O_SJERK]
-            )
+            stop = self._stop_profile(path, stop_prof, o[O_LIM], o[O_LIM + 1])
         return _follower_step(dt, path, prof, end, stop, False)
 
     def commit(self, step: FollowerStep, at_end: JointState | None = None) -> JointState:

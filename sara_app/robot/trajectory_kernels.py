@@ -39,7 +39,7 @@ def _count_le(sorted_x: np.ndarray, x: float) -> int:
 
 
 _SAMPLES_SIG = types.void(
-    *(_f8,) * 5, _RO1, _RO1, _RO1, _RO1, _RO3, _RO2, _RO2, _RO2, _f8, _W1, _W2, _W3, _W3, _W1
+    *(_f8,) * 5, _RO1, _RO1, _RO1, _RO3, _RO2, _RO2, _RO2, _f8, _W1, _W2, _W3, _W3, _W1
 )
 
 
@@ -50,8 +50,7 @@ def shielded_samples_kernel(
     s0: float,
     v0: float,
     a0: float,
-    durs: np.ndarray,
-    jerks: np.ndarray,
+    phases: np.ndarray,
     piece_s0: np.ndarray,
     piece_len: np.ndarray,
     poly: np.ndarray,
@@ -67,18 +66,20 @@ def shielded_samples_kernel(
 ) -> None:
     """Fill the samples of one step of ``dt`` + a failsafe of ``T`` seconds.
 
-    Path motion: from ``(s0, v0, a0)`` through phases ``durs, jerks (P,)`` (step then stop;
-    zero jerk after). Path pieces ``(N,)``: starts ``piece_s0``, lengths ``piece_len``, quartic
-    coefficients ``poly (N, 5, >= 3 n)`` of ``[q | dq/ds | d2q/ds2]`` in ``tau = s - s_k``,
-    maxima ``M1p, M2p (N, n)`` of ``|dq/ds|``, ``|d2q/ds2|`` per piece, ``qs_start (N, n)`` =
-    ``dq/ds`` at every piece start. ``bound_pad``: relative padding of the bounds.
+    Path motion: from ``(s0, v0, a0)`` through ``phases (2 P,)``, ``P`` durations then their
+    jerks (step then stop; zero jerk after). Path pieces ``(N,)``: starts ``piece_s0``,
+    lengths ``piece_len``, quartic coefficients ``poly (N, 5, >= 3 n)`` of
+    ``[q | dq/ds | d2q/ds2]`` in ``tau = s - s_k``, maxima ``M1p, M2p (N, n)`` of
+    ``|dq/ds|``, ``|d2q/ds2|`` per piece, ``qs_start (N, n)`` = ``dq/ds`` at every piece start.
+    ``bound_pad``: relative padding of the bounds.
 
     Writes ``times (K+1,)`` (0, ``dt``, then ``K-1`` equal failsafe intervals), ``path (3, K+1)``
     = ``s, s', s''``, ``joint (5, K+1, n)`` = ``q, dq/ds, d2q/ds2, v, a`` and ``bounds (2, K, n)``
     = rigorous ``max |v_j|``, ``max |a_j|`` over every interval, ``sd_max (K,)`` = the exact
     largest path speed ``s'`` over every interval.
     """
-    P = durs.shape[0]
+    P = phases.shape[0] // 2
+    durs, jerks = phases[:P], phases[P:]
     m = times.shape[0] - 2
     K = m + 1
     n = M1p.shape[1]
@@ -170,7 +171,7 @@ def _warm_up() -> None:
     one = np.ones(1)
     times = np.empty(3)
     shielded_samples_kernel(
-        0.004, 0.01, 0.0, 1.0, 0.0, -one, one, np.zeros(1), one, np.zeros((1, 5, 3)),
+        0.004, 0.01, 0.0, 1.0, 0.0, np.array([1.0, -1.0]), np.zeros(1), one, np.zeros((1, 5, 3)),
         np.ones((1, 1)), np.ones((1, 1)), np.ones((1, 1)), 1e-12,
         times, np.empty((3, 3)), np.empty((5, 3, 1)), np.empty((2, 2, 1)), np.empty(2),
     )  # fmt: skip
