@@ -230,7 +230,7 @@ class RobotOccupancy:
         buffer, valid until the next call)."""
         self._n_sampled = 0
         E = self._E[: H.shape[0]]
-        ends_kernel(H, self._link_joint, self._ends_joint, E)
+        ends_kernel(H, self._link_joint, self._ends_joint, E, H.shape[0])
         return E
 
     def link_ends(self, q: np.ndarray) -> np.ndarray:
@@ -390,20 +390,21 @@ class RobotOccupancy:
         if S > self._capacity:
             self._ensure_capacity(S)
         self._n_sampled = 0
-        H, E = self._H[:S], self._E[:S]
         ends = np.empty((S - 1, self.n_links, 2, 3))
         radius = np.empty((S - 1, self.n_links))
         Qj = Q if self._q_identity else Q[:, self._q_index]
         status = intervals_kernel(
             Qj, V, T, self._N, self._parents, self._link_joint, self._ends_joint,
-            self.lipschitz, self._radius0, H, E, ends, radius,
+            self.lipschitz, self._radius0, self._H, self._E, ends, radius, self._Q_sampled,
         )  # fmt: skip
         if status:
             self._check(Q, V, T)  # raises with the value that is wrong
             raise InputError(f"trajectory rejected by the occupancy kernel (code {status})")
-        self._Q_sampled[:S] = Q
+        if not self._q_identity:
+            self._Q_sampled[:S] = Q  # the kernel copied the joint-order columns
         self._n_sampled = S
         if bound == "local":
+            H, E = self._H[:S], self._E[:S]
             radius = self._half_path_local(H, E, V, T[1:] - T[:-1]) + self._radius0
         return ends, radius
 

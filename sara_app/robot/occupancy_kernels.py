@@ -47,13 +47,14 @@ def fk_kernel(Q: np.ndarray, N: np.ndarray, parents: np.ndarray, H: np.ndarray) 
                     H[s, j + 1, r, c] = acc
 
 
-@njit(types.void(_RO4, _ROI1, _RO3, _W4), cache=True)
+@njit(types.void(_RO4, _ROI1, _RO3, _W4, _i8), cache=True)
 def ends_kernel(
-    H: np.ndarray, link_joint: np.ndarray, ends_joint: np.ndarray, E: np.ndarray
+    H: np.ndarray, link_joint: np.ndarray, ends_joint: np.ndarray, E: np.ndarray, S: int
 ) -> None:
-    """World capsule ends ``E (S, L, 2, 3)`` from joint poses ``H (S, n+1, 4, 4)``, the joint
-    carrying each link ``link_joint (L,)`` and the ends in that joint's frame ``(L, 2, 3)``."""
-    for s in range(H.shape[0]):
+    """World capsule ends ``E[:S] (S, L, 2, 3)`` from joint poses ``H[:S] (S, n+1, 4, 4)``,
+    the joint carrying each link ``link_joint (L,)`` and the ends in that joint's frame
+    ``(L, 2, 3)``."""
+    for s in range(S):
         for i in range(link_joint.shape[0]):
             m = link_joint[i]
             for e in range(2):
@@ -67,7 +68,7 @@ def ends_kernel(
 
 
 @njit(
-    _i8(_RO2, _RO2, _RO1, _RO3, _ROI1, _ROI1, _RO3, _RO2, _RO1, _W4, _W4, _W4, _W2),
+    _i8(_RO2, _RO2, _RO1, _RO3, _ROI1, _ROI1, _RO3, _RO2, _RO1, _W4, _W4, _W4, _W2, _W2),
     cache=True,
 )
 def intervals_kernel(
@@ -84,12 +85,14 @@ def intervals_kernel(
     E: np.ndarray,
     ends: np.ndarray,
     radius: np.ndarray,
+    Q_copy: np.ndarray,
 ) -> int:
     """:meth:`RobotOccupancy.intervals` (Lipschitz bound) in one pass: checks the values (returns
     1 for a non-finite ``Q (K+1, n)``, 2 for non-finite or non-increasing times ``T (K+1,)``, 3
     for a non-finite or negative ``V (K, n)``, writing nothing else; 0 when valid), then fills
-    ``H``, ``E`` (joint poses and capsule ends at the samples), ``ends (K, L, 2, 3)`` (mid axes)
-    and ``radius (K, L) = dt / 2 * lipschitz @ V + radius0``."""
+    ``H[:K+1]``, ``E[:K+1]`` (joint poses and capsule ends at the samples; buffers of at least
+    ``K + 1`` samples), ``ends (K, L, 2, 3)`` (mid axes), ``radius (K, L) = dt / 2 * lipschitz
+    @ V + radius0`` and ``Q_copy[:K+1] = Q``."""
     S, n = Q.shape
     for s in range(S):
         for j in range(n):
@@ -101,8 +104,11 @@ def intervals_kernel(
         for j in range(n):
             if not (math.isfinite(V[k, j]) and V[k, j] >= 0.0):
                 return 3
+    for s in range(S):
+        for j in range(n):
+            Q_copy[s, j] = Q[s, j]
     fk_kernel(Q, N, parents, H)
-    ends_kernel(H, link_joint, ends_joint, E)
+    ends_kernel(H, link_joint, ends_joint, E, S)
     L = link_joint.shape[0]
     for k in range(S - 1):
         half_dt = 0.5 * (T[k + 1] - T[k])
