@@ -160,3 +160,30 @@ def test_powers_as_python_computes_them() -> None:
         assert not pk._piece_ok(0, vmax, amax, jmax, pc, rows, _CONSTS)
         flips += m2 * (vmax * vmax) + m1 * amax != lim_a
     assert flips > 0  # with products the test would have decided otherwise
+
+
+def test_non_finite_and_huge_states_plan_alike() -> None:
+    """NaN, infinite and huge path states: the same step, fallback or error, except that
+    Python's float power raises OverflowError for ``|s''| >~ 1e154`` where the compiled power
+    returns inf (then no stop is valid: the follower falls back on the failsafe it holds)."""
+    rng = np.random.default_rng(2)
+    odd = [math.nan, math.inf, -math.inf, 1e300, -1e300, 1e-320, -0.0]
+    overflows = 0
+    for _ in range(300):
+        g = _follower(rng)
+        g._s = float(rng.choice([rng.uniform(0.0, g.path.length), *odd]))
+        g._v = float(rng.choice([rng.uniform(0.0, 2.0), *odd]))
+        g._a = float(rng.choice([rng.uniform(-5.0, 5.0), *odd]))
+        g.speed_cap = float(rng.choice([math.inf, 0.5, 0.0]))
+        out = []
+        for reference in (False, True):
+            try:
+                out.append(_step_bits(g.peek(0.004, reference=reference)))
+            except Exception as e:  # noqa: BLE001 - compared, whatever it is
+                out.append(type(e).__name__)
+        if out[1] == "OverflowError":
+            overflows += 1
+            assert g.peek(0.004).fallback
+        else:
+            assert out[0] == out[1], (g.s, g.sd, g.sdd, g.speed_cap)
+    assert overflows > 0
