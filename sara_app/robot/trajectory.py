@@ -28,7 +28,10 @@ a standstill within ``blend_distance`` of the current end, or a joint limit leav
 on straight, the current path is finished first and the new one starts from rest.
 
 The path geometry and its admissible path-speed boxes are in :mod:`sara_app.robot.path`, the
-scalar jerk-limited profiles in :mod:`sara_app.robot.profile`.
+scalar jerk-limited profiles in :mod:`sara_app.robot.profile`. A step is planned in one compiled
+call (:mod:`sara_app.robot.planning_kernels`: the same formulas as the methods here and the stop
+planning of :mod:`sara_app.robot.failsafe`, which remain its reference, ``peek(dt,
+reference=True)``, equal bit for bit).
 """
 
 from __future__ import annotations
