@@ -289,6 +289,14 @@ def _verdict_kernel(
         safe_k[k] = ok_k
 
 
+def _interval_count(r_radius: np.ndarray, dt: np.ndarray) -> int:
+    """``K`` from ``r_radius (K, L)``; raises :class:`InputError` unless ``dt`` is ``(K,)``."""
+    K = r_radius.shape[0] if np.ndim(r_radius) == 2 else -1
+    if np.shape(dt) != (K,):
+        raise InputError(f"dt has shape {np.shape(dt)}; expected ({K},)")
+    return K
+
+
 class PflCheck:
     """The PFL check for one robot and one set of body parts (one or more humans).
 
@@ -372,9 +380,7 @@ class PflCheck:
         ``eps_v (K, L)`` m/s overrides the Thm VI.2 error bound, which is by default computed
         from ``dt`` and the joint limits (see :meth:`eps_from_bounds` for tighter values).
         """
-        K = r_radius.shape[0] if np.ndim(r_radius) == 2 else -1
-        if np.shape(dt) != (K,):
-            raise InputError(f"dt has shape {np.shape(dt)}; expected ({K},)")
+        K = _interval_count(r_radius, dt)
         # the classifier checks the other shapes (human capsules (1, P): every interval)
         E_int = self._interval_energies(energy_J, K)
         if eps_v is None:
@@ -415,9 +421,7 @@ class PflCheck:
         """A :class:`MergedCheck` of one trajectory (inputs as in :meth:`check`; ``samples``
         with ``ends, p1_dot, omega`` at the ``K+1`` samples, ``energy_J`` any form of
         :meth:`check`, ``eps_v (K, L)``), to which human sets are added model by model."""
-        K = r_radius.shape[0] if np.ndim(r_radius) == 2 else -1
-        if np.shape(dt) != (K,):
-            raise InputError(f"dt has shape {np.shape(dt)}; expected ({K},)")
+        K = _interval_count(r_radius, dt)
         robot = self.classifier.robot_side(
             r_ends, r_radius, samples.ends, self._s_radius, samples.p1_dot, samples.omega,
             eps_v, T_world_box, half_extents_m,
@@ -437,21 +441,18 @@ class PflCheck:
         eps_v, energy_J)`` and is called only when some human set may touch a link (a check
         without a possible contact needs neither the energies nor the twists; its result has
         ``energy_known`` False)."""
-        K = r_radius.shape[0] if np.ndim(r_radius) == 2 else -1
-        if np.shape(dt) != (K,):
-            raise InputError(f"dt has shape {np.shape(dt)}; expected ({K},)")
-        check = MergedCheck(self, None, None)
+        K = _interval_count(r_radius, dt)
 
-        def motion() -> MotionArrays:
+        def motion() -> MotionArrays:  # called only after ``check`` below exists
             samples, eps_v, energy_J = link_state()
             check.samples = samples
             check.E_int = self._interval_energies(energy_J, K)
             return samples.ends, self._s_radius, samples.p1_dot, samples.omega, eps_v
 
-        check.robot = self.classifier.robot_side_deferred(
+        robot = self.classifier.robot_side_deferred(
             r_ends, r_radius, motion, T_world_box, half_extents_m
         )
-        check.todo = (0, K)
+        check = MergedCheck(self, robot, None)
         return check
 
     def eps_from_bounds(
@@ -537,9 +538,8 @@ class MergedCheck:
     the highest threshold seen; ``contact`` is the first model's. The robot-only geometry is
     computed once for all models."""
 
-    def __init__(self, pfl: PflCheck, robot: RobotSide | None, E_int: np.ndarray | None) -> None:
-        self.pfl = pfl
-        self.robot = cast(RobotSide, robot)  # None only while merged_deferred builds it
+    def __init__(self, pfl: PflCheck, robot: RobotSide, E_int: np.ndarray | None) -> None:
+        self.pfl, self.robot = pfl, robot
         self.E_int = E_int
         """Interval energies ``(K, L)``; None while deferred and not needed yet."""
         self.samples: LinkSamples | None = None
@@ -548,7 +548,7 @@ class MergedCheck:
         self.models = 0
         self._cls: np.ndarray | None = None
         self._todo = np.empty(2, dtype=np.int64)
-        self.todo = (0, robot.K if robot is not None else 0)
+        self.todo = (0, robot.K)
         """Interval range ``lo:hi`` with unproved entries (``(K, K)``: every entry proved)."""
 
     def add(self, h_ends: np.ndarray, h_radius: np.ndarray) -> tuple[int, int]:
