@@ -297,6 +297,15 @@ def _interval_count(r_radius: np.ndarray, dt: np.ndarray) -> int:
     return K
 
 
+def _unproved_range(safe_k: list[bool]) -> tuple[int, int]:
+    """``lo:hi`` from the first to the last interval not proved safe (``(K, K)``: none); a
+    list, not an array: two numpy calls cost more than this loop over ~10 intervals."""
+    K = len(safe_k)
+    if all(safe_k):
+        return K, K
+    return safe_k.index(False), K - safe_k[::-1].index(False)
+
+
 class PflCheck:
     """The PFL check for one robot and one set of body parts (one or more humans).
 
@@ -565,9 +574,7 @@ class MergedCheck:
             if E is None:  # deferred and no contact possible: the energies do not matter
                 E = np.full((self.robot.K, self.robot.L), np.nan)
             first = self.first = self.pfl._verdict(c, E, self.E_int is not None)
-            bad = np.flatnonzero(~first.safe_interval)
-            K = self.robot.K
-            self.todo = (int(bad[0]), int(bad[-1]) + 1) if bad.size else (K, K)
+            self.todo = _unproved_range(first.safe_interval.tolist())
             return self.todo
         if self._cls is None:
             self._cls = first.cls.copy()

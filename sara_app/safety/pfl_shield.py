@@ -341,7 +341,7 @@ class PflShield(Shield):
         (:meth:`_finish_check` adds the others; a failed result is then conservative)."""
         with _inputs_checked():
             pfl = self._check_for(hum[0].shape[0])
-            dt = np.diff(traj.times)
+            dt = traj.times[1:] - traj.times[:-1]
 
             def link_state() -> tuple[LinkSamples, np.ndarray, np.ndarray]:
                 smp, energy = self._link_energies(traj)
@@ -505,8 +505,19 @@ def _candidate(res: PflResult, traj: ShieldedTrajectory, E0: np.ndarray) -> tupl
     """Candidate cap from the violated entries, and whether a slower plan can fix them (no
     violated entry already too energetic at the current state: link energies ``E0 (L,)``)."""
     cand = _speed_kernel(True, res.safe, res.cls, res.threshold_J, res.energy_J, traj.sd)
-    stuck = ~res.safe[0] & ~(E0[:, None] < res.threshold_J[0])
-    return float(cand), not bool(stuck.any())
+    return float(cand), not _stuck_kernel(res.safe, res.threshold_J, E0)
+
+
+@njit(types.boolean(_B3, _F3, _F1), cache=True)
+def _stuck_kernel(safe: np.ndarray, thr: np.ndarray, E0: np.ndarray) -> bool:
+    """Some entry of interval 0 is unsafe (``safe (K, L, P)``) while its link's energy at the
+    current state ``E0 (L,)`` is not below the entry's threshold ``thr (K, L, P)``: no slower
+    plan can fix it (NaN counts as stuck)."""
+    for i in range(safe.shape[1]):
+        for j in range(safe.shape[2]):
+            if not safe[0, i, j] and not E0[i] < thr[0, i, j]:
+                return True
+    return False
 
 
 # --- benchmark -------------------------------------------------------------------------------
