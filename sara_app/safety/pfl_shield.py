@@ -197,7 +197,8 @@ class PflShield(Shield):
         self.thresholds: ThresholdSet = ts
         self.boxes = _boxes(boxes)
         self._part_names = reach.skeleton.parts
-        self._part_maps = {m: part_capsules(reach, m) for m in self.settings.models}
+        self._part_maps = {m: _map_or_none(part_capsules(reach, m)) for m in self.settings.models}
+        """Per model the capsule of each body part (None: capsule ``j`` is body part ``j``)."""
         self._orders = (list(self.settings.models), list(self.settings.models))
         """Model orders of a cycle's first check and of its replans (a slower trajectory is
         often proved by another model): the last one that completed such a check first."""
@@ -399,6 +400,8 @@ class PflShield(Shield):
             occ = self.verifier.occupancy(
                 model, y, v, dv, times[lo:hi] + age[0], times[lo + 1 : hi + 1] + age[0]
             )
+            if pm is None:  # a capsule per body part: the model's buffers (views), no copy
+                return occ.ends[0], occ.radius[0]
             return occ.ends[0][:, pm], occ.radius[0][:, pm]
         h_ends = np.empty((k, H * P, 2, 3))
         h_radius = np.empty((k, H * P))
@@ -409,8 +412,8 @@ class PflShield(Shield):
             C = occ.radius.shape[-1]
             e = np.broadcast_to(occ.ends[0], (k, C, 2, 3))
             r = np.broadcast_to(occ.radius[0], (k, C))
-            h_ends[:, h * P : (h + 1) * P] = e[:, pm]
-            h_radius[:, h * P : (h + 1) * P] = r[:, pm]
+            h_ends[:, h * P : (h + 1) * P] = e if pm is None else e[:, pm]
+            h_radius[:, h * P : (h + 1) * P] = r if pm is None else r[:, pm]
         return h_ends, h_radius
 
     def with_energies(self, result: PflResult, traj: ShieldedTrajectory) -> PflResult:
@@ -446,6 +449,11 @@ def _inputs_checked() -> Iterator[None]:
         yield
     except (ValueError, ArithmeticError, IndexError, np.linalg.LinAlgError) as e:
         raise InputError(f"PFL check failed on its inputs: {e}") from e
+
+
+def _map_or_none(index: np.ndarray) -> np.ndarray | None:
+    """None for the identity map (no gather needed), else ``index``."""
+    return None if np.array_equal(index, np.arange(index.shape[0])) else index
 
 
 def _boxes(boxes: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, np.ndarray]:
