@@ -23,7 +23,7 @@ import math
 import numpy as np
 from numba import njit, types
 
-__all__ = ["capsule_sets_check", "segment_closest", "sphere_slack_m"]
+__all__ = ["capsule_sets_check", "pair_gaps", "segment_closest", "sphere_slack_m"]
 
 _PARALLEL_SIN2 = 1e-24  # as in sara_app.geometry
 sphere_slack_m = 1e-9
@@ -175,6 +175,57 @@ def pair_distances(
                 d = segment_closest(
                     p[0, 0], p[0, 1], p[0, 2], p[1, 0], p[1, 1], p[1, 2],
                     q[0, 0], q[0, 1], q[0, 2], q[1, 0], q[1, 1], q[1, 2],
+                )[0]  # fmt: skip
+                g = d - a_radius[kra, i] - b_radius[krb, j]
+                out[k, i, j] = g
+                touch = touch or not g > 0.0
+    return touch
+
+
+@njit(types.boolean(_RO4, _RO2, _RO4, _RO2, _W3), cache=True)
+def pair_gaps(
+    a_ends: np.ndarray,
+    a_radius: np.ndarray,
+    b_ends: np.ndarray,
+    b_radius: np.ndarray,
+    out: np.ndarray,
+) -> bool:
+    """:func:`pair_distances` with a bounding-sphere broad phase: ``out (K, A, B)`` is the exact
+    surface distance of every pair whose bounding spheres' gap is at most
+    :data:`sphere_slack_m`, and that gap (a lower bound of the distance, > the slack) for the
+    others. So ``out <= 0`` (or NaN) exactly where the capsules may touch, which is all a
+    contact test needs; 2-3x faster when most pairs are apart. Returns whether any pair may
+    touch."""
+    K, A, B = out.shape
+    sa = np.empty((A, 4))
+    sb = np.empty((B, 4))
+    a_prev = b_prev = (-1, -1)
+    touch = False
+    for k in range(K):
+        ka = k if a_ends.shape[0] == K else 0
+        kb = k if b_ends.shape[0] == K else 0
+        kra = k if a_radius.shape[0] == K else 0
+        krb = k if b_radius.shape[0] == K else 0
+        if (ka, kra) != a_prev:
+            _spheres(a_ends[ka], a_radius[kra : kra + 1], sa)
+            a_prev = (ka, kra)
+        if (kb, krb) != b_prev:
+            _spheres(b_ends[kb], b_radius[krb : krb + 1], sb)
+            b_prev = (kb, krb)
+        for i in range(A):
+            for j in range(B):
+                dx = sa[i, 0] - sb[j, 0]
+                dy = sa[i, 1] - sb[j, 1]
+                dz = sa[i, 2] - sb[j, 2]
+                lower = math.sqrt(dx * dx + dy * dy + dz * dz) - sa[i, 3] - sb[j, 3]
+                if lower > sphere_slack_m:  # NaN goes on to the exact distance
+                    out[k, i, j] = lower
+                    continue
+                d = segment_closest(
+                    a_ends[ka, i, 0, 0], a_ends[ka, i, 0, 1], a_ends[ka, i, 0, 2],
+                    a_ends[ka, i, 1, 0], a_ends[ka, i, 1, 1], a_ends[ka, i, 1, 2],
+                    b_ends[kb, j, 0, 0], b_ends[kb, j, 0, 1], b_ends[kb, j, 0, 2],
+                    b_ends[kb, j, 1, 0], b_ends[kb, j, 1, 1], b_ends[kb, j, 1, 2],
                 )[0]  # fmt: skip
                 g = d - a_radius[kra, i] - b_radius[krb, j]
                 out[k, i, j] = g

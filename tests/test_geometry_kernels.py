@@ -4,7 +4,8 @@
   parallel, anti-parallel, collinear, nearly parallel pairs), and its parameters lie in [0, 1]
   and realise that distance.
 * ``pair_distances`` / ``set_pair_distances`` against ``capsule_distances`` and the numpy
-  ``all_pairs``, ``box_distances`` against ``contact.segment_box_closest``.
+  ``all_pairs``, ``box_distances`` against ``contact.segment_box_closest``; ``pair_gaps``
+  equals ``pair_distances`` wherever a pair may touch and is a positive lower bound elsewhere.
 * ``capsule_sets_check`` against all pairs from ``geometry.capsule_distances``: ``hit`` exactly
   where an interval's smallest distance is <= 0 (round-off ties aside), nothing outside
   ``todo``, the returned distance is the exact smallest one over the checked intervals, and a
@@ -22,6 +23,7 @@ from sara_app.geometry_kernels import (
     box_distances,
     capsule_sets_check,
     pair_distances,
+    pair_gaps,
     segment_closest,
     set_pair_distances,
 )
@@ -167,6 +169,24 @@ def test_pair_distances_equal_capsule_distances(c: dict) -> None:
     for k in range(K):
         ref = geo.capsule_distances(a_ends[k], a_rad[k], c["b_ends"][k], c["b_rad"][k])
         np.testing.assert_allclose(out[k], ref, rtol=0, atol=1e-12)
+
+
+@SETTINGS
+@given(capsule_sets(), st.booleans())
+def test_pair_gaps_are_exact_where_pairs_may_touch(c: dict, nan: bool) -> None:
+    """Exact distance wherever it is at most the sphere slack (so the same contact pairs),
+    a lower bound above the slack elsewhere; NaN input stays NaN (a contact)."""
+    if nan:
+        c["b_ends"][-1, 0, 1, 2] = np.nan
+    K, C, L = c["b_ends"].shape[0], c["a_ends"].shape[1], c["b_ends"].shape[1]
+    exact, gaps = np.empty((2, K, C, L))
+    touch = pair_distances(c["a_ends"], c["a_rad"], c["b_ends"], c["b_rad"], exact)
+    assert pair_gaps(c["a_ends"], c["a_rad"], c["b_ends"], c["b_rad"], gaps) == touch
+    np.testing.assert_array_equal(np.isnan(gaps), np.isnan(exact))
+    may_touch = ~(exact > 1e-9)
+    np.testing.assert_array_equal(gaps[may_touch], exact[may_touch])
+    bound = ~np.isnan(exact) & (gaps != exact)
+    assert np.all(gaps[bound] > 1e-9) and np.all(gaps[bound] <= exact[bound] + 1e-12)
 
 
 @SETTINGS

@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sara_app.errors import InputError, ParameterError
-from sara_app.geometry_kernels import box_distances, pair_distances, set_pair_distances
+from sara_app.geometry_kernels import box_distances, pair_gaps, set_pair_distances
 from sara_app.safety.contact_kernels import all_pairs, classify_kernel, segment_box_soa
 from sara_app.safety.velocity_error import VelocityErrorBound
 
@@ -137,7 +137,10 @@ class ContactResult:
     (int8): 0 none, 1 unconstrained, 2 env-constrained, 3 self-constrained (env wins when both);
     ``stack (K, P, P)``: membership of part ``j``'s virtual body part (itself included; the
     identity, not computed, when no contact is possible at all);
-    ``stack_diameter_m (K, P)``; ``distance_m``: link-to-part surface distance (m).
+    ``stack_diameter_m (K, P)``; ``distance_m``: link-to-part surface distance (m), exact
+    where the capsules may touch or nearly do; for a pair whose bounding spheres are apart the
+    compiled path (:meth:`ContactClassifier.classify`) gives the spheres' gap instead, a
+    positive lower bound (:func:`~sara_app.geometry_kernels.pair_gaps`).
     """
 
     contact: np.ndarray
@@ -392,7 +395,7 @@ class ContactClassifier:
                 )
         r_ends, r_radius = robot.r_ends[lo:hi], robot.r_radius[lo:hi]
         d_rh = np.empty((k, L, P))
-        if not pair_distances(r_ends, r_radius, h_ends, h_radius, d_rh):  # NaN is contact
+        if not pair_gaps(r_ends, r_radius, h_ends, h_radius, d_rh):  # NaN is contact
             return self._no_contact(d_rh)
         robot.need_motion()
         d_hh, s_hh = np.empty((2, k, P, P))
