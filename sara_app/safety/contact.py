@@ -401,21 +401,16 @@ class ContactClassifier:
         d_hh, s_hh = np.empty((2, k, P, P))
         set_pair_distances(h_ends, h_radius, d_hh, s_hh)
         d_rr, s_rr, d_rb, n_rb = robot.geometry()
-        if h_ends.shape[0] < h_radius.shape[0]:  # static axes, growing radii
-            axis = np.empty((1, P, B))  # axis-to-box distances, once
-            box_distances(h_ends, self._zero_radius, robot.T_world_box, robot.half_extents_m,
-                          axis, _NO_NORMAL)  # fmt: skip
-            d_hb = axis - h_radius[:, :, None]
-        else:
-            d_hb = np.empty((h_ends.shape[0], P, B))
-            box_distances(h_ends, h_radius, robot.T_world_box, robot.half_extents_m, d_hb,
-                          _NO_NORMAL)  # fmt: skip
+        hb_axis = np.empty((h_ends.shape[0], P, B))  # axis-to-box; the kernel subtracts radii
+        box_distances(h_ends, self._zero_radius, robot.T_world_box, robot.half_extents_m,
+                      hb_axis, _NO_NORMAL)  # fmt: skip
         contact_s, env, self_, contact = np.empty((4, k, L, P), dtype=bool)
         cls = np.empty((k, L, P), dtype=np.int8)
         stack = np.empty((k, P, P), dtype=bool)
         diam = np.empty((k, P))
         classify_kernel(
-            d_rh, d_hh, d_rr[lo:hi], s_rr[lo:hi], r_ends, d_rb[lo:hi], n_rb[lo:hi], d_hb,
+            d_rh, d_hh, d_rr[lo:hi], s_rr[lo:hi], r_ends, d_rb[lo:hi], n_rb[lo:hi], hb_axis,
+            h_radius,
             robot.s_ends[lo : hi + 1], robot.s_radius, robot.p1_dot[lo : hi + 1],
             robot.omega[lo : hi + 1], robot.eps_v[lo:hi], self._no_pair, self._not_safe_h,
             self.diameters_m, self.relax_velocity, self.relax_diameter, self.multi_body,

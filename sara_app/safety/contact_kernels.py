@@ -260,7 +260,7 @@ def _state(
 
 @njit(
     _b1(
-        _RO[3], _RO[3], _RO[3], _RO[3], _RO[4], _RO[3], _RO[4], _RO[3],
+        _RO[3], _RO[3], _RO[3], _RO[3], _RO[4], _RO[3], _RO[4], _RO[3], _RO[2],
         _RO[4], _RO[1], _RO[3], _RO[3], _RO[2], _ROB2, _ROB2, _RO[1],
         _b1, _b1, _b1, _WB3, _WB3, _WB3, _WB3, _WI3, _WB3, _WF2, _WI3, _WI3,
     ),
@@ -274,7 +274,8 @@ def classify_kernel(
     r_ends: np.ndarray,
     d_rb: np.ndarray,
     n_rb: np.ndarray,
-    d_hb: np.ndarray,
+    hb_axis: np.ndarray,
+    h_radius: np.ndarray,
     s_ends: np.ndarray,
     s_radius: np.ndarray,
     p1_dot: np.ndarray,
@@ -302,9 +303,11 @@ def classify_kernel(
     Geometry inputs (surface distances): robot-human ``d_rh (K, L, P)``, human-human ``d_hh (K,
     P, P)``, robot-robot ``d_rr (K, L, L)`` with closest-point parameters ``s_rr`` (on link
     ``i`` towards ``l``), robot capsules ``r_ends (K, L, 2, 3)``, robot-box ``d_rb (K, L, B)``
-    with box-to-link vectors ``n_rb (K, L, B, 3)``, human-box ``d_hb (Kh, P, B)`` (``Kh`` in
-    ``{1, K}``). Link samples: ``s_ends (K+1, L, 2, 3)``, ``s_radius (L,)``, ``p1_dot, omega
-    (K+1, L, 3)``, ``eps_v (K, L)``. Outputs ``(K, L, P)``: ``contact_s``, ``env``, ``self_``
+    with box-to-link vectors ``n_rb (K, L, B, 3)``, human axis-to-box ``hb_axis (Kh, P, B)``
+    and the human radii ``h_radius (Kr, P)`` (``Kh, Kr`` in ``{1, K}``; the surface distance is
+    their difference, as :func:`~sara_app.geometry_kernels.box_distances` computes it). Link
+    samples: ``s_ends (K+1, L, 2, 3)``, ``s_radius (L,)``, ``p1_dot, omega (K+1, L, 3)``,
+    ``eps_v (K, L)``. Outputs ``(K, L, P)``: ``contact_s``, ``env``, ``self_``
     (both restricted to the stack contact), ``contact``, ``cls``; ``stack (K, P, P)``, ``diam
     (K, P)``. Without any possible contact the outputs are the reference's early result.
 
@@ -348,7 +351,8 @@ def classify_kernel(
     e_ok = np.empty((L, P), dtype=np.bool_)
     s_ok = np.empty((L, P), dtype=np.bool_)
     for k in range(K):
-        kh = k if d_hb.shape[0] == K else 0
+        kh = k if hb_axis.shape[0] == K else 0
+        kr = k if h_radius.shape[0] == K else 0
         n_c = _components(d_hh, k, not_safe_h, multi_body, comp, queue)
         for c in range(n_c):
             diam_c[c] = 0.0
@@ -375,7 +379,7 @@ def classify_kernel(
                 touch_g[c, b] = False
         for m in range(P):
             for b in range(B):
-                if not d_hb[kh, m, b] > 0.0:
+                if not hb_axis[kh, m, b] - h_radius[kr, m] > 0.0:
                     touch_g[comp[m], b] = True
         for i in range(L):
             for c in range(n_c):
