@@ -190,6 +190,48 @@ def test_a_failed_lazy_first_check_rotates_the_first_checks_order() -> None:
     assert shield._orders[0] is not shield._orders[1]
 
 
+@pytest.mark.parametrize("max_models", [1, 2, 4, 6])
+def test_model_evaluations_per_cycle_stay_within_the_budget(max_models: int) -> None:
+    """``SpeedScaling.max_models`` bounds the classifications of a cycle over all its checks
+    (the braking bench state needs 6 without it); a cycle that runs out brakes on the held
+    failsafe: it never commits a step that its checks did not prove."""
+    from sara_app.safety.pfl_shield import BENCH_CASES, PflCycle, SpeedScaling, _bench_shield
+
+    shield, template, people, t = _bench_shield(BENCH_CASES["braking"])
+    shield.scaling = SpeedScaling(max_models=max_models)
+    calls = []
+    for check in shield._checks.values():
+        classify = check.classifier.classify_humans
+
+        def counted(*args, _f=classify, **kw):  # type: ignore[no-untyped-def]
+            calls.append(1)
+            return _f(*args, **kw)
+
+        check.classifier.classify_humans = counted  # type: ignore[method-assign]
+    used = []
+    for _ in range(4):  # the same state each cycle, as in the benchmark (model order learns)
+        shield.follower = template.copy()
+        shield.cap, shield._calm = math.inf, 0
+        calls.clear()
+        out = shield.cycle(t, people, want_distance=False)
+        info = shield._res
+        assert isinstance(info, PflCycle) and info.result is not None
+        assert len(calls) <= max_models
+        assert out.verified == info.result.safe_all
+        assert out.mode == ("intended" if out.verified else "failsafe")
+        used.append(len(calls))
+    assert max(used) == min(max_models, 6)  # the budget binds, and 6 is what the state needs
+
+
+def test_speed_scaling_is_validated() -> None:
+    from sara_app.safety.pfl_shield import SpeedScaling
+
+    with pytest.raises(ParameterError, match="max_models = 0"):
+        SpeedScaling(max_models=0)
+    with pytest.raises(ParameterError, match="max_replans = -1"):
+        SpeedScaling(max_replans=-1)
+
+
 def test_classification_is_monotone_in_the_human_sets() -> None:
     """Basis of the per-entry merge: a larger set never gives a less severe verdict."""
     shield = make_shield()
