@@ -149,6 +149,54 @@ _W4 = types.Array(_f8, 4, "A")
 _RO3 = types.Array(_f8, 3, "A", readonly=True)
 
 
+@njit(cache=True)
+def _pairs(
+    a_ends: np.ndarray,
+    a_radius: np.ndarray,
+    b_ends: np.ndarray,
+    b_radius: np.ndarray,
+    out: np.ndarray,
+    prune: bool,
+) -> bool:
+    """:func:`pair_distances` (``prune`` False) or :func:`pair_gaps` (True)."""
+    K, A, B = out.shape
+    sa = np.empty((A if prune else 0, 4))
+    sb = np.empty((B if prune else 0, 4))
+    a_prev = b_prev = (-1, -1)
+    touch = False
+    for k in range(K):
+        ka = k if a_ends.shape[0] == K else 0
+        kb = k if b_ends.shape[0] == K else 0
+        kra = k if a_radius.shape[0] == K else 0
+        krb = k if b_radius.shape[0] == K else 0
+        if prune and (ka, kra) != a_prev:
+            _spheres(a_ends[ka], a_radius[kra : kra + 1], sa)
+            a_prev = (ka, kra)
+        if prune and (kb, krb) != b_prev:
+            _spheres(b_ends[kb], b_radius[krb : krb + 1], sb)
+            b_prev = (kb, krb)
+        for i in range(A):
+            for j in range(B):
+                if prune:
+                    dx = sa[i, 0] - sb[j, 0]
+                    dy = sa[i, 1] - sb[j, 1]
+                    dz = sa[i, 2] - sb[j, 2]
+                    lower = math.sqrt(dx * dx + dy * dy + dz * dz) - sa[i, 3] - sb[j, 3]
+                    if lower > sphere_slack_m:  # NaN goes on to the exact distance
+                        out[k, i, j] = lower
+                        continue
+                d = segment_closest(
+                    a_ends[ka, i, 0, 0], a_ends[ka, i, 0, 1], a_ends[ka, i, 0, 2],
+                    a_ends[ka, i, 1, 0], a_ends[ka, i, 1, 1], a_ends[ka, i, 1, 2],
+                    b_ends[kb, j, 0, 0], b_ends[kb, j, 0, 1], b_ends[kb, j, 0, 2],
+                    b_ends[kb, j, 1, 0], b_ends[kb, j, 1, 1], b_ends[kb, j, 1, 2],
+                )[0]  # fmt: skip
+                g = d - a_radius[kra, i] - b_radius[krb, j]
+                out[k, i, j] = g
+                touch = touch or not g > 0.0
+    return touch
+
+
 @njit(types.boolean(_RO4, _RO2, _RO4, _RO2, _W3), cache=True)
 def pair_distances(
     a_ends: np.ndarray,
@@ -161,25 +209,7 @@ def pair_distances(
     A)`` and ``b (Kb, B, 2, 3), (Kb, B)`` per interval, ``Ka, Kb`` in ``{1, K}`` (1: the same
     capsules on every interval); as :func:`sara_app.geometry.capsule_distances`. Returns
     whether any pair may touch (a distance <= 0 or NaN)."""
-    K, A, B = out.shape
-    touch = False
-    for k in range(K):
-        ka = k if a_ends.shape[0] == K else 0
-        kb = k if b_ends.shape[0] == K else 0
-        kra = k if a_radius.shape[0] == K else 0
-        krb = k if b_radius.shape[0] == K else 0
-        for i in range(A):
-            p = a_ends[ka, i]
-            for j in range(B):
-                q = b_ends[kb, j]
-                d = segment_closest(
-                    p[0, 0], p[0, 1], p[0, 2], p[1, 0], p[1, 1], p[1, 2],
-                    q[0, 0], q[0, 1], q[0, 2], q[1, 0], q[1, 1], q[1, 2],
-                )[0]  # fmt: skip
-                g = d - a_radius[kra, i] - b_radius[krb, j]
-                out[k, i, j] = g
-                touch = touch or not g > 0.0
-    return touch
+    return _pairs(a_ends, a_radius, b_ends, b_radius, out, False)
 
 
 @njit(types.boolean(_RO4, _RO2, _RO4, _RO2, _W3), cache=True)
@@ -196,41 +226,7 @@ def pair_gaps(
     others. So ``out <= 0`` (or NaN) exactly where the capsules may touch, which is all a
     contact test needs; 2-3x faster when most pairs are apart. Returns whether any pair may
     touch."""
-    K, A, B = out.shape
-    sa = np.empty((A, 4))
-    sb = np.empty((B, 4))
-    a_prev = b_prev = (-1, -1)
-    touch = False
-    for k in range(K):
-        ka = k if a_ends.shape[0] == K else 0
-        kb = k if b_ends.shape[0] == K else 0
-        kra = k if a_radius.shape[0] == K else 0
-        krb = k if b_radius.shape[0] == K else 0
-        if (ka, kra) != a_prev:
-            _spheres(a_ends[ka], a_radius[kra : kra + 1], sa)
-            a_prev = (ka, kra)
-        if (kb, krb) != b_prev:
-            _spheres(b_ends[kb], b_radius[krb : krb + 1], sb)
-            b_prev = (kb, krb)
-        for i in range(A):
-            for j in range(B):
-                dx = sa[i, 0] - sb[j, 0]
-                dy = sa[i, 1] - sb[j, 1]
-                dz = sa[i, 2] - sb[j, 2]
-                lower = math.sqrt(dx * dx + dy * dy + dz * dz) - sa[i, 3] - sb[j, 3]
-                if lower > sphere_slack_m:  # NaN goes on to the exact distance
-                    out[k, i, j] = lower
-                    continue
-                d = segment_closest(
-                    a_ends[ka, i, 0, 0], a_ends[ka, i, 0, 1], a_ends[ka, i, 0, 2],
-                    a_ends[ka, i, 1, 0], a_ends[ka, i, 1, 1], a_ends[ka, i, 1, 2],
-                    b_ends[kb, j, 0, 0], b_ends[kb, j, 0, 1], b_ends[kb, j, 0, 2],
-                    b_ends[kb, j, 1, 0], b_ends[kb, j, 1, 1], b_ends[kb, j, 1, 2],
-                )[0]  # fmt: skip
-                g = d - a_radius[kra, i] - b_radius[krb, j]
-                out[k, i, j] = g
-                touch = touch or not g > 0.0
-    return touch
+    return _pairs(a_ends, a_radius, b_ends, b_radius, out, True)
 
 
 @njit(cache=True)
