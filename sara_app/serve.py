@@ -24,6 +24,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -163,7 +164,7 @@ def serve(
         )
         period = 1.0 / frame_hz
         t_end = None if duration_s is None else time.monotonic() + duration_s
-        while t_end is None or time.monotonic() < t_end:
+        while (t_end is None or time.monotonic() < t_end) and not _STOP.is_set():
             t0 = time.monotonic()
             frame = view.poll()
             if frame is not None:
@@ -189,10 +190,16 @@ def serve(
         hub.close()
 
 
+_STOP = threading.Event()
+"""Set by Ctrl-C / SIGTERM under ``sara-app serve``: the loop ends at its next frame."""
+
+
 def _interrupt(signum: int, _frame: object) -> None:
-    """SIGTERM ends ``serve`` like Ctrl-C, so its worker and replayer are stopped too (they run
-    in their own sessions and would otherwise outlive it)."""
-    raise KeyboardInterrupt(f"signal {signum}")
+    """Ctrl-C and SIGTERM end ``serve`` at its next frame (then the worker and the replayer are
+    stopped: they run in their own sessions and would otherwise outlive it). A flag, not an
+    exception: a KeyboardInterrupt raised anywhere in the display code (inside a lock of the
+    viewer's or zenoh's threads) could leave the shutdown waiting on that lock."""
+    _STOP.set()
 
 
 def main_for_cli(
@@ -205,6 +212,7 @@ def main_for_cli(
 ) -> int:
     logging.basicConfig(level=logging.WARNING)
     os.environ.setdefault("PYTHONUNBUFFERED", "1")
+    signal.signal(signal.SIGINT, _interrupt)
     signal.signal(signal.SIGTERM, _interrupt)  # a service manager's stop: like Ctrl-C
     try:
         return serve(
