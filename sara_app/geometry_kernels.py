@@ -23,7 +23,14 @@ import math
 import numpy as np
 from numba import njit, types
 
-__all__ = ["capsule_sets_check", "pair_gaps", "segment_closest", "sphere_slack_m"]
+__all__ = [
+    "box_axis_gaps",
+    "capsule_sets_check",
+    "pair_gaps",
+    "segment_closest",
+    "set_pair_gaps",
+    "sphere_slack_m",
+]
 
 _PARALLEL_SIN2 = 1e-24  # as in sara_app.geometry
 sphere_slack_m = 1e-9
@@ -273,6 +280,49 @@ def set_pair_distances(ends: np.ndarray, radius: np.ndarray, d: np.ndarray, s: n
                 d[k, b, a] = g
 
 
+_ROB2 = types.Array(types.boolean, 2, "A", readonly=True)
+
+
+@njit(types.void(_RO4, _RO2, _ROB2, _W3), cache=True)
+def set_pair_gaps(ends: np.ndarray, radius: np.ndarray, mask: np.ndarray, d: np.ndarray) -> None:
+    """Surface distances ``d (K, N, N)`` of the pairs ``mask (N, N)`` within one capsule set
+    per interval (``ends (Ke, N, 2, 3)``, ``radius (Kr, N)``, ``Ke, Kr`` in ``{1, K}``), with
+    the broad phase of :func:`pair_gaps`: exact where the bounding spheres' gap is at most
+    :data:`sphere_slack_m`, that gap (a positive lower bound) elsewhere, so ``d <= 0`` (or NaN)
+    exactly where a pair may touch; ``+inf`` off the mask (not computed). For a contact test
+    that needs only the sign (the virtual body parts of the PFL classification); the axis
+    distance of a pair is reused while the axes stay the same (a set whose radii grow)."""
+    K, N = d.shape[0], d.shape[1]
+    sph = np.empty((N, 4))
+    axis = np.empty((N, N))
+    prev = (-1, -1)
+    for k in range(K):
+        ke = k if ends.shape[0] == K else 0
+        kr = k if radius.shape[0] == K else 0
+        if (ke, kr) != prev:
+            _spheres(ends[ke], radius[kr : kr + 1], sph)
+            if ke != prev[0] and not (ke > 0 and _same_ends(ends, ke)):
+                axis[:] = -1.0  # not computed for these axes (a NaN axis stays NaN)
+            prev = (ke, kr)
+        for a in range(N):
+            d[k, a, a] = np.inf
+            for b in range(a + 1, N):
+                g = np.inf
+                if mask[a, b] or mask[b, a]:
+                    dx, dy, dz = sph[a, 0] - sph[b, 0], sph[a, 1] - sph[b, 1], sph[a, 2] - sph[b, 2]
+                    g = math.sqrt(dx * dx + dy * dy + dz * dz) - sph[a, 3] - sph[b, 3]
+                    if not g > sphere_slack_m:  # NaN goes on to the exact distance
+                        if axis[a, b] < 0.0:
+                            p, q = ends[ke, a], ends[ke, b]
+                            axis[a, b] = segment_closest(
+                                p[0, 0], p[0, 1], p[0, 2], p[1, 0], p[1, 1], p[1, 2],
+                                q[0, 0], q[0, 1], q[0, 2], q[1, 0], q[1, 1], q[1, 2],
+                            )[0]  # fmt: skip
+                        g = axis[a, b] - radius[kr, a] - radius[kr, b]
+                d[k, a, b] = g
+                d[k, b, a] = g
+
+
 @njit(cache=True)
 def _segment_box(
     p: np.ndarray, q: np.ndarray, R: np.ndarray, c: np.ndarray, h: np.ndarray, work: np.ndarray
@@ -336,6 +386,53 @@ def _segment_box(
         R[1, 0] * b0 + R[1, 1] * b1 + R[1, 2] * b2 + c[1],
         R[2, 0] * b0 + R[2, 1] * b1 + R[2, 2] * b2 + c[2],
     )
+
+
+@njit(types.void(_RO4, _RO2, _RO3, _RO2, _W3), cache=True)
+def box_axis_gaps(
+    ends: np.ndarray,
+    radius: np.ndarray,
+    T_world_box: np.ndarray,
+    half_extents_m: np.ndarray,
+    axis: np.ndarray,
+) -> None:
+    """Axis-to-box distances ``axis (Ke, N, B)`` of capsules ``ends (Ke, N, 2, 3)`` against solid
+    boxes ``(B, 4, 4)``, ``(B, 3)``, for a touch test ``axis - radius[k] <= 0`` with radii
+    ``radius (Kr, N)`` (any ``Kr``): exact where the capsule may touch the box for some of its
+    radii; elsewhere a lower bound (the axis' bounding sphere to the box) that exceeds every
+    radius of the capsule by more than :data:`sphere_slack_m`, so the test's answer is the
+    exact one. A non-finite capsule gives NaN."""
+    Ke, N, B = axis.shape
+    work = np.empty((3, 8))
+    r_max = np.full(N, -np.inf)
+    for kr in range(radius.shape[0]):
+        for i in range(N):
+            r_max[i] = max(r_max[i], radius[kr, i])  # a NaN radius: its test is true anyway
+    for k in range(Ke):
+        if k > 0 and _same_ends(ends, k):  # the same axes as the previous interval
+            axis[k] = axis[k - 1]
+            continue
+        for i in range(N):
+            p, q = ends[k, i, 0], ends[k, i, 1]
+            cx, cy, cz = 0.5 * (p[0] + q[0]), 0.5 * (p[1] + q[1]), 0.5 * (p[2] + q[2])
+            hx, hy, hz = 0.5 * (q[0] - p[0]), 0.5 * (q[1] - p[1]), 0.5 * (q[2] - p[2])
+            half_len = math.sqrt(hx * hx + hy * hy + hz * hz)
+            finite = math.isfinite(cx + cy + cz + half_len)
+            for b in range(B):
+                if not finite:
+                    axis[k, i, b] = np.nan
+                    continue
+                R, c, h = T_world_box[b, :3, :3], T_world_box[b, :3, 3], half_extents_m[b]
+                out2 = 0.0
+                for j in range(3):  # centre in the box frame, excess over the half extents
+                    x = R[0, j] * (cx - c[0]) + R[1, j] * (cy - c[1]) + R[2, j] * (cz - c[2])
+                    ex = abs(x) - h[j]
+                    out2 += ex * ex if ex > 0.0 else 0.0
+                lower = math.sqrt(out2) - half_len  # distance to a convex set is 1-Lipschitz
+                if lower - r_max[i] > sphere_slack_m:
+                    axis[k, i, b] = lower
+                else:
+                    axis[k, i, b] = _segment_box(p, q, R, c, h, work)[0]
 
 
 @njit(types.void(_RO4, _RO2, _RO3, _RO2, _W3, _W4), cache=True)

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from scipy.sparse.csgraph import connected_components
 
+from sara_app import geometry_kernels
 from sara_app.errors import InputError, ParameterError, UnknownNameError
 from sara_app.geometry import segment_box_distance, segment_segment_closest
 from sara_app.geometry_kernels import sphere_slack_m
@@ -25,7 +26,7 @@ from sara_app.safety.contact import (
     _speed_bounds,
     segment_box_closest,
 )
-from sara_app.safety.contact_kernels import all_pairs
+from sara_app.safety.contact_kernels import _source_digest, all_pairs, classify_set
 from sara_app.safety.topology import human_safe_matrix, unclampable_matrix
 
 # A table: top face at z = 0.
@@ -475,3 +476,10 @@ def test_classify_humans_over_a_range_equals_classify_of_the_slice() -> None:
     other, _ = _scene(rng)
     with pytest.raises(InputError, match="another classifier"):
         other.classify_humans(robot, h_ends, h_radius)
+
+
+def test_classify_set_cache_key_carries_the_geometry_kernels_source() -> None:
+    """numba's cache checks only the kernel's own file; classify_set calls the geometry
+    kernels, so its closure (hashed into numba's cache key) must hold their source digest."""
+    cells = [c.cell_contents for c in classify_set.py_func.__closure__ or ()]
+    assert _source_digest(geometry_kernels) in cells

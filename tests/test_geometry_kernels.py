@@ -5,7 +5,9 @@
   and realise that distance.
 * ``pair_distances`` / ``set_pair_distances`` against ``capsule_distances`` and the numpy
   ``all_pairs``, ``box_distances`` against ``contact.segment_box_closest``; ``pair_gaps``
-  equals ``pair_distances`` wherever a pair may touch and is a positive lower bound elsewhere.
+  equals ``pair_distances`` wherever a pair may touch and is a positive lower bound elsewhere;
+  so do ``set_pair_gaps`` (against ``set_pair_distances``, over a pair mask) and
+  ``box_axis_gaps`` (against ``box_distances``, for every radius of the capsule).
 * ``capsule_sets_check`` against all pairs from ``geometry.capsule_distances``: ``hit`` exactly
   where an interval's smallest distance is <= 0 (round-off ties aside), nothing outside
   ``todo``, the returned distance is the exact smallest one over the checked intervals, and a
@@ -20,12 +22,14 @@ from hypothesis import strategies as st
 
 from sara_app import geometry as geo
 from sara_app.geometry_kernels import (
+    box_axis_gaps,
     box_distances,
     capsule_sets_check,
     pair_distances,
     pair_gaps,
     segment_closest,
     set_pair_distances,
+    set_pair_gaps,
 )
 from sara_app.safety.contact import segment_box_closest
 from sara_app.safety.contact_kernels import all_pairs
@@ -209,6 +213,31 @@ def test_set_pair_distances_equal_all_pairs(c: dict) -> None:
     np.testing.assert_allclose(s[:, off], s_ref[:, off], rtol=0, atol=1e-9)
 
 
+@SETTINGS
+@given(capsule_sets(), st.integers(0, 2**32 - 1), st.booleans())
+def test_set_pair_gaps_are_exact_where_masked_pairs_may_touch(
+    c: dict, seed: int, nan: bool
+) -> None:
+    """Masked pairs: exact distance wherever it is at most the sphere slack, a positive lower
+    bound elsewhere, NaN stays NaN; unmasked pairs and the diagonal are +inf."""
+    ends, rad = c["a_ends"].copy(), c["a_rad"]
+    K, N = max(ends.shape[0], rad.shape[0]), ends.shape[1]
+    if nan:
+        ends[-1, -1, 0, 0] = np.nan
+    mask = np.random.default_rng(seed).random((N, N)) < 0.7
+    mask = (mask | mask.T) & ~np.eye(N, dtype=bool)
+    exact, s, gaps = np.empty((3, K, N, N))
+    set_pair_distances(ends, rad, exact, s)
+    set_pair_gaps(ends, rad, mask, gaps)
+    assert np.all(gaps[:, ~mask] == np.inf)
+    exact, gaps = exact[:, mask], gaps[:, mask]
+    np.testing.assert_array_equal(np.isnan(gaps), np.isnan(exact))
+    may_touch = ~(exact > 1e-9)
+    np.testing.assert_array_equal(gaps[may_touch], exact[may_touch])
+    bound = ~np.isnan(exact) & (gaps != exact)
+    assert np.all(gaps[bound] > 1e-9) and np.all(gaps[bound] <= exact[bound] + 1e-12)
+
+
 def _pose(rng: np.random.Generator) -> np.ndarray:
     Q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
     T = np.eye(4)
@@ -239,3 +268,29 @@ def test_box_distances_equal_segment_box_closest(seed: int, B: int) -> None:
         ends[0, 0, 0, 1] = np.nan
         box_distances(ends, rad, T, h, dist, np.empty((0, 0, 0, 3)))
         assert np.isnan(dist[0, 0]).all()
+
+
+@SETTINGS
+@given(st.integers(0, 2**32 - 1), st.integers(0, 3), st.booleans())
+def test_box_axis_gaps_give_the_exact_touch_test(seed: int, B: int, nan: bool) -> None:
+    """Axis-to-box distance exact wherever the capsule may touch the box for one of its radii,
+    else a lower bound above every radius by the slack; a NaN capsule gives NaN."""
+    rng = np.random.default_rng(seed)
+    Ke, Kr, N = int(rng.integers(1, 4)), int(rng.integers(1, 4)), int(rng.integers(1, 8))
+    ends = rng.normal(scale=0.8, size=(Ke, N, 2, 3))
+    ends[:, 0, 1] = ends[:, 0, 0]  # a ball
+    if nan:
+        ends[-1, -1, 1, 2] = np.nan
+    rad = rng.uniform(0.0, 0.3, (Kr, N))
+    T = np.array([_pose(rng) for _ in range(B)]).reshape(B, 4, 4)
+    h = rng.uniform(0.0, 0.4, (B, 3))
+    exact, gaps = np.empty((2, Ke, N, B))
+    box_distances(ends, np.zeros((1, N)), T, h, exact, np.empty((0, 0, 0, 3)))
+    box_axis_gaps(ends, rad, T, h, gaps)
+    np.testing.assert_array_equal(np.isnan(gaps), np.isnan(exact))
+    r_max = rad.max(axis=0)[None, :, None]
+    may_touch = ~(exact - r_max > 1e-9)
+    np.testing.assert_array_equal(gaps[may_touch], exact[may_touch])
+    bound = ~np.isnan(exact) & ~may_touch
+    assert np.all(gaps[bound] - np.broadcast_to(r_max, gaps.shape)[bound] > 1e-9)
+    assert np.all(gaps[bound] <= exact[bound] + 1e-12)

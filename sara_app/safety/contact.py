@@ -43,8 +43,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from sara_app.errors import InputError, ParameterError
-from sara_app.geometry_kernels import box_distances, pair_gaps, set_pair_distances
-from sara_app.safety.contact_kernels import all_pairs, classify_kernel, segment_box_soa
+from sara_app.geometry_kernels import pair_gaps
+from sara_app.safety.contact_kernels import all_pairs, classify_set, segment_box_soa
 from sara_app.safety.velocity_error import VelocityErrorBound
 
 __all__ = [
@@ -153,9 +153,6 @@ class ContactResult:
     distance_m: np.ndarray
 
 
-_NO_NORMAL = np.empty((0, 0, 0, 3))
-
-
 MotionArrays = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 """``(s_ends (K+1, L, 2, 3), s_radius (L,), p1_dot (K+1, L, 3), omega (K+1, L, 3), eps_v (K,
 L))``: the link states at the samples that the clamping rules need."""
@@ -188,6 +185,9 @@ class RobotSide:
         self.s_ends = self.s_radius = self.p1_dot = self.omega = self.eps_v = _NONE
         if not callable(motion):
             self._set_motion(motion)
+        self.geometry_ready = np.zeros(1, dtype=bool)
+        """Whether :meth:`geometry_buffers` hold the robot-only distances (set by the compiled
+        classification, :func:`~sara_app.safety.contact_kernels.classify_set`)."""
         self._geometry: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         self.owner: object = None
         """The classifier whose :meth:`ContactClassifier.robot_side` made this (its switches
@@ -219,16 +219,13 @@ class RobotSide:
         self.s_ends, self.s_radius, self.p1_dot, self.omega, self.eps_v = arrays
         self._motion = motion
 
-    def geometry(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """``(d_rr, s_rr, d_rb, n_rb)`` (computed on the first call)."""
+    def geometry_buffers(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(d_rr, s_rr, d_rb, n_rb)``, allocated on the first call; filled once
+        :attr:`geometry_ready` is set."""
         if self._geometry is None:
             K, L, B = self.K, self.L, self.B
             d_rr, s_rr = np.empty((2, K, L, L))
-            set_pair_distances(self.r_ends, self.r_radius, d_rr, s_rr)
-            d_rb, n_rb = np.empty((K, L, B)), np.empty((K, L, B, 3))
-            box_distances(self.r_ends, self.r_radius, self.T_world_box, self.half_extents_m,
-                          d_rb, n_rb)  # fmt: skip
-            self._geometry = (d_rr, s_rr, d_rb, n_rb)
+            self._geometry = (d_rr, s_rr, np.empty((K, L, B)), np.empty((K, L, B, 3)))
         return self._geometry
 
 
@@ -293,7 +290,6 @@ class ContactClassifier:
         self.relax_velocity, self.relax_diameter = relax_velocity, relax_diameter
         self.multi_body = multi_body
         self._identity_views: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        self._zero_radius = np.zeros((1, P))
 
     def classify(
         self,
@@ -313,8 +309,8 @@ class ContactClassifier:
 
         :meth:`robot_side` then :meth:`classify_humans` (compiled): robot-human distances
         first (the broad phase: when no link can touch any body part nothing else is
-        computed), then the other distances and
-        :func:`~sara_app.safety.contact_kernels.classify_kernel`. Same result as
+        computed), then one call of :func:`~sara_app.safety.contact_kernels.classify_set`
+        (the other distances and the rules). Same result as
         :meth:`classify_reference` (tested on random scenes, round-off ties aside).
         """
         robot = self.robot_side(
@@ -380,7 +376,7 @@ class ContactClassifier:
             raise InputError("robot side made by another classifier; call robot_side() here")
         if not 0 <= lo < hi <= robot.K:
             raise InputError(f"interval range {lo}:{hi}; expected 0 <= lo < hi <= {robot.K}")
-        k, L, P, B = hi - lo, robot.L, self._not_safe_h.shape[0], robot.B
+        k, L, P = hi - lo, robot.L, self._not_safe_h.shape[0]
         h_ends = np.asarray(h_ends, dtype=np.float64)
         h_radius = np.asarray(h_radius, dtype=np.float64)
         if k > 1 and h_ends.ndim == 4 and h_ends.strides[0] == 0:
@@ -393,29 +389,21 @@ class ContactClassifier:
                     f"{name} has shape {a.shape}; expected ({k}, {', '.join(map(str, tail))}) "
                     f"or a leading 1 (P = {P} parts; intervals {lo}:{hi})"
                 )
-        r_ends, r_radius = robot.r_ends[lo:hi], robot.r_radius[lo:hi]
         d_rh = np.empty((k, L, P))
-        if not pair_gaps(r_ends, r_radius, h_ends, h_radius, d_rh):  # NaN is contact
-            return self._no_contact(d_rh)
+        if not pair_gaps(robot.r_ends[lo:hi], robot.r_radius[lo:hi], h_ends, h_radius, d_rh):
+            return self._no_contact(d_rh)  # (NaN is contact)
         robot.need_motion()
-        d_hh, s_hh = np.empty((2, k, P, P))
-        set_pair_distances(h_ends, h_radius, d_hh, s_hh)
-        d_rr, s_rr, d_rb, n_rb = robot.geometry()
-        hb_axis = np.empty((h_ends.shape[0], P, B))  # axis-to-box; the kernel subtracts radii
-        box_distances(h_ends, self._zero_radius, robot.T_world_box, robot.half_extents_m,
-                      hb_axis, _NO_NORMAL)  # fmt: skip
         contact_s, env, self_, contact = np.empty((4, k, L, P), dtype=bool)
         cls = np.empty((k, L, P), dtype=np.int8)
         stack = np.empty((k, P, P), dtype=bool)
         diam = np.empty((k, P))
-        classify_kernel(
-            d_rh, d_hh, d_rr[lo:hi], s_rr[lo:hi], r_ends, d_rb[lo:hi], n_rb[lo:hi], hb_axis,
-            h_radius,
-            robot.s_ends[lo : hi + 1], robot.s_radius, robot.p1_dot[lo : hi + 1],
-            robot.omega[lo : hi + 1], robot.eps_v[lo:hi], self._no_pair, self._not_safe_h,
-            self.diameters_m, self.relax_velocity, self.relax_diameter, self.multi_body,
-            contact_s, env, self_, contact, cls, stack, diam, robot.can_box[lo:hi],
-            robot.can_link[lo:hi],
+        classify_set(
+            lo, hi, robot.r_ends, robot.r_radius, robot.T_world_box, robot.half_extents_m,
+            robot.geometry_ready, *robot.geometry_buffers(), d_rh, h_ends, h_radius,
+            robot.s_ends, robot.s_radius, robot.p1_dot, robot.omega, robot.eps_v, self._no_pair,
+            self._not_safe_h, self.diameters_m, self.relax_velocity, self.relax_diameter,
+            self.multi_body, contact_s, env, self_, contact, cls, stack, diam, robot.can_box,
+            robot.can_link,
         )  # fmt: skip
         return ContactResult(contact, contact_s, env, self_, cls, stack, diam, d_rh)
 

@@ -9,10 +9,22 @@ This is what brings a PFL cycle (a few thousand capsule pairs) near the 1 ms bud
 
 from __future__ import annotations
 
+import hashlib
 import math
+from pathlib import Path
+from types import ModuleType
+from typing import Any
 
 import numpy as np
 from numba import njit, types
+
+from sara_app import geometry_kernels
+from sara_app.geometry_kernels import (
+    box_axis_gaps,
+    box_distances,
+    set_pair_distances,
+    set_pair_gaps,
+)
 
 _PARALLEL_SIN2 = 1e-24  # as in sara_app.geometry
 
@@ -119,13 +131,16 @@ def segment_box_soa(
 # --- compiled classification (numba) ---------------------------------------------------------
 # Explicit signatures (read-only 'A'-layout inputs) and cache=True: compiled or loaded from the
 # cache at import, never in a control loop. The helpers live in this file (numba's cache does not
-# see changes in other files).
+# see changes in other files); classify_set, which calls the geometry kernels, carries their
+# source digest in its cache key instead.
 
 _f8, _b1, _i8 = types.float64, types.boolean, types.int8
 _RO = {d: types.Array(_f8, d, "A", readonly=True) for d in (1, 2, 3, 4)}
 _ROB2 = types.Array(_b1, 2, "A", readonly=True)
 _WB3, _WF2, _WI3 = types.Array(_b1, 3, "A"), types.Array(_f8, 2, "A"), types.Array(_i8, 3, "A")
 _ROI1 = types.Array(types.int64, 1, "A", readonly=True)
+_i8l, _WB1 = types.int64, types.Array(_b1, 1, "A")
+_WF3, _WF4 = types.Array(_f8, 3, "A"), types.Array(_f8, 4, "A")
 
 
 @njit(cache=True)
@@ -444,6 +459,97 @@ def classify_kernel(
                 elif contact_s[k, i, j]:
                     cls[k, i, j] = 1
     return True
+
+
+def _source_digest(module: ModuleType) -> str:
+    """SHA-256 of a module's source file (see :func:`_make_classify_set`)."""
+    return hashlib.sha256(Path(str(module.__file__)).read_bytes()).hexdigest()
+
+
+def _make_classify_set() -> Any:
+    """Build :func:`classify_set`. It calls the kernels of :mod:`sara_app.geometry_kernels`, and
+    numba's cache checks only the calling kernel's own file: the digest of that module's source
+    is a closure variable, which numba hashes into the cache key, so a change there recompiles
+    this kernel instead of loading one with the old geometry."""
+    geometry_source = _source_digest(geometry_kernels)
+
+    @njit(
+        _b1(
+            _i8l, _i8l, _RO[4], _RO[2], _RO[3], _RO[2], _WB1, _WF3, _WF3, _WF3, _WF4,
+            _RO[3], _RO[4], _RO[2], _RO[4], _RO[1], _RO[3], _RO[3], _RO[2], _ROB2, _ROB2, _RO[1],
+            _b1, _b1, _b1, _WB3, _WB3, _WB3, _WB3, _WI3, _WB3, _WF2, _WI3, _WI3,
+        ),
+        cache=True,
+    )  # fmt: skip
+    def classify_set(
+        lo: int,
+        hi: int,
+        r_ends: np.ndarray,
+        r_radius: np.ndarray,
+        T_world_box: np.ndarray,
+        half_extents_m: np.ndarray,
+        geometry_ready: np.ndarray,
+        d_rr: np.ndarray,
+        s_rr: np.ndarray,
+        d_rb: np.ndarray,
+        n_rb: np.ndarray,
+        d_rh: np.ndarray,
+        h_ends: np.ndarray,
+        h_radius: np.ndarray,
+        s_ends: np.ndarray,
+        s_radius: np.ndarray,
+        p1_dot: np.ndarray,
+        omega: np.ndarray,
+        eps_v: np.ndarray,
+        no_pair: np.ndarray,
+        not_safe_h: np.ndarray,
+        diameters_m: np.ndarray,
+        relax_velocity: bool,
+        relax_diameter: bool,
+        multi_body: bool,
+        contact_s: np.ndarray,
+        env: np.ndarray,
+        self_: np.ndarray,
+        contact: np.ndarray,
+        cls: np.ndarray,
+        stack: np.ndarray,
+        diam: np.ndarray,
+        can_b: np.ndarray,
+        can_l: np.ndarray,
+    ) -> bool:
+        """:func:`classify_kernel` of intervals ``lo:hi`` of one robot trajectory (all its
+        arrays over every interval ``K``) against one human set, with the distances it needs
+        computed here: the robot-only ones (``d_rr, s_rr, d_rb, n_rb``, over all ``K``) once,
+        when ``geometry_ready[0]`` is False (then set); the human-human ones only where the
+        parts may stack (:func:`~sara_app.geometry_kernels.set_pair_gaps` over the pairs that
+        are not safe) and the human axis-to-box ones only where the touch test needs them
+        (:func:`~sara_app.geometry_kernels.box_axis_gaps`): same signs, same result.
+        ``d_rh (k, L, P)`` (``k = hi - lo``) as :func:`~sara_app.geometry_kernels.pair_gaps`
+        gives it; human sets ``(1|k, P, ...)``; outputs ``(k, ...)`` as in
+        :func:`classify_kernel`."""
+        if len(geometry_source) == 0:  # never: ties the cache to geometry_kernels.py
+            return False
+        if not geometry_ready[0]:
+            set_pair_distances(r_ends, r_radius, d_rr, s_rr)
+            box_distances(r_ends, r_radius, T_world_box, half_extents_m, d_rb, n_rb)
+            geometry_ready[0] = True
+        P, B = h_radius.shape[1], T_world_box.shape[0]
+        d_hh = np.empty((hi - lo, P, P))
+        set_pair_gaps(h_ends, h_radius, not_safe_h, d_hh)
+        hb_axis = np.empty((h_ends.shape[0], P, B))
+        box_axis_gaps(h_ends, h_radius, T_world_box, half_extents_m, hb_axis)
+        return classify_kernel(
+            d_rh, d_hh, d_rr[lo:hi], s_rr[lo:hi], r_ends[lo:hi], d_rb[lo:hi], n_rb[lo:hi],
+            hb_axis, h_radius, s_ends[lo : hi + 1], s_radius, p1_dot[lo : hi + 1],
+            omega[lo : hi + 1], eps_v[lo:hi], no_pair, not_safe_h, diameters_m, relax_velocity,
+            relax_diameter, multi_body, contact_s, env, self_, contact, cls, stack, diam,
+            can_b[lo:hi], can_l[lo:hi],
+        )  # fmt: skip
+
+    return classify_set
+
+
+classify_set = _make_classify_set()
 
 
 @njit(types.void(_RO[2], _RO[2], _RO[2], _ROI1, _ROI1, _RO[2], _RO[1], _WF2), cache=True)
