@@ -18,6 +18,7 @@ display side of this process (the dashboard, the API and the threads they start)
 
 from __future__ import annotations
 
+import faulthandler
 import logging
 import os
 import shutil
@@ -214,6 +215,9 @@ def main_for_cli(
     os.environ.setdefault("PYTHONUNBUFFERED", "1")
     signal.signal(signal.SIGINT, _interrupt)
     signal.signal(signal.SIGTERM, _interrupt)  # a service manager's stop: like Ctrl-C
+    # `kill -USR1 <pid>` prints every thread's stack to stderr: for a serve that does not stop
+    # (C-level, so it works while the main thread is blocked outside the interpreter)
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     try:
         return serve(
             scenario,

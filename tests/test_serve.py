@@ -81,7 +81,7 @@ def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(sig: signal.Signals) ->
             assert policy == (os.SCHED_FIFO if rt else os.SCHED_OTHER), (text, policy)
     finally:
         proc.send_signal(sig)
-        out, _ = proc.communicate(timeout=30)
+        out = _communicate_or_dump(proc, zp, timeout_s=30)
     assert proc.returncode == 0, out
     assert f"http://127.0.0.1:{vp}" in out
     # the worker and replayer are gone: nobody answers on the zenoh port any more
@@ -94,6 +94,22 @@ def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(sig: signal.Signals) ->
     while _children(zp) and time.monotonic() < t_end:
         time.sleep(0.2)
     assert _children(zp) == []
+
+
+def _communicate_or_dump(proc: subprocess.Popen[str], zenoh_port: int, timeout_s: float) -> str:
+    """The output of ``serve`` once it exits; if it does not within ``timeout_s``: its threads'
+    stacks (SIGUSR1, faulthandler), then it and its children are killed and the test fails
+    with that output (no process is left behind)."""
+    try:
+        return proc.communicate(timeout=timeout_s)[0]
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGUSR1)
+        time.sleep(2.0)
+        proc.kill()
+        for pid in _child_pids(zenoh_port):
+            os.kill(pid, signal.SIGKILL)
+        out = proc.communicate()[0]
+        pytest.fail(f"serve did not exit {timeout_s} s after the signal; its output:\n{out}")
 
 
 def _rt_permitted() -> bool:
