@@ -96,6 +96,14 @@ def _spheres(ends: np.ndarray, radius: np.ndarray, out: np.ndarray) -> None:
         out[i, 3] = math.sqrt(hx * hx + hy * hy + hz * hz) + radius[0, i]
 
 
+@njit(cache=True)
+def _sphere_gap(sa: np.ndarray, i: int, sb: np.ndarray, j: int) -> float:
+    """Gap between bounding spheres ``sa[i]`` and ``sb[j]`` (rows of :func:`_spheres`): a lower
+    bound of the two capsules' surface distance (NaN stays NaN)."""
+    dx, dy, dz = sa[i, 0] - sb[j, 0], sa[i, 1] - sb[j, 1], sa[i, 2] - sb[j, 2]
+    return math.sqrt(dx * dx + dy * dy + dz * dz) - sa[i, 3] - sb[j, 3]
+
+
 @njit(_f8(_RO4, _RO2, _RO4, _RO2, _ROB1, _WB1), cache=True)
 def capsule_sets_check(
     a_ends: np.ndarray,
@@ -133,10 +141,7 @@ def capsule_sets_check(
         _spheres(b_ends[k], b_radius[k : k + 1], sb)
         for c in range(C):
             for l in range(L):
-                dx = sa[c, 0] - sb[l, 0]
-                dy = sa[c, 1] - sb[l, 1]
-                dz = sa[c, 2] - sb[l, 2]
-                lower = math.sqrt(dx * dx + dy * dy + dz * dz) - sa[c, 3] - sb[l, 3]
+                lower = _sphere_gap(sa, c, sb, l)
                 if lower >= best and (lower > sphere_slack_m or hit[k]):
                     continue
                 p, q = a_ends[ka, c], b_ends[k, l]
@@ -185,10 +190,7 @@ def _pairs(
         for i in range(A):
             for j in range(B):
                 if prune:
-                    dx = sa[i, 0] - sb[j, 0]
-                    dy = sa[i, 1] - sb[j, 1]
-                    dz = sa[i, 2] - sb[j, 2]
-                    lower = math.sqrt(dx * dx + dy * dy + dz * dz) - sa[i, 3] - sb[j, 3]
+                    lower = _sphere_gap(sa, i, sb, j)
                     if lower > sphere_slack_m:  # NaN goes on to the exact distance
                         out[k, i, j] = lower
                         continue
@@ -309,8 +311,7 @@ def set_pair_gaps(ends: np.ndarray, radius: np.ndarray, mask: np.ndarray, d: np.
             for b in range(a + 1, N):
                 g = np.inf
                 if mask[a, b] or mask[b, a]:
-                    dx, dy, dz = sph[a, 0] - sph[b, 0], sph[a, 1] - sph[b, 1], sph[a, 2] - sph[b, 2]
-                    g = math.sqrt(dx * dx + dy * dy + dz * dz) - sph[a, 3] - sph[b, 3]
+                    g = _sphere_gap(sph, a, sph, b)
                     if not g > sphere_slack_m:  # NaN goes on to the exact distance
                         if axis[a, b] < 0.0:
                             p, q = ends[ke, a], ends[ke, b]
