@@ -67,8 +67,7 @@ def test_any_model_merge_is_the_or_of_single_model_verdicts() -> None:
     traj, ends, radius = shield._plan(math.inf)
     res, used, _ = shield._verify(traj, ends, radius, hum)
     K = len(traj.times) - 1
-    smp, energy = shield._link_energies(traj)
-    eps = shield.pfl.eps_from_bounds(np.diff(traj.times), traj.v_bound, traj.a_bound)
+    smp, energy, eps = shield._link_energies(traj)
     any_safe = np.zeros_like(res.safe)
     for name in shield.settings.models:
         h_e, h_r = shield._human_sets(name, hum, traj.times, 0, K)
@@ -99,8 +98,7 @@ def test_deferred_energies_change_no_verdict(x: float, possible: bool) -> None:
     del shield._link_energies
     K = len(traj.times) - 1
     dt = np.diff(traj.times)
-    smp, energy = shield._link_energies(traj)
-    eps = shield.pfl.eps_from_bounds(dt, traj.v_bound, traj.a_bound)
+    smp, energy, eps = shield._link_energies(traj)
     eager = shield.pfl.merged(ends, radius, smp, dt, eps, *shield.boxes, energy)
     for m in shield._model_order[:used]:
         lo, hi = eager.todo

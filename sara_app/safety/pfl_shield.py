@@ -88,12 +88,12 @@ from sara_app.human.reach import HumanReach
 from sara_app.robot.energy import (
     G_MARGIN,
     LinkSamples,
-    path_interval_energy_J,
 )
 from sara_app.robot.model import RobotModel
 from sara_app.robot.shielded import ShieldedTrajectory
 from sara_app.robot.trajectory import PathFollower
 from sara_app.safety.pfl import MergedCheck, PflCheck, PflResult
+from sara_app.safety.pfl_link_states import PathLinkStates
 from sara_app.safety.shield import CycleResult, Shield, ShieldSettings
 from sara_app.safety.thresholds import ThresholdSet, load_thresholds
 
@@ -224,6 +224,7 @@ class PflShield(Shield):
         """Link energies at the current state of a check that did not need them (no contact
         possible, so the check verified: they are not used)."""
         self.pfl = PflCheck(robot, self._part_names, thresholds=ts, link_shapes=spec.link_shapes)
+        self._link_states = PathLinkStates(self.pfl.motion, self.pfl.velocity_error)
         self._checks: dict[int, PflCheck] = {1: self.pfl}
         self._check_for(2)  # ~10 ms each: built here, not in a control cycle (more: on use)
         self.cap = math.inf
@@ -366,8 +367,8 @@ class PflShield(Shield):
             dt = traj.times[1:] - traj.times[:-1]
 
             def link_state() -> tuple[LinkSamples, np.ndarray, np.ndarray]:
-                smp, energy = self._link_energies(traj)
-                return smp, self.pfl.eps_from_bounds(dt, traj.v_bound, traj.a_bound), energy
+                smp, energy, eps = self._link_energies(traj)
+                return smp, eps, energy
 
             # the link energies and twists only when some human set may touch a link
             check = pfl.merged_deferred(ends, radius, dt, *self.boxes, link_state)
@@ -404,14 +405,19 @@ class PflShield(Shield):
         E0 = check.samples.energy_J[0] if check.samples is not None else self._no_energy
         return check.result(), check.models, E0
 
-    def _link_energies(self, traj: ShieldedTrajectory) -> tuple[LinkSamples, np.ndarray]:
-        """Link energies, twists and capsules at the samples (buffer views of the check's
-        :class:`~sara_app.robot.energy.LinkMotion`) and the energy bound per interval ``(K, L)``
-        (J): :func:`~sara_app.robot.energy.path_interval_energy_J` with the exact path-speed
-        peak of each interval (``traj.sd_max``) and the configuration factor ``q'^T E_i B E_i q'``
-        at its ends (plus ``G_MARGIN``), ``q' = traj.dq`` the path tangent at the samples."""
-        smp = self.pfl.motion.evaluate_path(traj.q, traj.dq, traj.sd)
-        return smp, path_interval_energy_J(smp.g_J, smp.energy_J, traj.sd, traj.sd_max)
+    def _link_energies(
+        self, traj: ShieldedTrajectory
+    ) -> tuple[LinkSamples, np.ndarray, np.ndarray]:
+        """Link energies, twists and capsules at the samples, the energy bound per interval
+        ``(K, L)`` (J) and the Thm VI.2 velocity error ``(K, L)`` (m/s), in one compiled call
+        (:class:`~sara_app.safety.pfl_link_states.PathLinkStates`; views of its buffers, valid
+        until its next call for a trajectory of as many samples). The energy bound is
+        :func:`~sara_app.robot.energy.path_interval_energy_J` with the exact path-speed peak of
+        each interval (``traj.sd_max``) and the configuration factor ``q'^T E_i B E_i q'`` at
+        its ends (plus ``G_MARGIN``), ``q' = traj.dq`` the path tangent at the samples; the
+        error bound is from the trajectory's joint speed and acceleration bounds per interval
+        and the joint jerk limits."""
+        return self._link_states.evaluate(traj)
 
     def _human_sets(
         self, model: str, hum: Humans, times: np.ndarray, lo: int, hi: int
@@ -449,7 +455,7 @@ class PflShield(Shield):
         if result.energy_known:
             return result
         with _inputs_checked():
-            _, E = self._link_energies(traj)
+            E = self._link_energies(traj)[1].copy()  # the result keeps it: not a buffer view
         if E.shape != result.energy_J.shape:
             raise InputError(
                 f"trajectory energies {E.shape} do not match the PFL result {result.energy_J.shape}"
@@ -647,9 +653,8 @@ def bench_rows(n: int = 2000) -> list[tuple[str, float, float, str]]:
     hum = shield._human_arrays(people, [0], {"p": t - float(people[0].stamp_s)})
     assert hum is not None
     K = len(traj.times) - 1
-    smp, energy = shield._link_energies(traj)
+    smp, energy, eps = shield._link_energies(traj)
     dt = np.diff(traj.times)
-    eps = shield.pfl.eps_from_bounds(dt, traj.v_bound, traj.a_bound)
     sets = {m: shield._human_sets(m, hum, traj.times, 0, K) for m in shield.settings.models}
 
     def classify_all() -> PflResult:
@@ -662,7 +667,7 @@ def bench_rows(n: int = 2000) -> list[tuple[str, float, float, str]]:
 
     stages: list[tuple[str, Any]] = [
         ("  shielded trajectory + occupancy", lambda: shield._plan(math.inf)),
-        ("  link energies, twists, interval energy bound", lambda: shield._link_energies(traj)),
+        ("  link energies, twists, energy and error bounds", lambda: shield._link_energies(traj)),
         (
             "  human sets, 3 models",
             lambda: [shield._human_sets(m, hum, traj.times, 0, K) for m in shield.settings.models],
