@@ -427,7 +427,11 @@ def test_classify_rejects_shapes_the_kernels_cannot_index() -> None:
     clf, args = _scene(rng)
     bad = list(args)
     bad[6] = bad[6][:, :-1]  # eps_v with one link missing
-    with pytest.raises(InputError, match="eps_v has shape"):
+    with pytest.raises(InputError, match=r"eps_v has shape .* intervals, L = "):
+        clf.classify(*bad)
+    bad = list(args)
+    bad[10] = bad[10][:, :2]  # half extents of the boxes without z
+    with pytest.raises(InputError, match=r"half_extents_m has shape .* links, B boxes"):
         clf.classify(*bad)
 
 

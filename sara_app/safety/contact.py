@@ -192,10 +192,10 @@ class RobotSide:
         self.owner: object = None
         """The classifier whose :meth:`ContactClassifier.robot_side` made this (its switches
         and topology shape the cached clamping predicates)."""
-        self.can_box = np.full((self.K, self.L, self.B), -1, dtype=np.int8)
+        self.can_box = _unknown((self.K, self.L, self.B))
         """Lazily filled: link ``i`` may clamp against box ``b`` on interval ``k`` (1/0; -1 not
         evaluated), shared by the human sets classified against this robot side."""
-        self.can_link = np.full((self.K, self.L, self.L), -1, dtype=np.int8)
+        self.can_link = _unknown((self.K, self.L, self.L))
         """Lazily filled: links ``i, l`` may close on a body part on interval ``k``."""
 
     @property
@@ -214,7 +214,7 @@ class RobotSide:
         _check_shapes(
             ("s_ends", "s_radius", "p1_dot", "omega", "eps_v"), arrays,
             ((K + 1, L, 2, 3), (L,), (K + 1, L, 3), (K + 1, L, 3), (K, L)),
-            f"K = {K} intervals, L = {L} links",
+            lambda: f"K = {K} intervals, L = {L} links",
         )  # fmt: skip
         self.s_ends, self.s_radius, self.p1_dot, self.omega, self.eps_v = arrays
         self._motion = motion
@@ -232,13 +232,24 @@ class RobotSide:
 _NONE = np.empty(0)
 
 
+def _unknown(shape: tuple[int, ...]) -> np.ndarray:
+    """An int8 cache of 1/0 predicates, all -1 (not evaluated); ``np.full`` costs twice this."""
+    out = np.empty(shape, dtype=np.int8)
+    out.fill(-1)
+    return out
+
+
 def _check_shapes(
-    names: Sequence[str], arrays: Sequence[np.ndarray], want: Sequence[tuple[int, ...]], what: str
+    names: Sequence[str],
+    arrays: Sequence[np.ndarray],
+    want: Sequence[tuple[int, ...]],
+    what: Callable[[], str],
 ) -> None:
-    """Raise :class:`InputError` naming the first array whose shape is not the wanted one."""
+    """Raise :class:`InputError` naming the first array whose shape is not the wanted one
+    (``what()``: the context for the message, formatted only then: every check pays for it)."""
     for name, a, shape in zip(names, arrays, want):
         if a.shape != shape:
-            raise InputError(f"{name} has shape {a.shape}; expected {shape} ({what})")
+            raise InputError(f"{name} has shape {a.shape}; expected {shape} ({what()})")
 
 
 def _closure(adj: np.ndarray) -> np.ndarray:
@@ -358,7 +369,8 @@ class ContactClassifier:
             )
         _check_shapes(
             ("r_ends", "r_radius", "T_world_box", "half_extents_m"), arrays,
-            ((K, L, 2, 3), (K, L), (B, 4, 4), (B, 3)), f"K = {K} intervals, L = {L} links, B boxes",
+            ((K, L, 2, 3), (K, L), (B, 4, 4), (B, 3)),
+            lambda: f"K = {K} intervals, L = {L} links, B boxes",
         )  # fmt: skip
         robot = RobotSide(arrays[0], arrays[1], motion, arrays[2], arrays[3])
         robot.owner = self
