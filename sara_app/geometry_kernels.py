@@ -25,9 +25,11 @@ from numba import njit, types
 
 __all__ = [
     "box_axis_gaps",
+    "box_entry",
     "capsule_sets_check",
     "pair_gaps",
     "segment_closest",
+    "set_pair_entry",
     "set_pair_gaps",
     "sphere_slack_m",
 ]
@@ -249,6 +251,32 @@ def _same_ends(ends: np.ndarray, k: int) -> bool:
     return True
 
 
+@njit(cache=True)
+def set_pair_entry(
+    ends: np.ndarray,
+    radius: np.ndarray,
+    k: int,
+    ke: int,
+    kr: int,
+    a: int,
+    b: int,
+    d: np.ndarray,
+    s: np.ndarray,
+) -> float:
+    """One pair ``a < b`` of :func:`set_pair_distances` on interval ``k`` (capsules ``ends[ke]``,
+    ``radius[kr]``): writes ``d[k, a, b] = d[k, b, a]`` and ``s[k, a, b], s[k, b, a]``;
+    returns the axis distance. For callers that need only some pairs (the same numbers)."""
+    p, q = ends[ke, a], ends[ke, b]
+    axis, s[k, a, b], s[k, b, a] = segment_closest(
+        p[0, 0], p[0, 1], p[0, 2], p[1, 0], p[1, 1], p[1, 2],
+        q[0, 0], q[0, 1], q[0, 2], q[1, 0], q[1, 1], q[1, 2],
+    )  # fmt: skip
+    g = axis - radius[kr, a] - radius[kr, b]
+    d[k, a, b] = g
+    d[k, b, a] = g
+    return axis
+
+
 @njit(types.void(_RO4, _RO2, _W3, _W3), cache=True)
 def set_pair_distances(ends: np.ndarray, radius: np.ndarray, d: np.ndarray, s: np.ndarray) -> None:
     """All pairs within one capsule set per interval: surface distances ``d (K, N, N)`` and
@@ -266,20 +294,15 @@ def set_pair_distances(ends: np.ndarray, radius: np.ndarray, d: np.ndarray, s: n
         for a in range(N):
             d[k, a, a] = 0.0 - radius[kr, a] - radius[kr, a]
             s[k, a, a] = 0.0
-            p = ends[ke, a]
             for b in range(a + 1, N):
                 if reuse:
                     s[k, a, b] = s[k - 1, a, b]
                     s[k, b, a] = s[k - 1, b, a]
+                    g = axis[a, b] - radius[kr, a] - radius[kr, b]
+                    d[k, a, b] = g
+                    d[k, b, a] = g
                 else:
-                    q = ends[ke, b]
-                    axis[a, b], s[k, a, b], s[k, b, a] = segment_closest(
-                        p[0, 0], p[0, 1], p[0, 2], p[1, 0], p[1, 1], p[1, 2],
-                        q[0, 0], q[0, 1], q[0, 2], q[1, 0], q[1, 1], q[1, 2],
-                    )  # fmt: skip
-                g = axis[a, b] - radius[kr, a] - radius[kr, b]
-                d[k, a, b] = g
-                d[k, b, a] = g
+                    axis[a, b] = set_pair_entry(ends, radius, k, ke, kr, a, b, d, s)
 
 
 _ROB2 = types.Array(types.boolean, 2, "A", readonly=True)
@@ -436,6 +459,45 @@ def box_axis_gaps(
                     axis[k, i, b] = _segment_box(p, q, R, c, h, work)[0]
 
 
+@njit(cache=True)
+def box_entry(
+    ends: np.ndarray,
+    radius: np.ndarray,
+    T_world_box: np.ndarray,
+    half_extents_m: np.ndarray,
+    k: int,
+    kr: int,
+    i: int,
+    b: int,
+    work: np.ndarray,
+    dist: np.ndarray,
+    normal: np.ndarray,
+    want_normal: bool,
+) -> float:
+    """One entry ``(k, i, b)`` of :func:`box_distances` (``work (3, 8)`` scratch): writes
+    ``dist[k, i, b]`` and, with ``want_normal``, ``normal[k, i, b]``; returns the axis distance
+    (NaN for a non-finite capsule). For callers that need only some entries (the same
+    numbers)."""
+    p, q = ends[k, i, 0], ends[k, i, 1]
+    finite = True
+    for r in range(3):
+        finite = finite and math.isfinite(p[r]) and math.isfinite(q[r])
+    if not finite:
+        dist[k, i, b] = np.nan
+        if want_normal:
+            for r in range(3):
+                normal[k, i, b, r] = np.nan
+        return np.nan
+    R, c = T_world_box[b, :3, :3], T_world_box[b, :3, 3]
+    res = _segment_box(p, q, R, c, half_extents_m[b], work)
+    dist[k, i, b] = res[0] - radius[kr, i]
+    if want_normal:
+        normal[k, i, b, 0] = res[1] - res[4]
+        normal[k, i, b, 1] = res[2] - res[5]
+        normal[k, i, b, 2] = res[3] - res[6]
+    return res[0]
+
+
 @njit(types.void(_RO4, _RO2, _RO3, _RO2, _W3, _W4), cache=True)
 def box_distances(
     ends: np.ndarray,
@@ -464,23 +526,8 @@ def box_distances(
                             normal[k, i, b, r] = normal[k - 1, i, b, r]
             continue
         for i in range(N):
-            p, q = ends[k, i, 0], ends[k, i, 1]
-            finite = True
-            for r in range(3):
-                finite = finite and math.isfinite(p[r]) and math.isfinite(q[r])
             for b in range(B):
-                if not finite:
-                    axis[i, b] = np.nan
-                    dist[k, i, b] = np.nan
-                    if want_normal:
-                        for r in range(3):
-                            normal[k, i, b, r] = np.nan
-                    continue
-                R, c = T_world_box[b, :3, :3], T_world_box[b, :3, 3]
-                res = _segment_box(p, q, R, c, half_extents_m[b], work)
-                axis[i, b] = res[0]
-                dist[k, i, b] = res[0] - radius[kr, i]
-                if want_normal:
-                    normal[k, i, b, 0] = res[1] - res[4]
-                    normal[k, i, b, 1] = res[2] - res[5]
-                    normal[k, i, b, 2] = res[3] - res[6]
+                axis[i, b] = box_entry(
+                    ends, radius, T_world_box, half_extents_m, k, kr, i, b, work, dist, normal,
+                    want_normal,
+                )  # fmt: skip

@@ -3,6 +3,8 @@ checks of the geometric predicates, and the Thm VI.2 bound against dense samplin
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 from scipy.sparse.csgraph import connected_components
@@ -26,7 +28,12 @@ from sara_app.safety.contact import (
     _speed_bounds,
     segment_box_closest,
 )
-from sara_app.safety.contact_kernels import _source_digest, all_pairs, classify_set
+from sara_app.safety.contact_kernels import (
+    _source_digest,
+    all_pairs,
+    classify_kernel,
+    classify_set,
+)
 from sara_app.safety.topology import human_safe_matrix, unclampable_matrix
 
 # A table: top face at z = 0.
@@ -482,8 +489,10 @@ def test_classify_humans_over_a_range_equals_classify_of_the_slice() -> None:
         other.classify_humans(robot, h_ends, h_radius)
 
 
-def test_classify_set_cache_key_carries_the_geometry_kernels_source() -> None:
-    """numba's cache checks only the kernel's own file; classify_set calls the geometry
-    kernels, so its closure (hashed into numba's cache key) must hold their source digest."""
-    cells = [c.cell_contents for c in classify_set.py_func.__closure__ or ()]
+@pytest.mark.parametrize("kernel", [classify_set, classify_kernel])
+def test_classify_cache_keys_carry_the_geometry_kernels_source(kernel: Any) -> None:
+    """numba's cache checks only the kernel's own file; classify_set and classify_kernel call
+    the geometry kernels, so their closures (hashed into numba's cache key) must hold their
+    source digest."""
+    cells = [c.cell_contents for c in kernel.py_func.__closure__ or ()]
     assert _source_digest(geometry_kernels) in cells

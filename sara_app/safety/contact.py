@@ -185,18 +185,17 @@ class RobotSide:
         self.s_ends = self.s_radius = self.p1_dot = self.omega = self.eps_v = _NONE
         if not callable(motion):
             self._set_motion(motion)
-        self.geometry_ready = np.zeros(1, dtype=bool)
-        """Whether :meth:`geometry_buffers` hold the robot-only distances (set by the compiled
-        classification, :func:`~sara_app.safety.contact_kernels.classify_set`)."""
         self._geometry: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         self.owner: object = None
         """The classifier whose :meth:`ContactClassifier.robot_side` made this (its switches
         and topology shape the cached clamping predicates)."""
         self.can_box = _unknown((self.K, self.L, self.B))
         """Lazily filled: link ``i`` may clamp against box ``b`` on interval ``k`` (1/0; -1 not
-        evaluated), shared by the human sets classified against this robot side."""
+        evaluated; -2 not evaluated and their distance not computed yet), shared by the human
+        sets classified against this robot side."""
         self.can_link = _unknown((self.K, self.L, self.L))
-        """Lazily filled: links ``i, l`` may close on a body part on interval ``k``."""
+        """Lazily filled: links ``i, l`` may close on a body part on interval ``k`` (as
+        :attr:`can_box`)."""
 
     @property
     def has_motion(self) -> bool:
@@ -220,8 +219,9 @@ class RobotSide:
         self._motion = motion
 
     def geometry_buffers(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """``(d_rr, s_rr, d_rb, n_rb)``, allocated on the first call; filled once
-        :attr:`geometry_ready` is set."""
+        """``(d_rr, s_rr, d_rb, n_rb)``, allocated on the first call; an entry is filled once
+        its cache entry (:attr:`can_link`, :attr:`can_box`) is above -2 (the compiled
+        classification computes only the distances its rules need)."""
         if self._geometry is None:
             K, L, B = self.K, self.L, self.B
             d_rr, s_rr = np.empty((2, K, L, L))
@@ -233,9 +233,10 @@ _NONE = np.empty(0)
 
 
 def _unknown(shape: tuple[int, ...]) -> np.ndarray:
-    """An int8 cache of 1/0 predicates, all -1 (not evaluated); ``np.full`` costs twice this."""
+    """An int8 cache of 1/0 predicates, all -2 (neither the predicate nor the distance it reads
+    known yet); ``np.full`` costs twice this."""
     out = np.empty(shape, dtype=np.int8)
-    out.fill(-1)
+    out.fill(-2)
     return out
 
 
@@ -411,7 +412,7 @@ class ContactClassifier:
         diam = np.empty((k, P))
         classify_set(
             lo, hi, robot.r_ends, robot.r_radius, robot.T_world_box, robot.half_extents_m,
-            robot.geometry_ready, *robot.geometry_buffers(), d_rh, h_ends, h_radius,
+            *robot.geometry_buffers(), d_rh, h_ends, h_radius,
             robot.s_ends, robot.s_radius, robot.p1_dot, robot.omega, robot.eps_v, self._no_pair,
             self._not_safe_h, self.diameters_m, self.relax_velocity, self.relax_diameter,
             self.multi_body, contact_s, env, self_, contact, cls, stack, diam, robot.can_box,

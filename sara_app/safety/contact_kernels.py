@@ -21,8 +21,8 @@ from numba import njit, types
 from sara_app import geometry_kernels
 from sara_app.geometry_kernels import (
     box_axis_gaps,
-    box_distances,
-    set_pair_distances,
+    box_entry,
+    set_pair_entry,
     set_pair_gaps,
 )
 
@@ -273,209 +273,235 @@ def _state(
     )  # fmt: skip
 
 
-@njit(
-    _b1(
-        _RO[3], _RO[3], _RO[3], _RO[3], _RO[4], _RO[3], _RO[4], _RO[3], _RO[2],
-        _RO[4], _RO[1], _RO[3], _RO[3], _RO[2], _ROB2, _ROB2, _RO[1],
-        _b1, _b1, _b1, _WB3, _WB3, _WB3, _WB3, _WI3, _WB3, _WF2, _WI3, _WI3,
-    ),
-    cache=True,
-)  # fmt: skip
-def classify_kernel(
-    d_rh: np.ndarray,
-    d_hh: np.ndarray,
-    d_rr: np.ndarray,
-    s_rr: np.ndarray,
-    r_ends: np.ndarray,
-    d_rb: np.ndarray,
-    n_rb: np.ndarray,
-    hb_axis: np.ndarray,
-    h_radius: np.ndarray,
-    s_ends: np.ndarray,
-    s_radius: np.ndarray,
-    p1_dot: np.ndarray,
-    omega: np.ndarray,
-    eps_v: np.ndarray,
-    no_pair: np.ndarray,
-    not_safe_h: np.ndarray,
-    diameters_m: np.ndarray,
-    relax_velocity: bool,
-    relax_diameter: bool,
-    multi_body: bool,
-    contact_s: np.ndarray,
-    env: np.ndarray,
-    self_: np.ndarray,
-    contact: np.ndarray,
-    cls: np.ndarray,
-    stack: np.ndarray,
-    diam: np.ndarray,
-    can_b: np.ndarray,
-    can_l: np.ndarray,
-) -> bool:
-    """:meth:`ContactClassifier.classify_reference` as loops (the rules are documented in
-    :mod:`sara_app.safety.contact`); returns whether any contact is possible.
-
-    Geometry inputs (surface distances): robot-human ``d_rh (K, L, P)``, human-human ``d_hh (K,
-    P, P)``, robot-robot ``d_rr (K, L, L)`` with closest-point parameters ``s_rr`` (on link
-    ``i`` towards ``l``), robot capsules ``r_ends (K, L, 2, 3)``, robot-box ``d_rb (K, L, B)``
-    with box-to-link vectors ``n_rb (K, L, B, 3)``, human axis-to-box ``hb_axis (Kh, P, B)``
-    and the human radii ``h_radius (Kr, P)`` (``Kh, Kr`` in ``{1, K}``; the surface distance is
-    their difference, as :func:`~sara_app.geometry_kernels.box_distances` computes it). Link
-    samples: ``s_ends (K+1, L, 2, 3)``, ``s_radius (L,)``, ``p1_dot, omega (K+1, L, 3)``,
-    ``eps_v (K, L)``. Outputs ``(K, L, P)``: ``contact_s``, ``env``, ``self_``
-    (both restricted to the stack contact), ``contact``, ``cls``; ``stack (K, P, P)``, ``diam
-    (K, P)``. Without any possible contact the outputs are the reference's early result.
-
-    ``can_b (K, L, B)``, ``can_l (K, L, L)`` (int8): caches of the robot-only clamping
-    predicates (:func:`_env_can`, :func:`_self_can`; -1 not evaluated yet, 0 no, 1 yes), filled
-    lazily; they depend on the robot inputs and the classifier's switches only, so one cache
-    serves every human set checked against the same robot inputs.
-    """
-    K, L, P = d_rh.shape
-    B = d_rb.shape[2]
-    anything = False
-    for k in range(K):
-        for i in range(L):
-            for p in range(P):
-                near = not d_rh[k, i, p] > 0.0
-                contact_s[k, i, p] = near
-                contact[k, i, p] = near
-                env[k, i, p] = False
-                self_[k, i, p] = False
-                cls[k, i, p] = 0
-                anything = anything or near
-    if not anything:
-        for k in range(K):
-            for j in range(P):
-                diam[k, j] = diameters_m[j]
-                for m in range(P):
-                    stack[k, j, m] = j == m
-        return False
-    reach = np.empty((K + 1, L))  # lever of Thm VI.1: radius + capsule length
-    for t in range(K + 1):
-        for i in range(L):
-            e = s_ends[t, i]
-            dx, dy, dz = e[1, 0] - e[0, 0], e[1, 1] - e[0, 1], e[1, 2] - e[0, 2]
-            reach[t, i] = s_radius[i] + math.sqrt(dx * dx + dy * dy + dz * dz)
-    comp = np.empty(P, dtype=np.int64)
-    queue = np.empty(P, dtype=np.int64)
-    diam_c = np.empty(P)
-    # per link and virtual body part (component): contact through it, clamping verdicts
-    contact_g = np.empty((L, P), dtype=np.bool_)
-    touch_g = np.empty((P, B), dtype=np.bool_)
-    e_ok = np.empty((L, P), dtype=np.bool_)
-    s_ok = np.empty((L, P), dtype=np.bool_)
-    for k in range(K):
-        kh = k if hb_axis.shape[0] == K else 0
-        kr = k if h_radius.shape[0] == K else 0
-        n_c = _components(d_hh, k, not_safe_h, multi_body, comp, queue)
-        for c in range(n_c):
-            diam_c[c] = 0.0
-        for m in range(P):  # ascending members: the same sum as the closure's row
-            diam_c[comp[m]] += diameters_m[m]
-        for j in range(P):
-            diam[k, j] = diam_c[comp[j]]
-            for m in range(P):
-                stack[k, j, m] = comp[j] == comp[m]
-        any_k = False
-        for i in range(L):  # contact with the stack
-            for c in range(n_c):
-                contact_g[i, c] = False
-            for m in range(P):
-                if contact_s[k, i, m]:
-                    contact_g[i, comp[m]] = True
-                    any_k = True
-        if not any_k:
-            continue
-        # environment-constrained (eq. 10-11, 31, 33): the stack touches box b and link i may
-        # not provably move away from it
-        for c in range(n_c):
-            for b in range(B):
-                touch_g[c, b] = False
-        for m in range(P):
-            for b in range(B):
-                if not hb_axis[kh, m, b] - h_radius[kr, m] > 0.0:
-                    touch_g[comp[m], b] = True
-        for i in range(L):
-            for c in range(n_c):
-                if not contact_g[i, c]:  # no contact through the stack: nothing to clamp
-                    continue
-                eo = False
-                for b in range(B):
-                    if touch_g[c, b] and not (relax_diameter and d_rb[k, i, b] > diam_c[c]):
-                        if can_b[k, i, b] < 0:
-                            n = (n_rb[k, i, b, 0], n_rb[k, i, b, 1], n_rb[k, i, b, 2])
-                            can_b[k, i, b] = _env_can(
-                                d_rb[k, i, b], n, _state(p1_dot, omega, reach, k, i),
-                                _state(p1_dot, omega, reach, k + 1, i), eps_v[k, i], relax_velocity,
-                            )  # fmt: skip
-                        if can_b[k, i, b]:
-                            eo = True
-                            break
-                so = False
-                for l in range(L):
-                    if contact_g[l, c] and not (relax_diameter and d_rr[k, i, l] > diam_c[c]):
-                        if can_l[k, i, l] < 0:
-                            if no_pair[i, l]:
-                                can_l[k, i, l] = 0
-                            elif not relax_velocity:
-                                can_l[k, i, l] = 1
-                            else:
-                                s, t, e = s_rr[k, i, l], s_rr[k, l, i], r_ends
-                                gap = (
-                                    e[k, i, 0, 0]
-                                    + s * (e[k, i, 1, 0] - e[k, i, 0, 0])
-                                    - (e[k, l, 0, 0] + t * (e[k, l, 1, 0] - e[k, l, 0, 0])),
-                                    e[k, i, 0, 1]
-                                    + s * (e[k, i, 1, 1] - e[k, i, 0, 1])
-                                    - (e[k, l, 0, 1] + t * (e[k, l, 1, 1] - e[k, l, 0, 1])),
-                                    e[k, i, 0, 2]
-                                    + s * (e[k, i, 1, 2] - e[k, i, 0, 2])
-                                    - (e[k, l, 0, 2] + t * (e[k, l, 1, 2] - e[k, l, 0, 2])),
-                                )
-                                can_l[k, i, l] = _self_can(
-                                    d_rr[k, i, l], gap, _state(p1_dot, omega, reach, k, i),
-                                    _state(p1_dot, omega, reach, k + 1, i),
-                                    _state(p1_dot, omega, reach, k, l),
-                                    _state(p1_dot, omega, reach, k + 1, l),
-                                    eps_v[k, i] + eps_v[k, l],
-                                )  # fmt: skip
-                        if can_l[k, i, l]:
-                            so = True
-                            break
-                e_ok[i, c] = eo
-                s_ok[i, c] = so
-        for i in range(L):
-            for j in range(P):
-                c = comp[j]
-                if not contact_g[i, c]:
-                    continue
-                eo, so = e_ok[i, c], s_ok[i, c]
-                env[k, i, j] = eo
-                self_[k, i, j] = so
-                if eo or so:
-                    contact[k, i, j] = True
-                    cls[k, i, j] = 2 if eo else 3
-                elif contact_s[k, i, j]:
-                    cls[k, i, j] = 1
-    return True
-
-
 def _source_digest(module: ModuleType) -> str:
     """SHA-256 of a module's source file (see :func:`_make_classify_set`)."""
     return hashlib.sha256(Path(str(module.__file__)).read_bytes()).hexdigest()
 
 
-def _make_classify_set() -> Any:
-    """Build :func:`classify_set`. It calls the kernels of :mod:`sara_app.geometry_kernels`, and
-    numba's cache checks only the calling kernel's own file: the digest of that module's source
-    is a closure variable, which numba hashes into the cache key, so a change there recompiles
-    this kernel instead of loading one with the old geometry."""
+def _make_classify_kernels() -> tuple[Any, Any]:
+    """Build :func:`classify_kernel` and :func:`classify_set`. They call the kernels of
+    :mod:`sara_app.geometry_kernels`, and numba's cache checks only the calling kernel's own
+    file: the digest of that module's source is a closure variable, which numba hashes into the
+    cache key, so a change there recompiles them instead of loading them with the old
+    geometry."""
     geometry_source = _source_digest(geometry_kernels)
 
     @njit(
         _b1(
-            _i8l, _i8l, _RO[4], _RO[2], _RO[3], _RO[2], _WB1, _WF3, _WF3, _WF3, _WF4,
+            _RO[3], _RO[3], _WF3, _WF3, _RO[4], _RO[2], _RO[3], _RO[2], _WF3, _WF4, _RO[3], _RO[2],
+            _RO[4], _RO[1], _RO[3], _RO[3], _RO[2], _ROB2, _ROB2, _RO[1],
+            _b1, _b1, _b1, _WB3, _WB3, _WB3, _WB3, _WI3, _WB3, _WF2, _WI3, _WI3,
+        ),
+        cache=True,
+    )  # fmt: skip
+    def classify_kernel(
+        d_rh: np.ndarray,
+        d_hh: np.ndarray,
+        d_rr: np.ndarray,
+        s_rr: np.ndarray,
+        r_ends: np.ndarray,
+        r_radius: np.ndarray,
+        T_world_box: np.ndarray,
+        half_extents_m: np.ndarray,
+        d_rb: np.ndarray,
+        n_rb: np.ndarray,
+        hb_axis: np.ndarray,
+        h_radius: np.ndarray,
+        s_ends: np.ndarray,
+        s_radius: np.ndarray,
+        p1_dot: np.ndarray,
+        omega: np.ndarray,
+        eps_v: np.ndarray,
+        no_pair: np.ndarray,
+        not_safe_h: np.ndarray,
+        diameters_m: np.ndarray,
+        relax_velocity: bool,
+        relax_diameter: bool,
+        multi_body: bool,
+        contact_s: np.ndarray,
+        env: np.ndarray,
+        self_: np.ndarray,
+        contact: np.ndarray,
+        cls: np.ndarray,
+        stack: np.ndarray,
+        diam: np.ndarray,
+        can_b: np.ndarray,
+        can_l: np.ndarray,
+    ) -> bool:
+        """:meth:`ContactClassifier.classify_reference` as loops (the rules are documented in
+        :mod:`sara_app.safety.contact`); returns whether any contact is possible.
+
+        Geometry inputs (surface distances): robot-human ``d_rh (K, L, P)``, human-human ``d_hh (K,
+        P, P)``, robot capsules ``r_ends (K, L, 2, 3)``, ``r_radius (K, L)``, boxes ``T_world_box
+        (B, 4, 4)``, ``half_extents_m (B, 3)``, human axis-to-box ``hb_axis (Kh, P, B)``
+        and the human radii ``h_radius (Kr, P)`` (``Kh, Kr`` in ``{1, K}``; the surface distance is
+        their difference, as :func:`~sara_app.geometry_kernels.box_distances` computes it). Link
+        samples: ``s_ends (K+1, L, 2, 3)``, ``s_radius (L,)``, ``p1_dot, omega (K+1, L, 3)``,
+        ``eps_v (K, L)``. Outputs ``(K, L, P)``: ``contact_s``, ``env``, ``self_``
+        (both restricted to the stack contact), ``contact``, ``cls``; ``stack (K, P, P)``, ``diam
+        (K, P)``. Without any possible contact the outputs are the reference's early result.
+
+        Robot-only geometry, computed where a rule first needs it (most pairs never do: in the
+        benchmark's braking state 4-15 % of the link pairs and 15-55 % of the link-box entries):
+        robot-robot ``d_rr (K, L, L)`` with closest-point parameters ``s_rr`` (on link ``i`` towards
+        ``l``), robot-box ``d_rb (K, L, B)`` with box-to-link vectors ``n_rb (K, L, B, 3)``, the
+        numbers of :func:`~sara_app.geometry_kernels.set_pair_distances` and
+        :func:`~sara_app.geometry_kernels.box_distances`. ``can_b (K, L, B)``, ``can_l (K, L, L)``
+        (int8): -2 distance not computed yet, -1 distance known but the robot-only clamping
+        predicate (:func:`_env_can`, :func:`_self_can`) not evaluated yet, 0 no, 1 yes; they
+        depend on the robot inputs and the classifier's switches only, so these caches serve every
+        human set checked against the same robot inputs.
+        """
+        if len(geometry_source) == 0:  # never: ties the cache to geometry_kernels.py
+            return False
+        K, L, P = d_rh.shape
+        B = d_rb.shape[2]
+        anything = False
+        for k in range(K):
+            for i in range(L):
+                for p in range(P):
+                    near = not d_rh[k, i, p] > 0.0
+                    contact_s[k, i, p] = near
+                    contact[k, i, p] = near
+                    env[k, i, p] = False
+                    self_[k, i, p] = False
+                    cls[k, i, p] = 0
+                    anything = anything or near
+        if not anything:
+            for k in range(K):
+                for j in range(P):
+                    diam[k, j] = diameters_m[j]
+                    for m in range(P):
+                        stack[k, j, m] = j == m
+            return False
+        reach = np.empty((K + 1, L))  # lever of Thm VI.1: radius + capsule length
+        for t in range(K + 1):
+            for i in range(L):
+                e = s_ends[t, i]
+                dx, dy, dz = e[1, 0] - e[0, 0], e[1, 1] - e[0, 1], e[1, 2] - e[0, 2]
+                reach[t, i] = s_radius[i] + math.sqrt(dx * dx + dy * dy + dz * dz)
+        comp = np.empty(P, dtype=np.int64)
+        queue = np.empty(P, dtype=np.int64)
+        diam_c = np.empty(P)
+        # per link and virtual body part (component): contact through it, clamping verdicts
+        contact_g = np.empty((L, P), dtype=np.bool_)
+        touch_g = np.empty((P, B), dtype=np.bool_)
+        e_ok = np.empty((L, P), dtype=np.bool_)
+        work = np.empty((3, 8))  # box_entry's scratch
+        s_ok = np.empty((L, P), dtype=np.bool_)
+        for k in range(K):
+            kh = k if hb_axis.shape[0] == K else 0
+            kr = k if h_radius.shape[0] == K else 0
+            n_c = _components(d_hh, k, not_safe_h, multi_body, comp, queue)
+            for c in range(n_c):
+                diam_c[c] = 0.0
+            for m in range(P):  # ascending members: the same sum as the closure's row
+                diam_c[comp[m]] += diameters_m[m]
+            for j in range(P):
+                diam[k, j] = diam_c[comp[j]]
+                for m in range(P):
+                    stack[k, j, m] = comp[j] == comp[m]
+            any_k = False
+            for i in range(L):  # contact with the stack
+                for c in range(n_c):
+                    contact_g[i, c] = False
+                for m in range(P):
+                    if contact_s[k, i, m]:
+                        contact_g[i, comp[m]] = True
+                        any_k = True
+            if not any_k:
+                continue
+            # environment-constrained (eq. 10-11, 31, 33): the stack touches box b and link i may
+            # not provably move away from it
+            for c in range(n_c):
+                for b in range(B):
+                    touch_g[c, b] = False
+            for m in range(P):
+                for b in range(B):
+                    if not hb_axis[kh, m, b] - h_radius[kr, m] > 0.0:
+                        touch_g[comp[m], b] = True
+            for i in range(L):
+                for c in range(n_c):
+                    if not contact_g[i, c]:  # no contact through the stack: nothing to clamp
+                        continue
+                    eo = False
+                    for b in range(B):
+                        if not touch_g[c, b]:
+                            continue
+                        if can_b[k, i, b] == -2:
+                            box_entry(
+                                r_ends, r_radius, T_world_box, half_extents_m, k, k, i, b, work,
+                                d_rb, n_rb, True,
+                            )  # fmt: skip
+                            can_b[k, i, b] = -1
+                        if not (relax_diameter and d_rb[k, i, b] > diam_c[c]):
+                            if can_b[k, i, b] < 0:
+                                n = (n_rb[k, i, b, 0], n_rb[k, i, b, 1], n_rb[k, i, b, 2])
+                                can_b[k, i, b] = _env_can(
+                                    d_rb[k, i, b], n, _state(p1_dot, omega, reach, k, i),
+                                    _state(p1_dot, omega, reach, k + 1, i), eps_v[k, i],
+                                relax_velocity,
+                                )  # fmt: skip
+                            if can_b[k, i, b] == 1:
+                                eo = True
+                                break
+                    so = False
+                    for l in range(L):
+                        if not contact_g[l, c] or no_pair[i, l]:  # a declared pair never clamps
+                            continue
+                        if can_l[k, i, l] == -2:
+                            first, second = (i, l) if i < l else (l, i)
+                            set_pair_entry(r_ends, r_radius, k, k, k, first, second, d_rr, s_rr)
+                            can_l[k, i, l] = -1
+                            if can_l[k, l, i] == -2:
+                                can_l[k, l, i] = -1
+                        if not (relax_diameter and d_rr[k, i, l] > diam_c[c]):
+                            if can_l[k, i, l] < 0:
+                                if not relax_velocity:
+                                    can_l[k, i, l] = 1
+                                else:
+                                    s, t, e = s_rr[k, i, l], s_rr[k, l, i], r_ends
+                                    gap = (
+                                        e[k, i, 0, 0]
+                                        + s * (e[k, i, 1, 0] - e[k, i, 0, 0])
+                                        - (e[k, l, 0, 0] + t * (e[k, l, 1, 0] - e[k, l, 0, 0])),
+                                        e[k, i, 0, 1]
+                                        + s * (e[k, i, 1, 1] - e[k, i, 0, 1])
+                                        - (e[k, l, 0, 1] + t * (e[k, l, 1, 1] - e[k, l, 0, 1])),
+                                        e[k, i, 0, 2]
+                                        + s * (e[k, i, 1, 2] - e[k, i, 0, 2])
+                                        - (e[k, l, 0, 2] + t * (e[k, l, 1, 2] - e[k, l, 0, 2])),
+                                    )
+                                    can_l[k, i, l] = _self_can(
+                                        d_rr[k, i, l], gap, _state(p1_dot, omega, reach, k, i),
+                                        _state(p1_dot, omega, reach, k + 1, i),
+                                        _state(p1_dot, omega, reach, k, l),
+                                        _state(p1_dot, omega, reach, k + 1, l),
+                                        eps_v[k, i] + eps_v[k, l],
+                                    )  # fmt: skip
+                            if can_l[k, i, l] == 1:
+                                so = True
+                                break
+                    e_ok[i, c] = eo
+                    s_ok[i, c] = so
+            for i in range(L):
+                for j in range(P):
+                    c = comp[j]
+                    if not contact_g[i, c]:
+                        continue
+                    eo, so = e_ok[i, c], s_ok[i, c]
+                    env[k, i, j] = eo
+                    self_[k, i, j] = so
+                    if eo or so:
+                        contact[k, i, j] = True
+                        cls[k, i, j] = 2 if eo else 3
+                    elif contact_s[k, i, j]:
+                        cls[k, i, j] = 1
+        return True
+
+    @njit(
+        _b1(
+            _i8l, _i8l, _RO[4], _RO[2], _RO[3], _RO[2], _WF3, _WF3, _WF3, _WF4,
             _RO[3], _RO[4], _RO[2], _RO[4], _RO[1], _RO[3], _RO[3], _RO[2], _ROB2, _ROB2, _RO[1],
             _b1, _b1, _b1, _WB3, _WB3, _WB3, _WB3, _WI3, _WB3, _WF2, _WI3, _WI3,
         ),
@@ -488,7 +514,6 @@ def _make_classify_set() -> Any:
         r_radius: np.ndarray,
         T_world_box: np.ndarray,
         half_extents_m: np.ndarray,
-        geometry_ready: np.ndarray,
         d_rr: np.ndarray,
         s_rr: np.ndarray,
         d_rb: np.ndarray,
@@ -519,8 +544,9 @@ def _make_classify_set() -> Any:
     ) -> bool:
         """:func:`classify_kernel` of intervals ``lo:hi`` of one robot trajectory (all its
         arrays over every interval ``K``) against one human set, with the distances it needs
-        computed here: the robot-only ones (``d_rr, s_rr, d_rb, n_rb``, over all ``K``) once,
-        when ``geometry_ready[0]`` is False (then set); the human-human ones only where the
+        computed here or in :func:`classify_kernel`: the robot-only ones (``d_rr, s_rr, d_rb,
+        n_rb`` over every ``K``, the caches ``can_b, can_l`` say which are known: -2 not yet)
+        where a clamping rule first needs them, the human-human ones only where the
         parts may stack (:func:`~sara_app.geometry_kernels.set_pair_gaps` over the pairs that
         are not safe) and the human axis-to-box ones only where the touch test needs them
         (:func:`~sara_app.geometry_kernels.box_axis_gaps`): same signs, same result.
@@ -529,27 +555,23 @@ def _make_classify_set() -> Any:
         :func:`classify_kernel`."""
         if len(geometry_source) == 0:  # never: ties the cache to geometry_kernels.py
             return False
-        if not geometry_ready[0]:
-            set_pair_distances(r_ends, r_radius, d_rr, s_rr)
-            box_distances(r_ends, r_radius, T_world_box, half_extents_m, d_rb, n_rb)
-            geometry_ready[0] = True
         P, B = h_radius.shape[1], T_world_box.shape[0]
         d_hh = np.empty((hi - lo, P, P))
         set_pair_gaps(h_ends, h_radius, not_safe_h, d_hh)
         hb_axis = np.empty((h_ends.shape[0], P, B))
         box_axis_gaps(h_ends, h_radius, T_world_box, half_extents_m, hb_axis)
         return classify_kernel(
-            d_rh, d_hh, d_rr[lo:hi], s_rr[lo:hi], r_ends[lo:hi], d_rb[lo:hi], n_rb[lo:hi],
-            hb_axis, h_radius, s_ends[lo : hi + 1], s_radius, p1_dot[lo : hi + 1],
-            omega[lo : hi + 1], eps_v[lo:hi], no_pair, not_safe_h, diameters_m, relax_velocity,
-            relax_diameter, multi_body, contact_s, env, self_, contact, cls, stack, diam,
-            can_b[lo:hi], can_l[lo:hi],
+            d_rh, d_hh, d_rr[lo:hi], s_rr[lo:hi], r_ends[lo:hi], r_radius[lo:hi], T_world_box,
+            half_extents_m, d_rb[lo:hi], n_rb[lo:hi], hb_axis, h_radius, s_ends[lo : hi + 1],
+            s_radius, p1_dot[lo : hi + 1], omega[lo : hi + 1], eps_v[lo:hi], no_pair, not_safe_h,
+            diameters_m, relax_velocity, relax_diameter, multi_body, contact_s, env, self_,
+            contact, cls, stack, diam, can_b[lo:hi], can_l[lo:hi],
         )  # fmt: skip
 
-    return classify_set
+    return classify_kernel, classify_set
 
 
-classify_set = _make_classify_set()
+classify_kernel, classify_set = _make_classify_kernels()
 
 
 @njit(types.void(_RO[2], _RO[2], _RO[2], _ROI1, _ROI1, _RO[2], _RO[1], _WF2), cache=True)
