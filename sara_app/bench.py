@@ -68,8 +68,7 @@ def bench_reach(n: int = 2000) -> list[tuple[str, float, float, str]]:
 STAGE_MODULES = (
     "sara_app.safety.bench_shield",
     "sara_app.robot.energy",
-    "sara_app.safety.pfl",
-    "sara_app.safety.pfl_shield",
+    "sara_app.safety.bench_pfl",
     "sara_app.safety.jssa",
     "sara_app.safety.jssa_mode",
     "sara_app.bus.bench",

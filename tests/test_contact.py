@@ -419,6 +419,8 @@ def test_compiled_classify_equals_the_numpy_reference() -> None:
         for name in ("contact", "contact_single", "env", "self_", "cls", "stack"):
             assert np.array_equal(getattr(fast, name), getattr(ref, name)), name
         np.testing.assert_allclose(fast.stack_diameter_m, ref.stack_diameter_m, rtol=1e-14)
+        # the PFL verdict's summary reads the contacts off the classes
+        assert np.array_equal(ref.contact, ref.cls > 0)
         # exact where a pair may touch, else a positive lower bound (bounding spheres)
         near = ~(ref.distance_m > sphere_slack_m)
         np.testing.assert_allclose(fast.distance_m[near], ref.distance_m[near], atol=1e-12)

@@ -9,8 +9,9 @@ from sara_app.errors import InputError
 from sara_app.human.skeleton import skeleton
 from sara_app.robot.energy import bounded_interval_energy_J
 from sara_app.robot.model import load_robot
+from sara_app.safety.bench_pfl import check_rows
 from sara_app.safety.contact import ENV_CONSTRAINED, NONE, UNCONSTRAINED
-from sara_app.safety.pfl import PflCheck, PflResult, bench_rows
+from sara_app.safety.pfl import PflCheck, PflResult
 
 PARTS = skeleton("full").parts
 Q0 = np.array([0.0, 0.3, 0.0, -2.0, 0.0, 2.3, 0.8])
@@ -165,7 +166,7 @@ def test_non_finite_trajectory_is_unsafe_without_raising(pfl: PflCheck) -> None:
 
 
 def test_bench_rows_shape() -> None:
-    rows = bench_rows(3)
+    rows = check_rows(3)
     assert len(rows) == 5
     for name, med, p99, note in rows:
         assert name.startswith("pfl") and med > 0 and p99 >= med and "Panda" in note

@@ -176,9 +176,10 @@ def test_a_failed_lazy_first_check_rotates_the_first_checks_order() -> None:
     """A cycle whose first check fails on its first model and replans: the next cycle's first
     check starts with another model (a lazy check never completes, so it could not learn); the
     replans keep an order of their own."""
-    from sara_app.safety.pfl_shield import BENCH_CASES, PflCycle, _bench_shield
+    from sara_app.safety.bench_pfl import BENCH_CASES, shield_cell
+    from sara_app.safety.pfl_shield import PflCycle
 
-    shield, template, people, t = _bench_shield(BENCH_CASES["slowed"])
+    shield, template, people, t = shield_cell(BENCH_CASES["slowed"])
     shield._orders[0][:] = ["acc", "vel", "pos"]
     out = shield.cycle(t, people, want_distance=False)
     info = shield._res
@@ -193,9 +194,10 @@ def test_model_evaluations_per_cycle_stay_within_the_budget(max_models: int) -> 
     """``SpeedScaling.max_models`` bounds the classifications of a cycle over all its checks
     (the braking bench state needs 6 without it); a cycle that runs out brakes on the held
     failsafe: it never commits a step that its checks did not prove."""
-    from sara_app.safety.pfl_shield import BENCH_CASES, PflCycle, SpeedScaling, _bench_shield
+    from sara_app.safety.bench_pfl import BENCH_CASES, shield_cell
+    from sara_app.safety.pfl_shield import PflCycle, SpeedScaling
 
-    shield, template, people, t = _bench_shield(BENCH_CASES["braking"])
+    shield, template, people, t = shield_cell(BENCH_CASES["braking"])
     shield.scaling = SpeedScaling(max_models=max_models)
     calls = []
     for check in shield._checks.values():
@@ -485,9 +487,9 @@ def test_a_cycle_leaves_no_reference_cycles(case: str) -> None:
     state closure once kept ~35 objects per cycle alive this way)."""
     import gc
 
-    from sara_app.safety.pfl_shield import BENCH_CASES, _bench_shield
+    from sara_app.safety.bench_pfl import BENCH_CASES, shield_cell
 
-    shield, template, people, t = _bench_shield(BENCH_CASES[case])
+    shield, template, people, t = shield_cell(BENCH_CASES[case])
     for _ in range(3):  # warm: first-use allocations
         shield.follower = template.copy()
         shield.cycle(t, people, want_distance=False)

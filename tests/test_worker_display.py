@@ -9,13 +9,13 @@ import pytest
 from sara_app.bus.codec import decode
 from sara_app.bus.messages import OccupancyMsg, encode
 from sara_app.human.skeleton import skeleton
-from sara_app.safety.pfl import _bench_scene
+from sara_app.safety.bench_pfl import check_scene
 from sara_app.worker_display import CLASS_BY_CODE, jssa_state, part_labels, pfl_contacts, pfl_links
 
 
 @pytest.fixture(scope="module")
 def pfl_case():
-    pfl, sc = _bench_scene(10)
+    pfl, sc = check_scene(10)
     res = pfl.check_trajectory(
         sc["q"], sc["q_dot"], sc["qd_bound"], sc["t"], sc["h_ends"], sc["h_radius"],
         sc["T_world_box"], sc["half_extents_m"],

@@ -63,7 +63,6 @@ from dataclasses import dataclass
 from typing import cast
 
 import numpy as np
-from numba import njit, types
 
 from sara_app.errors import InputError
 from sara_app.robot.energy import (
@@ -81,6 +80,7 @@ from sara_app.safety.contact import (
     MotionArrays,
     RobotSide,
 )
+from sara_app.safety.pfl_kernels import merge_kernel, summary_kernel, verdict_kernel
 from sara_app.safety.thresholds import (
     ThresholdSet,
     diameters_m,
@@ -127,167 +127,6 @@ class PflResult:
     @property
     def class_names(self) -> tuple[str, ...]:
         return CLASS_NAMES
-
-
-_f8 = types.float64
-_RO2, _RO3 = (types.Array(_f8, d, "A", readonly=True) for d in (2, 3))
-_ROB3 = types.Array(types.boolean, 3, "A", readonly=True)
-_ROI3 = types.Array(types.int8, 3, "A", readonly=True)
-_W2, _W3 = types.Array(_f8, 2, "A"), types.Array(_f8, 3, "A")
-_WB1, _WB3 = types.Array(types.boolean, 1, "A"), types.Array(types.boolean, 3, "A")
-_WI2 = types.Array(types.int64, 2, "A")
-_WI1, _WI83 = types.Array(types.int64, 1, "A"), types.Array(types.int8, 3, "A")
-
-
-@njit(types.void(_ROB3, _ROI3, _RO2, _RO2, _W3), cache=True)
-def _thresholds(
-    stack: np.ndarray,
-    cls: np.ndarray,
-    T_clamp: np.ndarray,
-    T_free: np.ndarray,
-    thr: np.ndarray,
-) -> None:
-    """Eq. 7's threshold ``thr (k, L, P)`` of every entry of a classification ``stack (k, P,
-    P)``, ``cls (k, L, P)``: constrained (``cls >= 2``) the smallest ``T_clamp[i, m]`` over the
-    stack ``m`` of part ``j``, else ``T_free[i, j]``. One pass filling an array, not a helper
-    per entry: a compiled call with array arguments costs ~20 ns (reference counting), which
-    made the verdict 4x slower."""
-    K, L, P = cls.shape
-    for k in range(K):
-        for i in range(L):
-            for j in range(P):
-                if cls[k, i, j] < 2:
-                    t = T_free[i, j]
-                else:
-                    t = np.inf
-                    for m in range(P):
-                        if stack[k, j, m] and T_clamp[i, m] < t:
-                            t = T_clamp[i, m]
-                thr[k, i, j] = t
-
-
-@njit(
-    types.void(_ROB3, _ROI3, _ROB3, _RO2, _RO2, _RO2, types.int64, _WB3, _WI83, _W3, _WI1),
-    cache=True,
-)
-def _merge_kernel(
-    stack: np.ndarray,
-    cls: np.ndarray,
-    contact: np.ndarray,
-    T_clamp: np.ndarray,
-    T_free: np.ndarray,
-    E_int: np.ndarray,
-    lo: int,
-    safe: np.ndarray,
-    cls_m: np.ndarray,
-    thr_m: np.ndarray,
-    todo: np.ndarray,
-) -> None:
-    """Merge one more model's classification of intervals ``lo:lo+k`` (``stack (k, P, P)``,
-    ``cls, contact (k, L, P)``) into the merged verdict ``safe, cls_m, thr_m (K, L, P)``: an
-    entry not yet proved takes this model's class and threshold (as in :func:`_verdict_kernel`)
-    when this model proves it (eq. 7 with ``E_int (K, L)``) or when its threshold is higher.
-    ``todo (2,)``: first and last interval with an unproved entry (-1, -1: none)."""
-    k_n, L, P = cls.shape
-    first, last = -1, -1
-    thr = np.empty((k_n, L, P))
-    _thresholds(stack, cls, T_clamp, T_free, thr)
-    for kk in range(k_n):
-        k = lo + kk
-        ok_k = True
-        for i in range(L):
-            for j in range(P):
-                if safe[k, i, j]:
-                    continue
-                t = thr[kk, i, j]
-                if not contact[kk, i, j] or t - E_int[k, i] > 0.0:
-                    safe[k, i, j] = True
-                    cls_m[k, i, j] = cls[kk, i, j]
-                    thr_m[k, i, j] = t
-                else:
-                    ok_k = False
-                    if t > thr_m[k, i, j]:
-                        cls_m[k, i, j] = cls[kk, i, j]
-                        thr_m[k, i, j] = t
-        if not ok_k:
-            if first < 0:
-                first = k
-            last = k
-    todo[0], todo[1] = first, last
-
-
-@njit(types.void(_ROI3, _RO3, _RO2, _ROB3, _W3, _WB1, _W2, _WI2), cache=True)
-def _summary_kernel(
-    cls: np.ndarray,
-    thr: np.ndarray,
-    E_int: np.ndarray,
-    safe: np.ndarray,
-    margin: np.ndarray,
-    safe_k: np.ndarray,
-    allowed: np.ndarray,
-    part: np.ndarray,
-) -> None:
-    """The per-entry and per-link summaries of a merged verdict (as :func:`_verdict_kernel`
-    from the merged ``cls, thr, safe (K, L, P)``): ``margin = thr - E_int``, ``safe_k``, and
-    per ``(k, i)`` the smallest threshold over the parts in contact and its first part."""
-    K, L, P = cls.shape
-    for k in range(K):
-        ok_k = True
-        for i in range(L):
-            best, arg = np.inf, 0
-            for j in range(P):
-                t = thr[k, i, j]
-                margin[k, i, j] = t - E_int[k, i]
-                ok_k = ok_k and safe[k, i, j]
-                if cls[k, i, j] > 0 and t < best:
-                    best, arg = t, j
-            allowed[k, i] = best
-            part[k, i] = arg if math.isfinite(best) else -1
-        safe_k[k] = ok_k
-
-
-@njit(
-    types.void(_ROB3, _ROI3, _ROB3, _RO2, _RO2, _RO2, _W3, _W3, _WB3, _WB1, _W2, _WI2),
-    cache=True,
-)
-def _verdict_kernel(
-    stack: np.ndarray,
-    cls: np.ndarray,
-    contact: np.ndarray,
-    T_clamp: np.ndarray,
-    T_free: np.ndarray,
-    E_int: np.ndarray,
-    thr: np.ndarray,
-    margin: np.ndarray,
-    safe: np.ndarray,
-    safe_k: np.ndarray,
-    allowed: np.ndarray,
-    part: np.ndarray,
-) -> None:
-    """Eq. 7 per interval ``k``, link ``i``, part ``j``: the threshold ``thr`` (constrained: the
-    smallest ``T_clamp[i, m]`` over the stack ``m`` of ``j``, where ``cls >= 2``; else
-    ``T_free[i, j]``), ``margin = thr - E_int[k, i]``, ``safe = ~contact | margin > 0`` (NaN
-    energy: unsafe), ``safe_k``; per ``(k, i)`` the smallest threshold over the parts in contact
-    (``allowed``, ``inf`` without contact) and its first part (``part``, -1 without contact)."""
-    K, L, P = cls.shape
-    _thresholds(stack, cls, T_clamp, T_free, thr)
-    for k in range(K):
-        ok_k = True
-        for i in range(L):
-            best, arg = np.inf, 0
-            e = E_int[k, i]
-            for j in range(P):
-                t = thr[k, i, j]
-                mg = t - e
-                margin[k, i, j] = mg
-                ok = not contact[k, i, j] or mg > 0.0
-                safe[k, i, j] = ok
-                ok_k = ok_k and ok
-                if contact[k, i, j] and t < best:
-                    best, arg = t, j
-            allowed[k, i] = best
-            part[k, i] = arg if math.isfinite(best) else -1
-        safe_k[k] = ok_k
 
 
 def _interval_count(r_radius: np.ndarray, dt: np.ndarray) -> int:
@@ -494,7 +333,7 @@ class PflCheck:
         safe_k = np.empty(K, dtype=bool)
         allowed = np.empty((K, L))
         part = np.empty((K, L), dtype=np.int64)
-        _verdict_kernel(
+        verdict_kernel(
             c.stack, c.cls, c.contact, self.T_clamp, self.T_free, E_int,
             thr, margin, safe, safe_k, allowed, part,
         )  # fmt: skip
@@ -587,7 +426,7 @@ class MergedCheck:
             self._cls = first.cls.copy()
         if self.E_int is None:  # unproved entries of the first model mean possible contact
             raise InputError("a deferred check has unproved entries but no link energies")
-        _merge_kernel(
+        merge_kernel(
             c.stack, c.cls, c.contact, self.pfl.T_clamp, self.pfl.T_free, self.E_int, lo,
             first.safe, self._cls, first.threshold_J, self._todo,
         )  # fmt: skip
@@ -608,97 +447,9 @@ class MergedCheck:
         safe_k = np.empty(K, dtype=bool)
         allowed = np.empty((K, L))
         part = np.empty((K, L), dtype=np.int64)
-        _summary_kernel(self._cls, f.threshold_J, E, f.safe, margin, safe_k, allowed,
+        summary_kernel(self._cls, f.threshold_J, E, f.safe, margin, safe_k, allowed,
                         part)  # fmt: skip
         return PflResult(
             f.safe, safe_k, bool(safe_k.all()), self._cls, f.threshold_J, E, margin,
             f.contact, allowed, part,
         )  # fmt: skip
-
-
-# --- benchmark -------------------------------------------------------------------------------
-
-
-def _bench_scene(K: int = 10) -> tuple[PflCheck, dict[str, np.ndarray]]:
-    from sara_app.human.params import load_param_set, to_reach_params
-    from sara_app.human.reach import HumanReach
-    from sara_app.human.skeleton import skeleton
-    from sara_app.robot.model import load_robot
-
-    model = load_robot("panda")
-    sk = skeleton("full")
-    pfl = PflCheck(model, sk.parts, link_shapes={"panda_hand": "edge"})
-    rng = np.random.default_rng(0)
-    lim = model.limits
-    t = np.linspace(0.0, 0.1, K + 1)
-    q0 = np.array([0.0, -0.3, 0.0, -2.0, 0.0, 1.8, 0.8])
-    qd = 0.3 * lim.v_max * rng.uniform(-1, 1, 7)
-    q = q0 + t[:, None] * qd
-    y = np.array(
-        [[0.6, 0.0, 1.7], [0.6, 0.0, 1.5], [0.6, 0.0, 1.0], [0.6, 0.2, 1.45], [0.6, -0.2, 1.45]]
-        + [[0.45, 0.25, 1.2], [0.45, -0.25, 1.2], [0.35, 0.2, 1.0], [0.35, -0.2, 1.0]]
-        + [[0.6, 0.1, 0.95], [0.6, -0.1, 0.95], [0.6, 0.1, 0.5], [0.6, -0.1, 0.5]]
-        + [[0.6, 0.1, 0.05], [0.6, -0.1, 0.05]]
-    )
-    reach = HumanReach(to_reach_params(load_param_set("seed001_table1"), "full"))
-    occ = reach.vel(y[None], t[1:])
-    h_ends = np.broadcast_to(occ.ends[0], (K, sk.n_parts, 2, 3)).copy()
-    h_radius = np.broadcast_to(occ.radius[0], (K, sk.n_parts)).copy()
-    T_box = np.eye(4)[None].copy()
-    T_box[0, :3, 3] = [0.5, 0.0, 0.35]
-    scene = {
-        "q": q,
-        "q_dot": np.broadcast_to(qd, q.shape).copy(),
-        "qd_bound": np.broadcast_to(np.abs(qd), (K, 7)).copy(),
-        "t": t,
-        "h_ends": h_ends,
-        "h_radius": h_radius,
-        "T_world_box": T_box,
-        "half_extents_m": np.array([[0.4, 0.6, 0.02]]),
-    }
-    return pfl, scene
-
-
-def bench_rows(n: int = 2000) -> list[tuple[str, float, float, str]]:
-    """PFL cycle, Panda, one full-body human (R_VEL), one table, 10 intervals."""
-    from sara_app.bench import timeit_us
-
-    pfl, sc = _bench_scene(10)
-    q, qd, t = sc["q"], sc["q_dot"], sc["t"]
-    human = (sc["h_ends"], sc["h_radius"], sc["T_world_box"], sc["half_extents_m"])
-    r_ends, r_radius = pfl.occupancy.intervals(q, sc["qd_bound"], t)
-    smp = pfl.motion.evaluate(q, qd)
-    s = (smp.ends.copy(), smp.p1_dot.copy(), smp.omega.copy(), smp.energy_J.copy())
-    rows = []
-    for name, fn in (
-        ("pfl: energies + twists (11 samples)", lambda: pfl.motion.evaluate(q, qd)),
-        (
-            "pfl: contact classification",
-            lambda: pfl.classifier.classify(
-                r_ends,
-                r_radius,
-                s[0],
-                pfl._s_radius,
-                s[1],
-                s[2],
-                pfl.velocity_error.eps_v(np.diff(t)),
-                *human,
-            ),  # fmt: skip
-        ),
-        (
-            "pfl: check (given link states)",
-            lambda: pfl.check(r_ends, r_radius, s[0], s[1], s[2], np.diff(t), *human, s[3]),
-        ),
-        (
-            "pfl: full cycle incl. occupancy",
-            lambda: pfl.check_trajectory(q, qd, sc["qd_bound"], t, *human),
-        ),
-    ):
-        med, p99 = timeit_us(fn, n, warmup=max(10, n // 10))
-        rows.append((name, med, p99, "Panda, 14 parts, 1 box, K=10"))
-    far = (sc["h_ends"] + np.array([3.0, 0.0, 0.0]), *human[1:])
-    med, p99 = timeit_us(
-        lambda: pfl.check_trajectory(q, qd, sc["qd_bound"], t, *far), n, warmup=max(10, n // 10)
-    )
-    rows.append(("pfl: full cycle, human 3 m away", med, p99, "Panda, 14 parts, 1 box, K=10"))
-    return rows

@@ -81,7 +81,6 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numba import njit, types
 
 from sara_app.errors import InputError, ParameterError
 from sara_app.human.reach import HumanReach
@@ -93,6 +92,7 @@ from sara_app.robot.model import RobotModel
 from sara_app.robot.shielded import ShieldedTrajectory
 from sara_app.robot.trajectory import PathFollower
 from sara_app.safety.pfl import MergedCheck, PflCheck, PflResult
+from sara_app.safety.pfl_kernels import speed_kernel, stuck_kernel
 from sara_app.safety.pfl_link_states import PathLinkStates
 from sara_app.safety.shield import CycleResult, Shield, ShieldSettings
 from sara_app.safety.thresholds import ThresholdSet, load_thresholds
@@ -102,7 +102,7 @@ if TYPE_CHECKING:
 
 Humans = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
-__all__ = ["G_MARGIN", "PflCycle", "PflShield", "SpeedScaling", "bench_rows", "part_capsules"]
+__all__ = ["G_MARGIN", "PflCycle", "PflShield", "SpeedScaling", "part_capsules"]
 
 
 def part_capsules(reach: HumanReach, model: str) -> np.ndarray:
@@ -503,179 +503,13 @@ def _boxes(boxes: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, np.
     return T, half
 
 
-_B3 = types.Array(types.boolean, 3, "A", readonly=True)
-_I3 = types.Array(types.int8, 3, "A", readonly=True)
-_F3, _F2, _F1 = (types.Array(types.float64, d, "A", readonly=True) for d in (3, 2, 1))
-
-
-@njit(types.float64(types.boolean, _B3, _I3, _F3, _F2, _F1), cache=True, error_model="numpy")
-def _speed_kernel(
-    violated: bool,
-    safe: np.ndarray,
-    cls: np.ndarray,
-    thr: np.ndarray,
-    E: np.ndarray,
-    sd: np.ndarray,
-) -> float:
-    """Smallest ``s' sqrt(T / E)`` over the entries ``(k, i, j)`` that are unsafe (``violated``)
-    or in contact (``cls > 0``), with ``s'`` the larger path speed at the ends of interval
-    ``k`` (``sd (K+1,)``), ``T = thr[k, i, j]``, ``E = E[k, i]``; ``inf`` if none; a NaN
-    candidate counts as 0 (as the numpy reference in the tests)."""
-    K, L, P = cls.shape
-    best = np.inf
-    for k in range(K):
-        speed = max(abs(sd[k]), abs(sd[k + 1]))
-        for i in range(L):
-            for j in range(P):
-                if (not safe[k, i, j]) if violated else cls[k, i, j] > 0:
-                    c = speed * math.sqrt(thr[k, i, j] / E[k, i])
-                    if c != c:
-                        c = 0.0
-                    if c < best:
-                        best = c
-    return best
-
-
 def _allowed_speed(res: PflResult, traj: ShieldedTrajectory) -> float:
     """Speed estimate at which the contacts of a verified trajectory reach their thresholds."""
-    return float(_speed_kernel(False, res.safe, res.cls, res.threshold_J, res.energy_J, traj.sd))
+    return float(speed_kernel(False, res.safe, res.cls, res.threshold_J, res.energy_J, traj.sd))
 
 
 def _candidate(res: PflResult, traj: ShieldedTrajectory, E0: np.ndarray) -> tuple[float, bool]:
     """Candidate cap from the violated entries, and whether a slower plan can fix them (no
     violated entry already too energetic at the current state: link energies ``E0 (L,)``)."""
-    cand = _speed_kernel(True, res.safe, res.cls, res.threshold_J, res.energy_J, traj.sd)
-    return float(cand), not _stuck_kernel(res.safe, res.threshold_J, E0)
-
-
-@njit(types.boolean(_B3, _F3, _F1), cache=True)
-def _stuck_kernel(safe: np.ndarray, thr: np.ndarray, E0: np.ndarray) -> bool:
-    """Some entry of interval 0 is unsafe (``safe (K, L, P)``) while its link's energy at the
-    current state ``E0 (L,)`` is not below the entry's threshold ``thr (K, L, P)``: no slower
-    plan can fix it (NaN counts as stuck)."""
-    for i in range(safe.shape[1]):
-        for j in range(safe.shape[2]):
-            if not safe[0, i, j] and not E0[i] < thr[0, i, j]:
-                return True
-    return False
-
-
-# --- benchmark -------------------------------------------------------------------------------
-
-
-def _bench_shield(xy: tuple[float, float]) -> tuple[PflShield, PathFollower, list[Any], float]:
-    """A PFL cell (Panda, table, models acc/vel/pos) with the robot at full speed after 0.16 s,
-    and one standing full-body person at ``xy`` facing the robot base."""
-    from sara_app.cell import build_cell
-    from sara_app.human.scripted import joints, standing
-    from sara_app.safety.shield import HumanState
-    from sara_app.scenario import parse_scenario
-
-    q = [0.3, 0.0, -1.8, 0.0, 2.1, 0.8]
-    sc = parse_scenario(
-        {
-            "name": "bench",
-            "task": {"waypoints_rad": [[-1.2, *q], [1.2, *q]]},
-            "environment": [
-                {"name": "table", "center_m": [0.65, 0.0, 0.1], "size_m": [0.5, 1.6, 0.2]}
-            ],
-            "shield": {"mode": "pfl", "models": ["acc", "vel", "pos"]},
-        }
-    )
-    shield = build_cell(sc).shield
-    assert isinstance(shield, PflShield)
-    t = 0.0
-    for _ in range(40):
-        shield.cycle(t, [])
-        t += shield.settings.dt_s
-    y = joints(standing(xy, math.atan2(-xy[1], -xy[0])))
-    person = HumanState("p", y, np.zeros_like(y), np.full(len(y), 0.05), t - 0.012)
-    return shield, shield.follower.copy(), [person], t
-
-
-BENCH_CASES = {
-    "clear": (1.0, -1.0),
-    "slowed": (1.1, -0.4),
-    "braking": (0.9, -0.4),
-}
-"""Person positions (m, world) for the benchmark, robot hand at about (0.34, -0.54): the first
-check verifies / a failed check and a verified replan at a lower cap / both fail."""
-
-
-def bench_rows(n: int = 2000) -> list[tuple[str, float, float, str]]:
-    """One PFL shield cycle (plan, human sets, PFL check per model, replan, commit or brake):
-    Panda at full speed, one standing full-body person, one table, in the three
-    :data:`BENCH_CASES` (every cycle from the same state with no cap: the worst case, a
-    failed check at full speed first), plus the slowed case in the steady state of a closed
-    loop (the cap found by the previous cycle kept: one check); then the stages of one check
-    in the braking case."""
-    from sara_app.bench import timeit_us
-
-    rows = []
-    cases = [(case, xy, False) for case, xy in BENCH_CASES.items()]
-    cases.append(("slowed, cap held", BENCH_CASES["slowed"], True))
-    for case, xy, hold in cases:
-        shield, template, people, t = _bench_shield(xy)
-        shield.cycle(t, people, want_distance=False)
-        info = shield._res
-        held = info.cap if hold and isinstance(info, PflCycle) else math.inf
-        shield.follower = template.copy()
-
-        def cycle(
-            shield: PflShield = shield,
-            template: PathFollower = template,
-            people: list[Any] = people,
-            t: float = t,
-            held: float = held,
-        ) -> CycleResult:
-            shield.follower = template.copy()
-            shield.cap, shield._calm = held, 0
-            return shield.cycle(t, people, want_distance=False)
-
-        out = cycle()
-        info = shield._res
-        d = shield.min_distance(template.state.q, [people[0].y])
-        note = f"person {d:.2f} m from the robot; {out.mode}"
-        if isinstance(info, PflCycle) and out.trajectory is not None:
-            note += (
-                f", {info.checks} check(s), {info.models_used} model(s) in the last, speed "
-                f"scale {out.speed_scale:.2f}, K = {len(out.trajectory.times) - 1}; target p99 "
-                "1 ms"
-            )
-        med, p99 = timeit_us(cycle, n, warmup=max(10, n // 10))
-        rows.append((f"pfl shield cycle, {case}", med, p99, note))
-        if case == "braking":
-            braking = (shield, template, people, t)
-    shield, template, people, t = braking
-    # stages of one check (the braking case: every model evaluated)
-    shield.follower = template.copy()
-    traj, ends, radius = shield._plan(math.inf)
-    hum = shield._human_arrays(people, [0], {"p": t - float(people[0].stamp_s)})
-    assert hum is not None
-    K = len(traj.times) - 1
-    smp, energy, eps = shield._link_energies(traj)
-    dt = np.diff(traj.times)
-    sets = {m: shield._human_sets(m, hum, traj.times, 0, K) for m in shield.settings.models}
-
-    def classify_all() -> PflResult:
-        check = shield.pfl.merged(ends, radius, smp, dt, eps, *shield.boxes, energy)
-        for m in shield.settings.models:
-            lo, hi = check.todo
-            h_ends, h_radius = sets[m]
-            check.add(h_ends[lo:hi] if h_ends.shape[0] > 1 else h_ends, h_radius[lo:hi])
-        return check.result()
-
-    stages: list[tuple[str, Any]] = [
-        ("  shielded trajectory + occupancy", lambda: shield._plan(math.inf)),
-        ("  link energies, twists, energy and error bounds", lambda: shield._link_energies(traj)),
-        (
-            "  human sets, 3 models",
-            lambda: [shield._human_sets(m, hum, traj.times, 0, K) for m in shield.settings.models],
-        ),  # fmt: skip
-        ("  classification + merge, 3 models", classify_all),
-        ("  PFL check, all models (the sum)", lambda: shield._verify(traj, ends, radius, hum)),
-    ]
-    for name, fn in stages:
-        med, p99 = timeit_us(fn, n, warmup=max(10, n // 10))
-        rows.append((name, med, p99, f"braking case, K = {K}"))
-    return rows
+    cand = speed_kernel(True, res.safe, res.cls, res.threshold_J, res.energy_J, traj.sd)
+    return float(cand), not stuck_kernel(res.safe, res.threshold_J, E0)
