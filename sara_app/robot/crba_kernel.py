@@ -254,6 +254,11 @@ class CompiledCrba:
         self._ints, self._consts = ints, P
         self._work = np.zeros((n, 28))
 
+    def kernel_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(ints, P, work)`` of :func:`crba_kernel` for kernels that call it themselves (the
+        scratch ``work`` included: not thread-safe either)."""
+        return self._ints, self._consts, self._work
+
     def compute(self, Q: np.ndarray, M: np.ndarray) -> None:
         """``M (S, nv, nv)`` C-contiguous (written, both triangles) from ``Q (S, nq)`` float64
         (shapes checked by the caller)."""

@@ -320,6 +320,22 @@ class LinkMotion:
         self._grow(16)
         self._clean = np.zeros(0, dtype=bool)
 
+    @property
+    def occupancy(self) -> RobotOccupancy:
+        """The kinematics it evaluates the capsule ends and joint frames with."""
+        return self._occ
+
+    @property
+    def compiled_crba(self) -> CompiledCrba | None:
+        """The compiled CRBA, None when it does not support the model (:attr:`crba_backend`)."""
+        return self._compiled_crba
+
+    def support_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(mask (L, n) float 0/1, v_index (n,))`` of :func:`_energy_twist_kernel`: the joints
+        supporting each link (velocity order) and each joint's velocity index (kinematic
+        order)."""
+        return self._maskf, self._v_index
+
     def _grow(self, S: int) -> None:
         if S <= self._cap:
             return

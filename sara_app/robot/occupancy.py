@@ -215,6 +215,16 @@ class RobotOccupancy:
         self._Q_sampled = np.empty((S, n))  # the configurations of the ends kept in _E
         self._n_sampled = 0
 
+    def kernel_arrays(self) -> tuple[np.ndarray, ...]:
+        """The constants of the compiled kinematics, for kernels that call
+        :func:`~sara_app.robot.occupancy_kernels.fk_kernel` and ``ends_kernel`` themselves:
+        ``(q_index (n,) int64, N (n, 3, 16), parents (n,), link_joint (L,), ends_joint (L, 2,
+        3), axes (n, 3), T_world_base (4, 4))`` (``q_index`` maps joint order to ``q``)."""
+        return (
+            self._q_index.astype(np.int64), self._N, self._parents, self._link_joint,
+            self._ends_joint, self._axes, self._T0,
+        )  # fmt: skip
+
     def _fk(self, Q: np.ndarray) -> np.ndarray:
         """World poses ``(S, n+1, 4, 4)`` of the joint frames (index 0: the base), a view into
         the scratch buffer (valid until the next call)."""

@@ -158,16 +158,15 @@ class PathLinkStates:
         model = motion.model
         self.n_dof, self.n_links = model.n_dof, model.n_links
         self._j_max = np.asarray(model.limits.j_max, dtype=np.float64).reshape(1, -1).copy()
-        crba = motion._compiled_crba
+        crba = motion.compiled_crba
         self.compiled = crba is not None
-        occ = motion._occ
-        # model constants, in the kernel's order (private parts of the owners, read once)
-        self._kinematics = (occ._q_index.astype(np.int64), occ._N, occ._parents,
-                            occ._link_joint, occ._ends_joint)  # fmt: skip
-        self._crba = (crba._ints, crba._consts, crba._work) if crba is not None else None
-        ve = velocity_error
-        self._links = (motion._maskf, occ._axes, motion._v_index, ve._order, ve._parent, ve._D)
-        self._T0 = np.asarray(occ._T0, dtype=np.float64)
+        q_index, N, parents, link_joint, ends_joint, axes, T0 = motion.occupancy.kernel_arrays()
+        mask, v_index = motion.support_arrays()
+        # model constants, in the kernel's order
+        self._kinematics = (q_index, N, parents, link_joint, ends_joint)
+        self._crba = crba.kernel_arrays() if crba is not None else None
+        self._links = (mask, axes, v_index, *velocity_error.kernel_arrays())
+        self._T0 = np.asarray(T0, dtype=np.float64)
         self._buffers: dict[int, tuple[np.ndarray, ...]] = {}
 
     def _buffers_for(self, S: int) -> tuple[np.ndarray, ...]:

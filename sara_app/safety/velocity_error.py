@@ -67,6 +67,11 @@ class VelocityErrorBound:
         self.C_limits = self.coefficients(lim.v_max, lim.a_max, lim.j_max)
         """``(L,)`` m/s^3 from the joint limits."""
 
+    def kernel_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(order, parent, D)`` of :func:`~sara_app.safety.contact_kernels.jerk_coefficients`
+        for kernels that call it themselves."""
+        return self._order, self._parent, self._D
+
     def coefficients(
         self, qd: np.ndarray, qdd: np.ndarray, qddd: np.ndarray, form: str = "spatial"
     ) -> np.ndarray:
