@@ -93,6 +93,17 @@ def test_instances_span_capsule_surface(ends: np.ndarray, radius: np.ndarray) ->
     _check_capsules(ends, radius)
 
 
+def test_long_capsule_pointing_almost_straight_down() -> None:
+    """The counterexample hypothesis found in CI (session 8): 1 + d_z cancelled to a few ulps,
+    the tube's end was 3.8e-9 m off for a 2.75 m capsule tilted 4e-8 rad from -z."""
+    ends = np.full((5, 2, 3), -2.75)
+    ends[3] = [[-2.75, 0.0, 0.0], [-2.75, 2.0**-23, -2.75]]
+    _check_capsules(ends, np.zeros(5))
+    for tilt in (1e-13, 1e-10, 1e-7, 1e-4):
+        one = np.array([[[0.5, -1.0, 2.9], [0.5 + 3.0 * tilt, -1.0 - 2.0 * tilt, -2.9]]])
+        _check_capsules(one, np.array([0.2]))
+
+
 def test_axis_aligned_and_antiparallel_and_nearly_antiparallel() -> None:
     a = np.array([0.3, -0.2, 0.5])
     dirs = np.array(
