@@ -284,7 +284,9 @@ def set_pair_distances(ends: np.ndarray, radius: np.ndarray, d: np.ndarray, s: n
     unordered pair computed once; the diagonal is ``-2 r`` and ``s = 0`` (as
     :func:`sara_app.safety.contact_kernels.all_pairs` minus the radii). ``ends (Ke, N, 2, 3)``,
     ``radius (Kr, N)`` with ``Ke, Kr`` in ``{1, K}``. The segment computation is reused from the
-    previous interval when its capsule axes are exactly the same (a set whose radii grow)."""
+    previous interval when its capsule axes are exactly the same (a set whose radii grow). The
+    PFL classification calls the per-pair form :func:`set_pair_entry` only where a rule reads a
+    pair; this batch form is the tested reference of it and of :func:`set_pair_gaps`."""
     K, N = d.shape[0], d.shape[1]
     axis = np.empty((N, N))
     for k in range(K):
@@ -510,7 +512,9 @@ def box_distances(
     """Capsules ``ends (K, N, 2, 3)``, ``radius (Kr, N)`` (``Kr`` in ``{1, K}``) against solid
     boxes ``(B, 4, 4)``, ``(B, 3)``: surface distances ``dist (K, N, B)`` and, when ``normal``
     has shape ``(K, N, B, 3)`` (else ``(0, 0, 0, 3)``), the vector from the closest box point to
-    the closest segment point (world frame, not normalised). A non-finite capsule gives NaN."""
+    the closest segment point (world frame, not normalised). A non-finite capsule gives NaN. The
+    PFL classification calls the per-entry form :func:`box_entry` only where a rule reads an
+    entry; this batch form is the tested reference of it and of :func:`box_axis_gaps`."""
     K, N, B = dist.shape
     want_normal = normal.shape[0] == K
     work = np.empty((3, 8))

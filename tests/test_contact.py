@@ -29,10 +29,10 @@ from sara_app.safety.contact import (
     segment_box_closest,
 )
 from sara_app.safety.contact_kernels import (
-    _source_digest,
     all_pairs,
     classify_kernel,
     classify_set,
+    source_digest,
 )
 from sara_app.safety.topology import human_safe_matrix, unclampable_matrix
 
@@ -497,4 +497,4 @@ def test_classify_cache_keys_carry_the_geometry_kernels_source(kernel: Any) -> N
     the geometry kernels, so their closures (hashed into numba's cache key) must hold their
     source digest."""
     cells = [c.cell_contents for c in kernel.py_func.__closure__ or ()]
-    assert _source_digest(geometry_kernels) in cells
+    assert source_digest(geometry_kernels) in cells

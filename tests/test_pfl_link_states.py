@@ -18,7 +18,7 @@ from sara_app.robot.model import load_robot
 from sara_app.robot.shielded import shielded_trajectory
 from sara_app.robot.trajectory import PathFollower
 from sara_app.safety import contact_kernels
-from sara_app.safety.contact_kernels import _source_digest
+from sara_app.safety.contact_kernels import source_digest
 from sara_app.safety.pfl_link_states import PathLinkStates, path_states_kernel
 from sara_app.safety.velocity_error import VelocityErrorBound
 
@@ -134,4 +134,4 @@ def test_cache_key_carries_the_callees_sources() -> None:
     cells = [c.cell_contents for c in path_states_kernel.py_func.__closure__ or ()]
     text = "".join(c for c in cells if isinstance(c, str))
     for module in (occupancy_kernels, crba_kernel, energy, contact_kernels):
-        assert _source_digest(module) in text, module.__name__
+        assert source_digest(module) in text, module.__name__

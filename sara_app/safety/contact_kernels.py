@@ -273,8 +273,9 @@ def _state(
     )  # fmt: skip
 
 
-def _source_digest(module: ModuleType) -> str:
-    """SHA-256 of a module's source file (see :func:`_make_classify_set`)."""
+def source_digest(module: ModuleType) -> str:
+    """SHA-256 of a module's source file: a closure variable of a kernel that calls compiled
+    functions of that module (see :func:`_make_classify_kernels`)."""
     return hashlib.sha256(Path(str(module.__file__)).read_bytes()).hexdigest()
 
 
@@ -284,7 +285,7 @@ def _make_classify_kernels() -> tuple[Any, Any]:
     file: the digest of that module's source is a closure variable, which numba hashes into the
     cache key, so a change there recompiles them instead of loading them with the old
     geometry."""
-    geometry_source = _source_digest(geometry_kernels)
+    geometry_source = source_digest(geometry_kernels)
 
     @njit(
         _b1(

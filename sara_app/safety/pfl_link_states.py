@@ -33,7 +33,7 @@ from sara_app.robot.crba_kernel import crba_kernel
 from sara_app.robot.energy import LinkMotion, LinkSamples, _energy_twist_kernel, _path_energy_kernel
 from sara_app.robot.occupancy_kernels import ends_kernel, fk_kernel
 from sara_app.safety import contact_kernels
-from sara_app.safety.contact_kernels import _source_digest, jerk_coefficients
+from sara_app.safety.contact_kernels import jerk_coefficients, source_digest
 from sara_app.safety.velocity_error import VelocityErrorBound
 
 __all__ = ["PathLinkStates"]
@@ -50,9 +50,9 @@ _WB1 = types.Array(types.boolean, 1, "A")
 def _make_kernel() -> Any:
     """Build :func:`path_states_kernel`. It calls kernels of four other files and numba's cache
     checks only its own: their source digests are a closure variable, which numba hashes into
-    the cache key (as :func:`sara_app.safety.contact_kernels._make_classify_set` does)."""
+    the cache key (as :func:`sara_app.safety.contact_kernels._make_classify_kernels` does)."""
     sources = "".join(
-        _source_digest(m) for m in (occupancy_kernels, crba_module, energy_module, contact_kernels)
+        source_digest(m) for m in (occupancy_kernels, crba_module, energy_module, contact_kernels)
     )
 
     @njit(
