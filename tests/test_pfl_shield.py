@@ -81,13 +81,17 @@ def test_any_model_merge_is_the_or_of_single_model_verdicts() -> None:
     np.testing.assert_array_equal(res.safe_interval, any_safe.all(axis=(1, 2)))
 
 
+@pytest.mark.parametrize("fused", [False, True])
 @pytest.mark.parametrize(("x", "possible"), [(0.85, True), (1.4, True), (3.0, False)])
-def test_deferred_energies_change_no_verdict(x: float, possible: bool) -> None:
+def test_deferred_energies_change_no_verdict(x: float, possible: bool, fused: bool) -> None:
     """The check obtains the link energies and twists only when a human set may touch a link:
     its verdict and classes equal the eager check's (all models, every entry); without a
     possible contact it never evaluates them and says so, and ``with_energies`` fills them
-    (for the display) equal to the eager check's."""
+    (for the display) equal to the eager check's. The Python composition is counted; the fused
+    check (one compiled call) reports it in ``energy_known``."""
     shield = make_shield()
+    if not fused:
+        shield.fused = None
     t = run_free(shield, 60)
     hum = hum_arrays(shield, [person(x, 0.0, t)], t)
     traj, ends, radius = shield._plan(math.inf)
@@ -108,7 +112,7 @@ def test_deferred_energies_change_no_verdict(x: float, possible: bool) -> None:
         eager.add(h_e, h_r)
     ref = eager.result()
     assert bool(res.contact.contact.any()) == possible  # the case is what it says
-    assert len(calls) == int(possible) and res.energy_known == possible
+    assert len(calls) == (0 if fused else int(possible)) and res.energy_known == possible
     for name in ("safe", "cls", "threshold_J", "allowed_J", "limiting_part"):
         np.testing.assert_array_equal(getattr(res, name), getattr(ref, name), err_msg=name)
     filled = shield.with_energies(res, traj)
@@ -189,8 +193,9 @@ def test_a_failed_lazy_first_check_rotates_the_first_checks_order() -> None:
     assert shield._orders[0] is not shield._orders[1]
 
 
+@pytest.mark.parametrize("fused", [False, True])
 @pytest.mark.parametrize("max_models", [1, 2, 4, 6])
-def test_model_evaluations_per_cycle_stay_within_the_budget(max_models: int) -> None:
+def test_model_evaluations_per_cycle_stay_within_the_budget(max_models: int, fused: bool) -> None:
     """``SpeedScaling.max_models`` bounds the classifications of a cycle over all its checks
     (the braking bench state needs 6 without it); a cycle that runs out brakes on the held
     failsafe: it never commits a step that its checks did not prove."""
@@ -199,27 +204,29 @@ def test_model_evaluations_per_cycle_stay_within_the_budget(max_models: int) -> 
 
     shield, template, people, t = shield_cell(BENCH_CASES["braking"])
     shield.scaling = SpeedScaling(max_models=max_models)
-    calls = []
-    for check in shield._checks.values():
-        classify = check.classifier.classify_humans
+    if not fused:
+        shield.fused = None
+    evaluated: dict[int, int] = {}  # per check: the models it evaluated
+    add_models = shield._add_models
 
-        def counted(*args, _f=classify, **kw):  # type: ignore[no-untyped-def]
-            calls.append(1)
-            return _f(*args, **kw)
+    def counted(*args, **kw):  # type: ignore[no-untyped-def]
+        out = add_models(*args, **kw)
+        evaluated[id(shield._open[0])] = out[1]  # type: ignore[index]
+        return out
 
-        check.classifier.classify_humans = counted  # type: ignore[method-assign]
+    shield._add_models = counted  # type: ignore[method-assign]
     used = []
     for _ in range(4):  # the same state each cycle, as in the benchmark (model order learns)
         shield.follower = template.copy()
         shield.cap, shield._calm = math.inf, 0
-        calls.clear()
+        evaluated.clear()
         out = shield.cycle(t, people, want_distance=False)
         info = shield._res
         assert isinstance(info, PflCycle) and info.result is not None
-        assert len(calls) <= max_models
+        assert sum(evaluated.values()) <= max_models
         assert out.verified == info.result.safe_all
         assert out.mode == ("intended" if out.verified else "failsafe")
-        used.append(len(calls))
+        used.append(sum(evaluated.values()))
     assert max(used) == min(max_models, 6)  # the budget binds, and 6 is what the state needs
 
 
@@ -362,19 +369,24 @@ def test_faults_brake_on_the_held_failsafe(bad) -> None:  # type: ignore[no-unty
     np.testing.assert_array_equal(out.command.q, before.brake(shield.settings.dt_s).q)
 
 
-@pytest.mark.parametrize("where", ["merged_deferred", "_link_energies"])
+@pytest.mark.parametrize("where", ["merged_deferred", "_link_energies", "fused"])
 def test_numeric_failure_inside_the_check_is_a_fault(
     monkeypatch: pytest.MonkeyPatch, where: str
 ) -> None:
     """A numeric failure while the check is built, or in the link energies it obtains only
-    when a contact is possible (the person is close enough here), is a fault of the cycle."""
+    when a contact is possible (the person is close enough here), or in the fused check, is a
+    fault of the cycle."""
     shield = make_shield()
     t = run_free(shield, 30)
 
     def boom(*a: object, **k: object) -> None:
         raise ValueError("broken")
 
-    monkeypatch.setattr(shield.pfl if where == "merged_deferred" else shield, where, boom)
+    if where == "fused":
+        monkeypatch.setattr(shield.fused, "open", boom)
+    else:
+        shield.fused = None
+        monkeypatch.setattr(shield.pfl if where == "merged_deferred" else shield, where, boom)
     out = shield.cycle(t, [person(0.6, 0.0, t)])
     assert out.mode == "fault" and any("PFL check failed" in f for f in out.faults)
 

@@ -303,6 +303,16 @@ class ContactClassifier:
         self.multi_body = multi_body
         self._identity_views: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
+    def kernel_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(no_pair (L, L), not_safe_h (P, P), diameters_m (P,))`` as the compiled
+        classification takes them: pairs of links that never self-clamp (the diagonal and, with
+        the topology relaxation, the declared pairs) and pairs of parts that may stack."""
+        return self._no_pair, self._not_safe_h, self.diameters_m
+
+    def switches(self) -> tuple[bool, bool, bool]:
+        """``(relax_velocity, relax_diameter, multi_body)`` in the compiled order."""
+        return self.relax_velocity, self.relax_diameter, self.multi_body
+
     def classify(
         self,
         r_ends: np.ndarray,

@@ -169,7 +169,8 @@ class PathLinkStates:
         self._T0 = np.asarray(T0, dtype=np.float64)
         self._buffers: dict[int, tuple[np.ndarray, ...]] = {}
 
-    def _buffers_for(self, S: int) -> tuple[np.ndarray, ...]:
+    def buffers_for(self, S: int) -> tuple[np.ndarray, ...]:
+        """The kernel's buffers for ``S`` samples (allocated once per ``S``)."""
         b = self._buffers.get(S)
         if b is None:
             n, L, K = self.n_dof, self.n_links, S - 1
@@ -184,7 +185,13 @@ class PathLinkStates:
             )  # fmt: skip
         return b
 
-    def _inputs(self, traj: Any) -> tuple[np.ndarray, ...]:
+    def kernel_constants(self) -> tuple[np.ndarray, ...]:
+        """The robot's constants in the kernel's order, after the trajectory's arrays."""
+        if self._crba is None:
+            raise InputError("the compiled CRBA does not support this robot")
+        return (self._j_max, *self._kinematics, *self._crba, *self._links)
+
+    def inputs(self, traj: Any) -> tuple[np.ndarray, ...]:
         """The trajectory's arrays as float64, shapes checked."""
         arrays = [
             np.asarray(getattr(traj, name), dtype=np.float64)
@@ -207,8 +214,8 @@ class PathLinkStates:
         :class:`~sara_app.robot.shielded.ShieldedTrajectory`)."""
         if self._crba is None:
             return self.reference(traj)
-        q, dq, sd, sd_max, times, v_bound, a_bound = self._inputs(traj)
-        b = self._buffers_for(q.shape[0])
+        q, dq, sd, sd_max, times, v_bound, a_bound = self.inputs(traj)
+        b = self.buffers_for(q.shape[0])
         path_states_kernel(
             q, dq, sd, sd_max, times, v_bound, a_bound, self._j_max, *self._kinematics,
             *self._crba, *self._links, *b,
@@ -220,7 +227,7 @@ class PathLinkStates:
         """:meth:`evaluate` composed of :meth:`LinkMotion.evaluate_path`,
         :func:`~sara_app.robot.energy.path_interval_energy_J` and
         :meth:`VelocityErrorBound.eps_from_bounds` (the readable reference)."""
-        q, dq, sd, sd_max, times, v_bound, a_bound = self._inputs(traj)
+        q, dq, sd, sd_max, times, v_bound, a_bound = self.inputs(traj)
         smp = self.motion.evaluate_path(q, dq, sd)
         E_int = energy_module.path_interval_energy_J(smp.g_J, smp.energy_J, sd, sd_max)
         dt = times[1:] - times[:-1]

@@ -78,7 +78,7 @@ import math
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -92,6 +92,7 @@ from sara_app.robot.model import RobotModel
 from sara_app.robot.shielded import ShieldedTrajectory
 from sara_app.robot.trajectory import PathFollower
 from sara_app.safety.pfl import MergedCheck, PflCheck, PflResult
+from sara_app.safety.pfl_fused import KINDS, FusedCheck, FusedChecks
 from sara_app.safety.pfl_kernels import speed_kernel, stuck_kernel
 from sara_app.safety.pfl_link_states import PathLinkStates
 from sara_app.safety.shield import CycleResult, Shield, ShieldSettings
@@ -219,12 +220,20 @@ class PflShield(Shield):
         often proved by another model): the last one that completed such a check first."""
         self._model_order = self._orders[0]
         """The order the open check tries the models."""
-        self._open: tuple[MergedCheck, Humans, np.ndarray] | None = None
+        self._open: tuple[MergedCheck | FusedCheck, Humans, np.ndarray] | None = None
         self._no_energy = np.zeros(robot.n_links)
         """Link energies at the current state of a check that did not need them (no contact
         possible, so the check verified: they are not used)."""
         self.pfl = PflCheck(robot, self._part_names, thresholds=ts, link_shapes=spec.link_shapes)
         self._link_states = PathLinkStates(self.pfl.motion, self.pfl.velocity_error)
+        self.fused: FusedChecks | None = None
+        """Checks of one person in one compiled call (:mod:`sara_app.safety.pfl_fused`; the same
+        bits as the Python composition, which serves several people, the arm model and a robot
+        without the compiled CRBA; None: the Python composition for every check)."""
+        if self._link_states.compiled and set(self.settings.models) <= set(KINDS):
+            maps = {m: part_capsules(self.verifier.reach, m) for m in self.settings.models}
+            self.fused = FusedChecks(self.pfl, self._link_states, self.verifier.reach, maps,
+                                     self.boxes)  # fmt: skip
         self._checks: dict[int, PflCheck] = {1: self.pfl}
         self._check_for(2)  # ~10 ms each: built here, not in a control cycle (more: on use)
         self.cap = math.inf
@@ -363,6 +372,9 @@ class PflShield(Shield):
         (:meth:`_finish_check` adds the others; a failed result is then conservative);
         ``limit``: evaluate at most this many models (``>= 1``; None: no limit)."""
         with _inputs_checked():
+            if self.fused is not None and hum[0].shape[0] == 1:
+                self._open = (self.fused.open(traj, ends, radius, hum), hum, traj.times)
+                return self._add_models(first_only, limit)
             pfl = self._check_for(hum[0].shape[0])
             dt = traj.times[1:] - traj.times[:-1]
 
@@ -392,6 +404,11 @@ class PflShield(Shield):
         check, hum, times = self._open
         order = self._model_order
         stop = len(order) if limit is None else min(len(order), check.models + limit)
+        if isinstance(check, FusedCheck):
+            i = check.add_models(cast(FusedChecks, self.fused).codes(order), stop, first_only)
+            if i > 0:
+                order.insert(0, order.pop(i))
+            return check.result(), check.models, check.E0
         for i in range(check.models, stop):
             lo, hi = check.todo
             h_ends, h_radius = self._human_sets(order[i], hum, times, lo, hi)

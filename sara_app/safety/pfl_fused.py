@@ -1,0 +1,249 @@
+"""One person's PFL check with all of its models in one compiled call: the shield's common case.
+
+:class:`~sara_app.safety.pfl_shield.PflShield` checks a trajectory model by model (see its
+notes): per model the person's capsules over the intervals still unproved, the compiled
+classification (the link states obtained on the first possible contact) and the per-entry
+merge. Composed in Python that is ~40 calls per check, and in the benchmark's braking cycle
+(two checks, four model evaluations) their glue cost more than the arithmetic (~250 of ~800 us).
+:class:`FusedCheck` runs the same composition as one kernel
+(:func:`~sara_app.safety.pfl_fused_kernel.fused_kernel`) on the same numbers, so the verdicts,
+classes, thresholds, margins and link energies are the same bits as the Python path, which stays
+the reference and serves what this does not: several people at once, the arm model, a robot
+without the compiled CRBA (``tests/test_pfl_fused.py`` compares them on the benchmark's states,
+random people around the robot and closed-loop episodes).
+
+Buffers: the results' arrays are fresh per check (a :class:`PflResult` may be kept); the
+robot-only geometry, the human sets and the later models' classifications use scratch buffers
+per trajectory length, so only the most recently opened check may add models.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from sara_app.errors import InputError
+from sara_app.human.reach import HumanReach
+from sara_app.safety.contact import ContactResult
+from sara_app.safety.pfl import PflCheck, PflResult
+from sara_app.safety.pfl_fused_kernel import (
+    KIND_ACC,
+    KIND_ISO,
+    KIND_POS,
+    KIND_VEL,
+    STATE_SIZE,
+    fused_kernel,
+)
+from sara_app.safety.pfl_link_states import PathLinkStates
+
+__all__ = ["KINDS", "FusedCheck", "FusedChecks"]
+
+KINDS = {"acc": KIND_ACC, "vel": KIND_VEL, "iso13855": KIND_ISO, "pos": KIND_POS}
+"""The models the kernel computes (the arm model is left to the Python path)."""
+
+
+class FusedChecks:
+    """Opens :class:`FusedCheck` s for one robot, one kind of person and one shield's models.
+
+    ``pfl``: the check for one person (its thresholds, classifier and robot); ``link_states``:
+    the link states of the same robot (their compiled kernel is required: see
+    :attr:`PathLinkStates.compiled`); ``reach``: the person's models; ``part_maps``: per model
+    name the capsule of each body part (``(P,)``; see
+    :func:`~sara_app.safety.pfl_shield.part_capsules`); ``boxes``: the environment
+    ``T_world_box (B, 4, 4)``, ``half_extents_m (B, 3)`` (validated by the caller).
+    """
+
+    def __init__(
+        self,
+        pfl: PflCheck,
+        link_states: PathLinkStates,
+        reach: HumanReach,
+        part_maps: dict[str, np.ndarray],
+        boxes: tuple[np.ndarray, np.ndarray],
+    ) -> None:
+        unknown = sorted(set(part_maps) - set(KINDS))
+        if unknown or not link_states.compiled:
+            raise InputError(
+                f"models {unknown} / compiled link states {link_states.compiled}: the fused "
+                f"check needs models among {sorted(KINDS)} and the compiled CRBA"
+            )
+        self.pfl, self.link_states, self.reach = pfl, link_states, reach
+        P, L, J = pfl.n_parts, pfl.n_links, reach.skeleton.n_joints
+        if reach.skeleton.n_parts != P:
+            raise InputError(
+                f"the check has {P} body parts, the reach model {reach.skeleton.n_parts}; "
+                "expected one person's parts"
+            )
+        maps = np.tile(np.arange(P, dtype=np.int64), (len(KINDS), 1))
+        for name, index in part_maps.items():
+            maps[KINDS[name]] = index
+        self._part_maps = maps
+        self._J, self._P, self._L = J, P, L
+        r, p = reach, reach.params
+        self._static = (r.part_joints, np.stack([r.vel_base, r.iso_base]),
+                        np.stack([r.vel_speed, r.iso_speed]))  # fmt: skip
+        self._acc = (r.a_half, np.asarray(p.half_thickness_m, float), r.acc_ia, r.acc_ib,
+                     r.acc_ends)  # fmt: skip
+        self._pos = (r.pos_seg_a, r.pos_seg_b, r.pos_seg_limb, r.pos_ends, r.pos_rspeed,
+                     r.pos_rbase)  # fmt: skip
+        self._delays = (float(p.delay_s), float(p.delta_y_m))
+        self._n_limbs = int(r.n_limbs)
+        self._n_pos = int(r.pos_ends.shape[0])
+        self._rules = (*pfl.classifier.kernel_arrays(), pfl.T_clamp, pfl.T_free)
+        self._switches = pfl.classifier.switches()
+        self._s_radius = np.asarray(pfl.model.radius_m, dtype=np.float64)
+        self._boxes = boxes
+        self._scratch: dict[int, tuple[Any, ...]] = {}
+        self._orders: dict[tuple[str, ...], np.ndarray] = {}
+        self.no_energy = np.zeros(L)
+        self.opened = 0
+        """Checks opened so far (the scratch buffers belong to the latest)."""
+
+    def codes(self, order: list[str]) -> np.ndarray:
+        """The kernel's codes of a model order (cached per order)."""
+        key = tuple(order)
+        c = self._orders.get(key)
+        if c is None:
+            c = self._orders[key] = np.array([KINDS[m] for m in order], dtype=np.int64)
+        return c
+
+    def _scratch_for(self, K: int) -> tuple[Any, ...]:
+        s = self._scratch.get(K)
+        if s is None:
+            L, P, B, C = self._L, self._P, self._boxes[0].shape[0], self._n_pos
+            d_rr, s_rr = np.empty((2, K, L, L))
+            geometry = (d_rr, s_rr, np.empty((K, L, B)), np.empty((K, L, B, 3)),
+                        np.empty((K, L, B), np.int8), np.empty((K, L, L), np.int8))  # fmt: skip
+            sets = (np.empty(K), np.empty(K), np.empty((1, K, P, 2, 3)), np.empty((1, K, P)),
+                    np.empty((1, P, 2, 3)), np.empty((K, P)), np.empty((1, C, 2, 3)),
+                    np.empty((1, K, C)), np.empty((K, P, 2, 3)), np.empty((K, P)))  # fmt: skip
+            s = self._scratch[K] = (geometry, sets, _classes(K, L, P), np.empty(2, np.int64))
+        return s
+
+    def open(
+        self,
+        traj: Any,
+        r_ends: np.ndarray,
+        r_radius: np.ndarray,
+        hum: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    ) -> FusedCheck:
+        """A check of the shielded trajectory ``traj`` (its robot capsules per interval
+        ``r_ends (K, L, 2, 3)``, ``r_radius (K, L)``) against one person ``hum = (y, v (1, J,
+        3), dv (1, J), age (1,))``; raises :class:`InputError` on other shapes."""
+        trajectory = self.link_states.inputs(traj)
+        K = trajectory[0].shape[0] - 1
+        L, J = self._L, self._J
+        r_ends = np.asarray(r_ends, dtype=np.float64)
+        r_radius = np.asarray(r_radius, dtype=np.float64)
+        y, v, dv, age = (np.asarray(a, dtype=np.float64) for a in hum)
+        if (
+            r_ends.shape != (K, L, 2, 3) or r_radius.shape != (K, L) or y.shape != (1, J, 3)
+            or v.shape != (1, J, 3) or dv.shape != (1, J) or age.shape != (1,)
+        ):  # fmt: skip
+            raise InputError(
+                f"fused PFL check inputs r_ends {r_ends.shape}, r_radius {r_radius.shape}, y "
+                f"{y.shape}, v {v.shape}, dv {dv.shape}, age {age.shape}; expected ({K}, {L}, 2, "
+                f"3), ({K}, {L}), (1, {J}, 3), (1, {J}, 3), (1, {J}), (1,) for one person"
+            )
+        self.opened += 1
+        return FusedCheck(self, trajectory, r_ends, r_radius, (y, v, dv), float(age[0]))
+
+
+def _classes(K: int, L: int, P: int) -> tuple[np.ndarray, ...]:
+    """Buffers of one classification ``(K, ...)`` in the kernel's order."""
+    contact, contact_s, env, self_ = np.empty((4, K, L, P), dtype=bool)
+    return (contact, contact_s, env, self_, np.empty((K, L, P), np.int8),
+            np.empty((K, P, P), bool), np.empty((K, P)), np.empty((K, L, P)))  # fmt: skip
+
+
+class FusedCheck:
+    """One open check (see :class:`FusedChecks`); :attr:`models`, :attr:`todo`,
+    :meth:`add_models`, :meth:`result` and :attr:`E0` as the shield uses a
+    :class:`~sara_app.safety.pfl.MergedCheck`."""
+
+    def __init__(
+        self,
+        owner: FusedChecks,
+        trajectory: tuple[np.ndarray, ...],
+        r_ends: np.ndarray,
+        r_radius: np.ndarray,
+        human: tuple[np.ndarray, np.ndarray, np.ndarray],
+        age: float,
+    ) -> None:
+        self._owner, self._ticket = owner, owner.opened
+        K, L, P = r_radius.shape[0], owner._L, owner._P
+        self.K = K
+        geometry, self._sets, self._scratch, todo = owner._scratch_for(K)
+        geometry[4].fill(-2)
+        geometry[5].fill(-2)
+        self._geometry = geometry
+        self._trajectory, self._human, self._age = trajectory, human, age
+        self._robot = (r_ends, r_radius, *owner._boxes, owner._s_radius)
+        links = owner.link_states
+        self._link_constants = links.kernel_constants()
+        self._link_buffers = links.buffers_for(K + 1)
+        self._first = _classes(K, L, P)
+        thr, margin = np.empty((2, K, L, P))
+        E_int = np.empty((K, L))
+        self._verdict = (thr, margin, np.empty((K, L, P), bool), np.empty(K, bool),
+                         np.empty((K, L)), np.empty((K, L), np.int64), E_int,
+                         np.empty((K, L, P), np.int8), todo)  # fmt: skip
+        self._state = np.zeros(STATE_SIZE, dtype=np.int64)
+        self._state[1:3] = 0, K
+
+    @property
+    def models(self) -> int:
+        """Models evaluated so far."""
+        return int(self._state[0])
+
+    @property
+    def todo(self) -> tuple[int, int]:
+        """Interval range ``lo:hi`` with unproved entries (``(K, K)``: every entry proved)."""
+        return int(self._state[1]), int(self._state[2])
+
+    @property
+    def energy_known(self) -> bool:
+        """Whether the link states were obtained (some human set may touch a link)."""
+        return bool(self._state[3])
+
+    def add_models(self, order: np.ndarray, stop: int, first_only: bool) -> int:
+        """Add the models ``order[models:stop]`` (codes from :meth:`FusedChecks.codes`) until
+        every entry is proved or, with ``first_only``, after one; returns the index in
+        ``order`` of the model that completed the check (-1: none)."""
+        o = self._owner
+        if self._ticket != o.opened:
+            raise InputError("a later PFL check reuses this one's buffers; it cannot add models")
+        if not (0 <= stop <= order.shape[0]):
+            raise InputError(f"stop = {stop}; expected 0 <= stop <= {order.shape[0]} models")
+        done = fused_kernel(
+            self._robot, self._geometry, self._trajectory, self._link_constants,
+            self._link_buffers, o._rules, o._switches, self._human, self._age, o._static,
+            o._acc, o._pos, o._delays, o._n_limbs, self._sets, o._part_maps, order, stop,
+            first_only, self._first, self._scratch, self._verdict, self._state,
+        )  # fmt: skip
+        if done == -2:
+            raise InputError("a fused PFL check has unproved entries but no link energies")
+        return int(done)
+
+    @property
+    def E0(self) -> np.ndarray:
+        """Link energies at the current state ``(L,)`` (a view, valid until the next check of a
+        trajectory as long; zeros when no contact was possible, then unused)."""
+        if self._state[3]:
+            return self._link_buffers[9][0]
+        return self._owner.no_energy
+
+    def result(self) -> PflResult:
+        """The merged verdict, as :meth:`MergedCheck.result <sara_app.safety.pfl.MergedCheck>`;
+        raises :class:`InputError` before any model was added."""
+        if self._state[0] == 0:
+            raise InputError("no human set was checked (add at least one model)")
+        contact, contact_s, env, self_, cls, stack, diam, d_rh = self._first
+        thr, margin, safe, safe_k, allowed, part, E_int, cls_m, _ = self._verdict
+        c = ContactResult(contact, contact_s, env, self_, cls, stack, diam, d_rh)
+        merged = bool(self._state[4])
+        return PflResult(
+            safe, safe_k, bool(safe_k.all()), cls_m if merged else cls, thr, E_int, margin, c,
+            allowed, part, merged or bool(self._state[3]),
+        )  # fmt: skip

@@ -1,0 +1,312 @@
+"""The compiled body of :class:`~sara_app.safety.pfl_fused.FusedCheck`: one person's human sets,
+classification and merged verdict, model after model, in one call.
+
+It composes existing kernels in the order of the Python composition it replaces
+(:meth:`PflShield._add_models <sara_app.safety.pfl_shield.PflShield>`: the model's human sets
+over the intervals still unproved, :meth:`ContactClassifier.classify_humans
+<sara_app.safety.contact.ContactClassifier.classify_humans>` with the link states obtained on
+the first possible contact, then :meth:`MergedCheck.add <sara_app.safety.pfl.MergedCheck.add>`
+and :meth:`MergedCheck.result <sara_app.safety.pfl.MergedCheck.result>`): the same arithmetic on
+the same numbers, so the same bits (tested). Numba's cache checks only this file, so the source
+digests of every file whose kernels it calls are a closure variable (as in
+:mod:`sara_app.safety.contact_kernels`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from numba import njit, types
+
+from sara_app import geometry_kernels
+from sara_app.geometry_kernels import pair_gaps
+from sara_app.human import reach_kernels
+from sara_app.human.reach_kernels import acc_sets, pos_sets, static_sets
+from sara_app.robot import crba_kernel, energy, occupancy_kernels
+from sara_app.safety import contact_kernels, pfl_kernels, pfl_link_states
+from sara_app.safety.contact_kernels import classify_set, source_digest
+from sara_app.safety.pfl_kernels import merge_kernel, summary_kernel, verdict_kernel
+from sara_app.safety.pfl_link_states import path_states_kernel
+
+__all__ = ["KIND_ACC", "KIND_ISO", "KIND_POS", "KIND_VEL", "STATE_SIZE", "fused_kernel"]
+
+KIND_ACC, KIND_VEL, KIND_ISO, KIND_POS = 0, 1, 2, 3
+"""Model codes of the kernel (``vel`` and ``iso13855`` are rows 0 and 1 of the static sets)."""
+STATE_SIZE = 5
+"""``state (5,)`` int64: models evaluated, unproved range ``lo, hi``, link states known (0/1),
+merged (0/1: a second model was added)."""
+
+_f8, _i8, _b1 = types.float64, types.int64, types.boolean
+_RO = {d: types.Array(_f8, d, "A", readonly=True) for d in (1, 2, 3, 4)}
+_ROI1, _ROI2 = (types.Array(_i8, d, "A", readonly=True) for d in (1, 2))
+_ROB2 = types.Array(_b1, 2, "A", readonly=True)
+_ROC2, _ROCI2 = types.Array(_f8, 2, "C", readonly=True), types.Array(_i8, 2, "C", readonly=True)
+_W = {d: types.Array(_f8, d, "A") for d in (1, 2, 3, 4, 5)}
+_WB1, _WB3 = types.Array(_b1, 1, "A"), types.Array(_b1, 3, "A")
+_WI1, _WI2 = types.Array(_i8, 1, "A"), types.Array(_i8, 2, "A")
+_WI83 = types.Array(types.int8, 3, "A")
+_WC2, _WC3 = types.Array(_f8, 2, "C"), types.Array(_f8, 3, "C")
+
+ROBOT = types.Tuple((_RO[4], _RO[2], _RO[3], _RO[2], _RO[1]))
+"""``(r_ends (K, L, 2, 3), r_radius (K, L), T_world_box (B, 4, 4), half_extents_m (B, 3),
+s_radius (L,))``."""
+GEOMETRY = types.Tuple((_W[3], _W[3], _W[3], _W[4], _WI83, _WI83))
+"""Robot-only geometry scratch ``(d_rr, s_rr (K, L, L), d_rb (K, L, B), n_rb (K, L, B, 3),
+can_box (K, L, B), can_link (K, L, L))`` (the caches set to -2 by the caller per check)."""
+TRAJECTORY = types.Tuple((_RO[2], _RO[2], _RO[1], _RO[1], _RO[1], _RO[2], _RO[2]))
+"""``(q, dq (S, n), sd (S,), sd_max (K,), times (S,), v_bound, a_bound (K, n))``."""
+LINK_CONSTANTS = types.Tuple(
+    (_RO[2], _ROI1, _RO[3], _ROI1, _ROI1, _RO[3], _ROCI2, _ROC2, _WC2)
+    + (_RO[2], _RO[2], _ROI1, _ROI1, _ROI1, _RO[2])
+)
+""":class:`~sara_app.safety.pfl_link_states.PathLinkStates`' constants in
+``path_states_kernel``'s order (jerk limits, kinematics, CRBA, supports, jerk bound)."""
+LINK_BUFFERS = types.Tuple(
+    (_W[2], _W[2], _W[2], _W[1], _WB1, _W[4], _WC3, _W[4], _W[2], _W[2], _W[3], _W[3])
+    + (_W[2], _W[2], _W[1])
+)
+"""Its buffers for ``S`` samples (outputs: ``T`` energies at index 9, ``E_int`` at 12)."""
+RULES = types.Tuple((_ROB2, _ROB2, _RO[1], _RO[2], _RO[2]))
+"""``(no_pair (L, L), not_safe_h (P, P), diameters_m (P,), T_clamp, T_free (L, P))``."""
+HUMAN = types.Tuple((_RO[3], _RO[3], _RO[2]))
+"""One person: ``y, v (1, J, 3)``, ``dv (1, J)``."""
+STATIC = types.Tuple((_ROI2, _RO[2], _RO[2]))
+"""``(part_joints (P, 2), base_m (2, P), speed_mps (2, P))``: rows vel, iso13855."""
+ACC = types.Tuple((_RO[1], _RO[1], _ROI1, _ROI1, _ROI2))
+"""``(a_half (J,), half_thickness_m (P,), ia, ib (P,), end_index (P, 2))``."""
+POS = types.Tuple((_ROI1, _ROI1, _ROI1, _ROI2, _RO[1], _RO[1]))
+"""``(seg_a, seg_b, seg_limb, cap_joints (C, 2), speed_mps (C,), base_m (C,))``."""
+SET_BUFFERS = types.Tuple(
+    (_W[1], _W[1], _W[5], _W[3], _W[4], _W[2], _W[4], _W[3], _W[4], _W[2])
+)  # fmt: skip
+"""``(t_start, t_end (K,), acc ends (1, K, P, 2, 3), acc radius (1, K, P), static ends (1, P,
+2, 3), static radius (K, P), pos ends (1, C, 2, 3), pos radius (1, K, C), gathered h_ends (K,
+P, 2, 3), h_radius (K, P))``."""
+CLASSES = types.Tuple((_WB3, _WB3, _WB3, _WB3, _WI83, _WB3, _W[2], _W[3]))
+"""A classification ``(contact, contact_single, env, self_, cls (k, L, P), stack (k, P, P),
+stack_diameter_m (k, P), distance_m (k, L, P))``."""
+VERDICT = types.Tuple((_W[3], _W[3], _WB3, _WB1, _W[2], _WI2, _W[2], _WI83, _WI1))
+"""``(threshold_J, margin_J, safe (K, L, P), safe_interval (K,), allowed_J (K, L),
+limiting_part (K, L), energy_J (K, L), merged cls (K, L, P), todo scratch (2,))``."""
+
+
+@njit(cache=True)
+def _human_sets(
+    kind: int,
+    lo: int,
+    hi: int,
+    times: np.ndarray,
+    age: float,
+    human: Any,
+    delay_s: float,
+    static: Any,
+    acc: Any,
+    delta_y_m: float,
+    pos: Any,
+    n_limbs: int,
+    sets: Any,
+    part_map: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The person's capsule per body part for intervals ``lo:hi`` as the shield's
+    ``_human_sets``: ``(1|k, P, 2, 3)``, ``(1|k, P)`` views of the gathered buffers."""
+    y, v, dv = human
+    t_start, t_end, acc_e, acc_r, st_e, st_r, pos_e, pos_r, h_ends, h_radius = sets
+    k, P = hi - lo, part_map.shape[0]
+    for x in range(k):
+        t_start[x] = times[lo + x] + age
+        t_end[x] = times[lo + 1 + x] + age
+    ts, te = t_start[:k], t_end[:k]
+    if kind == KIND_ACC:
+        a_half, half_thickness, ia, ib, end_index = acc
+        acc_sets(y, v, dv, ts, te, delay_s, a_half, delta_y_m, half_thickness, ia, ib, end_index,
+                 acc_e[:, :k], acc_r[:, :k])  # fmt: skip
+        e_src, r_src, ke = acc_e[0], acc_r[0], k
+    elif kind == KIND_POS:
+        pos_sets(y, pos[0], pos[1], pos[2], pos[3], te, delay_s, pos[4], pos[5], n_limbs, pos_e,
+                 pos_r[:, :k])  # fmt: skip
+        e_src, r_src, ke = pos_e, pos_r[0], 1
+    else:
+        row = 0 if kind == KIND_VEL else 1
+        part_joints, base, speed = static
+        static_sets(y, part_joints, te, delay_s, base[row], speed[row], st_e, st_r[:k])
+        e_src, r_src, ke = st_e, st_r, 1
+    for x in range(ke):
+        for p in range(P):
+            c = part_map[p]
+            for e in range(2):
+                for r in range(3):
+                    h_ends[x, p, e, r] = e_src[x, c, e, r]
+    for x in range(k):
+        for p in range(P):
+            h_radius[x, p] = r_src[x, part_map[p]]
+    return h_ends[:ke], h_radius[:k]
+
+
+@njit(cache=True)
+def _no_contact(out: Any, diameters_m: np.ndarray) -> None:
+    """``ContactClassifier._no_contact``'s values: no contact, class 0, every part its own
+    stack."""
+    contact, contact_s, env, self_, cls, stack, diam, _ = out
+    k, L, P = cls.shape
+    for x in range(k):
+        for i in range(L):
+            for j in range(P):
+                contact[x, i, j] = False
+                contact_s[x, i, j] = False
+                env[x, i, j] = False
+                self_[x, i, j] = False
+                cls[x, i, j] = 0
+        for j in range(P):
+            diam[x, j] = diameters_m[j]
+            for m in range(P):
+                stack[x, j, m] = j == m
+
+
+@njit(cache=True)
+def _view(out: Any, k: int) -> Any:
+    """The first ``k`` intervals of a classification's buffers."""
+    a, b, c, d, e, f, g, h = out
+    return a[:k], b[:k], c[:k], d[:k], e[:k], f[:k], g[:k], h[:k]
+
+
+@njit(cache=True)
+def _unproved(safe_k: np.ndarray, state: np.ndarray) -> None:
+    """``state[1:3]``: first and one past the last interval not proved safe (``K, K``: none)."""
+    K = safe_k.shape[0]
+    lo, hi = K, K
+    for k in range(K):
+        if not safe_k[k]:
+            if lo == K:
+                lo = k
+            hi = k + 1
+    state[1], state[2] = lo, hi
+
+
+def _make_kernel() -> Any:
+    """Build :func:`fused_kernel` with its callees' source digests in the closure."""
+    sources = "".join(
+        source_digest(m)
+        for m in (
+            geometry_kernels, reach_kernels, crba_kernel, energy, occupancy_kernels,
+            contact_kernels, pfl_kernels, pfl_link_states,
+        )
+    )  # fmt: skip
+
+    @njit(
+        _i8(
+            ROBOT, GEOMETRY, TRAJECTORY, LINK_CONSTANTS, LINK_BUFFERS, RULES,
+            types.UniTuple(_b1, 3), HUMAN, _f8, STATIC, ACC, POS, types.UniTuple(_f8, 2), _i8,
+            SET_BUFFERS, _ROI2, _ROI1, _i8, _b1, CLASSES, CLASSES, VERDICT, _WI1,
+        ),
+        cache=True,
+    )  # fmt: skip
+    def fused_kernel(
+        robot: Any,
+        geometry: Any,
+        trajectory: Any,
+        link_constants: Any,
+        link_buffers: Any,
+        rules: Any,
+        switches: Any,
+        human: Any,
+        age: float,
+        static: Any,
+        acc: Any,
+        pos: Any,
+        delays: Any,
+        n_limbs: int,
+        sets: Any,
+        part_maps: np.ndarray,
+        order: np.ndarray,
+        stop: int,
+        first_only: bool,
+        first: Any,
+        scratch: Any,
+        verdict: Any,
+        state: np.ndarray,
+    ) -> int:
+        """Add the models ``order[state[0]:stop]`` (codes ``KIND_*``; ``part_maps (4, P)``
+        gathers each kind's capsules per body part) to an open check until every entry is
+        proved or, with ``first_only``, after one. Writes the first model's classification
+        into ``first``, the merged verdict into ``verdict``, the progress into ``state``.
+        Returns the index in ``order`` of the model that completed the check (-1: none; -2:
+        unproved entries without link energies, which a classification cannot produce)."""
+        if len(sources) == 0:  # never: ties the cache to the callees' files
+            return -2
+        r_ends, r_radius, T_box, half, s_radius = robot
+        d_rr, s_rr, d_rb, n_rb, can_b, can_l = geometry
+        no_pair, not_safe_h, diameters_m, T_clamp, T_free = rules
+        relax_velocity, relax_diameter, multi_body = switches
+        thr, margin, safe, safe_k, allowed, part, E_int, cls_m, todo = verdict
+        delay_s, delta_y_m = delays
+        times = trajectory[4]
+        K = r_radius.shape[0]
+        completed = -1
+        i = state[0]
+        while i < stop:
+            lo, hi = state[1], state[2]
+            if lo >= hi:
+                completed = i
+                break
+            k = hi - lo
+            is_first = state[0] == 0
+            he, hr = _human_sets(
+                order[i], lo, hi, times, age, human, delay_s, static, acc, delta_y_m, pos,
+                n_limbs, sets, part_maps[order[i]],
+            )  # fmt: skip
+            out = first if is_first else _view(scratch, k)
+            contact, contact_s, env, self_, cls, stack, diam, d_rh = out
+            if not pair_gaps(r_ends[lo:hi], r_radius[lo:hi], he, hr, d_rh):
+                _no_contact(out, diameters_m)
+            else:
+                if state[3] == 0:  # the link states, once per check
+                    path_states_kernel(*trajectory, *link_constants, *link_buffers)
+                    E_int[:] = link_buffers[12]
+                    state[3] = 1
+                s_ends, p1_dot, omega, eps = (
+                    link_buffers[7],
+                    link_buffers[10],
+                    link_buffers[11],
+                    link_buffers[13],
+                )
+                classify_set(
+                    lo, hi, r_ends, r_radius, T_box, half, d_rr, s_rr, d_rb, n_rb, d_rh, he, hr,
+                    s_ends, s_radius, p1_dot, omega, eps, no_pair, not_safe_h, diameters_m,
+                    relax_velocity, relax_diameter, multi_body, contact_s, env, self_, contact,
+                    cls, stack, diam, can_b, can_l,
+                )  # fmt: skip
+            state[0] += 1
+            if is_first:
+                if state[3] == 0:  # no contact possible: the energies do not matter
+                    E_int[:] = math.nan
+                verdict_kernel(stack, cls, contact, T_clamp, T_free, E_int, thr, margin, safe,
+                               safe_k, allowed, part)  # fmt: skip
+                _unproved(safe_k, state)
+            else:
+                if state[4] == 0:
+                    cls_m[:] = first[4]
+                    state[4] = 1
+                if state[3] == 0:
+                    return -2
+                merge_kernel(stack, cls, contact, T_clamp, T_free, E_int, lo, safe, cls_m, thr,
+                             todo)  # fmt: skip
+                if todo[0] >= 0:
+                    state[1], state[2] = todo[0], todo[1] + 1
+                else:
+                    state[1], state[2] = K, K
+            if state[1] >= state[2]:
+                completed = i
+                break
+            if first_only:
+                break
+            i += 1
+        if state[4] == 1:
+            summary_kernel(cls_m, thr, E_int, safe, margin, safe_k, allowed, part)
+        return completed
+
+    return fused_kernel
+
+
+fused_kernel = _make_kernel()

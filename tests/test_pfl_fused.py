@@ -1,0 +1,196 @@
+"""The fused one-person PFL check (sara_app.safety.pfl_fused) against the shield's Python
+composition, which stays the reference: the same verdicts, classes, thresholds, margins, link
+energies, model counts and model orders, bit for bit, cycle after cycle."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import fields
+
+import numpy as np
+import pytest
+
+from sara_app import geometry_kernels
+from sara_app.cell import build_cell
+from sara_app.errors import InputError
+from sara_app.human import reach_kernels
+from sara_app.human.scripted import joints, standing
+from sara_app.robot import crba_kernel, energy, occupancy_kernels
+from sara_app.safety import contact_kernels, pfl_kernels, pfl_link_states
+from sara_app.safety.contact_kernels import source_digest
+from sara_app.safety.pfl import PflResult
+from sara_app.safety.pfl_fused import FusedCheck
+from sara_app.safety.pfl_fused_kernel import fused_kernel
+from sara_app.safety.pfl_shield import PflCycle, PflShield
+from sara_app.safety.shield import CycleResult, HumanState
+from sara_app.scenario import parse_scenario
+
+TABLE = {"name": "table", "center_m": [0.65, 0.0, 0.1], "size_m": [0.5, 1.6, 0.2]}
+Q = [0.3, 0.0, -1.8, 0.0, 2.1, 0.8]
+
+
+def make_pair(models: tuple[str, ...]) -> tuple[PflShield, PflShield]:
+    """Two identical PFL cells, the second without the fused check (the reference)."""
+    sc = parse_scenario(
+        {
+            "name": "t",
+            "task": {"waypoints_rad": [[-1.2, *Q], [1.2, *Q]]},
+            "environment": [TABLE],
+            "shield": {"mode": "pfl", "models": list(models)},
+        }
+    )
+    a, b = build_cell(sc).shield, build_cell(sc).shield
+    assert isinstance(a, PflShield) and isinstance(b, PflShield)
+    assert a.fused is not None
+    b.fused = None
+    return a, b
+
+
+def assert_same_result(a: PflResult | None, b: PflResult | None) -> None:
+    assert (a is None) == (b is None)
+    if a is None or b is None:
+        return
+    for f in fields(PflResult):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if f.name == "contact":
+            for g in fields(x):
+                np.testing.assert_array_equal(getattr(x, g.name), getattr(y, g.name), g.name)
+        else:
+            np.testing.assert_array_equal(x, y, err_msg=f.name)  # NaN equals NaN here
+
+
+def assert_same_cycle(sa: PflShield, ra: CycleResult, sb: PflShield, rb: CycleResult) -> None:
+    assert (ra.mode, ra.verified, ra.faults) == (rb.mode, rb.verified, rb.faults)
+    np.testing.assert_array_equal(ra.command.q, rb.command.q)
+    np.testing.assert_array_equal(ra.command.v, rb.command.v)
+    assert ra.speed_scale == rb.speed_scale
+    assert_same_result(ra.pfl, rb.pfl)
+    ia, ib = sa._res, sb._res
+    if isinstance(ia, PflCycle) and isinstance(ib, PflCycle):
+        assert (ia.cap, ia.speed_scale, ia.checks, ia.models_used) == (
+            ib.cap, ib.speed_scale, ib.checks, ib.models_used
+        )  # fmt: skip
+    assert (sa.cap, sa._calm, sa._orders) == (sb.cap, sb._calm, sb._orders)
+
+
+def person_at(xy: np.ndarray, v: np.ndarray, dv: float, stamp: float) -> HumanState:
+    yj = joints(standing((float(xy[0]), float(xy[1])), math.atan2(-xy[1], -xy[0])))
+    return HumanState("p", yj, np.broadcast_to(v, yj.shape).copy(), np.full(len(yj), dv), stamp)
+
+
+@pytest.mark.parametrize(
+    "models", [("acc", "vel", "pos"), ("iso13855", "pos", "acc", "vel"), ("pos",), ("vel",)]
+)
+def test_closed_loop_equals_the_python_composition(models: tuple[str, ...]) -> None:
+    """A person walking up to the working robot, into reach and back out (clear, slowed and
+    braking cycles, replans, lazy and finished checks, model-order changes), with noisy
+    velocities and measurement ages: every cycle's outputs equal the reference's."""
+    a, b = make_pair(models)
+    rng = np.random.default_rng(len(models))
+    t = 0.0
+    for _ in range(30):  # nobody: the robot speeds up
+        assert_same_cycle(a, a.cycle(t, []), b, b.cycle(t, []))
+        t += a.settings.dt_s
+    xy = np.array([1.6, -0.6])
+    goal = np.array([0.55, -0.35])
+    modes = set()
+    checks = set()
+    for n in range(260):
+        if n == 160:
+            goal = np.array([1.6, 0.4])
+        step = 0.006 * (goal - xy) / max(np.linalg.norm(goal - xy), 1e-9)
+        xy = xy + step + rng.normal(0.0, 0.002, 2)
+        v = np.append(step / a.settings.dt_s, 0.0) + rng.normal(0.0, 0.2, 3)
+        people = [person_at(xy, v, 0.05 + 0.1 * rng.random(), t - rng.uniform(0.0, 0.02))]
+        ra, rb = a.cycle(t, people), b.cycle(t, people)
+        assert_same_cycle(a, ra, b, rb)
+        modes.add(ra.mode)
+        if isinstance(a._res, PflCycle):
+            checks.add(a._res.checks)
+        t += a.settings.dt_s
+    assert "intended" in modes and checks >= {1}  # the episode is what it says
+    if models == ("acc", "vel", "pos"):
+        assert "failsafe" in modes and 2 in checks
+
+
+@pytest.mark.parametrize("case", ["clear", "slowed", "braking"])
+def test_benchmark_states_equal_the_python_composition(case: str) -> None:
+    """The benchmark's three states, each from full speed (a failed check at full speed
+    first), with the model order the reference learns over repeated cycles."""
+    from sara_app.safety.bench_pfl import BENCH_CASES, shield_cell
+
+    shield, template, people, t = shield_cell(BENCH_CASES[case])
+    ref, _, _, _ = shield_cell(BENCH_CASES[case])
+    ref.fused = None
+    for _ in range(4):
+        for s in (shield, ref):
+            s.follower = template.copy()
+            s.cap, s._calm = math.inf, 0
+        ra = shield.cycle(t, people, want_distance=False)
+        rb = ref.cycle(t, people, want_distance=False)
+        assert_same_cycle(shield, ra, ref, rb)
+
+
+@pytest.mark.parametrize("bad", ["v", "dv", "stamp"])
+def test_non_finite_person_inputs_equal_the_reference(bad: str) -> None:
+    """A NaN velocity or velocity bound (accepted by the shield: NaN capsules mean contact
+    everywhere) or an old measurement: the same cycle as the reference, and nothing unproved
+    is committed."""
+    a, b = make_pair(("acc", "vel", "pos"))
+    t = 0.0
+    for _ in range(40):
+        a.cycle(t, [])
+        b.cycle(t, [])
+        t += a.settings.dt_s
+    xy, v = np.array([0.9, -0.4]), np.zeros(3)
+    p = person_at(xy, v, 0.05, t - 0.01)
+    if bad == "v":
+        p.v[3] = np.nan
+    elif bad == "dv":
+        p.dv[5] = np.nan
+    else:
+        p = person_at(xy, v, 0.05, t - 0.5)
+    ra, rb = a.cycle(t, [p]), b.cycle(t, [p])
+    assert_same_cycle(a, ra, b, rb)
+    assert ra.verified == (ra.pfl is not None and ra.pfl.safe_all)
+
+
+def test_only_the_latest_check_adds_models_and_shapes_are_checked() -> None:
+    """The scratch buffers belong to the most recently opened check; wrong shapes raise
+    :class:`InputError` before the kernel indexes anything."""
+    from sara_app.safety.bench_pfl import BENCH_CASES, shield_cell
+
+    shield, template, people, t = shield_cell(BENCH_CASES["braking"])
+    fused = shield.fused
+    assert fused is not None
+    traj, ends, radius = shield._plan(math.inf)
+    hum = shield._human_arrays(people, [0], {"p": 0.01})
+    assert hum is not None
+    codes = fused.codes(shield._model_order)
+    old = fused.open(traj, ends, radius, hum)
+    new = fused.open(traj, ends, radius, hum)
+    assert isinstance(new, FusedCheck)
+    with pytest.raises(InputError, match="later PFL check"):
+        old.add_models(codes, 1, True)
+    with pytest.raises(InputError, match="no human set"):
+        new.result()
+    assert new.add_models(codes, 1, True) in (-1, 0) and new.models == 1
+    with pytest.raises(InputError, match="one person"):
+        fused.open(traj, ends[:-1], radius, hum)
+    two = tuple(np.concatenate([x, x]) for x in hum)
+    with pytest.raises(InputError, match="one person"):
+        fused.open(traj, ends, radius, two)  # type: ignore[arg-type]
+    with pytest.raises(InputError, match="stop"):
+        new.add_models(codes, len(codes) + 1, False)
+
+
+def test_cache_key_carries_the_callees_sources() -> None:
+    """Numba's cache checks only the kernel's own file: the closure (hashed into the cache
+    key) holds the source digests of every file whose kernels it calls."""
+    cells = [c.cell_contents for c in fused_kernel.py_func.__closure__ or ()]
+    text = "".join(c for c in cells if isinstance(c, str))
+    for module in (
+        geometry_kernels, reach_kernels, crba_kernel, energy, occupancy_kernels,
+        contact_kernels, pfl_kernels, pfl_link_states,
+    ):  # fmt: skip
+        assert source_digest(module) in text, module.__name__
