@@ -274,6 +274,14 @@ class PathFollower:
         """``(piece starts, V)``: the precomputed admissible path speed, piecewise constant."""
         return self.path.piece_starts, np.array(self._V)
 
+    def admissible_here(self) -> tuple[float, float]:
+        """``(V at the current s, largest V of the path)`` (rad/s; 0 for a path without
+        pieces): :attr:`admissible_speed` without its array copy."""
+        V = self._V
+        if not V:
+            return 0.0, 0.0
+        return V[self.path.piece_index(self._s)], max(V)
+
     @property
     def done(self) -> bool:
         """At rest at the end of the path."""

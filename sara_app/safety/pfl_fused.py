@@ -118,7 +118,8 @@ class FusedChecks:
             sets = (np.empty(K), np.empty(K), np.empty((1, K, P, 2, 3)), np.empty((1, K, P)),
                     np.empty((1, P, 2, 3)), np.empty((K, P)), np.empty((1, C, 2, 3)),
                     np.empty((1, K, C)), np.empty((K, P, 2, 3)), np.empty((K, P)))  # fmt: skip
-            s = self._scratch[K] = (geometry, sets, _classes(K, L, P), np.empty(2, np.int64))
+            todo, speeds = np.empty(2, np.int64), np.empty(2)
+            s = self._scratch[K] = (geometry, sets, _classes(K, L, P), todo, speeds)
         return s
 
     def open(
@@ -174,7 +175,7 @@ class FusedCheck:
         self._owner, self._ticket = owner, owner.opened
         K, L, P = r_radius.shape[0], owner._L, owner._P
         self.K = K
-        geometry, self._sets, self._scratch, todo = owner._scratch_for(K)
+        geometry, self._sets, self._scratch, todo, speeds = owner._scratch_for(K)
         geometry[4].fill(-2)
         geometry[5].fill(-2)
         self._geometry = geometry
@@ -188,7 +189,7 @@ class FusedCheck:
         E_int = np.empty((K, L))
         self._verdict = (thr, margin, np.empty((K, L, P), bool), np.empty(K, bool),
                          np.empty((K, L)), np.empty((K, L), np.int64), E_int,
-                         np.empty((K, L, P), np.int8), todo)  # fmt: skip
+                         np.empty((K, L, P), np.int8), todo, speeds)  # fmt: skip
         self._state = np.zeros(STATE_SIZE, dtype=np.int64)
         self._state[1:3] = 0, K
 
@@ -227,6 +228,21 @@ class FusedCheck:
         return int(done)
 
     @property
+    def safe_all(self) -> bool:
+        """Eq. 6 for the models added so far."""
+        return bool(self._state[5])
+
+    def candidate(self) -> tuple[float, bool]:
+        """After a failed check: the candidate path speed of the violated entries and whether a
+        slower plan can fix them (as the shield's ``_candidate`` from :meth:`result`)."""
+        return float(self._verdict[9][0]), not self._state[6]
+
+    def allowed_speed(self) -> float:
+        """After a verified check: the path speed at which its contacts reach their thresholds
+        (as the shield's ``_allowed_speed`` from :meth:`result`)."""
+        return float(self._verdict[9][1])
+
+    @property
     def E0(self) -> np.ndarray:
         """Link energies at the current state ``(L,)`` (a view, valid until the next check of a
         trajectory as long; zeros when no contact was possible, then unused)."""
@@ -240,10 +256,10 @@ class FusedCheck:
         if self._state[0] == 0:
             raise InputError("no human set was checked (add at least one model)")
         contact, contact_s, env, self_, cls, stack, diam, d_rh = self._first
-        thr, margin, safe, safe_k, allowed, part, E_int, cls_m, _ = self._verdict
+        thr, margin, safe, safe_k, allowed, part, E_int, cls_m = self._verdict[:8]
         c = ContactResult(contact, contact_s, env, self_, cls, stack, diam, d_rh)
         merged = bool(self._state[4])
         return PflResult(
-            safe, safe_k, bool(safe_k.all()), cls_m if merged else cls, thr, E_int, margin, c,
+            safe, safe_k, bool(self._state[5]), cls_m if merged else cls, thr, E_int, margin, c,
             allowed, part, merged or bool(self._state[3]),
         )  # fmt: skip

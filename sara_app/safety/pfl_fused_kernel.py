@@ -27,16 +27,23 @@ from sara_app.human.reach_kernels import acc_sets, pos_sets, static_sets
 from sara_app.robot import crba_kernel, energy, occupancy_kernels
 from sara_app.safety import contact_kernels, pfl_kernels, pfl_link_states
 from sara_app.safety.contact_kernels import classify_set, source_digest
-from sara_app.safety.pfl_kernels import merge_kernel, summary_kernel, verdict_kernel
+from sara_app.safety.pfl_kernels import (
+    merge_kernel,
+    speed_kernel,
+    stuck_kernel,
+    summary_kernel,
+    verdict_kernel,
+)
 from sara_app.safety.pfl_link_states import path_states_kernel
 
 __all__ = ["KIND_ACC", "KIND_ISO", "KIND_POS", "KIND_VEL", "STATE_SIZE", "fused_kernel"]
 
 KIND_ACC, KIND_VEL, KIND_ISO, KIND_POS = 0, 1, 2, 3
 """Model codes of the kernel (``vel`` and ``iso13855`` are rows 0 and 1 of the static sets)."""
-STATE_SIZE = 5
-"""``state (5,)`` int64: models evaluated, unproved range ``lo, hi``, link states known (0/1),
-merged (0/1: a second model was added)."""
+STATE_SIZE = 7
+"""``state (7,)`` int64: models evaluated, unproved range ``lo, hi``, link states known (0/1),
+merged (0/1: a second model was added), eq. 6 holds (0/1), stuck (0/1: an unsafe entry of
+interval 0 whose link is already too fast at the current state)."""
 
 _f8, _i8, _b1 = types.float64, types.int64, types.boolean
 _RO = {d: types.Array(_f8, d, "A", readonly=True) for d in (1, 2, 3, 4)}
@@ -87,9 +94,12 @@ P, 2, 3), h_radius (K, P))``."""
 CLASSES = types.Tuple((_WB3, _WB3, _WB3, _WB3, _WI83, _WB3, _W[2], _W[3]))
 """A classification ``(contact, contact_single, env, self_, cls (k, L, P), stack (k, P, P),
 stack_diameter_m (k, P), distance_m (k, L, P))``."""
-VERDICT = types.Tuple((_W[3], _W[3], _WB3, _WB1, _W[2], _WI2, _W[2], _WI83, _WI1))
+VERDICT = types.Tuple((_W[3], _W[3], _WB3, _WB1, _W[2], _WI2, _W[2], _WI83, _WI1, _W[1]))
 """``(threshold_J, margin_J, safe (K, L, P), safe_interval (K,), allowed_J (K, L),
-limiting_part (K, L), energy_J (K, L), merged cls (K, L, P), todo scratch (2,))``."""
+limiting_part (K, L), energy_J (K, L), merged cls (K, L, P), todo scratch (2,), speeds (2,))``:
+``speeds`` the speed scaling's path speeds (rad/s) from the verdict (the shield's
+``_candidate``: the candidate of the violated entries when eq. 6 fails; ``_allowed_speed``: the
+speed at which the contacts reach their thresholds when it holds; NaN: not this case)."""
 
 
 @njit(cache=True)
@@ -184,6 +194,29 @@ def _unproved(safe_k: np.ndarray, state: np.ndarray) -> None:
     state[1], state[2] = lo, hi
 
 
+@njit(cache=True)
+def _speeds(
+    sd: np.ndarray, T: np.ndarray, cls: np.ndarray, verdict: Any, state: np.ndarray
+) -> None:
+    """``state[5:7]`` and ``speeds``: eq. 6, and the speed scaling's inputs (as the shield's
+    ``_candidate`` and ``_allowed_speed`` compute them from the result; ``T (S, L)`` the link
+    energies at the samples, row 0 the current state, zero when they were not needed)."""
+    thr, safe, safe_k, E_int, speeds = verdict[0], verdict[2], verdict[3], verdict[6], verdict[9]
+    ok = True
+    for k in range(safe_k.shape[0]):
+        ok = ok and safe_k[k]
+    state[5] = ok
+    speeds[0] = math.nan
+    speeds[1] = math.nan
+    if ok:
+        speeds[1] = speed_kernel(False, safe, cls, thr, E_int, sd)
+        state[6] = 0
+    else:
+        speeds[0] = speed_kernel(True, safe, cls, thr, E_int, sd)
+        E0 = T[0] if state[3] == 1 else np.zeros(T.shape[1])
+        state[6] = stuck_kernel(safe, thr, E0)
+
+
 def _make_kernel() -> Any:
     """Build :func:`fused_kernel` with its callees' source digests in the closure."""
     sources = "".join(
@@ -239,7 +272,7 @@ def _make_kernel() -> Any:
         d_rr, s_rr, d_rb, n_rb, can_b, can_l = geometry
         no_pair, not_safe_h, diameters_m, T_clamp, T_free = rules
         relax_velocity, relax_diameter, multi_body = switches
-        thr, margin, safe, safe_k, allowed, part, E_int, cls_m, todo = verdict
+        thr, margin, safe, safe_k, allowed, part, E_int, cls_m, todo, speeds = verdict
         delay_s, delta_y_m = delays
         times = trajectory[4]
         K = r_radius.shape[0]
@@ -304,6 +337,8 @@ def _make_kernel() -> Any:
             i += 1
         if state[4] == 1:
             summary_kernel(cls_m, thr, E_int, safe, margin, safe_k, allowed, part)
+        _speeds(trajectory[2], link_buffers[9], first[4] if state[4] == 0 else cls_m, verdict,
+                state)  # fmt: skip
         return completed
 
     return fused_kernel

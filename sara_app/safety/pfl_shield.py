@@ -265,11 +265,7 @@ class PflShield(Shield):
 
     def _admissible_here(self) -> tuple[float, float]:
         """``(V at the robot's position, largest V of the path)`` (rad/s)."""
-        f = self.follower
-        starts, V = f.admissible_speed
-        if V.size == 0:
-            return 0.0, 0.0
-        return float(V[f.path.piece_index(f.s)]), float(V.max())
+        return self.follower.admissible_here()
 
     def _plan(self, cap: float) -> tuple[ShieldedTrajectory, np.ndarray, np.ndarray]:
         f = self.follower
@@ -336,7 +332,11 @@ class PflShield(Shield):
     ) -> tuple[float, bool]:
         """After a failed check at ``cap``: the replan's cap (``cut`` times the candidate, and at
         most ``cut`` times the current cap and top speed) and whether a replan can fix it."""
-        cand, fixable = _candidate(res, traj, E0)
+        check = self._open[0] if self._open is not None else None
+        if isinstance(check, FusedCheck):  # computed by its kernel, from the same result
+            cand, fixable = check.candidate()
+        else:
+            cand, fixable = _candidate(res, traj, E0)
         cut = self.scaling.cut
         return min(cut * cand, cut * min(cap, float(traj.sd.max()))), fixable
 
@@ -349,7 +349,10 @@ class PflShield(Shield):
         self.cap = cap
         if cap == math.inf or self._calm < sc.hold_cycles:
             return
-        allowed = _allowed_speed(res, traj)
+        check = self._open[0] if self._open is not None else None
+        allowed = (
+            check.allowed_speed() if isinstance(check, FusedCheck) else _allowed_speed(res, traj)
+        )
         if allowed == math.inf and sc.free_jump:
             self.cap = math.inf
         elif allowed >= sc.hysteresis * cap:
