@@ -238,7 +238,8 @@ class InstanceBatch:
         """
         self.scales[n:] = 0.0
         h = self.handle
-        assert h is not None  # created in __init__
+        if h is None:  # created in __init__
+            raise InputError("capsule batch without its scene handle")
         for key, buf in (
             ("batched_positions", self.positions),
             ("batched_wxyzs", self.wxyzs),

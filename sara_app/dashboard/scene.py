@@ -427,8 +427,9 @@ def bench_rows(n: int = 2000) -> list[tuple[str, float, float, str]]:
     standing = [replace(f, q=frames[0].q) for f in frames]
     dash = Dashboard()
     dash.start(port=8780)
-    assert dash.scene is not None  # set by start()
     scene = dash.scene
+    if scene is None:  # set by start()
+        raise InputError("the dashboard started without a scene")
     rows = []
     try:
         for label, seq in (("robot moving", frames), ("robot standing", standing)):

@@ -388,7 +388,10 @@ _CMU_MAP: dict[str, tuple[str, ...]] = {
     "l_ankle": ("ltibia",),
     "r_ankle": ("rtibia",),
 }
-assert tuple(_CMU_MAP) == FULL_JOINTS
+if tuple(_CMU_MAP) != FULL_JOINTS:  # a table edit that lost or reordered a joint
+    raise RecordingError(
+        f"CMU joint map {tuple(_CMU_MAP)}; expected the full skeleton's joints {FULL_JOINTS}"
+    )
 
 
 def _check_cmu_path(p: str | os.PathLike[str], what: str) -> Path:

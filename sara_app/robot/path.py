@@ -306,7 +306,8 @@ class PathTrajectory:
     def _derivatives_at(self, s: float, order: int) -> list[np.ndarray]:
         """Scalar fast path of :meth:`derivatives`."""
         p = self._p
-        assert p is not None
+        if p is None:  # the caller checked; an empty path has no pieces
+            raise RobotModelError("path without pieces has no derivatives at a point")
         k = self.piece_index(s)
         x0 = self._x0_list[k]
         x = min(max(x0 + (s - self._s0_list[k]) * self._invL_list[k], x0), self._x1_list[k])

@@ -587,7 +587,8 @@ class PathFollower:
             return
         path, stop = self.path, self._stop
         p = path._p
-        assert p is not None
+        if p is None:  # a moving robot is on a path with pieces
+            raise RobotModelError("replan: the robot moves on a path without pieces")
         # junction on a straight piece at or after the end of the held stop (the last piece of
         # a path is always straight)
         s_min = min(stop.s_end, self._S)

@@ -153,7 +153,8 @@ def shield_rows(n: int = 2000) -> list[Row]:
     :data:`BENCH_CASES` (every cycle from the same state with no cap: the worst case, a
     failed check at full speed first), plus the slowed case in the steady state of a closed
     loop (the cap found by the previous cycle kept: one check); then the stages of one check
-    in the braking case."""
+    in the braking case: the Python composition's parts (the reference), then the whole check
+    as the shield runs it for one person (:mod:`sara_app.safety.pfl_fused`)."""
     rows = []
     cases = [(case, xy, False) for case, xy in BENCH_CASES.items()]
     cases.append(("slowed, cap held", BENCH_CASES["slowed"], True))
@@ -216,8 +217,11 @@ def shield_rows(n: int = 2000) -> list[Row]:
             "  human sets, 3 models",
             lambda: [shield._human_sets(m, hum, traj.times, 0, K) for m in shield.settings.models],
         ),  # fmt: skip
-        ("  classification + merge, 3 models", classify_all),
-        ("  PFL check, all models (the sum)", lambda: shield._verify(traj, ends, radius, hum)),
+        ("  classification + merge, 3 models (Python composition)", classify_all),
+        (
+            "  PFL check, all models (fused: one compiled call)",
+            lambda: shield._verify(traj, ends, radius, hum),
+        ),
     ]
     for name, fn in stages:
         med, p99 = timeit_us(fn, n, warmup=max(10, n // 10))

@@ -69,7 +69,11 @@ compiled classification and one compiled merge over the intervals still unproved
 energies and twists are obtained only when some human set may touch a link (the broad phase of
 the classification): a check without a possible contact verifies whatever the energies, which
 is most checks near a person that verify and every check with the person farther away; the
-dashboard gets them from :meth:`PflShield.with_energies`, outside the check.
+dashboard gets them from :meth:`PflShield.with_energies`, outside the check. For one person
+with models among acc / vel / pos / iso13855 (the common case) all of this, from the human sets
+to the merged verdict and the speed scaling's candidate, is one compiled call per check
+(:mod:`sara_app.safety.pfl_fused`, the same bits as this module's Python composition, which
+stays the reference and serves several people and the arm model).
 """
 
 from __future__ import annotations
