@@ -12,14 +12,14 @@ import pytest
 
 from sara_app import geometry_kernels
 from sara_app.cell import build_cell
-from sara_app.errors import InputError
+from sara_app.errors import InputError, ParameterError
 from sara_app.human import reach_kernels
 from sara_app.human.scripted import joints, standing
 from sara_app.robot import crba_kernel, energy, occupancy_kernels
 from sara_app.safety import contact_kernels, pfl_kernels, pfl_link_states
 from sara_app.safety.contact_kernels import source_digest
 from sara_app.safety.pfl import PflResult
-from sara_app.safety.pfl_fused import FusedCheck
+from sara_app.safety.pfl_fused import FusedCheck, FusedChecks
 from sara_app.safety.pfl_fused_kernel import fused_kernel
 from sara_app.safety.pfl_shield import PflCycle, PflShield
 from sara_app.safety.shield import CycleResult, HumanState
@@ -194,3 +194,23 @@ def test_cache_key_carries_the_callees_sources() -> None:
         contact_kernels, pfl_kernels, pfl_link_states,
     ):  # fmt: skip
         assert source_digest(module) in text, module.__name__
+
+
+def test_construction_is_validated() -> None:
+    """A model the kernel does not compute, or a part map that would index outside a model's
+    capsules, is refused at construction (the kernel does not check its indices)."""
+    from sara_app.safety.bench_pfl import BENCH_CASES, shield_cell
+
+    shield = shield_cell(BENCH_CASES["clear"])[0]
+    args = (shield.pfl, shield._link_states, shield.verifier.reach)
+    P = shield.pfl.n_parts
+    n_pos = shield.verifier.reach.pos_ends.shape[0]
+    with pytest.raises(ParameterError, match="models"):
+        FusedChecks(*args, {"arm": np.zeros(P, np.int64)}, shield.boxes)
+    bad = {"pos": np.full(P, n_pos, np.int64)}
+    with pytest.raises(ParameterError, match="part map of 'pos'"):
+        FusedChecks(*args, bad, shield.boxes)
+    with pytest.raises(ParameterError, match="part map of 'vel'"):
+        FusedChecks(*args, {"vel": np.arange(P - 1)}, shield.boxes)
+    ok = FusedChecks(*args, {"pos": np.full(P, n_pos - 1, np.int64)}, shield.boxes)
+    assert ok.codes(["pos"]).tolist() == [3]

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from sara_app.errors import InputError
+from sara_app.errors import InputError, ParameterError
 from sara_app.human.reach import HumanReach
 from sara_app.safety.contact import ContactResult
 from sara_app.safety.pfl import PflCheck, PflResult
@@ -64,20 +64,28 @@ class FusedChecks:
     ) -> None:
         unknown = sorted(set(part_maps) - set(KINDS))
         if unknown or not link_states.compiled:
-            raise InputError(
+            raise ParameterError(
                 f"models {unknown} / compiled link states {link_states.compiled}: the fused "
                 f"check needs models among {sorted(KINDS)} and the compiled CRBA"
             )
         self.pfl, self.link_states, self.reach = pfl, link_states, reach
         P, L, J = pfl.n_parts, pfl.n_links, reach.skeleton.n_joints
         if reach.skeleton.n_parts != P:
-            raise InputError(
+            raise ParameterError(
                 f"the check has {P} body parts, the reach model {reach.skeleton.n_parts}; "
                 "expected one person's parts"
             )
         maps = np.tile(np.arange(P, dtype=np.int64), (len(KINDS), 1))
+        n_pos = int(reach.pos_ends.shape[0])
         for name, index in part_maps.items():
-            maps[KINDS[name]] = index
+            n = n_pos if name == "pos" else P  # capsules of the model (the kernel indexes them)
+            idx = np.asarray(index)
+            if idx.shape != (P,) or not (np.all(idx >= 0) and np.all(idx < n)):
+                raise ParameterError(
+                    f"part map of {name!r}: {idx.tolist()}; expected {P} capsule indices in "
+                    f"[0, {n})"
+                )
+            maps[KINDS[name]] = idx
         self._part_maps = maps
         self._J, self._P, self._L = J, P, L
         r, p = reach, reach.params
@@ -89,7 +97,7 @@ class FusedChecks:
                      r.pos_rbase)  # fmt: skip
         self._delays = (float(p.delay_s), float(p.delta_y_m))
         self._n_limbs = int(r.n_limbs)
-        self._n_pos = int(r.pos_ends.shape[0])
+        self._n_pos = n_pos
         self._rules = (*pfl.classifier.kernel_arrays(), pfl.T_clamp, pfl.T_free)
         self._switches = pfl.classifier.switches()
         self._s_radius = np.asarray(pfl.model.radius_m, dtype=np.float64)
