@@ -9,8 +9,9 @@ merge. Composed in Python that is ~40 calls per check, and in the benchmark's br
 (:func:`~sara_app.safety.pfl_fused_kernel.fused_kernel`) on the same numbers, so the verdicts,
 classes, thresholds, margins and link energies are the same bits as the Python path, which stays
 the reference and serves what this does not: several people at once, the arm model, a robot
-without the compiled CRBA (``tests/test_pfl_fused.py`` compares them on the benchmark's states,
-random people around the robot and closed-loop episodes).
+without the compiled CRBA (``tests/test_pfl_fused.py`` compares them cycle by cycle on
+closed-loop episodes of a person walking into reach and out with noisy velocities and ages, on
+the benchmark's states and on non-finite person inputs).
 
 Buffers: the results' arrays are fresh per check (a :class:`PflResult` may be kept); the
 robot-only geometry, the human sets and the later models' classifications use scratch buffers
