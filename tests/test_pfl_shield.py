@@ -176,6 +176,36 @@ def test_a_lazy_check_is_conservative_and_finishes_to_the_full_one() -> None:
         np.testing.assert_array_equal(done.safe, full.safe)
 
 
+@pytest.mark.parametrize("fused", [False, True])
+def test_a_check_that_a_replan_can_follow_stops_only_for_the_replan(fused: bool) -> None:
+    """``replan = (cap, c_min)``: a failing first model stops the check exactly when the lazy
+    result is fixable and its next cap (``_next_cap``) reaches ``c_min``; otherwise the check
+    goes on to the full one (the same result as finishing a lazy check)."""
+    shield = make_shield()
+    if not fused:
+        shield.fused = None
+    t = run_free(shield, 60)
+    hum = hum_arrays(shield, [person(0.85, 0.0, t)], t)
+    traj, ends, radius = shield._plan(math.inf)
+    stops = []
+    for first in ("acc", "vel", "pos"):
+        order = [first] + [m for m in ("acc", "vel", "pos") if m != first]
+        shield._model_order = list(order)
+        lazy, _, E0 = shield._verify(traj, ends, radius, hum, first_only=True)
+        cand, fixable = shield._next_cap(lazy, traj, E0.copy(), math.inf)
+        lazy_safe, lazy_thr = lazy.safe.copy(), lazy.threshold_J.copy()  # finishing merges in
+        full, _, _ = shield._finish_check()
+        for c_min in (0.0, 0.5 * cand, cand, 2.0 * cand, math.inf):
+            shield._model_order = list(order)
+            res, used, _ = shield._verify(traj, ends, radius, hum, replan=(math.inf, c_min))
+            stop = fixable and cand >= c_min
+            stops.append(stop)
+            assert used == (1 if stop else 3)
+            np.testing.assert_array_equal(res.safe, lazy_safe if stop else full.safe)
+            np.testing.assert_array_equal(res.threshold_J, lazy_thr if stop else full.threshold_J)
+    assert any(stops) and not all(stops)  # both branches taken
+
+
 def test_a_failed_lazy_first_check_rotates_the_first_checks_order() -> None:
     """A cycle whose first check fails on its first model and replans: the next cycle's first
     check starts with another model (a lazy check never completes, so it could not learn); the

@@ -217,10 +217,20 @@ class FusedCheck:
         """Whether the link states were obtained (some human set may touch a link)."""
         return bool(self._state[3])
 
-    def add_models(self, order: np.ndarray, stop: int, first_only: bool) -> int:
+    def add_models(
+        self,
+        order: np.ndarray,
+        stop: int,
+        first_only: bool,
+        replan: tuple[float, float] | None = None,
+        cut: float = 1.0,
+    ) -> int:
         """Add the models ``order[models:stop]`` (codes from :meth:`FusedChecks.codes`) until
-        every entry is proved or, with ``first_only``, after one; returns the index in
-        ``order`` of the model that completed the check (-1: none)."""
+        every entry is proved or, with ``first_only``, after one, or with ``replan = (cap,
+        c_min)`` after a failing first model that a replan will follow (fixable, and the
+        replan's cap ``min(cut * candidate, cut * min(cap, max s'))`` at least ``c_min``: the
+        shield's ``_next_cap``); returns the index in ``order`` of the model that completed the
+        check (-1: none)."""
         o = self._owner
         if self._ticket != o.opened:
             raise InputError("a later PFL check reuses this one's buffers; it cannot add models")
@@ -230,7 +240,8 @@ class FusedCheck:
             self._robot, self._geometry, self._trajectory, self._link_constants,
             self._link_buffers, o._rules, o._switches, self._human, self._age, o._static,
             o._acc, o._pos, o._delays, o._n_limbs, self._sets, o._part_maps, order, stop,
-            first_only, self._first, self._scratch, self._verdict, self._state,
+            first_only, (replan is not None, *(replan or (0.0, 0.0)), cut), self._first,
+            self._scratch, self._verdict, self._state,
         )  # fmt: skip
         if done == -2:
             raise InputError("a fused PFL check has unproved entries but no link energies")

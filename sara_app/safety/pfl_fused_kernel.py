@@ -217,6 +217,27 @@ def _speeds(
         state[6] = stuck_kernel(safe, thr, E0)
 
 
+@njit(cache=True)
+def _py_min(a: float, b: float) -> float:
+    """Python's ``min(a, b)`` (``a`` unless ``b < a``; NaN as Python treats it)."""
+    return b if b < a else a
+
+
+@njit(cache=True)
+def _replan_cap(candidate: float, replan: Any, sd: np.ndarray) -> float:
+    """The shield's ``_next_cap``: ``min(cut * candidate, cut * min(cap, sd.max()))`` with
+    numpy's max (NaN if any sample is NaN)."""
+    top = sd[0]
+    for x in sd:
+        if x != x:
+            top = x
+            break
+        if x > top:
+            top = x
+    cut, cap = replan[3], replan[1]
+    return _py_min(cut * candidate, cut * _py_min(cap, top))
+
+
 def _make_kernel() -> Any:
     """Build :func:`fused_kernel` with its callees' source digests in the closure."""
     sources = "".join(
@@ -231,7 +252,8 @@ def _make_kernel() -> Any:
         _i8(
             ROBOT, GEOMETRY, TRAJECTORY, LINK_CONSTANTS, LINK_BUFFERS, RULES,
             types.UniTuple(_b1, 3), HUMAN, _f8, STATIC, ACC, POS, types.UniTuple(_f8, 2), _i8,
-            SET_BUFFERS, _ROI2, _ROI1, _i8, _b1, CLASSES, CLASSES, VERDICT, _WI1,
+            SET_BUFFERS, _ROI2, _ROI1, _i8, _b1, types.Tuple((_b1, _f8, _f8, _f8)), CLASSES,
+            CLASSES, VERDICT, _WI1,
         ),
         cache=True,
     )  # fmt: skip
@@ -255,6 +277,7 @@ def _make_kernel() -> Any:
         order: np.ndarray,
         stop: int,
         first_only: bool,
+        replan: Any,
         first: Any,
         scratch: Any,
         verdict: Any,
@@ -262,7 +285,10 @@ def _make_kernel() -> Any:
     ) -> int:
         """Add the models ``order[state[0]:stop]`` (codes ``KIND_*``; ``part_maps (4, P)``
         gathers each kind's capsules per body part) to an open check until every entry is
-        proved or, with ``first_only``, after one. Writes the first model's classification
+        proved or, with ``first_only``, after one, or with ``replan = (on, cap, c_min, cut)``
+        after a failing first model that a replan will follow (not stuck and ``min(cut *
+        candidate, cut * min(cap, max sd)) >= c_min``, as the shield's ``_next_cap``). Writes
+        the first model's classification
         into ``first``, the merged verdict into ``verdict``, the progress into ``state``.
         Returns the index in ``order`` of the model that completed the check (-1: none; -2:
         unproved entries without link energies, which a classification cannot produce)."""
@@ -334,6 +360,10 @@ def _make_kernel() -> Any:
                 break
             if first_only:
                 break
+            if replan[0] and state[0] == 1:
+                _speeds(trajectory[2], link_buffers[9], first[4], verdict, state)
+                if state[6] == 0 and _replan_cap(speeds[0], replan, trajectory[2]) >= replan[2]:
+                    break
             i += 1
         if state[4] == 1:
             summary_kernel(cls_m, thr, E_int, safe, margin, safe_k, allowed, part)

@@ -224,7 +224,7 @@ class PflShield(Shield):
         often proved by another model): the last one that completed such a check first."""
         self._model_order = self._orders[0]
         """The order the open check tries the models."""
-        self._open: tuple[MergedCheck | FusedCheck, Humans, np.ndarray] | None = None
+        self._open: tuple[MergedCheck | FusedCheck, Humans, ShieldedTrajectory] | None = None
         self._no_energy = np.zeros(robot.n_links)
         """Link energies at the current state of a check that did not need them (no contact
         possible, so the check verified: they are not used)."""
@@ -297,23 +297,20 @@ class PflShield(Shield):
         while True:
             traj, ends, radius = self._plan(cap)
             self._model_order = self._orders[checks > 0]
-            # a replan can follow: stop a failing check after its first model (the others
-            # rescued 4 of 1552 failed first checks in closed loop, the replan checks them all)
+            # a replan can follow: a failing check stops after its first model when the replan
+            # will follow (the others rescued 4 of 1552 failed first checks in closed loop, the
+            # replan checks them all); else every model counts
             lazy = checks < sc.max_replans and left > 1
-            res, used, E0 = self._verify(traj, ends, radius, hum, first_only=lazy, limit=left)
+            replan = (cap, c_min) if lazy else None
+            res, used, E0 = self._verify(traj, ends, radius, hum, limit=left, replan=replan)
             left -= used
             checks += 1
             if not res.safe_all:
                 cand, fixable = self._next_cap(res, traj, E0, cap)
-                if lazy and used < len(self._model_order):
-                    if fixable and cand >= c_min:  # a replan follows; next time another first
-                        self._model_order.append(self._model_order.pop(0))
-                    else:  # no replan follows: every model counts
-                        res, more, E0 = self._finish_check(limit=left)
-                        left -= more - used
-                        used = more
-                        if not res.safe_all:
-                            cand, fixable = self._next_cap(res, traj, E0, cap)
+                if lazy and used == 1 and len(self._model_order) > 1:
+                    # it stopped for the replan (with left > 1 it goes on otherwise): next
+                    # time another model first
+                    self._model_order.append(self._model_order.pop(0))
             if res.safe_all:
                 self._after_success(res, traj, cap, c_min, V_top)
                 break
@@ -371,17 +368,21 @@ class PflShield(Shield):
         hum: Humans,
         first_only: bool = False,
         limit: int | None = None,
+        replan: tuple[float, float] | None = None,
     ) -> tuple[PflResult, int, np.ndarray]:
         """Eq. 6-7 for the trajectory against every person, models merged per entry; also the
         number of models evaluated and the link energies at the current state ``(L,)`` (a view,
         valid until the next check; zeros when no contact was possible, then unused).
         ``first_only``: stop after the first model even if it leaves entries unproved
         (:meth:`_finish_check` adds the others; a failed result is then conservative);
-        ``limit``: evaluate at most this many models (``>= 1``; None: no limit)."""
+        ``limit``: evaluate at most this many models (``>= 1``; None: no limit); ``replan =
+        (cap, c_min)``: stop after a failing first model when a replan will follow (the
+        check at path-speed cap ``cap`` is fixable and :meth:`_next_cap` is at least ``c_min``),
+        else go on with the others."""
         with _inputs_checked():
             if self.fused is not None and hum[0].shape[0] == 1:
-                self._open = (self.fused.open(traj, ends, radius, hum), hum, traj.times)
-                return self._add_models(first_only, limit)
+                self._open = (self.fused.open(traj, ends, radius, hum), hum, traj)
+                return self._add_models(first_only, limit, replan)
             pfl = self._check_for(hum[0].shape[0])
             dt = traj.times[1:] - traj.times[:-1]
 
@@ -391,8 +392,8 @@ class PflShield(Shield):
 
             # the link energies and twists only when some human set may touch a link
             check = pfl.merged_deferred(ends, radius, dt, *self.boxes, link_state)
-            self._open = (check, hum, traj.times)
-            return self._add_models(first_only, limit)
+            self._open = (check, hum, traj)
+            return self._add_models(first_only, limit, replan)
 
     def _finish_check(self, limit: int | None = None) -> tuple[PflResult, int, np.ndarray]:
         """The last :meth:`_verify` with every model (after ``first_only``), at most ``limit``
@@ -401,21 +402,28 @@ class PflShield(Shield):
             return self._add_models(False, limit)
 
     def _add_models(
-        self, first_only: bool, limit: int | None = None
+        self,
+        first_only: bool,
+        limit: int | None = None,
+        replan: tuple[float, float] | None = None,
     ) -> tuple[PflResult, int, np.ndarray]:
         """Add models to the open check in :attr:`_model_order` until every entry is proved (the
         model that completes it moves to the front) or, with ``first_only``, after one, or after
-        ``limit`` more."""
+        ``limit`` more, or (``replan``, see :meth:`_verify`) after a failing first model that a
+        replan will follow."""
         if self._open is None:
             raise InputError("no PFL check is open (call _verify first)")
-        check, hum, times = self._open
+        check, hum, traj = self._open
         order = self._model_order
         stop = len(order) if limit is None else min(len(order), check.models + limit)
         if isinstance(check, FusedCheck):
-            i = check.add_models(cast(FusedChecks, self.fused).codes(order), stop, first_only)
+            codes = cast(FusedChecks, self.fused).codes(order)
+            cut = self.scaling.cut
+            i = check.add_models(codes, stop, first_only, replan, cut)
             if i > 0:
                 order.insert(0, order.pop(i))
             return check.result(), check.models, check.E0
+        times = traj.times
         for i in range(check.models, stop):
             lo, hi = check.todo
             h_ends, h_radius = self._human_sets(order[i], hum, times, lo, hi)
@@ -426,6 +434,11 @@ class PflShield(Shield):
                 break
             if first_only:
                 break
+            if replan is not None and check.models == 1:
+                E0 = check.samples.energy_J[0] if check.samples is not None else self._no_energy
+                cand, fixable = self._next_cap(check.result(), traj, E0, replan[0])
+                if fixable and cand >= replan[1]:
+                    break
         E0 = check.samples.energy_J[0] if check.samples is not None else self._no_energy
         return check.result(), check.models, E0
 
