@@ -1,14 +1,16 @@
-"""The fused one-person PFL check (sara_app.safety.pfl_fused) against the shield's Python
-composition, which stays the reference: the same verdicts, classes, thresholds, margins, link
-energies, model counts and model orders, bit for bit, cycle after cycle."""
+"""The fused one-person PFL check (sara_app.safety.pfl_fused) and the compiled replan loop
+(sara_app.safety.pfl_cycle) against the shield's Python composition, which stays the
+reference: the same verdicts, classes, thresholds, margins, link energies, model counts and
+model orders, bit for bit, cycle after cycle."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import fields
+from typing import cast
 
 import numpy as np
 import pytest
+from pfl_compare import assert_same_cycle  # noqa: E402
 
 from sara_app import geometry_kernels
 from sara_app.cell import build_cell
@@ -18,19 +20,19 @@ from sara_app.human.scripted import joints, standing
 from sara_app.robot import crba_kernel, energy, occupancy_kernels
 from sara_app.safety import contact_kernels, pfl_kernels, pfl_link_states
 from sara_app.safety.contact_kernels import source_digest
-from sara_app.safety.pfl import PflResult
 from sara_app.safety.pfl_fused import FusedCheck, FusedChecks
 from sara_app.safety.pfl_fused_kernel import fused_kernel
 from sara_app.safety.pfl_shield import PflCycle, PflShield
-from sara_app.safety.shield import CycleResult, HumanState
+from sara_app.safety.shield import HumanState
 from sara_app.scenario import parse_scenario
 
 TABLE = {"name": "table", "center_m": [0.65, 0.0, 0.1], "size_m": [0.5, 1.6, 0.2]}
 Q = [0.3, 0.0, -1.8, 0.0, 2.1, 0.8]
 
 
-def make_pair(models: tuple[str, ...], boxes: bool = True) -> tuple[PflShield, PflShield]:
-    """Two identical PFL cells, the second without the fused check (the reference)."""
+def make_cells(models: tuple[str, ...], boxes: bool = True) -> list[PflShield]:
+    """Three identical PFL cells: with the compiled loop, with the fused check only (the
+    Python loop), and the reference (neither)."""
     sc = parse_scenario(
         {
             "name": "t",
@@ -39,38 +41,19 @@ def make_pair(models: tuple[str, ...], boxes: bool = True) -> tuple[PflShield, P
             "shield": {"mode": "pfl", "models": list(models)},
         }
     )
-    a, b = build_cell(sc).shield, build_cell(sc).shield
-    assert isinstance(a, PflShield) and isinstance(b, PflShield)
-    assert a.fused is not None
-    b.fused = None
-    return a, b
+    cells = [build_cell(sc).shield for _ in range(3)]
+    assert all(isinstance(c, PflShield) for c in cells)
+    a, b, ref = cast(list[PflShield], cells)
+    assert a.fused is not None and a.compiled is not None
+    b.compiled = None
+    ref.fused = ref.compiled = None
+    return [a, b, ref]
 
 
-def assert_same_result(a: PflResult | None, b: PflResult | None) -> None:
-    assert (a is None) == (b is None)
-    if a is None or b is None:
-        return
-    for f in fields(PflResult):
-        x, y = getattr(a, f.name), getattr(b, f.name)
-        if f.name == "contact":
-            for g in fields(x):
-                np.testing.assert_array_equal(getattr(x, g.name), getattr(y, g.name), g.name)
-        else:
-            np.testing.assert_array_equal(x, y, err_msg=f.name)  # NaN equals NaN here
-
-
-def assert_same_cycle(sa: PflShield, ra: CycleResult, sb: PflShield, rb: CycleResult) -> None:
-    assert (ra.mode, ra.verified, ra.faults) == (rb.mode, rb.verified, rb.faults)
-    np.testing.assert_array_equal(ra.command.q, rb.command.q)
-    np.testing.assert_array_equal(ra.command.v, rb.command.v)
-    assert ra.speed_scale == rb.speed_scale
-    assert_same_result(ra.pfl, rb.pfl)
-    ia, ib = sa._res, sb._res
-    if isinstance(ia, PflCycle) and isinstance(ib, PflCycle):
-        assert (ia.cap, ia.speed_scale, ia.checks, ia.models_used) == (
-            ib.cap, ib.speed_scale, ib.checks, ib.models_used
-        )  # fmt: skip
-    assert (sa.cap, sa._calm, sa._orders) == (sb.cap, sb._calm, sb._orders)
+def make_pair(models: tuple[str, ...], boxes: bool = True) -> tuple[PflShield, PflShield]:
+    """The compiled cell and the reference."""
+    a, _, ref = make_cells(models, boxes)
+    return a, ref
 
 
 def person_at(xy: np.ndarray, v: np.ndarray, dv: float, stamp: float) -> HumanState:
@@ -93,11 +76,13 @@ def test_closed_loop_equals_the_python_composition(models: tuple[str, ...], boxe
     braking cycles, replans, lazy and finished checks, model-order changes), with noisy
     velocities and measurement ages, with and without a table: every cycle's outputs equal the
     reference's."""
-    a, b = make_pair(models, boxes)
+    a, b, ref = make_cells(models, boxes)
     rng = np.random.default_rng(len(models))
     t = 0.0
     for _ in range(30):  # nobody: the robot speeds up
-        assert_same_cycle(a, a.cycle(t, []), b, b.cycle(t, []))
+        r = ref.cycle(t, [])
+        assert_same_cycle(a, a.cycle(t, []), ref, r)
+        assert_same_cycle(b, b.cycle(t, []), ref, r)
         t += a.settings.dt_s
     xy = np.array([1.6, -0.6])
     goal = np.array([0.55, -0.35])
@@ -110,8 +95,9 @@ def test_closed_loop_equals_the_python_composition(models: tuple[str, ...], boxe
         xy = xy + step + rng.normal(0.0, 0.002, 2)
         v = np.append(step / a.settings.dt_s, 0.0) + rng.normal(0.0, 0.2, 3)
         people = [person_at(xy, v, 0.05 + 0.1 * rng.random(), t - rng.uniform(0.0, 0.02))]
-        ra, rb = a.cycle(t, people), b.cycle(t, people)
-        assert_same_cycle(a, ra, b, rb)
+        ra, rb, rr = a.cycle(t, people), b.cycle(t, people), ref.cycle(t, people)
+        assert_same_cycle(a, ra, ref, rr)
+        assert_same_cycle(b, rb, ref, rr)
         modes.add(ra.mode)
         if isinstance(a._res, PflCycle):
             checks.add(a._res.checks)
@@ -129,7 +115,7 @@ def test_benchmark_states_equal_the_python_composition(case: str) -> None:
 
     shield, template, people, t = shield_cell(BENCH_CASES[case])
     ref, _, _, _ = shield_cell(BENCH_CASES[case])
-    ref.fused = None
+    ref.fused = ref.compiled = None
     for _ in range(4):
         for s in (shield, ref):
             s.follower = template.copy()

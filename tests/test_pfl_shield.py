@@ -223,18 +223,22 @@ def test_a_failed_lazy_first_check_rotates_the_first_checks_order() -> None:
     assert shield._orders[0] is not shield._orders[1]
 
 
-@pytest.mark.parametrize("fused", [False, True])
+@pytest.mark.parametrize("path", ["python", "fused", "compiled"])
 @pytest.mark.parametrize("max_models", [1, 2, 4, 6])
-def test_model_evaluations_per_cycle_stay_within_the_budget(max_models: int, fused: bool) -> None:
+def test_model_evaluations_per_cycle_stay_within_the_budget(max_models: int, path: str) -> None:
     """``SpeedScaling.max_models`` bounds the classifications of a cycle over all its checks
     (the braking bench state needs 6 without it); a cycle that runs out brakes on the held
-    failsafe: it never commits a step that its checks did not prove."""
+    failsafe: it never commits a step that its checks did not prove. The Python paths are
+    counted per check; the compiled loop reports its count (``PflCycle.evaluations``, equal to
+    the count where both exist)."""
     from sara_app.safety.bench_pfl import BENCH_CASES, shield_cell
     from sara_app.safety.pfl_shield import PflCycle, SpeedScaling
 
     shield, template, people, t = shield_cell(BENCH_CASES["braking"])
     shield.scaling = SpeedScaling(max_models=max_models)
-    if not fused:
+    if path != "compiled":
+        shield.compiled = None
+    if path == "python":
         shield.fused = None
     evaluated: dict[int, int] = {}  # per check: the models it evaluated
     add_models = shield._add_models
@@ -253,10 +257,14 @@ def test_model_evaluations_per_cycle_stay_within_the_budget(max_models: int, fus
         out = shield.cycle(t, people, want_distance=False)
         info = shield._res
         assert isinstance(info, PflCycle) and info.result is not None
-        assert sum(evaluated.values()) <= max_models
+        if path != "compiled":
+            assert info.evaluations == sum(evaluated.values())
+        else:
+            assert not evaluated  # one compiled call
+        assert info.evaluations <= max_models
         assert out.verified == info.result.safe_all
         assert out.mode == ("intended" if out.verified else "failsafe")
-        used.append(sum(evaluated.values()))
+        used.append(info.evaluations)
     assert max(used) == min(max_models, 6)  # the budget binds, and 6 is what the state needs
 
 
@@ -412,8 +420,8 @@ def test_numeric_failure_inside_the_check_is_a_fault(
     def boom(*a: object, **k: object) -> None:
         raise ValueError("broken")
 
-    if where == "fused":
-        monkeypatch.setattr(shield.fused, "open", boom)
+    if where == "fused":  # the fused check and the compiled loop validate their inputs here
+        monkeypatch.setattr(shield.fused, "validated", boom)
     else:
         shield.fused = None
         monkeypatch.setattr(shield.pfl if where == "merged_deferred" else shield, where, boom)

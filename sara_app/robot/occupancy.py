@@ -225,6 +225,12 @@ class RobotOccupancy:
             self._ends_joint, self._axes, self._T0,
         )  # fmt: skip
 
+    def interval_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(lipschitz (L, n), radius0 (L,))`` as
+        :func:`~sara_app.robot.occupancy_kernels.intervals_kernel` takes them (the capsule
+        radius per interval is ``dt / 2 * lipschitz @ v_bound + radius0``)."""
+        return self.lipschitz, self._radius0
+
     def _fk(self, Q: np.ndarray) -> np.ndarray:
         """World poses ``(S, n+1, 4, 4)`` of the joint frames (index 0: the base), a view into
         the scratch buffer (valid until the next call)."""

@@ -18,7 +18,7 @@ from sara_app.robot.path import PathTrajectory
 from sara_app.robot.trajectory import FollowerStep, PathFollower
 from sara_app.robot.trajectory_kernels import shielded_samples_kernel
 
-__all__ = ["ShieldedTrajectory", "shielded_trajectory"]
+__all__ = ["ShieldedTrajectory", "from_samples", "shielded_trajectory"]
 
 _Samples = tuple[
     np.ndarray, tuple[np.ndarray, ...], np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
@@ -126,12 +126,18 @@ def shielded_trajectory(
             raise RobotModelError(f"n_intervals = {n_intervals!r}; expected an integer >= 1")
         m = n_intervals if T > 0 else 0
     samples = _samples_reference if reference or not follower.path.n_pieces else _samples
-    times, (s, sd, sdd), q, dq, v, a, v_bound, a_bound, sd_max = samples(follower.path, step, m)
+    return from_samples(step, samples(follower.path, step, m))
+
+
+def from_samples(step: FollowerStep, samples: _Samples) -> ShieldedTrajectory:
+    """The trajectory of ``step`` + its failsafe from its samples ``(times, (s, s', s''), q,
+    dq/ds, v, a, v_bound, a_bound, sd_max)`` (kept, not copied)."""
+    times, (s, sd, sdd), q, dq, v, a, v_bound, a_bound, sd_max = samples
     # ShieldedTrajectory(...) with the fields set at once instead of one frozen-dataclass
     # __setattr__ each (the same object, a third of the cost)
     traj = object.__new__(ShieldedTrajectory)
     traj.__dict__.update(
         times=times, q=q, v=v, a=a, s=s, sd=sd, sdd=sdd, failsafe_index=1, v_bound=v_bound,
-        a_bound=a_bound, dq=dq, sd_max=sd_max, step=step, stop=stop,
+        a_bound=a_bound, dq=dq, sd_max=sd_max, step=step, stop=step.stop,
     )  # fmt: skip
     return traj

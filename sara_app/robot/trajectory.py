@@ -499,12 +499,32 @@ class PathFollower:
     def _peek_compiled(self, dt: float) -> FollowerStep:
         """:meth:`peek` of a follower that is not done, planned by the compiled kernel."""
         s, v, a = self._s, self._v, self._a
-        path = self.path
         out = np.empty(OUT_LEN)
         status = peek_kernel(
             s, v, a, dt, self._cap, self._S, self._A_min, self._J_min, self._ramp_c,
             *self._ktab, _CONSTS, out,
         )  # fmt: skip
+        return self.step_from_record(out, status, dt)
+
+    def kernel_state(
+        self, dt: float
+    ) -> tuple[tuple[float, ...], tuple[np.ndarray, ...], tuple[np.ndarray, ...]] | None:
+        """What a compiled caller of :func:`~sara_app.robot.planning_kernels.peek_kernel` and
+        :func:`~sara_app.robot.trajectory_kernels.shielded_samples_kernel` needs to plan this
+        follower's next step of ``dt`` at any cap: ``((s, s', s'', dt, S, A_min, J_min,
+        ramp_c), (pc, rows, geo, consts), path piece tables)``; None when :meth:`peek` would
+        not call the kernel (done, or a path without pieces)."""
+        s, v, a, S = self._s, self._v, self._a, self._S
+        if (S - s <= S_TOL and v <= REST_V and abs(a) <= REST_A) or self._n_pieces == 0:
+            return None
+        follower = (s, v, a, float(dt), S, self._A_min, self._J_min, self._ramp_c)
+        return follower, (*self._ktab, _CONSTS), self.path.piece_tables
+
+    def step_from_record(self, out: np.ndarray, status: int, dt: float) -> FollowerStep:
+        """The step of :meth:`peek` from ``peek_kernel``'s record ``out`` and status (planned
+        from this follower's current state with step ``dt``)."""
+        s, v, a = self._s, self._v, self._a
+        path = self.path
         o = out.tolist()
         if status == FALLBACK:  # the failsafe already held
             held = self._stop

@@ -131,16 +131,29 @@ class FusedChecks:
             s = self._scratch[K] = (geometry, sets, _classes(K, L, P), todo, speeds)
         return s
 
-    def open(
+    def constants(self) -> tuple[Any, ...]:
+        """The kernel's per-shield constants after the link states, in its order: ``(rules,
+        switches, human, age, static, acc, pos, delays, n_limbs)`` with the person's place
+        left to the caller (see :func:`~sara_app.safety.pfl_fused_kernel.fused_kernel`)."""
+        return (self._rules, self._switches, self._static, self._acc, self._pos, self._delays,
+                self._n_limbs, self._part_maps)  # fmt: skip
+
+    def validated(
         self,
         traj: Any,
         r_ends: np.ndarray,
         r_radius: np.ndarray,
         hum: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
-    ) -> FusedCheck:
-        """A check of the shielded trajectory ``traj`` (its robot capsules per interval
-        ``r_ends (K, L, 2, 3)``, ``r_radius (K, L)``) against one person ``hum = (y, v (1, J,
-        3), dv (1, J), age (1,))``; raises :class:`InputError` on other shapes."""
+    ) -> tuple[
+        tuple[np.ndarray, ...],
+        tuple[np.ndarray, ...],
+        tuple[np.ndarray, np.ndarray, np.ndarray],
+        float,
+    ]:
+        """``(robot, trajectory, human, age)`` as the kernel takes them: the shielded trajectory
+        ``traj`` with its robot capsules per interval ``r_ends (K, L, 2, 3)``, ``r_radius (K,
+        L)`` and one person ``hum = (y, v (1, J, 3), dv (1, J), age (1,))``, as float64;
+        raises :class:`InputError` on other shapes."""
         trajectory = self.link_states.inputs(traj)
         K = trajectory[0].shape[0] - 1
         L, J = self._L, self._J
@@ -156,8 +169,21 @@ class FusedChecks:
                 f"{y.shape}, v {v.shape}, dv {dv.shape}, age {age.shape}; expected ({K}, {L}, 2, "
                 f"3), ({K}, {L}), (1, {J}, 3), (1, {J}, 3), (1, {J}), (1,) for one person"
             )
+        robot = (r_ends, r_radius, *self._boxes, self._s_radius)
+        return robot, trajectory, (y, v, dv), float(age[0])
+
+    def open(
+        self,
+        traj: Any,
+        r_ends: np.ndarray,
+        r_radius: np.ndarray,
+        hum: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    ) -> FusedCheck:
+        """A check of the shielded trajectory ``traj`` against one person (inputs as in
+        :meth:`validated`)."""
+        robot, trajectory, human, age = self.validated(traj, r_ends, r_radius, hum)
         self.opened += 1
-        return FusedCheck(self, trajectory, r_ends, r_radius, (y, v, dv), float(age[0]))
+        return FusedCheck(self, trajectory, robot, human, age)
 
 
 def _classes(K: int, L: int, P: int) -> tuple[np.ndarray, ...]:
@@ -176,20 +202,19 @@ class FusedCheck:
         self,
         owner: FusedChecks,
         trajectory: tuple[np.ndarray, ...],
-        r_ends: np.ndarray,
-        r_radius: np.ndarray,
+        robot: tuple[np.ndarray, ...],
         human: tuple[np.ndarray, np.ndarray, np.ndarray],
         age: float,
     ) -> None:
         self._owner, self._ticket = owner, owner.opened
-        K, L, P = r_radius.shape[0], owner._L, owner._P
+        K, L, P = robot[1].shape[0], owner._L, owner._P
         self.K = K
         geometry, self._sets, self._scratch, todo, speeds = owner._scratch_for(K)
         geometry[4].fill(-2)
         geometry[5].fill(-2)
         self._geometry = geometry
         self._trajectory, self._human, self._age = trajectory, human, age
-        self._robot = (r_ends, r_radius, *owner._boxes, owner._s_radius)
+        self._robot = robot
         links = owner.link_states
         self._link_constants = links.kernel_constants()
         self._link_buffers = links.buffers_for(K + 1)

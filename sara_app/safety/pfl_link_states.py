@@ -191,6 +191,10 @@ class PathLinkStates:
             raise InputError("the compiled CRBA does not support this robot")
         return (self._j_max, *self._kinematics, *self._crba, *self._links)
 
+    def base_pose(self) -> np.ndarray:
+        """``T_world_base (4, 4)``: row 0 of every sample's joint frames in the buffers."""
+        return self._T0
+
     def inputs(self, traj: Any) -> tuple[np.ndarray, ...]:
         """The trajectory's arrays as float64, shapes checked."""
         arrays = [

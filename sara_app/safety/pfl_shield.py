@@ -96,6 +96,7 @@ from sara_app.robot.model import RobotModel
 from sara_app.robot.shielded import ShieldedTrajectory
 from sara_app.robot.trajectory import PathFollower
 from sara_app.safety.pfl import MergedCheck, PflCheck, PflResult
+from sara_app.safety.pfl_cycle import CompiledCycle
 from sara_app.safety.pfl_fused import KINDS, FusedCheck, FusedChecks
 from sara_app.safety.pfl_kernels import speed_kernel, stuck_kernel
 from sara_app.safety.pfl_link_states import PathLinkStates
@@ -137,13 +138,15 @@ class PflCycle:
     ``result.contact`` is the first model's; None when nobody is in the cell), ``cap`` the
     path-speed cap of the checked trajectory (rad/s, inf: none), ``speed_scale`` that cap over
     the admissible speed at the robot (<= 1), ``checks`` the PFL checks run (1 + replans),
-    ``models_used`` how many models were evaluated."""
+    ``models_used`` how many models the last check evaluated, ``evaluations`` how many model
+    evaluations the cycle's checks made in all (at most ``SpeedScaling.max_models``)."""
 
     result: PflResult | None
     cap: float
     speed_scale: float
     checks: int
     models_used: int
+    evaluations: int = 0
 
 
 @dataclass
@@ -238,6 +241,14 @@ class PflShield(Shield):
             maps = {m: part_capsules(self.verifier.reach, m) for m in self.settings.models}
             self.fused = FusedChecks(self.pfl, self._link_states, self.verifier.reach, maps,
                                      self.boxes)  # fmt: skip
+        self.compiled: CompiledCycle | None = None
+        """A cycle's checks and replans for one person in one compiled call
+        (:mod:`sara_app.safety.pfl_cycle`, the same bits as the Python loop below, which serves
+        what it leaves; None: the Python loop for every cycle)."""
+        if self.fused is not None:
+            s = self.settings
+            self.compiled = CompiledCycle(self.fused, self.occupancy, self.tracking_margin_m,
+                                          s.dt_s, s.max_interval_s)  # fmt: skip
         self._checks: dict[int, PflCheck] = {1: self.pfl}
         self._check_for(2)  # ~10 ms each: built here, not in a control cycle (more: on use)
         self.cap = math.inf
@@ -292,6 +303,10 @@ class PflShield(Shield):
         sc = self.scaling
         c_min = self.spec.min_speed_scale * V_here
         cap = max(self.cap, c_min)
+        if self.compiled is not None and self.fused is not None and hum[0].shape[0] == 1:
+            done = self._compiled_cycle(hum, cap, c_min, V_here, V_top)
+            if done is not None:
+                return done
         checks = 0
         left = sc.max_models  # model evaluations left in this cycle
         while True:
@@ -325,8 +340,37 @@ class PflShield(Shield):
         self.replans += checks - 1
         scale = min(1.0, cap / V_here) if V_here > 0 else 1.0
         self.scaled_cycles += scale < 1.0
-        self._res = PflCycle(res, cap, scale, checks, used)
+        self._res = PflCycle(res, cap, scale, checks, used, sc.max_models - left)
         return traj, ends, radius, res.safe_all
+
+    def _compiled_cycle(
+        self, hum: Humans, cap: float, c_min: float, V_here: float, V_top: float
+    ) -> tuple[ShieldedTrajectory, np.ndarray, np.ndarray, bool] | None:
+        """The loop of :meth:`_plan_and_verify` after its first plan in one compiled call
+        (:class:`CompiledCycle`); None where it leaves the cycle to the Python loop."""
+        traj, ends, radius = self._plan(cap)
+        sc = self.scaling
+        with _inputs_checked():
+            out = cast(CompiledCycle, self.compiled).run(
+                self.follower, traj, ends, radius, hum, (cap, c_min, sc.cut),
+                (sc.max_replans, sc.max_models), self._orders,
+            )  # fmt: skip
+        if out is None:
+            return None
+        res = out.result
+        self._open = None
+        self._model_order = self._orders[out.checks > 1]
+        if out.checks > 1 or not res.safe_all:  # a check failed
+            self._calm = 0
+        if out.next_cap == out.next_cap:
+            self.cap = out.next_cap
+        if res.safe_all:
+            self._after_success(res, out.traj, out.cap, c_min, V_top, out.allowed)
+        self.replans += out.checks - 1
+        scale = min(1.0, out.cap / V_here) if V_here > 0 else 1.0
+        self.scaled_cycles += scale < 1.0
+        self._res = PflCycle(res, out.cap, scale, out.checks, out.models, out.evaluations)
+        return out.traj, out.ends, out.radius, res.safe_all
 
     def _next_cap(
         self, res: PflResult, traj: ShieldedTrajectory, E0: np.ndarray, cap: float
@@ -342,18 +386,27 @@ class PflShield(Shield):
         return min(cut * cand, cut * min(cap, float(traj.sd.max()))), fixable
 
     def _after_success(
-        self, res: PflResult, traj: ShieldedTrajectory, cap: float, c_min: float, V_top: float
+        self,
+        res: PflResult,
+        traj: ShieldedTrajectory,
+        cap: float,
+        c_min: float,
+        V_top: float,
+        allowed: float | None = None,
     ) -> None:
-        """Cap for the next cycle after a verified one (raise with hysteresis)."""
+        """Cap for the next cycle after a verified one (raise with hysteresis; ``allowed``:
+        the speed at which its contacts reach their thresholds, if already known)."""
         sc = self.scaling
         self._calm += 1
         self.cap = cap
         if cap == math.inf or self._calm < sc.hold_cycles:
             return
-        check = self._open[0] if self._open is not None else None
-        allowed = (
-            check.allowed_speed() if isinstance(check, FusedCheck) else _allowed_speed(res, traj)
-        )
+        if allowed is None:
+            check = self._open[0] if self._open is not None else None
+            if isinstance(check, FusedCheck):
+                allowed = check.allowed_speed()
+            else:
+                allowed = _allowed_speed(res, traj)
         if allowed == math.inf and sc.free_jump:
             self.cap = math.inf
         elif allowed >= sc.hysteresis * cap:

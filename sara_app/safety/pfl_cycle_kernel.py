@@ -1,0 +1,378 @@
+"""The compiled replan loop of a PFL shield cycle for one person (:mod:`sara_app.safety.pfl_cycle`).
+
+From the trajectory the shield planned at the held cap: its check
+(:func:`~sara_app.safety.pfl_fused_kernel.fused_kernel`), and while a check fails and a replan
+can fix it, the plan at the lower cap (:func:`~sara_app.robot.planning_kernels.peek_kernel`,
+:func:`~sara_app.robot.trajectory_kernels.shielded_samples_kernel`,
+:func:`~sara_app.robot.occupancy_kernels.intervals_kernel`: the kernels of
+``PathFollower.peek``, ``shielded_trajectory`` and ``RobotOccupancy.intervals``) and its check,
+with the decisions of ``PflShield._plan_and_verify`` (model budget, replan rule, model orders).
+The same kernels on the same numbers as the Python loop, so the same bits (tested cycle by
+cycle). Numba's cache checks only this file: the source digests of the files whose kernels it
+calls are a closure variable.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from numba import njit, types
+
+from sara_app import geometry_kernels
+from sara_app.human import reach_kernels
+from sara_app.robot import (
+    crba_kernel,
+    energy,
+    occupancy_kernels,
+    planning_kernels,
+    trajectory_kernels,
+)
+from sara_app.robot.occupancy_kernels import intervals_kernel
+from sara_app.robot.planning_kernels import (
+    FALLBACK,
+    H_CAP,
+    O_HEAD,
+    O_STOP,
+    OUT_LEN,
+    S_CAP,
+    STEP,
+    peek_kernel,
+)
+from sara_app.robot.trajectory_kernels import shielded_samples_kernel
+from sara_app.safety import contact_kernels, pfl_fused_kernel, pfl_kernels, pfl_link_states
+from sara_app.safety.contact_kernels import source_digest
+from sara_app.safety.pfl_fused_kernel import (
+    ACC,
+    HUMAN,
+    LINK_CONSTANTS,
+    POS,
+    ROBOT,
+    RULES,
+    STATE_SIZE,
+    STATIC,
+    TRAJECTORY,
+    _replan_cap,
+    fused_kernel,
+)
+
+__all__ = ["BAIL", "DONE", "cycle_kernel", "plan_views"]
+
+DONE, BAIL = 0, 1
+"""Return codes: the loop ran to its end / it met a case it leaves to the Python loop (the
+follower falls back on its held failsafe, a rejected trajectory, a non-finite stop)."""
+
+_f8, _i8, _b1 = types.float64, types.int64, types.boolean
+_RO1, _RO2, _RO3 = (types.Array(_f8, d, "A", readonly=True) for d in (1, 2, 3))
+_ROI1 = types.Array(_i8, 1, "A", readonly=True)
+_ROI2 = types.Array(_i8, 2, "A", readonly=True)
+_WI2, _W1 = types.Array(_i8, 2, "A"), types.Array(_f8, 1, "A")
+
+FOLLOWER = types.UniTuple(_f8, 8)
+"""``(s, s', s'', dt, S, A_min, J_min, ramp_c)``: the follower's state and look-ahead constants."""
+PLANNER = types.Tuple((_RO2, _RO3, _RO3, _RO1))
+"""``(pc, rows, geo, consts)``: the follower's path as ``peek_kernel`` reads it."""
+PATH = types.Tuple((_RO1, _RO1, _RO3, _RO2, _RO2, _RO2))
+"""The path's piece tables as ``shielded_samples_kernel`` reads them."""
+OCCUPANCY = types.Tuple((_ROI1, _RO3, _ROI1, _ROI1, _RO3, _RO2, _RO1, _RO2, _RO1))
+"""``(q_index, N, parents, link_joint, ends_joint, lipschitz, radius0, T_world_base (4, 4),
+tracking margin (L,))``: the shield's robot occupancy per interval."""
+
+
+@njit(cache=True)
+def _record_start(out: np.ndarray, off: int, cap: int) -> tuple[int, float, float, float]:
+    """Phase count and start state ``(s, s', s'')`` of a profile record of ``peek_kernel``."""
+    n = int(out[off])
+    t = off + 1 + 2 * cap
+    c = cap + 1
+    return n, out[t + c], out[t + 2 * c], out[t + 3 * c]
+
+
+@njit(types.int64(_i8, _i8, _i8), cache=True)
+def plan_size(K: int, L: int, n: int) -> int:
+    """Length of the slab of a plan of ``K`` intervals (see :func:`plan_views`)."""
+    S = K + 1
+    return OUT_LEN + 5 * S + 5 * S * n + 2 * K * n + 6 * K * L + K * L
+
+
+@njit(
+    types.Tuple(
+        (_W1, types.Array(_f8, 2, "C"), types.Array(_f8, 3, "C"), types.Array(_f8, 3, "C"),
+         types.Array(_f8, 4, "C"), types.Array(_f8, 2, "C"))
+    )(types.Array(_f8, 1, "C"), _i8, _i8, _i8),
+    cache=True,
+)  # fmt: skip
+def plan_views(slab: np.ndarray, K: int, L: int, n: int) -> Any:
+    """The arrays of a plan in its slab (one array to return to Python instead of six):
+    ``peek_kernel``'s record ``(OUT_LEN,)``, times | s | s' | s'' | sd_max (``K`` used) ``(5,
+    K+1)``, joint states ``(5, K+1, n)`` (q, dq/ds, d2q/ds2, v, a), bounds ``(2, K, n)``,
+    robot capsules ``(K, L, 2, 3)``, ``(K, L)``."""
+    S = K + 1
+    o = OUT_LEN
+    pts = slab[o : o + 5 * S].reshape((5, S))
+    o += 5 * S
+    joint = slab[o : o + 5 * S * n].reshape((5, S, n))
+    o += 5 * S * n
+    bounds = slab[o : o + 2 * K * n].reshape((2, K, n))
+    o += 2 * K * n
+    r_ends = slab[o : o + 6 * K * L].reshape((K, L, 2, 3))
+    o += 6 * K * L
+    return slab[:OUT_LEN], pts, joint, bounds, r_ends, slab[o : o + K * L].reshape((K, L))
+
+
+@njit(cache=True)
+def _plan(
+    cap: float,
+    follower: Any,
+    planner: Any,
+    path: Any,
+    sampling: Any,
+    occupancy: Any,
+    out: np.ndarray,
+) -> Any:
+    """The shielded trajectory at path-speed cap ``cap`` and its robot capsules per interval
+    (``Shield._shielded`` with the follower's cap set): ``(ok, status, robot arrays,
+    trajectory arrays, slab)`` (``slab``: the plan's arrays in one, see :func:`plan_views`);
+    ``ok`` False where the Python loop must take over, ``status`` ``peek_kernel``'s."""
+    s, v, a, dt, S, A_min, J_min, ramp_c = follower
+    pc, rows, geo, consts = planner
+    bound_pad, max_interval_s = sampling
+    q_index, N, parents, link_joint, ends_joint, lipschitz, radius0, T0, margin = occupancy
+    status = peek_kernel(s, v, a, dt, cap, S, A_min, J_min, ramp_c, pc, rows, geo, consts, out)
+    n_h, s0, v0, a0 = _record_start(out, O_HEAD, H_CAP)
+    n_s, T = 0, 0.0  # the rest stop (STEP_REST): no phases
+    if status == STEP:
+        n_s = int(out[O_STOP])
+        T = out[O_STOP + 1 + 2 * S_CAP + n_s]
+    ok = status != FALLBACK and math.isfinite(T)
+    m = 0
+    if ok and T > 0.0:
+        m = max(1, int(math.ceil(T / max_interval_s - 1e-9)))
+    K = m + 1
+    n, L = rows.shape[1], lipschitz.shape[0]
+    phases = np.empty(2 * (n_h + n_s))
+    for i in range(n_h):
+        phases[i] = out[O_HEAD + 1 + i]
+        phases[n_h + n_s + i] = out[O_HEAD + 1 + H_CAP + i]
+    for i in range(n_s):
+        phases[n_h + i] = out[O_STOP + 1 + i]
+        phases[2 * n_h + n_s + i] = out[O_STOP + 1 + S_CAP + i]
+    slab = np.empty(plan_size(K, L, n))
+    record, pts, joint, bounds, r_ends, r_radius = plan_views(slab, K, L, n)
+    record[:] = out
+    times, ps, sd_max = pts[0], pts[1:4], pts[4, :K]
+    if ok:
+        p_s0, p_len, poly, M1, M2, qs = path
+        shielded_samples_kernel(dt, T, s0, v0, a0, phases, p_s0, p_len, poly, M1, M2, qs,
+                                bound_pad, times, ps, joint, bounds, sd_max)  # fmt: skip
+        Qj = np.empty((K + 1, n))
+        for r in range(K + 1):
+            for j in range(n):
+                Qj[r, j] = joint[0, r, q_index[j]]
+        H = np.zeros((K + 1, n + 1, 4, 4))
+        for r in range(K + 1):
+            H[r, 0] = T0
+            for j in range(1, n + 1):
+                H[r, j, 3, 3] = 1.0
+        E, Q_copy = np.empty((K + 1, L, 2, 3)), np.empty((K + 1, n))
+        code = intervals_kernel(Qj, bounds[0], times, N, parents, link_joint, ends_joint,
+                                lipschitz, radius0, H, E, r_ends, r_radius, Q_copy)  # fmt: skip
+        ok = code == 0
+        for k in range(K):
+            for i in range(L):
+                r_radius[k, i] += margin[i]
+    robot = (r_ends, r_radius)
+    trajectory = (joint[0], joint[1], pts[2], sd_max, times, bounds[0], bounds[1])
+    return ok, status, robot, trajectory, slab
+
+
+@njit(cache=True)
+def _buffers(K: int, L: int, P: int, B: int, C: int, n: int, T0: np.ndarray) -> Any:
+    """Fresh buffers of one check of ``K`` intervals, in ``fused_kernel``'s groups."""
+    S = K + 1
+    geometry = (np.empty((K, L, L)), np.empty((K, L, L)), np.empty((K, L, B)),
+                np.empty((K, L, B, 3)), np.full((K, L, B), -2, np.int8),
+                np.full((K, L, L), -2, np.int8))  # fmt: skip
+    H = np.zeros((S, n + 1, 4, 4))
+    for r in range(S):
+        H[r, 0] = T0
+        for j in range(1, n + 1):
+            H[r, j, 3, 3] = 1.0
+    links = (np.empty((S, n)), np.empty((S, n)), np.empty((S, n)), np.empty(S),
+             np.empty(S, np.bool_), H, np.empty((S, n, n)), np.empty((S, L, 2, 3)),
+             np.empty((S, L)), np.empty((S, L)), np.empty((S, L, 3)), np.empty((S, L, 3)),
+             np.empty((K, L)), np.empty((K, L)), np.empty(K))  # fmt: skip
+    sets = (np.empty(K), np.empty(K), np.empty((1, K, P, 2, 3)), np.empty((1, K, P)),
+            np.empty((1, P, 2, 3)), np.empty((K, P)), np.empty((1, C, 2, 3)),
+            np.empty((1, K, C)), np.empty((K, P, 2, 3)), np.empty((K, P)))  # fmt: skip
+    return geometry, links, sets, _classes(K, L, P)
+
+
+@njit(cache=True)
+def _classes(K: int, L: int, P: int) -> Any:
+    return (np.empty((K, L, P), np.bool_), np.empty((K, L, P), np.bool_),
+            np.empty((K, L, P), np.bool_), np.empty((K, L, P), np.bool_),
+            np.empty((K, L, P), np.int8), np.empty((K, P, P), np.bool_), np.empty((K, P)),
+            np.empty((K, L, P)))  # fmt: skip
+
+
+@njit(cache=True)
+def _to_front(row: np.ndarray, i: int) -> None:
+    """``order.insert(0, order.pop(i))`` on an array row."""
+    x = row[i]
+    for j in range(i, 0, -1):
+        row[j] = row[j - 1]
+    row[0] = x
+
+
+@njit(cache=True)
+def _to_back(row: np.ndarray) -> None:
+    """``order.append(order.pop(0))`` on an array row."""
+    x = row[0]
+    for j in range(row.shape[0] - 1):
+        row[j] = row[j + 1]
+    row[row.shape[0] - 1] = x
+
+
+@njit(cache=True)
+def _results(K: int, L: int, P: int) -> Any:
+    """Fresh result arrays of one check: ``(slabs, first, verdict, state)`` with ``first`` and
+    ``verdict`` (``fused_kernel``'s groups) views of a few ``slabs`` (each array returned to
+    Python costs ~0.5 us): bool ``(5, K, L, P)`` contact, contact_single, env, self_, safe;
+    float ``(3, K, L, P)`` threshold, margin, distance; int8 ``(2, K, L, P)`` cls, merged cls;
+    stack ``(K, P, P)``; stack diameter ``(K, P)``; safe_interval ``(K,)``; float ``(2, K,
+    L)`` allowed, energy; limiting part ``(K, L)``."""
+    b5 = np.empty((5, K, L, P), np.bool_)
+    f3 = np.empty((3, K, L, P))
+    i2 = np.empty((2, K, L, P), np.int8)
+    stack, diam, safe_k = np.empty((K, P, P), np.bool_), np.empty((K, P)), np.empty(K, np.bool_)
+    f2, part = np.empty((2, K, L)), np.empty((K, L), np.int64)
+    first = (b5[0], b5[1], b5[2], b5[3], i2[0], stack, diam, f3[2])
+    verdict = (f3[0], f3[1], b5[4], safe_k, f2[0], part, f2[1], i2[1], np.empty(2, np.int64),
+               np.full(2, np.nan))  # fmt: skip
+    state = np.zeros(STATE_SIZE, np.int64)
+    state[2] = K
+    return (b5, f3, i2, stack, diam, safe_k, f2, part), first, verdict, state
+
+
+def _make_kernel() -> Any:
+    """Build :func:`cycle_kernel` with its callees' source digests in the closure."""
+    sources = "".join(
+        source_digest(m)
+        for m in (
+            geometry_kernels, reach_kernels, crba_kernel, energy, occupancy_kernels,
+            planning_kernels, trajectory_kernels, contact_kernels, pfl_kernels,
+            pfl_link_states, pfl_fused_kernel,
+        )
+    )  # fmt: skip
+
+    @njit(
+        (
+            ROBOT, TRAJECTORY, FOLLOWER, PLANNER, PATH, types.UniTuple(_f8, 2), OCCUPANCY,
+            LINK_CONSTANTS, _RO2, RULES, types.UniTuple(_b1, 3), HUMAN, _f8, STATIC, ACC, POS,
+            types.UniTuple(_f8, 2), _i8, _ROI2, types.UniTuple(_f8, 3), types.UniTuple(_i8, 2),
+            _WI2, _W1,
+        ),
+        cache=True,
+    )  # fmt: skip
+    def cycle_kernel(
+        robot1: Any,
+        trajectory1: Any,
+        follower: Any,
+        planner: Any,
+        path: Any,
+        sampling: Any,
+        occupancy: Any,
+        link_constants: Any,
+        T0_links: np.ndarray,
+        rules: Any,
+        switches: Any,
+        human: Any,
+        age: float,
+        static: Any,
+        acc: Any,
+        pos: Any,
+        delays: Any,
+        n_limbs: int,
+        part_maps: np.ndarray,
+        control: Any,
+        limits: Any,
+        orders: np.ndarray,
+        info: np.ndarray,
+    ) -> Any:
+        """The loop (see the module notes) from the trajectory planned at ``control = (cap,
+        c_min, cut)``; ``limits = (max_replans, max_models)``, ``orders (2, M)`` the model codes
+        of a cycle's first check and of its replans (updated in place), ``info (9,)``: the last
+        checked trajectory's cap, the cap for the next cycle (NaN: none set), checks, models
+        of the last check, eq. 6 (0/1), the allowed speed of a verified last check, the last
+        replan's ``peek_kernel`` status, whether the orders changed (0/1), the model evaluations of
+        the cycle. Returns
+        ``(code, plan, check)``: the last replan's slab (:func:`plan_views`; empty when there
+        was none) and the last check's ``(slabs, state)`` (see :func:`_results`)."""
+        cap, c_min, cut = control
+        max_replans, max_models = limits
+        M = orders.shape[1]
+        r_ends, r_radius, T_box, half, s_radius = robot1
+        L, P, B = r_radius.shape[1], part_maps.shape[1], T_box.shape[0]
+        C, n = pos[3].shape[0], trajectory1[0].shape[1]
+        out = np.zeros(OUT_LEN)
+        robot = (r_ends.copy(), r_radius.copy())
+        q, dq, sd, sd_max, times, v_bound, a_bound = trajectory1
+        trajectory = (q.copy(), dq.copy(), sd.copy(), sd_max.copy(), times.copy(),
+                      v_bound.copy(), a_bound.copy())  # fmt: skip
+        plan = np.empty(0)
+        slabs, first, verdict, state = _results(0, L, P)
+        checks, left = 0, max_models
+        new_cap = math.nan
+        plan_status = STEP
+        info[7] = 0
+        code = DONE if len(sources) > 0 else BAIL  # the digests tie the cache to the callees
+        while code == DONE:
+            K = robot[1].shape[0]
+            geometry, links, sets, scratch = _buffers(K, L, P, B, C, n, T0_links)
+            slabs, first, verdict, state = _results(K, L, P)
+            row = orders[1 if checks > 0 else 0]
+            lazy = checks < max_replans and left > 1
+            robot_k = (robot[0], robot[1], T_box, half, s_radius)
+            done = fused_kernel(
+                robot_k, geometry, trajectory, link_constants, links, rules, switches, human,
+                age, static, acc, pos, delays, n_limbs, sets, part_maps, row, min(M, left),
+                False, (lazy, cap, c_min, cut), first, scratch, verdict, state,
+            )  # fmt: skip
+            if done == -2:
+                code = BAIL
+                break
+            if done > 0:
+                _to_front(row, done)
+                info[7] = 1
+            used = state[0]
+            left -= used
+            checks += 1
+            if state[5] == 1:
+                break
+            cand = _replan_cap(verdict[9][0], (True, cap, c_min, cut), trajectory[2])
+            if lazy and used == 1 and M > 1:  # stopped for the replan: next time another first
+                _to_back(row)
+                info[7] = 1
+            if not cand >= c_min:  # NaN too
+                new_cap = c_min
+                break
+            new_cap = cand
+            if state[6] == 1 or checks > max_replans or left < 1:
+                break
+            cap = cand
+            ok, plan_status, robot, trajectory, plan = _plan(
+                cap, follower, planner, path, sampling, occupancy, out
+            )
+            if not ok:
+                code = BAIL
+        info[0], info[1], info[2], info[3] = cap, new_cap, checks, state[0]
+        info[4], info[5], info[6] = state[5], verdict[9][1], plan_status
+        info[8] = max_models - left
+        return code, plan, (slabs, state)
+
+    return cycle_kernel
+
+
+cycle_kernel = _make_kernel()

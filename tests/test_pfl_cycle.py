@@ -1,0 +1,129 @@
+"""The compiled replan loop of a PFL cycle (sara_app.safety.pfl_cycle): its plan slab layout,
+its hand-over to the Python loop, its validation and its cache key. Its equality with the
+Python loop, cycle by cycle, is in tests/test_pfl_fused.py."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from pfl_compare import assert_same_cycle  # noqa: E402
+
+from sara_app import geometry_kernels
+from sara_app.errors import InputError
+from sara_app.human import reach_kernels
+from sara_app.robot import (
+    crba_kernel,
+    energy,
+    occupancy_kernels,
+    planning_kernels,
+    trajectory_kernels,
+)
+from sara_app.robot.planning_kernels import OUT_LEN
+from sara_app.safety import contact_kernels, pfl_fused_kernel, pfl_kernels, pfl_link_states
+from sara_app.safety import pfl_cycle as pfl_cycle_module
+from sara_app.safety.bench_pfl import BENCH_CASES, shield_cell
+from sara_app.safety.contact_kernels import source_digest
+from sara_app.safety.pfl_cycle import CompiledCycle
+from sara_app.safety.pfl_cycle_kernel import BAIL, cycle_kernel, plan_size, plan_views
+from sara_app.safety.pfl_shield import PflCycle
+
+
+@pytest.mark.parametrize(("K", "L", "n"), [(1, 1, 1), (9, 8, 7), (13, 7, 6)])
+def test_plan_views_partition_the_slab(K: int, L: int, n: int) -> None:
+    """The six arrays of a plan are disjoint views that cover its slab exactly, with the
+    shapes the kernels write."""
+    slab = np.arange(plan_size(K, L, n), dtype=float)
+    views = plan_views(slab, K, L, n)
+    shapes = [(OUT_LEN,), (5, K + 1), (5, K + 1, n), (2, K, n), (K, L, 2, 3), (K, L)]
+    assert [v.shape for v in views] == shapes
+    seen = np.concatenate([v.ravel() for v in views])
+    np.testing.assert_array_equal(np.sort(seen), slab)  # each element in exactly one view
+    assert all(np.shares_memory(v, slab) for v in views)
+
+
+def _pair(case: str):  # type: ignore[no-untyped-def]
+    shield, template, people, t = shield_cell(BENCH_CASES[case])
+    ref = shield_cell(BENCH_CASES[case])[0]
+    ref.fused = ref.compiled = None
+    return shield, ref, template, people, t
+
+
+@pytest.mark.parametrize("how", ["follower", "kernel"])
+def test_what_the_kernel_leaves_runs_in_python(monkeypatch: pytest.MonkeyPatch, how: str) -> None:
+    """A follower the kernel cannot plan for, or a kernel that hands the cycle back (a
+    follower falling back on its held failsafe, a rejected trajectory): the Python loop runs
+    the cycle, with the model orders untouched by the kernel, and the cycle equals the
+    reference's."""
+    shield, ref, template, people, t = _pair("braking")
+    handed = []
+    if how == "follower":
+        monkeypatch.setattr(type(template), "kernel_state", lambda self, dt: None)
+    else:
+
+        def bail(*args: object) -> tuple:
+            codes = args[-2]
+            codes[:] = codes[:, ::-1]  # what a kernel may have done before handing back
+            handed.append(1)
+            return BAIL, np.empty(0), ()
+
+        monkeypatch.setattr(pfl_cycle_module, "cycle_kernel", bail)
+    for _ in range(3):
+        for s in (shield, ref):
+            s.follower = template.copy()
+            s.cap, s._calm = math.inf, 0
+        a = shield.cycle(t, people, want_distance=False)
+        b = ref.cycle(t, people, want_distance=False)
+        assert_same_cycle(shield, a, ref, b)
+        info = shield._res
+        assert isinstance(info, PflCycle) and info.checks == 2
+    assert how == "follower" or len(handed) == 3
+
+
+@pytest.mark.parametrize("case", ["slowed", "braking"])
+def test_the_compiled_loop_runs_the_two_check_cycles(case: str) -> None:
+    """In the benchmark's slowed and braking states the compiled loop runs both checks (no
+    hand-over) and returns the replan's trajectory, step and capsules."""
+    shield, template, people, t = shield_cell(BENCH_CASES[case])
+    compiled = shield.compiled
+    assert compiled is not None
+    runs = []
+    real = compiled.run
+
+    def counted(*a: object, **k: object) -> object:
+        out = real(*a, **k)  # type: ignore[arg-type]
+        runs.append(out)
+        return out
+
+    compiled.run = counted  # type: ignore[method-assign, assignment]
+    shield.follower = template.copy()
+    shield.cap = math.inf
+    res = shield.cycle(t, people, want_distance=False)
+    out = runs[-1]
+    assert out is not None and out.checks == 2
+    assert res.trajectory is out.traj and res.robot_ends is out.ends
+    assert out.traj.step.profile.start == (template.s, template.sd, template.sdd)
+    assert out.ends.shape[0] == len(out.traj.times) - 1 == out.result.safe.shape[0]
+
+
+def test_construction_is_validated() -> None:
+    shield = shield_cell(BENCH_CASES["clear"])[0]
+    assert shield.fused is not None
+    for dt, max_interval in ((0.004, 0.0), (0.0, 0.02), (0.004, math.nan)):
+        with pytest.raises(InputError, match="expected times > 0"):
+            CompiledCycle(shield.fused, shield.occupancy, shield.tracking_margin_m, dt,
+                          max_interval)  # fmt: skip
+
+
+def test_cache_key_carries_the_callees_sources() -> None:
+    """Numba's cache checks only the kernel's own file: the closure (hashed into the cache
+    key) holds the source digests of every file whose kernels it calls."""
+    cells = [c.cell_contents for c in cycle_kernel.py_func.__closure__ or ()]
+    text = "".join(c for c in cells if isinstance(c, str))
+    for module in (
+        geometry_kernels, reach_kernels, crba_kernel, energy, occupancy_kernels,
+        planning_kernels, trajectory_kernels, contact_kernels, pfl_kernels, pfl_link_states,
+        pfl_fused_kernel,
+    ):  # fmt: skip
+        assert source_digest(module) in text, module.__name__
