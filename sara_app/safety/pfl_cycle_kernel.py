@@ -170,11 +170,7 @@ def _plan(
         for r in range(K + 1):
             for j in range(n):
                 Qj[r, j] = joint[0, r, q_index[j]]
-        H = np.zeros((K + 1, n + 1, 4, 4))
-        for r in range(K + 1):
-            H[r, 0] = T0
-            for j in range(1, n + 1):
-                H[r, j, 3, 3] = 1.0
+        H = _frames(K + 1, n, T0)
         E, Q_copy = np.empty((K + 1, L, 2, 3)), np.empty((K + 1, n))
         code = intervals_kernel(Qj, bounds[0], times, N, parents, link_joint, ends_joint,
                                 lipschitz, radius0, H, E, r_ends, r_radius, Q_copy)  # fmt: skip
@@ -194,11 +190,7 @@ def _buffers(K: int, L: int, P: int, B: int, C: int, n: int, T0: np.ndarray) -> 
     geometry = (np.empty((K, L, L)), np.empty((K, L, L)), np.empty((K, L, B)),
                 np.empty((K, L, B, 3)), np.full((K, L, B), -2, np.int8),
                 np.full((K, L, L), -2, np.int8))  # fmt: skip
-    H = np.zeros((S, n + 1, 4, 4))
-    for r in range(S):
-        H[r, 0] = T0
-        for j in range(1, n + 1):
-            H[r, j, 3, 3] = 1.0
+    H = _frames(S, n, T0)
     links = (np.empty((S, n)), np.empty((S, n)), np.empty((S, n)), np.empty(S),
              np.empty(S, np.bool_), H, np.empty((S, n, n)), np.empty((S, L, 2, 3)),
              np.empty((S, L)), np.empty((S, L)), np.empty((S, L, 3)), np.empty((S, L, 3)),
@@ -210,7 +202,20 @@ def _buffers(K: int, L: int, P: int, B: int, C: int, n: int, T0: np.ndarray) -> 
 
 
 @njit(cache=True)
+def _frames(S: int, n: int, T0: np.ndarray) -> np.ndarray:
+    """Joint-frame buffers ``(S, n+1, 4, 4)`` as the forward kinematics expects them: frame 0
+    the base pose ``T0``, the others' last row ``[0, 0, 0, 1]`` (the kernels write the rest)."""
+    H = np.zeros((S, n + 1, 4, 4))
+    for r in range(S):
+        H[r, 0] = T0
+        for j in range(1, n + 1):
+            H[r, j, 3, 3] = 1.0
+    return H
+
+
+@njit(cache=True)
 def _classes(K: int, L: int, P: int) -> Any:
+    """Buffers of one classification (``fused_kernel``'s ``CLASSES`` group)."""
     return (np.empty((K, L, P), np.bool_), np.empty((K, L, P), np.bool_),
             np.empty((K, L, P), np.bool_), np.empty((K, L, P), np.bool_),
             np.empty((K, L, P), np.int8), np.empty((K, P, P), np.bool_), np.empty((K, P)),
