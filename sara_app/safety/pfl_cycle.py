@@ -16,7 +16,7 @@ only for the last check.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -35,8 +35,7 @@ __all__ = ["CompiledCycle", "CycleOutcome"]
 _NAMES = {code: name for name, code in KINDS.items()}
 
 
-@dataclass(frozen=True)
-class CycleOutcome:
+class CycleOutcome(NamedTuple):
     """The last checked trajectory (``traj``, its capsules ``ends (K, L, 2, 3)``, ``radius (K,
     L)``) and its verdict ``result``; ``cap`` its path-speed cap, ``next_cap`` the cap the
     failures set for the next cycle (NaN: none failed), ``checks``, ``models`` (of the last
