@@ -73,7 +73,10 @@ dashboard gets them from :meth:`PflShield.with_energies`, outside the check. For
 with models among acc / vel / pos / iso13855 (the common case) all of this, from the human sets
 to the merged verdict and the speed scaling's candidate, is one compiled call per check
 (:mod:`sara_app.safety.pfl_fused`, the same bits as this module's Python composition, which
-stays the reference and serves several people and the arm model).
+stays the reference and serves several people and the arm model), and everything after the
+cycle's first plan (the checks, the replans and the decisions between them) is one compiled
+call per cycle (:mod:`sara_app.safety.pfl_cycle`, the same bits as :meth:`_plan_and_verify`'s
+Python loop, which runs what it hands back).
 """
 
 from __future__ import annotations
