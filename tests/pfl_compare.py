@@ -1,14 +1,23 @@
-"""Cycle-by-cycle comparison of two PFL shields (the compiled paths against the reference)."""
+"""Cycle-by-cycle comparison of PFL shields (the compiled paths against the reference) and the
+cells and people they run on."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import fields
+from typing import cast
 
 import numpy as np
 
+from sara_app.cell import build_cell
+from sara_app.human.scripted import joints, standing
 from sara_app.safety.pfl import PflResult
 from sara_app.safety.pfl_shield import PflCycle, PflShield
-from sara_app.safety.shield import CycleResult
+from sara_app.safety.shield import CycleResult, HumanState
+from sara_app.scenario import parse_scenario
+
+TABLE = {"name": "table", "center_m": [0.65, 0.0, 0.1], "size_m": [0.5, 1.6, 0.2]}
+Q = [0.3, 0.0, -1.8, 0.0, 2.1, 0.8]
 
 
 def assert_same_result(a: PflResult | None, b: PflResult | None) -> None:
@@ -54,3 +63,34 @@ def assert_same_trajectory(ra: CycleResult, rb: CycleResult) -> None:
     assert (sa.stop.A, sa.stop.J, sa.stop.duration_s) == (sb.stop.A, sb.stop.J, sb.stop.duration_s)
     np.testing.assert_array_equal(ra.robot_ends, rb.robot_ends)
     np.testing.assert_array_equal(ra.robot_radius, rb.robot_radius)
+
+
+def make_cells(models: tuple[str, ...], boxes: bool = True) -> list[PflShield]:
+    """Three identical PFL cells: with the compiled loop, with the fused check only (the
+    Python loop), and the reference (neither)."""
+    sc = parse_scenario(
+        {
+            "name": "t",
+            "task": {"waypoints_rad": [[-1.2, *Q], [1.2, *Q]]},
+            "environment": [TABLE] if boxes else [],
+            "shield": {"mode": "pfl", "models": list(models)},
+        }
+    )
+    cells = [build_cell(sc).shield for _ in range(3)]
+    assert all(isinstance(c, PflShield) for c in cells)
+    a, b, ref = cast(list[PflShield], cells)
+    assert a.fused is not None and a.compiled is not None
+    b.compiled = None
+    ref.fused = ref.compiled = None
+    return [a, b, ref]
+
+
+def make_pair(models: tuple[str, ...], boxes: bool = True) -> tuple[PflShield, PflShield]:
+    """The compiled cell and the reference."""
+    a, _, ref = make_cells(models, boxes)
+    return a, ref
+
+
+def person_at(xy: np.ndarray, v: np.ndarray, dv: float, stamp: float) -> HumanState:
+    yj = joints(standing((float(xy[0]), float(xy[1])), math.atan2(-xy[1], -xy[0])))
+    return HumanState("p", yj, np.broadcast_to(v, yj.shape).copy(), np.full(len(yj), dv), stamp)

@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 import pytest
-from pfl_compare import assert_same_cycle  # noqa: E402
+from pfl_compare import assert_same_cycle, make_pair, person_at  # noqa: E402
 
 from sara_app import geometry_kernels
 from sara_app.errors import InputError
@@ -127,3 +127,19 @@ def test_cache_key_carries_the_callees_sources() -> None:
         pfl_fused_kernel,
     ):  # fmt: skip
         assert source_digest(module) in text, module.__name__
+
+
+def test_the_warm_up_at_construction_leaves_the_shield_as_it_was() -> None:
+    """The shield runs one fused check and one compiled cycle when it is built (their first
+    call resolves the argument types); afterwards its orders, cap, follower and open check are
+    those of a fresh shield, and its first cycles equal the reference's."""
+    a, ref = make_pair(("acc", "vel", "pos"))
+    assert a._orders == (["acc", "vel", "pos"], ["acc", "vel", "pos"]) == ref._orders
+    assert (a.cap, a._calm, a._open) == (math.inf, 0, None)
+    assert (a.follower.s, a.follower.sd, a.follower.sdd) == (0.0, 0.0, 0.0)
+    t = 0.0
+    for _ in range(40):
+        assert_same_cycle(a, a.cycle(t, []), ref, ref.cycle(t, []))
+        t += a.settings.dt_s
+    p = person_at(np.array([0.9, -0.4]), np.zeros(3), 0.05, t - 0.01)
+    assert_same_cycle(a, a.cycle(t, [p]), ref, ref.cycle(t, [p]))

@@ -89,7 +89,7 @@ from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
-from sara_app.errors import InputError, ParameterError
+from sara_app.errors import InputError, ParameterError, SaraError
 from sara_app.human.reach import HumanReach
 from sara_app.robot.energy import (
     G_MARGIN,
@@ -259,6 +259,33 @@ class PflShield(Shield):
         self._calm = 0
         self.replans = 0
         self.scaled_cycles = 0
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """One fused check and one compiled cycle at construction (a person standing 1 m in
+        front of the robot's base): their first call resolves the argument types (~3 ms), here
+        and not in the first control cycle. Leaves the shield's state as it was."""
+        if self.fused is None:
+            return
+        J = self.verifier.reach.skeleton.n_joints
+        base = np.asarray(self.robot.T_world_base, dtype=float)[:3, 3]
+        y = np.broadcast_to(base + [1.0, 0.0, 1.0], (1, J, 3)).copy()
+        hum = (y, np.zeros_like(y), np.zeros((1, J)), np.zeros(1))
+        orders = [list(o) for o in self._orders]
+        sc = self.scaling
+        try:
+            traj, ends, radius = self._plan(math.inf)
+            self._verify(traj, ends, radius, hum)
+            if self.compiled is not None:
+                work = (list(orders[0]), list(orders[1]))
+                limits = (sc.max_replans, sc.max_models)
+                self.compiled.run(self.follower, traj, ends, radius, hum, (math.inf, 0.0, sc.cut),
+                                  limits, work)  # fmt: skip
+        except SaraError:  # a follower that cannot plan here: the first cycle resolves them
+            pass
+        for o, saved in zip(self._orders, orders):
+            o[:] = saved
+        self._open = None
 
     def adopt(self, previous: Shield) -> None:
         super().adopt(previous)
