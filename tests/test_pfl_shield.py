@@ -509,7 +509,7 @@ def _ref_speed_for(res, sd: np.ndarray, which: np.ndarray) -> float:  # type: ig
 def test_compiled_speed_candidates_equal_the_numpy_formula() -> None:
     from types import SimpleNamespace
 
-    from sara_app.safety.pfl_shield import _allowed_speed, _candidate
+    from sara_app.safety.pfl_scaling import allowed_speed, candidate
 
     rng = np.random.default_rng(8)
     for trial in range(60):
@@ -524,10 +524,10 @@ def test_compiled_speed_candidates_equal_the_numpy_formula() -> None:
         sd = np.abs(rng.normal(size=K + 1)) * (rng.random(K + 1) < 0.8)
         traj = SimpleNamespace(sd=sd)
         E0 = rng.uniform(0, 1, L)
-        cand, fixable = _candidate(res, traj, E0)  # type: ignore[arg-type]
+        cand, fixable = candidate(res, traj, E0)  # type: ignore[arg-type]
         assert cand == _ref_speed_for(res, sd, ~safe)
         assert fixable == (not (~safe[0] & ~(E0[:, None] < thr[0])).any())
-        assert _allowed_speed(res, traj) == _ref_speed_for(res, sd, cls > 0)  # type: ignore[arg-type]
+        assert allowed_speed(res, traj) == _ref_speed_for(res, sd, cls > 0)  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize("case", ["clear", "slowed", "braking"])

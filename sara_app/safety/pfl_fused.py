@@ -279,12 +279,13 @@ class FusedCheck:
 
     def candidate(self) -> tuple[float, bool]:
         """After a failed check: the candidate path speed of the violated entries and whether a
-        slower plan can fix them (as the shield's ``_candidate`` from :meth:`result`)."""
+        slower plan can fix them (as :func:`~sara_app.safety.pfl_scaling.candidate` from
+        :meth:`result`)."""
         return float(self._verdict[9][0]), not self._state[6]
 
     def allowed_speed(self) -> float:
         """After a verified check: the path speed at which its contacts reach their thresholds
-        (as the shield's ``_allowed_speed`` from :meth:`result`)."""
+        (as :func:`~sara_app.safety.pfl_scaling.allowed_speed` from :meth:`result`)."""
         return float(self._verdict[9][1])
 
     @property

@@ -97,8 +97,8 @@ stack_diameter_m (k, P), distance_m (k, L, P))``."""
 VERDICT = types.Tuple((_W[3], _W[3], _WB3, _WB1, _W[2], _WI2, _W[2], _WI83, _WI1, _W[1]))
 """``(threshold_J, margin_J, safe (K, L, P), safe_interval (K,), allowed_J (K, L),
 limiting_part (K, L), energy_J (K, L), merged cls (K, L, P), todo scratch (2,), speeds (2,))``:
-``speeds`` the speed scaling's path speeds (rad/s) from the verdict (the shield's
-``_candidate``: the candidate of the violated entries when eq. 6 fails; ``_allowed_speed``: the
+``speeds`` the speed scaling's path speeds (rad/s) from the verdict (``pfl_scaling``'s
+``candidate``: the candidate of the violated entries when eq. 6 fails; ``allowed_speed``: the
 speed at which the contacts reach their thresholds when it holds; NaN: not this case)."""
 
 
@@ -198,9 +198,9 @@ def _unproved(safe_k: np.ndarray, state: np.ndarray) -> None:
 def _speeds(
     sd: np.ndarray, T: np.ndarray, cls: np.ndarray, verdict: Any, state: np.ndarray
 ) -> None:
-    """``state[5:7]`` and ``speeds``: eq. 6, and the speed scaling's inputs (as the shield's
-    ``_candidate`` and ``_allowed_speed`` compute them from the result; ``T (S, L)`` the link
-    energies at the samples, row 0 the current state, zero when they were not needed)."""
+    """``state[5:7]`` and ``speeds``: eq. 6, and the speed scaling's inputs (as
+    ``pfl_scaling.candidate`` and ``allowed_speed`` compute them from the result; ``T (S, L)``
+    the link energies at the samples, row 0 the current state, zero when not needed)."""
     thr, safe, safe_k, E_int, speeds = verdict[0], verdict[2], verdict[3], verdict[6], verdict[9]
     ok = True
     for k in range(safe_k.shape[0]):
