@@ -11,7 +11,7 @@ import pytest
 from pfl_compare import assert_same_cycle, make_pair, person_at  # noqa: E402
 
 from sara_app import geometry_kernels
-from sara_app.errors import InputError
+from sara_app.errors import ParameterError
 from sara_app.human import reach_kernels
 from sara_app.robot import (
     crba_kernel,
@@ -111,7 +111,7 @@ def test_construction_is_validated() -> None:
     shield = shield_cell(BENCH_CASES["clear"])[0]
     assert shield.fused is not None
     for dt, max_interval in ((0.004, 0.0), (0.0, 0.02), (0.004, math.nan)):
-        with pytest.raises(InputError, match="expected times > 0"):
+        with pytest.raises(ParameterError, match="expected times > 0"):
             CompiledCycle(shield.fused, shield.occupancy, shield.tracking_margin_m, dt,
                           max_interval)  # fmt: skip
 

@@ -10,8 +10,8 @@ of each check and the decisions between them were still Python: ~200 us of a two
 and the same decisions, so the same bits as the Python loop (kept as the reference and for
 what the kernel leaves to it: several people, the arm model, a follower that falls back on its
 held failsafe or cannot plan, a rejected trajectory; tested cycle by cycle in
-``tests/test_pfl_cycle.py``). Python builds the step, the trajectory and the verdict objects
-only for the last check.
+``tests/test_pfl_fused.py``, the hand-over in ``tests/test_pfl_cycle.py``). Python builds the
+step, the trajectory and the verdict objects only for the last check.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from sara_app.errors import InputError
+from sara_app.errors import ParameterError
 from sara_app.robot.failsafe import BOUND_PAD
 from sara_app.robot.occupancy import RobotOccupancy
 from sara_app.robot.shielded import ShieldedTrajectory, from_samples
@@ -68,7 +68,7 @@ class CompiledCycle:
         max_interval_s: float,
     ) -> None:
         if not (np.isfinite(max_interval_s) and max_interval_s > 0 and dt_s > 0):
-            raise InputError(
+            raise ParameterError(
                 f"dt_s = {dt_s}, max_interval_s = {max_interval_s}; expected times > 0"
             )
         self.fused = fused
