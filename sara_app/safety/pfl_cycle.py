@@ -25,10 +25,9 @@ from sara_app.robot.failsafe import BOUND_PAD
 from sara_app.robot.occupancy import RobotOccupancy
 from sara_app.robot.shielded import ShieldedTrajectory, from_samples
 from sara_app.robot.trajectory import PathFollower
-from sara_app.safety.contact import ContactResult
 from sara_app.safety.pfl import PflResult
 from sara_app.safety.pfl_cycle_kernel import DONE, cycle_kernel, plan_views
-from sara_app.safety.pfl_fused import KINDS, FusedChecks
+from sara_app.safety.pfl_fused import KINDS, FusedChecks, result_of
 
 __all__ = ["CompiledCycle", "CycleOutcome"]
 
@@ -108,7 +107,6 @@ class CompiledCycle:
         follower_state, planner, path = state
         f = self.fused
         robot, trajectory, human, age = f.validated(traj, ends, radius, hum)
-        rules, switches, static, acc, pos, delays, n_limbs, part_maps = f.constants()
         key = (tuple(orders[0]), tuple(orders[1]))
         if key != self._synced:
             self._codes = np.stack([f.codes(orders[0]), f.codes(orders[1])])
@@ -117,8 +115,8 @@ class CompiledCycle:
         info = self._info
         code, plan, last = cycle_kernel(
             robot, trajectory, follower_state, planner, path, self._sampling, self._occupancy,
-            self._link_constants, self._T0_links, rules, switches, human, age, static, acc, pos,
-            delays, n_limbs, part_maps, control, limits, codes, info,
+            self._link_constants, self._T0_links, f.kernel_constants(), human, age, control,
+            limits, codes, info,
         )  # fmt: skip
         if code != DONE:
             return None
@@ -137,22 +135,6 @@ class CompiledCycle:
                        bounds[1], pts[4, : bounds.shape[1]])  # fmt: skip
             traj, ends, radius = from_samples(step, samples), r_ends, r_radius
         return CycleOutcome(
-            traj, ends, radius, _result(*last), float(info[0]), float(info[1]), checks,
+            traj, ends, radius, result_of(*last), float(info[0]), float(info[1]), checks,
             int(info[3]), float(info[5]), int(info[8]),
         )  # fmt: skip
-
-
-def _result(slabs: tuple[np.ndarray, ...], state: np.ndarray) -> PflResult:
-    """The :class:`PflResult` of a check's result arrays (as :meth:`FusedCheck.result`; the
-    layout of :func:`~sara_app.safety.pfl_cycle_kernel._results`)."""
-    b5, f3, i2, stack, diam, safe_k, f2, part = slabs
-    contact, contact_s, env, self_, safe = b5
-    thr, margin, d_rh = f3
-    cls, cls_m = i2
-    allowed, E_int = f2
-    c = ContactResult(contact, contact_s, env, self_, cls, stack, diam, d_rh)
-    merged = bool(state[4])
-    return PflResult(
-        safe, safe_k, bool(state[5]), cls_m if merged else cls, thr, E_int, margin, c, allowed,
-        part, merged or bool(state[3]),
-    )  # fmt: skip

@@ -44,16 +44,15 @@ from sara_app.robot.trajectory_kernels import shielded_samples_kernel
 from sara_app.safety import contact_kernels, pfl_fused_kernel, pfl_kernels, pfl_link_states
 from sara_app.safety.contact_kernels import source_digest
 from sara_app.safety.pfl_fused_kernel import (
-    ACC,
     HUMAN,
     LINK_CONSTANTS,
-    POS,
+    MODELS,
     ROBOT,
-    RULES,
-    STATE_SIZE,
-    STATIC,
     TRAJECTORY,
     _replan_cap,
+    check_buffers,
+    check_results,
+    frames,
     fused_kernel,
 )
 
@@ -170,7 +169,7 @@ def _plan(
         for r in range(K + 1):
             for j in range(n):
                 Qj[r, j] = joint[0, r, q_index[j]]
-        H = _frames(K + 1, n, T0)
+        H = frames(K + 1, n, T0)
         E, Q_copy = np.empty((K + 1, L, 2, 3)), np.empty((K + 1, n))
         code = intervals_kernel(Qj, bounds[0], times, N, parents, link_joint, ends_joint,
                                 lipschitz, radius0, H, E, r_ends, r_radius, Q_copy)  # fmt: skip
@@ -181,45 +180,6 @@ def _plan(
     robot = (r_ends, r_radius)
     trajectory = (joint[0], joint[1], pts[2], sd_max, times, bounds[0], bounds[1])
     return ok, status, robot, trajectory, slab
-
-
-@njit(cache=True)
-def _buffers(K: int, L: int, P: int, B: int, C: int, n: int, T0: np.ndarray) -> Any:
-    """Fresh buffers of one check of ``K`` intervals, in ``fused_kernel``'s groups."""
-    S = K + 1
-    geometry = (np.empty((K, L, L)), np.empty((K, L, L)), np.empty((K, L, B)),
-                np.empty((K, L, B, 3)), np.full((K, L, B), -2, np.int8),
-                np.full((K, L, L), -2, np.int8))  # fmt: skip
-    H = _frames(S, n, T0)
-    links = (np.empty((S, n)), np.empty((S, n)), np.empty((S, n)), np.empty(S),
-             np.empty(S, np.bool_), H, np.empty((S, n, n)), np.empty((S, L, 2, 3)),
-             np.empty((S, L)), np.empty((S, L)), np.empty((S, L, 3)), np.empty((S, L, 3)),
-             np.empty((K, L)), np.empty((K, L)), np.empty(K))  # fmt: skip
-    sets = (np.empty(K), np.empty(K), np.empty((1, K, P, 2, 3)), np.empty((1, K, P)),
-            np.empty((1, P, 2, 3)), np.empty((K, P)), np.empty((1, C, 2, 3)),
-            np.empty((1, K, C)), np.empty((K, P, 2, 3)), np.empty((K, P)))  # fmt: skip
-    return geometry, links, sets, _classes(K, L, P)
-
-
-@njit(cache=True)
-def _frames(S: int, n: int, T0: np.ndarray) -> np.ndarray:
-    """Joint-frame buffers ``(S, n+1, 4, 4)`` as the forward kinematics expects them: frame 0
-    the base pose ``T0``, the others' last row ``[0, 0, 0, 1]`` (the kernels write the rest)."""
-    H = np.zeros((S, n + 1, 4, 4))
-    for r in range(S):
-        H[r, 0] = T0
-        for j in range(1, n + 1):
-            H[r, j, 3, 3] = 1.0
-    return H
-
-
-@njit(cache=True)
-def _classes(K: int, L: int, P: int) -> Any:
-    """Buffers of one classification (``fused_kernel``'s ``CLASSES`` group)."""
-    return (np.empty((K, L, P), np.bool_), np.empty((K, L, P), np.bool_),
-            np.empty((K, L, P), np.bool_), np.empty((K, L, P), np.bool_),
-            np.empty((K, L, P), np.int8), np.empty((K, P, P), np.bool_), np.empty((K, P)),
-            np.empty((K, L, P)))  # fmt: skip
 
 
 @njit(cache=True)
@@ -240,27 +200,6 @@ def _to_back(row: np.ndarray) -> None:
     row[row.shape[0] - 1] = x
 
 
-@njit(cache=True)
-def _results(K: int, L: int, P: int) -> Any:
-    """Fresh result arrays of one check: ``(slabs, first, verdict, state)`` with ``first`` and
-    ``verdict`` (``fused_kernel``'s groups) views of a few ``slabs`` (each array returned to
-    Python costs ~0.5 us): bool ``(5, K, L, P)`` contact, contact_single, env, self_, safe;
-    float ``(3, K, L, P)`` threshold, margin, distance; int8 ``(2, K, L, P)`` cls, merged cls;
-    stack ``(K, P, P)``; stack diameter ``(K, P)``; safe_interval ``(K,)``; float ``(2, K,
-    L)`` allowed, energy; limiting part ``(K, L)``."""
-    b5 = np.empty((5, K, L, P), np.bool_)
-    f3 = np.empty((3, K, L, P))
-    i2 = np.empty((2, K, L, P), np.int8)
-    stack, diam, safe_k = np.empty((K, P, P), np.bool_), np.empty((K, P)), np.empty(K, np.bool_)
-    f2, part = np.empty((2, K, L)), np.empty((K, L), np.int64)
-    first = (b5[0], b5[1], b5[2], b5[3], i2[0], stack, diam, f3[2])
-    verdict = (f3[0], f3[1], b5[4], safe_k, f2[0], part, f2[1], i2[1], np.empty(2, np.int64),
-               np.full(2, np.nan))  # fmt: skip
-    state = np.zeros(STATE_SIZE, np.int64)
-    state[2] = K
-    return (b5, f3, i2, stack, diam, safe_k, f2, part), first, verdict, state
-
-
 def _make_kernel() -> Any:
     """Build :func:`cycle_kernel` with its callees' source digests in the closure."""
     sources = "".join(
@@ -275,9 +214,8 @@ def _make_kernel() -> Any:
     @njit(
         (
             ROBOT, TRAJECTORY, FOLLOWER, PLANNER, PATH, types.UniTuple(_f8, 2), OCCUPANCY,
-            LINK_CONSTANTS, _RO2, RULES, types.UniTuple(_b1, 3), HUMAN, _f8, STATIC, ACC, POS,
-            types.UniTuple(_f8, 2), _i8, _ROI2, types.UniTuple(_f8, 3), types.UniTuple(_i8, 2),
-            _WI2, _W1,
+            LINK_CONSTANTS, _RO2, MODELS, HUMAN, _f8, types.UniTuple(_f8, 3),
+            types.UniTuple(_i8, 2), _WI2, _W1,
         ),
         cache=True,
     )  # fmt: skip
@@ -291,16 +229,9 @@ def _make_kernel() -> Any:
         occupancy: Any,
         link_constants: Any,
         T0_links: np.ndarray,
-        rules: Any,
-        switches: Any,
+        models: Any,
         human: Any,
         age: float,
-        static: Any,
-        acc: Any,
-        pos: Any,
-        delays: Any,
-        n_limbs: int,
-        part_maps: np.ndarray,
         control: Any,
         limits: Any,
         orders: np.ndarray,
@@ -311,23 +242,24 @@ def _make_kernel() -> Any:
         of a cycle's first check and of its replans (updated in place), ``info (9,)``: the last
         checked trajectory's cap, the cap for the next cycle (NaN: none set), checks, models
         of the last check, eq. 6 (0/1), the allowed speed of a verified last check, the last
-        replan's ``peek_kernel`` status, whether the orders changed (0/1), the model evaluations of
-        the cycle. Returns
-        ``(code, plan, check)``: the last replan's slab (:func:`plan_views`; empty when there
-        was none) and the last check's ``(slabs, state)`` (see :func:`_results`)."""
+        replan's ``peek_kernel`` status, whether the orders changed (0/1), the model evaluations
+        of the cycle. ``models``: the check's constants (:data:`pfl_fused_kernel.MODELS`).
+        Returns ``(code, plan, check)``: the last replan's slab (:func:`plan_views`; empty when
+        there was none) and the last check's ``(slabs, state)`` (see
+        :func:`~sara_app.safety.pfl_fused_kernel.check_results`)."""
         cap, c_min, cut = control
         max_replans, max_models = limits
         M = orders.shape[1]
         r_ends, r_radius, T_box, half, s_radius = robot1
-        L, P, B = r_radius.shape[1], part_maps.shape[1], T_box.shape[0]
-        C, n = pos[3].shape[0], trajectory1[0].shape[1]
+        L, P, B = r_radius.shape[1], models[7].shape[1], T_box.shape[0]
+        C, n = models[4][3].shape[0], trajectory1[0].shape[1]
         out = np.zeros(OUT_LEN)
         robot = (r_ends.copy(), r_radius.copy())
         q, dq, sd, sd_max, times, v_bound, a_bound = trajectory1
         trajectory = (q.copy(), dq.copy(), sd.copy(), sd_max.copy(), times.copy(),
                       v_bound.copy(), a_bound.copy())  # fmt: skip
         plan = np.empty(0)
-        slabs, first, verdict, state = _results(0, L, P)
+        slabs, first, verdict, state = check_results(0, L, P)
         checks, left = 0, max_models
         new_cap = math.nan
         plan_status = STEP
@@ -335,15 +267,14 @@ def _make_kernel() -> Any:
         code = DONE if len(sources) > 0 else BAIL  # the digests tie the cache to the callees
         while code == DONE:
             K = robot[1].shape[0]
-            geometry, links, sets, scratch = _buffers(K, L, P, B, C, n, T0_links)
-            slabs, first, verdict, state = _results(K, L, P)
+            geometry, links, sets, scratch = check_buffers(K, L, P, B, C, n, T0_links)
+            slabs, first, verdict, state = check_results(K, L, P)
             row = orders[1 if checks > 0 else 0]
             lazy = checks < max_replans and left > 1
             robot_k = (robot[0], robot[1], T_box, half, s_radius)
             done = fused_kernel(
-                robot_k, geometry, trajectory, link_constants, links, rules, switches, human,
-                age, static, acc, pos, delays, n_limbs, sets, part_maps, row, min(M, left),
-                False, (lazy, cap, c_min, cut), first, scratch, verdict, state,
+                robot_k, geometry, trajectory, link_constants, links, models, human, age, sets,
+                row, min(M, left), False, (lazy, cap, c_min, cut), first, scratch, verdict, state,
             )  # fmt: skip
             if done == -2:
                 code = BAIL

@@ -33,12 +33,13 @@ from sara_app.safety.pfl_fused_kernel import (
     KIND_ISO,
     KIND_POS,
     KIND_VEL,
-    STATE_SIZE,
+    check_buffers,
+    check_results,
     fused_kernel,
 )
 from sara_app.safety.pfl_link_states import PathLinkStates
 
-__all__ = ["KINDS", "FusedCheck", "FusedChecks"]
+__all__ = ["KINDS", "FusedCheck", "FusedChecks", "result_of"]
 
 KINDS = {"acc": KIND_ACC, "vel": KIND_VEL, "iso13855": KIND_ISO, "pos": KIND_POS}
 """The models the kernel computes (the arm model is left to the Python path)."""
@@ -87,8 +88,7 @@ class FusedChecks:
                     f"[0, {n})"
                 )
             maps[KINDS[name]] = idx
-        self._part_maps = maps
-        self._J, self._P, self._L = J, P, L
+        self._J, self._P, self._L, self._n = J, P, L, pfl.model.n_dof
         r, p = reach, reach.params
         self._static = (r.part_joints, np.stack([r.vel_base, r.iso_base]),
                         np.stack([r.vel_speed, r.iso_speed]))  # fmt: skip
@@ -96,11 +96,13 @@ class FusedChecks:
                      r.acc_ends)  # fmt: skip
         self._pos = (r.pos_seg_a, r.pos_seg_b, r.pos_seg_limb, r.pos_ends, r.pos_rspeed,
                      r.pos_rbase)  # fmt: skip
-        self._delays = (float(p.delay_s), float(p.delta_y_m))
-        self._n_limbs = int(r.n_limbs)
         self._n_pos = n_pos
-        self._rules = (*pfl.classifier.kernel_arrays(), pfl.T_clamp, pfl.T_free)
-        self._switches = pfl.classifier.switches()
+        rules = (*pfl.classifier.kernel_arrays(), pfl.T_clamp, pfl.T_free)
+        self._models = (
+            rules, pfl.classifier.switches(), self._static, self._acc, self._pos,
+            (float(p.delay_s), float(p.delta_y_m)), int(r.n_limbs), maps,
+        )  # fmt: skip
+        self._link_constants = link_states.kernel_constants()
         self._s_radius = np.asarray(pfl.model.radius_m, dtype=np.float64)
         self._boxes = boxes
         self._scratch: dict[int, tuple[Any, ...]] = {}
@@ -118,25 +120,19 @@ class FusedChecks:
         return c
 
     def _scratch_for(self, K: int) -> tuple[Any, ...]:
+        """``(geometry, link buffers, sets, scratch classification)`` for checks of ``K``
+        intervals (:func:`~sara_app.safety.pfl_fused_kernel.check_buffers`, once per ``K``)."""
         s = self._scratch.get(K)
         if s is None:
-            L, P, B, C = self._L, self._P, self._boxes[0].shape[0], self._n_pos
-            d_rr, s_rr = np.empty((2, K, L, L))
-            geometry = (d_rr, s_rr, np.empty((K, L, B)), np.empty((K, L, B, 3)),
-                        np.empty((K, L, B), np.int8), np.empty((K, L, L), np.int8))  # fmt: skip
-            sets = (np.empty(K), np.empty(K), np.empty((1, K, P, 2, 3)), np.empty((1, K, P)),
-                    np.empty((1, P, 2, 3)), np.empty((K, P)), np.empty((1, C, 2, 3)),
-                    np.empty((1, K, C)), np.empty((K, P, 2, 3)), np.empty((K, P)))  # fmt: skip
-            todo, speeds = np.empty(2, np.int64), np.empty(2)
-            s = self._scratch[K] = (geometry, sets, _classes(K, L, P), todo, speeds)
+            L, P, B, C, n = self._L, self._P, self._boxes[0].shape[0], self._n_pos, self._n
+            T0 = self.link_states.base_pose()
+            s = self._scratch[K] = check_buffers(K, L, P, B, C, n, T0)
         return s
 
-    def constants(self) -> tuple[Any, ...]:
-        """The kernel's per-shield constants after the link states, in its order: ``(rules,
-        switches, human, age, static, acc, pos, delays, n_limbs)`` with the person's place
-        left to the caller (see :func:`~sara_app.safety.pfl_fused_kernel.fused_kernel`)."""
-        return (self._rules, self._switches, self._static, self._acc, self._pos, self._delays,
-                self._n_limbs, self._part_maps)  # fmt: skip
+    def kernel_constants(self) -> tuple[Any, ...]:
+        """The check's per-shield constants as the kernels take them
+        (:data:`~sara_app.safety.pfl_fused_kernel.MODELS`)."""
+        return self._models
 
     def validated(
         self,
@@ -186,13 +182,6 @@ class FusedChecks:
         return FusedCheck(self, trajectory, robot, human, age)
 
 
-def _classes(K: int, L: int, P: int) -> tuple[np.ndarray, ...]:
-    """Buffers of one classification ``(K, ...)`` in the kernel's order."""
-    contact, contact_s, env, self_ = np.empty((4, K, L, P), dtype=bool)
-    return (contact, contact_s, env, self_, np.empty((K, L, P), np.int8),
-            np.empty((K, P, P), bool), np.empty((K, P)), np.empty((K, L, P)))  # fmt: skip
-
-
 class FusedCheck:
     """One open check (see :class:`FusedChecks`); :attr:`models`, :attr:`todo`,
     :meth:`add_models`, :meth:`result` and :attr:`E0` as the shield uses a
@@ -209,23 +198,13 @@ class FusedCheck:
         self._owner, self._ticket = owner, owner.opened
         K, L, P = robot[1].shape[0], owner._L, owner._P
         self.K = K
-        geometry, self._sets, self._scratch, todo, speeds = owner._scratch_for(K)
+        geometry, self._link_buffers, self._sets, self._scratch = owner._scratch_for(K)
         geometry[4].fill(-2)
         geometry[5].fill(-2)
         self._geometry = geometry
         self._trajectory, self._human, self._age = trajectory, human, age
         self._robot = robot
-        links = owner.link_states
-        self._link_constants = links.kernel_constants()
-        self._link_buffers = links.buffers_for(K + 1)
-        self._first = _classes(K, L, P)
-        thr, margin = np.empty((2, K, L, P))
-        E_int = np.empty((K, L))
-        self._verdict = (thr, margin, np.empty((K, L, P), bool), np.empty(K, bool),
-                         np.empty((K, L)), np.empty((K, L), np.int64), E_int,
-                         np.empty((K, L, P), np.int8), todo, speeds)  # fmt: skip
-        self._state = np.zeros(STATE_SIZE, dtype=np.int64)
-        self._state[1:3] = 0, K
+        self._slabs, self._first, self._verdict, self._state = check_results(K, L, P)
 
     @property
     def models(self) -> int:
@@ -262,9 +241,8 @@ class FusedCheck:
         if not (0 <= stop <= order.shape[0]):
             raise InputError(f"stop = {stop}; expected 0 <= stop <= {order.shape[0]} models")
         done = fused_kernel(
-            self._robot, self._geometry, self._trajectory, self._link_constants,
-            self._link_buffers, o._rules, o._switches, self._human, self._age, o._static,
-            o._acc, o._pos, o._delays, o._n_limbs, self._sets, o._part_maps, order, stop,
+            self._robot, self._geometry, self._trajectory, o._link_constants,
+            self._link_buffers, o._models, self._human, self._age, self._sets, order, stop,
             first_only, (replan is not None, *(replan or (0.0, 0.0)), cut), self._first,
             self._scratch, self._verdict, self._state,
         )  # fmt: skip
@@ -301,11 +279,21 @@ class FusedCheck:
         raises :class:`InputError` before any model was added."""
         if self._state[0] == 0:
             raise InputError("no human set was checked (add at least one model)")
-        contact, contact_s, env, self_, cls, stack, diam, d_rh = self._first
-        thr, margin, safe, safe_k, allowed, part, E_int, cls_m = self._verdict[:8]
-        c = ContactResult(contact, contact_s, env, self_, cls, stack, diam, d_rh)
-        merged = bool(self._state[4])
-        return PflResult(
-            safe, safe_k, bool(self._state[5]), cls_m if merged else cls, thr, E_int, margin, c,
-            allowed, part, merged or bool(self._state[3]),
-        )  # fmt: skip
+        return result_of(self._slabs, self._state)
+
+
+def result_of(slabs: tuple[np.ndarray, ...], state: np.ndarray) -> PflResult:
+    """The :class:`PflResult` of a check's result arrays and state (the layout of
+    :func:`~sara_app.safety.pfl_fused_kernel.check_results`), as
+    :meth:`MergedCheck.result <sara_app.safety.pfl.MergedCheck>` builds it."""
+    b5, f3, i2, stack, diam, safe_k, f2, part = slabs
+    contact, contact_s, env, self_, safe = b5
+    thr, margin, d_rh = f3
+    cls, cls_m = i2
+    allowed, E_int = f2
+    c = ContactResult(contact, contact_s, env, self_, cls, stack, diam, d_rh)
+    merged = bool(state[4])
+    return PflResult(
+        safe, safe_k, bool(state[5]), cls_m if merged else cls, thr, E_int, margin, c, allowed,
+        part, merged or bool(state[3]),
+    )  # fmt: skip

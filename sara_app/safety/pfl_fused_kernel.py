@@ -36,7 +36,16 @@ from sara_app.safety.pfl_kernels import (
 )
 from sara_app.safety.pfl_link_states import path_states_kernel
 
-__all__ = ["KIND_ACC", "KIND_ISO", "KIND_POS", "KIND_VEL", "STATE_SIZE", "fused_kernel"]
+__all__ = [
+    "KIND_ACC",
+    "KIND_ISO",
+    "KIND_POS",
+    "KIND_VEL",
+    "STATE_SIZE",
+    "check_buffers",
+    "check_results",
+    "fused_kernel",
+]
 
 KIND_ACC, KIND_VEL, KIND_ISO, KIND_POS = 0, 1, 2, 3
 """Model codes of the kernel (``vel`` and ``iso13855`` are rows 0 and 1 of the static sets)."""
@@ -85,6 +94,12 @@ ACC = types.Tuple((_RO[1], _RO[1], _ROI1, _ROI1, _ROI2))
 """``(a_half (J,), half_thickness_m (P,), ia, ib (P,), end_index (P, 2))``."""
 POS = types.Tuple((_ROI1, _ROI1, _ROI1, _ROI2, _RO[1], _RO[1]))
 """``(seg_a, seg_b, seg_limb, cap_joints (C, 2), speed_mps (C,), base_m (C,))``."""
+MODELS = types.Tuple(
+    (RULES, types.UniTuple(_b1, 3), STATIC, ACC, POS, types.UniTuple(_f8, 2), _i8, _ROI2)
+)
+"""The per-shield constants of a check: ``(rules, (relax_velocity, relax_diameter, multi_body),
+static, acc, pos, (delay_s, delta_y_m), n_limbs, part_maps (4, P))``, ``part_maps`` gathering
+each kind's capsules per body part."""
 SET_BUFFERS = types.Tuple(
     (_W[1], _W[1], _W[5], _W[3], _W[4], _W[2], _W[4], _W[3], _W[4], _W[2])
 )  # fmt: skip
@@ -110,18 +125,15 @@ def _human_sets(
     times: np.ndarray,
     age: float,
     human: Any,
-    delay_s: float,
-    static: Any,
-    acc: Any,
-    delta_y_m: float,
-    pos: Any,
-    n_limbs: int,
+    models: Any,
     sets: Any,
-    part_map: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The person's capsule per body part for intervals ``lo:hi`` as the shield's
     ``_human_sets``: ``(1|k, P, 2, 3)``, ``(1|k, P)`` views of the gathered buffers."""
     y, v, dv = human
+    static, acc, pos, delays, n_limbs, part_maps = models[2:]
+    delay_s, delta_y_m = delays
+    part_map = part_maps[kind]
     t_start, t_end, acc_e, acc_r, st_e, st_r, pos_e, pos_r, h_ends, h_radius = sets
     k, P = hi - lo, part_map.shape[0]
     for x in range(k):
@@ -238,6 +250,66 @@ def _replan_cap(candidate: float, replan: Any, sd: np.ndarray) -> float:
     return _py_min(cut * candidate, cut * _py_min(cap, top))
 
 
+@njit(cache=True)
+def check_buffers(K: int, L: int, P: int, B: int, C: int, n: int, T0: np.ndarray) -> Any:
+    """Fresh buffers of one check of ``K`` intervals, in ``fused_kernel``'s groups."""
+    S = K + 1
+    geometry = (np.empty((K, L, L)), np.empty((K, L, L)), np.empty((K, L, B)),
+                np.empty((K, L, B, 3)), np.full((K, L, B), -2, np.int8),
+                np.full((K, L, L), -2, np.int8))  # fmt: skip
+    H = frames(S, n, T0)
+    links = (np.empty((S, n)), np.empty((S, n)), np.empty((S, n)), np.empty(S),
+             np.empty(S, np.bool_), H, np.empty((S, n, n)), np.empty((S, L, 2, 3)),
+             np.empty((S, L)), np.empty((S, L)), np.empty((S, L, 3)), np.empty((S, L, 3)),
+             np.empty((K, L)), np.empty((K, L)), np.empty(K))  # fmt: skip
+    sets = (np.empty(K), np.empty(K), np.empty((1, K, P, 2, 3)), np.empty((1, K, P)),
+            np.empty((1, P, 2, 3)), np.empty((K, P)), np.empty((1, C, 2, 3)),
+            np.empty((1, K, C)), np.empty((K, P, 2, 3)), np.empty((K, P)))  # fmt: skip
+    return geometry, links, sets, classes(K, L, P)
+
+
+@njit(cache=True)
+def frames(S: int, n: int, T0: np.ndarray) -> np.ndarray:
+    """Joint-frame buffers ``(S, n+1, 4, 4)`` as the forward kinematics expects them: frame 0
+    the base pose ``T0``, the others' last row ``[0, 0, 0, 1]`` (the kernels write the rest)."""
+    H = np.zeros((S, n + 1, 4, 4))
+    for r in range(S):
+        H[r, 0] = T0
+        for j in range(1, n + 1):
+            H[r, j, 3, 3] = 1.0
+    return H
+
+
+@njit(cache=True)
+def classes(K: int, L: int, P: int) -> Any:
+    """Buffers of one classification (``fused_kernel``'s ``CLASSES`` group)."""
+    return (np.empty((K, L, P), np.bool_), np.empty((K, L, P), np.bool_),
+            np.empty((K, L, P), np.bool_), np.empty((K, L, P), np.bool_),
+            np.empty((K, L, P), np.int8), np.empty((K, P, P), np.bool_), np.empty((K, P)),
+            np.empty((K, L, P)))  # fmt: skip
+
+
+@njit(cache=True)
+def check_results(K: int, L: int, P: int) -> Any:
+    """Fresh result arrays of one check: ``(slabs, first, verdict, state)`` with ``first`` and
+    ``verdict`` (``fused_kernel``'s groups) views of a few ``slabs`` (each array returned to
+    Python costs ~0.5 us): bool ``(5, K, L, P)`` contact, contact_single, env, self_, safe;
+    float ``(3, K, L, P)`` threshold, margin, distance; int8 ``(2, K, L, P)`` cls, merged cls;
+    stack ``(K, P, P)``; stack diameter ``(K, P)``; safe_interval ``(K,)``; float ``(2, K,
+    L)`` allowed, energy; limiting part ``(K, L)``."""
+    b5 = np.empty((5, K, L, P), np.bool_)
+    f3 = np.empty((3, K, L, P))
+    i2 = np.empty((2, K, L, P), np.int8)
+    stack, diam, safe_k = np.empty((K, P, P), np.bool_), np.empty((K, P)), np.empty(K, np.bool_)
+    f2, part = np.empty((2, K, L)), np.empty((K, L), np.int64)
+    first = (b5[0], b5[1], b5[2], b5[3], i2[0], stack, diam, f3[2])
+    verdict = (f3[0], f3[1], b5[4], safe_k, f2[0], part, f2[1], i2[1], np.empty(2, np.int64),
+               np.full(2, np.nan))  # fmt: skip
+    state = np.zeros(STATE_SIZE, np.int64)
+    state[2] = K
+    return (b5, f3, i2, stack, diam, safe_k, f2, part), first, verdict, state
+
+
 def _make_kernel() -> Any:
     """Build :func:`fused_kernel` with its callees' source digests in the closure."""
     sources = "".join(
@@ -250,10 +322,9 @@ def _make_kernel() -> Any:
 
     @njit(
         _i8(
-            ROBOT, GEOMETRY, TRAJECTORY, LINK_CONSTANTS, LINK_BUFFERS, RULES,
-            types.UniTuple(_b1, 3), HUMAN, _f8, STATIC, ACC, POS, types.UniTuple(_f8, 2), _i8,
-            SET_BUFFERS, _ROI2, _ROI1, _i8, _b1, types.Tuple((_b1, _f8, _f8, _f8)), CLASSES,
-            CLASSES, VERDICT, _WI1,
+            ROBOT, GEOMETRY, TRAJECTORY, LINK_CONSTANTS, LINK_BUFFERS, MODELS, HUMAN, _f8,
+            SET_BUFFERS, _ROI1, _i8, _b1, types.Tuple((_b1, _f8, _f8, _f8)), CLASSES, CLASSES,
+            VERDICT, _WI1,
         ),
         cache=True,
     )  # fmt: skip
@@ -263,17 +334,10 @@ def _make_kernel() -> Any:
         trajectory: Any,
         link_constants: Any,
         link_buffers: Any,
-        rules: Any,
-        switches: Any,
+        models: Any,
         human: Any,
         age: float,
-        static: Any,
-        acc: Any,
-        pos: Any,
-        delays: Any,
-        n_limbs: int,
         sets: Any,
-        part_maps: np.ndarray,
         order: np.ndarray,
         stop: int,
         first_only: bool,
@@ -283,8 +347,8 @@ def _make_kernel() -> Any:
         verdict: Any,
         state: np.ndarray,
     ) -> int:
-        """Add the models ``order[state[0]:stop]`` (codes ``KIND_*``; ``part_maps (4, P)``
-        gathers each kind's capsules per body part) to an open check until every entry is
+        """Add the models ``order[state[0]:stop]`` (codes ``KIND_*``; their constants in
+        ``models``, see :data:`MODELS`) to an open check until every entry is
         proved or, with ``first_only``, after one, or with ``replan = (on, cap, c_min, cut)``
         after a failing first model that a replan will follow (not stuck and ``min(cut *
         candidate, cut * min(cap, max sd)) >= c_min``, as the shield's ``_next_cap``). Writes
@@ -296,10 +360,9 @@ def _make_kernel() -> Any:
             return -2
         r_ends, r_radius, T_box, half, s_radius = robot
         d_rr, s_rr, d_rb, n_rb, can_b, can_l = geometry
-        no_pair, not_safe_h, diameters_m, T_clamp, T_free = rules
-        relax_velocity, relax_diameter, multi_body = switches
+        no_pair, not_safe_h, diameters_m, T_clamp, T_free = models[0]
+        relax_velocity, relax_diameter, multi_body = models[1]
         thr, margin, safe, safe_k, allowed, part, E_int, cls_m, todo, speeds = verdict
-        delay_s, delta_y_m = delays
         times = trajectory[4]
         K = r_radius.shape[0]
         completed = -1
@@ -311,10 +374,7 @@ def _make_kernel() -> Any:
                 break
             k = hi - lo
             is_first = state[0] == 0
-            he, hr = _human_sets(
-                order[i], lo, hi, times, age, human, delay_s, static, acc, delta_y_m, pos,
-                n_limbs, sets, part_maps[order[i]],
-            )  # fmt: skip
+            he, hr = _human_sets(order[i], lo, hi, times, age, human, models, sets)
             out = first if is_first else _view(scratch, k)
             contact, contact_s, env, self_, cls, stack, diam, d_rh = out
             if not pair_gaps(r_ends[lo:hi], r_radius[lo:hi], he, hr, d_rh):
