@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import fields
-from typing import cast
+from typing import Any, cast
 
 import numpy as np
 
@@ -94,3 +94,31 @@ def make_pair(models: tuple[str, ...], boxes: bool = True) -> tuple[PflShield, P
 def person_at(xy: np.ndarray, v: np.ndarray, dv: float, stamp: float) -> HumanState:
     yj = joints(standing((float(xy[0]), float(xy[1])), math.atan2(-xy[1], -xy[0])))
     return HumanState("p", yj, np.broadcast_to(v, yj.shape).copy(), np.full(len(yj), dv), stamp)
+
+
+def bench_pair(case: str) -> tuple[PflShield, PflShield, Any, list[HumanState], float]:
+    """The benchmark cell in state ``case`` (``bench_pfl.BENCH_CASES``) and its reference
+    (neither the fused check nor the compiled loop): ``(shield, ref, template, people, t)``."""
+    from sara_app.safety.bench_pfl import BENCH_CASES, shield_cell
+
+    shield, template, people, t = shield_cell(BENCH_CASES[case])
+    ref = shield_cell(BENCH_CASES[case])[0]
+    ref.fused = ref.compiled = None
+    return shield, ref, template, people, t
+
+
+def same_state_cycles(
+    shield: PflShield, ref: PflShield, template: Any, people: list[HumanState], t: float, n: int
+) -> list[object]:
+    """``n`` cycles of both shields, each from the follower ``template`` at full speed (as in
+    the benchmark), compared cycle by cycle; returns the shield's ``_res`` of each."""
+    infos = []
+    for _ in range(n):
+        for s in (shield, ref):
+            s.follower = template.copy()
+            s.cap, s._calm = math.inf, 0
+        a = shield.cycle(t, people, want_distance=False)
+        b = ref.cycle(t, people, want_distance=False)
+        assert_same_cycle(shield, a, ref, b)
+        infos.append(shield._res)
+    return infos

@@ -8,7 +8,13 @@ import math
 
 import numpy as np
 import pytest
-from pfl_compare import assert_same_cycle, make_pair, person_at  # noqa: E402
+from pfl_compare import (  # noqa: E402
+    assert_same_cycle,
+    bench_pair,
+    make_pair,
+    person_at,
+    same_state_cycles,
+)
 
 from sara_app import geometry_kernels
 from sara_app.errors import ParameterError
@@ -43,20 +49,13 @@ def test_plan_views_partition_the_slab(K: int, L: int, n: int) -> None:
     assert all(np.shares_memory(v, slab) for v in views)
 
 
-def _pair(case: str):  # type: ignore[no-untyped-def]
-    shield, template, people, t = shield_cell(BENCH_CASES[case])
-    ref = shield_cell(BENCH_CASES[case])[0]
-    ref.fused = ref.compiled = None
-    return shield, ref, template, people, t
-
-
 @pytest.mark.parametrize("how", ["follower", "kernel"])
 def test_what_the_kernel_leaves_runs_in_python(monkeypatch: pytest.MonkeyPatch, how: str) -> None:
     """A follower the kernel cannot plan for, or a kernel that hands the cycle back (a
     follower falling back on its held failsafe, a rejected trajectory): the Python loop runs
     the cycle, with the model orders untouched by the kernel, and the cycle equals the
     reference's."""
-    shield, ref, template, people, t = _pair("braking")
+    shield, ref, template, people, t = bench_pair("braking")
     handed = []
     if how == "follower":
         monkeypatch.setattr(type(template), "kernel_state", lambda self, dt: None)
@@ -69,14 +68,7 @@ def test_what_the_kernel_leaves_runs_in_python(monkeypatch: pytest.MonkeyPatch, 
             return BAIL, np.empty(0), ()
 
         monkeypatch.setattr(pfl_cycle_module, "cycle_kernel", bail)
-    for _ in range(3):
-        for s in (shield, ref):
-            s.follower = template.copy()
-            s.cap, s._calm = math.inf, 0
-        a = shield.cycle(t, people, want_distance=False)
-        b = ref.cycle(t, people, want_distance=False)
-        assert_same_cycle(shield, a, ref, b)
-        info = shield._res
+    for info in same_state_cycles(shield, ref, template, people, t, 3):
         assert isinstance(info, PflCycle) and info.checks == 2
     assert how == "follower" or len(handed) == 3
 

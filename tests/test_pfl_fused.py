@@ -9,7 +9,14 @@ import math
 
 import numpy as np
 import pytest
-from pfl_compare import assert_same_cycle, make_cells, make_pair, person_at  # noqa: E402
+from pfl_compare import (  # noqa: E402
+    assert_same_cycle,
+    bench_pair,
+    make_cells,
+    make_pair,
+    person_at,
+    same_state_cycles,
+)
 
 from sara_app import geometry_kernels
 from sara_app.errors import InputError, ParameterError
@@ -72,18 +79,8 @@ def test_closed_loop_equals_the_python_composition(models: tuple[str, ...], boxe
 def test_benchmark_states_equal_the_python_composition(case: str) -> None:
     """The benchmark's three states, each from full speed (a failed check at full speed
     first), with the model order the reference learns over repeated cycles."""
-    from sara_app.safety.bench_pfl import BENCH_CASES, shield_cell
-
-    shield, template, people, t = shield_cell(BENCH_CASES[case])
-    ref, _, _, _ = shield_cell(BENCH_CASES[case])
-    ref.fused = ref.compiled = None
-    for _ in range(4):
-        for s in (shield, ref):
-            s.follower = template.copy()
-            s.cap, s._calm = math.inf, 0
-        ra = shield.cycle(t, people, want_distance=False)
-        rb = ref.cycle(t, people, want_distance=False)
-        assert_same_cycle(shield, ra, ref, rb)
+    shield, ref, template, people, t = bench_pair(case)
+    same_state_cycles(shield, ref, template, people, t, 4)
 
 
 @pytest.mark.parametrize("bad", ["v", "dv", "stamp"])

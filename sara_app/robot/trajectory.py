@@ -514,9 +514,9 @@ class PathFollower:
         follower's next step of ``dt`` at any cap: ``((s, s', s'', dt, S, A_min, J_min,
         ramp_c), (pc, rows, geo, consts), path piece tables)``; None when :meth:`peek` would
         not call the kernel (done, or a path without pieces)."""
-        s, v, a, S = self._s, self._v, self._a, self._S
-        if (S - s <= S_TOL and v <= REST_V and abs(a) <= REST_A) or self._n_pieces == 0:
+        if self.done or self._n_pieces == 0:
             return None
+        s, v, a, S = self._s, self._v, self._a, self._S
         follower = (s, v, a, float(dt), S, self._A_min, self._J_min, self._ramp_c)
         return follower, (*self._ktab, _CONSTS), self.path.piece_tables
 
