@@ -261,14 +261,14 @@ class PflShield(Shield):
         sc = self.scaling
         c_min = self.spec.min_speed_scale * V_here
         cap = max(self.cap, c_min)
+        traj, ends, radius = self._plan(cap)
         if self.compiled is not None and self.fused is not None and hum[0].shape[0] == 1:
-            done = self._compiled_cycle(hum, cap, c_min, V_here, V_top)
+            done = self._compiled_cycle(traj, ends, radius, hum, cap, c_min, V_here, V_top)
             if done is not None:
                 return done
         checks = 0
         left = sc.max_models  # model evaluations left in this cycle
         while True:
-            traj, ends, radius = self._plan(cap)
             self._model_order = self._orders[checks > 0]
             # a replan can follow: a failing check stops after its first model when the replan
             # will follow (the others rescued 4 of 1552 failed first checks in closed loop, the
@@ -295,18 +295,34 @@ class PflShield(Shield):
             if not fixable or checks > sc.max_replans or left < 1:
                 break
             cap = cand
+            traj, ends, radius = self._plan(cap)
+        self._record(res, cap, V_here, checks, used, sc.max_models - left)
+        return traj, ends, radius, res.safe_all
+
+    def _record(
+        self, res: PflResult, cap: float, V_here: float, checks: int, used: int, evaluations: int
+    ) -> None:
+        """The cycle's counters and :class:`PflCycle` (``cap``: the last checked trajectory's,
+        ``used``: its check's models, ``evaluations``: the cycle's)."""
         self.replans += checks - 1
         scale = min(1.0, cap / V_here) if V_here > 0 else 1.0
         self.scaled_cycles += scale < 1.0
-        self._res = PflCycle(res, cap, scale, checks, used, sc.max_models - left)
-        return traj, ends, radius, res.safe_all
+        self._res = PflCycle(res, cap, scale, checks, used, evaluations)
 
     def _compiled_cycle(
-        self, hum: Humans, cap: float, c_min: float, V_here: float, V_top: float
+        self,
+        traj: ShieldedTrajectory,
+        ends: np.ndarray,
+        radius: np.ndarray,
+        hum: Humans,
+        cap: float,
+        c_min: float,
+        V_here: float,
+        V_top: float,
     ) -> tuple[ShieldedTrajectory, np.ndarray, np.ndarray, bool] | None:
-        """The loop of :meth:`_plan_and_verify` after its first plan in one compiled call
-        (:class:`CompiledCycle`); None where it leaves the cycle to the Python loop."""
-        traj, ends, radius = self._plan(cap)
+        """The loop of :meth:`_plan_and_verify` after its first plan ``traj`` (at ``cap``, its
+        capsules ``ends, radius``) in one compiled call (:class:`CompiledCycle`); None where it
+        leaves the cycle to the Python loop (nothing changed)."""
         sc = self.scaling
         with _inputs_checked():
             out = cast(CompiledCycle, self.compiled).run(
@@ -324,10 +340,7 @@ class PflShield(Shield):
             self.cap = out.next_cap
         if res.safe_all:
             self._after_success(res, out.traj, out.cap, c_min, V_top, out.allowed)
-        self.replans += out.checks - 1
-        scale = min(1.0, out.cap / V_here) if V_here > 0 else 1.0
-        self.scaled_cycles += scale < 1.0
-        self._res = PflCycle(res, out.cap, scale, out.checks, out.models, out.evaluations)
+        self._record(res, out.cap, V_here, out.checks, out.models, out.evaluations)
         return out.traj, out.ends, out.radius, res.safe_all
 
     def _next_cap(
