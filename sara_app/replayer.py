@@ -5,7 +5,9 @@ A skeleton stamped ``t`` carries the pose of scenario time ``t - t0 - delay`` (t
 set's sensor delay), with the scenario's sensor noise, so the cell sees exactly what its models
 assume. Adversaries chase the robot as commanded on ``sara/<cell>/robot/command``. The scenario
 restarts after ``sim.duration_s``; an accepted scenario update (``params/ack``) restarts it with
-the new people.
+the new people. Like a real tracker it sends a frame (``TrackerFrameMsg``) for every tracker the
+scenario declares, listing the people it publishes, at ``FRAME_HZ``: without them the cell
+would not move (silence is not an empty cell).
 """
 
 from __future__ import annotations
@@ -19,7 +21,13 @@ import numpy as np
 
 from sara_app.bus import keys
 from sara_app.bus.codec import Decoder
-from sara_app.bus.messages import ParamsAckMsg, ParamsMsg, RobotCommandMsg, SkeletonMsg
+from sara_app.bus.messages import (
+    ParamsAckMsg,
+    ParamsMsg,
+    RobotCommandMsg,
+    SkeletonMsg,
+    TrackerFrameMsg,
+)
 from sara_app.bus.process import process_main
 from sara_app.bus.session import Bus, Publisher
 from sara_app.cell import base_pose
@@ -30,6 +38,7 @@ from sara_app.robot.model import RobotModel, load_robot
 from sara_app.scenario import Scenario, parse_scenario
 
 log = logging.getLogger("sara_app.replayer")
+FRAME_HZ = 50.0
 
 
 class Replayer:
@@ -44,6 +53,8 @@ class Replayer:
         self.sub_ack = bus.subscribe(keys.params_ack_key(self.cell), dec, fifo=True)
         self._pending: dict[str, dict] = {}
         self.pubs: dict[str, Publisher] = {}
+        self.frame_pubs: dict[str, Publisher] = {}
+        self.next_frame_s = 0.0
         self.load(scenario)
 
     def load(self, sc: Scenario) -> None:
@@ -63,6 +74,9 @@ class Replayer:
         for h in self.scenario.humans:
             if h.id not in self.pubs:
                 self.pubs[h.id] = self.bus.publisher(keys.skeleton_key(self.cell, h.id))
+        for tid in self.scenario.inputs.trackers:
+            if tid not in self.frame_pubs:
+                self.frame_pubs[tid] = self.bus.publisher(keys.tracker_frame_key(self.cell, tid))
 
     def _inputs(self) -> None:
         for d in self.sub_cmd.drain().messages:
@@ -98,7 +112,17 @@ class Replayer:
             pub = self.pubs[h.id]
             msg = SkeletonMsg.from_arrays("full", y, seq=pub.next_seq(), stamp_s=now)
             sent += pub.put(msg)
+        if now >= self.next_frame_s:
+            self.next_frame_s = max(self.next_frame_s + 1.0 / FRAME_HZ, now - 0.5)
+            self.publish_frames(now)
         return sent
+
+    def publish_frames(self, now: float) -> None:
+        """One frame per declared tracker: every person of the scenario is in view."""
+        people = [h.id for h in self.scenario.humans]
+        for tid in self.scenario.inputs.trackers:
+            pub = self.frame_pubs[tid]
+            pub.put(TrackerFrameMsg(seq=pub.next_seq(), stamp_s=now, people=people))
 
     def run(self, duration_s: float | None = None) -> None:
         rate = max((h.sensor.rate_hz for h in self.scenario.humans), default=100.0)

@@ -192,6 +192,28 @@ class ShieldSpec(_Strict):
         return v
 
 
+class InputSpec(_Strict):
+    """What the live cell takes from the bus, and its bounds (the contract's freshness rules)."""
+
+    trackers: list[Name] = Field(default=["main"], min_length=1, max_length=16)
+    """The tracking systems whose frames the robot waits for: it moves only while every one of
+    them has sent a frame within ``tracker_timeout_s``."""
+    tracker_timeout_s: Annotated[float, Field(gt=0, le=5)] = 0.2
+    max_people: Annotated[int, Field(ge=1, le=64)] = 16
+    """People one cell tracks at most; more is a fault (counted) until they are forgotten."""
+    cell_bound_m: Annotated[float, Field(gt=0, le=10_000)] = 100.0
+    """Coordinates (and speeds in m/s) beyond this magnitude are refused as ``out_of_range``."""
+    robot_state_timeout_s: Annotated[float, Field(gt=0, le=5)] = 0.05
+    """Once a controller publishes ``robot/state``, a state older than this is a fault."""
+
+    @field_validator("trackers")
+    @classmethod
+    def _unique_trackers(cls, v: list[str]) -> list[str]:
+        if len(set(v)) != len(v):
+            raise ValueError(f"tracker ids must be unique; got {v}")
+        return v
+
+
 class SimSpec(_Strict):
     duration_s: Annotated[float, Field(gt=0, le=600)] = 10.0
     seed: int = 0
@@ -209,6 +231,7 @@ class Scenario(_Strict):
     human_params: str | dict[str, Any] = "seed001_table1"
     """A parameter-set name (see ``sara_app/params``) or a full inline parameter set."""
     shield: ShieldSpec = ShieldSpec()
+    inputs: InputSpec = InputSpec()
     sim: SimSpec = SimSpec()
 
     @field_validator("humans")

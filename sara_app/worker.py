@@ -12,6 +12,7 @@ robot falls back to its failsafe).
 from __future__ import annotations
 
 import logging
+import math
 import sys
 import threading
 import time
@@ -28,37 +29,73 @@ from sara_app.bus.messages import (
     OccupancyMsg,
     ParamsAckMsg,
     ParamsMsg,
+    RetireMsg,
     RobotCommandMsg,
     RobotOccupancyMsg,
     RobotStateMsg,
     ScenarioStateMsg,
     SkeletonMsg,
     StatusMsg,
+    TrackerFrameMsg,
     VerdictMsg,
 )
 from sara_app.bus.process import process_main
 from sara_app.bus.session import Bus
-from sara_app.cell import Cell, build_cell
-from sara_app.errors import SaraError
-from sara_app.human.velocity import VelocityEstimator
+from sara_app.cell import build_cell
+from sara_app.errors import InputError, SaraError
+from sara_app.presence import Presence, Track, unmeasured_track
 from sara_app.robot.trajectory import JointState
 from sara_app.safety.pfl_shield import PflShield
-from sara_app.safety.shield import CycleResult, HumanState, Shield
+from sara_app.safety.shield import CycleResult, Shield
 from sara_app.safety.thresholds import link_shapes
 from sara_app.scenario import Scenario, check_against_robot, parse_scenario
 from sara_app.worker_display import jssa_state, part_labels, pfl_contacts, pfl_links
 
 log = logging.getLogger("sara_app.worker")
 _MIN_SLEEP_S = 20e-6  # the least the loop sleeps per cycle, even when late (s)
+SKELETON_QUEUE = 4096
+"""Skeleton samples queued between two drains (all people); each drain decodes only the newest
+of each key, so a flood on one key cannot crowd out another person's newest message."""
 
 
-class _Track:
-    """One person: the latest accepted measurement and a velocity estimator."""
+class _Robot:
+    """The measured robot state from a controller and its freshness (the contract's rule: once
+    a controller speaks, a state older than ``robot_state_timeout_s`` or a refused one is a
+    fault until fresh valid states resume)."""
 
-    def __init__(self, human_id: str, cell: Cell) -> None:
-        J = cell.shield.reach.skeleton.n_joints
-        self.estimator = VelocityEstimator(J, cell.params.delta_y_m, cell.params.a_max_mps2)
-        self.state = HumanState.unmeasured(human_id, J)
+    def __init__(self) -> None:
+        self.state: JointState | None = None
+        self.stamp_s: float | None = None
+        self.problem: str | None = None
+
+    def faults(self, now_s: float, timeout_s: float) -> list[str]:
+        if self.problem is not None:
+            return [f"robot state: {self.problem}"]
+        if self.stamp_s is None:
+            return []
+        age = now_s - self.stamp_s
+        if age > timeout_s:
+            return [f"robot state {age:.3f} s old > {timeout_s}"]
+        return []
+
+    def fresh(self, now_s: float, timeout_s: float) -> JointState | None:
+        """The measured state when it is usable now (None: no controller, or a fault)."""
+        return None if self.faults(now_s, timeout_s) else self.state
+
+
+class _Throttle:
+    """Rate-limited logging: the first occurrence of each kind with its traceback, then the
+    1st, 2nd, 4th, 8th ... as one line with the count."""
+
+    def __init__(self) -> None:
+        self.counts: dict[str, int] = {}
+
+    def __call__(self, kind: str, message: str, exc: BaseException | None = None) -> None:
+        n = self.counts[kind] = self.counts.get(kind, 0) + 1
+        if n == 1:
+            log.error("%s: %s", kind, message, exc_info=exc)
+        elif n & (n - 1) == 0:
+            log.error("%s (#%d): %s", kind, n, message)
 
 
 class CellWorker:
@@ -80,9 +117,11 @@ class CellWorker:
         self.display_period = 1.0 / display_hz
         self.status_period = 1.0 / status_hz
         self.cell = build_cell(scenario)
-        self.tracks: dict[str, _Track] = {}
-        self.extra_drops: dict[str, int] = {}
-        self.measured: JointState | None = None
+        inp = scenario.inputs
+        self.presence = Presence(
+            tuple(inp.trackers), inp.tracker_timeout_s, inp.max_people, self._new_track
+        )
+        self.robot_in = _Robot()
         self.pass_index = 0
         self.cycle_us: deque[float] = deque(maxlen=2000)
         self.started = time.time()
@@ -90,10 +129,16 @@ class CellWorker:
         self._next_status = 0.0
         self.last: CycleResult | None = None
         self.stop_event = threading.Event()
-        self.decoder = Decoder()  # one set of drop counters for every input
-        self.sub_skel = bus.subscribe(keys.skeleton_keys(self.name), self.decoder)
+        self.errors = _Throttle()
+        future_s = self.shield.settings.future_tolerance_s
+        self.decoder = Decoder(max_future_s=future_s)  # one set of drop counters for every input
+        self.sub_skel = bus.subscribe(
+            keys.skeleton_keys(self.name), self.decoder, capacity=SKELETON_QUEUE
+        )
+        self.sub_frames = bus.subscribe(keys.tracker_frame_keys(self.name), self.decoder)
         self.sub_state = bus.subscribe(keys.robot_state_key(self.name), self.decoder)
         self.sub_params = bus.subscribe(keys.params_key(self.name), self.decoder, fifo=True)
+        self.sub_retire = bus.subscribe(keys.retire_key(self.name), self.decoder, fifo=True)
         self.pub_cmd = bus.publisher(keys.robot_command_key(self.name))
         self.pub_verdict = bus.publisher(keys.verdict_key(self.name))
         self.pub_occ = bus.publisher(keys.occupancy_key(self.name), express=False)
@@ -101,33 +146,45 @@ class CellWorker:
         self.pub_status = bus.publisher(keys.status_key(self.name))
         self.pub_scenario = bus.publisher(keys.scenario_key(self.name))
         self.scenario_revision = 0
+        self._last_command: JointState | None = None
 
     @property
     def shield(self) -> Shield:
         return self.cell.shield
 
+    @property
+    def tracks(self) -> dict[str, Track]:
+        return self.presence.tracks
+
+    def _new_track(self, human_id: str) -> Track:
+        p = self.cell.params
+        return unmeasured_track(human_id, len(p.v_max_mps), p.delta_y_m, p.a_max_mps2)
+
     # -- inputs --------------------------------------------------------------------------------
 
     def _drop(self, reason: str) -> None:
-        self.extra_drops[reason] = self.extra_drops.get(reason, 0) + 1
+        self.decoder.count(reason)
 
     def _ingest_skeleton(self, human_id: str, msg: SkeletonMsg) -> None:
-        if msg.kind != "full":
-            self._drop("unsupported_kind")  # the cell verifies full-body skeletons
+        track = self.presence.known(human_id, msg.stamp_s)
+        if track is None:
+            self._drop("too_many_people")
             return
         p = self.cell.params
-        if msg.position_uncertainty_m is not None and msg.position_uncertainty_m > p.delta_y_m:
-            self._drop("uncertainty_above_params")
-            return
-        track = self.tracks.get(human_id)
-        if track is None:
-            track = self.tracks[human_id] = _Track(human_id, self.cell)
         y, v = msg.to_arrays()
+        bound = self.cell.scenario.inputs.cell_bound_m
+        if not (np.abs(y).max() <= bound and (v is None or np.abs(v).max() <= bound)):
+            self._drop("out_of_range")  # NaN and overflow to inf fail the test too
+            track.refused += 1
+            return
         try:
             v_est, dv_est = track.estimator.update(msg.stamp_s, y)
         except SaraError:
             self._drop("stamp_not_advancing")
+            track.refused += 1
             return
+        track.refused = 0
+        track.problem = self._unverifiable(msg)
         st = track.state
         if v is not None:
             unc = msg.velocity_uncertainty_mps
@@ -138,32 +195,85 @@ class CellWorker:
         st.y = y
         st.stamp_s = msg.stamp_s
 
-    def _ingest(self) -> None:
-        for d in self.sub_skel.drain().messages:
+    def _unverifiable(self, msg: SkeletonMsg) -> str | None:
+        """Why this skeleton's person cannot be verified by the cell's sets (a fault), if so."""
+        if msg.kind != "full":
+            return f"source {msg.source!r} does not measure the legs"
+        unc = msg.position_uncertainty_m
+        if unc is not None and unc > self.cell.params.delta_y_m:
+            return (
+                f"position uncertainty {unc} m above the parameter set's "
+                f"{self.cell.params.delta_y_m} m"
+            )
+        return None
+
+    def _ingest(self, now: float) -> None:
+        skel = self.sub_skel.drain_latest()
+        for d in skel.messages:
             if isinstance(d.msg, SkeletonMsg) and d.key.human_id:
                 self._ingest_skeleton(d.key.human_id, d.msg)
-        for d in self.sub_state.drain().messages:
-            if isinstance(d.msg, RobotStateMsg):
-                self.measured = JointState(
-                    q=np.asarray(d.msg.q), v=np.asarray(d.msg.q_dot), a=np.zeros(len(d.msg.q))
-                )
+        for key in skel.refused_keys:
+            hid = _id_in(key, "skeleton")
+            if hid is not None:  # a refused message on a person's key: that person is unseen
+                self.presence.refused(hid, now)
+        frames = self.sub_frames.drain_latest()
+        for d in frames.messages:
+            if isinstance(d.msg, TrackerFrameMsg) and d.key.human_id:
+                reason = self.presence.frame(d.key.human_id, d.msg.stamp_s, d.msg.people)
+                if reason is not None:
+                    self._drop(reason)
+        self._ingest_robot(now)
+        for d in self.sub_retire.drain().messages:
+            if isinstance(d.msg, RetireMsg):
+                found = self.presence.retire(d.msg.human_id)
+                log.warning(
+                    "human %r retired by %r (%s)%s", d.msg.human_id, d.msg.user, d.msg.reason,
+                    "" if found else ": was not known",
+                )  # fmt: skip
+                reason = "" if found else f"human {d.msg.human_id!r} is not known"
+                self._ack(d.msg.request_id, found, reason)
         for d in self.sub_params.drain().messages:
             if isinstance(d.msg, ParamsMsg):
                 ok, reason = self.apply(d.msg.scenario)
                 if ok:  # the new state first: an editor that sees the ack can build on it
                     self.pub_scenario.put(self.scenario_msg(time.time()))
-                self.pub_ack.put(
-                    ParamsAckMsg(
-                        seq=self.pub_ack.next_seq(),
-                        stamp_s=time.time(),
-                        request_id=d.msg.request_id,
-                        accepted=ok,
-                        reason=reason,
-                    )
-                )
+                self._ack(d.msg.request_id, ok, reason)
+
+    def _ingest_robot(self, now: float) -> None:
+        got = self.sub_state.drain_latest()
+        n_dof = self.cell.robot.n_dof
+        for d in got.messages:
+            if not isinstance(d.msg, RobotStateMsg):
+                continue
+            if len(d.msg.q) != n_dof:
+                self._drop("wrong_dof")
+                self.robot_in.problem = f"{len(d.msg.q)} joints received, robot has {n_dof}"
+                continue
+            self.robot_in.state = JointState(
+                q=np.asarray(d.msg.q), v=np.asarray(d.msg.q_dot), a=np.zeros(n_dof)
+            )
+            self.robot_in.stamp_s = d.msg.stamp_s
+            self.robot_in.problem = None
+        if got.refused_keys and not got.messages:
+            self.robot_in.problem = "the last message was refused (see dropped)"
+
+    def _ack(self, request_id: str, ok: bool, reason: str) -> None:
+        self.pub_ack.put(
+            ParamsAckMsg(
+                seq=self.pub_ack.next_seq(),
+                stamp_s=time.time(),
+                request_id=request_id,
+                accepted=ok,
+                reason=reason,
+            )
+        )
 
     def apply(self, data: dict) -> tuple[bool, str]:
-        """Validate a scenario and apply it live; never half-applied. Returns (accepted, why)."""
+        """Validate a scenario and apply it live; never half-applied. Returns (accepted, why).
+
+        Every person stays known with their measurement and faults (``Presence``); their
+        velocity error bounds are re-derived under the new parameters from the next skeleton
+        on (until then the acceleration model is unusable for them: infinite bound)."""
         try:
             sc = parse_scenario(data, "params message")
             check_against_robot(sc)
@@ -185,11 +295,66 @@ class CellWorker:
                 return False, str(e)
         self.cell = new
         self.pass_index = 0
-        self.tracks.clear()  # velocity bounds depend on the parameters
+        inp = sc.inputs
+        self.presence.configure(
+            inp.trackers, inp.tracker_timeout_s, inp.max_people, self._new_track
+        )
+        p = new.params
+        for t in self.presence.tracks.values():
+            t.estimator.retune(p.delta_y_m, p.a_max_mps2)
+            t.state.dv = np.full(len(p.v_max_mps), np.inf)
         self.scenario_revision += 1
         return True, ""
 
     # -- the cycle -----------------------------------------------------------------------------
+
+    def step(self, now: float) -> CycleResult:
+        """One cycle: inputs, the shield, one command and one verdict. Whatever raises on the
+        way makes the cycle a fault on the held failsafe, never an exception out of here."""
+        problems: list[str] = []
+        try:
+            self._ingest(now)
+        except Exception as e:  # noqa: BLE001 - an input failure is a fault, not a crash
+            self.errors("input handling failed", repr(e), e)
+            problems.append(f"input handling failed: {e!r}"[:200])
+        timeout = self.cell.scenario.inputs.robot_state_timeout_s
+        try:
+            faults = self.presence.faults(now) + self.robot_in.faults(now, timeout) + problems
+            res = self.shield.cycle(
+                now,
+                self.presence.humans(),
+                self.robot_in.fresh(now, timeout),
+                input_faults=faults,
+            )
+        except Exception as e:  # noqa: BLE001 - last line of defence: brake, report, go on
+            self.errors("worker cycle failed", repr(e), e)
+            res = self._fault_cycle(now, f"cycle failed: {e!r}"[:200])
+        self.last = res
+        self.cycle_us.append(res.cycle_time_us)
+        try:
+            self._advance_task()
+        except Exception as e:  # noqa: BLE001
+            self.errors("task advance failed", repr(e), e)
+        self._publish(now, res)
+        return res
+
+    def _fault_cycle(self, now: float, why: str) -> CycleResult:
+        """A cycle that failed outside the shield's own fault handling: brake on the held
+        failsafe (if even that fails, hold the last commanded state)."""
+        try:
+            command = self.shield.brake_step()
+        except Exception as e:  # noqa: BLE001
+            self.errors("braking failed", repr(e), e)
+            command = self.shield.robot_state
+        return CycleResult(
+            t_s=now,
+            mode="fault",
+            verified=False,
+            command=command,
+            faults=[why],
+            safety_mode=self.shield.safety_mode,
+            intervened=True,
+        )
 
     def _advance_task(self) -> None:
         f = self.shield.follower
@@ -204,51 +369,92 @@ class CellWorker:
         except SaraError as e:
             log.warning("task replan failed: %s", e)
 
-    def step(self, now: float) -> CycleResult:
-        self._ingest()
-        humans = [t.state for t in self.tracks.values()]
-        res = self.shield.cycle(now, humans, self.measured)
-        self.last = res
-        self.cycle_us.append(res.cycle_time_us)
-        self._advance_task()
-        self._publish(now, res)
-        return res
+    def dropped(self) -> dict[str, int]:
+        return dict(self.decoder.counts)
+
+    def _messages(self, now: float, res: CycleResult) -> tuple[VerdictMsg, RobotCommandMsg]:
+        """The cycle's verdict and command; raises when a value cannot be sent (non-finite)."""
+        c = res.command
+        if not all(np.isfinite(a).all() for a in (c.q, c.v, c.a)):
+            raise InputError(f"the command is not finite: q {c.q.tolist()}")
+        dist = res.min_distance_m
+        verdict = VerdictMsg(
+            seq=0,
+            stamp_s=now,
+            cell=self.name,
+            safety_mode=cast(Any, res.safety_mode),
+            mode=cast(Any, res.mode),
+            results=res.model_free,
+            skeleton_age_s=res.ages_s,
+            min_distance_m=dist if dist is not None and math.isfinite(dist) else None,
+            cycle_time_us=res.cycle_time_us,
+            faults=[f[:300] for f in res.faults[:8]],
+            dropped=self.dropped(),
+            intervened=res.intervened,
+            speed_scale=res.speed_scale if res.safety_mode == "pfl" else None,
+        )
+        command = RobotCommandMsg(
+            seq=0,
+            stamp_s=now,
+            q=c.q.tolist(),
+            q_dot=c.v.tolist(),
+            q_ddot=c.a.tolist(),
+            mode=cast(Any, res.mode),
+        )
+        return verdict, command
+
+    def _fault_messages(self, now: float, res: CycleResult, why: str) -> tuple[Any, Any]:
+        """A fault verdict that names ``why`` and the command of the held failsafe: the
+        cycle's command when it is finite (the shield moved the robot there), else the last
+        one sent, at rest."""
+        c = res.command
+        finite = all(np.isfinite(a).all() for a in (c.q, c.v, c.a))
+        if not finite:
+            c = self._last_command or JointState(
+                np.zeros(self.cell.robot.n_dof), np.zeros(self.cell.robot.n_dof),
+                np.zeros(self.cell.robot.n_dof),
+            )  # fmt: skip
+            c = JointState(c.q, np.zeros_like(c.v), np.zeros_like(c.a))
+        verdict = VerdictMsg(
+            seq=0,
+            stamp_s=now,
+            cell=self.name,
+            safety_mode=cast(Any, res.safety_mode),
+            mode="fault",
+            cycle_time_us=0.0,
+            faults=[why[:300]],
+            dropped=self.dropped(),
+            intervened=True,
+        )
+        command = RobotCommandMsg(
+            seq=0, stamp_s=now, q=c.q.tolist(), q_dot=c.v.tolist(), q_ddot=c.a.tolist(),
+            mode="fault",
+        )  # fmt: skip
+        return verdict, command
 
     def _publish(self, now: float, res: CycleResult) -> None:
-        c = res.command
-        self.pub_cmd.put(
-            RobotCommandMsg(
-                seq=self.pub_cmd.next_seq(),
-                stamp_s=now,
-                q=c.q.tolist(),
-                q_dot=c.v.tolist(),
-                q_ddot=c.a.tolist(),
-                mode=cast(Any, res.mode),
-            )
+        """One verdict, then one command (never an ``intended`` command without its verdict:
+        when the verdict cannot be sent, the command goes out as ``fault``)."""
+        try:
+            verdict, command = self._messages(now, res)
+        except Exception as e:  # noqa: BLE001 - a message that cannot be built: a fault cycle
+            self.errors("building the cycle's messages failed", repr(e), e)
+            verdict, command = self._fault_messages(now, res, f"messages failed: {e!r}"[:200])
+        verdict = verdict.model_copy(update={"seq": self.pub_verdict.next_seq()})
+        sent = self.pub_verdict.put(verdict)
+        update: dict[str, Any] = {"seq": self.pub_cmd.next_seq()}
+        if not sent and command.mode == "intended":
+            update["mode"] = "fault"
+        self.pub_cmd.put(command.model_copy(update=update))
+        self._last_command = JointState(
+            np.asarray(command.q), np.asarray(command.q_dot), np.asarray(command.q_ddot)
         )
-        dropped = dict(self.decoder.counts)
-        for k, v in self.extra_drops.items():
-            dropped[k] = dropped.get(k, 0) + v
-        self.pub_verdict.put(
-            VerdictMsg(
-                seq=self.pub_verdict.next_seq(),
-                stamp_s=now,
-                cell=self.name,
-                safety_mode=cast(Any, res.safety_mode),
-                mode=cast(Any, res.mode),
-                results=res.model_free,
-                skeleton_age_s=res.ages_s,
-                min_distance_m=res.min_distance_m,
-                cycle_time_us=res.cycle_time_us,
-                faults=res.faults[:8],
-                dropped=dropped,
-                intervened=res.intervened,
-                speed_scale=res.speed_scale if res.safety_mode == "pfl" else None,
-            )
-        )
-        if now >= self._next_display:
-            self._next_display = now + self.display_period
-            self.pub_occ.put(self.occupancy_msg(now, res))
+        try:
+            if now >= self._next_display:
+                self._next_display = now + self.display_period
+                self.pub_occ.put(self.occupancy_msg(now, res))
+        except Exception as e:  # noqa: BLE001 - display only: counted, logged, never a fault
+            self.errors("occupancy display failed", repr(e), e)
         if now >= self._next_status:
             self._next_status = now + self.status_period
             self.pub_status.put(self.status_msg(now, "running"))
@@ -260,7 +466,7 @@ class CellWorker:
         humans = []
         reach = self.shield.reach
         horizon = 0.0 if res.trajectory is None else res.trajectory.duration_s
-        for t in self.tracks.values():
+        for t in self.presence.tracks.values():
             st = t.state
             if st.stamp_s is None:
                 continue
@@ -336,7 +542,7 @@ class CellWorker:
             state=state,  # type: ignore[arg-type]
             scenario=self.cell.scenario.name,
             uptime_s=max(now - self.started, 0.0),
-            humans=sorted(self.tracks),
+            humans=sorted(self.presence.tracks),
             cycle_time_p50_us=None if cu is None else float(np.median(cu)),
             cycle_time_p99_us=None if cu is None else float(np.percentile(cu, 99)),
         )
@@ -350,11 +556,7 @@ class CellWorker:
             mono = time.monotonic()
             if t_end is not None and mono >= t_end:
                 break
-            try:
-                self.step(time.time())
-            except Exception:  # noqa: BLE001 - last line of defence: brake, report, go on
-                log.exception("worker cycle failed; braking on the held failsafe")
-                self.shield.brake_step()
+            self.step(time.time())  # never raises (a failed cycle is a fault cycle)
             next_t += self.shield.settings.dt_s
             delay = next_t - time.monotonic()
             # never a busy loop: under SCHED_FIFO an overrunning worker would otherwise keep its
@@ -364,6 +566,15 @@ class CellWorker:
                 self.overruns += 1
                 next_t = time.monotonic()
         self.pub_status.put(self.status_msg(time.time(), "stopping"))
+
+
+def _id_in(key_expr: str, kind: str) -> str | None:
+    """The id in a key of ``kind`` (a refused message's key), or None when it is not one."""
+    try:
+        k = keys.parse_key(key_expr)
+    except SaraError:
+        return None
+    return k.human_id if k.kind == kind else None
 
 
 def main(argv: list[str] | None = None) -> int:

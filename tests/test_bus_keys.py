@@ -13,8 +13,11 @@ from sara_app.errors import InputError, UnknownNameError
 names = st.from_regex(keys.NAME_PATTERN, fullmatch=True)
 
 
+WITH_ID = ("skeleton", "tracker_frame")
+
+
 def _all_keys(cell: str, human: str) -> dict[str, str]:
-    return {k: keys.key(k, cell, human if k == "skeleton" else None) for k in keys.KINDS}
+    return {k: keys.key(k, cell, human if k in WITH_ID else None) for k in keys.KINDS}
 
 
 def test_documented_layout() -> None:
@@ -26,6 +29,8 @@ def test_documented_layout() -> None:
     assert keys.params_key("c1") == "sara/c1/params"
     assert keys.params_ack_key("c1") == "sara/c1/params/ack"
     assert keys.status_key("c1") == "sara/c1/status"
+    assert keys.tracker_frame_key("c1", "cam2") == "sara/c1/tracker/cam2/frame"
+    assert keys.retire_key("c1") == "sara/c1/retire"
 
 
 @given(cell=names, human=names)
@@ -35,11 +40,13 @@ def test_round_trip_and_wildcards(cell: str, human: str) -> None:
     cell_wild = zenoh.KeyExpr(keys.cell_keys(cell))
     for kind, k in built.items():
         parsed = keys.parse_key(k)
-        assert parsed == (cell, kind, human if kind == "skeleton" else None)
+        assert parsed == (cell, kind, human if kind in WITH_ID else None)
         zk = zenoh.KeyExpr(k)  # zenoh accepts every key we build
         assert cell_wild.intersects(zk)
         assert zenoh.KeyExpr(keys.skeleton_keys(cell)).intersects(zk) == (kind == "skeleton")
         assert zenoh.KeyExpr(keys.all_status_keys()).intersects(zk) == (kind == "status")
+        frames = zenoh.KeyExpr(keys.tracker_frame_keys(cell))
+        assert frames.intersects(zk) == (kind == "tracker_frame")
 
 
 @pytest.mark.parametrize(
@@ -57,7 +64,7 @@ def test_bad_names_are_refused(bad: object) -> None:
 def test_key_arguments() -> None:
     with pytest.raises(UnknownNameError, match="valid choices"):
         keys.key("skeletons", "c1", "h1")
-    with pytest.raises(InputError, match="takes no human id"):
+    with pytest.raises(InputError, match="takes no id"):
         keys.key("verdict", "c1", "h1")
     with pytest.raises(InputError):
         keys.key("skeleton", "c1")

@@ -10,9 +10,11 @@
   accepted stamp by ``restart_after_s`` or more (counted in ``restarts``). Skipped seq numbers
   of accepted messages add up in ``missed`` (lost in transport or dropped by a full channel).
 
-Reasons (``REASONS``): too_large, bad_key, malformed_json, non_finite, schema_version,
-missing_field, unknown_field, unknown_source, unknown_joint, missing_joint, unknown_frame,
-inconsistent_length, invalid, key_mismatch, out_of_order, internal.
+Reasons (``REASONS``, the contract's list; a test holds the two equal): too_large, bad_key,
+malformed_json, non_finite, schema_version, missing_field, unknown_field, unknown_source,
+unknown_joint, missing_joint, unknown_frame, inconsistent_length, invalid, key_mismatch,
+out_of_order, internal; and, counted by the worker through ``Decoder.count``: superseded,
+out_of_range, stamp_not_advancing, unknown_tracker, too_many_people, wrong_dof.
 """
 
 from __future__ import annotations
@@ -48,6 +50,13 @@ REASONS: tuple[str, ...] = (
     "key_mismatch",
     "out_of_order",
     "internal",
+    # refused by the worker after decoding (the same counters, see ``Decoder.count``)
+    "superseded",
+    "out_of_range",
+    "stamp_not_advancing",
+    "unknown_tracker",
+    "too_many_people",
+    "wrong_dof",
 )
 # pydantic error type -> reason; custom error types of messages.py pass through when listed.
 _ERROR_REASON = {
@@ -123,8 +132,17 @@ def decode(key_expr: str, payload: bytes) -> Decoded:
 class Decoder:
     """Stateful, never-raising decoder with per-reason counters and per-key seq tracking."""
 
-    def __init__(self, restart_after_s: float = 1.0, logger: logging.Logger = log) -> None:
+    def __init__(
+        self,
+        restart_after_s: float = 1.0,
+        logger: logging.Logger = log,
+        max_future_s: float | None = None,
+    ) -> None:
         self.restart_after_s = float(restart_after_s)
+        self.max_future_s = max_future_s
+        """Stamps later than the reception time by more than this are refused as
+        ``out_of_range`` (before they count for the order: a stamp from the far future would
+        otherwise hold back every later message of its key); None: no such check."""
         self.counts: dict[str, int] = {}
         self.accepted = 0
         self.restarts = 0
@@ -140,6 +158,9 @@ class Decoder:
         """The decoded message, or None (counted, logged) when it is rejected."""
         try:
             d = decode(key_expr, payload)
+            if self.max_future_s is not None and d.msg.stamp_s > d.recv_s + self.max_future_s:
+                ahead = d.msg.stamp_s - d.recv_s
+                raise MessageError("out_of_range", f"stamp_s {ahead:.4g} s in the future")
             self._check_order(str(key_expr), d.msg.seq, d.msg.stamp_s)
         except MessageError as e:
             self._reject(e.reason, str(key_expr), str(e))
@@ -149,6 +170,12 @@ class Decoder:
             return None
         self.accepted += 1
         return d
+
+    def count(self, reason: str, n: int = 1) -> None:
+        """Count ``n`` messages dropped for ``reason`` (one of ``REASONS``) outside ``decode``."""
+        if reason not in _PRIORITY:
+            raise InputError(f"drop reason {reason!r} unknown; valid: {', '.join(REASONS)}")
+        self.counts[reason] = self.counts.get(reason, 0) + n
 
     def reset(self, key_expr: str | None = None) -> None:
         """Forget the last seq of one key (or of all keys)."""

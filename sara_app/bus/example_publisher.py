@@ -3,7 +3,9 @@
     pip install eclipse-zenoh
     python example_publisher.py --connect tcp/127.0.0.1:7447 --cell cell1 --human h1
 
-Replace ``read_tracker`` with your tracker: named joints in metres, world frame (z up).
+Replace ``read_tracker`` with your tracker: named joints in metres, world frame (z up). Every
+frame also goes out as a tracker heartbeat listing the people in view (here: one), on
+``sara/<cell>/tracker/<tracker>/frame``: the robot moves only while it arrives.
 """
 
 import argparse
@@ -34,17 +36,21 @@ def main() -> None:
     ap.add_argument("--connect", default="tcp/127.0.0.1:7447", help="zenoh endpoint of the cell")
     ap.add_argument("--cell", default="cell1")
     ap.add_argument("--human", default="h1")
+    ap.add_argument("--tracker", default="main", help="this tracker's id in the scenario")
     ap.add_argument("--rate", type=float, default=60.0, help="Hz")
     ap.add_argument("--count", type=int, default=0, help="messages to send; 0: until Ctrl-C")
     args = ap.parse_args()
     conf = {"mode": "client", "connect": {"endpoints": [args.connect]}}
     with zenoh.open(zenoh.Config.from_json5(json.dumps(conf))) as session:
         pub = session.declare_publisher(f"sara/{args.cell}/human/{args.human}/skeleton")
+        beat = session.declare_publisher(f"sara/{args.cell}/tracker/{args.tracker}/frame")
         for seq in itertools.islice(itertools.count(), args.count or None):
             t = time.time()  # the measurement time, shared wall clock
             msg = {"schema_version": 1, "seq": seq, "stamp_s": t, "frame": "world",
                    "source": "sara_full", "joints": read_tracker(t)}  # fmt: skip
             pub.put(json.dumps(msg).encode())
+            frame = {"schema_version": 1, "seq": seq, "stamp_s": t, "people": [args.human]}
+            beat.put(json.dumps(frame).encode())
             time.sleep(1.0 / args.rate)
 
 

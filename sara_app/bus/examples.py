@@ -19,13 +19,15 @@ from sara_app.bus.messages import (
     ParamsMsg,
     RobotCommandMsg,
     RobotOccupancyMsg,
+    RetireMsg,
     RobotStateMsg,
     SkeletonMsg,
     StatusMsg,
+    TrackerFrameMsg,
     VerdictMsg,
 )
 
-CELL, HUMAN = "cell1", "h1"
+CELL, HUMAN, TRACKER = "cell1", "h1", "main"
 STAMP_S = 1767225600.125  # 2026-01-01T00:00:00.125Z
 
 # A standing person 1.2 m in front of the robot base, z up (sara_upper source: 9 joints).
@@ -114,5 +116,15 @@ def example_messages() -> dict[str, tuple[str, Message]]:
             cycle_time_p50_us=380.0,
             cycle_time_p99_us=900.0,
         ),
+        "tracker_frame": TrackerFrameMsg(seq=seq, stamp_s=t, people=[HUMAN]),
+        "retire": RetireMsg(
+            seq=seq,
+            stamp_s=t,
+            request_id="retire-3",
+            human_id="h2",
+            user="operator",
+            reason="left through the door; the tracker lost them",
+        ),  # fmt: skip
     }
-    return {k: (keys.key(k, CELL, HUMAN if k == "skeleton" else None), m) for k, m in msgs.items()}
+    ids = {"skeleton": HUMAN, "tracker_frame": TRACKER}
+    return {k: (keys.key(k, CELL, ids.get(k)), m) for k, m in msgs.items()}

@@ -14,10 +14,14 @@ key                                        dir.    payload (``sara_app.bus.messa
 ``sara/<cell>/params/ack``                 out     ``ParamsAckMsg``: the worker accepts or rejects
 ``sara/<cell>/status``                     out     ``StatusMsg``: worker heartbeat, about 1 Hz
 ``sara/<cell>/scenario``                   out     ``ScenarioStateMsg``: the scenario it runs
+``sara/<cell>/tracker/<id>/frame``         in      ``TrackerFrameMsg``: a tracker's heartbeat
+``sara/<cell>/retire``                     in      ``RetireMsg``: an operator retires a person
 =========================================  ======  ================================================
 
 "in"/"out" are seen from the cell worker. ``<cell>`` and ``<id>`` are names of 1-64 characters
 from ``[A-Za-z0-9_-]`` (no ``/``, no zenoh wildcards ``*``/``$``/``**``), see ``NAME_PATTERN``.
+
+Key scheme 2 added the tracker frame and retire keys (scheme 1 had no tracker heartbeat).
 
 API: ``skeleton_key(cell, human_id)``, ``robot_state_key(cell)`` ... ``status_key(cell)``, or
 ``key(kind, cell, human_id=None)``; subscriptions: ``cell_keys(cell)`` (``sara/<cell>/**``),
@@ -33,7 +37,7 @@ from typing import Literal, NamedTuple, get_args
 
 from sara_app.errors import InputError, UnknownNameError
 
-KEY_SCHEME = 1
+KEY_SCHEME = 2
 ROOT = "sara"
 NAME_PATTERN = r"[A-Za-z0-9_-]{1,64}"
 _NAME_RE = re.compile(NAME_PATTERN)
@@ -48,6 +52,8 @@ Kind = Literal[
     "params_ack",
     "status",
     "scenario",
+    "tracker_frame",
+    "retire",
 ]
 KINDS: tuple[str, ...] = get_args(Kind)
 
@@ -62,12 +68,20 @@ _SUFFIX: dict[str, str] = {
     "params_ack": "params/ack",
     "status": "status",
     "scenario": "scenario",
+    "tracker_frame": "tracker/{id}/frame",
+    "retire": "retire",
 }
 _BY_SUFFIX: dict[str, str] = {v: k for k, v in _SUFFIX.items() if "{id}" not in v}
+# kinds whose key holds an id: kind -> (first segment, last segment, what the id names)
+_WITH_ID: dict[str, tuple[str, str, str]] = {
+    "skeleton": ("human", "skeleton", "human id"),
+    "tracker_frame": ("tracker", "frame", "tracker id"),
+}
 
 
 class ParsedKey(NamedTuple):
-    """A parsed key: its cell, its kind (one of ``KINDS``) and the human id (skeletons only)."""
+    """A parsed key: its cell, its kind (one of ``KINDS``) and the id in the key (a human id for
+    skeletons, a tracker id for tracker frames, else None)."""
 
     cell: str
     kind: str
@@ -82,15 +96,16 @@ def check_name(what: str, name: object) -> str:
 
 
 def key(kind: str, cell: str, human_id: str | None = None) -> str:
-    """The key expression of ``kind`` for ``cell`` (``human_id`` required for skeletons only)."""
+    """The key expression of ``kind`` for ``cell``; ``human_id`` is the id the key holds
+    (required for skeletons and tracker frames, refused for the others)."""
     if kind not in _SUFFIX:
         raise UnknownNameError("message kind", kind, KINDS)
     check_name("cell", cell)
     suffix = _SUFFIX[kind]
-    if kind == "skeleton":
-        suffix = suffix.format(id=check_name("human id", human_id))
+    if kind in _WITH_ID:
+        suffix = suffix.format(id=check_name(_WITH_ID[kind][2], human_id))
     elif human_id is not None:
-        raise InputError(f"a {kind} key takes no human id; got {human_id!r}")
+        raise InputError(f"a {kind} key takes no id; got {human_id!r}")
     return f"{ROOT}/{cell}/{suffix}"
 
 
@@ -130,6 +145,19 @@ def scenario_key(cell: str) -> str:
     return key("scenario", cell)
 
 
+def tracker_frame_key(cell: str, tracker_id: str) -> str:
+    return key("tracker_frame", cell, tracker_id)
+
+
+def retire_key(cell: str) -> str:
+    return key("retire", cell)
+
+
+def tracker_frame_keys(cell: str) -> str:
+    """Every tracker's frame key of one cell: ``sara/<cell>/tracker/*/frame``."""
+    return f"{ROOT}/{check_name('cell', cell)}/tracker/*/frame"
+
+
 def cell_keys(cell: str) -> str:
     """Every key of one cell: ``sara/<cell>/**``."""
     return f"{ROOT}/{check_name('cell', cell)}/**"
@@ -152,10 +180,11 @@ def parse_key(key_expr: str) -> ParsedKey:
         raise InputError(f"key {key_expr!r} is not a {ROOT}/<cell>/... key")
     cell = check_name("cell", parts[1])
     rest = parts[2:]
-    if len(rest) == 3 and rest[0] == "human" and rest[2] == "skeleton":
-        return ParsedKey(cell, "skeleton", check_name("human id", rest[1]))
-    kind = _BY_SUFFIX.get("/".join(rest))
-    if kind is None:
+    for kind, (first, last, what) in _WITH_ID.items():
+        if len(rest) == 3 and rest[0] == first and rest[2] == last:
+            return ParsedKey(cell, kind, check_name(what, rest[1]))
+    plain = _BY_SUFFIX.get("/".join(rest))
+    if plain is None:
         valid = ", ".join(_SUFFIX.values())
         raise InputError(f"key {key_expr!r}: unknown suffix {'/'.join(rest)!r}; valid: {valid}")
-    return ParsedKey(cell, kind, None)
+    return ParsedKey(cell, plain, None)

@@ -408,6 +408,39 @@ class ScenarioStateMsg(_Msg):
     scenario: FiniteTree
 
 
+MAX_FRAME_PEOPLE = 256
+"""The most person ids one tracker frame may list (a cell tracks far fewer, see the scenario's
+``inputs.max_people``; a longer list is refused as ``invalid``)."""
+
+
+class TrackerFrameMsg(_Msg):
+    """A tracker's heartbeat (key ``sara/<cell>/tracker/<tracker_id>/frame``): at ``stamp_s``
+    the tracker saw exactly the people ``people`` (possibly none). The robot moves only while
+    every tracker the scenario declares has sent a fresh frame; a person is forgotten only when
+    every declared tracker has sent a frame stamped after the person's last skeleton that does
+    not list them (or an operator retires them)."""
+
+    people: Annotated[list[Name], Field(max_length=MAX_FRAME_PEOPLE)]
+
+    @field_validator("people")
+    @classmethod
+    def _unique(cls, v: list[str]) -> list[str]:
+        if len(set(v)) != len(v):
+            raise _fail("invalid", "people lists an id twice")
+        return v
+
+
+class RetireMsg(_Msg):
+    """An operator's decision that a person has left (key ``sara/<cell>/retire``): the worker
+    forgets ``human_id`` (until a tracker lists it or a skeleton arrives again) and answers on
+    ``params/ack`` with ``request_id``. ``user`` and ``reason`` go to the audit log."""
+
+    request_id: Name
+    human_id: Name
+    user: Annotated[str, Field(min_length=1, max_length=64)]
+    reason: Annotated[str, Field(max_length=500)] = ""
+
+
 Message = (
     SkeletonMsg
     | RobotStateMsg
@@ -418,6 +451,8 @@ Message = (
     | ParamsAckMsg
     | StatusMsg
     | ScenarioStateMsg
+    | TrackerFrameMsg
+    | RetireMsg
 )
 
 MODELS_BY_KIND: dict[str, type[_Msg]] = {
@@ -430,6 +465,8 @@ MODELS_BY_KIND: dict[str, type[_Msg]] = {
     "params_ack": ParamsAckMsg,
     "status": StatusMsg,
     "scenario": ScenarioStateMsg,
+    "tracker_frame": TrackerFrameMsg,
+    "retire": RetireMsg,
 }
 
 

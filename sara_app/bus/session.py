@@ -45,8 +45,11 @@ class BusError(SaraError):
 
 
 class Drained(NamedTuple):
+    """Decoded messages, the number rejected and the keys of the rejected ones (in order)."""
+
     messages: list[Decoded]
     rejected: int
+    refused_keys: list[str] = []
 
 
 def free_port(host: str = LOOPBACK) -> int:
@@ -96,14 +99,12 @@ class Subscription:
         self.decoder = decoder
         self._sub: Any = session.declare_subscriber(key_expr, channel(int(capacity)))
 
-    def drain(self, max_n: int | None = None) -> Drained:
-        """Decode every queued sample (at most ``max_n``) without blocking."""
-        out: list[Decoded] = []
-        before = self.decoder.rejected
+    def _samples(self, max_n: int | None) -> list[tuple[str, Any]]:
+        """Up to ``max_n`` queued samples as ``(key, sample)``, without blocking."""
+        out: list[tuple[str, Any]] = []
         if self._sub is None:
-            return Drained(out, 0)
-        n = 0
-        while max_n is None or n < max_n:
+            return out
+        while max_n is None or len(out) < max_n:
             try:
                 sample = self._sub.try_recv()
             except zenoh.ZError as e:  # closed underneath us: nothing more to read
@@ -111,11 +112,38 @@ class Subscription:
                 break
             if sample is None:
                 break
-            n += 1
-            d = self.decoder.decode(str(sample.key_expr), sample.payload.to_bytes())
-            if d is not None:
+            out.append((str(sample.key_expr), sample))
+        return out
+
+    def _decode(self, samples: list[tuple[str, Any]]) -> Drained:
+        out: list[Decoded] = []
+        refused: list[str] = []
+        before = self.decoder.rejected
+        for key, sample in samples:
+            d = self.decoder.decode(key, sample.payload.to_bytes())
+            if d is None:
+                refused.append(key)
+            else:
                 out.append(d)
-        return Drained(out, self.decoder.rejected - before)
+        return Drained(out, self.decoder.rejected - before, refused)
+
+    def drain(self, max_n: int | None = None) -> Drained:
+        """Decode every queued sample (at most ``max_n``) without blocking."""
+        return self._decode(self._samples(max_n))
+
+    def drain_latest(self) -> Drained:
+        """Decode only the newest queued sample of each key; the older ones are counted as
+        ``superseded`` in the decoder (a newer measurement of the same publisher replaces them:
+        under a flood on one key this keeps the work per drain bounded by the number of keys)."""
+        latest: dict[str, Any] = {}
+        n = 0
+        for key, sample in self._samples(None):
+            latest.pop(key, None)  # re-insert: keys ordered by their newest sample
+            latest[key] = sample
+            n += 1
+        if n > len(latest):
+            self.decoder.count("superseded", n - len(latest))
+        return self._decode(list(latest.items()))
 
     def close(self) -> None:
         if self._sub is not None:

@@ -73,6 +73,12 @@ class VelocityEstimator:
         self.count = 0
         self.dv[:] = np.inf
 
+    def retune(self, delta_y_m: float, a_max_mps2: np.ndarray) -> None:
+        """New error parameters (a scenario edit); the frames kept serve the next update."""
+        self.delta_y_m = delta_y_m
+        self.a_max = np.asarray(a_max_mps2, dtype=float)
+        self.dv[:] = np.inf
+
     def update(self, t_s: float, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Add a frame; returns the velocity ``(J, 3)`` and its error bound ``(J,)`` at ``t_s``.
 

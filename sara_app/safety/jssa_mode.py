@@ -253,11 +253,12 @@ class JssaMode(Shield):
         measured: JointState | None = None,
         *,
         want_distance: bool = True,
+        input_faults: list[str] | None = None,
     ) -> CycleResult:
         """One JSSA cycle at cell time ``t_now``: the robot state advances by ``dt_s``."""
         t0 = time.perf_counter()
         dt = self.settings.dt_s
-        faults: list[str] = []
+        faults: list[str] = list(input_faults or ())  # the cell's inputs (trackers, robot)
         ages: dict[str, float] = {}
         self._check_tracking(measured, faults)
         usable = self._check_humans(t_now, humans, faults, ages)

@@ -262,10 +262,11 @@ class Shield:
         measured: JointState | None = None,
         *,
         want_distance: bool = True,
+        input_faults: list[str] | None = None,
     ) -> CycleResult:
         """One control cycle at cell time ``t_now``; advances the follower by ``dt_s``."""
         t0 = time.perf_counter()
-        faults: list[str] = []
+        faults: list[str] = list(input_faults or ())  # the cell's inputs (trackers, robot)
         ages: dict[str, float] = {}
         self._check_tracking(measured, faults)
         usable = self._check_humans(t_now, humans, faults, ages)

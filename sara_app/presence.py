@@ -1,0 +1,199 @@
+"""Who is in the cell: tracker liveness and one track per person, forgotten on positive evidence
+only (DESIGN 8, "positive evidence only").
+
+A tracker frame (``TrackerFrameMsg``) says which people one tracker sees at its stamp. Rules:
+
+- **Liveness.** The robot may move only while every tracker the scenario declares has sent a
+  frame within ``tracker_timeout_s`` (and none from the future): a silent tracker is a fault.
+  Silence is never an empty cell.
+- **Known people.** A person becomes known by any evidence: a skeleton on their key (accepted
+  or refused), or a frame that lists them. A known person without a usable, fresh skeleton is a
+  fault (the shield's "no measurement" / "old" rules), so a refused message counts as that
+  person unseen.
+- **Forgetting.** A person is forgotten only when every declared tracker has sent a frame,
+  stamped after the person's newest evidence, that does not list them; or when an operator
+  retires them. Never on a scenario edit (the presence object outlives cells), never on a
+  timeout.
+- **Bounded.** At most ``max_people`` tracks; further people are kept as ids only (at most
+  ``MAX_OVERFLOW``) and the cell faults while any is known. Over ``MAX_OVERFLOW`` ids the oldest
+  id is dropped from the list, but the fault stays until the list empties by the rules above.
+
+``Presence`` is plain Python with small per-message work; the worker calls it from its loop.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sara_app.human.velocity import VelocityEstimator
+from sara_app.safety.shield import HumanState
+
+MAX_OVERFLOW = 4096
+"""Ids of people beyond ``max_people`` remembered (each is a fault until forgotten)."""
+
+
+@dataclass
+class Track:
+    """One person: the shield's view (``state``), the velocity estimator and ``evidence_s``,
+    the wall-clock time of the newest evidence of them (skeleton stamp, refusal time or the
+    stamp of a frame that listed them)."""
+
+    state: HumanState
+    estimator: VelocityEstimator
+    evidence_s: float = -math.inf
+    refused: int = 0
+    """Messages refused on this person's key since the last accepted one."""
+    problem: str | None = None
+    """Why this person's sets cannot be verified now (a fault while set)."""
+
+
+@dataclass
+class _Frame:
+    stamp_s: float
+    people: frozenset[str]
+
+
+@dataclass
+class Presence:
+    """People and trackers of one cell. ``new_track(human_id)`` builds an unmeasured track."""
+
+    trackers: tuple[str, ...]
+    tracker_timeout_s: float
+    max_people: int
+    new_track: Callable[[str], Track]
+    future_tolerance_s: float = 0.002
+    tracks: dict[str, Track] = field(default_factory=dict)
+    overflow: dict[str, float] = field(default_factory=dict)
+    frames: dict[str, _Frame] = field(default_factory=dict)
+    counts: dict[str, int] = field(default_factory=dict)
+
+    def configure(
+        self,
+        trackers: Iterable[str],
+        tracker_timeout_s: float,
+        max_people: int,
+        new_track: Callable[[str], Track],
+    ) -> None:
+        """A scenario edit: new trackers, bounds and track factory; every person stays known.
+        Tracks beyond a lower ``max_people`` move to the overflow (a fault until forgotten)."""
+        self.trackers = tuple(trackers)
+        self.tracker_timeout_s = float(tracker_timeout_s)
+        self.max_people = int(max_people)
+        self.new_track = new_track
+        for tid in [t for t in self.frames if t not in self.trackers]:
+            del self.frames[tid]
+        while len(self.tracks) > self.max_people:
+            hid = next(reversed(self.tracks))
+            self._overflow(hid, self.tracks.pop(hid).evidence_s)
+
+    # -- evidence --------------------------------------------------------------------------------
+
+    def _count(self, what: str) -> None:
+        self.counts[what] = self.counts.get(what, 0) + 1
+
+    def _overflow(self, human_id: str, evidence_s: float) -> None:
+        if human_id not in self.overflow and len(self.overflow) >= MAX_OVERFLOW:
+            self.overflow.pop(next(iter(self.overflow)))
+        self.overflow[human_id] = max(self.overflow.get(human_id, -math.inf), evidence_s)
+
+    def known(self, human_id: str, evidence_s: float) -> Track | None:
+        """The track of ``human_id`` (created when new), its evidence time raised to
+        ``evidence_s``; None when the cell is full (the id is kept in the overflow)."""
+        tr = self.tracks.get(human_id)
+        if tr is None:
+            if len(self.tracks) >= self.max_people:
+                self._overflow(human_id, evidence_s)
+                return None
+            tr = self.tracks[human_id] = self.new_track(human_id)
+            self.overflow.pop(human_id, None)
+        tr.evidence_s = max(tr.evidence_s, evidence_s)
+        return tr
+
+    def refused(self, human_id: str, now_s: float) -> None:
+        """A message on ``human_id``'s key was refused: that person is known and unseen."""
+        tr = self.known(human_id, now_s)
+        if tr is not None:
+            tr.refused += 1
+
+    def frame(self, tracker_id: str, stamp_s: float, people: Iterable[str]) -> str | None:
+        """Take a tracker frame; returns a drop reason (``unknown_tracker``) or None."""
+        if tracker_id not in self.trackers:
+            return "unknown_tracker"
+        seen = frozenset(people)
+        old = self.frames.get(tracker_id)
+        if old is not None and stamp_s <= old.stamp_s:
+            return "out_of_order"
+        self.frames[tracker_id] = _Frame(stamp_s, seen)
+        for hid in seen:
+            self.known(hid, stamp_s)
+        self._forget_unlisted()
+        return None
+
+    def _absent(self, human_id: str, evidence_s: float) -> bool:
+        """Every declared tracker's newest frame is later than the evidence and omits them."""
+        for tid in self.trackers:
+            f = self.frames.get(tid)
+            if f is None or not f.stamp_s > evidence_s or human_id in f.people:
+                return False
+        return True
+
+    def _forget_unlisted(self) -> None:
+        for hid in [h for h, t in self.tracks.items() if self._absent(h, t.evidence_s)]:
+            del self.tracks[hid]
+            self._count("forgotten")
+        for hid in [h for h, e in self.overflow.items() if self._absent(h, e)]:
+            del self.overflow[hid]
+
+    def retire(self, human_id: str) -> bool:
+        """An operator's retire action; False when the person was not known."""
+        found = self.tracks.pop(human_id, None) is not None
+        found = self.overflow.pop(human_id, None) is not None or found
+        if found:
+            self._count("retired")
+        return found
+
+    # -- the cycle's view ------------------------------------------------------------------------
+
+    def faults(self, now_s: float) -> list[str]:
+        """Tracker liveness, cell capacity and unverifiable people, as fault strings."""
+        out = []
+        for tid in self.trackers:
+            f = self.frames.get(tid)
+            if f is None:
+                out.append(f"tracker {tid!r}: no frame received")
+                continue
+            age = now_s - f.stamp_s
+            if age > self.tracker_timeout_s:
+                out.append(
+                    f"tracker {tid!r}: last frame {age:.3f} s old > {self.tracker_timeout_s}"
+                )
+            elif age < -self.future_tolerance_s:
+                out.append(f"tracker {tid!r}: frame stamped {-age:.4f} s in the future")
+        if self.overflow:
+            out.append(
+                f"{len(self.tracks) + len(self.overflow)} people known > max_people "
+                f"{self.max_people}"
+            )
+        out += [f"human {h!r}: {t.problem}" for h, t in self.tracks.items() if t.problem]
+        return out
+
+    def humans(self) -> list[HumanState]:
+        return [t.state for t in self.tracks.values()]
+
+    def ages(self, now_s: float) -> dict[str, float]:
+        """Per tracker, the age of its newest frame (s; inf: none yet)."""
+        return {
+            tid: (now_s - f.stamp_s) if (f := self.frames.get(tid)) else math.inf
+            for tid in self.trackers
+        }
+
+
+def unmeasured_track(human_id: str, n_joints: int, delta_y_m: float, a_max: np.ndarray) -> Track:
+    """A known person without a measurement yet (a fault until one arrives)."""
+    return Track(
+        HumanState.unmeasured(human_id, n_joints), VelocityEstimator(n_joints, delta_y_m, a_max)
+    )
