@@ -35,6 +35,10 @@ from sara_app.errors import ParameterError, SaraError
 
 LOOPBACK = "127.0.0.1"
 DEFAULT_PORT = 7447
+ROUTER_MAX_MESSAGE_BYTES = 8 * 1024 * 1024
+"""The router drops any message larger than this (zenoh's ``transport.link.rx.max_message_size``)
+before it is forwarded: twice the decoders' limit, so a too-large-but-plausible message is still
+counted as ``too_large`` by the worker, and a huge put never reaches (or stalls) anyone."""
 _NO_SCOUTING = {"multicast": {"enabled": False}, "gossip": {"enabled": False}}
 
 log = logging.getLogger("sara_app.bus")
@@ -75,8 +79,13 @@ def endpoint(port: int, host: str = LOOPBACK) -> str:
 
 def router_config(port: int = DEFAULT_PORT, host: str = LOOPBACK) -> zenoh.Config:
     """A router session listening on ``tcp/<host>:<port>`` (loopback only), no scouting."""
-    cfg = {"mode": "router", "listen": {"endpoints": [endpoint(port, host)]}}
-    return zenoh.Config.from_json5(json.dumps({**cfg, "scouting": _NO_SCOUTING}))
+    cfg = {
+        "mode": "router",
+        "listen": {"endpoints": [endpoint(port, host)]},
+        "scouting": _NO_SCOUTING,
+        "transport": {"link": {"rx": {"max_message_size": ROUTER_MAX_MESSAGE_BYTES}}},
+    }
+    return zenoh.Config.from_json5(json.dumps(cfg))
 
 
 def client_config(
