@@ -29,6 +29,8 @@ with warnings.catch_warnings():
     warnings.filterwarnings("ignore", message=".*httpx.*deprecated")
     from fastapi.testclient import TestClient
 
+from trackers import Heartbeat
+
 from sara_app.api import CellRegistry, create_app
 from sara_app.bus import keys
 from sara_app.bus.messages import OccupancyMsg, RobotCommandMsg, SkeletonMsg, VerdictMsg
@@ -64,7 +66,9 @@ STANDING = {  # a person standing upright, feet at x = 0
 class Person:
     """Publishes a standing person at ``x_m`` in front of the robot at 60 Hz (own session)."""
 
-    def __init__(self, port: int, x_m: float) -> None:
+    def __init__(self, live: Live, x_m: float) -> None:
+        port = live.port
+        live.heartbeat.people = {"p1"}  # the tracker sees them
         names = skeleton("full").joints
         self.y = np.array([STANDING[n] for n in names], float) + [x_m, 0.0, 0.0]
         self.bus = Bus.client(port)
@@ -85,8 +89,10 @@ class Person:
 
 
 class Live:
-    def __init__(self, port: int, worker: CellWorker, client: TestClient, watch: Bus) -> None:
-        self.port, self.worker, self.client = port, worker, client
+    def __init__(
+        self, port: int, worker: CellWorker, client: TestClient, watch: Bus, hb: Heartbeat
+    ) -> None:
+        self.port, self.worker, self.client, self.heartbeat = port, worker, client, hb
         self.verdicts = watch.subscribe(keys.verdict_key(CELL), fifo=True, capacity=20000)
         self.occ = watch.subscribe(keys.occupancy_key(CELL), fifo=True, capacity=2000)
         self.cmds = watch.subscribe(keys.robot_command_key(CELL), fifo=True, capacity=20000)
@@ -120,14 +126,16 @@ def live(tmp_path: Path) -> Iterator[Live]:
         worker = CellWorker(CELL, load_scenario("empty_cell", folder), wbus, status_hz=10.0)
         thread = threading.Thread(target=worker.run, daemon=True)
         thread.start()
+        hb = Heartbeat(watch, CELL).start()
         client = TestClient(create_app(reg, folder, audit=AuditLog(tmp_path / "audit.sqlite")))
         try:
             deadline = time.monotonic() + 20
             while not client.get(f"/api/cells/{CELL}").is_success:
                 assert time.monotonic() < deadline, "the worker never showed up"
                 time.sleep(0.05)
-            yield Live(port, worker, client, watch)
+            yield Live(port, worker, client, watch, hb)
         finally:
+            hb.stop()
             worker.stop_event.set()
             thread.join(10)
 
@@ -139,7 +147,7 @@ def _scenario_with(live: Live, **changes: Any) -> dict[str, Any]:
 
 
 def test_delay_edit_flips_the_verdict_for_a_fixed_person(live: Live) -> None:
-    person = Person(live.port, 1.4)  # 1.4 m away: free for the sets at a 10 ms delay
+    person = Person(live, 1.4)  # 1.4 m away: free for the sets at a 10 ms delay
     try:
         assert live.failsafe_share(1.5) < 0.1
         named = load_param_set("seed001_table1").model_dump(mode="json")
@@ -212,7 +220,7 @@ def test_pfl_threshold_lowered_below_the_link_energies_makes_the_robot_brake(
     shield = {**live.worker.cell.scenario.shield.model_dump(mode="json"), "mode": "pfl"}
     r = live.client.post(f"/api/cells/{CELL}/scenario", json=_scenario_with(live, shield=shield))
     assert r.status_code == 200, r.text
-    person = Person(live.port, 0.8)
+    person = Person(live, 0.8)
     try:
         v = live.collect(live.verdicts, VerdictMsg, 2.0)
         assert v and {m.safety_mode for m in v} == {"pfl"}
