@@ -11,8 +11,10 @@ A tracker frame (``TrackerFrameMsg``) says which people one tracker sees at its 
   fault (the shield's "no measurement" / "old" rules), so a refused message counts as that
   person unseen.
 - **Forgetting.** A person is forgotten only when every declared tracker has sent a frame,
-  stamped after the person's newest evidence, that does not list them; or when an operator
-  retires them. Never on a scenario edit (the presence object outlives cells), never on a
+  stamped at least ``FORGET_AFTER_S`` after the person's newest evidence, that does not list
+  them; or when an operator retires them. (The margin: while messages keep arriving on a
+  person's key, even refused ones, a tracker's frame that omits them contradicts its own stream
+  and does not forget them.) Never on a scenario edit (the presence object outlives cells), never on a
   timeout.
 - **Bounded.** At most ``max_people`` tracks; further people are kept as ids only (at most
   ``MAX_OVERFLOW``) and the cell faults while any is known. Over ``MAX_OVERFLOW`` ids the oldest
@@ -32,6 +34,8 @@ import numpy as np
 from sara_app.human.velocity import VelocityEstimator
 from sara_app.safety.shield import HumanState
 
+FORGET_AFTER_S = 0.05
+"""How much later than a person's newest evidence a frame that omits them must be stamped."""
 MAX_OVERFLOW = 4096
 """Ids of people beyond ``max_people`` remembered (each is a fault until forgotten)."""
 
@@ -134,10 +138,11 @@ class Presence:
         return None
 
     def _absent(self, human_id: str, evidence_s: float) -> bool:
-        """Every declared tracker's newest frame is later than the evidence and omits them."""
+        """Every declared tracker's newest frame is ``FORGET_AFTER_S`` later than the evidence
+        and omits them."""
         for tid in self.trackers:
             f = self.frames.get(tid)
-            if f is None or not f.stamp_s > evidence_s or human_id in f.people:
+            if f is None or not f.stamp_s >= evidence_s + FORGET_AFTER_S or human_id in f.people:
                 return False
         return True
 

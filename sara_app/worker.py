@@ -43,6 +43,7 @@ from sara_app.bus.process import process_main
 from sara_app.bus.session import Bus
 from sara_app.cell import build_cell
 from sara_app.errors import InputError, SaraError
+from sara_app.human.skeleton import UPPER_JOINTS, full_body
 from sara_app.presence import Presence, Track, unmeasured_track
 from sara_app.robot.trajectory import JointState
 from sara_app.safety.pfl_shield import PflShield
@@ -171,7 +172,7 @@ class CellWorker:
             self._drop("too_many_people")
             return
         p = self.cell.params
-        y, v = msg.to_arrays()
+        y, v = full_body(*msg.to_arrays())
         bound = self.cell.scenario.inputs.cell_bound_m
         if not (np.abs(y).max() <= bound and (v is None or np.abs(v).max() <= bound)):
             self._drop("out_of_range")  # NaN and overflow to inf fail the test too
@@ -192,18 +193,21 @@ class CellWorker:
             st.dv = np.full(len(y), p.delta_v_mps if unc is None else max(unc, p.delta_v_mps))
         else:
             st.v, st.dv = v_est.copy(), dv_est.copy()
+        if msg.kind != "full":
+            st.dv[len(UPPER_JOINTS) :] = np.inf  # the legs' velocities are not measured
         st.y = y
         st.stamp_s = msg.stamp_s
 
     def _unverifiable(self, msg: SkeletonMsg) -> str | None:
         """Why this skeleton's person cannot be verified by the cell's sets (a fault), if so."""
         if msg.kind != "full":
-            return f"source {msg.source!r} does not measure the legs"
+            # legs placed at the pelvis (display, distances); no set covers them yet
+            return f"source {msg.source!r} does not measure the legs: not verifiable, braking"
         unc = msg.position_uncertainty_m
         if unc is not None and unc > self.cell.params.delta_y_m:
             return (
                 f"position uncertainty {unc} m above the parameter set's "
-                f"{self.cell.params.delta_y_m} m"
+                f"{self.cell.params.delta_y_m} m: not verifiable, braking"
             )
         return None
 
@@ -211,7 +215,12 @@ class CellWorker:
         skel = self.sub_skel.drain_latest()
         for d in skel.messages:
             if isinstance(d.msg, SkeletonMsg) and d.key.human_id:
-                self._ingest_skeleton(d.key.human_id, d.msg)
+                try:
+                    self._ingest_skeleton(d.key.human_id, d.msg)
+                except Exception as e:  # noqa: BLE001 - this message only: the person is unseen
+                    self.errors("skeleton ingest failed", repr(e), e)
+                    self._drop("internal")
+                    self.presence.refused(d.key.human_id, now)
         for key in skel.refused_keys:
             hid = _id_in(key, "skeleton")
             if hid is not None:  # a refused message on a person's key: that person is unseen

@@ -202,6 +202,20 @@ SOURCES: dict[str, tuple[str, dict[str, tuple[str, ...]]]] = {
 }
 
 
+def full_body(y_m: np.ndarray, v_mps: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+    """``(J, 3)`` positions and velocities of either kind as the ``full`` skeleton's ``(15, 3)``:
+    an upper-body measurement gets its leg joints at the pelvis, at rest. These placeholders
+    are not measurements: a caller must cover the legs by other means (or not verify)."""
+    if y_m.shape[0] == len(FULL_JOINTS):
+        return y_m, v_mps
+    pelvis = UPPER_JOINTS.index("pelvis")
+    n_legs = len(FULL_JOINTS) - len(UPPER_JOINTS)
+    y = np.concatenate([y_m, np.repeat(y_m[pelvis : pelvis + 1], n_legs, axis=0)])
+    if v_mps is None:
+        return y, None
+    return y, np.concatenate([v_mps, np.zeros((n_legs, 3))])
+
+
 def source_kind(source: str) -> str:
     """The skeleton kind that ``source`` maps to."""
     try:

@@ -1,0 +1,275 @@
+"""The live cell's input boundary, as a hostile client would try it (issue "Fail-safe inputs"):
+a real worker process (``python -m sara_app.worker``) on a zenoh router on 127.0.0.1, and this
+test's own zenoh publishers (and a flooding subprocess). Each case failed before the tracker
+heartbeat, the presence rules and the exception-safe cycle existed."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from collections import Counter
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from trackers import Heartbeat
+
+from sara_app.bus import keys
+from sara_app.bus.examples import example_messages
+from sara_app.bus.messages import (
+    ParamsAckMsg,
+    ParamsMsg,
+    RobotCommandMsg,
+    RobotStateMsg,
+    SkeletonMsg,
+    VerdictMsg,
+)
+from sara_app.bus.session import Bus, free_port
+from sara_app.human.skeleton import skeleton
+from sara_app.scenario import load_scenario
+
+CELL = "hostile"
+NAMES = skeleton("full").joints
+STANDING = np.array(
+    [
+        (0, 0, 1.65), (0, 0, 1.45), (0, 0, 0.95), (0, 0.18, 1.42), (0, -0.18, 1.42),
+        (0, 0.22, 1.15), (0, -0.22, 1.15), (0, 0.24, 0.9), (0, -0.24, 0.9), (0, 0.1, 0.92),
+        (0, -0.1, 0.92), (0, 0.1, 0.5), (0, -0.1, 0.5), (0, 0.1, 0.08), (0, -0.1, 0.08),
+    ]
+)  # fmt: skip
+
+
+class Cell:
+    """A worker process and this test's view of it (verdicts, commands, a publisher session)."""
+
+    def __init__(self, port: int, proc: subprocess.Popen[bytes], bus: Bus, scenario: Path):
+        self.port, self.proc, self.bus, self.scenario = port, proc, bus, scenario
+        self.verdicts = bus.subscribe(keys.verdict_key(CELL), fifo=True, capacity=50000)
+        self.commands = bus.subscribe(keys.robot_command_key(CELL), fifo=True, capacity=50000)
+        self.acks = bus.subscribe(keys.params_ack_key(CELL), fifo=True)
+        self.pubs: dict[str, Any] = {}
+
+    def put_skeleton(self, human: str, y: np.ndarray, stamp_s: float | None = None) -> None:
+        pub = self.pubs.get(human) or self.pubs.setdefault(
+            human, self.bus.publisher(keys.skeleton_key(CELL, human))
+        )
+        stamp = time.time() if stamp_s is None else stamp_s
+        pub.put(SkeletonMsg.from_arrays("full", y, seq=pub.next_seq(), stamp_s=stamp))
+
+    def collect(self, seconds: float, every=None) -> tuple[list[VerdictMsg], list[RobotCommandMsg]]:
+        self.verdicts.drain()
+        self.commands.drain()
+        vs: list[VerdictMsg] = []
+        cs: list[RobotCommandMsg] = []
+        t_end = time.monotonic() + seconds
+        while time.monotonic() < t_end:
+            if every is not None:
+                every()
+            vs += [d.msg for d in self.verdicts.drain().messages if isinstance(d.msg, VerdictMsg)]
+            cs += [d.msg for d in self.commands.drain().messages]
+            time.sleep(1 / 60)
+        return vs, cs
+
+    def request(self, scenario: dict[str, Any], request_id: str) -> ParamsAckMsg:
+        pub = self.bus.publisher(keys.params_key(CELL))
+        pub.put(ParamsMsg(seq=0, stamp_s=time.time(), request_id=request_id, scenario=scenario))
+        t_end = time.monotonic() + 20
+        while time.monotonic() < t_end:
+            for d in self.acks.drain().messages:
+                if isinstance(d.msg, ParamsAckMsg) and d.msg.request_id == request_id:
+                    return d.msg
+            time.sleep(0.02)
+        raise AssertionError("no answer")
+
+
+def _start(tmp_path: Path, **changes: Any) -> Iterator[Cell]:
+    data = load_scenario("standing_beside_path").model_dump(mode="json")
+    for section, values in changes.items():
+        data[section] = {**data[section], **values} if isinstance(values, dict) else values
+    path = tmp_path / "cell.json"
+    path.write_text(json.dumps(data))
+    port = free_port()
+    with Bus.router(port), Bus.client(port) as bus:
+        cmd = [sys.executable, "-m", "sara_app.worker", "--cell", CELL, "--scenario", str(path),
+               "--port", str(port)]  # fmt: skip
+        proc = subprocess.Popen(cmd)
+        cell = Cell(port, proc, bus, path)
+        try:
+            t_end = time.monotonic() + 60
+            while not cell.verdicts.drain().messages:
+                assert proc.poll() is None and time.monotonic() < t_end, "worker did not start"
+                time.sleep(0.05)
+            yield cell
+        finally:
+            proc.terminate()
+            proc.wait(10)
+
+
+@pytest.fixture()
+def cell(tmp_path: Path) -> Iterator[Cell]:
+    yield from _start(tmp_path)
+
+
+def _moving(cs: list[RobotCommandMsg]) -> float:
+    return max((float(np.abs(c.q_dot).max()) for c in cs), default=0.0)
+
+
+def test_a_cell_whose_tracker_never_speaks_stays_at_rest(cell: Cell) -> None:
+    vs, cs = cell.collect(1.5)
+    assert len(vs) > 100 and len(cs) > 100
+    assert {v.mode for v in vs} == {"fault"}
+    assert all(any("no frame" in f for f in v.faults) for v in vs)
+    assert _moving(cs) == 0.0 and not any(c.mode == "intended" for c in cs)
+
+
+def test_the_contract_example_skeletons_are_accounted_for(cell: Cell) -> None:
+    """The contract's own example (source sara_upper, 2 cm uncertainty) 1.2 m from the base,
+    and the same person as sara10 markers: never dropped, the robot falls back."""
+    key, example = example_messages()["skeleton"]
+    upper = json.loads(example.model_dump_json())
+    markers = dict(
+        zip(["H", "N", "TB", "LS", "RS", "LE", "RE", "LW", "RW"], upper["joints"].values())
+    )
+    pub_a = cell.bus.publisher(keys.skeleton_key(CELL, "h1"))
+    pub_b = cell.bus.publisher(keys.skeleton_key(CELL, "h2"))
+
+    def publish() -> None:
+        now = time.time()
+        a = {**upper, "seq": pub_a.next_seq(), "stamp_s": now}
+        pub_a.put(SkeletonMsg.model_validate_json(json.dumps(a)))
+        b = {**upper, "seq": pub_b.next_seq(), "stamp_s": now, "source": "sara10",
+             "joints": markers, "velocities": None}  # fmt: skip
+        pub_b.put(SkeletonMsg.model_validate_json(json.dumps(b)))
+
+    with Heartbeat(cell.bus, CELL) as hb:
+        vs, _ = cell.collect(1.0)  # nobody: the robot works
+        assert Counter(v.mode for v in vs)["intended"] > 0.5 * len(vs)
+        hb.people = {"h1", "h2"}
+        vs, cs = cell.collect(2.0, every=publish)
+    seen = [v for v in vs if {"h1", "h2"} <= set(v.skeleton_age_s)]
+    assert len(seen) > 50, Counter(v.mode for v in vs)
+    assert not any(v.mode == "intended" for v in vs[20:])
+    assert not any(c.mode == "intended" for c in cs[20:])
+    dropped = vs[-1].dropped
+    assert not {"unsupported_kind", "uncertainty_above_params"} & set(dropped)
+
+
+def test_a_no_op_edit_keeps_a_stale_persons_fault(cell: Cell) -> None:
+    with Heartbeat(cell.bus, CELL) as hb:
+        hb.people = {"p1"}
+        y = STANDING + [2.5, 0, 0]
+        cell.collect(0.5, every=lambda: cell.put_skeleton("p1", y))
+        vs, _ = cell.collect(0.6)  # the stream stopped; the tracker still lists them
+        assert vs[-1].mode == "fault" and any("p1" in f and "old" in f for f in vs[-1].faults)
+        ack = cell.request(json.loads(cell.scenario.read_text()), "noop")
+        assert ack.accepted, ack.reason
+        vs, cs = cell.collect(1.0)
+    assert {v.mode for v in vs} == {"fault"}
+    assert all(any("p1" in f for f in v.faults) for v in vs)
+    assert not any(c.mode == "intended" for c in cs)
+
+
+def test_joints_at_1e300_give_fault_verdicts_and_no_intended_command(cell: Cell) -> None:
+    pub = cell.bus.publisher(keys.skeleton_key(CELL, "p1"))
+
+    def publish() -> None:
+        msg = SkeletonMsg.from_arrays("full", np.full((15, 3), 1e300), seq=pub.next_seq(),
+                                      stamp_s=time.time())  # fmt: skip
+        pub.put(msg)
+
+    with Heartbeat(cell.bus, CELL):  # the tracker lists nobody: the messages alone count
+        cell.collect(0.3)
+        vs, cs = cell.collect(1.5, every=publish)
+    assert len(vs) > 200 and abs(len(vs) - len(cs)) < 20  # every cycle: a verdict, a command
+    late = vs[10:]
+    assert {v.mode for v in late} == {"fault"}, Counter(v.mode for v in late)
+    assert vs[-1].dropped.get("out_of_range", 0) > 10
+    assert not any(c.mode == "intended" for c in cs[10:])
+
+
+FLOOD = """
+import json, sys, time, zenoh
+port, cell, n_ids = sys.argv[1], sys.argv[2], int(sys.argv[3])
+rate, seconds = float(sys.argv[4]), float(sys.argv[5])
+joints = json.loads(sys.argv[6])
+conf = {"mode": "client", "connect": {"endpoints": [f"tcp/127.0.0.1:{port}"]}}
+with zenoh.open(zenoh.Config.from_json5(json.dumps(conf))) as s:
+    pubs = [s.declare_publisher(f"sara/{cell}/human/x{i}/skeleton") for i in range(n_ids)]
+    body = json.dumps({"source": "sara_full", "joints": joints})[1:]
+    t0 = time.time(); sent = 0
+    while time.time() - t0 < seconds:
+        now = time.time()
+        due = int((now - t0) * rate) - sent
+        for _ in range(max(due, 0)):
+            msg = '{"schema_version": 1, "seq": %d, "stamp_s": %.6f, ' % (sent, time.time()) + body
+            pubs[sent % n_ids].put(msg.encode()); sent += 1
+        time.sleep(0.0005)
+    print(sent)
+"""
+
+
+def _flood(cell: Cell, n_ids: int, rate: float, seconds: float) -> subprocess.Popen[str]:
+    joints = json.dumps(dict(zip(NAMES, (STANDING + [3.0, 0, 0]).tolist())))
+    args = [str(cell.port), CELL, str(n_ids), str(rate), str(seconds), joints]
+    return subprocess.Popen([sys.executable, "-c", FLOOD, *args], stdout=subprocess.PIPE, text=True)
+
+
+def test_a_flood_on_one_id_leaves_another_persons_stream_intact(cell: Cell) -> None:
+    y = STANDING + [2.5, 0, 0]
+    with Heartbeat(cell.bus, CELL) as hb:
+        hb.people = {"p1", "x0"}
+        cell.collect(0.5, every=lambda: cell.put_skeleton("p1", y))
+        proc = _flood(cell, 1, 10_000.0, 3.0)
+        vs, _ = cell.collect(3.0, every=lambda: cell.put_skeleton("p1", y))
+        sent = int(proc.communicate(timeout=30)[0])
+    assert sent > 20_000  # about 10 000 messages per second
+    rate_hz = len(vs) / 3.0
+    assert rate_hz > 0.9 * 250, rate_hz  # the loop keeps its rate
+    ages = [v.skeleton_age_s.get("p1") for v in vs]
+    assert all(a is not None and a < 0.1 for a in ages), max(a or 1e9 for a in ages)
+    assert vs[-1].dropped.get("superseded", 0) > 10_000
+
+
+def test_a_thousand_ids_fault_the_cell_and_the_loop_keeps_its_rate(cell: Cell) -> None:
+    with Heartbeat(cell.bus, CELL):  # the real tracker sees nobody
+        cell.collect(0.5)
+        proc = _flood(cell, 1000, 5_000.0, 0.2)
+        vs, cs = cell.collect(2.0)
+        proc.communicate(timeout=30)
+        after, after_cmds = cell.collect(1.0)
+    assert len(vs) / 2.0 > 0.9 * 250
+    assert any(any("max_people" in f for f in v.faults) for v in vs)
+    assert vs[-1].dropped.get("too_many_people", 0) > 0
+    # the tracker's later frames do not list them: forgotten on that evidence, work resumes
+    assert Counter(v.mode for v in after)["intended"] > 0.5 * len(after)
+    assert _moving(after_cmds) > 0.1
+
+
+def test_a_stale_or_malformed_robot_state_faults_and_recovers(tmp_path: Path) -> None:
+    """A controller that stops, sends a wrong-length state, then resumes: each a fault that
+    clears with fresh valid states (the robot stands still: one waypoint)."""
+    data = load_scenario("standing_beside_path").model_dump(mode="json")
+    data["task"]["waypoints_rad"] = data["task"]["waypoints_rad"][:1]
+    q = data["task"]["waypoints_rad"][0]
+    for c in _start(tmp_path, task=data["task"]):
+        pub = c.bus.publisher(keys.robot_state_key(CELL))
+
+        def state(n: int = len(q), pub: Any = pub) -> None:
+            pub.put(RobotStateMsg(seq=pub.next_seq(), stamp_s=time.time(), q=q[:n],
+                                  q_dot=[0.0] * n))  # fmt: skip
+
+        with Heartbeat(c.bus, CELL):
+            vs, _ = c.collect(0.5, every=state)
+            assert vs[-1].mode == "rest" and not vs[-1].faults
+            vs, _ = c.collect(0.5)  # the controller went quiet
+            assert vs[-1].mode == "fault" and any("robot state" in f for f in vs[-1].faults)
+            vs, _ = c.collect(0.5, every=state)
+            assert vs[-1].mode == "rest" and not vs[-1].faults  # fresh again: cleared
+            vs, _ = c.collect(0.3, every=lambda: state(3))
+            assert vs[-1].mode == "fault" and vs[-1].dropped.get("wrong_dof", 0) > 0
+            vs, _ = c.collect(0.5, every=state)
+            assert vs[-1].mode == "rest" and not vs[-1].faults
