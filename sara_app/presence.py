@@ -14,8 +14,8 @@ A tracker frame (``TrackerFrameMsg``) says which people one tracker sees at its 
   stamped at least ``FORGET_AFTER_S`` after the person's newest evidence, that does not list
   them; or when an operator retires them. (The margin: while messages keep arriving on a
   person's key, even refused ones, a tracker's frame that omits them contradicts its own stream
-  and does not forget them.) Never on a scenario edit (the presence object outlives cells), never on a
-  timeout.
+  and does not forget them.) Never on a scenario edit (the presence object outlives cells),
+  never on a timeout.
 - **Bounded.** At most ``max_people`` tracks; further people are kept as ids only (at most
   ``MAX_OVERFLOW``) and the cell faults while any is known. Over ``MAX_OVERFLOW`` ids the oldest
   id is dropped from the list, but the fault stays until the list empties by the rules above.

@@ -16,10 +16,10 @@ from typing import Any
 
 import numpy as np
 import pytest
-from trackers import Heartbeat
 
 from sara_app.bus import keys
 from sara_app.bus.examples import example_messages
+from sara_app.bus.heartbeat import Heartbeat
 from sara_app.bus.messages import (
     ParamsAckMsg,
     ParamsMsg,

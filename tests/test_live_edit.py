@@ -29,10 +29,9 @@ with warnings.catch_warnings():
     warnings.filterwarnings("ignore", message=".*httpx.*deprecated")
     from fastapi.testclient import TestClient
 
-from trackers import Heartbeat
-
 from sara_app.api import CellRegistry, create_app
 from sara_app.bus import keys
+from sara_app.bus.heartbeat import Heartbeat
 from sara_app.bus.messages import OccupancyMsg, RobotCommandMsg, SkeletonMsg, VerdictMsg
 from sara_app.bus.session import Bus, Subscription, free_port
 from sara_app.human.params import load_param_set

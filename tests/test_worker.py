@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from trackers import Heartbeat
 
 from sara_app.bus import keys
+from sara_app.bus.heartbeat import Heartbeat
 from sara_app.bus.messages import ParamsAckMsg, ParamsMsg, ScenarioStateMsg, VerdictMsg
 from sara_app.bus.session import Bus, free_port
 from sara_app.scenario import load_scenario

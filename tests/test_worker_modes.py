@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from trackers import frame
 
 from sara_app.bus import keys
 from sara_app.bus.messages import OccupancyMsg, VerdictMsg
@@ -32,7 +31,7 @@ def _with_mode(w: CellWorker, mode: str) -> dict:
 
 def _run(w: CellWorker, t: float, n: int) -> float:
     for _ in range(n):
-        frame(w, t)  # the tracker sees nobody
+        w.presence.frame("main", t, [])  # the tracker sees nobody
         w.step(t)
         t += w.shield.settings.dt_s
     return t

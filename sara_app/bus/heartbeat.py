@@ -1,5 +1,6 @@
-"""A tracker's heartbeat for tests: frames on ``sara/<cell>/tracker/<id>/frame`` from a thread
-of the test process (a real zenoh publisher), listing a set of people the test can change."""
+"""A tracker's heartbeat from a thread: frames on ``sara/<cell>/tracker/<id>/frame`` listing a
+set of people the caller keeps up to date (for a Python tracker, the benchmarks and tests).
+The contract's rule: frames at the tracker's rate, also when nobody is in view."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import time
 from sara_app.bus import keys
 from sara_app.bus.messages import TrackerFrameMsg
 from sara_app.bus.session import Bus
+from sara_app.errors import ParameterError
 
 
 class Heartbeat:
@@ -16,6 +18,8 @@ class Heartbeat:
 
     def __init__(self, bus: Bus, cell: str, tracker: str = "main", rate_hz: float = 100.0) -> None:
         self.pub = bus.publisher(keys.tracker_frame_key(cell, tracker))
+        if not rate_hz > 0:
+            raise ParameterError(f"heartbeat rate {rate_hz!r} Hz; expected > 0")
         self.people: set[str] = set()
         self.period_s = 1.0 / rate_hz
         self.sent = 0
@@ -43,8 +47,3 @@ class Heartbeat:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
-
-
-def frame(worker, t: float, people: tuple[str, ...] = (), tracker: str = "main") -> None:
-    """Hand a frame straight to a worker driven by ``step`` (no bus): its tracker is fresh."""
-    worker.presence.frame(tracker, t, people)
