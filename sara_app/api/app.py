@@ -187,7 +187,9 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
     ) -> dict[str, Any]:
         """Validate a full scenario and have the cell's worker apply it (all or nothing)."""
         check_url_name("cell", cell)
-        return send(cell, validate_scenario(scenario, "request body"), timeout_s)
+        sc = validate_scenario(scenario, "request body")
+        with registry.edit_lock(cell):  # in order with the other edits of this cell
+            return send(cell, sc, timeout_s)
 
     @app.patch("/api/cells/{cell}/scenario", tags=["cells"])
     def update_scenario(
@@ -205,6 +207,12 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
         ``{"shield": {"skeleton_timeout_s": 0.1}}``, ``{"human_params": "cmu_calibrated"}``, or
         ``{"human_params": {"delay_s": 0.05}}`` (the named set's values with that change)."""
         check_url_name("cell", cell)
+        with registry.edit_lock(cell):  # concurrent PATCHes: one after the other, each on the
+            return _patch(cell, changes, base, timeout_s)  # scenario its predecessor applied
+
+    def _patch(
+        cell: str, changes: dict[str, Any], base: str | None, timeout_s: float
+    ) -> dict[str, Any]:
         running = None if base else registry.applied_scenario(cell)
         if running is not None:
             data = running

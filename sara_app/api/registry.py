@@ -116,6 +116,7 @@ class CellRegistry:
         self._announced: dict[str, ScenarioStateMsg] = {}
         self._publishers: dict[str, Publisher] = {}
         self._last_seq = 0
+        self._edit_locks: dict[str, threading.Lock] = {}
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._subs: list[Subscription] = []
@@ -261,6 +262,14 @@ class CellRegistry:
         }
 
     # -- parameter requests ----------------------------------------------------------------
+    def edit_lock(self, cell: str) -> threading.Lock:
+        """The lock that serialises read-modify-write edits of one cell (PATCH, POST, threshold
+        PUT): one edit is built on the scenario its predecessor made the worker run."""
+        with self._lock:
+            if cell not in self._edit_locks and len(self._edit_locks) >= MAX_CELLS:
+                self._edit_locks.pop(next(iter(self._edit_locks)))
+            return self._edit_locks.setdefault(cell, threading.Lock())
+
     def _publisher(self, cell: str) -> Publisher:
         if self.bus is None:
             raise WorkerTimeoutError(f"no bus: cannot reach the worker of cell {cell!r}")
@@ -331,6 +340,13 @@ class CellRegistry:
             st = None if c is None else c.status
             start = None if st is None else st.stamp_s - st.uptime_s
             self._applied[cell] = _Applied(scenario, now_s, start)
+            old = self._announced.get(cell)
+            if old is not None:  # the next edit builds on this one, even before the worker's
+                # announcement of it is drained (an older announcement in flight is ignored)
+                stamp = max(old.stamp_s, time.time())
+                self._announced[cell] = old.model_copy(
+                    update={"scenario": scenario, "stamp_s": stamp}
+                )
             if len(self._applied) > MAX_CELLS:
                 self._applied.pop(next(iter(self._applied)))
 

@@ -72,7 +72,6 @@ class _Editor:
         else:
             self._factory = audit
         self._lock = threading.Lock()
-        self._cell_locks: dict[str, threading.Lock] = {}
 
     def audit(self) -> AuditLog:
         """The audit log (opened on first use when given as a factory)."""
@@ -87,8 +86,7 @@ class _Editor:
             return self._audit
 
     def cell_lock(self, cell: str) -> threading.Lock:
-        with self._lock:
-            return self._cell_locks.setdefault(cell, threading.Lock())
+        return self.registry.edit_lock(cell)  # shared with the scenario routes
 
     def base(self, cell: str, snap: dict[str, Any]) -> tuple[Scenario, str]:
         """The scenario the cell runs and where it came from (``applied`` or ``file``)."""
