@@ -51,8 +51,9 @@ class Track:
     evidence_s: float = -math.inf
     refused: int = 0
     """Messages refused on this person's key since the last accepted one."""
-    problem: str | None = None
-    """Why this person's sets cannot be verified now (a fault while set)."""
+    widen_key: tuple[float | None, bool, float] | None = None
+    widen_m: np.ndarray | None = None
+    """The widening for ``widen_key = (stated uncertainty m, legs measured, extra m)``."""
 
 
 @dataclass
@@ -164,7 +165,7 @@ class Presence:
     # -- the cycle's view ------------------------------------------------------------------------
 
     def faults(self, now_s: float) -> list[str]:
-        """Tracker liveness, cell capacity and unverifiable people, as fault strings."""
+        """Tracker liveness and cell capacity, as fault strings."""
         out = []
         for tid in self.trackers:
             f = self.frames.get(tid)
@@ -183,7 +184,6 @@ class Presence:
                 f"{len(self.tracks) + len(self.overflow)} people known > max_people "
                 f"{self.max_people}"
             )
-        out += [f"human {h!r}: {t.problem}" for h, t in self.tracks.items() if t.problem]
         return out
 
     def humans(self) -> list[HumanState]:

@@ -43,7 +43,9 @@ from sara_app.bus.process import process_main
 from sara_app.bus.session import Bus
 from sara_app.cell import build_cell
 from sara_app.errors import InputError, SaraError
+from sara_app.human.reach import MODELS, part_capsules
 from sara_app.human.skeleton import UPPER_JOINTS, full_body
+from sara_app.human.widening import per_capsule, widening
 from sara_app.presence import Presence, Track, unmeasured_track
 from sara_app.robot.trajectory import JointState
 from sara_app.safety.pfl_shield import PflShield
@@ -178,6 +180,10 @@ class CellWorker:
             self._drop("out_of_range")  # NaN and overflow to inf fail the test too
             track.refused += 1
             return
+        unc = msg.position_uncertainty_m
+        delta_y = p.delta_y_m if unc is None else max(unc, p.delta_y_m)
+        if track.estimator.delta_y_m != delta_y:  # its velocity error bound grows with it
+            track.estimator.retune(delta_y, p.a_max_mps2)
         try:
             v_est, dv_est = track.estimator.update(msg.stamp_s, y)
         except SaraError:
@@ -185,8 +191,8 @@ class CellWorker:
             track.refused += 1
             return
         track.refused = 0
-        track.problem = self._unverifiable(msg)
         st = track.state
+        st.widen_m = self._widening(track, msg.position_uncertainty_m, msg.kind == "full")
         if v is not None:
             unc = msg.velocity_uncertainty_mps
             st.v = v
@@ -198,18 +204,16 @@ class CellWorker:
         st.y = y
         st.stamp_s = msg.stamp_s
 
-    def _unverifiable(self, msg: SkeletonMsg) -> str | None:
-        """Why this skeleton's person cannot be verified by the cell's sets (a fault), if so."""
-        if msg.kind != "full":
-            # legs placed at the pelvis (display, distances); no set covers them yet
-            return f"source {msg.source!r} does not measure the legs: not verifiable, braking"
-        unc = msg.position_uncertainty_m
-        if unc is not None and unc > self.cell.params.delta_y_m:
-            return (
-                f"position uncertainty {unc} m above the parameter set's "
-                f"{self.cell.params.delta_y_m} m: not verifiable, braking"
-            )
-        return None
+    def _widening(self, track: Track, unc_m: float | None, legs: bool) -> np.ndarray | None:
+        """The person's widening for a message's stated uncertainty and whether its source
+        measures the legs (cached on the track: recomputed when they or the parameters
+        change)."""
+        extra = 0.0 if unc_m is None else max(unc_m - self.cell.params.delta_y_m, 0.0)
+        key = (unc_m, legs, extra)
+        if track.widen_key != key:
+            track.widen_key = key
+            track.widen_m = widening(self.shield.reach, extra, legs_measured=legs)
+        return track.widen_m
 
     def _ingest(self, now: float) -> None:
         skel = self.sub_skel.drain_latest()
@@ -310,8 +314,10 @@ class CellWorker:
         )
         p = new.params
         for t in self.presence.tracks.values():
-            t.estimator.retune(p.delta_y_m, p.a_max_mps2)
+            t.estimator.retune(p.delta_y_m, p.a_max_mps2)  # the next skeleton retunes further
             t.state.dv = np.full(len(p.v_max_mps), np.inf)
+            if t.widen_key is not None:  # the same message under the new delta_y
+                t.state.widen_m = self._widening(t, t.widen_key[0], t.widen_key[1])
         self.scenario_revision += 1
         return True, ""
 
@@ -493,8 +499,12 @@ class CellWorker:
                     )
                 except SaraError:
                     continue
-                if np.all(np.isfinite(o.radius)):
-                    models[name] = CapsulesMsg.from_arrays(o.ends[0, 0], o.radius[0, 0])
+                radius = o.radius[0, 0]
+                if st.widen_m is not None:  # as verified: widened per body part
+                    row = st.widen_m[MODELS.index(name)]
+                    radius = radius + per_capsule(row, part_capsules(reach, name), len(radius))
+                if np.all(np.isfinite(radius)):
+                    models[name] = CapsulesMsg.from_arrays(o.ends[0, 0], radius)
             humans.append(
                 HumanOccupancyMsg(
                     id=st.id, kind="full", joints_m=st.y.ravel().tolist(), models=models

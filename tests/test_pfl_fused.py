@@ -21,6 +21,7 @@ from pfl_compare import (  # noqa: E402
 from sara_app import geometry_kernels
 from sara_app.errors import InputError, ParameterError
 from sara_app.human import reach_kernels
+from sara_app.human.widening import widening
 from sara_app.robot import crba_kernel, energy, occupancy_kernels
 from sara_app.safety import contact_kernels, pfl_kernels, pfl_link_states
 from sara_app.safety.contact_kernels import source_digest
@@ -166,3 +167,36 @@ def test_construction_is_validated() -> None:
         FusedChecks(*args, {"vel": np.arange(P - 1)}, shield.boxes)
     ok = FusedChecks(*args, {"pos": np.full(P, n_pos - 1, np.int64)}, shield.boxes)
     assert ok.codes(["pos"]).tolist() == [3]
+
+
+@pytest.mark.parametrize(("extra_m", "legs"), [(0.03, True), (0.0, False), (0.02, False)])
+def test_widened_people_equal_the_python_composition(extra_m: float, legs: bool) -> None:
+    """A person measured less precisely (a stated uncertainty above the parameter set's) or
+    without legs (an upper-body source), walking into reach: the compiled paths widen the sets
+    exactly as the reference does, cycle by cycle; and the wider sets reach the robot sooner
+    (more possible contacts over the episode than for the same person measured plainly)."""
+    a, b, ref = make_cells(("acc", "vel", "pos"))
+    plain = make_cells(("acc", "vel", "pos"))[0]
+    widen = widening(a.reach, extra_m, legs_measured=legs)
+    assert widen is not None
+    t = 0.0
+    for _ in range(30):
+        for s in (a, b, ref, plain):
+            s.cycle(t, [])
+        t += a.settings.dt_s
+    xy, goal = np.array([1.3, -0.5]), np.array([0.5, -0.3])
+    contacts = {"widened": 0, "plain": 0}  # (interval, link, part) triples that may touch
+    for _ in range(200):
+        step = 0.006 * (goal - xy) / max(np.linalg.norm(goal - xy), 1e-9)
+        xy = xy + step
+        v = np.append(step / a.settings.dt_s, 0.0)
+        p = person_at(xy, v, 0.1, t - 0.01)
+        p.widen_m = widen
+        ra, rb, rr = a.cycle(t, [p]), b.cycle(t, [p]), ref.cycle(t, [p])
+        assert_same_cycle(a, ra, ref, rr)
+        assert_same_cycle(b, rb, ref, rr)
+        rp = plain.cycle(t, [person_at(xy, v, 0.1, t - 0.01)])
+        for name, r in (("widened", ra), ("plain", rp)):
+            contacts[name] += 0 if r.pfl is None else int(r.pfl.contact.contact.sum())
+        t += a.settings.dt_s
+    assert contacts["widened"] > contacts["plain"], contacts

@@ -14,6 +14,8 @@
   an existing name is replaced only with ``?overwrite=true``; the stored ``name`` is the URL's).
 - ``GET/PUT /api/cells/{cell}/thresholds``, ``GET /api/cells/{cell}/thresholds/audit``: the
   threshold editor with its audit log (:mod:`sara_app.api.thresholds`).
+- ``POST /api/cells/{cell}/humans/{human_id}/retire``, ``GET /api/cells/{cell}/humans/audit``:
+  an operator retires a person no tracker reports any more, audited (:mod:`sara_app.api.people`).
 - ``GET /api/params``, ``GET /api/params/{name}``: human-model parameter sets;
   ``GET /api/thresholds``, ``GET /api/thresholds/{name}``: contact-energy threshold sets.
 - ``/docs``: OpenAPI; ``/``: the landing page from the repository's ``static/`` folder.
@@ -38,6 +40,7 @@ from fastapi.responses import StreamingResponse
 from fastapi.staticfiles import StaticFiles
 
 import sara_app
+from sara_app.api.people import add_people_routes
 from sara_app.api.registry import CellRegistry, WorkerTimeoutError
 from sara_app.api.thresholds import add_threshold_routes
 from sara_app.errors import SaraError, ScenarioError
@@ -359,6 +362,9 @@ def create_app(
     )
     add_threshold_routes(
         app, registry, folder, audit_log, known_cell_check(registry), check_url_name
+    )
+    add_people_routes(
+        app, registry, app.state.threshold_audit, known_cell_check(registry), check_url_name
     )
     _add_scenario_routes(app, folder)
     _add_param_routes(app)

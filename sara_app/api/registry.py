@@ -45,6 +45,7 @@ from sara_app.bus.codec import Decoded
 from sara_app.bus.messages import (
     ParamsAckMsg,
     ParamsMsg,
+    RetireMsg,
     ScenarioStateMsg,
     StatusMsg,
     VerdictMsg,
@@ -270,13 +271,13 @@ class CellRegistry:
                 self._edit_locks.pop(next(iter(self._edit_locks)))
             return self._edit_locks.setdefault(cell, threading.Lock())
 
-    def _publisher(self, cell: str) -> Publisher:
+    def _publisher(self, cell: str, kind: str = "params") -> Publisher:
         if self.bus is None:
             raise WorkerTimeoutError(f"no bus: cannot reach the worker of cell {cell!r}")
         with self._lock:
-            pub = self._publishers.get(cell)
+            pub = self._publishers.get(f"{kind}/{cell}")
             if pub is None:
-                pub = self._publishers[cell] = self.bus.publisher(keys.params_key(cell))
+                pub = self._publishers[f"{kind}/{cell}"] = self.bus.publisher(keys.key(kind, cell))
             return pub
 
     def _next_seq(self) -> int:
@@ -295,13 +296,40 @@ class CellRegistry:
         keys.check_name("cell", cell)
         request_id = f"api-{uuid.uuid4().hex[:16]}"
         try:
-            msg = ParamsMsg(
+            msg: ParamsMsg | RetireMsg = ParamsMsg(
                 seq=self._next_seq(), stamp_s=time.time(), request_id=request_id, scenario=scenario
             )
         except ValidationError as e:
             raise InputError(f"scenario cannot be sent: {e.errors()[0]['msg']}") from None
+        ans = self._ask(cell, "params", msg, timeout_s)
+        if ans.accepted:
+            self._remember(cell, scenario)
+        return ans
+
+    def request_retire(
+        self, cell: str, human_id: str, user: str, reason: str, timeout_s: float = 3.0
+    ) -> ParamsAnswer:
+        """Ask ``cell``'s worker to forget ``human_id`` (an operator's retire action) and wait
+        for its answer (refused: the person was not known). Errors as ``request_params``."""
+        keys.check_name("cell", cell)
+        try:
+            msg = RetireMsg(
+                seq=self._next_seq(), stamp_s=time.time(),
+                request_id=f"retire-{uuid.uuid4().hex[:16]}", human_id=human_id, user=user,
+                reason=reason,
+            )  # fmt: skip
+        except ValidationError as e:
+            raise InputError(f"retire request invalid: {e.errors()[0]['msg']}") from None
+        return self._ask(cell, "retire", msg, timeout_s)
+
+    def _ask(
+        self, cell: str, kind: str, msg: ParamsMsg | RetireMsg, timeout_s: float
+    ) -> ParamsAnswer:
+        """Publish ``msg`` on ``cell``'s ``kind`` key and wait for the worker's ack of its
+        ``request_id`` on ``params/ack``."""
+        request_id = msg.request_id
         deadline = time.monotonic() + float(timeout_s)
-        pub = self._publisher(cell)
+        pub = self._publisher(cell, kind)
         while not pub.has_subscribers():
             if time.monotonic() >= deadline:
                 raise WorkerTimeoutError(
@@ -328,8 +356,6 @@ class CellRegistry:
                 f"the worker of cell {cell!r} did not answer request {request_id} "
                 f"within {timeout_s:g} s"
             )
-        if ack.accepted:
-            self._remember(cell, scenario)
         return ParamsAnswer(request_id, ack.accepted, ack.reason)
 
     # -- the scenario a cell runs ----------------------------------------------------------

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sara_app.errors import InputError, UnknownNameError
+from sara_app.errors import InputError, ParameterError, UnknownNameError
 from sara_app.human.params import ReachParams
 from sara_app.human.reach_kernels import acc_sets, pos_sets, static_sets
 from sara_app.human.skeleton import skeleton
@@ -345,3 +345,23 @@ class HumanReach:
         if not np.all(np.isfinite(dv)) or np.any(dv < 0):
             raise InputError("velocity error bounds must be finite and >= 0")
         return v, dv
+
+
+def part_capsules(reach: HumanReach, model: str) -> np.ndarray:
+    """``(P,)``: for each body part, the index of a capsule of ``model`` that contains it (both
+    joints grown by the part's half thickness, from ``reach.coverage``). Raises
+    :class:`ParameterError` when a body part has none."""
+    cap, joint, margin = reach.coverage[model]
+    sk, half = reach.skeleton, reach.params.half_thickness_m
+    out = np.empty(sk.n_parts, dtype=int)
+    for p, (a, b) in enumerate(sk.part_joints):
+        ok_a = set(cap[(joint == a) & (margin >= half[p] - 1e-12)].tolist())
+        ok_b = set(cap[(joint == b) & (margin >= half[p] - 1e-12)].tolist())
+        both = sorted(ok_a & ok_b)
+        if not both:
+            raise ParameterError(
+                f"model {model!r} has no capsule containing body part {sk.parts[p]!r}; "
+                "it cannot be used for the PFL check"
+            )
+        out[p] = both[0]
+    return out

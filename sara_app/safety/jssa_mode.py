@@ -63,7 +63,7 @@ from collections.abc import Callable
 import numpy as np
 
 from sara_app.errors import SaraError
-from sara_app.human.reach import HumanReach
+from sara_app.human.reach import MODELS, HumanReach
 from sara_app.robot.model import RobotModel
 from sara_app.robot.trajectory import JointState, PathFollower
 from sara_app.safety.jssa import JssaController, JssaParams, JssaResult, integrate
@@ -227,6 +227,11 @@ class JssaMode(Shield):
         lead = np.array([t_now - float(humans[i].stamp_s or 0.0) for i in usable])
         y = y + v * (np.maximum(lead, 0.0) + self._delay_s)[:, None, None]
         radius = np.tile(self._half_th, len(usable))
+        vel = MODELS.index("vel")
+        for k, i in enumerate(usable):  # a person measured less precisely: wider capsules
+            w = humans[i].widen_m
+            if w is not None:
+                radius[k * len(parts) : (k + 1) * len(parts)] += w[vel]
         return y[:, parts].reshape(-1, 2, 3), radius, v[:, parts].reshape(-1, 2, 3)
 
     def _advance(self, u: np.ndarray, dt: float) -> None:

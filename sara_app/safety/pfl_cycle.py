@@ -28,6 +28,7 @@ from sara_app.robot.trajectory import PathFollower
 from sara_app.safety.pfl import PflResult
 from sara_app.safety.pfl_cycle_kernel import DONE, cycle_kernel, plan_views
 from sara_app.safety.pfl_fused import KINDS, FusedChecks, result_of
+from sara_app.safety.shield import Humans
 
 __all__ = ["CompiledCycle", "CycleOutcome"]
 
@@ -92,7 +93,7 @@ class CompiledCycle:
         traj: ShieldedTrajectory,
         ends: np.ndarray,
         radius: np.ndarray,
-        hum: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+        hum: Humans,
         control: tuple[float, float, float],
         limits: tuple[int, int],
         orders: tuple[list[str], list[str]],

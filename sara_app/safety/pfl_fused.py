@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from sara_app.errors import InputError, ParameterError
-from sara_app.human.reach import HumanReach
+from sara_app.human.reach import MODELS, HumanReach
 from sara_app.safety.contact import ContactResult
 from sara_app.safety.pfl import PflCheck, PflResult
 from sara_app.safety.pfl_fused_kernel import (
@@ -38,6 +38,7 @@ from sara_app.safety.pfl_fused_kernel import (
     fused_kernel,
 )
 from sara_app.safety.pfl_link_states import PathLinkStates
+from sara_app.safety.shield import Humans
 
 __all__ = ["KINDS", "FusedCheck", "FusedChecks", "result_of"]
 
@@ -52,7 +53,7 @@ class FusedChecks:
     the link states of the same robot (their compiled kernel is required: see
     :attr:`PathLinkStates.compiled`); ``reach``: the person's models; ``part_maps``: per model
     name the capsule of each body part (``(P,)``; see
-    :func:`~sara_app.safety.pfl_shield.part_capsules`); ``boxes``: the environment
+    :func:`~sara_app.human.reach.part_capsules`); ``boxes``: the environment
     ``T_world_box (B, 4, 4)``, ``half_extents_m (B, 3)`` (validated by the caller).
     """
 
@@ -89,6 +90,10 @@ class FusedChecks:
                 )
             maps[KINDS[name]] = idx
         self._J, self._P, self._L, self._n = J, P, L, pfl.model.n_dof
+        # the widening's rows (reach.MODELS order) in the kernel's model-kind order
+        self._kind_rows = np.array(
+            [MODELS.index(m) for m in sorted(KINDS, key=KINDS.__getitem__)], dtype=np.int64
+        )
         r, p = reach, reach.params
         self._static = (r.part_joints, np.stack([r.vel_base, r.iso_base]),
                         np.stack([r.vel_speed, r.iso_speed]))  # fmt: skip
@@ -139,41 +144,46 @@ class FusedChecks:
         traj: Any,
         r_ends: np.ndarray,
         r_radius: np.ndarray,
-        hum: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+        hum: Humans,
     ) -> tuple[
         tuple[np.ndarray, ...],
         tuple[np.ndarray, ...],
-        tuple[np.ndarray, np.ndarray, np.ndarray],
+        tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
         float,
     ]:
         """``(robot, trajectory, human, age)`` as the kernel takes them: the shielded trajectory
         ``traj`` with its robot capsules per interval ``r_ends (K, L, 2, 3)``, ``r_radius (K,
-        L)`` and one person ``hum = (y, v (1, J, 3), dv (1, J), age (1,))``, as float64;
+        L)`` and one person ``hum = (y, v (1, J, 3), dv (1, J), age (1,), widen (1, M, P))``
+        (the widening's rows go to the kernel in its model-kind order), as float64;
         raises :class:`InputError` on other shapes."""
         trajectory = self.link_states.inputs(traj)
         K = trajectory[0].shape[0] - 1
         L, J = self._L, self._J
         r_ends = np.asarray(r_ends, dtype=np.float64)
         r_radius = np.asarray(r_radius, dtype=np.float64)
-        y, v, dv, age = (np.asarray(a, dtype=np.float64) for a in hum)
+        y, v, dv, age, widen = (np.asarray(a, dtype=np.float64) for a in hum)
+        P = self._P
         if (
             r_ends.shape != (K, L, 2, 3) or r_radius.shape != (K, L) or y.shape != (1, J, 3)
             or v.shape != (1, J, 3) or dv.shape != (1, J) or age.shape != (1,)
+            or widen.shape != (1, len(MODELS), P)
         ):  # fmt: skip
             raise InputError(
                 f"fused PFL check inputs r_ends {r_ends.shape}, r_radius {r_radius.shape}, y "
-                f"{y.shape}, v {v.shape}, dv {dv.shape}, age {age.shape}; expected ({K}, {L}, 2, "
-                f"3), ({K}, {L}), (1, {J}, 3), (1, {J}, 3), (1, {J}), (1,) for one person"
+                f"{y.shape}, v {v.shape}, dv {dv.shape}, age {age.shape}, widen {widen.shape}; "
+                f"expected ({K}, {L}, 2, 3), ({K}, {L}), (1, {J}, 3), (1, {J}, 3), (1, {J}), "
+                f"(1,), (1, {len(MODELS)}, P) for one person"
             )
         robot = (r_ends, r_radius, *self._boxes, self._s_radius)
-        return robot, trajectory, (y, v, dv), float(age[0])
+        widen_kinds = np.ascontiguousarray(widen[0][self._kind_rows])  # rows in KIND order
+        return robot, trajectory, (y, v, dv, widen_kinds), float(age[0])
 
     def open(
         self,
         traj: Any,
         r_ends: np.ndarray,
         r_radius: np.ndarray,
-        hum: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+        hum: Humans,
     ) -> FusedCheck:
         """A check of the shielded trajectory ``traj`` against one person (inputs as in
         :meth:`validated`)."""
@@ -192,7 +202,7 @@ class FusedCheck:
         owner: FusedChecks,
         trajectory: tuple[np.ndarray, ...],
         robot: tuple[np.ndarray, ...],
-        human: tuple[np.ndarray, np.ndarray, np.ndarray],
+        human: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
         age: float,
     ) -> None:
         self._owner, self._ticket = owner, owner.opened

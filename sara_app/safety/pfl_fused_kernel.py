@@ -86,7 +86,9 @@ LINK_BUFFERS = types.Tuple(
 """Its buffers for ``S`` samples (outputs: ``T`` energies at index 9, ``E_int`` at 12)."""
 RULES = types.Tuple((_ROB2, _ROB2, _RO[1], _RO[2], _RO[2]))
 """``(no_pair (L, L), not_safe_h (P, P), diameters_m (P,), T_clamp, T_free (L, P))``."""
-HUMAN = types.Tuple((_RO[3], _RO[3], _RO[2]))
+HUMAN = types.Tuple((_RO[3], _RO[3], _RO[2], _RO[2]))
+"""One person: ``(y (1, J, 3), v (1, J, 3), dv (1, J), widen (4, P))``, ``widen`` the extra
+radius per model kind (``KIND_*`` rows) and body part (:mod:`sara_app.human.widening`)."""
 """One person: ``y, v (1, J, 3)``, ``dv (1, J)``."""
 STATIC = types.Tuple((_ROI2, _RO[2], _RO[2]))
 """``(part_joints (P, 2), base_m (2, P), speed_mps (2, P))``: rows vel, iso13855."""
@@ -130,7 +132,7 @@ def _human_sets(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The person's capsule per body part for intervals ``lo:hi`` as the shield's
     ``_human_sets``: ``(1|k, P, 2, 3)``, ``(1|k, P)`` views of the gathered buffers."""
-    y, v, dv = human
+    y, v, dv, widen = human
     static, acc, pos, delays, n_limbs, part_maps = models[2:]
     delay_s, delta_y_m = delays
     part_map = part_maps[kind]
@@ -162,7 +164,7 @@ def _human_sets(
                     h_ends[x, p, e, r] = e_src[x, c, e, r]
     for x in range(k):
         for p in range(P):
-            h_radius[x, p] = r_src[x, part_map[p]]
+            h_radius[x, p] = r_src[x, part_map[p]] + widen[kind, p]
     return h_ends[:ke], h_radius[:k]
 
 

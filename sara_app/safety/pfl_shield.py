@@ -69,7 +69,7 @@ from typing import TYPE_CHECKING, Any, cast
 import numpy as np
 
 from sara_app.errors import InputError, ParameterError, SaraError
-from sara_app.human.reach import HumanReach
+from sara_app.human.reach import MODELS, HumanReach, part_capsules
 from sara_app.robot.energy import (
     G_MARGIN,
     LinkSamples,
@@ -82,35 +82,14 @@ from sara_app.safety.pfl_cycle import CompiledCycle
 from sara_app.safety.pfl_fused import KINDS, FusedCheck, FusedChecks
 from sara_app.safety.pfl_link_states import PathLinkStates
 from sara_app.safety.pfl_scaling import PflCycle, SpeedScaling, allowed_speed, candidate
-from sara_app.safety.shield import CycleResult, Shield, ShieldSettings
+from sara_app.safety.shield import CycleResult, Humans, Shield, ShieldSettings
 from sara_app.safety.thresholds import ThresholdSet, load_thresholds
 
 if TYPE_CHECKING:
     from sara_app.scenario import PflSpec
 
-Humans = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 __all__ = ["G_MARGIN", "PflCycle", "PflShield", "SpeedScaling", "part_capsules"]
-
-
-def part_capsules(reach: HumanReach, model: str) -> np.ndarray:
-    """``(P,)``: for each body part, the index of a capsule of ``model`` that contains it (both
-    joints grown by the part's half thickness, from ``reach.coverage``). Raises
-    :class:`ParameterError` when a body part has none."""
-    cap, joint, margin = reach.coverage[model]
-    sk, half = reach.skeleton, reach.params.half_thickness_m
-    out = np.empty(sk.n_parts, dtype=int)
-    for p, (a, b) in enumerate(sk.part_joints):
-        ok_a = set(cap[(joint == a) & (margin >= half[p] - 1e-12)].tolist())
-        ok_b = set(cap[(joint == b) & (margin >= half[p] - 1e-12)].tolist())
-        both = sorted(ok_a & ok_b)
-        if not both:
-            raise ParameterError(
-                f"model {model!r} has no capsule containing body part {sk.parts[p]!r}; "
-                "it cannot be used for the PFL check"
-            )
-        out[p] = both[0]
-    return out
 
 
 class PflShield(Shield):
@@ -198,7 +177,7 @@ class PflShield(Shield):
         J = self.verifier.reach.skeleton.n_joints
         base = np.asarray(self.robot.T_world_base, dtype=float)[:3, 3]
         y = np.broadcast_to(base + [1.0, 0.0, 1.0], (1, J, 3)).copy()
-        hum = (y, np.zeros_like(y), np.zeros((1, J)), np.zeros(1))
+        hum = (y, np.zeros_like(y), np.zeros((1, J)), np.zeros(1), self._no_widening)
         orders = [list(o) for o in self._orders]
         sc = self.scaling
         try:
@@ -486,13 +465,17 @@ class PflShield(Shield):
         """Every person's capsule per body part for intervals ``lo:hi``: ``(k|1, H P, 2, 3)``,
         ``(k|1, H P)`` (a leading 1: the same on every interval); the sets grow from each
         measurement time (age) to the interval ends."""
-        y, v, dv, age = hum
+        y, v, dv, age, widen = hum
         H, P, k = y.shape[0], len(self._part_names), hi - lo
         pm = self._part_maps[model]
+        row = MODELS.index(model)
         if H == 1:  # the common case: no broadcast copies
             occ = self.verifier.occupancy(
                 model, y, v, dv, times[lo:hi] + age[0], times[lo + 1 : hi + 1] + age[0]
             )
+            if widen[0, row].any():  # a widened person: new arrays (their set grows)
+                r = occ.radius[0] if pm is None else occ.radius[0][:, pm]
+                return (occ.ends[0] if pm is None else occ.ends[0][:, pm]), r + widen[0, row]
             if pm is None:  # a capsule per body part: the model's buffers (views), no copy
                 return occ.ends[0], occ.radius[0]
             return occ.ends[0][:, pm], occ.radius[0][:, pm]
@@ -506,7 +489,7 @@ class PflShield(Shield):
             e = np.broadcast_to(occ.ends[0], (k, C, 2, 3))
             r = np.broadcast_to(occ.radius[0], (k, C))
             h_ends[:, h * P : (h + 1) * P] = e if pm is None else e[:, pm]
-            h_radius[:, h * P : (h + 1) * P] = r if pm is None else r[:, pm]
+            h_radius[:, h * P : (h + 1) * P] = (r if pm is None else r[:, pm]) + widen[h, row]
         return h_ends, h_radius
 
     def with_energies(self, result: PflResult, traj: ShieldedTrajectory) -> PflResult:

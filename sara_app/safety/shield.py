@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from sara_app.errors import ParameterError, SaraError
-from sara_app.human.reach import HumanReach
+from sara_app.human.reach import MODELS, HumanReach
 from sara_app.robot.model import RobotModel
 from sara_app.robot.occupancy import RobotOccupancy
 from sara_app.robot.shielded import ShieldedTrajectory, shielded_trajectory
@@ -40,17 +40,24 @@ from sara_app.safety.ssm import SsmResult, SsmVerifier, body_distance
 
 MODES = ("intended", "failsafe", "rest", "fault")
 
+Humans = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+"""The usable people of a cycle: ``y, v (H, J, 3)``, ``dv (H, J)``, ``age (H,)`` and the
+widening ``(H, len(MODELS), P)`` of :mod:`sara_app.human.widening` (zeros: none)."""
+
 
 @dataclass
 class HumanState:
     """One person's latest measurement: joints ``y (J, 3)`` m, velocity ``v (J, 3)`` m/s with
-    error bound ``dv (J,)`` m/s, sensor time stamp ``stamp_s`` (``None``: never measured)."""
+    error bound ``dv (J,)`` m/s, sensor time stamp ``stamp_s`` (``None``: never measured);
+    ``widen_m``: extra set radius per model and body part ``(len(MODELS), P)`` m
+    (:mod:`sara_app.human.widening`; None: none)."""
 
     id: str
     y: np.ndarray
     v: np.ndarray
     dv: np.ndarray
     stamp_s: float | None
+    widen_m: np.ndarray | None = None
 
     @classmethod
     def unmeasured(cls, human_id: str, n_joints: int) -> HumanState:
@@ -135,6 +142,7 @@ class Shield:
         self.tracking_margin_m = self.occupancy.lipschitz @ np.full(robot.n_dof, s.tracking_tol_rad)
         self._half_th = reach.params.half_thickness_m
         self._parts = reach.skeleton.part_joints
+        self._no_widening = np.zeros((1, len(MODELS), reach.skeleton.n_parts))
         self._commanded: tuple[PathFollower, float, np.ndarray] | None = None
         self.cycles = 0
         self.fault_cycles = 0
@@ -319,18 +327,25 @@ class Shield:
 
     def _human_arrays(
         self, humans: list[HumanState], usable: list[int], ages: dict[str, float]
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
-        """Usable humans stacked: ``y, v (H, J, 3)``, ``dv (H, J)``, ``age (H,)``; None if none."""
+    ) -> Humans | None:
+        """Usable humans stacked: ``y, v (H, J, 3)``, ``dv (H, J)``, ``age (H,)``, ``widen
+        (H, len(MODELS), P)``; None if none."""
         if not usable:
             return None
         if len(usable) == 1:  # the common case, without the copies of a stack
             h = humans[usable[0]]
-            return h.y[None], h.v[None], h.dv[None], np.array([max(ages[h.id], 0.0)])
+            w = self._no_widening if h.widen_m is None else h.widen_m[None]
+            return h.y[None], h.v[None], h.dv[None], np.array([max(ages[h.id], 0.0)]), w
         y = np.stack([humans[i].y for i in usable])
         v = np.stack([humans[i].v for i in usable])
         dv = np.stack([humans[i].dv for i in usable])
         age = np.array([max(ages[humans[i].id], 0.0) for i in usable])
-        return y, v, dv, age
+        widen = np.zeros((len(usable),) + self._no_widening.shape[1:])
+        for k, i in enumerate(usable):
+            widen_i = humans[i].widen_m
+            if widen_i is not None:
+                widen[k] = widen_i
+        return y, v, dv, age, widen
 
     def _shielded(self) -> tuple[ShieldedTrajectory, np.ndarray, np.ndarray]:
         """The follower's next shielded trajectory and its robot capsules per interval
@@ -343,14 +358,14 @@ class Shield:
         return traj, ends, radius
 
     def _plan_and_verify(
-        self, hum: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None
+        self, hum: Humans | None
     ) -> tuple[ShieldedTrajectory, np.ndarray, np.ndarray, bool]:
         """Plan and verify one shielded trajectory (SSM); ``self._res`` keeps the details."""
         traj, ends, radius = self._shielded()
         if hum is None:
             return traj, ends, radius, True
-        y, v, dv, age = hum
-        self._res = self.verifier.verify(y, v, dv, age, traj.times, ends, radius)
+        y, v, dv, age, widen = hum
+        self._res = self.verifier.verify(y, v, dv, age, traj.times, ends, radius, widen)
         return traj, ends, radius, self._res.safe
 
     def _annotate(self, out: CycleResult, res: Any) -> None:

@@ -21,7 +21,8 @@ import numpy as np
 
 from sara_app.errors import InputError, UnknownNameError
 from sara_app.geometry_kernels import capsule_sets_check, pair_distances
-from sara_app.human.reach import MODELS, HumanReach, Occupancy
+from sara_app.human.reach import MODELS, HumanReach, Occupancy, part_capsules
+from sara_app.human.widening import per_capsule
 
 
 @dataclass
@@ -81,6 +82,8 @@ class SsmVerifier:
             raise UnknownNameError("reachability model", bad[0], MODELS)
         self.reach = reach
         self.models = tuple(models)
+        self._model_rows = [MODELS.index(m) for m in self.models]  # rows of a widening
+        self._part_maps = [part_capsules(reach, m) for m in self.models]
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -127,10 +130,13 @@ class SsmVerifier:
         times_s: np.ndarray,
         robot_ends: np.ndarray,
         robot_radius: np.ndarray,
+        widen_m: np.ndarray | None = None,
     ) -> SsmResult:
         """``y, v (H, J, 3)``, ``dv (H, J)``, ``age_s (H,)`` (command time minus measurement
-        time), ``times_s (K+1,)`` from now, robot ``(K, L, 2, 3)``, ``(K, L)``; other shapes
-        raise :class:`InputError`."""
+        time), ``times_s (K+1,)`` from now, robot ``(K, L, 2, 3)``, ``(K, L)``; ``widen_m``
+        ``(H, len(MODELS), P)``: extra radius per body part (:mod:`sara_app.human.widening`;
+        a capsule grows by the largest of the parts it contains); other shapes raise
+        :class:`InputError`."""
         y, v, dv, age_s, times_s, robot_ends, robot_radius = (
             np.asarray(a, dtype=np.float64)
             for a in (y, v, dv, age_s, times_s, robot_ends, robot_radius)
@@ -163,6 +169,8 @@ class SsmVerifier:
                 todo = evaluated[h, m]
                 np.logical_not(cleared, out=todo)
                 occ = self.occupancy(name, yh, vh, dvh, tau[:-1], tau[1:])
+                if widen_m is not None and widen_m[h, self._model_rows[m]].any():
+                    occ = self._widened(occ, m, widen_m[h, self._model_rows[m]])
                 closest[h, m] = self._collides(occ, robot_ends, robot_radius, todo, hit)
                 np.greater(todo, hit, out=free[h, m])  # evaluated and no hit
                 np.logical_or(cleared, free[h, m], out=cleared)
@@ -170,6 +178,12 @@ class SsmVerifier:
                     break
             safe = safe and bool(cleared.all())
         return SsmResult(safe, free, evaluated, closest)
+
+    def _widened(self, occ: Occupancy, m: int, widen_p: np.ndarray) -> Occupancy:
+        """``occ`` with each capsule grown by the largest widening of the body parts mapped to
+        it (a new radius array: only for people whose sets are widened)."""
+        extra = per_capsule(widen_p, self._part_maps[m], occ.radius.shape[-1])
+        return Occupancy(occ.model, occ.ends, occ.radius + extra, occ.names)
 
     @staticmethod
     def _collides(

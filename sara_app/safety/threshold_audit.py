@@ -11,8 +11,12 @@ request exceeded the source value, whether it was confirmed, who asked (free tex
 (``via``: api, dashboard) and the outcome: ``applied``, ``refused`` (with the reason) or
 ``no_answer`` (the worker did not answer in time: it may or may not have applied the change).
 
-Schema version ``PRAGMA user_version`` (:data:`SCHEMA_VERSION`); a newer file is refused rather
-than misread. Concurrent writers (the API's threads, the dashboard, other processes): WAL
+The same file holds the operators' actions on people (``person_actions``, schema version 2):
+the time, the cell, the person, the action (``retire``), who, why and the outcome.
+
+Schema version ``PRAGMA user_version`` (:data:`SCHEMA_VERSION`; a version 1 file gains the
+person table when opened); a newer file is refused rather than misread. Concurrent writers
+(the API's threads, the dashboard, other processes): WAL
 journal, a busy timeout and one short transaction per row, on a connection per call.
 """
 
@@ -34,7 +38,7 @@ from sara_app.errors import ParameterError, SaraError
 if TYPE_CHECKING:
     from sara_app.safety.threshold_edit import EditPlan
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 ENV_VAR = "SARA_APP_DATA"
 OUTCOMES = ("applied", "refused", "no_answer")
 MAX_TEXT = 2000  # reasons longer than this are cut
@@ -64,6 +68,21 @@ _SCHEMA = (
     reason TEXT NOT NULL
 )""",
     "CREATE INDEX IF NOT EXISTS threshold_changes_cell ON threshold_changes (cell, id)",
+    """CREATE TABLE IF NOT EXISTS person_actions (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    time_utc TEXT NOT NULL,
+    time_epoch_s REAL NOT NULL,
+    cell TEXT NOT NULL,
+    human_id TEXT NOT NULL,
+    action TEXT NOT NULL CHECK (action IN ('retire')),
+    user TEXT NOT NULL,
+    reason TEXT NOT NULL,
+    outcome TEXT NOT NULL CHECK (outcome IN ('applied', 'refused', 'no_answer')),
+    detail TEXT NOT NULL
+)""",
+)
+_PERSON_COLUMNS = (
+    "id, time_utc, time_epoch_s, cell, human_id, action, user, reason, outcome, detail"
 )
 _COLUMNS = (
     "id, time_utc, time_epoch_s, cell, scenario, region, contact, shape, old_energy_J, "
@@ -275,6 +294,45 @@ class AuditLog:
         )
 
     # -- reading -------------------------------------------------------------------------------
+    def record_person_action(
+        self,
+        *,
+        cell: str,
+        human_id: str,
+        user: object,
+        reason: str,
+        outcome: str,
+        detail: str = "",
+        action: str = "retire",
+    ) -> dict[str, Any]:
+        """Append one operator action on a person (one short transaction); the stored row."""
+        if outcome not in OUTCOMES:
+            raise ParameterError(f"audit outcome {outcome!r}; valid: {', '.join(OUTCOMES)}")
+        now = float(self.clock())
+        stamp = datetime.fromtimestamp(now, UTC).isoformat(timespec="microseconds")
+        row = (stamp, now, str(cell)[:64], str(human_id)[:64], action, _clean_user(user),
+               str(reason)[:MAX_TEXT], outcome, str(detail)[:MAX_TEXT])  # fmt: skip
+        names = _PERSON_COLUMNS.split(", ", 1)[1]
+        with self._connect() as con:
+            cur = con.execute(
+                f"INSERT INTO person_actions ({names}) VALUES ({', '.join('?' * len(row))})", row
+            )
+            got = con.execute(
+                f"SELECT {_PERSON_COLUMNS} FROM person_actions WHERE id = ?", (cur.lastrowid,)
+            ).fetchone()
+        return dict(zip(_PERSON_COLUMNS.split(", "), got, strict=True))
+
+    def person_actions(self, cell: str, limit: int = 50) -> list[dict[str, Any]]:
+        """``cell``'s operator actions on people, newest first (at most ``limit``)."""
+        if isinstance(limit, bool) or not isinstance(limit, int) or not 1 <= limit <= MAX_LIMIT:
+            raise ParameterError(f"audit limit {limit!r}; expected an integer in 1..{MAX_LIMIT}")
+        sql = (
+            f"SELECT {_PERSON_COLUMNS} FROM person_actions WHERE cell = ? ORDER BY id DESC LIMIT ?"
+        )
+        with self._connect() as con:
+            rows = con.execute(sql, (cell, limit)).fetchall()
+        return [dict(zip(_PERSON_COLUMNS.split(", "), r, strict=True)) for r in rows]
+
     def entries(self, cell: str | None = None, limit: int = 50) -> list[AuditEntry]:
         """Newest first; only ``cell``'s rows when given; at most ``limit`` (1..10000)."""
         if isinstance(limit, bool) or not isinstance(limit, int) or not 1 <= limit <= MAX_LIMIT:

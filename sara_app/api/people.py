@@ -1,0 +1,63 @@
+"""REST routes of the operator's actions on people: retire a person the trackers no longer
+report (the contract's ``sara/<cell>/retire``), every request recorded in the audit log.
+
+- ``POST /api/cells/{cell}/humans/{human_id}/retire`` (:class:`RetireBody`): the worker forgets
+  the person (until a tracker lists them or a skeleton arrives again); 200 applied, 409 the
+  person was not known, 504 no answer (the worker may or may not have applied it), each audited.
+- ``GET /api/cells/{cell}/humans/audit``: the cell's recorded actions, newest first.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Annotated, Any
+
+from fastapi import FastAPI, HTTPException, Query
+from pydantic import BaseModel, ConfigDict, Field
+
+from sara_app.api.registry import CellRegistry, WorkerTimeoutError
+from sara_app.safety.threshold_audit import AuditLog
+
+
+class RetireBody(BaseModel):
+    """Who retires the person, and why (both recorded)."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+    user: Annotated[str, Field(min_length=1, max_length=64)]
+    reason: Annotated[str, Field(min_length=1, max_length=500)]
+
+
+def add_people_routes(
+    app: FastAPI,
+    registry: CellRegistry,
+    audit: Callable[[], AuditLog],
+    known_cell: Callable[[str], dict[str, Any]],
+    check_name: Callable[[str, str], str],
+) -> None:
+    """Add the retire route and its audit listing (``audit()`` gives the open log)."""
+
+    @app.post("/api/cells/{cell}/humans/{human_id}/retire", tags=["people"])
+    def retire(cell: str, human_id: str, body: RetireBody) -> dict[str, Any]:
+        """Forget a person whom no tracker reports any more (the robot otherwise keeps
+        braking for them); audited whatever the outcome."""
+        known_cell(cell)
+        check_name("human", human_id)
+        log = audit()
+        row = {"cell": cell, "human_id": human_id, "user": body.user, "reason": body.reason}
+        try:
+            ans = registry.request_retire(cell, human_id, body.user, body.reason)
+        except WorkerTimeoutError as e:
+            log.record_person_action(**row, outcome="no_answer", detail=str(e))
+            raise HTTPException(504, str(e)) from None
+        if not ans.accepted:
+            log.record_person_action(**row, outcome="refused", detail=ans.reason)
+            raise HTTPException(409, f"the worker of cell {cell!r} refused: {ans.reason}")
+        entry = log.record_person_action(**row, outcome="applied")
+        return {"cell": cell, "human_id": human_id, "retired": True, "audit": entry}
+
+    @app.get("/api/cells/{cell}/humans/audit", tags=["people"])
+    def people_audit(cell: str, limit: int = Query(50, ge=1, le=10_000)) -> list[dict[str, Any]]:
+        """The cell's operator actions on people, newest first."""
+        check_name("cell", cell)
+        return audit().person_actions(cell, limit)

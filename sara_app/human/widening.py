@@ -1,0 +1,79 @@
+"""Wider sets for one person whose skeleton says less than the parameter set assumes: a stated
+position uncertainty above the set's ``delta_y``, or an upper-body source that does not measure
+the legs (DESIGN 8, "use it or brake": a contract-valid message is used, never dropped).
+
+Every model's set is a union of balls around functions of the measured joints (seed 001
+Sec. II-B; seed 000 Sec. III). If joint ``j`` lies within ``delta_y + e_j`` of its measurement
+instead of ``delta_y``, a capsule that must contain joints ``{j}`` stays sound when its radius
+grows by ``max_j e_j`` (for R_VEL, R_ACC, ISO 13855 and the head / torso capsules of R_POS,
+which are Minkowski sums with B(delta_y)). Exceptions, per model:
+
+- R_POS limbs (ball at the root, radius with the *measured* segment lengths): each of the ``n``
+  segment lengths is off by ``2 e`` and the root by ``e``: ``(1 + 2 n) e``. An unmeasured leg
+  (all its joints placed at the pelvis) is a ball at the pelvis grown by
+  ``UNMEASURED_LEG_REACH_M`` (every leg point lies that close to the pelvis, and the leg's root
+  then moves at most at the hip's v_max).
+- Pereira's arm model maps measured joints to joint angles: a larger position error changes the
+  angles in ways its bounds do not cover, so its two arm capsules become infinite (never free:
+  the other models decide) when ``e > 0``; its other capsules are ISO 13855 ones.
+- R_ACC needs the unmeasured legs' velocities: their bound is infinite (set by the caller), so
+  its leg capsules are infinite too.
+
+``UNMEASURED_LEG_REACH_M``: the farthest a hip, knee or ankle joint can be from the pelvis joint
+(the midpoint of the hips, or SaRA's torso-base marker): a tall adult's thigh (about 0.5 m) and
+shank (about 0.5 m) plus the pelvis-to-hip offset (about 0.1-0.15 m) make about 1.15 m; 1.2 m
+is the named conservative round-up. The foot's own size is its body part's thickness, as for a
+measured foot.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sara_app.human.reach import MODELS, HumanReach, part_capsules
+from sara_app.human.skeleton import UPPER_JOINTS
+
+UNMEASURED_LEG_REACH_M = 1.2
+
+
+def widening(reach: HumanReach, extra_m: float, legs_measured: bool) -> np.ndarray | None:
+    """Extra radius per model and body part ``(len(MODELS), P)`` (rows in ``MODELS`` order;
+    a part's value is that of the model's capsule containing it), or None when nothing is
+    widened. ``extra_m``: the stated position uncertainty minus the parameter set's (>= 0)."""
+    extra_m = max(float(extra_m), 0.0)
+    if extra_m == 0.0 and legs_measured:
+        return None
+    caps = capsule_widening(reach, extra_m, legs_measured)
+    return np.stack([caps[m][part_capsules(reach, m)] for m in MODELS])
+
+
+def capsule_widening(
+    reach: HumanReach, extra_m: float, legs_measured: bool
+) -> dict[str, np.ndarray]:
+    """Extra radius per capsule of every model: ``{model: (C,)}`` (see the module notes)."""
+    sk = reach.skeleton
+    unmeasured = np.array([not legs_measured and j not in UPPER_JOINTS for j in sk.joints])
+    e = np.where(unmeasured, extra_m + UNMEASURED_LEG_REACH_M, extra_m)  # (J,)
+    out = {}
+    for m in MODELS:
+        cap, joint, _ = reach.coverage[m]
+        ext = np.zeros(int(cap.max()) + 1)
+        np.maximum.at(ext, cap, e[joint])
+        if m == "pos":
+            for i, chain in enumerate(sk.limb_chains):
+                leg = bool(unmeasured[list(chain)].any())
+                ext[i] = (1 + 2 * (len(chain) - 1)) * extra_m + UNMEASURED_LEG_REACH_M * leg
+        elif m == "arm" and extra_m > 0.0:
+            ext[:2] = np.inf
+        out[m] = ext
+    return out
+
+
+def per_capsule(widen_p: np.ndarray, part_map: np.ndarray, n_capsules: int) -> np.ndarray:
+    """``(C,)`` a model's widening per capsule from its per-part row ``widen_p (P,)`` and the
+    part -> capsule map (:func:`~sara_app.human.reach.part_capsules`): a capsule grows by the
+    largest widening of the parts it stands for. A capsule that stands for no part keeps its
+    radius: soundness needs each part inside its own (widened) capsule only."""
+    extra = np.zeros(n_capsules)
+    np.maximum.at(extra, part_map, widen_p)
+    return extra

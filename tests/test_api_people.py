@@ -1,0 +1,66 @@
+"""The retire route on a real worker (in a thread) over real zenoh: a person known only from a
+refused message is forgotten on an operator's request, every request is in the audit log, and
+a person the worker does not know is refused (and audited)."""
+
+from __future__ import annotations
+
+import shutil
+import threading
+import time
+import warnings
+from pathlib import Path
+
+with warnings.catch_warnings():
+    warnings.filterwarnings("ignore", message=".*httpx.*deprecated")
+    from fastapi.testclient import TestClient
+
+from sara_app.api import CellRegistry, create_app
+from sara_app.bus import keys
+from sara_app.bus.session import Bus, free_port
+from sara_app.safety.threshold_audit import AuditLog
+from sara_app.scenario import load_scenario, scenarios_dir
+from sara_app.worker import CellWorker
+
+CELL = "retire1"
+
+
+def _until(pred, seconds: float = 10.0) -> None:
+    t_end = time.monotonic() + seconds
+    while not pred():
+        assert time.monotonic() < t_end, "timed out"
+        time.sleep(0.02)
+
+
+def test_retire_forgets_a_ghost_and_every_request_is_audited(tmp_path: Path) -> None:
+    folder = tmp_path / "scenarios"
+    shutil.copytree(scenarios_dir(), folder)
+    port = free_port()
+    with Bus.router(port), CellRegistry.connect(port) as reg, Bus.client(port) as wbus, \
+            Bus.client(port) as other:  # fmt: skip
+        worker = CellWorker(CELL, load_scenario("empty_cell", folder), wbus, status_hz=10.0)
+        thread = threading.Thread(target=worker.run, daemon=True)
+        thread.start()
+        audit = AuditLog(tmp_path / "audit.sqlite")
+        client = TestClient(create_app(reg, folder, audit=audit))
+        try:
+            _until(lambda: client.get(f"/api/cells/{CELL}").is_success, 20.0)
+            # garbage on a person's key: the person is known (unseen) from then on
+            other.session.put(keys.skeleton_key(CELL, "ghost"), b"{broken")
+            _until(lambda: "ghost" in worker.presence.tracks)
+            body = {"user": "anna", "reason": "tracker replaced; nobody there"}
+            r = client.post(f"/api/cells/{CELL}/humans/ghost/retire", json=body)
+            assert r.status_code == 200, r.text
+            assert "ghost" not in worker.presence.tracks
+            r = client.post(f"/api/cells/{CELL}/humans/ghost/retire", json=body)
+            assert r.status_code == 409 and "not known" in r.text
+            bad = client.post(f"/api/cells/{CELL}/humans/ghost/retire", json={"user": "x"})
+            assert bad.status_code == 422
+            rows = client.get(f"/api/cells/{CELL}/humans/audit").json()
+            assert [(x["human_id"], x["outcome"], x["user"]) for x in rows] == [
+                ("ghost", "refused", "anna"),
+                ("ghost", "applied", "anna"),
+            ]
+            assert rows[1]["reason"] == body["reason"]
+        finally:
+            worker.stop_event.set()
+            thread.join(5)
