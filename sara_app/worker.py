@@ -41,18 +41,20 @@ from sara_app.bus.messages import (
 )
 from sara_app.bus.process import process_main
 from sara_app.bus.session import Bus
-from sara_app.cell import build_cell
+from sara_app.cell import Cell, build_cell
 from sara_app.errors import InputError, SaraError
 from sara_app.human.reach import MODELS, part_capsules
 from sara_app.human.skeleton import UPPER_JOINTS, full_body
 from sara_app.human.widening import per_capsule, widening
 from sara_app.presence import Presence, Track, unmeasured_track
 from sara_app.robot.trajectory import JointState
+from sara_app.safety.jssa_mode import JssaMode
 from sara_app.safety.pfl_shield import PflShield
 from sara_app.safety.shield import CycleResult, Shield
 from sara_app.safety.thresholds import link_shapes
-from sara_app.scenario import Scenario, check_against_robot, parse_scenario
+from sara_app.scenario import Scenario
 from sara_app.worker_display import jssa_state, part_labels, pfl_contacts, pfl_links
+from sara_app.worker_edits import MAX_PENDING_EDITS, Built, CellBuilder, build
 
 log = logging.getLogger("sara_app.worker")
 _MIN_SLEEP_S = 20e-6  # the least the loop sleeps per cycle, even when late (s)
@@ -150,6 +152,8 @@ class CellWorker:
         self.pub_scenario = bus.publisher(keys.scenario_key(self.name))
         self.scenario_revision = 0
         self._last_command: JointState | None = None
+        self.builder = CellBuilder()
+        self._waiting: list[Built] = []  # finished builds, in order, to swap in
 
     @property
     def shield(self) -> Shield:
@@ -246,11 +250,33 @@ class CellWorker:
                 reason = "" if found else f"human {d.msg.human_id!r} is not known"
                 self._ack(d.msg.request_id, found, reason)
         for d in self.sub_params.drain().messages:
-            if isinstance(d.msg, ParamsMsg):
-                ok, reason = self.apply(d.msg.scenario)
-                if ok:  # the new state first: an editor that sees the ack can build on it
-                    self.pub_scenario.put(self.scenario_msg(time.time()))
-                self._ack(d.msg.request_id, ok, reason)
+            if isinstance(d.msg, ParamsMsg) and not self.builder.submit(
+                d.msg.request_id, d.msg.scenario
+            ):
+                self._ack(d.msg.request_id, False, f"busy: {MAX_PENDING_EDITS} edits pending")
+        for b in self.builder.done():  # built off the loop: swapped in here
+            self._waiting.append(b)
+        while self._waiting and self._take(self._waiting[0]):
+            self._waiting.pop(0)
+
+    def _take(self, b: Built) -> bool:
+        """Swap a finished build in and answer it; False while it must wait for the robot to
+        come to rest (leaving JSSA, which holds no verified failsafe: it is halted meanwhile)."""
+        if b.cell is not None and self._needs_rest(b.cell) and not self.shield.at_rest:
+            if isinstance(self.shield, JssaMode):
+                self.shield.halt_reason = f"stopping for the switch to {b.cell.shield.safety_mode}"
+                return False
+        ok, reason = (False, b.error) if b.cell is None else self._swap(b.cell)
+        if isinstance(self.shield, JssaMode):
+            self.shield.halt_reason = None  # refused or done: JSSA runs on
+        if ok:  # the new state first: an editor that sees the ack can build on it
+            self.pub_scenario.put(self.scenario_msg(time.time()))
+        self._ack(b.request_id, ok, reason)
+        return True
+
+    def _needs_rest(self, new: Cell) -> bool:
+        """Whether running ``new`` needs the robot at rest first (from JSSA to another mode)."""
+        return self.shield.safety_mode == "jssa" and new.shield.safety_mode != "jssa"
 
     def _ingest_robot(self, now: float) -> None:
         got = self.sub_state.drain_latest()
@@ -282,17 +308,19 @@ class CellWorker:
         )
 
     def apply(self, data: dict) -> tuple[bool, str]:
-        """Validate a scenario and apply it live; never half-applied. Returns (accepted, why).
+        """Validate a scenario and apply it now, in the caller's thread (the loop builds edits
+        off the loop instead, see ``worker_edits``); never half-applied. Returns (accepted,
+        why)."""
+        built = build("apply", data)
+        return (False, built.error) if built.cell is None else self._swap(built.cell)
+
+    def _swap(self, new: Cell) -> tuple[bool, str]:
+        """Run ``new`` from now on, with the robot's follower and failsafe carried over.
 
         Every person stays known with their measurement and faults (``Presence``); their
         velocity error bounds are re-derived under the new parameters from the next skeleton
         on (until then the acceleration model is unusable for them: infinite bound)."""
-        try:
-            sc = parse_scenario(data, "params message")
-            check_against_robot(sc)
-            new = build_cell(sc)
-        except SaraError as e:
-            return False, str(e)
+        sc = new.scenario
         old = self.cell
         same_robot = sc.robot == old.scenario.robot and sc.limits == old.scenario.limits
         if not same_robot and not old.shield.at_rest:
@@ -585,6 +613,7 @@ class CellWorker:
                 self.overruns += 1
                 next_t = time.monotonic()
         self.pub_status.put(self.status_msg(time.time(), "stopping"))
+        self.builder.close()
 
 
 def _id_in(key_expr: str, kind: str) -> str | None:

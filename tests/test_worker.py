@@ -209,3 +209,30 @@ def test_an_overrunning_loop_still_sleeps_every_cycle(monkeypatch) -> None:
         worker.run(duration_s=20 * dt)
     assert len(naps) >= 5 and min(naps) >= wmod._MIN_SLEEP_S
     assert worker.overruns >= 3
+
+
+def test_a_slow_edit_is_built_off_the_loop(cell, monkeypatch) -> None:
+    """An edit whose cell takes a second to build (a safety mode's kernels loading): the loop
+    keeps publishing a verdict every cycle meanwhile, and the edit is applied afterwards."""
+    import sara_app.worker_edits as edits
+
+    _, worker, verdicts, tb = cell
+    real = edits.build_cell
+
+    def slow(sc):
+        time.sleep(1.0)
+        return real(sc)
+
+    monkeypatch.setattr(edits, "build_cell", slow)
+    data = load_scenario("standing_beside_path").model_dump(mode="json")
+    data["shield"]["models"] = ["vel"]
+    tb.publisher(keys.params_key("cell1")).put(
+        ParamsMsg(seq=0, stamp_s=time.time(), request_id="slow", scenario=data)
+    )
+    got = _collect(verdicts, 1.0)
+    stamps = np.array([v.stamp_s for v in got])
+    assert len(got) > 200 and np.diff(stamps).max() < 0.05  # no stall while it builds
+    t_end = time.monotonic() + 5
+    while worker.shield.verifier.models != ("vel",):
+        assert time.monotonic() < t_end
+        time.sleep(0.02)

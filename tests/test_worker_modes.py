@@ -107,3 +107,40 @@ def test_pfl_display_shows_link_energies_the_check_skipped(worker) -> None:
     got = np.array([m.energy_j for m in occ.links])
     np.testing.assert_allclose(got, E.max(axis=0))
     assert got.max() > 0.0 and all(m.limit_j is None for m in occ.links)  # moving, no contact
+
+
+def test_leaving_jssa_over_the_bus_brakes_to_rest_then_switches() -> None:
+    """An editor asks a moving JSSA cell for SSM (the dashboard's dropdown, the API's PATCH):
+    the worker halts JSSA (braking verdicts, no intended step), switches at rest and only then
+    answers 'accepted'."""
+    import threading
+    import time
+
+    from sara_app.api.registry import CellRegistry
+    from sara_app.bus.heartbeat import Heartbeat
+
+    port = free_port()
+    with Bus.router(port), Bus.client(port) as wb, Bus.client(port) as tb, \
+            CellRegistry.connect(port) as reg:  # fmt: skip
+        w = CellWorker("modes", load_scenario("standing_beside_path"), wb)
+        sub = tb.subscribe(keys.verdict_key("modes"), fifo=True, capacity=20000)
+        thread = threading.Thread(target=w.run, daemon=True)
+        thread.start()
+        try:
+            with Heartbeat(tb, "modes"):
+                assert reg.request_params("modes", _with_mode(w, "jssa"), 20.0).accepted
+                time.sleep(0.8)
+                assert w.shield.safety_mode == "jssa" and not w.shield.at_rest  # moving
+                sub.drain()
+                ans = reg.request_params("modes", _with_mode(w, "ssm"), 20.0)
+                assert ans.accepted, ans.reason
+                assert w.shield.safety_mode == "ssm"
+                got = [d.msg for d in sub.drain().messages if isinstance(d.msg, VerdictMsg)]
+        finally:
+            w.stop_event.set()
+            thread.join(10)
+    jssa = [v for v in got if v.safety_mode == "jssa"]
+    assert len(jssa) > 10  # it braked for a while
+    first = next(i for i, v in enumerate(jssa) if v.mode == "failsafe")  # halted from here
+    assert first < 50 and all(v.mode != "intended" for v in jssa[first:])
+    assert jssa[-1].mode in ("rest", "failsafe")

@@ -41,7 +41,7 @@ from fastapi.staticfiles import StaticFiles
 
 import sara_app
 from sara_app.api.people import add_people_routes
-from sara_app.api.registry import CellRegistry, WorkerTimeoutError
+from sara_app.api.registry import EDIT_TIMEOUT_S, CellRegistry, WorkerTimeoutError
 from sara_app.api.thresholds import add_threshold_routes
 from sara_app.errors import SaraError, ScenarioError
 from sara_app.human.params import available_param_sets, load_param_set
@@ -186,7 +186,7 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
     def send_scenario(
         cell: str,
         scenario: Annotated[dict[str, Any], Body()],
-        timeout_s: float = Query(3.0, gt=0.0, le=30.0),
+        timeout_s: float = Query(EDIT_TIMEOUT_S, gt=0.0, le=120.0),
     ) -> dict[str, Any]:
         """Validate a full scenario and have the cell's worker apply it (all or nothing)."""
         check_url_name("cell", cell)
@@ -199,7 +199,7 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
         cell: str,
         changes: Annotated[dict[str, Any], Body()],
         base: str | None = Query(None, description="scenario file to start from"),
-        timeout_s: float = Query(3.0, gt=0.0, le=30.0),
+        timeout_s: float = Query(EDIT_TIMEOUT_S, gt=0.0, le=120.0),
     ) -> dict[str, Any]:
         """Parameter update: ``changes`` applied to the scenario the cell runs now (as its
         worker announces it, edits from the dashboard included), or to the scenario file

@@ -56,6 +56,10 @@ from sara_app.errors import InputError, SaraError
 log = logging.getLogger("sara_app.api")
 
 MAX_CELLS = 256
+EDIT_TIMEOUT_S = 20.0
+"""How long an edit waits for the worker's answer by default: a worker builds an edited cell
+off its control loop, which takes seconds where a safety mode's kernels load for the first time
+(about a minute on a fresh checkout, where they are compiled)."""
 CYCLE_WINDOW = 1000  # verdicts in the rolling cycle-time window
 RESTART_TOLERANCE_S = 2.0  # a worker's start time (stamp - uptime) moving more: a restart
 
@@ -354,7 +358,8 @@ class CellRegistry:
         if not ok or ack is None:
             raise WorkerTimeoutError(
                 f"the worker of cell {cell!r} did not answer request {request_id} "
-                f"within {timeout_s:g} s"
+                f"within {timeout_s:g} s; it may still apply it: the cell's scenario "
+                "(GET /api/cells/<cell>) shows what it runs"
             )
         return ParamsAnswer(request_id, ack.accepted, ack.reason)
 

@@ -25,7 +25,7 @@ from typing import Any
 from fastapi import FastAPI, HTTPException, Query
 from pydantic import BaseModel, ConfigDict, Field
 
-from sara_app.api.registry import CellRegistry, WorkerTimeoutError
+from sara_app.api.registry import EDIT_TIMEOUT_S, CellRegistry, WorkerTimeoutError
 from sara_app.errors import SaraError
 from sara_app.safety.threshold_audit import MAX_LIMIT, AuditLog
 from sara_app.safety.threshold_edit import ConfirmationRequired, apply_edit, threshold_view
@@ -166,7 +166,7 @@ def add_threshold_routes(
     def put_cell_threshold(
         cell: str,
         body: ThresholdEditBody,
-        timeout_s: float = Query(3.0, gt=0.0, le=30.0),
+        timeout_s: float = Query(EDIT_TIMEOUT_S, gt=0.0, le=120.0),
     ) -> ThresholdEditAnswer:
         """Change one entry of the cell's thresholds live (validated, confirmed when above its
         source value, sent to the worker, recorded in the audit log whatever the outcome)."""

@@ -150,6 +150,9 @@ class JssaMode(Shield):
         self.controller = JssaController(robot, jssa_params(self.spec), follower.limits)
         self.boxes = boxes
         self._delay_s = float(reach.params.delay_s)
+        self.halt_reason: str | None = None
+        """Set: every cycle brakes (JSSA holds no verified failsafe, so a switch to another
+        safety mode waits for the robot at rest; the worker halts it for such a switch)."""
         st = follower.state
         self._q, self._v, self._a = st.q.copy(), st.v.copy(), st.a.copy()
         self.last: JssaResult | None = None
@@ -268,7 +271,7 @@ class JssaMode(Shield):
         self._check_tracking(measured, faults)
         usable = self._check_humans(t_now, humans, faults, ages)
         res: JssaResult | None = None
-        if not faults:
+        if not faults and self.halt_reason is None:  # halted: asked to stop (leaving JSSA)
             try:
                 u_nom = self._nominal(dt)
                 ends, radius, vel = self.human_capsules(t_now, humans, usable)
@@ -276,7 +279,8 @@ class JssaMode(Shield):
             except SaraError as e:  # a reference failure is a fault, never a crash
                 faults.append(f"cycle failed: {e}")
         if res is None or faults:
-            res = self.controller.brake(self._v, self._a, "; ".join(faults))
+            why = "; ".join(faults) or self.halt_reason or ""
+            res = self.controller.brake(self._v, self._a, why)
             try:
                 self.follower.brake(dt)  # the reference waits on its failsafe
             except SaraError:
