@@ -273,3 +273,36 @@ def test_a_stale_or_malformed_robot_state_faults_and_recovers(tmp_path: Path) ->
             assert vs[-1].mode == "fault" and vs[-1].dropped.get("wrong_dof", 0) > 0
             vs, _ = c.collect(0.5, every=state)
             assert vs[-1].mode == "rest" and not vs[-1].faults
+
+
+BIG_PUT = """
+import json, sys, time, zenoh
+port, key, mb = sys.argv[1], sys.argv[2], int(sys.argv[3])
+conf = {"mode": "client", "connect": {"endpoints": [f"tcp/127.0.0.1:{port}"]}}
+with zenoh.open(zenoh.Config.from_json5(json.dumps(conf))) as s:
+    payload = b"x" * (mb * 1024 * 1024)
+    t = time.time()
+    s.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
+    print(time.time() - t)
+    time.sleep(0.5)
+"""
+
+
+def test_a_200_mb_put_is_refused_by_the_router_and_stalls_nothing(cell: Cell) -> None:
+    """A 200 MB message on a person's key never reaches the worker (the router's limit), and
+    the verdict stream goes on meanwhile: no gap longer than two control periods beyond the
+    usual (a stall of at most one period)."""
+    seen = cell.bus.subscribe(keys.skeleton_keys(CELL), capacity=16)
+    key = keys.skeleton_key(CELL, "p1")
+    with Heartbeat(cell.bus, CELL):
+        cell.collect(0.3)
+        proc = subprocess.Popen([sys.executable, "-c", BIG_PUT, str(cell.port), key, "200"],
+                                stdout=subprocess.PIPE, text=True)  # fmt: skip
+        vs, _ = cell.collect(2.5)
+        proc.communicate(timeout=60)
+    assert proc.returncode == 0
+    assert not seen.drain().messages and seen.decoder.rejected == 0  # never forwarded
+    stamps = np.array([v.stamp_s for v in vs])
+    gaps = np.diff(stamps)
+    assert len(vs) > 500 and gaps.max() < 3 * 0.004, gaps.max()
+    assert "too_large" not in vs[-1].dropped  # refused before the worker
