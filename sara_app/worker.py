@@ -243,10 +243,11 @@ class CellWorker:
         for d in self.sub_retire.drain().messages:
             if isinstance(d.msg, RetireMsg):
                 found = self.presence.retire(d.msg.human_id)
-                log.warning(
-                    "human %r retired by %r (%s)%s", d.msg.human_id, d.msg.user, d.msg.reason,
-                    "" if found else ": was not known",
-                )  # fmt: skip
+                if found:
+                    log.warning("human %r retired by %r: %s", d.msg.human_id, d.msg.user,
+                                d.msg.reason)  # fmt: skip
+                else:  # rate-limited: anyone may send these
+                    self.errors("retire of an unknown person", repr(d.msg.human_id))
                 reason = "" if found else f"human {d.msg.human_id!r} is not known"
                 self._ack(d.msg.request_id, found, reason)
         for d in self.sub_params.drain().messages:
@@ -410,7 +411,7 @@ class CellWorker:
         try:
             f.replan(self.cell.passes[nxt])
         except SaraError as e:
-            log.warning("task replan failed: %s", e)
+            self.errors("task replan failed", str(e))
 
     def dropped(self) -> dict[str, int]:
         return dict(self.decoder.counts)
@@ -567,7 +568,7 @@ class CellWorker:
             if res.jssa is not None:
                 extra["jssa"] = jssa_state(res.jssa, links, sc.shield.jssa.d_min_m)
         except (SaraError, ValueError, IndexError) as e:  # display only: never stop the loop
-            log.warning("display details dropped: %s", e)
+            self.errors("display details dropped", str(e))
             return msg
         return msg.model_copy(update=extra) if extra else msg
 

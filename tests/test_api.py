@@ -598,36 +598,31 @@ def test_concurrent_patches_are_serialised_and_none_is_lost(folder: Path) -> Non
     real worker, in turn, each on the scenario its predecessor made it run."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from sara_app.worker import CellWorker
+    from worker_thread import running_worker
 
     port = free_port()
-    with Bus.router(port), CellRegistry.connect(port) as reg, Bus.client(port) as wbus:
-        worker = CellWorker("cellp", load_scenario("empty_cell", folder), wbus, status_hz=10.0)
-        thread = threading.Thread(target=worker.run, daemon=True)
-        thread.start()
+    first = load_scenario("empty_cell", folder)
+    with Bus.router(port), CellRegistry.connect(port) as reg, Bus.client(port) as wbus, \
+            running_worker("cellp", first, wbus, status_hz=10.0) as worker:  # fmt: skip
         client = TestClient(create_app(reg, folder))
-        try:
-            _wait_until(lambda: client.get("/api/cells/cellp").json().get("online"), 20.0)
-            _wait_until(lambda: reg.applied_scenario("cellp") is not None, 10.0)
-            edits = [{"description": "serial"}] + [
-                {"shield": {k: v}}
-                for k, v in [("dt_s", 0.005), ("max_interval_s", 0.03), ("tracking_tol_rad", 0.006),
-                             ("skeleton_timeout_s", 0.15)]  # fmt: skip
-            ] + [{"inputs": {"max_people": 7}}, {"inputs": {"tracker_timeout_s": 0.3}},
-                 {"sim": {"seed": 5}}]  # fmt: skip
+        _wait_until(lambda: client.get("/api/cells/cellp").json().get("online"), 20.0)
+        _wait_until(lambda: reg.applied_scenario("cellp") is not None, 10.0)
+        edits = [{"description": "serial"}] + [
+            {"shield": {k: v}}
+            for k, v in [("dt_s", 0.005), ("max_interval_s", 0.03), ("tracking_tol_rad", 0.006),
+                         ("skeleton_timeout_s", 0.15)]  # fmt: skip
+        ] + [{"inputs": {"max_people": 7}}, {"inputs": {"tracker_timeout_s": 0.3}},
+             {"sim": {"seed": 5}}]  # fmt: skip
 
-            def patch(changes: dict[str, Any]) -> int:
-                r = client.patch("/api/cells/cellp/scenario", json=changes)
-                return r.status_code
+        def patch(changes: dict[str, Any]) -> int:
+            r = client.patch("/api/cells/cellp/scenario", json=changes)
+            return r.status_code
 
-            with ThreadPoolExecutor(8) as pool:
-                codes = list(pool.map(patch, edits))
-            assert codes == [200] * len(edits)
-            sc = worker.cell.scenario
-            assert sc.description == "serial" and sc.sim.seed == 5
-            assert (sc.shield.dt_s, sc.shield.max_interval_s) == (0.005, 0.03)
-            assert (sc.shield.tracking_tol_rad, sc.shield.skeleton_timeout_s) == (0.006, 0.15)
-            assert (sc.inputs.max_people, sc.inputs.tracker_timeout_s) == (7, 0.3)
-        finally:
-            worker.stop_event.set()
-            thread.join(5)
+        with ThreadPoolExecutor(8) as pool:
+            codes = list(pool.map(patch, edits))
+        assert codes == [200] * len(edits)
+        sc = worker.cell.scenario
+        assert sc.description == "serial" and sc.sim.seed == 5
+        assert (sc.shield.dt_s, sc.shield.max_interval_s) == (0.005, 0.03)
+        assert (sc.shield.tracking_tol_rad, sc.shield.skeleton_timeout_s) == (0.006, 0.15)
+        assert (sc.inputs.max_people, sc.inputs.tracker_timeout_s) == (7, 0.3)

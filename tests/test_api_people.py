@@ -5,7 +5,6 @@ a person the worker does not know is refused (and audited)."""
 from __future__ import annotations
 
 import shutil
-import threading
 import time
 import warnings
 from pathlib import Path
@@ -14,12 +13,13 @@ with warnings.catch_warnings():
     warnings.filterwarnings("ignore", message=".*httpx.*deprecated")
     from fastapi.testclient import TestClient
 
+from worker_thread import running_worker
+
 from sara_app.api import CellRegistry, create_app
 from sara_app.bus import keys
 from sara_app.bus.session import Bus, free_port
 from sara_app.safety.threshold_audit import AuditLog
 from sara_app.scenario import load_scenario, scenarios_dir
-from sara_app.worker import CellWorker
 
 CELL = "retire1"
 
@@ -35,32 +35,27 @@ def test_retire_forgets_a_ghost_and_every_request_is_audited(tmp_path: Path) -> 
     folder = tmp_path / "scenarios"
     shutil.copytree(scenarios_dir(), folder)
     port = free_port()
+    sc = load_scenario("empty_cell", folder)
     with Bus.router(port), CellRegistry.connect(port) as reg, Bus.client(port) as wbus, \
-            Bus.client(port) as other:  # fmt: skip
-        worker = CellWorker(CELL, load_scenario("empty_cell", folder), wbus, status_hz=10.0)
-        thread = threading.Thread(target=worker.run, daemon=True)
-        thread.start()
+            Bus.client(port) as other, \
+            running_worker(CELL, sc, wbus, status_hz=10.0) as worker:  # fmt: skip
         audit = AuditLog(tmp_path / "audit.sqlite")
         client = TestClient(create_app(reg, folder, audit=audit))
-        try:
-            _until(lambda: client.get(f"/api/cells/{CELL}").is_success, 20.0)
-            # garbage on a person's key: the person is known (unseen) from then on
-            other.session.put(keys.skeleton_key(CELL, "ghost"), b"{broken")
-            _until(lambda: "ghost" in worker.presence.tracks)
-            body = {"user": "anna", "reason": "tracker replaced; nobody there"}
-            r = client.post(f"/api/cells/{CELL}/humans/ghost/retire", json=body)
-            assert r.status_code == 200, r.text
-            assert "ghost" not in worker.presence.tracks
-            r = client.post(f"/api/cells/{CELL}/humans/ghost/retire", json=body)
-            assert r.status_code == 409 and "not known" in r.text
-            bad = client.post(f"/api/cells/{CELL}/humans/ghost/retire", json={"user": "x"})
-            assert bad.status_code == 422
-            rows = client.get(f"/api/cells/{CELL}/humans/audit").json()
-            assert [(x["human_id"], x["outcome"], x["user"]) for x in rows] == [
-                ("ghost", "refused", "anna"),
-                ("ghost", "applied", "anna"),
-            ]
-            assert rows[1]["reason"] == body["reason"]
-        finally:
-            worker.stop_event.set()
-            thread.join(5)
+        _until(lambda: client.get(f"/api/cells/{CELL}").is_success, 20.0)
+        # garbage on a person's key: the person is known (unseen) from then on
+        other.session.put(keys.skeleton_key(CELL, "ghost"), b"{broken")
+        _until(lambda: "ghost" in worker.presence.tracks)
+        body = {"user": "anna", "reason": "tracker replaced; nobody there"}
+        r = client.post(f"/api/cells/{CELL}/humans/ghost/retire", json=body)
+        assert r.status_code == 200, r.text
+        assert "ghost" not in worker.presence.tracks
+        r = client.post(f"/api/cells/{CELL}/humans/ghost/retire", json=body)
+        assert r.status_code == 409 and "not known" in r.text
+        bad = client.post(f"/api/cells/{CELL}/humans/ghost/retire", json={"user": "x"})
+        assert bad.status_code == 422
+        rows = client.get(f"/api/cells/{CELL}/humans/audit").json()
+        assert [(x["human_id"], x["outcome"], x["user"]) for x in rows] == [
+            ("ghost", "refused", "anna"),
+            ("ghost", "applied", "anna"),
+        ]
+        assert rows[1]["reason"] == body["reason"]

@@ -148,29 +148,36 @@ def test_acc_contains_acceleration_bounded_motion(kind: str, seed: int) -> None:
 def test_pos_contains_rigid_limbs_in_any_configuration(kind: str, seed: int) -> None:
     rng = np.random.default_rng(200 + seed)
     reach = _reach(kind)
-    sk, p = reach.skeleton, reach.params
+    p = reach.params
     H = 32
     y_true = _pose(rng, kind, H)
     y_meas = y_true + _rand_ball(rng, y_true.shape, np.full(y_true.shape[:2], p.delta_y_m))
     o = reach.model("pos", y_meas, None, None, T_START, T_END)
     k = len(T_START) - 1
-    tau = T_END[k] + p.delay_s
     for _ in range(20):
-        fut = y_true + _rand_ball(rng, y_true.shape, np.full(y_true.shape[:2], 2.0 * tau))
-        # Limbs: root moves at most v_root tau; every segment keeps its true length, any angle.
-        for chain in sk.limb_chains:
-            root = chain[0]
-            fut[:, root] = y_true[:, root] + _on_sphere(
-                rng, (H, 3), np.full(H, p.v_max_mps[root] * tau)
-            )
-            for a, b in zip(chain[:-1], chain[1:]):
-                length = np.linalg.norm(y_true[:, b] - y_true[:, a], axis=-1)
-                fut[:, b] = fut[:, a] + _on_sphere(rng, (H, 3), length)
-        # head and torso joints obey the vel model
-        for j in ("head", "neck", "pelvis"):
-            i = sk.joint_index(j)
-            fut[:, i] = y_true[:, i] + _on_sphere(rng, (H, 3), np.full(H, p.v_max_mps[i] * tau))
+        fut = pos_future(rng, reach, y_true, T_END[k] + p.delay_s)
         assert _check_contained(reach, "pos", o.ends, o.radius, fut[None], k) <= 1e-12
+
+
+def pos_future(rng: np.random.Generator, reach: HumanReach, y_true: np.ndarray, tau: float):
+    """Joints ``(H, J, 3)`` at ``tau`` under R_POS's assumptions: a limb's root moves at most
+    v_root tau and every segment keeps its true length at any angle; head and torso joints
+    obey the vel model."""
+    sk, p = reach.skeleton, reach.params
+    H = y_true.shape[0]
+    fut = y_true + _rand_ball(rng, y_true.shape, np.full(y_true.shape[:2], 2.0 * tau))
+    for chain in sk.limb_chains:
+        root = chain[0]
+        fut[:, root] = y_true[:, root] + _on_sphere(
+            rng, (H, 3), np.full(H, p.v_max_mps[root] * tau)
+        )
+        for a, b in zip(chain[:-1], chain[1:]):
+            length = np.linalg.norm(y_true[:, b] - y_true[:, a], axis=-1)
+            fut[:, b] = fut[:, a] + _on_sphere(rng, (H, 3), length)
+    for j in ("head", "neck", "pelvis"):
+        i = sk.joint_index(j)
+        fut[:, i] = y_true[:, i] + _on_sphere(rng, (H, 3), np.full(H, p.v_max_mps[i] * tau))
+    return fut
 
 
 def test_sets_grow_with_age_and_delay() -> None:

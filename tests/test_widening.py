@@ -17,6 +17,7 @@ from test_reach import (
     _rand_ball,
     _reach,
     _simulate,
+    pos_future,
 )
 
 from sara_app.human.reach import MODELS, part_capsules
@@ -89,27 +90,15 @@ def test_acc_contains_the_person_with_a_larger_position_error(seed: int) -> None
 def test_pos_contains_rigid_limbs(extra_m: float, legs: bool) -> None:
     rng = np.random.default_rng(500)
     reach = _reach("full")
-    sk, p = reach.skeleton, reach.params
+    p = reach.params
     H = 32
     y_true = _pose(rng, "full", H)
     y_meas = _measured(rng, y_true, p.delta_y_m + extra_m, legs)
     ends, radius = _widened(reach, "pos", reach.model("pos", y_meas, None, None, T_START, T_END),
                             extra_m, legs)  # fmt: skip
     k = len(T_START) - 1
-    tau = T_END[k] + p.delay_s
     for _ in range(20):
-        fut = y_true + _rand_ball(rng, y_true.shape, np.full(y_true.shape[:2], 2.0 * tau))
-        for chain in sk.limb_chains:
-            root = chain[0]
-            fut[:, root] = y_true[:, root] + _on_sphere(
-                rng, (H, 3), np.full(H, p.v_max_mps[root] * tau)
-            )
-            for a, b in zip(chain[:-1], chain[1:]):
-                length = np.linalg.norm(y_true[:, b] - y_true[:, a], axis=-1)
-                fut[:, b] = fut[:, a] + _on_sphere(rng, (H, 3), length)
-        for j in ("head", "neck", "pelvis"):
-            i = sk.joint_index(j)
-            fut[:, i] = y_true[:, i] + _on_sphere(rng, (H, 3), np.full(H, p.v_max_mps[i] * tau))
+        fut = pos_future(rng, reach, y_true, T_END[k] + p.delay_s)
         assert _check_contained(reach, "pos", ends, radius, fut[None], k) <= 1e-12
 
 
