@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 from sara_app.bus.codec import MAX_PAYLOAD_BYTES, REASONS, Decoder, MessageError, decode
 from sara_app.bus.examples import example_messages
 from sara_app.bus.messages import CapsulesMsg, SkeletonMsg, encode, source_points
+from sara_app.errors import SaraError
 from sara_app.human.skeleton import COCO17_NAMES, SOURCES, from_source, skeleton
 
 EXAMPLES = example_messages()
@@ -200,3 +201,17 @@ def test_contract_examples_decode() -> None:
         kinds.add(d.key.kind)
         assert d.msg == EXAMPLES[d.key.kind][1]  # the document shows the tested examples
     assert kinds == set(EXAMPLES)
+
+
+def test_every_drop_reason_in_the_code_is_in_the_contract_and_back() -> None:
+    """The contract's table of refusal reasons lists exactly the decoder's ``REASONS`` (every
+    counter the worker can raise goes through ``Decoder.count``, which refuses others)."""
+    text = (Path(__file__).resolve().parents[1] / "sara_app/bus/CONTRACT.md").read_text()
+    table = text.split("| reason | refused because |")[1].split("\n\n")[0]
+    listed = set()
+    for line in table.splitlines()[2:]:
+        first = line.split("|")[1]
+        listed |= set(re.findall(r"`([a-z_]+)`", first))
+    assert listed == set(REASONS)
+    with pytest.raises(SaraError, match="unknown"):
+        Decoder().count("made_up_reason")
