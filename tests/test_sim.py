@@ -97,6 +97,7 @@ def _always_safe(
     times_s: np.ndarray,
     robot_ends: np.ndarray,
     robot_radius: np.ndarray,
+    widen_m: np.ndarray | None = None,
     *,
     models: int,
 ) -> SsmResult:
