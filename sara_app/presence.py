@@ -18,7 +18,9 @@ A tracker frame (``TrackerFrameMsg``) says which people one tracker sees at its 
   never on a timeout.
 - **Bounded.** At most ``max_people`` tracks; further people are kept as ids only (at most
   ``MAX_OVERFLOW``) and the cell faults while any is known. Over ``MAX_OVERFLOW`` ids the oldest
-  id is dropped from the list, but the fault stays until the list empties by the rules above.
+  id is dropped from the list (each frame checks every id: the list is kept short); the fault
+  then also stays until every declared tracker has sent a frame ``FORGET_AFTER_S`` after the
+  drop (its frames list everyone it sees: a dropped id still in view is known again).
 
 ``Presence`` is plain Python with small per-message work; the worker calls it from its loop.
 """
@@ -36,7 +38,7 @@ from sara_app.safety.shield import HumanState
 
 FORGET_AFTER_S = 0.05
 """How much later than a person's newest evidence a frame that omits them must be stamped."""
-MAX_OVERFLOW = 4096
+MAX_OVERFLOW = 256
 """Ids of people beyond ``max_people`` remembered (each is a fault until forgotten)."""
 
 
@@ -75,6 +77,8 @@ class Presence:
     overflow: dict[str, float] = field(default_factory=dict)
     frames: dict[str, _Frame] = field(default_factory=dict)
     counts: dict[str, int] = field(default_factory=dict)
+    dropped_s: float = -math.inf
+    """The newest evidence of an id dropped from the full overflow list."""
 
     def configure(
         self,
@@ -102,7 +106,8 @@ class Presence:
 
     def _overflow(self, human_id: str, evidence_s: float) -> None:
         if human_id not in self.overflow and len(self.overflow) >= MAX_OVERFLOW:
-            self.overflow.pop(next(iter(self.overflow)))
+            _, dropped_s = self.overflow.popitem()  # the newest entry: its id is gone
+            self.dropped_s = max(self.dropped_s, dropped_s, evidence_s)
         self.overflow[human_id] = max(self.overflow.get(human_id, -math.inf), evidence_s)
 
     def known(self, human_id: str, evidence_s: float) -> Track | None:
@@ -138,9 +143,9 @@ class Presence:
         self._forget_unlisted()
         return None
 
-    def _absent(self, human_id: str, evidence_s: float) -> bool:
+    def _absent(self, human_id: str | None, evidence_s: float) -> bool:
         """Every declared tracker's newest frame is ``FORGET_AFTER_S`` later than the evidence
-        and omits them."""
+        and omits ``human_id`` (None: whoever it lists)."""
         for tid in self.trackers:
             f = self.frames.get(tid)
             if f is None or not f.stamp_s >= evidence_s + FORGET_AFTER_S or human_id in f.people:
@@ -179,7 +184,8 @@ class Presence:
                 )
             elif age < -self.future_tolerance_s:
                 out.append(f"tracker {tid!r}: frame stamped {-age:.4f} s in the future")
-        if self.overflow:
+        lost = self.dropped_s > -math.inf and not self._absent(None, self.dropped_s)
+        if self.overflow or lost:
             out.append(
                 f"{len(self.tracks) + len(self.overflow)} people known > max_people "
                 f"{self.max_people}"

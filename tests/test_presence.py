@@ -125,3 +125,23 @@ def test_forgetting_needs_positive_evidence(events) -> None:
             for f in frames
         )
         assert (hid in p.tracks) == (not omitted), (hid, ev, p.frames)
+
+
+def test_a_full_overflow_list_faults_until_every_tracker_has_spoken_since() -> None:
+    from sara_app.presence import MAX_OVERFLOW
+
+    p = _presence(("a", "b"), max_people=1)
+    p.frame("a", 1.0, [])
+    p.frame("b", 1.0, [])
+    for i in range(MAX_OVERFLOW + 5):
+        p.known(f"h{i}", 2.0)
+    assert len(p.overflow) == MAX_OVERFLOW
+    p.retire("h0")
+    for h in list(p.overflow):
+        p.retire(h)
+    assert not p.tracks and not p.overflow
+    assert any("max_people" in f for f in p.faults(2.0))  # dropped ids: not forgotten yet
+    p.frame("a", 2.1, [])
+    assert any("max_people" in f for f in p.faults(2.1))
+    p.frame("b", 2.1, [])
+    assert not any("max_people" in f for f in p.faults(2.1))
