@@ -12,12 +12,11 @@ robot falls back to its failsafe).
 from __future__ import annotations
 
 import logging
-import math
 import sys
 import threading
 import time
 from collections import deque
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
@@ -30,19 +29,17 @@ from sara_app.bus.messages import (
     ParamsAckMsg,
     ParamsMsg,
     RetireMsg,
-    RobotCommandMsg,
     RobotOccupancyMsg,
     RobotStateMsg,
     ScenarioStateMsg,
     SkeletonMsg,
     StatusMsg,
     TrackerFrameMsg,
-    VerdictMsg,
 )
 from sara_app.bus.process import process_main
 from sara_app.bus.session import Bus
 from sara_app.cell import Cell, build_cell
-from sara_app.errors import InputError, SaraError
+from sara_app.errors import SaraError
 from sara_app.human.reach import MODELS, part_capsules
 from sara_app.human.skeleton import UPPER_JOINTS, full_body
 from sara_app.human.widening import per_capsule, widening
@@ -55,6 +52,7 @@ from sara_app.safety.thresholds import link_shapes
 from sara_app.scenario import Scenario
 from sara_app.worker_display import jssa_state, part_labels, pfl_contacts, pfl_links
 from sara_app.worker_edits import MAX_PENDING_EDITS, Built, CellBuilder, build
+from sara_app.worker_messages import CycleMessages
 
 log = logging.getLogger("sara_app.worker")
 _MIN_SLEEP_S = 20e-6  # the least the loop sleeps per cycle, even when late (s)
@@ -151,7 +149,7 @@ class CellWorker:
         self.pub_status = bus.publisher(keys.status_key(self.name))
         self.pub_scenario = bus.publisher(keys.scenario_key(self.name))
         self.scenario_revision = 0
-        self._last_command: JointState | None = None
+        self.messages = CycleMessages(self.name, self.cell.robot.n_dof)
         self.builder = CellBuilder()
         self._waiting: list[Built] = []  # finished builds, in order, to swap in
 
@@ -416,81 +414,24 @@ class CellWorker:
     def dropped(self) -> dict[str, int]:
         return dict(self.decoder.counts)
 
-    def _messages(self, now: float, res: CycleResult) -> tuple[VerdictMsg, RobotCommandMsg]:
-        """The cycle's verdict and command; raises when a value cannot be sent (non-finite)."""
-        c = res.command
-        if not all(np.isfinite(a).all() for a in (c.q, c.v, c.a)):
-            raise InputError(f"the command is not finite: q {c.q.tolist()}")
-        dist = res.min_distance_m
-        verdict = VerdictMsg(
-            seq=0,
-            stamp_s=now,
-            cell=self.name,
-            safety_mode=cast(Any, res.safety_mode),
-            mode=cast(Any, res.mode),
-            results=res.model_free,
-            skeleton_age_s=res.ages_s,
-            min_distance_m=dist if dist is not None and math.isfinite(dist) else None,
-            cycle_time_us=res.cycle_time_us,
-            faults=[f[:300] for f in res.faults[:8]],
-            dropped=self.dropped(),
-            intervened=res.intervened,
-            speed_scale=res.speed_scale if res.safety_mode == "pfl" else None,
-        )
-        command = RobotCommandMsg(
-            seq=0,
-            stamp_s=now,
-            q=c.q.tolist(),
-            q_dot=c.v.tolist(),
-            q_ddot=c.a.tolist(),
-            mode=cast(Any, res.mode),
-        )
-        return verdict, command
-
-    def _fault_messages(self, now: float, res: CycleResult, why: str) -> tuple[Any, Any]:
-        """A fault verdict that names ``why`` and the command of the held failsafe: the
-        cycle's command when it is finite (the shield moved the robot there), else the last
-        one sent, at rest."""
-        c = res.command
-        finite = all(np.isfinite(a).all() for a in (c.q, c.v, c.a))
-        if not finite:
-            c = self._last_command or JointState(
-                np.zeros(self.cell.robot.n_dof), np.zeros(self.cell.robot.n_dof),
-                np.zeros(self.cell.robot.n_dof),
-            )  # fmt: skip
-            c = JointState(c.q, np.zeros_like(c.v), np.zeros_like(c.a))
-        verdict = VerdictMsg(
-            seq=0,
-            stamp_s=now,
-            cell=self.name,
-            safety_mode=cast(Any, res.safety_mode),
-            mode="fault",
-            cycle_time_us=0.0,
-            faults=[why[:300]],
-            dropped=self.dropped(),
-            intervened=True,
-        )
-        command = RobotCommandMsg(
-            seq=0, stamp_s=now, q=c.q.tolist(), q_dot=c.v.tolist(), q_ddot=c.a.tolist(),
-            mode="fault",
-        )  # fmt: skip
-        return verdict, command
-
     def _publish(self, now: float, res: CycleResult) -> None:
         """One verdict, then one command (never an ``intended`` command without its verdict:
         when the verdict cannot be sent, the command goes out as ``fault``)."""
+        dt = self.shield.settings.dt_s
         try:
-            verdict, command = self._messages(now, res)
+            self.messages.observe(now, res)
+            verdict, command = self.messages.verdict_and_command(now, dt, res, self.dropped())
         except Exception as e:  # noqa: BLE001 - a message that cannot be built: a fault cycle
             self.errors("building the cycle's messages failed", repr(e), e)
-            verdict, command = self._fault_messages(now, res, f"messages failed: {e!r}"[:200])
+            why = f"messages failed: {e!r}"[:200]
+            verdict, command = self.messages.fault(now, dt, res, why, self.dropped())
         verdict = verdict.model_copy(update={"seq": self.pub_verdict.next_seq()})
         sent = self.pub_verdict.put(verdict)
         update: dict[str, Any] = {"seq": self.pub_cmd.next_seq()}
         if not sent and command.mode == "intended":
             update["mode"] = "fault"
         self.pub_cmd.put(command.model_copy(update=update))
-        self._last_command = JointState(
+        self.messages.last = JointState(
             np.asarray(command.q), np.asarray(command.q_dot), np.asarray(command.q_ddot)
         )
         try:

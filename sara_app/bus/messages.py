@@ -28,6 +28,7 @@ from sara_app.bus.keys import NAME_PATTERN
 from sara_app.human.skeleton import COCO17_NAMES, SOURCES, skeleton
 
 SCHEMA_VERSION = 1
+"""The schema version of every message kind but those in ``SCHEMA_VERSIONS``."""
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 NonNeg = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
@@ -73,7 +74,7 @@ class _Msg(BaseModel):
     seq: Annotated[int, Field(ge=0, le=2**63 - 1)]
     stamp_s: NonNeg
 
-    @field_validator("schema_version", mode="before")
+    @field_validator("schema_version", mode="before", check_fields=False)
     @classmethod
     def _version_is_int(cls, v: object) -> object:
         if type(v) is not int:  # JSON true would otherwise equal 1
@@ -179,17 +180,42 @@ class RobotStateMsg(_Msg):
         return self
 
 
-class RobotCommandMsg(_Msg):
-    """The shielded set point sent to the robot (key ``sara/<cell>/robot/command``)."""
+COMMAND_VALID_PERIODS = 2
+"""A command is valid for this many control periods after its stamp (``valid_until_s``)."""
+MAX_FAILSAFE_SAMPLES = 512
 
+
+class RobotCommandMsg(_Msg):
+    """The shielded set point sent to the robot (key ``sara/<cell>/robot/command``), schema
+    version 2: the set point ``q``, ``q_dot``, ``q_ddot`` to reach at ``stamp_s + dt`` (the end
+    of the cycle's step), ``valid_until_s`` (after it the controller must brake) and the
+    verified stop that follows the set point: joint positions ``failsafe_q (F, n)`` at
+    ``stamp_s + failsafe_t_s (F,)`` (strictly increasing; the first sample is the set point,
+    the last one at rest). Between two samples the robot may move along the straight joint-space
+    segment at constant speed (the verified occupancy contains that motion: see
+    ``sara_app.robot.occupancy``). Empty when no verified stop exists (JSSA, or not yet)."""
+
+    schema_version: Literal[2] = 2  # type: ignore[assignment]
     q: JointVector
     q_dot: JointVector
     q_ddot: JointVector
     mode: Mode
+    valid_until_s: NonNeg
+    failsafe_t_s: Annotated[list[Finite], Field(max_length=MAX_FAILSAFE_SAMPLES)] = []
+    failsafe_q: Annotated[list[JointVector], Field(max_length=MAX_FAILSAFE_SAMPLES)] = []
 
     @model_validator(mode="after")
     def _lengths(self) -> RobotCommandMsg:
         _same_lengths(q=self.q, q_dot=self.q_dot, q_ddot=self.q_ddot)
+        if len(self.failsafe_t_s) != len(self.failsafe_q):
+            raise _fail("inconsistent_length", "failsafe_t_s and failsafe_q differ in length")
+        if any(len(q) != len(self.q) for q in self.failsafe_q):
+            raise _fail("inconsistent_length", "a failsafe sample has another joint count")
+        t = self.failsafe_t_s
+        if any(b <= a for a, b in zip(t, t[1:])):
+            raise _fail("invalid", "failsafe_t_s must increase strictly")
+        if self.valid_until_s < self.stamp_s:
+            raise _fail("invalid", "valid_until_s is before stamp_s")
         return self
 
 
@@ -468,6 +494,12 @@ MODELS_BY_KIND: dict[str, type[_Msg]] = {
     "tracker_frame": TrackerFrameMsg,
     "retire": RetireMsg,
 }
+
+
+SCHEMA_VERSIONS: dict[str, int] = {
+    kind: int(m.model_fields["schema_version"].default) for kind, m in MODELS_BY_KIND.items()
+}
+"""Each message kind's schema version (the robot command is at 2: validity and failsafe)."""
 
 
 def encode(msg: _Msg) -> bytes:

@@ -1,0 +1,116 @@
+"""What one control cycle publishes: its verdict and its robot command, with the verified stop
+the controller brakes along when commands stop (the contract's robot command, version 2).
+
+The stop is the one the follower holds: the failsafe of the last verified shielded trajectory
+(``CycleResult.verified``). A verified cycle's command carries that trajectory's samples after
+its step; a braking cycle's command, the set point (a point of the held stop) and the held
+stop's later samples. Between two samples the straight joint-space segment at constant speed is
+inside the verified occupancy (``sara_app.robot.occupancy``: any motion between two samples
+within the interval's speed bound is; the segment's speed is the mean speed, below it). JSSA
+verifies no stop: its commands carry none.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, cast
+
+import numpy as np
+
+from sara_app.bus.messages import COMMAND_VALID_PERIODS, RobotCommandMsg, VerdictMsg
+from sara_app.errors import InputError
+from sara_app.robot.trajectory import JointState
+from sara_app.safety.shield import CycleResult
+
+
+class CycleMessages:
+    """Builds each cycle's verdict and command; keeps the held verified stop."""
+
+    def __init__(self, cell: str, n_dof: int) -> None:
+        self.cell = cell
+        self.n_dof = n_dof
+        self.held: tuple[np.ndarray, np.ndarray] | None = None
+        """The held stop: absolute sample times ``(K+1,)`` s and positions ``(K+1, n)``."""
+        self.last: JointState | None = None
+
+    def observe(self, now: float, res: CycleResult) -> None:
+        """Track the stop the follower holds after this cycle."""
+        if res.safety_mode == "jssa":
+            self.held = None
+        elif res.verified and res.trajectory is not None:
+            traj = res.trajectory
+            self.held = (now + traj.times, traj.q.copy())
+
+    def failsafe(self, now: float, dt: float, q: np.ndarray) -> tuple[list[float], list[Any]]:
+        """The stop after the set point ``q`` (reached at ``now + dt``): offsets from ``now``
+        (s) and positions; empty without a held stop."""
+        if self.held is None:
+            return [], []
+        times, qs = self.held
+        later = times > now + dt + 1e-9
+        t = [dt, *(times[later] - now).tolist()]
+        return t, [q.tolist(), *qs[later].tolist()]
+
+    def verdict_and_command(
+        self, now: float, dt: float, res: CycleResult, dropped: dict[str, int]
+    ) -> tuple[VerdictMsg, RobotCommandMsg]:
+        """The cycle's verdict and command; raises when a value cannot be sent (non-finite)."""
+        c = res.command
+        if not all(np.isfinite(a).all() for a in (c.q, c.v, c.a)):
+            raise InputError(f"the command is not finite: q {c.q.tolist()}")
+        dist = res.min_distance_m
+        verdict = VerdictMsg(
+            seq=0,
+            stamp_s=now,
+            cell=self.cell,
+            safety_mode=cast(Any, res.safety_mode),
+            mode=cast(Any, res.mode),
+            results=res.model_free,
+            skeleton_age_s=res.ages_s,
+            min_distance_m=dist if dist is not None and math.isfinite(dist) else None,
+            cycle_time_us=res.cycle_time_us,
+            faults=[f[:300] for f in res.faults[:8]],
+            dropped=dropped,
+            intervened=res.intervened,
+            speed_scale=res.speed_scale if res.safety_mode == "pfl" else None,
+        )
+        return verdict, self._command(now, dt, c, res.mode)
+
+    def _command(self, now: float, dt: float, c: JointState, mode: str) -> RobotCommandMsg:
+        t, qs = self.failsafe(now, dt, c.q)
+        return RobotCommandMsg(
+            seq=0,
+            stamp_s=now,
+            q=c.q.tolist(),
+            q_dot=c.v.tolist(),
+            q_ddot=c.a.tolist(),
+            mode=cast(Any, mode),
+            valid_until_s=now + COMMAND_VALID_PERIODS * dt,
+            failsafe_t_s=t,
+            failsafe_q=qs,
+        )
+
+    def fault(
+        self, now: float, dt: float, res: CycleResult, why: str, dropped: dict[str, int]
+    ) -> tuple[VerdictMsg, RobotCommandMsg]:
+        """A fault verdict that names ``why`` and the command of the held failsafe: the
+        cycle's command when it is finite (the shield moved the robot there), else the last
+        one sent, at rest (and then no stop: the robot holds)."""
+        c = res.command
+        if not all(np.isfinite(a).all() for a in (c.q, c.v, c.a)):
+            zero = np.zeros(self.n_dof)
+            q = zero if self.last is None else self.last.q
+            c = JointState(q, zero, zero)
+            self.held = None
+        verdict = VerdictMsg(
+            seq=0,
+            stamp_s=now,
+            cell=self.cell,
+            safety_mode=cast(Any, res.safety_mode),
+            mode="fault",
+            cycle_time_us=0.0,
+            faults=[why[:300]],
+            dropped=dropped,
+            intervened=True,
+        )
+        return verdict, self._command(now, dt, c, "fault")
