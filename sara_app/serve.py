@@ -1,7 +1,9 @@
 """``sara-app serve``: the whole cell on one machine, no setup.
 
 Processes: this one (a Zenoh router on 127.0.0.1, the viser dashboard and the FastAPI service),
-a cell worker and a replayer (the scenario's people, published over Zenoh as a tracker would).
+the reference robot controller (``sara_app.controller``: a simulated robot that follows the
+commands and brakes along their verified stop when they stop), a cell worker and a replayer (the
+scenario's people, published over Zenoh as a tracker would).
 The safety loop runs in the worker process and never waits for the view. Ctrl-C stops all.
 
 CPU priority: the safety worker comes first. Every child runs in a session of its own (a terminal's
@@ -140,7 +142,10 @@ def serve(
     api = None
     registry = None
     try:
-        procs = [
+        procs = [  # the robot (the reference controller) first: the worker tracks it
+            _spawn(
+                "sara_app.controller", cell, scenario, zenoh_port, rt_priority=WORKER_RT_PRIORITY
+            ),
             _spawn("sara_app.worker", cell, scenario, zenoh_port, rt_priority=WORKER_RT_PRIORITY),
             _spawn("sara_app.replayer", cell, scenario, zenoh_port, nice=REPLAYER_NICE),
         ]

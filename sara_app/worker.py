@@ -53,37 +53,13 @@ from sara_app.scenario import Scenario
 from sara_app.worker_display import jssa_state, part_labels, pfl_contacts, pfl_links
 from sara_app.worker_edits import MAX_PENDING_EDITS, Built, CellBuilder, build
 from sara_app.worker_messages import CycleMessages
+from sara_app.worker_robot import MeasuredRobot
 
 log = logging.getLogger("sara_app.worker")
 _MIN_SLEEP_S = 20e-6  # the least the loop sleeps per cycle, even when late (s)
 SKELETON_QUEUE = 4096
 """Skeleton samples queued between two drains (all people); each drain decodes only the newest
 of each key, so a flood on one key cannot crowd out another person's newest message."""
-
-
-class _Robot:
-    """The measured robot state from a controller and its freshness (the contract's rule: once
-    a controller speaks, a state older than ``robot_state_timeout_s`` or a refused one is a
-    fault until fresh valid states resume)."""
-
-    def __init__(self) -> None:
-        self.state: JointState | None = None
-        self.stamp_s: float | None = None
-        self.problem: str | None = None
-
-    def faults(self, now_s: float, timeout_s: float) -> list[str]:
-        if self.problem is not None:
-            return [f"robot state: {self.problem}"]
-        if self.stamp_s is None:
-            return []
-        age = now_s - self.stamp_s
-        if age > timeout_s:
-            return [f"robot state {age:.3f} s old > {timeout_s}"]
-        return []
-
-    def fresh(self, now_s: float, timeout_s: float) -> JointState | None:
-        """The measured state when it is usable now (None: no controller, or a fault)."""
-        return None if self.faults(now_s, timeout_s) else self.state
 
 
 class _Throttle:
@@ -124,7 +100,7 @@ class CellWorker:
         self.presence = Presence(
             tuple(inp.trackers), inp.tracker_timeout_s, inp.max_people, self._new_track
         )
-        self.robot_in = _Robot()
+        self.robot_in = MeasuredRobot()
         self.pass_index = 0
         self.cycle_us: deque[float] = deque(maxlen=2000)
         self.started = time.time()
@@ -359,15 +335,15 @@ class CellWorker:
         except Exception as e:  # noqa: BLE001 - an input failure is a fault, not a crash
             self.errors("input handling failed", repr(e), e)
             problems.append(f"input handling failed: {e!r}"[:200])
-        timeout = self.cell.scenario.inputs.robot_state_timeout_s
+        sc = self.cell.scenario
         try:
-            faults = self.presence.faults(now) + self.robot_in.faults(now, timeout) + problems
-            res = self.shield.cycle(
-                now,
-                self.presence.humans(),
-                self.robot_in.fresh(now, timeout),
-                input_faults=faults,
+            self._reanchor()
+            robot = self.robot_in.faults(
+                now, sc.inputs.robot_state_timeout_s, sc.shield.tracking_tol_rad
             )
+            faults = self.presence.faults(now) + robot + problems
+            # the tracking check is the measured robot's (at the measurement's time)
+            res = self.shield.cycle(now, self.presence.humans(), None, input_faults=faults)
         except Exception as e:  # noqa: BLE001 - last line of defence: brake, report, go on
             self.errors("worker cycle failed", repr(e), e)
             res = self._fault_cycle(now, f"cycle failed: {e!r}"[:200])
@@ -379,6 +355,19 @@ class CellWorker:
             self.errors("task advance failed", repr(e), e)
         self._publish(now, res)
         return res
+
+    def _reanchor(self) -> None:
+        """A robot at rest where the follower is not (a restarted worker; a controller that
+        braked on its own while the worker hung): when the follower rests too, start it from
+        the measured position (towards its path's end), so commands continue from there."""
+        tol = self.cell.scenario.shield.tracking_tol_rad
+        q_meas = None if self.robot_in.state is None else self.robot_in.state.q
+        if q_meas is None or not self.shield.at_rest:
+            return
+        if self.robot_in.at_rest_elsewhere(self.shield.robot_state.q, tol):
+            self.shield.restart_from(q_meas)
+            self.robot_in.commanded.clear()
+            log.warning("robot at rest elsewhere: follower re-anchored at the measured state")
 
     def _fault_cycle(self, now: float, why: str) -> CycleResult:
         """A cycle that failed outside the shield's own fault handling: brake on the held
@@ -431,9 +420,9 @@ class CellWorker:
         if not sent and command.mode == "intended":
             update["mode"] = "fault"
         self.pub_cmd.put(command.model_copy(update=update))
-        self.messages.last = JointState(
-            np.asarray(command.q), np.asarray(command.q_dot), np.asarray(command.q_ddot)
-        )
+        q = np.asarray(command.q)
+        self.messages.last = JointState(q, np.asarray(command.q_dot), np.asarray(command.q_ddot))
+        self.robot_in.sent(command.stamp_s + dt, q)
         try:
             if now >= self._next_display:
                 self._next_display = now + self.display_period

@@ -1,5 +1,6 @@
-"""``sara-app serve`` (the whole cell on this machine) and ``sara-app worker`` (one cell worker
-connected to a running Zenoh router)."""
+"""``sara-app serve`` (the whole cell on this machine), ``sara-app worker`` (one cell worker
+connected to a running Zenoh router) and ``sara-app controller`` (the reference robot
+controller of one cell)."""
 
 from __future__ import annotations
 
@@ -17,10 +18,20 @@ def _serve(args: argparse.Namespace) -> int:
 def _worker(args: argparse.Namespace) -> int:
     from sara_app.worker import main
 
+    return main(_process_argv(args))
+
+
+def _controller(args: argparse.Namespace) -> int:
+    from sara_app.controller import main
+
+    return main(_process_argv(args))
+
+
+def _process_argv(args: argparse.Namespace) -> list[str]:
     argv = ["--cell", args.cell, "--scenario", args.scenario, "--port", str(args.zenoh_port)]
     if args.duration is not None:
         argv += ["--duration", str(args.duration)]
-    return main(argv)
+    return argv
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -35,9 +46,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     s.set_defaults(run=_serve)
 
-    w = sub.add_parser("worker", help="run one cell worker against a running zenoh router")
-    w.add_argument("--scenario", default=DEFAULT_SCENARIO)
-    w.add_argument("--cell", default="cell1")
-    w.add_argument("--zenoh-port", type=int, default=7447)
-    w.add_argument("--duration", type=float, default=None)
-    w.set_defaults(run=_worker)
+    for name, run, text in (
+        ("worker", _worker, "run one cell worker against a running zenoh router"),
+        ("controller", _controller, "the reference robot controller of one cell (simulated)"),
+    ):
+        w = sub.add_parser(name, help=text)
+        w.add_argument("--scenario", default=DEFAULT_SCENARIO)
+        w.add_argument("--cell", default="cell1")
+        w.add_argument("--zenoh-port", type=int, default=7447)
+        w.add_argument("--duration", type=float, default=None)
+        w.set_defaults(run=run)

@@ -62,7 +62,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from sara_app.errors import SaraError
+from sara_app.errors import ParameterError, SaraError
 from sara_app.human.reach import MODELS, HumanReach
 from sara_app.robot.model import RobotModel
 from sara_app.robot.trajectory import JointState, PathFollower
@@ -168,6 +168,15 @@ class JssaMode(Shield):
         return bool(
             np.max(np.abs(self._v)) <= SETTLE_V_RAD_S and np.max(np.abs(self._a)) <= SETTLE_A_RAD_S2
         )
+
+    def restart_from(self, q: np.ndarray) -> None:
+        """The measured robot rests at ``q``: the reference and the robot state restart there.
+        Raises :class:`ParameterError` unless at rest."""
+        if not self.at_rest:
+            raise ParameterError("the follower can restart from a measured state only at rest")
+        self._start_at(self.follower, np.asarray(q, dtype=float))
+        self._q = np.asarray(q, dtype=float).copy()
+        self._v, self._a = np.zeros_like(self._q), np.zeros_like(self._q)
 
     @property
     def task_done(self) -> bool:

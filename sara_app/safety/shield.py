@@ -193,14 +193,26 @@ class Shield:
                 f"at rest ({previous.safety_mode} holds no verified failsafe for it); stop "
                 "it first"
             )
+        self._start_at(f, now.q)
+
+    def restart_from(self, q: np.ndarray) -> None:
+        """The robot rests at ``q`` (measured), not where the follower rests: follow from there
+        to the current path's end. Raises :class:`ParameterError` unless at rest."""
+        if not self.at_rest:
+            raise ParameterError("the follower can restart from a measured state only at rest")
+        self._start_at(self.follower, np.asarray(q, dtype=float))
+        self._commanded = None
+
+    def _start_at(self, f: PathFollower, q: np.ndarray) -> None:
+        """A new follower from ``q`` at rest to the end of ``f``'s path."""
         goal = f.path.q(f.path.length)
-        if np.allclose(now.q, goal, atol=1e-9):
+        if np.allclose(q, goal, atol=1e-9):
             self.follower = PathFollower(
                 np.vstack([goal]), f.limits, blend_distance=f.blend_distance
             )
             return
         self.follower = PathFollower(
-            np.vstack([now.q, goal]), f.limits, blend_distance=f.blend_distance
+            np.vstack([q, goal]), f.limits, blend_distance=f.blend_distance
         )
 
     # -- checks ---------------------------------------------------------------------------------

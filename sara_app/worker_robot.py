@@ -1,0 +1,82 @@
+"""The measured robot of a live cell: freshness of ``robot/state`` and tracking against the
+commanded trajectory at the measurement's time (the contract's controller rules).
+
+The commanded trajectory is the sequence of set points the worker sent: set point ``q_i`` at
+``stamp_i + dt``, straight joint-space segments in between (what the reference controller
+executes). A state stamped ``t`` is compared with that trajectory at ``t``, so transport and
+scheduling delays between worker and controller do not count as tracking errors; a state older
+than the oldest remembered set point cannot be checked and is a fault.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from sara_app.robot.trajectory import JointState
+
+HISTORY = 256
+"""Set points remembered for the tracking check (about one second at 250 Hz)."""
+
+
+class MeasuredRobot:
+    """The newest ``robot/state`` and its faults (once a controller has spoken, a state older
+    than the timeout, a refused one or one that tracks the commands worse than the tolerance is
+    a fault, which clears when fresh valid states resume)."""
+
+    def __init__(self) -> None:
+        self.state: JointState | None = None
+        self.stamp_s: float | None = None
+        self.problem: str | None = None
+        self.commanded: deque[tuple[float, np.ndarray]] = deque(maxlen=HISTORY)
+
+    def sent(self, t_point_s: float, q: np.ndarray) -> None:
+        """The worker sent set point ``q`` for time ``t_point_s``."""
+        if self.commanded and t_point_s <= self.commanded[-1][0]:
+            self.commanded.clear()  # time went back (a restarted clock): start afresh
+        self.commanded.append((t_point_s, np.asarray(q, dtype=float)))
+
+    def expected(self, t_s: float) -> np.ndarray | None:
+        """The commanded position at ``t_s`` (None: before the remembered set points)."""
+        c = self.commanded
+        if not c or t_s < c[0][0]:
+            return None
+        if t_s >= c[-1][0]:
+            return c[-1][1]
+        lo, hi = 0, len(c) - 1  # c[lo].t <= t_s < c[hi].t
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            if c[mid][0] <= t_s:
+                lo = mid
+            else:
+                hi = mid
+        (ta, qa), (tb, qb) = c[lo], c[hi]
+        return qa + (qb - qa) * ((t_s - ta) / (tb - ta))
+
+    def faults(self, now_s: float, timeout_s: float, tol_rad: float) -> list[str]:
+        if self.problem is not None:
+            return [f"robot state: {self.problem}"]
+        if self.stamp_s is None or self.state is None:
+            return []
+        age = now_s - self.stamp_s
+        if age > timeout_s:
+            return [f"robot state {age:.3f} s old > {timeout_s}"]
+        want = self.expected(self.stamp_s)
+        if want is None:
+            return []  # nothing commanded yet at that time: the worker has just started
+        err = float(np.max(np.abs(self.state.q - want)))
+        if not err <= tol_rad:  # NaN too
+            return [f"tracking error {err:.4f} rad > tolerance {tol_rad} rad"]
+        return []
+
+    def at_rest_elsewhere(self, q: np.ndarray, tol_rad: float, v_rest: float = 1e-6) -> bool:
+        """A fresh state at rest farther than ``tol_rad`` from ``q``: the robot stands somewhere
+        else than the worker's follower (a restarted worker, a robot moved by hand)."""
+        s = self.state
+        return (
+            s is not None
+            and self.problem is None
+            and float(np.max(np.abs(s.v))) <= v_rest
+            and float(np.max(np.abs(s.q - q))) > tol_rad
+        )

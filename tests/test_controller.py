@@ -1,0 +1,134 @@
+"""The reference controller against a real worker process over zenoh on 127.0.0.1: it tracks
+the commands (the worker sees no tracking fault), and when the worker is killed (-9) the robot
+brakes along the last command's verified stop, on schedule, and rests at its end; a restarted
+worker re-anchors at the measured state and commands continue from there."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sara_app.bus import keys
+from sara_app.bus.heartbeat import Heartbeat
+from sara_app.bus.messages import RobotCommandMsg, RobotStateMsg, VerdictMsg
+from sara_app.bus.session import Bus, free_port
+from sara_app.controller import stop_position
+from sara_app.scenario import load_scenario
+from sara_app.serve import WORKER_RT_PRIORITY
+
+CELL = "ctl"
+
+
+def _proc(module: str, scenario: Path, port: int) -> subprocess.Popen[bytes]:
+    """A cell process as ``serve`` starts it (real-time scheduling where permitted)."""
+    cmd = [sys.executable, "-m", module, "--cell", CELL, "--scenario", str(scenario),
+           "--port", str(port), "--rt-priority", str(WORKER_RT_PRIORITY)]  # fmt: skip
+    return subprocess.Popen(cmd)
+
+
+@pytest.fixture()
+def cell(tmp_path: Path) -> Iterator[tuple[int, Bus, Path]]:
+    path = tmp_path / "cell.json"
+    path.write_text(json.dumps(load_scenario("standing_beside_path").model_dump(mode="json")))
+    port = free_port()
+    with Bus.router(port), Bus.client(port) as bus:
+        yield port, bus, path
+
+
+def _drain(sub, kind):
+    return [d.msg for d in sub.drain().messages if isinstance(d.msg, kind)]
+
+
+def test_a_killed_worker_leaves_the_robot_on_its_verified_stop(cell) -> None:
+    port, bus, path = cell
+    states = bus.subscribe(keys.robot_state_key(CELL), fifo=True, capacity=100000)
+    cmds = bus.subscribe(keys.robot_command_key(CELL), fifo=True, capacity=100000)
+    verdicts = bus.subscribe(keys.verdict_key(CELL), fifo=True, capacity=100000)
+    controller = _proc("sara_app.controller", path, port)
+    worker = _proc("sara_app.worker", path, port)
+    try:
+        with Heartbeat(bus, CELL):
+            t_end = time.monotonic() + 60
+            moving = False
+            while not moving:
+                assert time.monotonic() < t_end, "the robot never moved"
+                got = _drain(states, RobotStateMsg)
+                moving = any(np.abs(s.q_dot).max() > 0.5 for s in got)
+                time.sleep(0.05)
+            verdicts.drain()
+            time.sleep(1.0)
+            vs = _drain(verdicts, VerdictMsg)
+            assert len(vs) > 200
+            faulty = [v.faults for v in vs if v.faults]
+            assert not faulty, faulty[:3]  # tracked exactly
+            cmds.drain()
+            states.drain()
+            time.sleep(0.3)
+            worker.send_signal(signal.SIGKILL)
+            worker.wait(10)
+            t_kill = time.time()
+            time.sleep(2.0)
+            sent = _drain(cmds, RobotCommandMsg)
+            after = [s for s in _drain(states, RobotStateMsg) if s.stamp_s > t_kill]
+    finally:
+        for p in (worker, controller):
+            if p.poll() is None:
+                p.terminate()
+                p.wait(10)
+    last = max(sent, key=lambda c: c.seq)
+    assert last.mode == "intended" and np.abs(last.q_dot).max() > 0.1  # killed while moving
+    assert last.failsafe_t_s and last.failsafe_t_s[-1] < 1.0  # a stop within a second
+    braking = [s for s in after if s.stamp_s > last.valid_until_s]
+    assert len(braking) > 100
+    for s in braking:  # on the verified stop, on schedule
+        q, _ = stop_position(last, s.stamp_s)
+        np.testing.assert_allclose(s.q, q, atol=1e-9)
+    end = last.stamp_s + last.failsafe_t_s[-1]
+    rest = [s for s in braking if s.stamp_s > end]
+    assert rest and all(np.abs(s.q_dot).max() == 0.0 for s in rest)
+    np.testing.assert_allclose(rest[-1].q, last.failsafe_q[-1], atol=1e-12)
+
+
+def test_a_restarted_worker_continues_from_where_the_robot_rests(cell) -> None:
+    port, bus, path = cell
+    states = bus.subscribe(keys.robot_state_key(CELL), fifo=True, capacity=100000)
+    verdicts = bus.subscribe(keys.verdict_key(CELL), fifo=True, capacity=100000)
+    controller = _proc("sara_app.controller", path, port)
+    worker = _proc("sara_app.worker", path, port)
+    try:
+        with Heartbeat(bus, CELL):
+            time.sleep(0.1)
+            t_end = time.monotonic() + 60
+            while not any(np.abs(s.q_dot).max() > 0.5 for s in _drain(states, RobotStateMsg)):
+                assert time.monotonic() < t_end, "the robot never moved"
+                time.sleep(0.05)
+            time.sleep(0.5)
+            worker.send_signal(signal.SIGKILL)
+            worker.wait(10)
+            time.sleep(1.5)  # braked to rest on its own
+            q_rest = np.asarray(_drain(states, RobotStateMsg)[-1].q)
+            worker = _proc("sara_app.worker", path, port)
+            t_end = time.monotonic() + 60
+            got: list[VerdictMsg] = []
+            while sum(v.mode == "intended" for v in got) < 100:
+                assert time.monotonic() < t_end, [v.faults for v in got[-3:]]
+                got += _drain(verdicts, VerdictMsg)
+                time.sleep(0.05)
+            moved = _drain(states, RobotStateMsg)
+    finally:
+        for p in (worker, controller):
+            if p.poll() is None:
+                p.terminate()
+                p.wait(10)
+    # it moved on from where it rested: no jump back to the task's start
+    steps = np.abs(np.diff([s.q for s in moved], axis=0)).max()
+    assert steps < 0.05, steps
+    assert np.abs(np.asarray(moved[0].q) - q_rest).max() < 0.05
