@@ -36,6 +36,7 @@ from sara_app.bus.session import Bus
 from sara_app.cell import base_pose
 from sara_app.errors import SaraError
 from sara_app.scenario import load_scenario, scenarios_dir
+from sara_app.supervisor import Child, Supervisor
 
 log = logging.getLogger("sara_app.serve")
 DEFAULT_SCENARIO = "punches"
@@ -93,6 +94,7 @@ def _spawn(
         str(port),
         "--rt-priority",
         str(rt_priority),
+        "--die-with-parent",
     ]
     return start_process(cmd, nice)
 
@@ -134,21 +136,26 @@ def serve(
 
     folder = scenarios_dir()
     sc = load_scenario(scenario, folder)
-    procs: list[subprocess.Popen[bytes]] = []
     hub = Bus.router(zenoh_port)
     dash = Dashboard(
         robot=sc.robot.name, T_world_base=base_pose(sc.robot.base_xyz_m, sc.robot.base_rpy_rad)
     )
     api = None
     registry = None
+    sup: Supervisor | None = None
     try:
-        procs = [  # the robot (the reference controller) first: the worker tracks it
-            _spawn(
-                "sara_app.controller", cell, scenario, zenoh_port, rt_priority=WORKER_RT_PRIORITY
-            ),
-            _spawn("sara_app.worker", cell, scenario, zenoh_port, rt_priority=WORKER_RT_PRIORITY),
-            _spawn("sara_app.replayer", cell, scenario, zenoh_port, nice=REPLAYER_NICE),
-        ]
+        rt = WORKER_RT_PRIORITY
+        sup = Supervisor(  # the robot (the reference controller) first: the worker tracks it
+            [
+                Child("controller", lambda: _spawn(CONTROLLER, cell, scenario, zenoh_port, 0, rt)),
+                Child("worker", lambda: _spawn(WORKER, cell, scenario, zenoh_port, 0, rt)),
+                Child(
+                    "replayer",
+                    lambda: _spawn(REPLAYER, cell, scenario, zenoh_port, nice=REPLAYER_NICE),
+                ),
+            ]
+        )
+        sup.start()
         lower_thread_priority(display_nice)  # after the spawns: children inherit the caller's
         view = CellView(cell, hub, dash, sc, folder)
         viewer_url = dash.start(
@@ -160,7 +167,8 @@ def serve(
         view.refresh_panels()
         registry = CellRegistry(hub)
         registry.start()
-        api = ApiServer(create_app(registry, folder, viewer_url=viewer_url), port=api_port)
+        app = create_app(registry, folder, viewer_url=viewer_url, processes=sup.status)
+        api = ApiServer(app, port=api_port)
         api_url = api.start().rstrip("/")
         print(f"SaRA cell {cell!r}, scenario {scenario!r}", flush=True)
         print(f"  3D dashboard   {viewer_url}", flush=True)
@@ -175,25 +183,34 @@ def serve(
             frame = view.poll()
             if frame is not None:
                 dash.update(frame)
-            dead = [p for p in procs if p.poll() is not None]
-            if dead:
-                print(
-                    f"error: process {dead[0].pid} exited with code {dead[0].returncode}",
-                    file=sys.stderr,
-                )
-                return 1
+            sup.poll(time.monotonic(), _verdict_age(registry, cell, sup))
             time.sleep(max(period - (time.monotonic() - t0), 0.0))
         return 0
     except KeyboardInterrupt:
         return 0
     finally:
-        _stop(procs)
+        if sup is not None:
+            sup.stop()
         if api is not None:
             api.stop()
         if registry is not None:
             registry.close()
         dash.stop()
         hub.close()
+
+
+CONTROLLER, WORKER, REPLAYER = "sara_app.controller", "sara_app.worker", "sara_app.replayer"
+
+
+def _verdict_age(registry: Any, cell: str, sup: Supervisor) -> float | None:
+    """Age of the cell's newest verdict when it came from the worker process running now
+    (received after its start), else None."""
+    snap = registry.cell(cell)
+    age = None if snap is None else snap.get("verdict_age_s")
+    if age is None:
+        return None
+    running_s = time.monotonic() - sup.worker_started_s()
+    return age if age < running_s else None
 
 
 _STOP = threading.Event()

@@ -36,6 +36,7 @@ from sara_app.bus.messages import (
     StatusMsg,
     TrackerFrameMsg,
 )
+from sara_app.bus.ownership import claim_cell
 from sara_app.bus.process import process_main
 from sara_app.bus.session import Bus
 from sara_app.cell import Cell, build_cell
@@ -92,6 +93,7 @@ class CellWorker:
     ) -> None:
         self.name = keys.check_name("cell", cell_name)
         self.bus = bus
+        self.token = claim_cell(bus, self.name)  # one worker per cell, or none
         self.loop_task = loop_task
         self.display_period = 1.0 / display_hz
         self.status_period = 1.0 / status_hz
@@ -545,6 +547,16 @@ class CellWorker:
                 next_t = time.monotonic()
         self.pub_status.put(self.status_msg(time.time(), "stopping"))
         self.builder.close()
+        self.release()
+
+    def release(self) -> None:
+        """Give the cell up (another worker may claim it)."""
+        if self.token is not None:
+            try:
+                self.token.undeclare()
+            except Exception:  # noqa: BLE001 - a closed session has released it already
+                pass
+            self.token = None
 
 
 def _id_in(key_expr: str, kind: str) -> str | None:

@@ -114,14 +114,21 @@ def test_cells_from_status_and_verdicts(offline: tuple[CellRegistry, TestClient,
     assert c1["mode"] == "failsafe" and c1["safety_mode"] == "ssm"
     assert c1["min_distance_m"] == 0.21 and c1["skeleton_age_s"] == {"h1": 0.012}
     assert c1["dropped"] == {"out_of_order": 2} and c1["results"] == {"pos": False, "vel": True}
-    assert not c2["online"] and c2["state"] is None and c2["mode"] == "intended"
+    assert not c2["online"] and c2["state"] is None and c2["mode"] is None  # never a status
     assert client.get("/api/cells/cell1").json() == c1
 
-    clock.now_s += 2.9
-    assert client.get("/api/cells/cell1").json()["online"]
-    clock.now_s += 0.2  # no status for 3.1 s: offline
+    clock.now_s += 0.6  # verdicts stopped (a hung worker): offline, mode unknown at once
     got = client.get("/api/cells/cell1").json()
-    assert not got["online"] and got["status_age_s"] == pytest.approx(3.1)
+    assert not got["online"] and got["mode"] is None
+    assert got["verdict_age_s"] == pytest.approx(0.6)
+    for _ in range(3):  # verdicts again, the status getting old
+        clock.now_s += 0.4
+        _feed(reg, "cell1", last, clock.now_s)
+    assert client.get("/api/cells/cell1").json()["online"]  # status 1.8 s old
+    clock.now_s += 0.25  # no status for 2.05 s (two heartbeats): offline
+    got = client.get("/api/cells/cell1").json()
+    assert not got["online"] and got["status_age_s"] == pytest.approx(2.05)
+    assert got["mode"] is None
     _feed(reg, "cell1", _status("cell1", seq=1), clock.now_s)
     assert client.get("/api/cells/cell1").json()["online"]
 

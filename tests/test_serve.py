@@ -25,12 +25,12 @@ def _get(url: str) -> tuple[int, bytes]:
 
 
 def _children(zenoh_port: int) -> list[str]:
-    """Command lines of running worker/replayer processes started for this zenoh port."""
+    """Command lines of running cell processes started for this zenoh port."""
     return list(_child_pids(zenoh_port).values())
 
 
 def _child_pids(zenoh_port: int) -> dict[int, str]:
-    """pid -> command line of the running worker/replayer processes for this zenoh port."""
+    """pid -> command line of the running cell processes for this zenoh port."""
     out = {}
     for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
         try:
@@ -38,7 +38,7 @@ def _child_pids(zenoh_port: int) -> dict[int, str]:
         except OSError:
             continue
         text = b" ".join(args).decode(errors="replace")
-        if ("sara_app.worker" in text or "sara_app.replayer" in text) and (
+        if any(f"sara_app.{m}" in text for m in ("worker", "replayer", "controller")) and (
             f"--port {zenoh_port}" in text
         ):
             out[int(cmdline.parent.name)] = text
@@ -71,13 +71,13 @@ def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(sig: signal.Signals) ->
         status, _ = _get(f"http://127.0.0.1:{ap}/")
         assert status == 200
         kids = _child_pids(zp)
-        assert len(kids) == 2
+        assert len(kids) == 3  # controller, worker, replayer
         for pid, text in kids.items():  # the safety worker first: the replayer runs niced
-            want = 0 if "sara_app.worker" in text else REPLAYER_NICE
+            want = REPLAYER_NICE if "sara_app.replayer" in text else 0
             assert os.getpriority(os.PRIO_PROCESS, pid) - os.getpriority(os.PRIO_PROCESS, 0) == want
             assert os.getsid(pid) != os.getsid(proc.pid)  # a session (autogroup) of its own
             policy = os.sched_getscheduler(pid)  # of the main thread: the loop
-            rt = "sara_app.worker" in text and _rt_permitted()
+            rt = "sara_app.replayer" not in text and _rt_permitted()
             assert policy == (os.SCHED_FIFO if rt else os.SCHED_OTHER), (text, policy)
     finally:
         proc.send_signal(sig)

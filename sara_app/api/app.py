@@ -2,7 +2,8 @@
 
 ``create_app(registry, scenarios_folder=None, viewer_url=None, static_dir=None) -> FastAPI``.
 
-- ``GET /api/health``; ``GET /api/links`` (``{"viewer": url, "docs": "/docs"}``).
+- ``GET /api/health``; ``GET /api/links`` (``{"viewer": url, "docs": "/docs"}``);
+  ``GET /api/processes``: the processes ``serve`` supervises (pid, running, restarts).
 - ``GET /api/cells``, ``GET /api/cells/{cell}``: live status (``CellRegistry`` snapshots);
   ``GET /api/cells/{cell}/events`` and ``GET /api/events``: the same as Server-Sent Events
   (``interval_s``, optional ``limit`` of events).
@@ -326,6 +327,7 @@ def create_app(
     viewer_url: str | None = None,
     static_dir: Path | str | None = STATIC_DIR,
     audit: AuditLog | Path | str | None = None,
+    processes: Callable[[], dict[str, Any]] | None = None,
 ) -> FastAPI:
     """The FastAPI app; ``registry`` supplies live cells, ``scenarios_folder`` the scenarios
     (default: the shipped ``scenarios/``), ``viewer_url`` the 3D view's address for the page,
@@ -351,6 +353,11 @@ def create_app(
             "cells": len(cells),
             "online": sum(c["online"] for c in cells),
         }
+
+    @app.get("/api/processes", tags=["service"])
+    def process_status() -> dict[str, Any]:
+        """The supervised processes of ``serve`` (pid, running, restarts); empty elsewhere."""
+        return {} if processes is None else processes()
 
     @app.get("/api/links", tags=["service"])
     def links() -> dict[str, Any]:

@@ -3,7 +3,9 @@
 ``CellRegistry(bus)`` subscribes (zenoh client ``Bus``) to ``sara/*/status``, ``sara/*/verdict``
 and ``sara/*/params/ack``; a background thread drains them at about ``poll_hz`` (50 Hz) and keeps,
 per cell: the last status and verdict, when each was received, a rolling window of verdict cycle
-times (p50/p99) and whether the cell is online (a status within ``offline_after_s``, 3 s).
+times (p50/p99) and whether the cell is online: a status within ``offline_after_s`` (2 s: two
+heartbeats) and, once verdicts have come, a verdict within ``verdict_stale_s`` (0.5 s: the worker
+cycles). An offline cell's ``mode`` is None (unknown), never its last verdict's.
 
 ``request_params(cell, scenario, timeout_s)`` publishes a ``ParamsMsg`` on ``sara/<cell>/params``
 with a fresh ``request_id`` and waits for the worker's ``ParamsAckMsg``: it returns a
@@ -103,13 +105,15 @@ class CellRegistry:
         self,
         bus: Bus | None,
         *,
-        offline_after_s: float = 3.0,
+        offline_after_s: float = 2.0,
+        verdict_stale_s: float = 0.5,
         poll_hz: float = 50.0,
         clock: Callable[[], float] = time.time,
         owns_bus: bool = False,
     ) -> None:
         self.bus = bus
         self.offline_after_s = float(offline_after_s)
+        self.verdict_stale_s = float(verdict_stale_s)
         self.poll_s = 1.0 / float(poll_hz)
         self.clock = clock
         self._owns_bus = owns_bus
@@ -242,14 +246,20 @@ class CellRegistry:
             p50, p99 = (float(x) for x in np.percentile(np.fromiter(c.cycle_us, float), [50, 99]))
         elif st is not None:
             p50, p99 = st.cycle_time_p50_us, st.cycle_time_p99_us
+        verdict_age = _age(now_s, c.verdict_recv_s)
+        online = (
+            status_age is not None
+            and status_age < self.offline_after_s
+            and (verdict_age is None or verdict_age < self.verdict_stale_s)
+        )
         return {
             "cell": c.name,
-            "online": status_age is not None and status_age < self.offline_after_s,
+            "online": online,
             "state": None if st is None else st.state,
             "scenario": None if st is None else st.scenario,
             "uptime_s": None if st is None else st.uptime_s,
             "humans": [] if st is None else list(st.humans),
-            "mode": None if v is None else v.mode,
+            "mode": None if v is None or not online else v.mode,  # offline: unknown
             "safety_mode": None if v is None else v.safety_mode,
             "min_distance_m": None if v is None else v.min_distance_m,
             "results": {} if v is None else dict(v.results),
@@ -263,7 +273,7 @@ class CellRegistry:
             "verdicts_received": c.verdicts,
             "last_seen_s": max(seen) if seen else None,
             "status_age_s": status_age,
-            "verdict_age_s": _age(now_s, c.verdict_recv_s),
+            "verdict_age_s": verdict_age,
         }
 
     # -- parameter requests ----------------------------------------------------------------

@@ -24,6 +24,24 @@ class CellProcess(Protocol):
     def run(self, duration_s: float | None = None) -> None: ...
 
 
+def die_with_parent() -> None:
+    """Have the kernel kill this process (SIGKILL) when its parent dies (Linux
+    ``PR_SET_PDEATHSIG``), so a cell process never outlives ``serve``, even after ``kill -9``
+    of it; exits at once when the parent is already gone. Elsewhere: nothing."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+
+    parent = os.getppid()
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG = 1
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent or parent == 1:
+        os._exit(0)  # the parent died before the request took effect
+
+
 def process_main(
     name: str,
     description: str,
@@ -41,7 +59,14 @@ def process_main(
         default=0,
         help="run the loop thread under SCHED_FIFO at this priority (1-99; 0: normal scheduling)",
     )
+    ap.add_argument(
+        "--die-with-parent",
+        action="store_true",
+        help="end when the parent process ends (how serve starts its children)",
+    )
     args = ap.parse_args(argv)
+    if args.die_with_parent:
+        die_with_parent()
     logging.basicConfig(level=logging.INFO, format=f"%(asctime)s {name} %(message)s")
     try:
         sc = load_scenario(args.scenario)

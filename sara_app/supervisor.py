@@ -1,0 +1,124 @@
+"""``serve``'s supervision of a cell's processes (controller, worker, replayer).
+
+- A child that exits is started again after a backoff (0.5 s, doubling to 10 s; back to 0.5 s
+  once a child has run for 30 s), and counted.
+- A worker that stops cycling while its process lives (hung, stopped) is killed and restarted:
+  once it has published verdicts, no verdict for ``HUNG_AFTER_S`` (two status heartbeats) is a
+  hang. Meanwhile the API shows the cell offline with its mode unknown, and the controller
+  brakes along the last verified stop on its own.
+- Children never outlive ``serve``: each asks the kernel to kill it when its parent dies
+  (``bus.process.die_with_parent``), and ``stop()`` ends them in order.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import subprocess
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+log = logging.getLogger("sara_app.serve")
+
+BACKOFF_S = (0.5, 10.0)
+STABLE_S = 30.0
+HUNG_AFTER_S = 2.0
+
+
+@dataclass
+class Child:
+    """One supervised process: ``start()`` spawns it."""
+
+    name: str
+    start: Callable[[], subprocess.Popen[bytes]]
+    proc: subprocess.Popen[bytes] | None = None
+    started_s: float = 0.0
+    restarts: int = 0
+    backoff_s: float = BACKOFF_S[0]
+    due_s: float | None = None  # a restart is due at this time
+    history: list[str] = field(default_factory=list)
+
+    def spawn(self, now: float) -> None:
+        self.proc = self.start()
+        self.started_s = now
+        self.due_s = None
+
+    @property
+    def alive(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+
+class Supervisor:
+    """Starts, watches and restarts children; ``poll(now, last_verdict_s)`` once a frame."""
+
+    def __init__(self, children: list[Child], worker: str = "worker") -> None:
+        self.children = children
+        self.worker = worker
+
+    def start(self) -> None:
+        now = time.monotonic()
+        for c in self.children:
+            c.spawn(now)
+
+    def poll(self, now: float, verdict_age_s: float | None) -> list[str]:
+        """Restart what died or hung; returns what happened (for the log). ``verdict_age_s``:
+        the age of the cell's newest verdict received since the worker last started (None:
+        none yet)."""
+        events = []
+        for c in self.children:
+            if c.due_s is not None:
+                if now >= c.due_s:
+                    c.spawn(now)
+                    events.append(f"{c.name} restarted (#{c.restarts})")
+                continue
+            hung = (
+                c.name == self.worker
+                and c.alive
+                and verdict_age_s is not None
+                and verdict_age_s > HUNG_AFTER_S
+            )
+            if hung and c.proc is not None:
+                c.proc.send_signal(signal.SIGKILL)
+                c.proc.wait()
+                events.append(f"{c.name} hung ({verdict_age_s:.1f} s without a verdict): killed")
+            if not c.alive:
+                code = None if c.proc is None else c.proc.returncode
+                if now - c.started_s > STABLE_S:
+                    c.backoff_s = BACKOFF_S[0]
+                c.due_s = now + c.backoff_s
+                c.backoff_s = min(2 * c.backoff_s, BACKOFF_S[1])
+                c.restarts += 1
+                events.append(f"{c.name} exited (code {code}): restart in {c.due_s - now:.1f} s")
+        for e in events:
+            log.warning("supervisor: %s", e)
+        return events
+
+    def worker_started_s(self) -> float:
+        """When the worker process was last started (monotonic clock)."""
+        return next((c.started_s for c in self.children if c.name == self.worker), 0.0)
+
+    def status(self) -> dict[str, dict[str, object]]:
+        return {
+            c.name: {
+                "pid": None if c.proc is None else c.proc.pid,
+                "running": c.alive,
+                "restarts": c.restarts,
+            }
+            for c in self.children
+        }
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        procs = [c.proc for c in self.children if c.proc is not None]
+        for c in self.children:
+            c.due_s = None
+        for p in procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+        t_end = time.monotonic() + timeout_s
+        for p in procs:
+            try:
+                p.wait(timeout=max(t_end - time.monotonic(), 0.1))
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()

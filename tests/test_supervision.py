@@ -1,0 +1,94 @@
+"""``serve`` supervises its cell on real processes: a stopped (SIGSTOP) worker shows offline with
+its mode unknown within two heartbeats and is killed and restarted; a killed worker is back
+within seconds while the controller holds the robot on its verified stop (no command meanwhile);
+a second worker for the served cell refuses to start; and ``kill -9`` of ``serve`` leaves no
+process of the cell behind."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import urllib.request
+from typing import Any
+
+from test_serve import _child_pids
+
+from sara_app.bus import keys
+from sara_app.bus.messages import RobotCommandMsg
+from sara_app.bus.session import Bus, free_port
+
+
+def _api(port: int, path: str) -> Any:
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}{path}", timeout=2) as r:
+        return json.loads(r.read())
+
+
+def _until(pred, seconds: float, what: str) -> Any:
+    t_end = time.monotonic() + seconds
+    while time.monotonic() < t_end:
+        try:
+            got = pred()
+        except OSError:
+            got = None
+        if got:
+            return got
+        time.sleep(0.1)
+    raise AssertionError(f"timed out: {what}")
+
+
+def test_serve_supervises_its_worker_and_leaves_nothing_behind() -> None:
+    zp, vp, ap = free_port(), free_port(), free_port()
+    cmd = [sys.executable, "-m", "sara_app.cli", "serve", "--zenoh-port", str(zp),
+           "--viewer-port", str(vp), "--api-port", str(ap)]  # fmt: skip
+    serve = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        cell = lambda: _api(ap, "/api/cells/cell1")  # noqa: E731
+        _until(lambda: cell()["online"] and cell()["mode"], 90, "the cell online")
+        pid = _api(ap, "/api/processes")["worker"]["pid"]
+
+        # a hung worker: offline, mode unknown, within two heartbeats; then killed, restarted
+        os.kill(pid, signal.SIGSTOP)
+        t0 = time.monotonic()
+        _until(lambda: not cell()["online"] and cell()["mode"] is None, 5, "offline")
+        assert time.monotonic() - t0 < 2.5
+        _until(lambda: _api(ap, "/api/processes")["worker"]["pid"] != pid, 10, "a new worker")
+        _until(lambda: cell()["online"], 60, "online again")
+        procs = _api(ap, "/api/processes")
+        assert procs["worker"]["restarts"] == 1 and procs["worker"]["running"]
+
+        # a crashed worker: no command while it is gone, back within seconds
+        pid = procs["worker"]["pid"]
+        with Bus.client(zp) as bus:
+            cmds = bus.subscribe(keys.robot_command_key("cell1"), fifo=True, capacity=100000)
+            time.sleep(0.3)
+            os.kill(pid, signal.SIGKILL)
+            t_kill = time.time()
+            _until(lambda: _api(ap, "/api/processes")["worker"]["pid"] != pid, 10, "restart")
+            _until(lambda: cell()["online"], 60, "online after the crash")
+            got = [d.msg for d in cmds.drain().messages if isinstance(d.msg, RobotCommandMsg)]
+        before = [c for c in got if c.stamp_s < t_kill]
+        after = [c for c in got if c.stamp_s >= t_kill]
+        assert before and after and after[0].seq == 0  # the new worker's first command
+        assert after[0].stamp_s - t_kill > 0.3  # nothing commanded while it was gone
+
+        # one worker per cell: a second one refuses, loudly
+        second = subprocess.run(
+            [sys.executable, "-m", "sara_app.worker", "--cell", "cell1", "--port", str(zp)],
+            capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        assert second.returncode == 2 and "already served" in second.stderr, second.stderr
+        assert len(_child_pids(zp)) == 3
+    finally:
+        serve.send_signal(signal.SIGKILL)
+        serve.wait(10)
+    t_end = time.monotonic() + 2.0
+    while _child_pids(zp) and time.monotonic() < t_end:
+        time.sleep(0.1)
+    left = _child_pids(zp)
+    for p in left:  # never leave them running, even when the test fails
+        os.kill(p, signal.SIGKILL)
+    assert not left, left
