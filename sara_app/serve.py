@@ -35,6 +35,7 @@ from typing import Any
 from sara_app.bus.session import Bus
 from sara_app.cell import base_pose
 from sara_app.errors import SaraError
+from sara_app.safety.threshold_audit import default_data_dir
 from sara_app.scenario import load_scenario, scenarios_dir
 from sara_app.supervisor import Child, Supervisor
 
@@ -80,7 +81,13 @@ def lower_thread_priority(nice: int) -> int:
 
 
 def _spawn(
-    module: str, cell: str, scenario: str, port: int, nice: int = 0, rt_priority: int = 0
+    module: str,
+    cell: str,
+    scenario: str,
+    port: int,
+    nice: int = 0,
+    rt_priority: int = 0,
+    extra: tuple[str, ...] = (),
 ) -> subprocess.Popen[bytes]:
     cmd = [
         sys.executable,
@@ -95,6 +102,7 @@ def _spawn(
         "--rt-priority",
         str(rt_priority),
         "--die-with-parent",
+        *extra,
     ]
     return start_process(cmd, nice)
 
@@ -145,10 +153,14 @@ def serve(
     sup: Supervisor | None = None
     try:
         rt = WORKER_RT_PRIORITY
+        keep = ("--state-dir", str(default_data_dir() / "cells"))  # edits survive restarts
         sup = Supervisor(  # the robot (the reference controller) first: the worker tracks it
             [
                 Child("controller", lambda: _spawn(CONTROLLER, cell, scenario, zenoh_port, 0, rt)),
-                Child("worker", lambda: _spawn(WORKER, cell, scenario, zenoh_port, 0, rt)),
+                Child(
+                    "worker",
+                    lambda: _spawn(WORKER, cell, scenario, zenoh_port, 0, rt, keep),
+                ),
                 Child(
                     "replayer",
                     lambda: _spawn(REPLAYER, cell, scenario, zenoh_port, nice=REPLAYER_NICE),

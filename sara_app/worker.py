@@ -16,6 +16,7 @@ import sys
 import threading
 import time
 from collections import deque
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -40,6 +41,7 @@ from sara_app.bus.ownership import claim_cell
 from sara_app.bus.process import process_main
 from sara_app.bus.session import Bus
 from sara_app.cell import Cell, build_cell
+from sara_app.cell_state import CellState
 from sara_app.errors import SaraError
 from sara_app.human.reach import MODELS, part_capsules
 from sara_app.human.skeleton import UPPER_JOINTS, full_body
@@ -50,7 +52,7 @@ from sara_app.safety.jssa_mode import JssaMode
 from sara_app.safety.pfl_shield import PflShield
 from sara_app.safety.shield import CycleResult, Shield
 from sara_app.safety.thresholds import link_shapes
-from sara_app.scenario import Scenario
+from sara_app.scenario import Scenario, check_against_robot, parse_scenario
 from sara_app.worker_display import jssa_state, part_labels, pfl_contacts, pfl_links
 from sara_app.worker_edits import MAX_PENDING_EDITS, Built, CellBuilder, build
 from sara_app.worker_messages import CycleMessages
@@ -90,10 +92,15 @@ class CellWorker:
         loop_task: bool = True,
         display_hz: float = 15.0,
         status_hz: float = 1.0,
+        state_dir: str | Path | None = None,
+        origin: str | None = None,
     ) -> None:
         self.name = keys.check_name("cell", cell_name)
         self.bus = bus
         self.token = claim_cell(bus, self.name)  # one worker per cell, or none
+        self.origin = origin or scenario.name
+        self.state = None if state_dir is None else CellState(state_dir, self.name)
+        scenario, revision = self._restored(scenario)
         self.loop_task = loop_task
         self.display_period = 1.0 / display_hz
         self.status_period = 1.0 / status_hz
@@ -126,10 +133,38 @@ class CellWorker:
         self.pub_ack = bus.publisher(keys.params_ack_key(self.name))
         self.pub_status = bus.publisher(keys.status_key(self.name))
         self.pub_scenario = bus.publisher(keys.scenario_key(self.name))
-        self.scenario_revision = 0
+        self.scenario_revision = revision
         self.messages = CycleMessages(self.name, self.cell.robot.n_dof)
         self.builder = CellBuilder()
         self._waiting: list[Built] = []  # finished builds, in order, to swap in
+
+    def _restored(self, scenario: Scenario) -> tuple[Scenario, int]:
+        """The saved state in force of this cell when there is one for the same origin (the
+        edits survive a restart), else ``scenario``."""
+        saved = None if self.state is None else self.state.load(self.origin)
+        if saved is None:
+            return scenario, 0
+        try:
+            sc = parse_scenario(saved[0], str(self.state.path if self.state else ""))
+            check_against_robot(sc)
+        except SaraError as e:
+            log.error("saved cell state refused (%s): starting from the scenario", e)
+            return scenario, 0
+        log.warning("restored the cell's edits (revision %d) from %s", saved[1],
+                    self.state.path if self.state else "")  # fmt: skip
+        return sc, saved[1]
+
+    def _persist(self) -> str:
+        """Save the state in force; '' or why it could not be saved."""
+        if self.state is None:
+            return ""
+        try:
+            sc = self.cell.scenario.model_dump(mode="json")
+            self.state.save(self.origin, sc, self.scenario_revision)
+        except OSError as e:
+            self.errors("saving the cell state failed", repr(e))
+            return f"applied, but NOT saved to {self.state.path}: {e}"
+        return ""
 
     @property
     def shield(self) -> Shield:
@@ -246,7 +281,8 @@ class CellWorker:
         ok, reason = (False, b.error) if b.cell is None else self._swap(b.cell)
         if isinstance(self.shield, JssaMode):
             self.shield.halt_reason = None  # refused or done: JSSA runs on
-        if ok:  # the new state first: an editor that sees the ack can build on it
+        if ok:  # on disk, then announced, then acknowledged: an ack means all three
+            reason = self._persist()
             self.pub_scenario.put(self.scenario_msg(time.time()))
         self._ack(b.request_id, ok, reason)
         return True
@@ -569,7 +605,7 @@ def _id_in(key_expr: str, kind: str) -> str | None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return process_main("worker", "run one cell worker", CellWorker, argv)
+    return process_main("worker", "run one cell worker", CellWorker, argv, state=True)
 
 
 if __name__ == "__main__":

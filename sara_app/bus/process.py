@@ -15,7 +15,7 @@ from typing import Protocol
 
 from sara_app.bus.session import Bus
 from sara_app.errors import SaraError
-from sara_app.scenario import Scenario, load_scenario
+from sara_app.scenario import load_scenario
 
 
 class CellProcess(Protocol):
@@ -45,9 +45,13 @@ def die_with_parent() -> None:
 def process_main(
     name: str,
     description: str,
-    factory: Callable[[str, Scenario, Bus], CellProcess],
+    factory: Callable[..., CellProcess],
     argv: list[str] | None = None,
+    *,
+    state: bool = False,
 ) -> int:
+    """Run ``factory(cell, scenario, bus)`` (with ``state_dir=`` and ``origin=`` keywords when
+    ``state``: the folder of ``--state-dir`` and the ``--scenario`` argument)."""
     ap = argparse.ArgumentParser(prog=f"sara_app.{name}", description=description)
     ap.add_argument("--cell", default="cell1")
     ap.add_argument("--scenario", default="standing_beside_path")
@@ -64,6 +68,8 @@ def process_main(
         action="store_true",
         help="end when the parent process ends (how serve starts its children)",
     )
+    if state:
+        ap.add_argument("--state-dir", default=None, help="keep the cell's edits in this folder")
     args = ap.parse_args(argv)
     if args.die_with_parent:
         die_with_parent()
@@ -71,7 +77,8 @@ def process_main(
     try:
         sc = load_scenario(args.scenario)
         with Bus.client(args.port) as bus:
-            proc = factory(args.cell, sc, bus)
+            kw = {"state_dir": args.state_dir, "origin": args.scenario} if state else {}
+            proc = factory(args.cell, sc, bus, **kw)
             for sig in (signal.SIGINT, signal.SIGTERM):
                 signal.signal(sig, lambda *_: proc.stop_event.set())
             if args.rt_priority:
