@@ -118,13 +118,18 @@ SHAPES = ("blunt", "wedge", "edge", "sheet")
 Shape = Literal["blunt", "wedge", "edge", "sheet"]
 
 
+MAX_THRESHOLD_J = 10.0
+"""The physical ceiling of an admissible contact energy: five times the largest value of seed
+003 Table I (2 J). No body part's threshold can be set above it, confirmed or not."""
+
+
 class ThresholdOverride(_Strict):
     """One edited entry of the threshold table (seed 003 Table I cell), in J."""
 
     region: Literal["hand", "lower_arm", "upper_arm", "torso_legs", "head"]
     contact: Literal["constrained", "unconstrained"]
     shape: Shape
-    energy_J: Pos
+    energy_J: Annotated[float, Field(gt=0, le=MAX_THRESHOLD_J, allow_inf_nan=False)]
 
 
 class PflSpec(_Strict):

@@ -247,3 +247,25 @@ def test_audit_log_opened_lazily_at_its_default_place(
         assert not (tmp_path / "data").exists()  # nothing written until it is needed
         assert client.get("/api/cells/c9/thresholds/audit").json() == []
     assert (tmp_path / "data" / "audit.sqlite").is_file()
+
+
+def test_a_threshold_above_the_physical_ceiling_or_a_loose_confirm_is_refused(
+    api: tuple[StandInRegistry, TestClient, AuditLog],
+) -> None:
+    """1e300 J is refused even when confirmed (the ceiling: MAX_THRESHOLD_J), and ``confirm``
+    must be a JSON boolean ("yes" is not true); the scenario model holds the same ceiling."""
+    from sara_app.scenario import MAX_THRESHOLD_J, ThresholdOverride
+
+    reg, client, _ = api
+    for value in (1e300, MAX_THRESHOLD_J * 1.01):
+        r = client.put(
+            "/api/cells/c1/thresholds", json={**HAND, "energy_J": value, "confirm": True}
+        )
+        assert r.status_code == 422 and "ceiling" in r.text, r.text
+    r = client.put("/api/cells/c1/thresholds", json={**HAND, "energy_J": 0.2, "confirm": "yes"})
+    assert r.status_code == 422
+    r = client.put("/api/cells/c1/thresholds", json={**HAND, "energy_J": MAX_THRESHOLD_J,
+                                                    "confirm": True})  # fmt: skip
+    assert r.status_code == 200, r.text
+    with pytest.raises(ValueError):
+        ThresholdOverride(region="hand", contact="constrained", shape="blunt", energy_J=1e300)

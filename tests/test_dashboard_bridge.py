@@ -184,7 +184,8 @@ def _verdict(mode: str = "pfl", **kw: Any) -> VerdictMsg:
 
 def _feed(bus: FakeBus, occ: OccupancyMsg, verdict: VerdictMsg) -> None:
     cmd = RobotCommandMsg(seq=1, stamp_s=2.0, q=[0.0, -0.5, 0, -2.0, 0, 1.6, 0.8],
-                          q_dot=[0.0] * 7, q_ddot=[0.0] * 7, mode="intended")  # fmt: skip
+                          q_dot=[0.0] * 7, q_ddot=[0.0] * 7, mode="intended",
+                          valid_until_s=2.008)  # fmt: skip
     bus.feed(keys.robot_command_key(CELL), cmd)
     bus.feed(keys.verdict_key(CELL), verdict)
     bus.feed(keys.occupancy_key(CELL), occ)

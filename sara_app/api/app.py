@@ -41,10 +41,11 @@ from fastapi.responses import StreamingResponse
 from fastapi.staticfiles import StaticFiles
 
 import sara_app
+from sara_app.api.guard import Guard
 from sara_app.api.people import add_people_routes
 from sara_app.api.registry import EDIT_TIMEOUT_S, CellRegistry, WorkerTimeoutError
 from sara_app.api.thresholds import add_threshold_routes
-from sara_app.errors import SaraError, ScenarioError
+from sara_app.errors import ParameterError, SaraError, ScenarioError
 from sara_app.human.params import available_param_sets, load_param_set
 from sara_app.safety.threshold_audit import AuditLog
 from sara_app.safety.thresholds import load_thresholds, threshold_set_names
@@ -328,11 +329,16 @@ def create_app(
     static_dir: Path | str | None = STATIC_DIR,
     audit: AuditLog | Path | str | None = None,
     processes: Callable[[], dict[str, Any]] | None = None,
+    tokens: dict[str, str] | None = None,
+    require_token: bool = False,
+    hosts: tuple[str, ...] = (),
 ) -> FastAPI:
     """The FastAPI app; ``registry`` supplies live cells, ``scenarios_folder`` the scenarios
     (default: the shipped ``scenarios/``), ``viewer_url`` the 3D view's address for the page,
     ``audit`` the threshold audit log (an open log or a path; default
     :func:`~sara_app.safety.threshold_audit.default_audit_path`, opened on first use)."""
+    if require_token and not tokens:
+        raise ParameterError("require_token needs at least one API token")
     folder = Path(scenarios_folder) if scenarios_folder is not None else scenarios_dir()
     if not folder.is_dir():
         raise ScenarioError(f"scenarios folder {str(folder)!r} is not a directory")
@@ -375,6 +381,19 @@ def create_app(
     )
     _add_scenario_routes(app, folder)
     _add_param_routes(app)
+    app.add_middleware(
+        Guard,
+        audit=app.state.threshold_audit,
+        tokens=tokens,
+        require_token=require_token,
+        hosts=hosts,
+    )
+
+    @app.get("/api/requests/audit", tags=["service"])
+    def requests_audit(limit: int = Query(50, ge=1, le=10_000)) -> list[dict[str, Any]]:
+        """Every request to a mutating route (refused ones too), newest first."""
+        return list(app.state.threshold_audit().requests(limit))
+
     if static_dir is not None and Path(static_dir).is_dir():
         app.mount("/", StaticFiles(directory=str(static_dir), html=True), name="static")
     return app

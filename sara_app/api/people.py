@@ -12,9 +12,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Annotated, Any
 
-from fastapi import FastAPI, HTTPException, Query
+from fastapi import FastAPI, HTTPException, Query, Request
 from pydantic import BaseModel, ConfigDict, Field
 
+from sara_app.api.guard import credential_user
 from sara_app.api.registry import CellRegistry, WorkerTimeoutError
 from sara_app.safety.threshold_audit import AuditLog
 
@@ -38,15 +39,16 @@ def add_people_routes(
     """Add the retire route and its audit listing (``audit()`` gives the open log)."""
 
     @app.post("/api/cells/{cell}/humans/{human_id}/retire", tags=["people"])
-    def retire(cell: str, human_id: str, body: RetireBody) -> dict[str, Any]:
+    def retire(cell: str, human_id: str, body: RetireBody, request: Request) -> dict[str, Any]:
         """Forget a person whom no tracker reports any more (the robot otherwise keeps
         braking for them); audited whatever the outcome."""
         known_cell(cell)
         check_name("human", human_id)
         log = audit()
-        row = {"cell": cell, "human_id": human_id, "user": body.user, "reason": body.reason}
+        user = credential_user(request) or body.user  # the token's user wins
+        row = {"cell": cell, "human_id": human_id, "user": user, "reason": body.reason}
         try:
-            ans = registry.request_retire(cell, human_id, body.user, body.reason)
+            ans = registry.request_retire(cell, human_id, user, body.reason)
         except WorkerTimeoutError as e:
             log.record_person_action(**row, outcome="no_answer", detail=str(e))
             raise HTTPException(504, str(e)) from None

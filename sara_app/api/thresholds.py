@@ -22,9 +22,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from fastapi import FastAPI, HTTPException, Query
-from pydantic import BaseModel, ConfigDict, Field
+from fastapi import FastAPI, HTTPException, Query, Request
+from pydantic import BaseModel, ConfigDict, Field, StrictBool
 
+from sara_app.api.guard import credential_user
 from sara_app.api.registry import EDIT_TIMEOUT_S, CellRegistry, WorkerTimeoutError
 from sara_app.errors import SaraError
 from sara_app.safety.threshold_audit import MAX_LIMIT, AuditLog
@@ -47,7 +48,9 @@ class ThresholdEditBody(BaseModel):
     contact: str = Field(json_schema_extra={"enum": list(CONTACTS)})
     shape: str = Field(json_schema_extra={"enum": list(SHAPES)})
     energy_J: float = Field(description="admissible energy in J: a finite number > 0")
-    confirm: bool = Field(False, description="required when energy_J exceeds the source value")
+    confirm: StrictBool = Field(
+        False, description="required when energy_J exceeds the source value (true or false)"
+    )
     user: str = Field("unknown", max_length=200, description="who asks (free text, audited)")
 
 
@@ -166,6 +169,7 @@ def add_threshold_routes(
     def put_cell_threshold(
         cell: str,
         body: ThresholdEditBody,
+        request: Request,
         timeout_s: float = Query(EDIT_TIMEOUT_S, gt=0.0, le=120.0),
     ) -> ThresholdEditAnswer:
         """Change one entry of the cell's thresholds live (validated, confirmed when above its
@@ -185,7 +189,7 @@ def add_threshold_routes(
                     send=ed.send(cell, timeout_s),
                     audit=log,
                     cell=cell,
-                    user=body.user,
+                    user=credential_user(request) or body.user,  # the token's user wins
                     via="api",
                     no_answer=(WorkerTimeoutError,),
                 )

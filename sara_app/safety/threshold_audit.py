@@ -12,7 +12,9 @@ request exceeded the source value, whether it was confirmed, who asked (free tex
 ``no_answer`` (the worker did not answer in time: it may or may not have applied the change).
 
 The same file holds the operators' actions on people (``person_actions``, schema version 2):
-the time, the cell, the person, the action (``retire``), who, why and the outcome.
+the time, the cell, the person, the action (``retire``), who, why and the outcome; and every
+request to a mutating API route (``api_requests``: method, path, HTTP status, client, user,
+body size), refused ones included.
 
 Schema version ``PRAGMA user_version`` (:data:`SCHEMA_VERSION`; a version 1 file gains the
 person table when opened); a newer file is refused rather than misread. Concurrent writers
@@ -80,7 +82,19 @@ _SCHEMA = (
     outcome TEXT NOT NULL CHECK (outcome IN ('applied', 'refused', 'no_answer')),
     detail TEXT NOT NULL
 )""",
+    """CREATE TABLE IF NOT EXISTS api_requests (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    time_utc TEXT NOT NULL,
+    time_epoch_s REAL NOT NULL,
+    method TEXT NOT NULL,
+    path TEXT NOT NULL,
+    status INTEGER NOT NULL,
+    client TEXT NOT NULL,
+    user TEXT NOT NULL,
+    body_bytes INTEGER NOT NULL
+)""",
 )
+_REQUEST_COLUMNS = "id, time_utc, time_epoch_s, method, path, status, client, user, body_bytes"
 _PERSON_COLUMNS = (
     "id, time_utc, time_epoch_s, cell, human_id, action, user, reason, outcome, detail"
 )
@@ -321,6 +335,27 @@ class AuditLog:
                 f"SELECT {_PERSON_COLUMNS} FROM person_actions WHERE id = ?", (cur.lastrowid,)
             ).fetchone()
         return dict(zip(_PERSON_COLUMNS.split(", "), got, strict=True))
+
+    def record_request(
+        self, method: str, path: str, status: int, client: str, user: str, body_bytes: int
+    ) -> None:
+        """One request to a mutating API route, whatever its outcome (refused ones too)."""
+        now = float(self.clock())
+        stamp = datetime.fromtimestamp(now, UTC).isoformat(timespec="microseconds")
+        row = (stamp, now, method[:8], path[:300], int(status), client[:64], _clean_user(user),
+               int(body_bytes))  # fmt: skip
+        names = _REQUEST_COLUMNS.split(", ", 1)[1]
+        with self._connect() as con:
+            con.execute(f"INSERT INTO api_requests ({names}) VALUES (?, ?, ?, ?, ?, ?, ?, ?)", row)
+
+    def requests(self, limit: int = 50) -> list[dict[str, Any]]:
+        """The API's mutating requests, newest first."""
+        if isinstance(limit, bool) or not isinstance(limit, int) or not 1 <= limit <= MAX_LIMIT:
+            raise ParameterError(f"audit limit {limit!r}; expected an integer in 1..{MAX_LIMIT}")
+        sql = f"SELECT {_REQUEST_COLUMNS} FROM api_requests ORDER BY id DESC LIMIT ?"
+        with self._connect() as con:
+            rows = con.execute(sql, (limit,)).fetchall()
+        return [dict(zip(_REQUEST_COLUMNS.split(", "), r, strict=True)) for r in rows]
 
     def person_actions(self, cell: str, limit: int = 50) -> list[dict[str, Any]]:
         """``cell``'s operator actions on people, newest first (at most ``limit``)."""

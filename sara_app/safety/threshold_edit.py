@@ -34,12 +34,12 @@ from sara_app.safety.thresholds import (
     ThresholdSet,
     load_thresholds,
 )
-from sara_app.scenario import Scenario, parse_scenario
+from sara_app.scenario import MAX_THRESHOLD_J, Scenario, parse_scenario
 
 if TYPE_CHECKING:
     from sara_app.safety.threshold_audit import AuditEntry, AuditLog
 
-ENERGY_RANGE = "a finite number > 0 J"
+ENERGY_RANGE = f"a finite number > 0 J and <= {MAX_THRESHOLD_J:g} J (the physical ceiling)"
 
 ISO_REGIONS: dict[str, tuple[str, ...]] = {
     "hand": ("hand",),
@@ -72,7 +72,7 @@ def check_energy(energy_J: object) -> float:
             f"threshold energy {energy_J!r} is not a number; expected {ENERGY_RANGE}"
         )
     value = float(energy_J)
-    if not math.isfinite(value) or value <= 0.0:
+    if not math.isfinite(value) or value <= 0.0 or value > MAX_THRESHOLD_J:
         raise ParameterError(
             f"threshold energy {value!r} J is out of range; expected {ENERGY_RANGE}"
         )

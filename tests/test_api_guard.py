@@ -1,0 +1,71 @@
+"""The REST service's front door: Host check (DNS rebinding), body size limit, tokens for
+changes (the user is the token's), and every mutating request audited, refused ones included."""
+
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+
+import pytest
+
+with warnings.catch_warnings():
+    warnings.filterwarnings("ignore", message=".*httpx.*deprecated")
+    from fastapi.testclient import TestClient
+
+from sara_app.api import CellRegistry, create_app
+from sara_app.api.guard import MAX_BODY_BYTES, load_tokens
+from sara_app.errors import ParameterError
+from sara_app.safety.threshold_audit import AuditLog
+
+TOKEN = "t" * 24
+
+
+def _client(tmp_path: Path, **kw) -> TestClient:
+    app = create_app(CellRegistry(None), audit=AuditLog(tmp_path / "audit.sqlite"), **kw)
+    return TestClient(app)
+
+
+def test_foreign_host_large_body_and_missing_token_are_refused_and_audited(
+    tmp_path: Path,
+) -> None:
+    c = _client(tmp_path, tokens={TOKEN: "anna"}, require_token=True)
+    assert c.get("/api/health").status_code == 200  # reading needs no token
+    r = c.get("/api/health", headers={"host": "evil.example:8000"})
+    assert r.status_code == 421  # a rebound DNS name
+    r = c.put("/api/scenarios/x", content=b"{}", headers={"content-type": "application/json"})
+    assert r.status_code == 401  # a change without a token
+    big = b'{"name": "' + b"x" * (MAX_BODY_BYTES + 10) + b'"}'
+    auth = {"authorization": f"Bearer {TOKEN}", "content-type": "application/json"}
+    r = c.put("/api/scenarios/big", content=big, headers=auth)
+    assert r.status_code == 413
+    r = c.put("/api/scenarios/x", content=b"{not json", headers=auth)
+    assert r.status_code == 422  # refused by validation: audited too
+    rows = c.get("/api/requests/audit").json()
+    assert [(x["method"], x["status"], x["user"]) for x in rows] == [
+        ("PUT", 422, "anna"),
+        ("PUT", 413, "anna"),
+        ("PUT", 401, "local"),
+    ]
+    assert rows[1]["body_bytes"] > MAX_BODY_BYTES
+
+
+def test_the_token_names_the_user_in_the_threshold_audit(tmp_path: Path) -> None:
+    """Without a cell the edit fails (404), but the request row carries the token's user."""
+    c = _client(tmp_path, tokens={TOKEN: "anna"})
+    body = {"region": "hand", "contact": "constrained", "shape": "blunt", "energy_J": 0.2,
+            "user": "mallory"}  # fmt: skip
+    r = c.put("/api/cells/c1/thresholds", json=body, headers={"authorization": f"Bearer {TOKEN}"})
+    assert r.status_code == 404
+    assert c.get("/api/requests/audit").json()[0]["user"] == "anna"
+
+
+def test_tokens_file(tmp_path: Path) -> None:
+    made = load_tokens(tmp_path / "tokens.json", create=True)
+    assert list(made.values()) == ["operator"] and len(next(iter(made))) >= 16
+    assert load_tokens(tmp_path / "tokens.json") == made
+    (tmp_path / "bad.json").write_text(json.dumps({"short": "x"}))
+    with pytest.raises(ParameterError, match="16 characters"):
+        load_tokens(tmp_path / "bad.json")
+    with pytest.raises(ParameterError):
+        create_app(CellRegistry(None), audit=AuditLog(tmp_path / "a.sqlite"), require_token=True)
