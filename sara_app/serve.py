@@ -21,6 +21,7 @@ display side of this process (the dashboard, the API and the threads they start)
 from __future__ import annotations
 
 import faulthandler
+import ipaddress
 import logging
 import os
 import shutil
@@ -32,6 +33,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from sara_app.api.guard import load_tokens
 from sara_app.bus.session import Bus
 from sara_app.cell import base_pose
 from sara_app.errors import SaraError
@@ -130,6 +132,8 @@ def serve(
     duration_s: float | None = None,
     frame_hz: float = 20.0,
     display_nice: int = DISPLAY_NICE,
+    api_host: str = "127.0.0.1",
+    require_token: bool = False,
 ) -> int:
     """Run everything until Ctrl-C (or ``duration_s``); returns the exit code.
 
@@ -179,8 +183,14 @@ def serve(
         view.refresh_panels()
         registry = CellRegistry(hub)
         registry.start()
-        app = create_app(registry, folder, viewer_url=viewer_url, processes=sup.status)
-        api = ApiServer(app, port=api_port)
+        exposed = not _is_loopback(api_host)
+        tokens_path = default_data_dir() / "api_tokens.json"
+        tokens = load_tokens(tokens_path, create=True) if (require_token or exposed) else None
+        app = create_app(
+            registry, folder, viewer_url=viewer_url, processes=sup.status, tokens=tokens,
+            require_token=tokens is not None, hosts=() if not exposed else (api_host,),
+        )  # fmt: skip
+        api = ApiServer(app, host=api_host, port=api_port)
         api_url = api.start().rstrip("/")
         print(f"SaRA cell {cell!r}, scenario {scenario!r}", flush=True)
         print(f"  3D dashboard   {viewer_url}", flush=True)
@@ -188,6 +198,8 @@ def serve(
         print(
             f"  zenoh router   tcp/127.0.0.1:{zenoh_port}   (Ctrl-C stops everything)", flush=True
         )
+        if tokens is not None:
+            print(f"  API changes need 'Authorization: Bearer <token>'; tokens: {tokens_path}")
         period = 1.0 / frame_hz
         t_end = None if duration_s is None else time.monotonic() + duration_s
         while (t_end is None or time.monotonic() < t_end) and not _STOP.is_set():
@@ -212,6 +224,13 @@ def serve(
 
 
 CONTROLLER, WORKER, REPLAYER = "sara_app.controller", "sara_app.worker", "sara_app.replayer"
+
+
+def _is_loopback(host: str) -> bool:
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return host == "localhost"
 
 
 def _verdict_age(registry: Any, cell: str, sup: Supervisor) -> float | None:
@@ -244,6 +263,8 @@ def main_for_cli(
     viewer_port: int,
     api_port: int,
     duration_s: float | None,
+    api_host: str = "127.0.0.1",
+    require_token: bool = False,
 ) -> int:
     logging.basicConfig(level=logging.WARNING)
     os.environ.setdefault("PYTHONUNBUFFERED", "1")
@@ -260,6 +281,8 @@ def main_for_cli(
             viewer_port=viewer_port,
             api_port=api_port,
             duration_s=duration_s,
+            api_host=api_host,
+            require_token=require_token,
         )
     except SaraError as e:
         print(f"error: {e}", file=sys.stderr)

@@ -11,8 +11,9 @@ def _serve(args: argparse.Namespace) -> int:
     from sara_app.serve import main_for_cli
 
     return main_for_cli(
-        args.scenario, args.cell, args.zenoh_port, args.viewer_port, args.api_port, args.duration
-    )
+        args.scenario, args.cell, args.zenoh_port, args.viewer_port, args.api_port, args.duration,
+        api_host=args.api_host, require_token=args.require_token,
+    )  # fmt: skip
 
 
 def _worker(args: argparse.Namespace) -> int:
@@ -44,6 +45,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--viewer-port", type=int, default=8080)
     s.add_argument("--api-port", type=int, default=8000)
     s.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    s.add_argument(
+        "--api-host",
+        default="127.0.0.1",
+        help="address of the REST service (anything but loopback requires API tokens)",
+    )
+    s.add_argument(
+        "--require-token",
+        action="store_true",
+        help="require an API token for every change, also on loopback (tokens file printed)",
+    )
     s.set_defaults(run=_serve)
 
     for name, run, text in (
