@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from sara_app.api.guard import load_tokens
+from sara_app.bus.access import Credentials, router_access
 from sara_app.bus.session import Bus
 from sara_app.cell import base_pose
 from sara_app.errors import SaraError
@@ -148,7 +149,12 @@ def serve(
 
     folder = scenarios_dir()
     sc = load_scenario(scenario, folder)
-    hub = Bus.router(zenoh_port)
+    creds = Credentials.create(default_data_dir() / "zenoh_credentials.txt")
+    hub = Bus.router(zenoh_port, access=router_access([cell], creds))
+
+    def login(role: str) -> tuple[str, ...]:
+        return ("--zenoh-user", role, "--zenoh-credentials", str(creds.path))
+
     dash = Dashboard(
         robot=sc.robot.name, T_world_base=base_pose(sc.robot.base_xyz_m, sc.robot.base_rpy_rad)
     )
@@ -160,14 +166,23 @@ def serve(
         keep = ("--state-dir", str(default_data_dir() / "cells"))  # edits survive restarts
         sup = Supervisor(  # the robot (the reference controller) first: the worker tracks it
             [
-                Child("controller", lambda: _spawn(CONTROLLER, cell, scenario, zenoh_port, 0, rt)),
+                Child(
+                    "controller",
+                    lambda: _spawn(
+                        CONTROLLER, cell, scenario, zenoh_port, 0, rt, login("controller")
+                    ),
+                ),
                 Child(
                     "worker",
-                    lambda: _spawn(WORKER, cell, scenario, zenoh_port, 0, rt, keep),
+                    lambda: _spawn(
+                        WORKER, cell, scenario, zenoh_port, 0, rt, keep + login("worker")
+                    ),
                 ),
                 Child(
                     "replayer",
-                    lambda: _spawn(REPLAYER, cell, scenario, zenoh_port, nice=REPLAYER_NICE),
+                    lambda: _spawn(
+                        REPLAYER, cell, scenario, zenoh_port, REPLAYER_NICE, 0, login("tracker")
+                    ),
                 ),
             ]
         )
@@ -198,6 +213,7 @@ def serve(
         print(
             f"  zenoh router   tcp/127.0.0.1:{zenoh_port}   (Ctrl-C stops everything)", flush=True
         )
+        print(f"  zenoh users    tracker, controller, editor: passwords in {creds.path}")
         if tokens is not None:
             print(f"  API changes need 'Authorization: Bearer <token>'; tokens: {tokens_path}")
         period = 1.0 / frame_hz

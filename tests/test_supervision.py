@@ -18,8 +18,10 @@ from typing import Any
 from test_serve import _child_pids
 
 from sara_app.bus import keys
+from sara_app.bus.access import Credentials, client_auth
 from sara_app.bus.messages import RobotCommandMsg
 from sara_app.bus.session import Bus, free_port
+from sara_app.safety.threshold_audit import default_data_dir
 
 
 def _api(port: int, path: str) -> Any:
@@ -62,7 +64,8 @@ def test_serve_supervises_its_worker_and_leaves_nothing_behind() -> None:
 
         # a crashed worker: no command while it is gone, back within seconds
         pid = procs["worker"]["pid"]
-        with Bus.client(zp) as bus:
+        creds = Credentials(default_data_dir() / "zenoh_credentials.txt")  # serve made it
+        with Bus.client(zp, auth=client_auth("editor", creds)) as bus:
             cmds = bus.subscribe(keys.robot_command_key("cell1"), fifo=True, capacity=100000)
             time.sleep(0.3)
             os.kill(pid, signal.SIGKILL)
@@ -77,7 +80,8 @@ def test_serve_supervises_its_worker_and_leaves_nothing_behind() -> None:
 
         # one worker per cell: a second one refuses, loudly
         second = subprocess.run(
-            [sys.executable, "-m", "sara_app.worker", "--cell", "cell1", "--port", str(zp)],
+            [sys.executable, "-m", "sara_app.worker", "--cell", "cell1", "--port", str(zp),
+             "--zenoh-user", "worker", "--zenoh-credentials", str(creds.path)],
             capture_output=True, text=True, timeout=120,
         )  # fmt: skip
         assert second.returncode == 2 and "already served" in second.stderr, second.stderr

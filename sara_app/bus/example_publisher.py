@@ -39,8 +39,14 @@ def main() -> None:
     ap.add_argument("--tracker", default="main", help="this tracker's id in the scenario")
     ap.add_argument("--rate", type=float, default=60.0, help="Hz")
     ap.add_argument("--count", type=int, default=0, help="messages to send; 0: until Ctrl-C")
+    ap.add_argument("--credentials", help="the cell's zenoh credentials file (user:password)")
+    ap.add_argument("--user", default="tracker", help="the zenoh user (role) to log in as")
     args = ap.parse_args()
-    conf = {"mode": "client", "connect": {"endpoints": [args.connect]}}
+    conf: dict = {"mode": "client", "connect": {"endpoints": [args.connect]}}
+    if args.credentials:  # a router with access control (sara-app serve) needs a login
+        with open(args.credentials) as fh:
+            pw = dict(ln.strip().split(":", 1) for ln in fh if ":" in ln)[args.user]
+        conf["transport"] = {"auth": {"usrpwd": {"user": args.user, "password": pw}}}
     with zenoh.open(zenoh.Config.from_json5(json.dumps(conf))) as session:
         pub = session.declare_publisher(f"sara/{args.cell}/human/{args.human}/skeleton")
         beat = session.declare_publisher(f"sara/{args.cell}/tracker/{args.tracker}/frame")

@@ -13,6 +13,7 @@ import threading
 from collections.abc import Callable
 from typing import Protocol
 
+from sara_app.bus.access import Credentials, client_auth
 from sara_app.bus.session import Bus
 from sara_app.errors import SaraError
 from sara_app.scenario import load_scenario
@@ -68,6 +69,10 @@ def process_main(
         action="store_true",
         help="end when the parent process ends (how serve starts its children)",
     )
+    ap.add_argument("--zenoh-user", default=None, help="this process's role on the bus")
+    ap.add_argument(
+        "--zenoh-credentials", default=None, help="the credentials file (user:password lines)"
+    )
     if state:
         ap.add_argument("--state-dir", default=None, help="keep the cell's edits in this folder")
     args = ap.parse_args(argv)
@@ -76,7 +81,12 @@ def process_main(
     logging.basicConfig(level=logging.INFO, format=f"%(asctime)s {name} %(message)s")
     try:
         sc = load_scenario(args.scenario)
-        with Bus.client(args.port) as bus:
+        auth = None
+        if args.zenoh_user is not None or args.zenoh_credentials is not None:
+            if not (args.zenoh_user and args.zenoh_credentials):
+                raise SaraError("--zenoh-user and --zenoh-credentials go together")
+            auth = client_auth(args.zenoh_user, Credentials(args.zenoh_credentials))
+        with Bus.client(args.port, auth=auth) as bus:
             kw = {"state_dir": args.state_dir, "origin": args.scenario} if state else {}
             proc = factory(args.cell, sc, bus, **kw)
             for sig in (signal.SIGINT, signal.SIGTERM):

@@ -77,23 +77,36 @@ def endpoint(port: int, host: str = LOOPBACK) -> str:
     return f"tcp/{host}:{port}"
 
 
-def router_config(port: int = DEFAULT_PORT, host: str = LOOPBACK) -> zenoh.Config:
-    """A router session listening on ``tcp/<host>:<port>`` (loopback only), no scouting."""
-    cfg = {
+def router_config(
+    port: int = DEFAULT_PORT, host: str = LOOPBACK, access: dict[str, Any] | None = None
+) -> zenoh.Config:
+    """A router session listening on ``tcp/<host>:<port>`` (loopback only), no scouting;
+    ``access``: authentication and access control (:func:`sara_app.bus.access.router_access`)."""
+    transport: dict[str, Any] = {"link": {"rx": {"max_message_size": ROUTER_MAX_MESSAGE_BYTES}}}
+    cfg: dict[str, Any] = {
         "mode": "router",
         "listen": {"endpoints": [endpoint(port, host)]},
         "scouting": _NO_SCOUTING,
-        "transport": {"link": {"rx": {"max_message_size": ROUTER_MAX_MESSAGE_BYTES}}},
+        "transport": transport,
     }
+    if access is not None:
+        transport.update(access["transport"])
+        cfg["access_control"] = access["access_control"]
     return zenoh.Config.from_json5(json.dumps(cfg))
 
 
 def client_config(
-    port: int = DEFAULT_PORT, host: str = LOOPBACK, timeout_ms: int = 5000
+    port: int = DEFAULT_PORT,
+    host: str = LOOPBACK,
+    timeout_ms: int = 5000,
+    auth: dict[str, Any] | None = None,
 ) -> zenoh.Config:
-    """A client session that connects to ``tcp/<host>:<port>``, giving up after ``timeout_ms``."""
+    """A client session that connects to ``tcp/<host>:<port>``, giving up after ``timeout_ms``;
+    ``auth``: its credentials (:func:`sara_app.bus.access.client_auth`)."""
     connect = {"endpoints": [endpoint(port, host)], "timeout_ms": int(timeout_ms)}
-    cfg = {"mode": "client", "connect": connect, "scouting": _NO_SCOUTING}
+    cfg: dict[str, Any] = {"mode": "client", "connect": connect, "scouting": _NO_SCOUTING}
+    if auth is not None:
+        cfg["transport"] = auth
     return zenoh.Config.from_json5(json.dumps(cfg))
 
 
@@ -218,12 +231,20 @@ class Bus:
         self._owned: list[Subscription | Publisher] = []
 
     @classmethod
-    def router(cls, port: int = DEFAULT_PORT, host: str = LOOPBACK) -> Bus:
-        return cls(router_config(port, host))
+    def router(
+        cls, port: int = DEFAULT_PORT, host: str = LOOPBACK, access: dict[str, Any] | None = None
+    ) -> Bus:
+        return cls(router_config(port, host, access))
 
     @classmethod
-    def client(cls, port: int = DEFAULT_PORT, host: str = LOOPBACK, timeout_ms: int = 5000) -> Bus:
-        return cls(client_config(port, host, timeout_ms))
+    def client(
+        cls,
+        port: int = DEFAULT_PORT,
+        host: str = LOOPBACK,
+        timeout_ms: int = 5000,
+        auth: dict[str, Any] | None = None,
+    ) -> Bus:
+        return cls(client_config(port, host, timeout_ms, auth))
 
     def subscribe(
         self,
