@@ -1,9 +1,11 @@
 """``sara-app serve``: the whole cell on one machine, no setup.
 
-Processes: this one (a Zenoh router on 127.0.0.1, the viser dashboard and the FastAPI service),
-the reference robot controller (``sara_app.controller``: a simulated robot that follows the
-commands and brakes along their verified stop when they stop), a cell worker and a replayer (the
-scenario's people, published over Zenoh as a tracker would).
+Processes: this one (the viser dashboard and the FastAPI service), the Zenoh router on 127.0.0.1
+(``sara_app.bus.router``, with the cell's access control: no dashboard or API load can delay the
+messages it carries), the reference robot controller (``sara_app.controller``: a simulated
+robot that follows the commands and brakes along their verified stop when they stop), a cell
+worker and a replayer (the scenario's people, published over Zenoh as a tracker would), all
+supervised (``sara_app.supervisor``).
 The safety loop runs in the worker process and never waits for the view. Ctrl-C stops all.
 
 CPU priority: the safety worker comes first. Every child runs in a session of its own (a terminal's
@@ -34,7 +36,7 @@ from pathlib import Path
 from typing import Any
 
 from sara_app.api.guard import load_tokens
-from sara_app.bus.access import Credentials, router_access
+from sara_app.bus.access import Credentials, client_auth
 from sara_app.bus.session import Bus
 from sara_app.cell import base_pose
 from sara_app.errors import SaraError
@@ -150,22 +152,27 @@ def serve(
     folder = scenarios_dir()
     sc = load_scenario(scenario, folder)
     creds = Credentials.create(default_data_dir() / "zenoh_credentials.txt")
-    hub = Bus.router(zenoh_port, access=router_access([cell], creds))
 
     def login(role: str) -> tuple[str, ...]:
         return ("--zenoh-user", role, "--zenoh-credentials", str(creds.path))
+
+    router_cmd = [sys.executable, "-m", ROUTER, "--port", str(zenoh_port), "--cell", cell,
+                  "--credentials", str(creds.path), "--rt-priority", str(WORKER_RT_PRIORITY),
+                  "--die-with-parent"]  # fmt: skip
 
     dash = Dashboard(
         robot=sc.robot.name, T_world_base=base_pose(sc.robot.base_xyz_m, sc.robot.base_rpy_rad)
     )
     api = None
     registry = None
+    hub: Bus | None = None
     sup: Supervisor | None = None
     try:
         rt = WORKER_RT_PRIORITY
         keep = ("--state-dir", str(default_data_dir() / "cells"))  # edits survive restarts
-        sup = Supervisor(  # the robot (the reference controller) first: the worker tracks it
+        sup = Supervisor(  # the router, then the robot (the controller): the worker tracks it
             [
+                Child("router", lambda: start_process(router_cmd)),
                 Child(
                     "controller",
                     lambda: _spawn(
@@ -186,6 +193,8 @@ def serve(
                 ),
             ]
         )
+        sup.start(("router",))
+        hub = _connect(zenoh_port, client_auth("editor", creds), sup)
         sup.start()
         lower_thread_priority(display_nice)  # after the spawns: children inherit the caller's
         view = CellView(cell, hub, dash, sc, folder)
@@ -236,10 +245,24 @@ def serve(
         if registry is not None:
             registry.close()
         dash.stop()
-        hub.close()
+        if hub is not None:
+            hub.close()
 
 
 CONTROLLER, WORKER, REPLAYER = "sara_app.controller", "sara_app.worker", "sara_app.replayer"
+ROUTER = "sara_app.bus.router"
+
+
+def _connect(port: int, auth: dict[str, Any], sup: Supervisor, wait_s: float = 30.0) -> Bus:
+    """The dashboard's and API's session, once the router (just started) listens."""
+    t_end = time.monotonic() + wait_s
+    while True:
+        try:
+            return Bus.client(port, timeout_ms=1000, auth=auth)
+        except SaraError:
+            if time.monotonic() > t_end or not sup.status()["router"]["running"]:
+                raise
+            time.sleep(0.2)
 
 
 def _is_loopback(host: str) -> bool:

@@ -1,4 +1,4 @@
-"""``serve``'s supervision of a cell's processes (controller, worker, replayer).
+"""``serve``'s supervision of a cell's processes (router, controller, worker, replayer).
 
 - A child that exits is started again after a backoff (0.5 s, doubling to 10 s; back to 0.5 s
   once a child has run for 30 s), and counted.
@@ -56,10 +56,12 @@ class Supervisor:
         self.children = children
         self.worker = worker
 
-    def start(self) -> None:
+    def start(self, names: tuple[str, ...] | None = None) -> None:
+        """Start the children not started yet (only ``names`` when given)."""
         now = time.monotonic()
         for c in self.children:
-            c.spawn(now)
+            if c.proc is None and (names is None or c.name in names):
+                c.spawn(now)
 
     def poll(self, now: float, verdict_age_s: float | None) -> list[str]:
         """Restart what died or hung; returns what happened (for the log). ``verdict_age_s``:

@@ -38,9 +38,9 @@ def _child_pids(zenoh_port: int) -> dict[int, str]:
         except OSError:
             continue
         text = b" ".join(args).decode(errors="replace")
-        if any(f"sara_app.{m}" in text for m in ("worker", "replayer", "controller")) and (
-            f"--port {zenoh_port}" in text
-        ):
+        if any(
+            f"sara_app.{m}" in text for m in ("worker", "replayer", "controller", "bus.router")
+        ) and (f"--port {zenoh_port}" in text):
             out[int(cmdline.parent.name)] = text
     return out
 
@@ -71,7 +71,7 @@ def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(sig: signal.Signals) ->
         status, _ = _get(f"http://127.0.0.1:{ap}/")
         assert status == 200
         kids = _child_pids(zp)
-        assert len(kids) == 3  # controller, worker, replayer
+        assert len(kids) == 4  # router, controller, worker, replayer
         for pid, text in kids.items():  # the safety worker first: the replayer runs niced
             want = REPLAYER_NICE if "sara_app.replayer" in text else 0
             assert os.getpriority(os.PRIO_PROCESS, pid) - os.getpriority(os.PRIO_PROCESS, 0) == want

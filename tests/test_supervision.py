@@ -85,7 +85,7 @@ def test_serve_supervises_its_worker_and_leaves_nothing_behind() -> None:
             capture_output=True, text=True, timeout=120,
         )  # fmt: skip
         assert second.returncode == 2 and "already served" in second.stderr, second.stderr
-        assert len(_child_pids(zp)) == 3
+        assert len(_child_pids(zp)) == 4  # router, controller, worker, replayer
     finally:
         serve.send_signal(signal.SIGKILL)
         serve.wait(10)

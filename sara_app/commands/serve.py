@@ -32,6 +32,8 @@ def _process_argv(args: argparse.Namespace) -> list[str]:
     argv = ["--cell", args.cell, "--scenario", args.scenario, "--port", str(args.zenoh_port)]
     if args.duration is not None:
         argv += ["--duration", str(args.duration)]
+    if args.credentials is not None:
+        argv += ["--zenoh-user", args.user, "--zenoh-credentials", args.credentials]
     return argv
 
 
@@ -66,4 +68,6 @@ def register(sub: argparse._SubParsersAction) -> None:
         w.add_argument("--cell", default="cell1")
         w.add_argument("--zenoh-port", type=int, default=7447)
         w.add_argument("--duration", type=float, default=None)
+        w.add_argument("--credentials", default=None, help="serve's zenoh credentials file")
+        w.add_argument("--user", default=name, help="the zenoh user (role) to log in as")
         w.set_defaults(run=run)

@@ -1,0 +1,55 @@
+"""The cell's zenoh router as a process of its own (``python -m sara_app.bus.router``), so that
+neither the dashboard, the API nor their clients (browsers, event streams) can delay the
+messages between trackers, worker and controller: ``serve`` starts it first, supervised, at the
+real-time priority of the worker where the system permits, with the cell's access control.
+
+``--port``: the loopback port; ``--cell`` (repeatable): the cells of the access rules;
+``--credentials``: the credentials file (without it the router has no access control, as for a
+development bus).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+
+from sara_app.bus.access import Credentials, router_access
+from sara_app.bus.process import die_with_parent, set_realtime
+from sara_app.bus.session import Bus
+from sara_app.errors import SaraError
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="sara_app.bus.router", description=__doc__.splitlines()[0])
+    ap.add_argument("--port", type=int, default=7447)
+    ap.add_argument("--cell", action="append", default=[])
+    ap.add_argument("--credentials", default=None)
+    ap.add_argument("--rt-priority", type=int, default=0)
+    ap.add_argument("--die-with-parent", action="store_true")
+    args = ap.parse_args(argv)
+    if args.die_with_parent:
+        die_with_parent()
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s router %(message)s")
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    try:
+        if args.rt_priority:
+            set_realtime(args.rt_priority, "router")  # the zenoh threads started after inherit
+        access = None
+        if args.credentials:
+            access = router_access(args.cell or ["cell1"], Credentials(args.credentials))
+        with Bus.router(args.port, access=access):
+            logging.getLogger("sara_app.router").info("listening on 127.0.0.1:%d", args.port)
+            stop.wait()
+    except SaraError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
