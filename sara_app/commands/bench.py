@@ -8,6 +8,11 @@ import argparse
 def _bench(args: argparse.Namespace) -> None:
     from sara_app import bench
 
+    if args.sse:
+        from sara_app.bench_sse import bench_sse_load
+
+        bench.print_rows(bench_sse_load(args.clients))
+        return
     if args.view:
         from sara_app.bench_live import bench_view_load
 
@@ -24,6 +29,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="instead: the live worker's cycle time without and with the dashboard + browser",
     )
+    b.add_argument(
+        "--sse",
+        action="store_true",
+        help="instead: verdict delivery and command loss at a bus subscriber, idle and with "
+        "many API event streams",
+    )
+    b.add_argument("--clients", type=int, default=50, help="event streams of --sse")
     b.add_argument("--scenario", default="punches", help="scenario of the --view benchmark")
     b.add_argument("--phase-s", type=float, default=6.0, help="seconds per --view phase")
     b.add_argument("--rounds", type=int, default=2, help="off/on rounds of --view")
