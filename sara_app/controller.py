@@ -1,9 +1,9 @@
 """The reference robot controller (``sara-app controller``): the contract's controller side in
 plain Python, simulating a robot that tracks its set points exactly.
 
-- It follows the newest valid robot command (``sara/<cell>/robot/command``, schema version 2)
-  as an ideal robot: from where it stands to the set point on the straight joint-space segment,
-  reaching it at ``stamp_s + dt``.
+- It follows the valid robot commands (``sara/<cell>/robot/command``, schema version 2) as an
+  ideal robot: through each set point at its time ``stamp_s + dt``, on straight joint-space
+  segments in between (the commanded trajectory the worker checks its states against).
 - Past a set point without a newer command it continues along that command's verified stop, on
   schedule (linear in joint space between the samples, as the contract allows), and rests at
   its end: braking starts at once, whatever the reason (the worker crashed, hangs, or its
@@ -12,8 +12,8 @@ plain Python, simulating a robot that tracks its set points exactly.
   commanded path by less than a tracking tolerance then). Once the newest command expired it
   follows commands again only when their set point is within ``tracking_tol_rad`` of where it
   stands (the worker re-anchors on the measured state); others are counted as refused.
-- It polls for commands and publishes ``robot/state`` every half control period, stamped with
-  the time of the state.
+- It polls for commands every ``POLL_S`` and publishes ``robot/state`` on each new command and
+  at least every half control period, stamped with the time of the state.
 
 Against a real robot, replace ``_apply`` with the driver's set-point call and publish the
 driver's measured state; keep the expiry and braking rules.
@@ -36,23 +36,10 @@ from sara_app.bus.session import Bus
 from sara_app.scenario import Scenario
 
 log = logging.getLogger("sara_app.controller")
-
-
-def stop_position(cmd: RobotCommandMsg, t_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """Joint positions and velocities at time ``t_s`` along ``cmd``'s verified stop: linear in
-    joint space between its samples on schedule, the set point before the first and the last
-    sample (at rest) after it; ``(n,)`` each."""
-    if not cmd.failsafe_t_s:
-        return np.asarray(cmd.q, dtype=float), np.zeros(len(cmd.q))
-    t = np.asarray(cmd.failsafe_t_s) + cmd.stamp_s
-    q = np.asarray(cmd.failsafe_q, dtype=float)
-    if t_s <= t[0]:
-        return q[0].copy(), np.zeros(q.shape[1])
-    if t_s >= t[-1]:
-        return q[-1].copy(), np.zeros(q.shape[1])
-    k = int(np.searchsorted(t, t_s, side="right")) - 1
-    slope = (q[k + 1] - q[k]) / (t[k + 1] - t[k])
-    return q[k] + slope * (t_s - t[k]), slope
+POLL_S = 0.0005
+"""How often it looks for commands: a set point reached before the next command arrives sends
+the robot along the command's stop until then (sound, and seen by the worker as a small
+tracking error), so commands are taken up within half a millisecond."""
 
 
 class Controller:
@@ -66,39 +53,57 @@ class Controller:
         self.v = np.zeros_like(self.q)
         self.command: RobotCommandMsg | None = None
         self.braking = False  # on its own, along the expired command's stop
-        self.segment: tuple[float, np.ndarray, float, np.ndarray] | None = None
-        """The segment being followed: ``(t_from, q_from, t_to, q_to)``."""
+        self.points: list[tuple[float, np.ndarray]] = []
+        """Where the robot is to be when: ``(t, q)``, the first where it stood, then the set
+        points not yet reached."""
         self.refused = 0
+        self.published_s = -1.0
         self.stop_event = threading.Event()
         self.sub = bus.subscribe(keys.robot_command_key(self.cell), Decoder(), capacity=64)
         self.pub = bus.publisher(keys.robot_state_key(self.cell))
 
-    def _newest(self) -> RobotCommandMsg | None:
+    def _received(self) -> list[RobotCommandMsg]:
+        """The commands that came since the last tick, in order (every set point counts: the
+        robot passes through each)."""
         got = [
             d.msg
             for d in self.sub.drain().messages
             if isinstance(d.msg, RobotCommandMsg) and len(d.msg.q) == len(self.q)
         ]
-        return max(got, key=lambda m: m.seq) if got else None
+        return sorted(got, key=lambda m: m.seq)
 
     def tick(self, now: float) -> None:
-        cmd = self._newest()
-        if cmd is not None and self._acceptable(cmd, now):
-            # from where the robot is now to the new set point, reached at stamp + dt
-            t_to = max(cmd.stamp_s + self.dt_s, now)
-            self.segment = (now, self.q.copy(), t_to, np.asarray(cmd.q, dtype=float))
-            self.command, self.braking = cmd, False
-        if self.command is None or self.segment is None:
+        got = False
+        for cmd in self._received():
+            if self._acceptable(cmd, now):
+                self._follow(cmd, now)
+                got = True
+        if not got and now - self.published_s < 0.5 * self.dt_s:
+            return  # polled for commands only: a state every half period is enough
+        if self.command is None or not self.points:
             self.publish(now)
             return
-        if now <= self.segment[2]:
-            self._apply(*self._on_segment(now))
+        if now <= self.points[-1][0]:
+            self._apply(*self._on_points(now))
         else:  # past the set point without a newer command: on its verified stop, on schedule
             if now > self.command.valid_until_s and not self.braking:
                 log.warning("commands expired: braking along the last verified stop")
                 self.braking = True
-            self._apply(*stop_position(self.command, now))
+            self._apply(*self.command.stop_position(now))
         self.publish(now)
+
+    def _follow(self, cmd: RobotCommandMsg, now: float) -> None:
+        """Add ``cmd``'s set point (reached at stamp + dt) to the set points ahead; the robot
+        passes through each on schedule (the commanded trajectory the worker checks)."""
+        if self.braking or not self.points:
+            self.points = [(now, self.q.copy())]  # from where it stands
+        else:
+            q_now, _ = self._on_points(now)
+            ahead = [p for p in self.points if p[0] > now]
+            self.points = [(now, q_now), *ahead]
+        t_to = max(cmd.stamp_s + self.dt_s, self.points[-1][0] + 1e-6)
+        self.points.append((t_to, np.asarray(cmd.q, dtype=float)))
+        self.command, self.braking = cmd, False
 
     def _acceptable(self, cmd: RobotCommandMsg, now: float) -> bool:
         """A command is followed while valid; once the robot brakes on its own (the newest
@@ -113,21 +118,23 @@ class Controller:
         self.refused += 1
         return False
 
-    def _on_segment(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
-        """Position and velocity at ``t_s`` on the straight segment to the newest set point."""
-        if self.segment is None:
-            return self.q, np.zeros_like(self.q)
-        t0, q0, t1, q1 = self.segment
-        if t1 <= t0:
-            return q1, np.zeros_like(q1)
+    def _on_points(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Position and velocity at ``t_s`` on the straight segments through the set points
+        ahead (at the last one, at rest, from its time on)."""
+        pts = self.points
+        if t_s >= pts[-1][0]:
+            return pts[-1][1], np.zeros_like(pts[-1][1])
+        k = max(i for i, (t, _) in enumerate(pts) if t <= t_s) if t_s >= pts[0][0] else 0
+        (t0, q0), (t1, q1) = pts[k], pts[k + 1]
         slope = (q1 - q0) / (t1 - t0)
-        return q0 + slope * (min(t_s, t1) - t0), slope
+        return q0 + slope * (max(t_s, t0) - t0), slope
 
     def _apply(self, q: np.ndarray, v: np.ndarray) -> None:
         """The robot's set point (an ideal robot: reached at once)."""
         self.q, self.v = q, v
 
     def publish(self, now: float) -> None:
+        self.published_s = now
         self.pub.put(
             RobotStateMsg(
                 seq=self.pub.next_seq(), stamp_s=now, q=self.q.tolist(), q_dot=self.v.tolist()
@@ -144,7 +151,7 @@ class Controller:
                 self.tick(time.time())
             except Exception:  # noqa: BLE001 - keep braking rather than die
                 log.exception("controller tick failed")
-            next_t += 0.5 * self.dt_s
+            next_t += POLL_S
             time.sleep(max(next_t - time.monotonic(), 20e-6))
             if next_t < time.monotonic() - self.dt_s:  # late: no catching up
                 next_t = time.monotonic()

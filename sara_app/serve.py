@@ -42,7 +42,7 @@ from sara_app.cell import base_pose
 from sara_app.errors import SaraError
 from sara_app.safety.threshold_audit import default_data_dir
 from sara_app.scenario import load_scenario, scenarios_dir
-from sara_app.supervisor import Child, Supervisor
+from sara_app.supervisor import Child, Supervisor, stop_processes
 
 log = logging.getLogger("sara_app.serve")
 DEFAULT_SCENARIO = "punches"
@@ -113,16 +113,7 @@ def _spawn(
 
 
 def _stop(procs: list[subprocess.Popen[bytes]]) -> None:
-    for p in procs:
-        if p.poll() is None:
-            p.send_signal(signal.SIGINT)
-    t_end = time.monotonic() + 5.0
-    for p in procs:
-        try:
-            p.wait(timeout=max(t_end - time.monotonic(), 0.1))
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
+    stop_processes(procs)
 
 
 def serve(

@@ -111,16 +111,21 @@ class Supervisor:
         }
 
     def stop(self, timeout_s: float = 5.0) -> None:
-        procs = [c.proc for c in self.children if c.proc is not None]
+        """Stop every child (the last started first: the router ends after its users)."""
         for c in self.children:
             c.due_s = None
-        for p in procs:
-            if p.poll() is None:
-                p.send_signal(signal.SIGINT)
-        t_end = time.monotonic() + timeout_s
-        for p in procs:
-            try:
-                p.wait(timeout=max(t_end - time.monotonic(), 0.1))
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+        stop_processes([c.proc for c in reversed(self.children) if c.proc is not None], timeout_s)
+
+
+def stop_processes(procs: list[subprocess.Popen[bytes]], timeout_s: float = 5.0) -> None:
+    """SIGINT to each, then wait ``timeout_s`` in all, then SIGKILL what is left."""
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGINT)
+    t_end = time.monotonic() + timeout_s
+    for p in procs:
+        try:
+            p.wait(timeout=max(t_end - time.monotonic(), 0.1))
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()

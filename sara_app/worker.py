@@ -457,10 +457,11 @@ class CellWorker:
         update: dict[str, Any] = {"seq": self.pub_cmd.next_seq()}
         if not sent and command.mode == "intended":
             update["mode"] = "fault"
-        self.pub_cmd.put(command.model_copy(update=update))
+        sent_cmd = command.model_copy(update=update)
+        self.pub_cmd.put(sent_cmd)
         q = np.asarray(command.q)
         self.messages.last = JointState(q, np.asarray(command.q_dot), np.asarray(command.q_ddot))
-        self.robot_in.sent(command.stamp_s + dt, q)
+        self.robot_in.sent(command.stamp_s + dt, sent_cmd)
         try:
             if now >= self._next_display:
                 self._next_display = now + self.display_period

@@ -2,8 +2,9 @@
 commanded trajectory at the measurement's time (the contract's controller rules).
 
 The commanded trajectory is the sequence of set points the worker sent: set point ``q_i`` at
-``stamp_i + dt``, straight joint-space segments in between (what the reference controller
-executes). A state stamped ``t`` is compared with that trajectory at ``t``, so transport and
+``stamp_i + dt``, straight joint-space segments in between, and after the newest set point the
+newest command's verified stop (what the contract has a controller do, and the reference
+controller does). A state stamped ``t`` is compared with that trajectory at ``t``, so transport and
 scheduling delays between worker and controller do not count as tracking errors; a state older
 than the oldest remembered set point cannot be checked and is a fault.
 """
@@ -14,6 +15,7 @@ from collections import deque
 
 import numpy as np
 
+from sara_app.bus.messages import RobotCommandMsg
 from sara_app.robot.trajectory import JointState
 
 HISTORY = 256
@@ -30,20 +32,31 @@ class MeasuredRobot:
         self.stamp_s: float | None = None
         self.problem: str | None = None
         self.commanded: deque[tuple[float, np.ndarray]] = deque(maxlen=HISTORY)
+        self.commands: deque[RobotCommandMsg] = deque(maxlen=HISTORY)
+        self.last: RobotCommandMsg | None = None
 
-    def sent(self, t_point_s: float, q: np.ndarray) -> None:
-        """The worker sent set point ``q`` for time ``t_point_s``."""
+    def sent(self, t_point_s: float, command: RobotCommandMsg) -> None:
+        """The worker sent ``command``, whose set point is for time ``t_point_s``."""
         if self.commanded and t_point_s <= self.commanded[-1][0]:
             self.commanded.clear()  # time went back (a restarted clock): start afresh
-        self.commanded.append((t_point_s, np.asarray(q, dtype=float)))
+            self.commands.clear()
+        self.commanded.append((t_point_s, np.asarray(command.q, dtype=float)))
+        self.commands.append(command)
+        self.last = command
 
-    def expected(self, t_s: float) -> np.ndarray | None:
-        """The commanded position at ``t_s`` (None: before the remembered set points)."""
+    def expected(self, t_s: float) -> tuple[np.ndarray, float] | None:
+        """The commanded position at ``t_s`` and the slack the contract allows there (None:
+        before the remembered set points). Slack: between two set points a controller that has
+        not received the newer command yet follows the older command's verified stop (sound),
+        then heads for the newer set point; it is at most as far from the straight segment as
+        that stop is at ``t_s``."""
         c = self.commanded
         if not c or t_s < c[0][0]:
             return None
-        if t_s >= c[-1][0]:
-            return c[-1][1]
+        if t_s >= c[-1][0]:  # past the newest set point: on its command's verified stop
+            if self.last is None:
+                return c[-1][1], 0.0
+            return self.last.stop_position(t_s)[0], 0.0
         lo, hi = 0, len(c) - 1  # c[lo].t <= t_s < c[hi].t
         while hi - lo > 1:
             mid = (lo + hi) // 2
@@ -52,7 +65,9 @@ class MeasuredRobot:
             else:
                 hi = mid
         (ta, qa), (tb, qb) = c[lo], c[hi]
-        return qa + (qb - qa) * ((t_s - ta) / (tb - ta))
+        q = qa + (qb - qa) * ((t_s - ta) / (tb - ta))
+        slack = float(np.max(np.abs(self.commands[lo].stop_position(t_s)[0] - q)))
+        return q, slack
 
     def faults(self, now_s: float, timeout_s: float, tol_rad: float) -> list[str]:
         if self.problem is not None:
@@ -65,9 +80,12 @@ class MeasuredRobot:
         want = self.expected(self.stamp_s)
         if want is None:
             return []  # nothing commanded yet at that time: the worker has just started
-        err = float(np.max(np.abs(self.state.q - want)))
-        if not err <= tol_rad:  # NaN too
-            return [f"tracking error {err:.4f} rad > tolerance {tol_rad} rad"]
+        err = float(np.max(np.abs(self.state.q - want[0])))
+        if not err <= tol_rad + want[1]:  # NaN too
+            return [
+                f"tracking error {err:.4f} rad > tolerance {tol_rad} rad "
+                f"(+ {want[1]:.4f} rad on the stop before the next command)"
+            ]
         return []
 
     def at_rest_elsewhere(self, q: np.ndarray, tol_rad: float, v_rest: float = 1e-6) -> bool:

@@ -218,6 +218,22 @@ class RobotCommandMsg(_Msg):
             raise _fail("invalid", "valid_until_s is before stamp_s")
         return self
 
+    def stop_position(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Joint positions and velocities ``(n,)`` at time ``t_s`` along the verified stop, as
+        the contract has a controller follow it: linear in joint space between the samples on
+        schedule, the set point before the first sample and the last one (at rest) after it."""
+        if not self.failsafe_t_s:
+            return np.asarray(self.q, dtype=float), np.zeros(len(self.q))
+        t = np.asarray(self.failsafe_t_s) + self.stamp_s
+        q = np.asarray(self.failsafe_q, dtype=float)
+        if t_s <= t[0]:
+            return q[0].copy(), np.zeros(q.shape[1])
+        if t_s >= t[-1]:
+            return q[-1].copy(), np.zeros(q.shape[1])
+        k = int(np.searchsorted(t, t_s, side="right")) - 1
+        slope = (q[k + 1] - q[k]) / (t[k + 1] - t[k])
+        return q[k] + slope * (t_s - t[k]), slope
+
 
 class VerdictMsg(_Msg):
     """The outcome of one control cycle (key ``sara/<cell>/verdict``).
