@@ -1,11 +1,12 @@
 """The worker's cycle time with the dashboard and a browser connected versus without (issue 4:
 no more than 10 % worse), measured on the live stack of ``sara-app serve``.
 
-A Zenoh router, a cell worker and a replayer run as in ``serve``; the worker's verdicts (one per
-cycle, with its own cycle time) are collected in alternating phases: without a view, then with
-the viser dashboard fed at 20 Hz and a headless Debian chromium rendering it, and so on. Phases
-alternate (their order rotates each round) so that drifts of the machine's load hit all sides
-alike.
+A Zenoh router (a process of its own), a cell worker and a replayer run as in ``serve``; the
+worker's verdicts (one per cycle, with its own cycle time) are collected in alternating phases:
+without a view, then with the viser dashboard fed at 20 Hz and a headless Debian chromium
+rendering it, and so on. Phases alternate (their order rotates each round) so that drifts of the
+machine's load hit all sides alike. The robot commands that the subscriber in this process
+(beside the dashboard) never receives are counted as lost.
 
 The view runs in two variants: at lowered CPU priority (nice ``serve.DISPLAY_NICE``, as ``sara-app
 serve`` runs its display side; the browser too, standing for an operator's browser that normally
@@ -18,6 +19,7 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -55,9 +57,12 @@ def chromium_path() -> str | None:
 
 def _collect(hub: Bus, cell: str, seconds: float) -> np.ndarray:
     """``(n, 3)``: cycle time (us), stamp (s) and sequence number of the verdicts received over
-    ``seconds``."""
+    ``seconds``; the commands lost meanwhile (sequence numbers never received) are added to
+    ``COMMANDS_LOST[cell]``."""
     sub = hub.subscribe(keys.verdict_key(cell), fifo=True, capacity=100_000)
+    cmds = hub.subscribe(keys.robot_command_key(cell), fifo=True, capacity=100_000)
     out: list[tuple[float, float, int]] = []
+    seqs: list[int] = []
     t_end = time.monotonic() + seconds
     while time.monotonic() < t_end:
         time.sleep(0.05)
@@ -66,8 +71,18 @@ def _collect(hub: Bus, cell: str, seconds: float) -> np.ndarray:
             for d in sub.drain().messages
             if isinstance(d.msg, VerdictMsg)
         ]
+        seqs += [d.msg.seq for d in cmds.drain().messages]
     sub.close()
+    cmds.close()
+    if len(seqs) > 1:
+        lost = (max(seqs) - min(seqs) + 1) - len(set(seqs))
+        COMMANDS_LOST[cell] = COMMANDS_LOST.get(cell, 0) + lost
+        COMMANDS_SEEN[cell] = COMMANDS_SEEN.get(cell, 0) + len(set(seqs))
     return np.array(out, dtype=float).reshape(-1, 3)
+
+
+COMMANDS_LOST: dict[str, int] = {}
+COMMANDS_SEEN: dict[str, int] = {}
 
 
 def _missed(phases: list[np.ndarray], dt_s: float) -> tuple[int, int]:
@@ -159,15 +174,29 @@ def bench_view_load(
     """Rows: worker cycle time without a view, with the dashboard + browser at lowered priority
     (as ``serve`` runs them) and at the worker's own priority, and the ratios to no view."""
     from sara_app.scenario import load_scenario
-    from sara_app.serve import DISPLAY_NICE, REPLAYER_NICE, WORKER_RT_PRIORITY, _spawn, _stop
+    from sara_app.serve import (
+        DISPLAY_NICE,
+        REPLAYER_NICE,
+        ROUTER,
+        WORKER_RT_PRIORITY,
+        _connect_plain,
+        _spawn,
+        _stop,
+        start_process,
+    )
 
     port = free_port()
     cell = "benchview"
     browser = chromium_path()
     phases: dict[object, list[np.ndarray]] = {"off": [], DISPLAY_NICE: [], 0: []}
     order: list[object] = ["off", DISPLAY_NICE, 0]
-    with Bus.router(port) as hub:
+    router = start_process(  # as serve runs it: a process of its own, real-time
+        [sys.executable, "-m", ROUTER, "--port", str(port), "--rt-priority",
+         str(WORKER_RT_PRIORITY)]
+    )  # fmt: skip
+    with _connect_plain(port, router) as hub:
         procs = [
+            router,
             _spawn("sara_app.worker", cell, scenario, port, rt_priority=WORKER_RT_PRIORITY),
             _spawn("sara_app.replayer", cell, scenario, port, nice=REPLAYER_NICE),
         ]
@@ -181,7 +210,7 @@ def bench_view_load(
                     with _view(hub, cell, scenario, browser, int(cast(int, kind))):
                         phases[kind].append(_collect(hub, cell, phase_s))
         finally:
-            _stop(procs)
+            _stop(procs[::-1])
     data = {k: np.concatenate(v)[:, 0] if v else np.empty(0) for k, v in phases.items()}
     dt_s = load_scenario(scenario).shield.dt_s
     missed = {k: _missed(v, dt_s) for k, v in phases.items()}
@@ -195,6 +224,8 @@ def bench_view_load(
         return f"{data[k].size} verdicts; {skipped} cycles late by > 1 period, {dropped} lost"
 
     rows = [("worker cycle, no view", m0, p0, f"{scenario}, {cycles('off')}")]
+    lost, seen = COMMANDS_LOST.get(cell, 0), COMMANDS_SEEN.get(cell, 0)
+    rows.append(("robot commands lost, all phases", float(lost), float(lost), f"of {lost + seen}"))
     for kind, label in ((DISPLAY_NICE, f"nice {DISPLAY_NICE} as in serve"), (0, "same priority")):
         m, p = _stats(data[kind])
         rows.append((f"worker cycle, {what}, {label}", m, p, cycles(kind)))

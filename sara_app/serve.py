@@ -246,12 +246,21 @@ ROUTER = "sara_app.bus.router"
 
 def _connect(port: int, auth: dict[str, Any], sup: Supervisor, wait_s: float = 30.0) -> Bus:
     """The dashboard's and API's session, once the router (just started) listens."""
+    return _connect_until(port, auth, lambda: bool(sup.status()["router"]["running"]), wait_s)
+
+
+def _connect_plain(port: int, router: subprocess.Popen[bytes], wait_s: float = 30.0) -> Bus:
+    """A session to a router process without access control, once it listens."""
+    return _connect_until(port, None, lambda: router.poll() is None, wait_s)
+
+
+def _connect_until(port: int, auth: dict[str, Any] | None, alive: Any, wait_s: float) -> Bus:
     t_end = time.monotonic() + wait_s
     while True:
         try:
             return Bus.client(port, timeout_ms=1000, auth=auth)
         except SaraError:
-            if time.monotonic() > t_end or not sup.status()["router"]["running"]:
+            if time.monotonic() > t_end or not alive():
                 raise
             time.sleep(0.2)
 
