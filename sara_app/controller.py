@@ -57,6 +57,7 @@ class Controller:
         """Where the robot is to be when: ``(t, q)``, the first where it stood, then the set
         points not yet reached."""
         self.refused = 0
+        self.expired = 0
         self.published_s = -1.0
         self.stop_event = threading.Event()
         self.sub = bus.subscribe(keys.robot_command_key(self.cell), Decoder(), capacity=64)
@@ -87,7 +88,12 @@ class Controller:
             self._apply(*self._on_points(now))
         else:  # past the set point without a newer command: on its verified stop, on schedule
             if now > self.command.valid_until_s and not self.braking:
-                log.warning("commands expired: braking along the last verified stop")
+                self.expired += 1  # logged 1st, 2nd, 4th, 8th ...: bounded log volume
+                if self.expired & (self.expired - 1) == 0:
+                    log.warning(
+                        "commands expired (#%d): braking along the last verified stop",
+                        self.expired,
+                    )
                 self.braking = True
             self._apply(*self.command.stop_position(now))
         self.publish(now)

@@ -17,7 +17,12 @@ from typing import Any, cast
 
 import numpy as np
 
-from sara_app.bus.messages import COMMAND_VALID_PERIODS, RobotCommandMsg, VerdictMsg
+from sara_app.bus.messages import (
+    COMMAND_VALID_MIN_S,
+    COMMAND_VALID_PERIODS,
+    RobotCommandMsg,
+    VerdictMsg,
+)
 from sara_app.errors import InputError
 from sara_app.robot.trajectory import JointState
 from sara_app.safety.shield import CycleResult
@@ -85,7 +90,7 @@ class CycleMessages:
             q_dot=c.v.tolist(),
             q_ddot=c.a.tolist(),
             mode=cast(Any, mode),
-            valid_until_s=now + COMMAND_VALID_PERIODS * dt,
+            valid_until_s=now + max(COMMAND_VALID_PERIODS * dt, COMMAND_VALID_MIN_S),
             failsafe_t_s=t,
             failsafe_q=qs,
         )

@@ -72,7 +72,7 @@ def example_messages() -> dict[str, tuple[str, Message]]:
             q_dot=[0.0, 0.5] + [0.0] * 5,
             q_ddot=[0.0] * 7,
             mode="intended",
-            valid_until_s=t + 0.008,
+            valid_until_s=t + 0.010,
             failsafe_t_s=[0.004, 0.02, 0.05],
             failsafe_q=[q, [0.0, -0.398] + q[2:], [0.0, -0.397] + q[2:]],
         ),  # fmt: skip

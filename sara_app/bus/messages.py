@@ -181,7 +181,11 @@ class RobotStateMsg(_Msg):
 
 
 COMMAND_VALID_PERIODS = 2
-"""A command is valid for this many control periods after its stamp (``valid_until_s``)."""
+COMMAND_VALID_MIN_S = 0.010
+"""A command is valid for this many control periods after its stamp, and at least
+``COMMAND_VALID_MIN_S`` (``valid_until_s``): a controller that takes a command that late has
+left the commanded path by less than a tracking tolerance (about a_brake * 10 ms^2 / 2, 1.5 mrad
+at 30 rad/s^2), while a 500 Hz loop on a busy machine misses two periods now and then."""
 MAX_FAILSAFE_SAMPLES = 512
 
 
