@@ -51,8 +51,6 @@ class Track:
     state: HumanState
     estimator: VelocityEstimator
     evidence_s: float = -math.inf
-    refused: int = 0
-    """Messages refused on this person's key since the last accepted one."""
     widen_key: tuple[float | None, bool, float] | None = None
     widen_m: np.ndarray | None = None
     """The widening for ``widen_key = (stated uncertainty m, legs measured, extra m)``."""
@@ -76,7 +74,6 @@ class Presence:
     tracks: dict[str, Track] = field(default_factory=dict)
     overflow: dict[str, float] = field(default_factory=dict)
     frames: dict[str, _Frame] = field(default_factory=dict)
-    counts: dict[str, int] = field(default_factory=dict)
     dropped_s: float = -math.inf
     """The newest evidence of an id dropped from the full overflow list."""
 
@@ -101,9 +98,6 @@ class Presence:
 
     # -- evidence --------------------------------------------------------------------------------
 
-    def _count(self, what: str) -> None:
-        self.counts[what] = self.counts.get(what, 0) + 1
-
     def _overflow(self, human_id: str, evidence_s: float) -> None:
         if human_id not in self.overflow and len(self.overflow) >= MAX_OVERFLOW:
             _, dropped_s = self.overflow.popitem()  # the newest entry: its id is gone
@@ -125,9 +119,7 @@ class Presence:
 
     def refused(self, human_id: str, now_s: float) -> None:
         """A message on ``human_id``'s key was refused: that person is known and unseen."""
-        tr = self.known(human_id, now_s)
-        if tr is not None:
-            tr.refused += 1
+        self.known(human_id, now_s)
 
     def frame(self, tracker_id: str, stamp_s: float, people: Iterable[str]) -> str | None:
         """Take a tracker frame; returns a drop reason (``unknown_tracker``) or None."""
@@ -155,17 +147,13 @@ class Presence:
     def _forget_unlisted(self) -> None:
         for hid in [h for h, t in self.tracks.items() if self._absent(h, t.evidence_s)]:
             del self.tracks[hid]
-            self._count("forgotten")
         for hid in [h for h, e in self.overflow.items() if self._absent(h, e)]:
             del self.overflow[hid]
 
     def retire(self, human_id: str) -> bool:
         """An operator's retire action; False when the person was not known."""
         found = self.tracks.pop(human_id, None) is not None
-        found = self.overflow.pop(human_id, None) is not None or found
-        if found:
-            self._count("retired")
-        return found
+        return self.overflow.pop(human_id, None) is not None or found
 
     # -- the cycle's view ------------------------------------------------------------------------
 
@@ -194,13 +182,6 @@ class Presence:
 
     def humans(self) -> list[HumanState]:
         return [t.state for t in self.tracks.values()]
-
-    def ages(self, now_s: float) -> dict[str, float]:
-        """Per tracker, the age of its newest frame (s; inf: none yet)."""
-        return {
-            tid: (now_s - f.stamp_s) if (f := self.frames.get(tid)) else math.inf
-            for tid in self.trackers
-        }
 
 
 def unmeasured_track(human_id: str, n_joints: int, delta_y_m: float, a_max: np.ndarray) -> Track:

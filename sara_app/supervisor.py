@@ -17,7 +17,7 @@ import signal
 import subprocess
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 log = logging.getLogger("sara_app.serve")
 
@@ -37,7 +37,6 @@ class Child:
     restarts: int = 0
     backoff_s: float = BACKOFF_S[0]
     due_s: float | None = None  # a restart is due at this time
-    history: list[str] = field(default_factory=list)
 
     def spawn(self, now: float) -> None:
         self.proc = self.start()

@@ -193,7 +193,6 @@ class CellWorker:
         bound = self.cell.scenario.inputs.cell_bound_m
         if not (np.abs(y).max() <= bound and (v is None or np.abs(v).max() <= bound)):
             self._drop("out_of_range")  # NaN and overflow to inf fail the test too
-            track.refused += 1
             return
         unc = msg.position_uncertainty_m
         delta_y = p.delta_y_m if unc is None else max(unc, p.delta_y_m)
@@ -203,9 +202,7 @@ class CellWorker:
             v_est, dv_est = track.estimator.update(msg.stamp_s, y)
         except SaraError:
             self._drop("stamp_not_advancing")
-            track.refused += 1
             return
-        track.refused = 0
         st = track.state
         st.widen_m = self._widening(track, msg.position_uncertainty_m, msg.kind == "full")
         if v is not None:
@@ -445,23 +442,20 @@ class CellWorker:
         """One verdict, then one command (never an ``intended`` command without its verdict:
         when the verdict cannot be sent, the command goes out as ``fault``)."""
         dt = self.shield.settings.dt_s
+        seqs = (self.pub_verdict.next_seq(), self.pub_cmd.next_seq())
         try:
             self.messages.observe(now, res)
-            verdict, command = self.messages.verdict_and_command(now, dt, res, self.dropped())
+            verdict, command = self.messages.verdict_and_command(now, dt, res, self.dropped(), seqs)
         except Exception as e:  # noqa: BLE001 - a message that cannot be built: a fault cycle
             self.errors("building the cycle's messages failed", repr(e), e)
             why = f"messages failed: {e!r}"[:200]
-            verdict, command = self.messages.fault(now, dt, res, why, self.dropped())
-        verdict = verdict.model_copy(update={"seq": self.pub_verdict.next_seq()})
-        sent = self.pub_verdict.put(verdict)
-        update: dict[str, Any] = {"seq": self.pub_cmd.next_seq()}
-        if not sent and command.mode == "intended":
-            update["mode"] = "fault"
-        sent_cmd = command.model_copy(update=update)
-        self.pub_cmd.put(sent_cmd)
+            verdict, command = self.messages.fault(now, dt, res, why, self.dropped(), seqs)
+        if not self.pub_verdict.put(verdict) and command.mode == "intended":
+            command = command.model_copy(update={"mode": "fault"})
+        self.pub_cmd.put(command)
         q = np.asarray(command.q)
         self.messages.last = JointState(q, np.asarray(command.q_dot), np.asarray(command.q_ddot))
-        self.robot_in.sent(command.stamp_s + dt, sent_cmd)
+        self.robot_in.sent(command.stamp_s + dt, command)
         try:
             if now >= self._next_display:
                 self._next_display = now + self.display_period

@@ -57,15 +57,21 @@ class CycleMessages:
         return t, [q.tolist(), *qs[later].tolist()]
 
     def verdict_and_command(
-        self, now: float, dt: float, res: CycleResult, dropped: dict[str, int]
+        self,
+        now: float,
+        dt: float,
+        res: CycleResult,
+        dropped: dict[str, int],
+        seqs: tuple[int, int],
     ) -> tuple[VerdictMsg, RobotCommandMsg]:
-        """The cycle's verdict and command; raises when a value cannot be sent (non-finite)."""
+        """The cycle's verdict and command, numbered ``seqs``; raises when a value cannot be
+        sent (non-finite)."""
         c = res.command
         if not all(np.isfinite(a).all() for a in (c.q, c.v, c.a)):
             raise InputError(f"the command is not finite: q {c.q.tolist()}")
         dist = res.min_distance_m
         verdict = VerdictMsg(
-            seq=0,
+            seq=seqs[0],
             stamp_s=now,
             cell=self.cell,
             safety_mode=cast(Any, res.safety_mode),
@@ -79,12 +85,14 @@ class CycleMessages:
             intervened=res.intervened,
             speed_scale=res.speed_scale if res.safety_mode == "pfl" else None,
         )
-        return verdict, self._command(now, dt, c, res.mode)
+        return verdict, self._command(now, dt, c, res.mode, seqs[1])
 
-    def _command(self, now: float, dt: float, c: JointState, mode: str) -> RobotCommandMsg:
+    def _command(
+        self, now: float, dt: float, c: JointState, mode: str, seq: int
+    ) -> RobotCommandMsg:
         t, qs = self.failsafe(now, dt, c.q)
         return RobotCommandMsg(
-            seq=0,
+            seq=seq,
             stamp_s=now,
             q=c.q.tolist(),
             q_dot=c.v.tolist(),
@@ -96,7 +104,13 @@ class CycleMessages:
         )
 
     def fault(
-        self, now: float, dt: float, res: CycleResult, why: str, dropped: dict[str, int]
+        self,
+        now: float,
+        dt: float,
+        res: CycleResult,
+        why: str,
+        dropped: dict[str, int],
+        seqs: tuple[int, int],
     ) -> tuple[VerdictMsg, RobotCommandMsg]:
         """A fault verdict that names ``why`` and the command of the held failsafe: the
         cycle's command when it is finite (the shield moved the robot there), else the last
@@ -108,7 +122,7 @@ class CycleMessages:
             c = JointState(q, zero, zero)
             self.held = None
         verdict = VerdictMsg(
-            seq=0,
+            seq=seqs[0],
             stamp_s=now,
             cell=self.cell,
             safety_mode=cast(Any, res.safety_mode),
@@ -118,4 +132,4 @@ class CycleMessages:
             dropped=dropped,
             intervened=True,
         )
-        return verdict, self._command(now, dt, c, "fault")
+        return verdict, self._command(now, dt, c, "fault", seqs[1])

@@ -11,6 +11,7 @@ than the oldest remembered set point cannot be checked and is a fault.
 
 from __future__ import annotations
 
+import bisect
 from collections import deque
 
 import numpy as np
@@ -31,18 +32,14 @@ class MeasuredRobot:
         self.state: JointState | None = None
         self.stamp_s: float | None = None
         self.problem: str | None = None
-        self.commanded: deque[tuple[float, np.ndarray]] = deque(maxlen=HISTORY)
-        self.commands: deque[RobotCommandMsg] = deque(maxlen=HISTORY)
-        self.last: RobotCommandMsg | None = None
+        self.commanded: deque[tuple[float, np.ndarray, RobotCommandMsg]] = deque(maxlen=HISTORY)
+        """The commands sent: ``(set point time, set point, command)``, oldest first."""
 
     def sent(self, t_point_s: float, command: RobotCommandMsg) -> None:
         """The worker sent ``command``, whose set point is for time ``t_point_s``."""
         if self.commanded and t_point_s <= self.commanded[-1][0]:
             self.commanded.clear()  # time went back (a restarted clock): start afresh
-            self.commands.clear()
-        self.commanded.append((t_point_s, np.asarray(command.q, dtype=float)))
-        self.commands.append(command)
-        self.last = command
+        self.commanded.append((t_point_s, np.asarray(command.q, dtype=float), command))
 
     def expected(self, t_s: float) -> tuple[np.ndarray, float] | None:
         """The commanded position at ``t_s`` and the slack the contract allows there (None:
@@ -54,19 +51,11 @@ class MeasuredRobot:
         if not c or t_s < c[0][0]:
             return None
         if t_s >= c[-1][0]:  # past the newest set point: on its command's verified stop
-            if self.last is None:
-                return c[-1][1], 0.0
-            return self.last.stop_position(t_s)[0], 0.0
-        lo, hi = 0, len(c) - 1  # c[lo].t <= t_s < c[hi].t
-        while hi - lo > 1:
-            mid = (lo + hi) // 2
-            if c[mid][0] <= t_s:
-                lo = mid
-            else:
-                hi = mid
-        (ta, qa), (tb, qb) = c[lo], c[hi]
+            return c[-1][2].stop_position(t_s)[0], 0.0
+        k = bisect.bisect_right(c, t_s, key=lambda e: e[0]) - 1  # c[k].t <= t_s < c[k+1].t
+        (ta, qa, older), (tb, qb, _) = c[k], c[k + 1]
         q = qa + (qb - qa) * ((t_s - ta) / (tb - ta))
-        slack = float(np.max(np.abs(self.commands[lo].stop_position(t_s)[0] - q)))
+        slack = float(np.max(np.abs(older.stop_position(t_s)[0] - q)))
         return q, slack
 
     def faults(self, now_s: float, timeout_s: float, tol_rad: float) -> list[str]:

@@ -22,6 +22,7 @@ from sara_app.bus.messages import RobotCommandMsg, RobotStateMsg, VerdictMsg
 from sara_app.bus.session import Bus, BusError, free_port
 from sara_app.scenario import load_scenario
 from sara_app.serve import WORKER_RT_PRIORITY
+from sara_app.supervisor import stop_processes
 
 CELL = "ctl"
 
@@ -54,8 +55,7 @@ def cell(tmp_path: Path) -> Iterator[tuple[int, Bus, Path]]:
         with bus:
             yield port, bus, path
     finally:
-        router.terminate()
-        router.wait(10)
+        stop_processes([router])
 
 
 def _drain(sub, kind):
@@ -102,10 +102,7 @@ def test_a_killed_worker_leaves_the_robot_on_its_verified_stop(cell) -> None:
             sent = _drain(cmds, RobotCommandMsg)
             after = [s for s in _drain(states, RobotStateMsg) if s.stamp_s > t_kill]
     finally:
-        for p in (worker, controller):
-            if p.poll() is None:
-                p.terminate()
-                p.wait(10)
+        stop_processes([worker, controller])
     last = max(sent, key=lambda c: c.seq)
     assert last.mode == "intended" and np.abs(last.q_dot).max() > 0.1  # killed while moving
     assert last.failsafe_t_s and last.failsafe_t_s[-1] < 1.0  # a stop within a second
@@ -143,10 +140,7 @@ def test_a_restarted_worker_continues_from_where_the_robot_rests(cell) -> None:
                 time.sleep(0.05)
             moved = _drain(states, RobotStateMsg)
     finally:
-        for p in (worker, controller):
-            if p.poll() is None:
-                p.terminate()
-                p.wait(10)
+        stop_processes([worker, controller])
     # it moved on from where it rested: no jump back to the task's start
     steps = np.abs(np.diff([s.q for s in moved], axis=0)).max()
     assert steps < 0.05, steps

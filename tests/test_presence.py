@@ -55,7 +55,7 @@ def test_a_refused_message_makes_the_person_known_and_a_retire_forgets() -> None
     p = _presence()
     p.frame("main", 1.0, [])
     p.refused("ghost", 1.5)
-    assert p.tracks["ghost"].refused == 1
+    assert p.tracks["ghost"].state.stamp_s is None  # known, unseen
     p.frame("main", 1.4, [])  # out of order: stamp not newer than the last frame
     assert "ghost" in p.tracks
     assert p.retire("ghost") and "ghost" not in p.tracks
