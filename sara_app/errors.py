@@ -41,3 +41,12 @@ class ScenarioError(SaraError, ValueError):
 
 class RobotModelError(SaraError, ValueError):
     """A robot description, joint limit or trajectory request is invalid."""
+
+
+class AccessError(SaraError, PermissionError):
+    """A change was asked for without the credential the service requires."""
+
+
+class WorkerTimeoutError(SaraError):
+    """A cell worker did not answer a parameter request (absent, busy or not subscribed): it may
+    still apply it later."""

@@ -137,6 +137,7 @@ def serve(
     from sara_app.api.app import create_app
     from sara_app.api.registry import CellRegistry
     from sara_app.api.server import ApiServer
+    from sara_app.dashboard.access import DashboardAccess
     from sara_app.dashboard.bridge import CellView
     from sara_app.dashboard.viewer import Dashboard
 
@@ -151,8 +152,13 @@ def serve(
                   "--credentials", str(creds.path), "--rt-priority", str(WORKER_RT_PRIORITY),
                   "--die-with-parent"]  # fmt: skip
 
+    exposed = not _is_loopback(api_host)
+    tokens_path = default_data_dir() / "api_tokens.json"
+    tokens = load_tokens(tokens_path, create=True) if (require_token or exposed) else None
     dash = Dashboard(
-        robot=sc.robot.name, T_world_base=base_pose(sc.robot.base_xyz_m, sc.robot.base_rpy_rad)
+        robot=sc.robot.name,
+        T_world_base=base_pose(sc.robot.base_xyz_m, sc.robot.base_rpy_rad),
+        access=DashboardAccess(tokens, cell),  # the API's tokens sign browsers in
     )
     api = None
     registry = None
@@ -198,9 +204,6 @@ def serve(
         view.refresh_panels()
         registry = CellRegistry(hub)
         registry.start()
-        exposed = not _is_loopback(api_host)
-        tokens_path = default_data_dir() / "api_tokens.json"
-        tokens = load_tokens(tokens_path, create=True) if (require_token or exposed) else None
         app = create_app(
             registry, folder, viewer_url=viewer_url, processes=sup.status, tokens=tokens,
             require_token=tokens is not None, hosts=() if not exposed else (api_host,),
@@ -216,6 +219,7 @@ def serve(
         print(f"  zenoh users    tracker, controller, editor: passwords in {creds.path}")
         if tokens is not None:
             print(f"  API changes need 'Authorization: Bearer <token>'; tokens: {tokens_path}")
+            print("  dashboard changes: sign in with a token in its Access panel")
         period = 1.0 / frame_hz
         t_end = None if duration_s is None else time.monotonic() + duration_s
         while (t_end is None or time.monotonic() < t_end) and not _STOP.is_set():

@@ -4,11 +4,9 @@ server, a real zenoh router and a fake worker answering scenario requests over z
 
 from __future__ import annotations
 
+import contextlib
 import json
-import os
 import shutil
-import signal
-import subprocess
 import threading
 import time
 import warnings
@@ -19,6 +17,7 @@ from typing import Any
 import httpx
 import numpy as np
 import pytest
+from browser import CHROMIUM, chromium_on
 
 with warnings.catch_warnings():  # starlette prefers httpx2 for its test client; httpx works
     warnings.filterwarnings("ignore", message=".*httpx.*deprecated")
@@ -451,44 +450,6 @@ def test_live_cell_and_scenario_round_trip(folder: Path) -> None:
 
 # -- the landing page in headless chromium -------------------------------------------------------
 
-CHROMIUM = "/usr/bin/chromium"
-FLAGS = (
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-    "--window-size=1000,700",
-)
-
-
-class Page:
-    """The first page target of a chromium with ``--remote-debugging-port``: JS evaluation."""
-
-    def __init__(self, port: int) -> None:
-        from websockets.sync.client import connect
-
-        def target() -> str:
-            try:
-                targets = httpx.get(f"http://127.0.0.1:{port}/json/list", timeout=2).json()
-            except httpx.HTTPError:
-                return ""
-            return next((t["webSocketDebuggerUrl"] for t in targets if t["type"] == "page"), "")
-
-        self.ws = connect(_wait_until(target, 30.0), max_size=None, open_timeout=10)
-        self._id = 0
-
-    def eval(self, expression: str) -> Any:
-        self._id += 1
-        params = {"expression": expression, "returnByValue": True}
-        self.ws.send(json.dumps({"id": self._id, "method": "Runtime.evaluate", "params": params}))
-        while True:
-            msg = json.loads(self.ws.recv(timeout=30))
-            if msg.get("id") == self._id:
-                return msg["result"]["result"].get("value")
-
 
 @pytest.mark.skipif(not Path(CHROMIUM).exists(), reason=f"{CHROMIUM} is absent")
 def test_landing_page_shows_live_status_in_chromium(folder: Path, tmp_path: Path) -> None:
@@ -498,17 +459,9 @@ def test_landing_page_shows_live_status_in_chromium(folder: Path, tmp_path: Path
         url = server.start()
         worker = FakeWorker(port, "cell1", answer=False)
         worker.mode = "intended"
-        debug_port = free_port()
-        args = [CHROMIUM, *FLAGS, f"--user-data-dir={tmp_path / 'profile'}"]
-        proc = subprocess.Popen(
-            [*args, f"--remote-debugging-port={debug_port}", url],
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-            start_new_session=True,
-        )
-        page = None
+        stack = contextlib.ExitStack()
         try:
-            page = Page(debug_port)
+            page = stack.enter_context(chromium_on(url))
             card = "document.querySelector('article[data-cell=\"cell1\"]')"
 
             def mode() -> str:
@@ -536,10 +489,7 @@ def test_landing_page_shows_live_status_in_chromium(folder: Path, tmp_path: Path
             assert _wait_until(lambda: mode() == "offline", 10.0)
             assert page.eval("window.__sameLoad") == 1
         finally:
-            if page is not None:
-                page.ws.close()
-            os.killpg(proc.pid, signal.SIGTERM)  # the session this test started
-            proc.wait(timeout=10)
+            stack.close()
             worker.close()
             server.stop()
 

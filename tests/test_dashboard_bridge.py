@@ -33,7 +33,7 @@ from sara_app.dashboard.frame import CONTACT_ENV, CONTACT_SELF, CONTACT_UNCONSTR
 from sara_app.dashboard.from_messages import contact_class_grid
 from sara_app.dashboard.scene import CONTACT_RGB, CRITICAL_ACTIVE_RGB, CRITICAL_IDLE_RGB
 from sara_app.dashboard.viewer import Dashboard
-from sara_app.errors import ScenarioError, UnknownNameError
+from sara_app.errors import UnknownNameError, WorkerTimeoutError
 from sara_app.human.skeleton import skeleton
 from sara_app.robot.ik import end_effector_frame, pose_error
 from sara_app.scenario import Scenario, load_scenario, scenarios_dir
@@ -457,7 +457,7 @@ def test_threshold_editor_tab_sends_through_the_cell_view(
 def test_a_late_acceptance_is_followed(view: tuple[CellView, FakeBus], dash: Dashboard) -> None:
     v, bus = view
     bus.silent = True
-    with pytest.raises(ScenarioError, match="did not answer"):
+    with pytest.raises(WorkerTimeoutError, match="did not answer"):
         v.set_mode("jssa")
     assert v.scenario.shield.mode == "ssm"
     late = bus.params.sent[-1]

@@ -70,6 +70,20 @@ def test_schema_created_versioned_and_persistent(tmp_path: Path) -> None:
         AuditLog(path)
 
 
+def test_an_older_file_is_upgraded_keeping_its_rows(tmp_path: Path) -> None:
+    """A file of schema 2 (no request table yet) gains the tables added since when opened, and
+    keeps what it held."""
+    path = tmp_path / "old.sqlite"
+    _row(AuditLog(path), "c1", 0.1)
+    with sqlite3.connect(path) as con:  # as version 2 left it
+        con.execute("DROP TABLE api_requests")
+        con.execute("PRAGMA user_version = 2")
+    log = AuditLog(path)
+    assert log.schema_version == SCHEMA_VERSION and len(log.entries()) == 1
+    log.record_request("POST", "/api/x", 401, "127.0.0.1", "local", 3)
+    assert [r["status"] for r in log.requests()] == [401]
+
+
 def test_filters_order_limit_and_validation(tmp_path: Path) -> None:
     log = AuditLog(tmp_path / "a.sqlite", clock=Clock(0.0))
     for i in range(12):

@@ -17,8 +17,9 @@ Nothing here imports viser.
 """
 
 from sara_app.api.app import create_app
-from sara_app.api.registry import CellRegistry, ParamsAnswer, WorkerTimeoutError
+from sara_app.api.registry import CellRegistry, ParamsAnswer
 from sara_app.api.server import ApiServer, ApiServerError
+from sara_app.errors import WorkerTimeoutError
 
 __all__ = [
     "ApiServer",

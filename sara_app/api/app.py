@@ -43,9 +43,9 @@ from fastapi.staticfiles import StaticFiles
 import sara_app
 from sara_app.api.guard import Guard
 from sara_app.api.people import add_people_routes
-from sara_app.api.registry import EDIT_TIMEOUT_S, CellRegistry, WorkerTimeoutError
+from sara_app.api.registry import EDIT_TIMEOUT_S, CellRegistry
 from sara_app.api.thresholds import add_threshold_routes
-from sara_app.errors import ParameterError, SaraError, ScenarioError
+from sara_app.errors import ParameterError, SaraError, ScenarioError, WorkerTimeoutError
 from sara_app.human.params import available_param_sets, load_param_set
 from sara_app.safety.threshold_audit import AuditLog
 from sara_app.safety.thresholds import load_thresholds, threshold_set_names

@@ -16,7 +16,8 @@ from fastapi import FastAPI, HTTPException, Query, Request
 from pydantic import BaseModel, ConfigDict, Field
 
 from sara_app.api.guard import credential_user
-from sara_app.api.registry import CellRegistry, WorkerTimeoutError
+from sara_app.api.registry import CellRegistry
+from sara_app.errors import WorkerTimeoutError
 from sara_app.safety.threshold_audit import AuditLog
 
 

@@ -53,7 +53,7 @@ from sara_app.bus.messages import (
     VerdictMsg,
 )
 from sara_app.bus.session import Bus, Publisher, Subscription
-from sara_app.errors import InputError, SaraError
+from sara_app.errors import InputError, WorkerTimeoutError
 
 log = logging.getLogger("sara_app.api")
 
@@ -64,10 +64,6 @@ off its control loop, which takes seconds where a safety mode's kernels load for
 (about a minute on a fresh checkout, where they are compiled)."""
 CYCLE_WINDOW = 1000  # verdicts in the rolling cycle-time window
 RESTART_TOLERANCE_S = 2.0  # a worker's start time (stamp - uptime) moving more: a restart
-
-
-class WorkerTimeoutError(SaraError):
-    """A cell worker did not answer a parameter request (absent, busy or not subscribed)."""
 
 
 @dataclass

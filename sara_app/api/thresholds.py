@@ -26,8 +26,8 @@ from fastapi import FastAPI, HTTPException, Query, Request
 from pydantic import BaseModel, ConfigDict, Field, StrictBool
 
 from sara_app.api.guard import credential_user
-from sara_app.api.registry import EDIT_TIMEOUT_S, CellRegistry, WorkerTimeoutError
-from sara_app.errors import SaraError
+from sara_app.api.registry import EDIT_TIMEOUT_S, CellRegistry
+from sara_app.errors import SaraError, WorkerTimeoutError
 from sara_app.safety.threshold_audit import MAX_LIMIT, AuditLog
 from sara_app.safety.threshold_edit import ConfirmationRequired, apply_edit, threshold_view
 from sara_app.safety.thresholds import CONTACTS, REGIONS, SHAPES

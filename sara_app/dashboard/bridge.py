@@ -43,7 +43,7 @@ from sara_app.dashboard.frame import DisplayFrame
 from sara_app.dashboard.from_messages import boxes_of, occupancy_into, verdict_status
 from sara_app.dashboard.gizmos import GizmoEditing
 from sara_app.dashboard.viewer import Dashboard
-from sara_app.errors import SaraError, ScenarioError, UnknownNameError
+from sara_app.errors import SaraError, ScenarioError, UnknownNameError, WorkerTimeoutError
 from sara_app.robot.model import RobotModel
 from sara_app.safety.threshold_audit import AuditLog
 from sara_app.scenario import (
@@ -143,9 +143,17 @@ class CellView(GizmoEditing):
         data = self.scenario.model_dump(mode="json")
         return {k: v for k, v in data.items() if k not in _EDIT_EXCLUDE}
 
-    def send(self, data: dict[str, Any]) -> Scenario:
+    def send(self, data: dict[str, Any], action: str = "scenario") -> Scenario:
         """Validate ``data`` as a whole scenario, send it, wait for the worker's answer; the new
-        scenario on acceptance, :class:`ScenarioError` with the reason otherwise."""
+        scenario on acceptance, :class:`ScenarioError` with the reason otherwise,
+        :class:`WorkerTimeoutError` without an answer. Only for a client that may change the
+        cell (:class:`AccessError` otherwise); audited as ``action``
+        (:mod:`sara_app.dashboard.access`)."""
+        return self.dash.access.change(
+            action, lambda: self._send(data), timeouts=(WorkerTimeoutError,)
+        )
+
+    def _send(self, data: dict[str, Any]) -> Scenario:
         sc = parse_scenario(data, "edited scenario")
         check_against_robot(sc)
         rid = uuid.uuid4().hex[:16]
@@ -170,7 +178,7 @@ class CellView(GizmoEditing):
                         return sc
                 time.sleep(0.01)
             self._late = (rid, sc)
-        raise ScenarioError(
+        raise WorkerTimeoutError(
             f"the worker did not answer within {self.ack_timeout_s} s (if it accepts the edit "
             "later, the view follows)"
         )
@@ -221,7 +229,7 @@ class CellView(GizmoEditing):
 
     def select(self, name: str) -> None:
         sc = load_scenario(name, self.folder)
-        self.send(sc.model_dump(mode="json"))
+        self.send(sc.model_dump(mode="json"), "load")
         self.refresh_panels()
 
     def set_mode(self, mode: str) -> None:
@@ -231,16 +239,20 @@ class CellView(GizmoEditing):
             raise UnknownNameError("safety mode", mode, SAFETY_MODES)
         data = self.scenario.model_dump(mode="json")
         data["shield"]["mode"] = mode
-        self.send(data)
+        self.send(data, "safety-mode")
         self.refresh_panels()
 
     def edit(self, params: dict[str, Any]) -> None:
         data = self.scenario.model_dump(mode="json")
         data.update(params)
-        self.send(data)
+        self.send(data, "parameters")
         self.refresh_panels()
 
     def save_as(self, name: str) -> Path:
+        """Save the scenario in force as a new file ``name`` (never overwrites); audited."""
+        return self.dash.access.change("save-as", lambda: self._save_as(name))
+
+    def _save_as(self, name: str) -> Path:
         if name in scenario_names(self.folder):
             raise ScenarioError(f"a scenario named {name!r} exists; choose a new name")
         data = self.scenario.model_dump(mode="json")
@@ -280,11 +292,19 @@ class CellView(GizmoEditing):
             return
         with panels.add_tab("Thresholds"):
             self.thresholds = attach(
-                server.gui, lambda: self.scenario, self._send_and_show, audit, self.cell
+                server.gui,
+                lambda: self.scenario,
+                self._send_and_show,
+                audit,
+                self.cell,
+                who=lambda typed: self.dash.access.require("threshold", typed),
+                no_answer=(WorkerTimeoutError,),
             )
+        # with credentials in force the user is the signed-in one's, never a typed name
+        self.thresholds.user.visible = not self.dash.access.required
 
     def _send_and_show(self, data: dict[str, Any]) -> Scenario:
-        sc = self.send(data)
+        sc = self.send(data, "threshold")
         if self.dash.panels is not None:
             self.dash.panels.set_params(self.editable())
         return sc

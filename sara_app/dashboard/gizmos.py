@@ -12,9 +12,10 @@ from typing import Any
 import numpy as np
 
 from sara_app.cell import base_pose
+from sara_app.dashboard.access import acting
 from sara_app.dashboard.capsules import rotation_to_wxyz
 from sara_app.dashboard.viewer import Dashboard
-from sara_app.errors import ScenarioError
+from sara_app.errors import SaraError, ScenarioError
 from sara_app.robot.ik import end_effector_frame, pose_from_wxyz, solve_ik
 from sara_app.robot.model import RobotModel, load_robot
 from sara_app.scenario import Scenario
@@ -27,7 +28,8 @@ def _on_release(gizmo: Any, callback: Any) -> None:
 
     def handler(event: Any) -> None:
         if getattr(event, "phase", "end") == "end":
-            callback(event)
+            with acting(event):  # the dragging browser's change
+                callback(event)
 
     gizmo.on_update(handler)
 
@@ -42,7 +44,7 @@ class GizmoEditing:
     _robot_key: tuple[Any, ...] | None
     _robot_model: RobotModel | None
 
-    def send(self, data: dict[str, Any]) -> Scenario:
+    def send(self, data: dict[str, Any], action: str = "scenario") -> Scenario:
         raise NotImplementedError
 
     # -- robot waypoints -----------------------------------------------------------------------
@@ -67,7 +69,13 @@ class GizmoEditing:
     def move_waypoint(self, i: int, T_world_target: np.ndarray) -> np.ndarray:
         """Solve waypoint ``i`` for a tool pose ``T_world_target (4, 4)`` (warm start: the old
         waypoint) and send the edited scenario; the new joint positions. Raises
-        :class:`ScenarioError` (nothing sent) when the pose is out of reach."""
+        :class:`ScenarioError` (nothing sent) when the pose is out of reach. One audited change
+        (:mod:`sara_app.dashboard.access`), refused ones included."""
+        return self.dash.access.change(
+            f"waypoint-{i}", lambda: self._move_waypoint(i, T_world_target)
+        )
+
+    def _move_waypoint(self, i: int, T_world_target: np.ndarray) -> np.ndarray:
         wps = self.scenario.task.waypoints_rad
         if not 0 <= i < len(wps):
             raise ScenarioError(f"waypoint {i} does not exist; the task has {len(wps)}")
@@ -82,7 +90,7 @@ class GizmoEditing:
             )
         data = self.scenario.model_dump(mode="json")
         data["task"]["waypoints_rad"][i] = [float(x) for x in res.q]
-        self.send(data)
+        self.send(data, f"waypoint-{i}")
         return res.q
 
     # -- gizmos --------------------------------------------------------------------------------
@@ -148,7 +156,7 @@ class GizmoEditing:
             fn()
             if panels is not None:
                 panels.show_message(f"{what}: applied")
-        except (ScenarioError, ValueError) as e:
+        except (SaraError, ValueError) as e:
             if panels is not None:
                 panels.show_message(f"{what} refused: {e}", error=True)
             self.add_gizmos()  # back to the accepted positions
@@ -158,7 +166,7 @@ class GizmoEditing:
             def apply() -> None:
                 data = self.scenario.model_dump(mode="json")
                 data["environment"][i]["center_m"] = [float(x) for x in g.position]
-                self.send(data)
+                self.send(data, f"box-{i}")
 
             self._report(f"box {i}", apply)
 
@@ -169,7 +177,7 @@ class GizmoEditing:
             def apply() -> None:
                 data = copy.deepcopy(self.scenario.model_dump(mode="json"))
                 data["humans"][i]["position_m"] = [float(g.position[0]), float(g.position[1])]
-                self.send(data)
+                self.send(data, f"person-{i}")
 
             self._report(f"person {i}", apply)
 

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 import viser
 
+from sara_app.dashboard.access import on_event
 from sara_app.dashboard.frame import (
     CONTACT_ENV,
     CONTACT_SELF,
@@ -284,7 +285,7 @@ class DashboardPanels:
             self.safety_mode = gui.add_dropdown(
                 "Safety mode", tuple(m.upper() for m in SAFETY_MODES), initial_value="SSM"
             )
-            self.safety_mode.on_update(lambda _e: self._mode_selected())
+            self.safety_mode.on_update(on_event(self._mode_selected))
             self.mode_message = gui.add_markdown("")
             self.status = gui.add_markdown(status_markdown({}))
             self.error = gui.add_markdown("", visible=False)
@@ -311,11 +312,11 @@ class DashboardPanels:
     # ------------------------------------------------------------------------------------------
     def _build_scenario_tab(self, gui: viser.GuiApi) -> None:
         self.scenario = gui.add_dropdown("Scenario", (NO_SCENARIO,))
-        gui.add_button("Load").on_click(_click(self.load_selected))
+        gui.add_button("Load").on_click(on_event(self.load_selected))
         self.save_name = gui.add_text("Save as", "")
-        gui.add_button("Save as").on_click(_click(self.save_as))
+        gui.add_button("Save as").on_click(on_event(self.save_as))
         self.params_folder = gui.add_folder("Parameters")
-        gui.add_button("Apply parameters").on_click(_click(self.apply_params))
+        gui.add_button("Apply parameters").on_click(on_event(self.apply_params))
         self.message = gui.add_markdown("")
         self._messages_shown = 0
 
@@ -469,13 +470,6 @@ class DashboardPanels:
         self.error.visible = text is not None
         if text is not None:
             self.error.content = f"**⚠ display error:** {text}"
-
-
-def _click(action: Callable[[], bool]) -> Callable[[Any], None]:
-    def handler(_event: Any) -> None:
-        action()
-
-    return handler
 
 
 def _forward_toggle(

@@ -20,6 +20,7 @@ from typing import Any
 
 import viser
 
+from sara_app.dashboard.access import on_event
 from sara_app.errors import SaraError
 from sara_app.safety.threshold_audit import AuditEntry, AuditLog
 from sara_app.safety.threshold_edit import (
@@ -66,8 +67,12 @@ class ThresholdsPanel:
         *,
         user: str = "unknown",
         no_answer: tuple[type[BaseException], ...] = (),
+        who: Callable[[str], str] | None = None,
     ) -> None:
+        """``who(typed name)``: the acting user's name (their credential's where one is needed;
+        it raises when the acting browser may not change the cell); None: the typed name."""
         self.get_scenario, self.send, self.audit, self.cell = get_scenario, send, audit, cell
+        self.who = who
         self.no_answer = no_answer
         self.folder = gui.add_folder("Thresholds", expand_by_default=False)
         with self.folder:
@@ -86,11 +91,8 @@ class ThresholdsPanel:
         for dd in (self.region, self.contact, self.shape):
             dd.on_update(lambda _e: self.select())
         self.energy.on_update(lambda _e: self.update_warning())
-        self.apply_button.on_click(self._on_apply)
+        self.apply_button.on_click(on_event(self.apply))
         self.select()
-
-    def _on_apply(self, _event: Any) -> None:
-        self.apply()
 
     # -- state ---------------------------------------------------------------------------------
     def entry(self) -> tuple[str, str, str]:
@@ -173,6 +175,7 @@ class ThresholdsPanel:
         """The "Apply threshold" button: validate, send, record; True when the worker accepted."""
         entry = self.entry()
         try:
+            user = self.user.value if self.who is None else self.who(self.user.value)
             plan, _ = apply_edit(
                 self.get_scenario(),
                 *entry,
@@ -181,7 +184,7 @@ class ThresholdsPanel:
                 send=self.send,
                 audit=self.audit,
                 cell=self.cell,
-                user=self.user.value,
+                user=user,
                 via="dashboard",
                 no_answer=self.no_answer,
             )

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import viser
 
+from sara_app.dashboard.access import DashboardAccess
 from sara_app.dashboard.frame import MODEL_NAMES, DisplayFrame
 from sara_app.dashboard.panels import DashboardPanels
 from sara_app.dashboard.scene import LAYERS, CellScene
@@ -34,8 +35,12 @@ class Dashboard:
         T_world_base: np.ndarray | None = None,
         camera_position: tuple[float, float, float] = (1.9, -1.9, 1.6),
         camera_look_at: tuple[float, float, float] = (0.4, 0.0, 0.6),
+        access: DashboardAccess | None = None,
     ) -> None:
+        """``access``: who may change the cell from this dashboard (default: anyone on this
+        machine, as ``local``; see :mod:`sara_app.dashboard.access`)."""
         self.robot, self.T_world_base = robot, T_world_base
+        self.access = access if access is not None else DashboardAccess()
         self.camera = (camera_position, camera_look_at)
         self.server: viser.ViserServer | None = None
         self.scene: CellScene | None = None
@@ -54,6 +59,7 @@ class Dashboard:
             server.initial_camera.position = self.camera[0]
             server.initial_camera.look_at = self.camera[1]
             server.gui.configure_theme(control_width="large")  # room for the tables
+            self.access.attach(server)
             scene = CellScene(server, self.robot, self.T_world_base)
 
             def set_contact(flag: bool) -> None:

@@ -40,7 +40,9 @@ from sara_app.errors import ParameterError, SaraError
 if TYPE_CHECKING:
     from sara_app.safety.threshold_edit import EditPlan
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
+"""1: threshold_changes; 2: + person_actions; 3: + api_requests. Every statement of the schema
+is idempotent (IF NOT EXISTS), so an older file is upgraded by running them all."""
 ENV_VAR = "SARA_APP_DATA"
 OUTCOMES = ("applied", "refused", "no_answer")
 MAX_TEXT = 2000  # reasons longer than this are cut

@@ -1,0 +1,161 @@
+"""Who may change the cell from the dashboard: with tokens in force a browser changes nothing
+until it signs in, each browser signs in for itself, and every change (refused ones too) is a
+row of the request audit with the credential's user."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+from browser import CHROMIUM, chromium_on, wait_for
+from worker_thread import running_worker
+
+from sara_app.bus.session import Bus, free_port
+from sara_app.dashboard.access import DashboardAccess, acting
+from sara_app.dashboard.bridge import CellView
+from sara_app.dashboard.viewer import Dashboard
+from sara_app.errors import AccessError, ScenarioError, WorkerTimeoutError
+from sara_app.safety.threshold_audit import AuditLog
+from sara_app.scenario import load_scenario, scenarios_dir
+
+TOKEN = "t0ken-of-the-operator-0123"
+
+
+def _rows(audit: AuditLog) -> list[tuple[str, int, str, str]]:
+    """(path, status, user, client) of the audit's requests, oldest first."""
+    rows = reversed(audit.requests(100))
+    return [(r["path"], r["status"], r["user"], r["client"]) for r in rows]
+
+
+def test_changes_need_the_acting_browser_signed_in_and_each_is_audited(tmp_path: Path) -> None:
+    audit = AuditLog(tmp_path / "a.sqlite")
+    access = DashboardAccess({TOKEN: "anna"}, "c1", audit)
+    one, two = SimpleNamespace(client_id=1), SimpleNamespace(client_id=2)
+    with acting(one), pytest.raises(AccessError, match="sign in"):
+        access.change("parameters", lambda: "changed")
+    assert access.sign_in(1, "not-the-token-0123456789") is None
+    assert access.sign_in(1, f" {TOKEN} ") == "anna"
+    with acting(one):
+        assert access.change("parameters", lambda: "changed") == "changed"
+    with acting(two), pytest.raises(AccessError):  # a browser is signed in, not the other
+        access.change("load", lambda: "changed")
+    with pytest.raises(AccessError):  # a change outside any browser's event
+        access.change("load", lambda: "changed")
+
+    def refused() -> None:
+        raise ScenarioError("refused by validation")
+
+    def late() -> None:
+        raise WorkerTimeoutError("no answer")
+
+    def nested() -> str:  # one change made of parts is one row
+        return access.change("inner", lambda: "done")
+
+    with acting(one):
+        with pytest.raises(ScenarioError):
+            access.change("parameters", refused)
+        with pytest.raises(WorkerTimeoutError):
+            access.change("threshold", late, timeouts=(WorkerTimeoutError,))
+        with pytest.raises(RuntimeError):
+            access.change("box-0", lambda: (_ for _ in ()).throw(RuntimeError("bug")))
+        assert access.change("waypoint-0", nested) == "done"
+    access.sign_out(1)
+    with acting(one), pytest.raises(AccessError):
+        access.change("parameters", lambda: "changed")
+    c1, c2 = "dashboard client 1", "dashboard client 2"
+    assert _rows(audit) == [
+        ("/dashboard/c1/parameters", 401, "local", c1),
+        ("/dashboard/c1/sign-in", 401, "local", c1),
+        ("/dashboard/c1/sign-in", 200, "anna", c1),
+        ("/dashboard/c1/parameters", 200, "anna", c1),
+        ("/dashboard/c1/load", 401, "local", c2),
+        ("/dashboard/c1/load", 401, "local", "dashboard"),
+        ("/dashboard/c1/parameters", 422, "anna", c1),
+        ("/dashboard/c1/threshold", 504, "anna", c1),
+        ("/dashboard/c1/box-0", 500, "anna", c1),
+        ("/dashboard/c1/waypoint-0", 200, "anna", c1),
+        ("/dashboard/c1/parameters", 401, "local", c1),
+    ]
+
+
+def test_without_tokens_changes_are_local_and_still_audited(tmp_path: Path) -> None:
+    audit = AuditLog(tmp_path / "a.sqlite")
+    access = DashboardAccess(None, "c1", audit)
+    with acting(SimpleNamespace(client_id=5)):
+        assert access.change("save-as", lambda: 1) == 1
+    assert access.change("load", lambda: 2) == 2
+    assert _rows(audit) == [
+        ("/dashboard/c1/save-as", 200, "local", "dashboard client 5"),
+        ("/dashboard/c1/load", 200, "local", "dashboard"),
+    ]
+
+
+_BUTTON = "[...document.querySelectorAll('button')].find(b => b.textContent === {!r})"
+_TOKEN_INPUT = (
+    "[...document.querySelectorAll('label')].find(l => l.textContent === 'API token')"
+    ".closest('p').parentElement.parentElement.querySelector('input')"
+)
+
+
+@pytest.mark.skipif(not os.path.exists(CHROMIUM), reason=f"{CHROMIUM} is absent")
+def test_a_browser_changes_the_cell_only_after_signing_in(tmp_path: Path) -> None:
+    """Real browser, real viser server, real bus and worker: "Apply parameters" is refused and
+    audited until the browser signs in with the token, then the worker applies it."""
+    folder = tmp_path / "scenarios"
+    shutil.copytree(scenarios_dir(), folder)
+    sc = load_scenario("empty_cell", folder)
+    audit = AuditLog(tmp_path / "audit.sqlite")
+    port = free_port()
+    dash = Dashboard(access=DashboardAccess({TOKEN: "operator"}, "acc1", audit))
+    stack = contextlib.ExitStack()
+    try:
+        with Bus.router(port), Bus.client(port) as wbus, Bus.client(port) as vbus, \
+                running_worker("acc1", sc, wbus, status_hz=10.0):  # fmt: skip
+            view = CellView("acc1", vbus, dash, sc, folder, ack_timeout_s=20.0, audit=audit)
+            url = dash.start(port=8750, on_params_edit=view.edit)  # as serve wires it
+            view.refresh_panels()
+            page = stack.enter_context(chromium_on(url))
+            wait_for(lambda: page.eval("document.body.innerText.includes('Read-only')"), 30, "page")
+
+            def scenario_tab() -> bool:  # clicked until the layout has settled
+                if not page.eval(f"!!{_BUTTON.format('Apply parameters')}"):
+                    page.click("document.querySelector('[role=tab][title=Scenario]')")
+                    return False
+                return True
+
+            wait_for(scenario_tab, 20, "the scenario tab")
+
+            def applied() -> list[int]:
+                rows = _rows(audit)
+                return [s for p, s, _, _ in rows if p == "/dashboard/acc1/parameters"]
+
+            def revision() -> int | None:
+                view.poll()
+                return view.scenario_revision
+
+            first = wait_for(revision, 30, "the worker's scenario revision")
+            page.click(_BUTTON.format("Apply parameters"))
+            wait_for(lambda: applied() == [401], 10, "the refused change in the audit")
+            assert "sign in with an API token" in page.eval("document.body.innerText")
+            time.sleep(0.5)
+            assert revision() == first  # nothing reached the worker
+            page.type_text(_TOKEN_INPUT, TOKEN)
+            time.sleep(0.5)  # the typed value reaches the server before the click
+            page.click(_BUTTON.format("Sign in"))
+            wait_for(
+                lambda: page.eval("document.body.innerText.includes('Signed in as')"), 10, "in"
+            )
+            assert page.eval(f"{_TOKEN_INPUT}.value") == ""  # the token does not stay on screen
+            page.click(_BUTTON.format("Apply parameters"))
+            wait_for(lambda: applied() == [401, 200], 60, "the accepted change in the audit")
+            wait_for(lambda: revision() != first, 10, "the worker's new revision")
+            users = {u for p, s, u, _ in _rows(audit) if s == 200}
+            assert users == {"operator"}
+    finally:
+        stack.close()
+        dash.stop()
