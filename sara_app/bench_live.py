@@ -1,12 +1,13 @@
 """The worker's cycle time with the dashboard and a browser connected versus without (issue 4:
 no more than 10 % worse), measured on the live stack of ``sara-app serve``.
 
-A Zenoh router (a process of its own), a cell worker and a replayer run as in ``serve``; the
-worker's verdicts (one per cycle, with its own cycle time) are collected in alternating phases:
-without a view, then with the viser dashboard fed at 20 Hz and a headless Debian chromium
-rendering it, and so on. Phases alternate (their order rotates each round) so that drifts of the
-machine's load hit all sides alike. The robot commands that the subscriber in this process
-(beside the dashboard) never receives are counted as lost.
+A Zenoh router (a process of its own), the reference controller, a cell worker and a replayer
+run as in ``serve``; the worker's verdicts (one per cycle, with its own cycle time) are
+collected in alternating phases: without a view, then with the viser dashboard fed at 20 Hz and
+a headless Debian chromium rendering it, and so on. Phases alternate (their order rotates each
+round) so that drifts of the machine's load hit all sides alike. Command delivery is the
+controller's own count (its ``controller/status``): commands lost, late, expired on arrival,
+and how often it braked on its own because none came in time.
 
 The view runs in two variants: at lowered CPU priority (nice ``serve.DISPLAY_NICE``, as ``sara-app
 serve`` runs its display side; the browser too, standing for an operator's browser that normally
@@ -30,7 +31,7 @@ from typing import cast
 import numpy as np
 
 from sara_app.bus import keys
-from sara_app.bus.messages import VerdictMsg
+from sara_app.bus.messages import ControllerStatusMsg, VerdictMsg
 from sara_app.bus.session import Bus, free_port
 
 CHROMIUM_FLAGS = (
@@ -57,12 +58,9 @@ def chromium_path() -> str | None:
 
 def _collect(hub: Bus, cell: str, seconds: float) -> np.ndarray:
     """``(n, 3)``: cycle time (us), stamp (s) and sequence number of the verdicts received over
-    ``seconds``; the commands lost meanwhile (sequence numbers never received) are added to
-    ``COMMANDS_LOST[cell]``."""
+    ``seconds``."""
     sub = hub.subscribe(keys.verdict_key(cell), fifo=True, capacity=100_000)
-    cmds = hub.subscribe(keys.robot_command_key(cell), fifo=True, capacity=100_000)
     out: list[tuple[float, float, int]] = []
-    seqs: list[int] = []
     t_end = time.monotonic() + seconds
     while time.monotonic() < t_end:
         time.sleep(0.05)
@@ -71,18 +69,41 @@ def _collect(hub: Bus, cell: str, seconds: float) -> np.ndarray:
             for d in sub.drain().messages
             if isinstance(d.msg, VerdictMsg)
         ]
-        seqs += [d.msg.seq for d in cmds.drain().messages]
     sub.close()
-    cmds.close()
-    if len(seqs) > 1:
-        lost = (max(seqs) - min(seqs) + 1) - len(set(seqs))
-        COMMANDS_LOST[cell] = COMMANDS_LOST.get(cell, 0) + lost
-        COMMANDS_SEEN[cell] = COMMANDS_SEEN.get(cell, 0) + len(set(seqs))
     return np.array(out, dtype=float).reshape(-1, 3)
 
 
-COMMANDS_LOST: dict[str, int] = {}
-COMMANDS_SEEN: dict[str, int] = {}
+def _controller_status(hub: Bus, cell: str, wait_s: float = 3.0) -> ControllerStatusMsg | None:
+    """The controller's next status (its command-delivery counts since it started)."""
+    sub = hub.subscribe(keys.controller_status_key(cell), capacity=16)
+    t_end = time.monotonic() + wait_s
+    try:
+        while time.monotonic() < t_end:
+            got = [d.msg for d in sub.drain().messages if isinstance(d.msg, ControllerStatusMsg)]
+            if got:
+                return got[-1]
+            time.sleep(0.05)
+        return None
+    finally:
+        sub.close()
+
+
+def delivery_rows(status: ControllerStatusMsg | None) -> list[tuple[str, float, float, str]]:
+    """Rows of the commands as the robot controller received them."""
+    if status is None:
+        return [("robot commands at the controller", float("nan"), float("nan"), "no status")]
+    n = status.commands_received + status.commands_lost
+    rows = []
+    for label, count in (
+        ("lost", status.commands_lost),
+        ("late (after their set point)", status.commands_late),
+        ("expired on arrival", status.commands_expired),
+        ("braking on its own", status.braking_events),
+    ):
+        share = 100.0 * count / max(n, 1)
+        rows.append((f"robot commands at the controller: {label}", float(count), share,
+                     f"of {n} sent (second column: %)"))  # fmt: skip
+    return rows
 
 
 def _missed(phases: list[np.ndarray], dt_s: float) -> tuple[int, int]:
@@ -195,8 +216,9 @@ def bench_view_load(
          str(WORKER_RT_PRIORITY)]
     )  # fmt: skip
     with _connect_plain(port, router) as hub:
-        procs = [
+        procs = [  # as serve runs them: the controller follows the worker's commands
             router,
+            _spawn("sara_app.controller", cell, scenario, port, rt_priority=WORKER_RT_PRIORITY),
             _spawn("sara_app.worker", cell, scenario, port, rt_priority=WORKER_RT_PRIORITY),
             _spawn("sara_app.replayer", cell, scenario, port, nice=REPLAYER_NICE),
         ]
@@ -209,6 +231,7 @@ def bench_view_load(
                         continue
                     with _view(hub, cell, scenario, browser, int(cast(int, kind))):
                         phases[kind].append(_collect(hub, cell, phase_s))
+            delivery = _controller_status(hub, cell)
         finally:
             _stop(procs[::-1])
     data = {k: np.concatenate(v)[:, 0] if v else np.empty(0) for k, v in phases.items()}
@@ -224,8 +247,7 @@ def bench_view_load(
         return f"{data[k].size} verdicts; {skipped} cycles late by > 1 period, {dropped} lost"
 
     rows = [("worker cycle, no view", m0, p0, f"{scenario}, {cycles('off')}")]
-    lost, seen = COMMANDS_LOST.get(cell, 0), COMMANDS_SEEN.get(cell, 0)
-    rows.append(("robot commands lost, all phases", float(lost), float(lost), f"of {lost + seen}"))
+    rows += delivery_rows(delivery)
     for kind, label in ((DISPLAY_NICE, f"nice {DISPLAY_NICE} as in serve"), (0, "same priority")):
         m, p = _stats(data[kind])
         rows.append((f"worker cycle, {what}, {label}", m, p, cycles(kind)))

@@ -12,6 +12,10 @@ plain Python, simulating a robot that tracks its set points exactly.
   commanded path by less than a tracking tolerance then). Once the newest command expired it
   follows commands again only when their set point is within ``tracking_tol_rad`` of where it
   stands (the worker re-anchors on the measured state); others are counted as refused.
+- The newest command is the one with the latest ``stamp_s`` (a restarted worker numbers its
+  commands from 0 again). Delivery is counted (:class:`Delivery`: received, lost within a
+  worker run, late, expired, refused) and published about once a second on
+  ``sara/<cell>/controller/status``.
 - It polls for commands every ``POLL_S`` and publishes ``robot/state`` on each new command and
   at least every half control period, stamped with the time of the state.
 
@@ -25,12 +29,18 @@ import logging
 import sys
 import threading
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
 from sara_app.bus import keys
 from sara_app.bus.codec import Decoder
-from sara_app.bus.messages import RobotCommandMsg, RobotStateMsg
+from sara_app.bus.messages import (
+    FUTURE_TOLERANCE_S,
+    ControllerStatusMsg,
+    RobotCommandMsg,
+    RobotStateMsg,
+)
 from sara_app.bus.process import process_main
 from sara_app.bus.session import Bus
 from sara_app.scenario import Scenario
@@ -40,6 +50,32 @@ POLL_S = 0.0005
 """How often it looks for commands: a set point reached before the next command arrives sends
 the robot along the command's stop until then (sound, and seen by the worker as a small
 tracking error), so commands are taken up within half a millisecond."""
+
+
+STATUS_PERIOD_S = 1.0
+
+
+@dataclass
+class Delivery:
+    """Counts of the commands as they reached the controller (see
+    :class:`~sara_app.bus.messages.ControllerStatusMsg`)."""
+
+    received: int = 0
+    lost: int = 0
+    late: int = 0
+    expired: int = 0
+    runs: int = 0
+    last_seq: int = -1
+
+    def count(self, cmd: RobotCommandMsg, now: float, dt_s: float) -> None:
+        self.received += 1
+        if cmd.seq <= self.last_seq or self.runs == 0:  # numbering restarted: a new worker run
+            self.runs += 1
+        else:
+            self.lost += cmd.seq - self.last_seq - 1
+        self.last_seq = cmd.seq
+        self.late += now > cmd.stamp_s + dt_s
+        self.expired += now > cmd.valid_until_s
 
 
 class Controller:
@@ -58,24 +94,33 @@ class Controller:
         points not yet reached."""
         self.refused = 0
         self.expired = 0
+        self.delivery = Delivery()
         self.published_s = -1.0
+        self.status_s = -np.inf
         self.stop_event = threading.Event()
-        self.sub = bus.subscribe(keys.robot_command_key(self.cell), Decoder(), capacity=64)
+        # a stamp from the future would hold back every later command: refused (out_of_range)
+        self.decoder = Decoder(max_future_s=FUTURE_TOLERANCE_S)
+        self.sub = bus.subscribe(keys.robot_command_key(self.cell), self.decoder, capacity=64)
         self.pub = bus.publisher(keys.robot_state_key(self.cell))
+        self.pub_status = bus.publisher(keys.controller_status_key(self.cell))
 
-    def _received(self) -> list[RobotCommandMsg]:
-        """The commands that came since the last tick, in order (every set point counts: the
-        robot passes through each)."""
+    def _received(self, now: float) -> list[RobotCommandMsg]:
+        """The commands that came since the last tick, in order of arrival, counted (every set
+        point counts: the robot passes through each)."""
         got = [
             d.msg
             for d in self.sub.drain().messages
             if isinstance(d.msg, RobotCommandMsg) and len(d.msg.q) == len(self.q)
         ]
-        return sorted(got, key=lambda m: m.seq)
+        for cmd in got:
+            self.delivery.count(cmd, now, self.dt_s)
+        return sorted(got, key=lambda m: m.stamp_s)
 
     def tick(self, now: float) -> None:
+        if now - self.status_s >= STATUS_PERIOD_S:
+            self.publish_status(now)
         got = False
-        for cmd in self._received():
+        for cmd in self._received(now):
             if self._acceptable(cmd, now):
                 self._follow(cmd, now)
                 got = True
@@ -115,8 +160,8 @@ class Controller:
         """A command is followed while valid; once the robot brakes on its own (the newest
         command expired), only one whose set point is where the robot stands (the worker
         re-anchored on the measured state)."""
-        if self.command is not None and cmd.seq <= self.command.seq:
-            return False
+        if self.command is not None and cmd.stamp_s <= self.command.stamp_s:
+            return False  # not newer than the one followed (by time: seq restarts per run)
         if not self.braking and now <= cmd.valid_until_s:
             return True
         if float(np.max(np.abs(np.asarray(cmd.q) - self.q))) <= self.tol_rad:
@@ -144,6 +189,25 @@ class Controller:
         self.pub.put(
             RobotStateMsg(
                 seq=self.pub.next_seq(), stamp_s=now, q=self.q.tolist(), q_dot=self.v.tolist()
+            )
+        )
+
+    def publish_status(self, now: float) -> None:
+        self.status_s = now
+        d = self.delivery
+        self.pub_status.put(
+            ControllerStatusMsg(
+                seq=self.pub_status.next_seq(),
+                stamp_s=now,
+                cell=self.cell,
+                commands_received=d.received,
+                commands_lost=d.lost,
+                commands_late=d.late,
+                commands_expired=d.expired,
+                commands_refused=self.refused,
+                braking_events=self.expired,
+                worker_runs=d.runs,
+                braking=self.braking,
             )
         )
 

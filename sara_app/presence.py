@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from sara_app.bus.messages import FUTURE_TOLERANCE_S
 from sara_app.human.velocity import VelocityEstimator
 from sara_app.safety.shield import HumanState
 
@@ -70,7 +71,7 @@ class Presence:
     tracker_timeout_s: float
     max_people: int
     new_track: Callable[[str], Track]
-    future_tolerance_s: float = 0.002
+    future_tolerance_s: float = FUTURE_TOLERANCE_S
     tracks: dict[str, Track] = field(default_factory=dict)
     overflow: dict[str, float] = field(default_factory=dict)
     frames: dict[str, _Frame] = field(default_factory=dict)

@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from sara_app.bus.codec import MAX_PAYLOAD_BYTES, REASONS, Decoder, MessageError, decode
 from sara_app.bus.examples import example_messages
+from sara_app.bus.keys import KINDS
 from sara_app.bus.messages import SCHEMA_VERSIONS, CapsulesMsg, SkeletonMsg, encode, source_points
 from sara_app.errors import SaraError
 from sara_app.human.skeleton import COCO17_NAMES, SOURCES, from_source, skeleton
@@ -34,6 +35,10 @@ def _reason(key: str, data: Any) -> str:
         decode(key, payload)
     assert e.value.reason in REASONS
     return e.value.reason
+
+
+def test_there_is_an_example_of_every_kind() -> None:
+    assert sorted(EXAMPLES) == sorted(KINDS)
 
 
 @pytest.mark.parametrize("kind", sorted(EXAMPLES))

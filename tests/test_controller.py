@@ -18,7 +18,7 @@ import pytest
 
 from sara_app.bus import keys
 from sara_app.bus.heartbeat import Heartbeat
-from sara_app.bus.messages import RobotCommandMsg, RobotStateMsg, VerdictMsg
+from sara_app.bus.messages import ControllerStatusMsg, RobotCommandMsg, RobotStateMsg, VerdictMsg
 from sara_app.bus.session import Bus, BusError, free_port
 from sara_app.scenario import load_scenario
 from sara_app.serve import WORKER_RT_PRIORITY
@@ -145,3 +145,51 @@ def test_a_restarted_worker_continues_from_where_the_robot_rests(cell) -> None:
     steps = np.abs(np.diff([s.q for s in moved], axis=0)).max()
     assert steps < 0.05, steps
     assert np.abs(np.asarray(moved[0].q) - q_rest).max() < 0.05
+
+
+def test_delivery_is_counted_and_a_restarted_workers_commands_are_followed() -> None:
+    """Hand-made commands over a real bus, the controller ticked at chosen times: a lost
+    sequence number, a late command and an expiry are counted; a restarted worker's commands
+    (numbered from 0 again, later stamps) are followed at once; a command stamped in the future
+    is refused (it would hold back every later one)."""
+    from sara_app.controller import Controller
+
+    sc = load_scenario("standing_beside_path")
+    port = free_port()
+    with Bus.router(port), Bus.client(port) as cbus, Bus.client(port) as wbus:
+        ctl = Controller(CELL, sc, cbus)
+        statuses = wbus.subscribe(keys.controller_status_key(CELL), fifo=True)
+        pub = wbus.publisher(keys.robot_command_key(CELL))
+        dt, q0 = ctl.dt_s, ctl.q.copy()
+        n = len(q0)
+
+        def send(seq: int, stamp: float, tick_at: float, dq: float = 0.0) -> None:
+            q = (q0 + dq).tolist()
+            valid = stamp + max(2 * dt, 0.010)
+            msg = RobotCommandMsg(seq=seq, stamp_s=stamp, q=q, q_dot=[0.0] * n, q_ddot=[0.0] * n,
+                                  mode="intended", valid_until_s=valid, failsafe_t_s=[dt],
+                                  failsafe_q=[q])  # fmt: skip
+            assert pub.put(msg)
+            time.sleep(0.05)  # delivered before the tick that takes it
+            ctl.tick(tick_at)
+
+        t = time.time()
+        for k, seq in enumerate([1000, 1001, 1002, 1003, 1005, 1006]):  # 1004 lost
+            send(seq, t + k * dt, t + (k + 0.5) * dt, dq=1e-4 * k)
+        send(1007, t + 6 * dt, t + 6 * dt + 1.5 * dt)  # after its set point: late, still valid
+        assert ctl.command is not None and ctl.command.seq == 1007 and not ctl.braking
+        ctl.tick(t + 1.0)  # nothing since: braking on its own
+        assert ctl.braking
+        send(5, t + 1e4, t + 1.2)  # from the far future: refused before it counts
+        assert ctl.decoder.counts.get("out_of_range") == 1 and ctl.command.seq == 1007
+        time.sleep(max(t + 1.1 - time.time(), 0.0))  # a restart: stamps 1 s on (the codec)
+        t2 = time.time()  # the restarted worker, re-anchored where the robot rests
+        for seq in range(3):
+            send(seq, t2 + seq * dt, t2 + (seq + 0.5) * dt, dq=float(ctl.q[0] - q0[0]))
+        assert ctl.command.seq == 2 and not ctl.braking
+        ctl.publish_status(t2 + 1.0)
+        time.sleep(0.1)
+        got = _drain(statuses, ControllerStatusMsg)[-1]
+    assert (got.commands_received, got.commands_lost, got.commands_late) == (10, 1, 1)
+    assert (got.commands_expired, got.commands_refused) == (0, 0)
+    assert (got.braking_events, got.worker_runs, got.braking) == (1, 2, False)

@@ -8,7 +8,7 @@ subscribe and use liveliness (reading is not restricted; the API guards what peo
 role           may publish
 =============  =================================================================================
 tracker        ``sara/<cell>/human/*/skeleton``, ``sara/<cell>/tracker/*/frame``
-controller     ``sara/<cell>/robot/state``
+controller     ``sara/<cell>/robot/state``, ``sara/<cell>/controller/status``
 editor         ``sara/<cell>/params``, ``sara/<cell>/retire`` (the API, the dashboard)
 worker         the worker's outputs: ``robot/command``, ``verdict``, ``occupancy``,
                ``params/ack``, ``status``, ``scenario``, and its liveliness token
@@ -31,7 +31,7 @@ from sara_app.errors import ParameterError
 
 ROLES: dict[str, tuple[str, ...]] = {
     "tracker": ("human/*/skeleton", "tracker/*/frame"),
-    "controller": ("robot/state",),
+    "controller": ("robot/state", "controller/status"),
     "editor": ("params", "retire"),
     "worker": ("robot/command", "verdict", "occupancy", "params/ack", "status", "scenario"),
 }

@@ -12,6 +12,7 @@ from sara_app.bus import keys
 from sara_app.bus.messages import (
     CapsulesMsg,
     ContactMsg,
+    ControllerStatusMsg,
     HumanOccupancyMsg,
     Message,
     OccupancyMsg,
@@ -21,6 +22,7 @@ from sara_app.bus.messages import (
     RobotCommandMsg,
     RobotOccupancyMsg,
     RobotStateMsg,
+    ScenarioStateMsg,
     SkeletonMsg,
     StatusMsg,
     TrackerFrameMsg,
@@ -124,7 +126,23 @@ def example_messages() -> dict[str, tuple[str, Message]]:
             cycle_time_p50_us=380.0,
             cycle_time_p99_us=900.0,
         ),
+        "scenario": ScenarioStateMsg(
+            seq=seq, stamp_s=t, cell=CELL, revision=3, scenario={"name": "demo", "humans": []}
+        ),
         "tracker_frame": TrackerFrameMsg(seq=seq, stamp_s=t, people=[HUMAN]),
+        "controller_status": ControllerStatusMsg(
+            seq=seq,
+            stamp_s=t,
+            cell=CELL,
+            commands_received=30_000,
+            commands_lost=2,
+            commands_late=41,
+            commands_expired=0,
+            commands_refused=0,
+            braking_events=1,
+            worker_runs=1,
+            braking=False,
+        ),
         "retire": RetireMsg(
             seq=seq,
             stamp_s=t,

@@ -16,6 +16,7 @@ key                                        dir.    payload (``sara_app.bus.messa
 ``sara/<cell>/scenario``                   out     ``ScenarioStateMsg``: the scenario it runs
 ``sara/<cell>/tracker/<id>/frame``         in      ``TrackerFrameMsg``: a tracker's heartbeat
 ``sara/<cell>/retire``                     in      ``RetireMsg``: an operator retires a person
+``sara/<cell>/controller/status``          in      ``ControllerStatusMsg``: command delivery, 1 Hz
 =========================================  ======  ================================================
 
 "in"/"out" are seen from the cell worker. ``<cell>`` and ``<id>`` are names of 1-64 characters
@@ -54,6 +55,7 @@ Kind = Literal[
     "scenario",
     "tracker_frame",
     "retire",
+    "controller_status",
 ]
 KINDS: tuple[str, ...] = get_args(Kind)
 
@@ -70,6 +72,7 @@ _SUFFIX: dict[str, str] = {
     "scenario": "scenario",
     "tracker_frame": "tracker/{id}/frame",
     "retire": "retire",
+    "controller_status": "controller/status",
 }
 _BY_SUFFIX: dict[str, str] = {v: k for k, v in _SUFFIX.items() if "{id}" not in v}
 # kinds whose key holds an id: kind -> (first segment, last segment, what the id names)
@@ -151,6 +154,10 @@ def tracker_frame_key(cell: str, tracker_id: str) -> str:
 
 def retire_key(cell: str) -> str:
     return key("retire", cell)
+
+
+def controller_status_key(cell: str) -> str:
+    return key("controller_status", cell)
 
 
 def tracker_frame_keys(cell: str) -> str:

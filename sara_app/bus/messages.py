@@ -180,6 +180,9 @@ class RobotStateMsg(_Msg):
         return self
 
 
+FUTURE_TOLERANCE_S = 0.002
+"""How far a message's stamp may lie ahead of the receiver's clock (clocks of one cell are
+synchronised); a message stamped further ahead is refused as ``out_of_range``."""
 COMMAND_VALID_PERIODS = 2
 COMMAND_VALID_MIN_S = 0.010
 """A command is valid for this many control periods after its stamp, and at least
@@ -487,6 +490,27 @@ class RetireMsg(_Msg):
     reason: Annotated[str, Field(max_length=500)] = ""
 
 
+class ControllerStatusMsg(_Msg):
+    """The robot controller's heartbeat, about 1 Hz (key ``sara/<cell>/controller/status``):
+    command delivery as the controller saw it since it started. ``commands_lost``: sequence
+    numbers of a worker run never received; ``commands_late``: received after their set point's
+    time (``stamp_s + dt``); ``commands_expired``: received after ``valid_until_s``;
+    ``commands_refused``: not followed (expired and not where the robot stands);
+    ``braking_events``: times the newest command expired and the robot braked on its own;
+    ``worker_runs``: worker runs seen (a run's sequence numbers restart at 0); ``braking``: it
+    brakes on its own now."""
+
+    cell: Name
+    commands_received: Annotated[int, Field(ge=0)]
+    commands_lost: Annotated[int, Field(ge=0)]
+    commands_late: Annotated[int, Field(ge=0)]
+    commands_expired: Annotated[int, Field(ge=0)]
+    commands_refused: Annotated[int, Field(ge=0)]
+    braking_events: Annotated[int, Field(ge=0)]
+    worker_runs: Annotated[int, Field(ge=0)]
+    braking: bool
+
+
 Message = (
     SkeletonMsg
     | RobotStateMsg
@@ -499,6 +523,7 @@ Message = (
     | ScenarioStateMsg
     | TrackerFrameMsg
     | RetireMsg
+    | ControllerStatusMsg
 )
 
 MODELS_BY_KIND: dict[str, type[_Msg]] = {
@@ -513,6 +538,7 @@ MODELS_BY_KIND: dict[str, type[_Msg]] = {
     "scenario": ScenarioStateMsg,
     "tracker_frame": TrackerFrameMsg,
     "retire": RetireMsg,
+    "controller_status": ControllerStatusMsg,
 }
 
 

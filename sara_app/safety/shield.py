@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from sara_app.bus.messages import FUTURE_TOLERANCE_S
 from sara_app.errors import ParameterError, SaraError
 from sara_app.human.reach import MODELS, HumanReach
 from sara_app.robot.model import RobotModel
@@ -73,7 +74,7 @@ class ShieldSettings:
     models: tuple[str, ...] = ("pos", "vel", "acc")
     tracking_tol_rad: float = 0.005
     skeleton_timeout_s: float = 0.2
-    future_tolerance_s: float = 0.002
+    future_tolerance_s: float = FUTURE_TOLERANCE_S
     """How far a skeleton's stamp may lie ahead of the cell clock before it is a fault."""
 
     def check(self) -> None:
