@@ -17,6 +17,7 @@ cores). The replayer runs at ``serve.REPLAYER_NICE`` in every phase, as in ``ser
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import subprocess
@@ -88,22 +89,34 @@ def _controller_status(hub: Bus, cell: str, wait_s: float = 3.0) -> ControllerSt
         sub.close()
 
 
-def delivery_rows(status: ControllerStatusMsg | None) -> list[tuple[str, float, float, str]]:
-    """Rows of the commands as the robot controller received them."""
-    if status is None:
-        return [("robot commands at the controller", float("nan"), float("nan"), "no status")]
-    n = status.commands_received + status.commands_lost
-    rows = []
-    for label, count in (
-        ("lost", status.commands_lost),
-        ("late (after their set point)", status.commands_late),
-        ("expired on arrival", status.commands_expired),
-        ("braking on its own", status.braking_events),
-    ):
-        share = 100.0 * count / max(n, 1)
-        rows.append((f"robot commands at the controller: {label}", float(count), share,
-                     f"of {n} sent (second column: %)"))  # fmt: skip
-    return rows
+DELIVERY_FIELDS = ("commands_received", "commands_lost", "commands_late", "commands_expired",
+                   "braking_events")  # fmt: skip
+
+
+def delivery_delta(
+    before: ControllerStatusMsg | None, after: ControllerStatusMsg | None
+) -> np.ndarray | None:
+    """``(5,)`` counts between two controller statuses, in ``DELIVERY_FIELDS`` order."""
+    if before is None or after is None:
+        return None
+    return np.array([getattr(after, f) - getattr(before, f) for f in DELIVERY_FIELDS], float)
+
+
+def delivery_row(label: str, counts: list[np.ndarray | None]) -> tuple[str, float, float, str]:
+    """One row of command delivery at the controller over phases: lost and expired-on-arrival
+    shares (%) of the commands sent, with late ones and braking events in the note."""
+    got = [c for c in counts if c is not None]
+    if not got:
+        return (f"commands at the controller, {label}", float("nan"), float("nan"), "no status")
+    received, lost, late, expired, braked = np.sum(got, axis=0)
+    sent = max(received + lost, 1.0)
+    return (
+        f"commands at the controller, {label}",
+        100 * lost / sent,
+        100 * expired / sent,
+        f"% lost / expired on arrival of {int(sent)}; {100 * late / sent:.1f} % late; "
+        f"braked on its own {int(braked)}x",
+    )
 
 
 def _missed(phases: list[np.ndarray], dt_s: float) -> tuple[int, int]:
@@ -210,6 +223,7 @@ def bench_view_load(
     cell = "benchview"
     browser = chromium_path()
     phases: dict[object, list[np.ndarray]] = {"off": [], DISPLAY_NICE: [], 0: []}
+    delivered: dict[object, list[np.ndarray | None]] = {k: [] for k in phases}
     order: list[object] = ["off", DISPLAY_NICE, 0]
     router = start_process(  # as serve runs it: a process of its own, real-time
         [sys.executable, "-m", ROUTER, "--port", str(port), "--rt-priority",
@@ -226,12 +240,16 @@ def bench_view_load(
             _collect(hub, cell, 3.0)  # start-up
             for r in range(rounds):
                 for kind in order[r % 3 :] + order[: r % 3]:  # rotate: no phase always first
-                    if kind == "off":
+                    with contextlib.ExitStack() as stack:
+                        if kind != "off":
+                            stack.enter_context(
+                                _view(hub, cell, scenario, browser, int(cast(int, kind)))
+                            )
+                        before = _controller_status(hub, cell)
                         phases[kind].append(_collect(hub, cell, phase_s))
-                        continue
-                    with _view(hub, cell, scenario, browser, int(cast(int, kind))):
-                        phases[kind].append(_collect(hub, cell, phase_s))
-            delivery = _controller_status(hub, cell)
+                        delivered[kind].append(
+                            delivery_delta(before, _controller_status(hub, cell))
+                        )
         finally:
             _stop(procs[::-1])
     data = {k: np.concatenate(v)[:, 0] if v else np.empty(0) for k, v in phases.items()}
@@ -247,10 +265,11 @@ def bench_view_load(
         return f"{data[k].size} verdicts; {skipped} cycles late by > 1 period, {dropped} lost"
 
     rows = [("worker cycle, no view", m0, p0, f"{scenario}, {cycles('off')}")]
-    rows += delivery_rows(delivery)
+    rows.append(delivery_row("no view", delivered["off"]))
     for kind, label in ((DISPLAY_NICE, f"nice {DISPLAY_NICE} as in serve"), (0, "same priority")):
         m, p = _stats(data[kind])
         rows.append((f"worker cycle, {what}, {label}", m, p, cycles(kind)))
+        rows.append(delivery_row(label, delivered[kind]))
         rows.append(
             ("  vs no view (ratio - 1)", 100 * (m / m0 - 1), 100 * (p / p0 - 1), "%, target <= 10")
         )

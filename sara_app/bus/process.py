@@ -86,12 +86,17 @@ def process_main(
             if not (args.zenoh_user and args.zenoh_credentials):
                 raise SaraError("--zenoh-user and --zenoh-credentials go together")
             auth = client_auth(args.zenoh_user, Credentials(args.zenoh_credentials))
+        # the session's I/O threads start with it and inherit the real-time class: received
+        # and sent messages then do not wait behind a browser or other normal jobs
+        rt = bool(args.rt_priority) and set_realtime(args.rt_priority, name)
         with Bus.client(args.port, auth=auth) as bus:
+            if rt:
+                set_normal()  # building the cell (seconds of kernel loading) at normal priority
             kw = {"state_dir": args.state_dir, "origin": args.scenario} if state else {}
             proc = factory(args.cell, sc, bus, **kw)
             for sig in (signal.SIGINT, signal.SIGTERM):
                 signal.signal(sig, lambda *_: proc.stop_event.set())
-            if args.rt_priority:
+            if rt:
                 set_realtime(args.rt_priority, name)
             proc.run(args.duration)
     except SaraError as e:
@@ -100,12 +105,20 @@ def process_main(
     return 0
 
 
+def set_normal() -> None:
+    """Put the calling thread back under normal scheduling (threads it started keep theirs)."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (AttributeError, OSError):
+        pass
+
+
 def set_realtime(priority: int, name: str = "process") -> bool:
     """Put the calling thread under ``SCHED_FIFO`` at ``priority`` (1-99): it then runs as soon
-    as it wakes, ahead of every normally scheduled thread (display, browser, other jobs), while
-    threads started before (the zenoh session's I/O) keep their class. Linux keeps 5 % of each
-    second for normal threads (``sched_rt_runtime_us``), so a runaway loop cannot lock the
-    machine. Returns False, with a warning, where it is not permitted (no CAP_SYS_NICE, other
+    as it wakes, ahead of every normally scheduled thread (display, browser, other jobs); threads
+    it starts afterwards inherit the class (those started before keep theirs). Linux keeps 5 %
+    of each second for normal threads (``sched_rt_runtime_us``), so a runaway loop cannot lock
+    the machine. Returns False, with a warning, where it is not permitted (no CAP_SYS_NICE, other
     systems): the loop then runs at normal priority."""
     log = logging.getLogger(f"sara_app.{name}")
     lo = os.sched_get_priority_min(os.SCHED_FIFO) if hasattr(os, "SCHED_FIFO") else 1
