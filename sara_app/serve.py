@@ -278,12 +278,12 @@ def _is_loopback(host: str) -> bool:
 
 def _verdict_age(registry: Any, cell: str, sup: Supervisor) -> float | None:
     """Age of the cell's newest verdict when it came from the worker process running now
-    (received after its start), else None."""
+    through the router running now (received after both started), else None."""
     snap = registry.cell(cell)
     age = None if snap is None else snap.get("verdict_age_s")
     if age is None:
         return None
-    running_s = time.monotonic() - sup.worker_started_s()
+    running_s = time.monotonic() - sup.verdicts_due_s()
     return age if age < running_s else None
 
 

@@ -4,8 +4,9 @@
   once a child has run for 30 s), and counted.
 - A worker that stops cycling while its process lives (hung, stopped) is killed and restarted:
   once it has published verdicts, no verdict for ``HUNG_AFTER_S`` (two status heartbeats) is a
-  hang. Meanwhile the API shows the cell offline with its mode unknown, and the controller
-  brakes along the last verified stop on its own.
+  hang, counted from the later of its start and the router's (after a router restart the bus
+  was down, not the worker). Meanwhile the API shows the cell offline with its mode unknown,
+  and the controller brakes along the last verified stop on its own.
 - Children never outlive ``serve``: each asks the kernel to kill it when its parent dies
   (``bus.process.die_with_parent``), and ``stop()`` ends them in order.
 """
@@ -51,9 +52,11 @@ class Child:
 class Supervisor:
     """Starts, watches and restarts children; ``poll(now, last_verdict_s)`` once a frame."""
 
-    def __init__(self, children: list[Child], worker: str = "worker") -> None:
+    def __init__(
+        self, children: list[Child], worker: str = "worker", router: str = "router"
+    ) -> None:
         self.children = children
-        self.worker = worker
+        self.worker, self.router = worker, router
 
     def start(self, names: tuple[str, ...] | None = None) -> None:
         """Start the children not started yet (only ``names`` when given)."""
@@ -95,9 +98,12 @@ class Supervisor:
             log.warning("supervisor: %s", e)
         return events
 
-    def worker_started_s(self) -> float:
-        """When the worker process was last started (monotonic clock)."""
-        return next((c.started_s for c in self.children if c.name == self.worker), 0.0)
+    def verdicts_due_s(self) -> float:
+        """Since when the worker's verdicts can reach the supervisor (monotonic clock): the
+        later of the worker's last start and the router's (after a router restart every session
+        reconnects, about 2 s; until the first verdict after that, no hang is diagnosed: the bus
+        was down, not the worker)."""
+        return max(c.started_s for c in self.children if c.name in (self.worker, self.router))
 
     def status(self) -> dict[str, dict[str, object]]:
         return {

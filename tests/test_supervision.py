@@ -1,7 +1,8 @@
 """``serve`` supervises its cell on real processes: a stopped (SIGSTOP) worker shows offline with
 its mode unknown within two heartbeats and is killed and restarted; a killed worker is back
 within seconds while the controller holds the robot on its verified stop (no command meanwhile);
-a second worker for the served cell refuses to start; and ``kill -9`` of ``serve`` leaves no
+a killed router is restarted and every process reconnects (the robot braked meanwhile); a second
+worker for the served cell refuses to start; and ``kill -9`` of ``serve`` leaves no
 process of the cell behind."""
 
 from __future__ import annotations
@@ -73,10 +74,26 @@ def test_serve_supervises_its_worker_and_leaves_nothing_behind() -> None:
             _until(lambda: _api(ap, "/api/processes")["worker"]["pid"] != pid, 10, "restart")
             _until(lambda: cell()["online"], 60, "online after the crash")
             got = [d.msg for d in cmds.drain().messages if isinstance(d.msg, RobotCommandMsg)]
+        pid_after = _api(ap, "/api/processes")["worker"]["pid"]
         before = [c for c in got if c.stamp_s < t_kill]
         after = [c for c in got if c.stamp_s >= t_kill]
         assert before and after and after[0].seq == 0  # the new worker's first command
         assert after[0].stamp_s - t_kill > 0.3  # nothing commanded while it was gone
+
+        # a killed router: restarted; every process reconnects, the controller braked on its
+        # own meanwhile, the robot moves again, and the worker still owns the cell
+        router = _api(ap, "/api/processes")["router"]["pid"]
+        os.kill(router, signal.SIGKILL)
+        _until(lambda: _api(ap, "/api/processes")["router"]["pid"] != router, 10, "a new router")
+        _until(lambda: not cell()["online"], 10, "offline while the router is gone")
+        _until(lambda: cell()["online"] and cell()["mode"] == "intended", 60, "moving again")
+        with Bus.client(zp, auth=client_auth("editor", creds)) as bus:
+            status = bus.subscribe(keys.controller_status_key("cell1"), fifo=True)
+            got_status = _until(
+                lambda: [d.msg for d in status.drain().messages if d.msg is not None], 10, "status"
+            )
+        assert got_status[-1].braking_events >= 1  # commands stopped: it braked on its own
+        assert _api(ap, "/api/processes")["worker"]["pid"] == pid_after  # no worker restart
 
         # one worker per cell: a second one refuses, loudly
         second = subprocess.run(
