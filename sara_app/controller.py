@@ -148,6 +148,11 @@ class Controller:
         passes through each on schedule (the commanded trajectory the worker checks)."""
         if self.braking or not self.points:
             self.points = [(now, self.q.copy())]  # from where it stands
+        elif now >= self.points[-1][0] and self.command is not None:
+            # past the last set point the robot is on that command's stop, not at the set
+            # point (taking the set point made it jump back by speed x delay: a tracking fault
+            # whenever a command took more than about 2 ms to arrive)
+            self.points = [(now, self.command.stop_position(now)[0])]
         else:
             q_now, _ = self._on_points(now)
             ahead = [p for p in self.points if p[0] > now]
