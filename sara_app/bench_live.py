@@ -213,11 +213,11 @@ def bench_view_load(
         REPLAYER_NICE,
         ROUTER,
         WORKER_RT_PRIORITY,
-        _connect_plain,
-        _spawn,
-        _stop,
+        connect_when_listening,
+        spawn_cell_process,
         start_process,
     )
+    from sara_app.supervisor import stop_processes
 
     port = free_port()
     cell = "benchview"
@@ -229,12 +229,16 @@ def bench_view_load(
         [sys.executable, "-m", ROUTER, "--port", str(port), "--rt-priority",
          str(WORKER_RT_PRIORITY)]
     )  # fmt: skip
-    with _connect_plain(port, router) as hub:
+    with connect_when_listening(port, router) as hub:
         procs = [  # as serve runs them: the controller follows the worker's commands
             router,
-            _spawn("sara_app.controller", cell, scenario, port, rt_priority=WORKER_RT_PRIORITY),
-            _spawn("sara_app.worker", cell, scenario, port, rt_priority=WORKER_RT_PRIORITY),
-            _spawn("sara_app.replayer", cell, scenario, port, nice=REPLAYER_NICE),
+            spawn_cell_process(
+                "sara_app.controller", cell, scenario, port, rt_priority=WORKER_RT_PRIORITY
+            ),
+            spawn_cell_process(
+                "sara_app.worker", cell, scenario, port, rt_priority=WORKER_RT_PRIORITY
+            ),
+            spawn_cell_process("sara_app.replayer", cell, scenario, port, nice=REPLAYER_NICE),
         ]
         try:
             _collect(hub, cell, 3.0)  # start-up
@@ -251,7 +255,7 @@ def bench_view_load(
                             delivery_delta(before, _controller_status(hub, cell))
                         )
         finally:
-            _stop(procs[::-1])
+            stop_processes(procs[::-1])
     data = {k: np.concatenate(v)[:, 0] if v else np.empty(0) for k, v in phases.items()}
     dt_s = load_scenario(scenario).shield.dt_s
     missed = {k: _missed(v, dt_s) for k, v in phases.items()}

@@ -69,7 +69,7 @@ def _probe(port: int, cell: str, seconds: float) -> dict:
 def bench_sse_load(clients: int = 50, seconds: float = 5.0, rounds: int = 2) -> list[Row]:
     """Rows: verdict delivery p50/p99 (us) idle and with ``clients`` event streams."""
     from sara_app.api import ApiServer, CellRegistry, create_app
-    from sara_app.serve import ROUTER, WORKER, _spawn, start_process
+    from sara_app.serve import ROUTER, WORKER, spawn_cell_process, start_process
 
     zp, ap = free_port(), free_port()
     cell = "ssebench"
@@ -78,7 +78,7 @@ def bench_sse_load(clients: int = 50, seconds: float = 5.0, rounds: int = 2) -> 
     results: dict[str, list[dict]] = {"idle": [], "sse": []}
     try:
         time.sleep(1.0)
-        procs.append(_spawn(WORKER, cell, "empty_cell", zp))
+        procs.append(spawn_cell_process(WORKER, cell, "empty_cell", zp))
         with Bus.client(zp) as bus, Heartbeat(bus, cell):
             reg = CellRegistry(bus).start()
             api = ApiServer(create_app(reg, static_dir=None), port=ap)

@@ -23,6 +23,16 @@ import math
 import numpy as np
 from numba import njit, types
 
+from sara_app.kernel_types import F8 as _f8
+from sara_app.kernel_types import RO2 as _RO2
+from sara_app.kernel_types import RO3 as _RO3
+from sara_app.kernel_types import RO4 as _RO4
+from sara_app.kernel_types import ROB1 as _ROB1
+from sara_app.kernel_types import ROB2 as _ROB2
+from sara_app.kernel_types import W3 as _W3
+from sara_app.kernel_types import W4 as _W4
+from sara_app.kernel_types import WB1 as _WB1
+
 __all__ = [
     "box_axis_gaps",
     "box_entry",
@@ -38,12 +48,6 @@ _PARALLEL_SIN2 = 1e-24  # as in sara_app.geometry
 sphere_slack_m = 1e-9
 """A bounding-sphere lower bound must exceed this (m) before a pair is skipped: covers the
 round-off of the bound itself, so a skipped pair is separated by more than its rounding."""
-
-_f8 = types.float64
-_RO4 = types.Array(_f8, 4, "A", readonly=True)
-_RO2 = types.Array(_f8, 2, "A", readonly=True)
-_ROB1 = types.Array(types.boolean, 1, "A", readonly=True)
-_WB1 = types.Array(types.boolean, 1, "A")
 
 
 @njit(types.UniTuple(types.float64, 3)(*([types.float64] * 12)), cache=True)
@@ -156,11 +160,6 @@ def capsule_sets_check(
                 if d < best:
                     best = d
     return best
-
-
-_W3 = types.Array(_f8, 3, "A")
-_W4 = types.Array(_f8, 4, "A")
-_RO3 = types.Array(_f8, 3, "A", readonly=True)
 
 
 @njit(cache=True)
@@ -305,9 +304,6 @@ def set_pair_distances(ends: np.ndarray, radius: np.ndarray, d: np.ndarray, s: n
                     d[k, b, a] = g
                 else:
                     axis[a, b] = set_pair_entry(ends, radius, k, ke, kr, a, b, d, s)
-
-
-_ROB2 = types.Array(types.boolean, 2, "A", readonly=True)
 
 
 @njit(types.void(_RO4, _RO2, _ROB2, _W3), cache=True)

@@ -42,7 +42,7 @@ from sara_app.cell import base_pose
 from sara_app.errors import SaraError
 from sara_app.safety.threshold_audit import default_data_dir
 from sara_app.scenario import load_scenario, scenarios_dir
-from sara_app.supervisor import Child, Supervisor, stop_processes
+from sara_app.supervisor import Child, Supervisor
 
 log = logging.getLogger("sara_app.serve")
 DEFAULT_SCENARIO = "punches"
@@ -85,7 +85,7 @@ def lower_thread_priority(nice: int) -> int:
         return os.nice(0)
 
 
-def _spawn(
+def spawn_cell_process(
     module: str,
     cell: str,
     scenario: str,
@@ -110,10 +110,6 @@ def _spawn(
         *extra,
     ]
     return start_process(cmd, nice)
-
-
-def _stop(procs: list[subprocess.Popen[bytes]]) -> None:
-    stop_processes(procs)
 
 
 def serve(
@@ -172,19 +168,19 @@ def serve(
                 Child("router", lambda: start_process(router_cmd)),
                 Child(
                     "controller",
-                    lambda: _spawn(
+                    lambda: spawn_cell_process(
                         CONTROLLER, cell, scenario, zenoh_port, 0, rt, login("controller")
                     ),
                 ),
                 Child(
                     "worker",
-                    lambda: _spawn(
+                    lambda: spawn_cell_process(
                         WORKER, cell, scenario, zenoh_port, 0, rt, keep + login("worker")
                     ),
                 ),
                 Child(
                     "replayer",
-                    lambda: _spawn(
+                    lambda: spawn_cell_process(
                         REPLAYER, cell, scenario, zenoh_port, REPLAYER_NICE, 0, login("tracker")
                     ),
                 ),
@@ -253,7 +249,7 @@ def _connect(port: int, auth: dict[str, Any], sup: Supervisor, wait_s: float = 3
     return _connect_until(port, auth, lambda: bool(sup.status()["router"]["running"]), wait_s)
 
 
-def _connect_plain(port: int, router: subprocess.Popen[bytes], wait_s: float = 30.0) -> Bus:
+def connect_when_listening(port: int, router: subprocess.Popen[bytes], wait_s: float = 30.0) -> Bus:
     """A session to a router process without access control, once it listens."""
     return _connect_until(port, None, lambda: router.poll() is None, wait_s)
 

@@ -178,13 +178,14 @@ def bench_latency(
 ) -> list[Row]:
     """Skeleton publication -> verdict reception, p50/p99 (us), per control period."""
     from sara_app.bus.session import Bus, free_port
-    from sara_app.serve import WORKER_RT_PRIORITY, _spawn, _stop
+    from sara_app.serve import WORKER_RT_PRIORITY, spawn_cell_process
+    from sara_app.supervisor import stop_processes
 
     port = free_port()
     cell = "benchlat"
     rows: list[Row] = []
     with Bus.router(port) as hub:
-        worker = _spawn(
+        worker = spawn_cell_process(
             "sara_app.worker", cell, LATENCY_SCENARIO, port, rt_priority=WORKER_RT_PRIORITY
         )
         beat = Heartbeat(hub, cell).start()  # the tracker's frames: the cell is not silent
@@ -218,7 +219,7 @@ def bench_latency(
             rows.append(_flood_row(hub, pub, params, cell, port, n, rate_hz))
         finally:
             beat.stop()
-            _stop([worker])
+            stop_processes([worker])
     return rows
 
 

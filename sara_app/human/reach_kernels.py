@@ -18,12 +18,19 @@ import math
 import numpy as np
 from numba import njit, types
 
-__all__ = ["acc_sets", "pos_sets", "static_sets"]
+from sara_app.kernel_types import F8 as _f8
+from sara_app.kernel_types import I8 as _i8
+from sara_app.kernel_types import RO1 as _RO1
+from sara_app.kernel_types import RO2 as _RO2
+from sara_app.kernel_types import RO3 as _RO3
+from sara_app.kernel_types import ROI1 as _ROI1
+from sara_app.kernel_types import ROI2 as _ROI2
+from sara_app.kernel_types import W2 as _W2
+from sara_app.kernel_types import W3 as _W3
+from sara_app.kernel_types import W4 as _W4
+from sara_app.kernel_types import W5 as _W5
 
-_f8, _i8 = types.float64, types.int64
-_RO1, _RO2, _RO3 = (types.Array(_f8, d, "A", readonly=True) for d in (1, 2, 3))
-_ROI1, _ROI2 = (types.Array(_i8, d, "A", readonly=True) for d in (1, 2))
-_W2, _W3, _W4, _W5 = (types.Array(_f8, d, "A") for d in (2, 3, 4, 5))
+__all__ = ["acc_sets", "pos_sets", "static_sets"]
 
 
 @njit(types.void(_RO3, _ROI2, _RO1, _f8, _RO1, _RO1, _W4, _W2), cache=True)

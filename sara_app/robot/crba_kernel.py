@@ -33,15 +33,17 @@ import numpy as np
 import pinocchio as pin
 from numba import njit, types
 
+from sara_app.kernel_types import RO2 as _RO2
+from sara_app.kernel_types import ROC2 as _ROC2
+from sara_app.kernel_types import ROCI2 as _ROCI2
+from sara_app.kernel_types import WC2 as _WC2
+from sara_app.kernel_types import WC3 as _WC3
+
 __all__ = ["REVOLUTE", "PRISMATIC", "CompiledCrba", "crba_kernel"]
 
 REVOLUTE, PRISMATIC = 0, 1
 _CHECK_RTOL = 1e-10
 
-_f8, _i8 = types.float64, types.int64
-_RO2 = types.Array(_f8, 2, "A", readonly=True)
-_ROC2, _ROCI2 = types.Array(_f8, 2, "C", readonly=True), types.Array(_i8, 2, "C", readonly=True)
-_WC2, _WC3 = types.Array(_f8, 2, "C"), types.Array(_f8, 3, "C")
 
 # Columns of ``ints (n, 4 + n)`` per joint: position index, velocity index, type, parent (-1:
 # the universe), then ``support[j, i]`` (1: joint i supports joint j, i == j included).

@@ -44,6 +44,14 @@ import pinocchio as pin
 from numba import njit, types
 
 from sara_app.errors import InputError
+from sara_app.kernel_types import RO1 as _RO1
+from sara_app.kernel_types import RO2 as _RO2
+from sara_app.kernel_types import RO3 as _RO3
+from sara_app.kernel_types import RO4 as _RO4
+from sara_app.kernel_types import ROB1 as _ROB1
+from sara_app.kernel_types import ROI1 as _ROI1
+from sara_app.kernel_types import W2 as _W2
+from sara_app.kernel_types import W3 as _W3
 from sara_app.robot.crba_kernel import CompiledCrba
 from sara_app.robot.model import RobotModel
 from sara_app.robot.occupancy import RobotOccupancy
@@ -90,15 +98,8 @@ def interval_energy_J(energy_J: np.ndarray) -> np.ndarray:
     return np.maximum(energy_J[:-1], energy_J[1:])
 
 
-_f8 = types.float64
-_RO1, _RO2, _RO3, _RO4 = (types.Array(_f8, d, "A", readonly=True) for d in (1, 2, 3, 4))
-_ROI1 = types.Array(types.int64, 1, "A", readonly=True)
-_ROB1 = types.Array(types.boolean, 1, "A", readonly=True)
-_W1, _W2, _W3 = types.Array(_f8, 1, "A"), types.Array(_f8, 2, "A"), types.Array(_f8, 3, "A")
-
-
 @njit(types.void(_RO2, _RO2, _RO1, _RO1, _W2), cache=True)
-def _path_energy_kernel(
+def path_energy_kernel(
     g: np.ndarray, E: np.ndarray, sd: np.ndarray, sd_max: np.ndarray, out: np.ndarray
 ) -> None:
     """:func:`path_interval_energy_J` into ``out (K, L)``; any NaN input gives ``inf``."""
@@ -140,7 +141,7 @@ def path_interval_energy_J(
             "expected (K+1, L), (K+1, L), (K+1,), (K,)"
         )
     out = np.empty((K, g.shape[1]))
-    _path_energy_kernel(g, E, sd, sd_max, out)
+    path_energy_kernel(g, E, sd, sd_max, out)
     return out
 
 
@@ -214,7 +215,7 @@ def bounded_interval_energy_J(
     types.void(_RO2, _RO1, _RO3, _RO2, _RO4, _RO2, _ROI1, _RO4, _ROB1, _W2, _W2, _W3, _W3),
     cache=True,
 )
-def _energy_twist_kernel(
+def energy_twist_kernel(
     V: np.ndarray,
     scale: np.ndarray,
     M: np.ndarray,
@@ -331,7 +332,7 @@ class LinkMotion:
         return self._compiled_crba
 
     def support_arrays(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(mask (L, n) float 0/1, v_index (n,))`` of :func:`_energy_twist_kernel`: the joints
+        """``(mask (L, n) float 0/1, v_index (n,))`` of :func:`energy_twist_kernel`: the joints
         supporting each link (velocity order) and each joint's velocity index (kinematic
         order)."""
         return self._maskf, self._v_index
@@ -438,7 +439,7 @@ class LinkMotion:
         scale: np.ndarray | None = None,
     ) -> LinkSamples:
         """The inertia matrices (:meth:`_crba`, unless ``M`` is given), then one compiled pass
-        (:func:`_energy_twist_kernel`) over the vectorised kinematics of
+        (:func:`energy_twist_kernel`) over the vectorised kinematics of
         :class:`RobotOccupancy` for the energies and twists."""
         Q, V, bad = self._inputs(q, q_dot)
         S = Q.shape[0]
@@ -464,7 +465,7 @@ class LinkMotion:
                 f"ends has shape {np.shape(ends)}; expected ({S}, {self.n_links}, 2, 3)"
             )
         G, T, pd, w = self._G[:S], self._T[:S], self._pd[:S], self._w[:S]
-        _energy_twist_kernel(
+        energy_twist_kernel(
             V, scale, np.asarray(M, dtype=np.float64), self._maskf, H, self._occ._axes,
             self._v_index, np.asarray(ends, dtype=np.float64), bad, G, T, pd, w,
         )  # fmt: skip

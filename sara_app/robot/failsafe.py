@@ -57,6 +57,9 @@ import numpy as np
 from numba import njit, types
 
 from sara_app.errors import RobotModelError
+from sara_app.kernel_types import RO1 as _RO1
+from sara_app.kernel_types import RO2 as _RO2
+from sara_app.kernel_types import W2 as _W2
 from sara_app.robot.joints import LIMIT_MARGIN, REST_A, REST_V, S_TOL, limit_arrays
 from sara_app.robot.model import JointLimits
 from sara_app.robot.path import (
@@ -272,10 +275,12 @@ def plan_stop(
     past the end of the path). ``hint``: extra ``(A, J)`` path limits to try.
     """
     tab = path_tables(path, limits)
-    return _plan_stop(path, tab, _finite("s", s), _finite("sd", sd), _finite("sdd", sdd), hint)
+    return plan_stop_unchecked(
+        path, tab, _finite("s", s), _finite("sd", sd), _finite("sdd", sdd), hint
+    )
 
 
-def _plan_stop(
+def plan_stop_unchecked(
     path: PathTrajectory,
     tab: PathTables,
     s: float,
@@ -531,11 +536,6 @@ def interval_bounds(
     v_bound, a_bound = np.empty((2, K, n))
     _bounds_kernel(vmax, amax, D1, M1, M2, v_bound, a_bound)
     return v_bound, a_bound
-
-
-_f8 = types.float64
-_RO1, _RO2 = (types.Array(_f8, d, "A", readonly=True) for d in (1, 2))
-_W1, _W2 = types.Array(_f8, 1, "A"), types.Array(_f8, 2, "A")
 
 
 @njit(types.void(_RO1, _RO1, _RO2, _RO2, _RO2, _W2, _W2), cache=True)

@@ -15,12 +15,16 @@ import math
 import numpy as np
 from numba import njit, types
 
-__all__ = ["ends_kernel", "fk_kernel", "intervals_kernel"]
+from sara_app.kernel_types import I8 as _i8
+from sara_app.kernel_types import RO1 as _RO1
+from sara_app.kernel_types import RO2 as _RO2
+from sara_app.kernel_types import RO3 as _RO3
+from sara_app.kernel_types import RO4 as _RO4
+from sara_app.kernel_types import ROI1 as _ROI1
+from sara_app.kernel_types import W2 as _W2
+from sara_app.kernel_types import W4 as _W4
 
-_f8, _i8 = types.float64, types.int64
-_RO1, _RO2, _RO3, _RO4 = (types.Array(_f8, d, "A", readonly=True) for d in (1, 2, 3, 4))
-_W2, _W4 = types.Array(_f8, 2, "A"), types.Array(_f8, 4, "A")
-_ROI1 = types.Array(_i8, 1, "A", readonly=True)
+__all__ = ["ends_kernel", "fk_kernel", "intervals_kernel"]
 
 
 @njit(types.void(_RO2, _RO3, _ROI1, _W4), cache=True)

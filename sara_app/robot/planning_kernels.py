@@ -27,6 +27,14 @@ import math
 import numpy as np
 from numba import njit, types
 
+from sara_app.kernel_types import B1 as _b1
+from sara_app.kernel_types import F8 as _f8
+from sara_app.kernel_types import I8 as _ip
+from sara_app.kernel_types import RO1 as _RO1
+from sara_app.kernel_types import RO2 as _RO2
+from sara_app.kernel_types import RO3 as _RO3
+from sara_app.kernel_types import W1 as _W1
+
 __all__ = ["CONSTS", "OUT_LEN", "PC_COLS", "peek_kernel", "profile_record"]
 
 # columns of the per-piece table ``pc (P, PC_COLS)``
@@ -64,11 +72,8 @@ def profile_record(o: list[float], off: int, cap: int) -> tuple[list[float], ...
 
 STEP, STEP_REST, FALLBACK = 0, 1, 2  # peek_kernel's status
 
-_f8, _b1, _ip = types.float64, types.boolean, types.intp
 _PH = types.UniTuple(_f8, 7)
 _S2, _S3 = types.UniTuple(_f8, 2), types.UniTuple(_f8, 3)
-_RO1, _RO2, _RO3 = (types.Array(_f8, d, "A", readonly=True) for d in (1, 2, 3))
-_W1 = types.Array(_f8, 1, "A")
 _EMPTY = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 

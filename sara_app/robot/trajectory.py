@@ -139,9 +139,9 @@ class PathFollower:
         blend_distance: float = 0.1,
         tangential_share: float = 0.5,
     ) -> None:
-        from sara_app.robot.failsafe import StopProfile, _plan_stop, rest_stop
+        from sara_app.robot.failsafe import StopProfile, plan_stop_unchecked, rest_stop
 
-        self._plan_stop = _plan_stop
+        self._plan_stop = plan_stop_unchecked
         self._rest_stop = rest_stop
         self._stop_profile = StopProfile
         if not (0.0 < tangential_share < 1.0):

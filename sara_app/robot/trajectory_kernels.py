@@ -18,11 +18,15 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, types
 
-__all__ = ["shielded_samples_kernel"]
+from sara_app.kernel_types import F8 as _f8
+from sara_app.kernel_types import RO1 as _RO1
+from sara_app.kernel_types import RO2 as _RO2
+from sara_app.kernel_types import RO3 as _RO3
+from sara_app.kernel_types import W1 as _W1
+from sara_app.kernel_types import W2 as _W2
+from sara_app.kernel_types import W3 as _W3
 
-_f8 = types.float64
-_RO1, _RO2, _RO3 = (types.Array(_f8, d, "A", readonly=True) for d in (1, 2, 3))
-_W1, _W2, _W3 = (types.Array(_f8, d, "A") for d in (1, 2, 3))
+__all__ = ["shielded_samples_kernel"]
 
 
 @njit(types.intp(_RO1, _f8), cache=True)

@@ -25,6 +25,16 @@ from sara_app.geometry_kernels import (
     set_pair_entry,
     set_pair_gaps,
 )
+from sara_app.kernel_types import B1 as _b1
+from sara_app.kernel_types import I8 as _i8l
+from sara_app.kernel_types import RO as _RO
+from sara_app.kernel_types import ROB2 as _ROB2
+from sara_app.kernel_types import ROI1 as _ROI1
+from sara_app.kernel_types import W2 as _WF2
+from sara_app.kernel_types import W3 as _WF3
+from sara_app.kernel_types import W4 as _WF4
+from sara_app.kernel_types import WB3 as _WB3
+from sara_app.kernel_types import WI8_3 as _WI3
 
 _PARALLEL_SIN2 = 1e-24  # as in sara_app.geometry
 
@@ -133,14 +143,6 @@ def segment_box_soa(
 # cache at import, never in a control loop. The helpers live in this file (numba's cache does not
 # see changes in other files); classify_set, which calls the geometry kernels, carries their
 # source digest in its cache key instead.
-
-_f8, _b1, _i8 = types.float64, types.boolean, types.int8
-_RO = {d: types.Array(_f8, d, "A", readonly=True) for d in (1, 2, 3, 4)}
-_ROB2 = types.Array(_b1, 2, "A", readonly=True)
-_WB3, _WF2, _WI3 = types.Array(_b1, 3, "A"), types.Array(_f8, 2, "A"), types.Array(_i8, 3, "A")
-_ROI1 = types.Array(types.int64, 1, "A", readonly=True)
-_i8l, _WB1 = types.int64, types.Array(_b1, 1, "A")
-_WF3, _WF4 = types.Array(_f8, 3, "A"), types.Array(_f8, 4, "A")
 
 
 @njit(cache=True)

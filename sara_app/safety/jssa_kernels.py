@@ -15,14 +15,14 @@ import math
 import numpy as np
 from numba import njit, types
 
-_f8 = types.float64
-_R1 = types.Array(_f8, 1, "A", readonly=True)
-_R2 = types.Array(_f8, 2, "A", readonly=True)
-_R3 = types.Array(_f8, 3, "A", readonly=True)
-_I1 = types.Array(types.int64, 1, "A", readonly=True)
-_W1 = types.Array(_f8, 1, "C")
-_W2 = types.Array(_f8, 2, "C")
-_W3 = types.Array(_f8, 3, "C")
+from sara_app.kernel_types import F8 as _f8
+from sara_app.kernel_types import RO1 as _R1
+from sara_app.kernel_types import RO2 as _R2
+from sara_app.kernel_types import RO3 as _R3
+from sara_app.kernel_types import ROI1 as _I1
+from sara_app.kernel_types import WC1 as _W1
+from sara_app.kernel_types import WC2 as _W2
+from sara_app.kernel_types import WC3 as _W3
 
 
 @njit(cache=True)

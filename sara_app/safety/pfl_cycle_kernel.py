@@ -22,6 +22,14 @@ from numba import njit, types
 
 from sara_app import geometry_kernels
 from sara_app.human import reach_kernels
+from sara_app.kernel_types import F8 as _f8
+from sara_app.kernel_types import I8 as _i8
+from sara_app.kernel_types import RO1 as _RO1
+from sara_app.kernel_types import RO2 as _RO2
+from sara_app.kernel_types import RO3 as _RO3
+from sara_app.kernel_types import ROI1 as _ROI1
+from sara_app.kernel_types import W1 as _W1
+from sara_app.kernel_types import WI2 as _WI2
 from sara_app.robot import (
     crba_kernel,
     energy,
@@ -49,11 +57,11 @@ from sara_app.safety.pfl_fused_kernel import (
     MODELS,
     ROBOT,
     TRAJECTORY,
-    _replan_cap,
     check_buffers,
     check_results,
     frames,
     fused_kernel,
+    replan_cap,
 )
 
 __all__ = ["BAIL", "DONE", "cycle_kernel", "plan_views"]
@@ -62,11 +70,6 @@ DONE, BAIL = 0, 1
 """Return codes: the loop ran to its end / it met a case it leaves to the Python loop (the
 follower falls back on its held failsafe, a rejected trajectory, a non-finite stop)."""
 
-_f8, _i8, _b1 = types.float64, types.int64, types.boolean
-_RO1, _RO2, _RO3 = (types.Array(_f8, d, "A", readonly=True) for d in (1, 2, 3))
-_ROI1 = types.Array(_i8, 1, "A", readonly=True)
-_ROI2 = types.Array(_i8, 2, "A", readonly=True)
-_WI2, _W1 = types.Array(_i8, 2, "A"), types.Array(_f8, 1, "A")
 
 FOLLOWER = types.UniTuple(_f8, 8)
 """``(s, s', s'', dt, S, A_min, J_min, ramp_c)``: the follower's state and look-ahead constants."""
@@ -287,7 +290,7 @@ def _make_kernel() -> Any:
             checks += 1
             if state[5] == 1:
                 break
-            cand = _replan_cap(verdict[9][0], (True, cap, c_min, cut), trajectory[2])
+            cand = replan_cap(verdict[9][0], (True, cap, c_min, cut), trajectory[2])
             if lazy and used == 1 and M > 1:  # stopped for the replan: next time another first
                 _to_back(row)
                 info[7] = 1

@@ -24,6 +24,23 @@ from sara_app import geometry_kernels
 from sara_app.geometry_kernels import pair_gaps
 from sara_app.human import reach_kernels
 from sara_app.human.reach_kernels import acc_sets, pos_sets, static_sets
+from sara_app.kernel_types import B1 as _b1
+from sara_app.kernel_types import F8 as _f8
+from sara_app.kernel_types import I8 as _i8
+from sara_app.kernel_types import RO as _RO
+from sara_app.kernel_types import ROB2 as _ROB2
+from sara_app.kernel_types import ROC2 as _ROC2
+from sara_app.kernel_types import ROCI2 as _ROCI2
+from sara_app.kernel_types import ROI1 as _ROI1
+from sara_app.kernel_types import ROI2 as _ROI2
+from sara_app.kernel_types import WB1 as _WB1
+from sara_app.kernel_types import WB3 as _WB3
+from sara_app.kernel_types import WC2 as _WC2
+from sara_app.kernel_types import WC3 as _WC3
+from sara_app.kernel_types import WI1 as _WI1
+from sara_app.kernel_types import WI2 as _WI2
+from sara_app.kernel_types import WI8_3 as _WI83
+from sara_app.kernel_types import W as _W
 from sara_app.robot import crba_kernel, energy, occupancy_kernels
 from sara_app.safety import contact_kernels, pfl_kernels, pfl_link_states
 from sara_app.safety.contact_kernels import classify_set, source_digest
@@ -54,16 +71,6 @@ STATE_SIZE = 7
 merged (0/1: a second model was added), eq. 6 holds (0/1), stuck (0/1: an unsafe entry of
 interval 0 whose link is already too fast at the current state)."""
 
-_f8, _i8, _b1 = types.float64, types.int64, types.boolean
-_RO = {d: types.Array(_f8, d, "A", readonly=True) for d in (1, 2, 3, 4)}
-_ROI1, _ROI2 = (types.Array(_i8, d, "A", readonly=True) for d in (1, 2))
-_ROB2 = types.Array(_b1, 2, "A", readonly=True)
-_ROC2, _ROCI2 = types.Array(_f8, 2, "C", readonly=True), types.Array(_i8, 2, "C", readonly=True)
-_W = {d: types.Array(_f8, d, "A") for d in (1, 2, 3, 4, 5)}
-_WB1, _WB3 = types.Array(_b1, 1, "A"), types.Array(_b1, 3, "A")
-_WI1, _WI2 = types.Array(_i8, 1, "A"), types.Array(_i8, 2, "A")
-_WI83 = types.Array(types.int8, 3, "A")
-_WC2, _WC3 = types.Array(_f8, 2, "C"), types.Array(_f8, 3, "C")
 
 ROBOT = types.Tuple((_RO[4], _RO[2], _RO[3], _RO[2], _RO[1]))
 """``(r_ends (K, L, 2, 3), r_radius (K, L), T_world_box (B, 4, 4), half_extents_m (B, 3),
@@ -238,7 +245,7 @@ def _py_min(a: float, b: float) -> float:
 
 
 @njit(cache=True)
-def _replan_cap(candidate: float, replan: Any, sd: np.ndarray) -> float:
+def replan_cap(candidate: float, replan: Any, sd: np.ndarray) -> float:
     """The shield's ``_next_cap``: ``min(cut * candidate, cut * min(cap, sd.max()))`` with
     numpy's max (NaN if any sample is NaN)."""
     top = sd[0]
@@ -424,7 +431,7 @@ def _make_kernel() -> Any:
                 break
             if replan[0] and state[0] == 1:
                 _speeds(trajectory[2], link_buffers[9], first[4], verdict, state)
-                if state[6] == 0 and _replan_cap(speeds[0], replan, trajectory[2]) >= replan[2]:
+                if state[6] == 0 and replan_cap(speeds[0], replan, trajectory[2]) >= replan[2]:
                     break
             i += 1
         if state[4] == 1:

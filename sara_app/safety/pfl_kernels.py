@@ -12,6 +12,19 @@ import math
 import numpy as np
 from numba import njit, types
 
+from sara_app.kernel_types import RO1 as _RO1
+from sara_app.kernel_types import RO2 as _RO2
+from sara_app.kernel_types import RO3 as _RO3
+from sara_app.kernel_types import ROB3 as _ROB3
+from sara_app.kernel_types import ROI8_3 as _ROI3
+from sara_app.kernel_types import W2 as _W2
+from sara_app.kernel_types import W3 as _W3
+from sara_app.kernel_types import WB1 as _WB1
+from sara_app.kernel_types import WB3 as _WB3
+from sara_app.kernel_types import WI1 as _WI1
+from sara_app.kernel_types import WI2 as _WI2
+from sara_app.kernel_types import WI8_3 as _WI83
+
 __all__ = [
     "entry_thresholds",
     "merge_kernel",
@@ -20,15 +33,6 @@ __all__ = [
     "summary_kernel",
     "verdict_kernel",
 ]
-
-_f8 = types.float64
-_RO1, _RO2, _RO3 = (types.Array(_f8, d, "A", readonly=True) for d in (1, 2, 3))
-_ROB3 = types.Array(types.boolean, 3, "A", readonly=True)
-_ROI3 = types.Array(types.int8, 3, "A", readonly=True)
-_W2, _W3 = types.Array(_f8, 2, "A"), types.Array(_f8, 3, "A")
-_WB1, _WB3 = types.Array(types.boolean, 1, "A"), types.Array(types.boolean, 3, "A")
-_WI2 = types.Array(types.int64, 2, "A")
-_WI1, _WI83 = types.Array(types.int64, 1, "A"), types.Array(types.int8, 3, "A")
 
 
 @njit(types.void(_ROB3, _ROI3, _RO2, _RO2, _W3), cache=True)

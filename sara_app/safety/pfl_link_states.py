@@ -26,25 +26,30 @@ import numpy as np
 from numba import njit, types
 
 from sara_app.errors import InputError
+from sara_app.kernel_types import RO1 as _RO1
+from sara_app.kernel_types import RO2 as _RO2
+from sara_app.kernel_types import RO3 as _RO3
+from sara_app.kernel_types import ROC2 as _ROC2
+from sara_app.kernel_types import ROCI2 as _ROCI2
+from sara_app.kernel_types import ROI1 as _ROI1
+from sara_app.kernel_types import W1 as _W1
+from sara_app.kernel_types import W2 as _W2
+from sara_app.kernel_types import W3 as _W3
+from sara_app.kernel_types import W4 as _W4
+from sara_app.kernel_types import WB1 as _WB1
+from sara_app.kernel_types import WC2 as _WC2
+from sara_app.kernel_types import WC3 as _WC3
 from sara_app.robot import crba_kernel as crba_module
 from sara_app.robot import energy as energy_module
 from sara_app.robot import occupancy_kernels
 from sara_app.robot.crba_kernel import crba_kernel
-from sara_app.robot.energy import LinkMotion, LinkSamples, _energy_twist_kernel, _path_energy_kernel
+from sara_app.robot.energy import LinkMotion, LinkSamples, energy_twist_kernel, path_energy_kernel
 from sara_app.robot.occupancy_kernels import ends_kernel, fk_kernel
 from sara_app.safety import contact_kernels
 from sara_app.safety.contact_kernels import jerk_coefficients, source_digest
 from sara_app.safety.velocity_error import VelocityErrorBound
 
 __all__ = ["PathLinkStates"]
-
-_f8, _i8 = types.float64, types.int64
-_RO1, _RO2, _RO3 = (types.Array(_f8, d, "A", readonly=True) for d in (1, 2, 3))
-_ROC2, _ROCI2 = types.Array(_f8, 2, "C", readonly=True), types.Array(_i8, 2, "C", readonly=True)
-_ROI1 = types.Array(_i8, 1, "A", readonly=True)
-_W1, _W2, _W3, _W4 = (types.Array(_f8, d, "A") for d in (1, 2, 3, 4))
-_WC2, _WC3 = types.Array(_f8, 2, "C"), types.Array(_f8, 3, "C")
-_WB1 = types.Array(types.boolean, 1, "A")
 
 
 def _make_kernel() -> Any:
@@ -130,8 +135,8 @@ def _make_kernel() -> Any:
             if bad[s]:
                 ends[s] = math.nan
         crba_kernel(Q, crba_ints, crba_consts, crba_work, M)
-        _energy_twist_kernel(V, scale, M, mask, H, axes, v_index, ends, bad, G, T, pd, w)
-        _path_energy_kernel(G, T, sd, sd_max, E_int)
+        energy_twist_kernel(V, scale, M, mask, H, axes, v_index, ends, bad, G, T, pd, w)
+        path_energy_kernel(G, T, sd, sd_max, E_int)
         for k in range(S - 1):
             dt = times[k + 1] - times[k]
             dt_scale[k] = dt * dt / 8.0

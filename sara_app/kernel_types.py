@@ -1,0 +1,30 @@
+"""The numba types of every compiled kernel's signature, in one place.
+
+Names: ``F8`` float64, ``I8`` int64, ``I1`` int8, ``B1`` boolean, ``IP`` intp; arrays of float64
+``RO<d>`` (read-only, any layout, ``d`` dimensions), ``W<d>`` (writable), ``ROC<d>`` / ``WC<d>``
+(C-contiguous); of int64 ``ROI<d>`` / ``WI<d>`` (``ROCI2`` C-contiguous); of int8 ``ROI8_<d>``
+/ ``WI8_<d>``; of booleans ``ROB<d>`` / ``WB<d>``. ``RO`` and ``W`` map a dimension to the float
+arrays. Signatures are explicit so that a kernel compiles (or loads from numba's cache) at
+import, never in a control cycle.
+"""
+
+from __future__ import annotations
+
+from numba import types
+
+F8, I8, I1, B1, IP = types.float64, types.int64, types.int8, types.boolean, types.intp
+
+_D = (1, 2, 3, 4, 5)
+RO = {d: types.Array(F8, d, "A", readonly=True) for d in _D}
+W = {d: types.Array(F8, d, "A") for d in _D}
+RO1, RO2, RO3, RO4, RO5 = (RO[d] for d in _D)
+W1, W2, W3, W4, W5 = (W[d] for d in _D)
+ROC2 = types.Array(F8, 2, "C", readonly=True)
+WC1, WC2, WC3 = (types.Array(F8, d, "C") for d in (1, 2, 3))
+ROI1, ROI2, ROI3 = (types.Array(I8, d, "A", readonly=True) for d in (1, 2, 3))
+ROCI2 = types.Array(I8, 2, "C", readonly=True)
+WI1, WI2, WI3 = (types.Array(I8, d, "A") for d in (1, 2, 3))
+ROI8_3 = types.Array(I1, 3, "A", readonly=True)
+WI8_3 = types.Array(I1, 3, "A")
+ROB1, ROB2, ROB3 = (types.Array(B1, d, "A", readonly=True) for d in (1, 2, 3))
+WB1, WB2, WB3 = (types.Array(B1, d, "A") for d in (1, 2, 3))
