@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from sara_app.bench_live import CHROMIUM_FLAGS
+from sara_app.bench.live import CHROMIUM_FLAGS
 from sara_app.bus.session import free_port
 
 CHROMIUM = "/usr/bin/chromium"

@@ -99,7 +99,7 @@ def person_at(xy: np.ndarray, v: np.ndarray, dv: float, stamp: float) -> HumanSt
 def bench_pair(case: str) -> tuple[PflShield, PflShield, Any, list[HumanState], float]:
     """The benchmark cell in state ``case`` (``bench_pfl.BENCH_CASES``) and its reference
     (neither the fused check nor the compiled loop): ``(shield, ref, template, people, t)``."""
-    from sara_app.safety.bench_pfl import BENCH_CASES, shield_cell
+    from sara_app.bench.pfl import BENCH_CASES, shield_cell
 
     shield, template, people, t = shield_cell(BENCH_CASES[case])
     ref = shield_cell(BENCH_CASES[case])[0]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sara_app.bench_live import _missed
+from sara_app.bench.live import _missed
 
 
 def _phase(stamps: list[float], seqs: list[int]) -> np.ndarray:

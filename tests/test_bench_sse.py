@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 
-from sara_app.bench_sse import bench_sse_load
+from sara_app.bench.sse import bench_sse_load
 
 
 def test_both_phases_measure_verdict_delivery_and_command_loss() -> None:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 
-from sara_app.bus.bench import bench_latency
+from sara_app.bench.bus import bench_latency
 
 
 def test_latency_rows_match_every_control_period() -> None:

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from sara_app.bench.pfl import check_rows
 from sara_app.errors import InputError
 from sara_app.human.skeleton import skeleton
 from sara_app.robot.energy import bounded_interval_energy_J
 from sara_app.robot.model import load_robot
-from sara_app.safety.bench_pfl import check_rows
 from sara_app.safety.contact import ENV_CONSTRAINED, NONE, UNCONSTRAINED
 from sara_app.safety.pfl import PflCheck, PflResult
 

@@ -17,6 +17,7 @@ from pfl_compare import (  # noqa: E402
 )
 
 from sara_app import geometry_kernels
+from sara_app.bench.pfl import BENCH_CASES, shield_cell
 from sara_app.errors import ParameterError
 from sara_app.human import reach_kernels
 from sara_app.robot import (
@@ -29,7 +30,6 @@ from sara_app.robot import (
 from sara_app.robot.planning_kernels import OUT_LEN
 from sara_app.safety import contact_kernels, pfl_fused_kernel, pfl_kernels, pfl_link_states
 from sara_app.safety import pfl_cycle as pfl_cycle_module
-from sara_app.safety.bench_pfl import BENCH_CASES, shield_cell
 from sara_app.safety.contact_kernels import source_digest
 from sara_app.safety.pfl_cycle import CompiledCycle
 from sara_app.safety.pfl_cycle_kernel import BAIL, cycle_kernel, plan_size, plan_views

@@ -111,7 +111,7 @@ def test_non_finite_person_inputs_equal_the_reference(bad: str) -> None:
 def test_only_the_latest_check_adds_models_and_shapes_are_checked() -> None:
     """The scratch buffers belong to the most recently opened check; wrong shapes raise
     :class:`InputError` before the kernel indexes anything."""
-    from sara_app.safety.bench_pfl import BENCH_CASES, shield_cell
+    from sara_app.bench.pfl import BENCH_CASES, shield_cell
 
     shield, template, people, t = shield_cell(BENCH_CASES["braking"])
     fused = shield.fused
@@ -152,7 +152,7 @@ def test_cache_key_carries_the_callees_sources() -> None:
 def test_construction_is_validated() -> None:
     """A model the kernel does not compute, or a part map that would index outside a model's
     capsules, is refused at construction (the kernel does not check its indices)."""
-    from sara_app.safety.bench_pfl import BENCH_CASES, shield_cell
+    from sara_app.bench.pfl import BENCH_CASES, shield_cell
 
     shield = shield_cell(BENCH_CASES["clear"])[0]
     args = (shield.pfl, shield._link_states, shield.verifier.reach)

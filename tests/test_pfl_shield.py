@@ -210,7 +210,7 @@ def test_a_failed_lazy_first_check_rotates_the_first_checks_order() -> None:
     """A cycle whose first check fails on its first model and replans: the next cycle's first
     check starts with another model (a lazy check never completes, so it could not learn); the
     replans keep an order of their own."""
-    from sara_app.safety.bench_pfl import BENCH_CASES, shield_cell
+    from sara_app.bench.pfl import BENCH_CASES, shield_cell
     from sara_app.safety.pfl_shield import PflCycle
 
     shield, template, people, t = shield_cell(BENCH_CASES["slowed"])
@@ -231,7 +231,7 @@ def test_model_evaluations_per_cycle_stay_within_the_budget(max_models: int, pat
     failsafe: it never commits a step that its checks did not prove. The Python paths are
     counted per check; the compiled loop reports its count (``PflCycle.evaluations``, equal to
     the count where both exist)."""
-    from sara_app.safety.bench_pfl import BENCH_CASES, shield_cell
+    from sara_app.bench.pfl import BENCH_CASES, shield_cell
     from sara_app.safety.pfl_shield import PflCycle, SpeedScaling
 
     shield, template, people, t = shield_cell(BENCH_CASES["braking"])
@@ -537,7 +537,7 @@ def test_a_cycle_leaves_no_reference_cycles(case: str) -> None:
     state closure once kept ~35 objects per cycle alive this way)."""
     import gc
 
-    from sara_app.safety.bench_pfl import BENCH_CASES, shield_cell
+    from sara_app.bench.pfl import BENCH_CASES, shield_cell
 
     shield, template, people, t = shield_cell(BENCH_CASES[case])
     for _ in range(3):  # warm: first-use allocations

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from sara_app.bench.pfl import check_scene
 from sara_app.bus.codec import decode
 from sara_app.bus.messages import OccupancyMsg, encode
 from sara_app.human.skeleton import skeleton
-from sara_app.safety.bench_pfl import check_scene
 from sara_app.worker_display import CLASS_BY_CODE, jssa_state, part_labels, pfl_contacts, pfl_links
 
 

@@ -9,12 +9,12 @@ def _bench(args: argparse.Namespace) -> None:
     from sara_app import bench
 
     if args.sse:
-        from sara_app.bench_sse import bench_sse_load
+        from sara_app.bench.sse import bench_sse_load
 
         bench.print_rows(bench_sse_load(args.clients))
         return
     if args.view:
-        from sara_app.bench_live import bench_view_load
+        from sara_app.bench.live import bench_view_load
 
         bench.print_rows(bench_view_load(args.scenario, args.phase_s, args.rounds))
         return

@@ -470,20 +470,3 @@ class LinkMotion:
             self._v_index, np.asarray(ends, dtype=np.float64), bad, G, T, pd, w,
         )  # fmt: skip
         return LinkSamples(T, ends, pd, w, G)
-
-
-def bench_rows(n: int = 2000) -> list[tuple[str, float, float, str]]:
-    """Inertia matrices of the Panda at 10 samples: ``pin.crba`` loop vs the compiled CRBA."""
-    from sara_app.bench import timeit_us
-    from sara_app.robot.model import load_robot
-
-    model = load_robot("panda")
-    motion = LinkMotion(model)
-    lim = model.limits
-    Q = np.random.default_rng(0).uniform(lim.q_min, lim.q_max, (10, model.n_dof))
-    med0, p990 = timeit_us(lambda: motion._crba_pinocchio(Q), n)
-    med1, p991 = timeit_us(lambda: motion._crba(Q), n)
-    return [
-        ("energy: inertia matrices, pin.crba loop (S=10)", med0, p990, "panda"),
-        ("energy: inertia matrices, _crba (S=10)", med1, p991, f"panda, {motion.crba_backend}"),
-    ]

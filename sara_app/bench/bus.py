@@ -237,7 +237,7 @@ def _flood_row(hub: Any, pub: Any, params: Any, cell: str, port: int, n: int, ra
     if not _set_dt(hub, params, cell, 0.004):
         return name, float("nan"), float("nan"), "dt update refused"
     seconds = n / rate + 1.0
-    cmd = [sys.executable, "-m", "sara_app.bus.bench", "flood", str(port), cell, "flood",
+    cmd = [sys.executable, "-m", "sara_app.bench.bus", "flood", str(port), cell, "flood",
            str(FLOOD_RATE_HZ), str(seconds)]  # fmt: skip
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
     try:

@@ -1,4 +1,6 @@
-"""Benchmarks: median and p99 of the hot-path stages (``sara-app bench``)."""
+"""Benchmarks: median and p99 of the hot-path stages (``sara-app bench``), outside the library:
+one module per stage (``bench_rows(n)``), the live-stack benchmarks (:mod:`.live`: the view's
+load, :mod:`.sse`: the API's event streams) and the scenes they share with the tests."""
 
 from __future__ import annotations
 
@@ -66,15 +68,15 @@ def bench_reach(n: int = 2000) -> list[tuple[str, float, float, str]]:
 
 # modules with a ``bench_rows(n)`` of their own, in print order
 STAGE_MODULES = (
-    "sara_app.safety.bench_shield",
-    "sara_app.robot.energy",
-    "sara_app.safety.bench_pfl",
-    "sara_app.safety.jssa",
-    "sara_app.safety.jssa_mode",
-    "sara_app.bus.bench",
-    "sara_app.dashboard.scene",
-    "sara_app.api.bench",
-    "sara_app.robot.ik",
+    "sara_app.bench.shield",
+    "sara_app.bench.energy",
+    "sara_app.bench.pfl",
+    "sara_app.bench.jssa",
+    "sara_app.bench.jssa_mode",
+    "sara_app.bench.bus",
+    "sara_app.bench.scene",
+    "sara_app.bench.api",
+    "sara_app.bench.ik",
 )
 
 
