@@ -36,11 +36,11 @@ from pathlib import Path
 from typing import Any
 
 from sara_app.api.guard import load_tokens
+from sara_app.audit import default_data_dir
 from sara_app.bus.access import Credentials, client_auth
 from sara_app.bus.session import Bus
 from sara_app.cell import base_pose
 from sara_app.errors import SaraError
-from sara_app.safety.threshold_audit import default_data_dir
 from sara_app.scenario import load_scenario, scenarios_dir
 from sara_app.supervisor import Child, Supervisor
 

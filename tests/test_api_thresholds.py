@@ -23,11 +23,11 @@ with warnings.catch_warnings():
 
 from sara_app.api import CellRegistry, create_app
 from sara_app.api.registry import ParamsAnswer
+from sara_app.audit import AuditLog
 from sara_app.bus import keys
 from sara_app.bus.codec import Decoded
 from sara_app.bus.messages import StatusMsg
 from sara_app.errors import WorkerTimeoutError
-from sara_app.safety.threshold_audit import AuditLog
 from sara_app.safety.thresholds import load_thresholds
 from sara_app.scenario import parse_scenario, scenarios_dir
 

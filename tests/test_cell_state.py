@@ -18,9 +18,9 @@ with warnings.catch_warnings():
     from fastapi.testclient import TestClient
 
 from sara_app.api import CellRegistry, create_app
+from sara_app.audit import AuditLog
 from sara_app.bus.session import Bus, free_port
 from sara_app.cell_state import CellState
-from sara_app.safety.threshold_audit import AuditLog
 
 CELL = "keep1"
 

@@ -12,7 +12,7 @@ from sara_app.safety.jssa import JssaController, JssaParams, integrate, make_par
 from sara_app.safety.jssa_index import index_gradient, index_terms, safety_index
 from sara_app.safety.jssa_kinematics import PointKinematics
 from sara_app.safety.jssa_qp import project_halfspace_box, project_polytope_box
-from sara_app.safety.jssa_study import PANDA_HOME, panda_on_table, rigid_human
+from sara_app.studies.jssa_study import PANDA_HOME, panda_on_table, rigid_human
 
 
 @pytest.fixture(scope="module")
@@ -156,7 +156,7 @@ def _lateral_walker(x_line: float, y0: float, speed: float):
 
 @pytest.mark.parametrize("mode", ["single", "multi"])
 def test_random_constant_velocity_episodes_keep_d_min_and_jerk_bounds(robot, mode) -> None:
-    from sara_app.safety.jssa_study import Scenario, run_episode
+    from sara_app.studies.jssa_study import Scenario, run_episode
 
     rng = np.random.default_rng(4 if mode == "single" else 5)
     params = JssaParams(lambda_1=3.0, lambda_2=1.0, mode=mode)

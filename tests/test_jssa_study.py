@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sara_app.safety import jssa_study as st
 from sara_app.safety.jssa import JssaController, JssaParams
+from sara_app.studies import jssa_study as st
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +59,7 @@ def test_table_format_and_plot(scenario, tmp_path) -> None:
 
 
 def test_feasibility_sampling_finds_boundary_states() -> None:
-    from sara_app.safety.jssa_feasibility import check_feasibility
+    from sara_app.studies.jssa_feasibility import check_feasibility
 
     robot = st.panda_on_table()
     ok = check_feasibility(robot, JssaParams(lambda_1=3.0, lambda_2=1.0), n_samples=60, seed=1)

@@ -30,6 +30,7 @@ with warnings.catch_warnings():
     from fastapi.testclient import TestClient
 
 from sara_app.api import CellRegistry, create_app
+from sara_app.audit import AuditLog
 from sara_app.bus import keys
 from sara_app.bus.heartbeat import Heartbeat
 from sara_app.bus.messages import OccupancyMsg, RobotCommandMsg, SkeletonMsg, VerdictMsg
@@ -37,7 +38,6 @@ from sara_app.bus.session import Bus, Subscription, free_port
 from sara_app.human.params import load_param_set
 from sara_app.human.skeleton import skeleton
 from sara_app.robot.model import load_robot
-from sara_app.safety.threshold_audit import AuditLog
 from sara_app.safety.thresholds import CONTACTS, REGIONS
 from sara_app.scenario import load_scenario, scenarios_dir
 from sara_app.worker import CellWorker

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from sara_app.safety.jssa import JssaParams
-from sara_app.safety.jssa_study import PANDA_HOME, panda_on_table, rigid_human
 from sara_app.safety.ssa import SsaController
+from sara_app.studies.jssa_study import PANDA_HOME, panda_on_table, rigid_human
 
 
 def test_ssa_output_within_jerk_bounds_and_counts_saturation() -> None:
@@ -29,7 +29,7 @@ def test_ssa_output_within_jerk_bounds_and_counts_saturation() -> None:
 
 def test_ssa_with_ample_jerk_keeps_its_margin_on_the_scripted_walk() -> None:
     """Unsaturated (full Panda jerk bounds), the SSA projection alone keeps d > d_min."""
-    from sara_app.safety.jssa_study import run_episode, seed_scenario, summarize
+    from sara_app.studies.jssa_study import run_episode, seed_scenario, summarize
 
     sc = seed_scenario()
     sc.duration_s = 4.0

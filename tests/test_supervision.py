@@ -18,11 +18,11 @@ from typing import Any
 
 from test_serve import _child_pids
 
+from sara_app.audit import default_data_dir
 from sara_app.bus import keys
 from sara_app.bus.access import Credentials, client_auth
 from sara_app.bus.messages import RobotCommandMsg
 from sara_app.bus.session import Bus, free_port
-from sara_app.safety.threshold_audit import default_data_dir
 
 
 def _api(port: int, path: str) -> Any:

@@ -9,7 +9,7 @@
   answer (it may still apply it: the audit row says ``no_answer``).
 - ``GET /api/cells/{cell}/thresholds/audit?limit=``: the cell's audit rows, newest first.
 
-Every PUT outcome is recorded by :func:`sara_app.safety.threshold_edit.apply_edit` (the same
+Every PUT outcome is recorded by :func:`sara_app.threshold_edit.apply_edit` (the same
 function the dashboard's panel uses). The scenario edited is the last one this service had
 accepted by the cell's worker while the cell still runs it, else the scenario file the cell
 reports running (:meth:`CellRegistry.applied_scenario`). Edits of one cell are serialised.
@@ -27,11 +27,11 @@ from pydantic import BaseModel, ConfigDict, Field, StrictBool
 
 from sara_app.api.guard import credential_user
 from sara_app.api.registry import EDIT_TIMEOUT_S, CellRegistry
+from sara_app.audit import MAX_LIMIT, AuditLog
 from sara_app.errors import SaraError, WorkerTimeoutError
-from sara_app.safety.threshold_audit import MAX_LIMIT, AuditLog
-from sara_app.safety.threshold_edit import ConfirmationRequired, apply_edit, threshold_view
 from sara_app.safety.thresholds import CONTACTS, REGIONS, SHAPES
 from sara_app.scenario import Scenario, load_scenario, parse_scenario, scenario_names
+from sara_app.threshold_edit import ConfirmationRequired, apply_edit, threshold_view
 
 
 class WorkerRefusedError(SaraError):

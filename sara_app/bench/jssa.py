@@ -9,7 +9,7 @@ from sara_app.safety.jssa import JssaController, JssaParams
 
 def _bench_setup(mode: str) -> tuple[JssaController, tuple]:
     from sara_app.robot.model import load_robot
-    from sara_app.safety.jssa_study import PANDA_HOME, TABLE_HEIGHT_M, rigid_human
+    from sara_app.studies.jssa_study import PANDA_HOME, TABLE_HEIGHT_M, rigid_human
 
     T = np.eye(4)
     T[2, 3] = TABLE_HEIGHT_M

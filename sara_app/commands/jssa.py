@@ -23,8 +23,8 @@ def _params(args: argparse.Namespace, **over: object):  # -> JssaParams
 def _study(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from sara_app.safety import jssa_study as st
     from sara_app.safety.jssa import JssaController
+    from sara_app.studies import jssa_study as st
 
     sc = st.seed_scenario()
     sc.duration_s = args.duration
@@ -56,7 +56,7 @@ def _study(args: argparse.Namespace) -> int:
 
 def _feasibility(args: argparse.Namespace) -> int:
     from sara_app.robot.model import load_robot
-    from sara_app.safety.jssa_feasibility import check_feasibility
+    from sara_app.studies.jssa_feasibility import check_feasibility
 
     robot = load_robot(args.robot)
     params = _params(args)

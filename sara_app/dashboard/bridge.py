@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from sara_app.audit import AuditLog
 from sara_app.bus import keys
 from sara_app.bus.codec import Decoder
 from sara_app.bus.messages import (
@@ -45,7 +46,6 @@ from sara_app.dashboard.gizmos import GizmoEditing
 from sara_app.dashboard.viewer import Dashboard
 from sara_app.errors import SaraError, ScenarioError, UnknownNameError, WorkerTimeoutError
 from sara_app.robot.model import RobotModel
-from sara_app.safety.threshold_audit import AuditLog
 from sara_app.scenario import (
     SAFETY_MODES,
     Scenario,

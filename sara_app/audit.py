@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING, Any
 from sara_app.errors import ParameterError, SaraError
 
 if TYPE_CHECKING:
-    from sara_app.safety.threshold_edit import EditPlan
+    from sara_app.threshold_edit import EditPlan
 
 SCHEMA_VERSION = 3
 """1: threshold_changes; 2: + person_actions; 3: + api_requests. Every statement of the schema

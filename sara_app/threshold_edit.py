@@ -37,7 +37,7 @@ from sara_app.safety.thresholds import (
 from sara_app.scenario import MAX_THRESHOLD_J, Scenario, parse_scenario
 
 if TYPE_CHECKING:
-    from sara_app.safety.threshold_audit import AuditEntry, AuditLog
+    from sara_app.audit import AuditEntry, AuditLog
 
 ENERGY_RANGE = f"a finite number > 0 J and <= {MAX_THRESHOLD_J:g} J (the physical ceiling)"
 
