@@ -124,7 +124,7 @@ MAX_THRESHOLD_J = 10.0
 
 
 class ThresholdOverride(_Strict):
-    """One edited entry of the threshold table (seed 003 Table I cell), in J."""
+    """One edited entry of the threshold table (Thumm et al. 2024 Table I cell), in J."""
 
     region: Literal["hand", "lower_arm", "upper_arm", "torso_legs", "head"]
     contact: Literal["constrained", "unconstrained"]
@@ -133,7 +133,8 @@ class ThresholdOverride(_Strict):
 
 
 class PflSpec(_Strict):
-    """Power and force limiting (seed 003): threshold set, edits, contact shapes, speed scaling."""
+    """Power and force limiting (Thumm et al. 2024): threshold set, edits, contact shapes, speed
+    scaling."""
 
     thresholds: str = "thresholds_seed003"
     overrides: list[ThresholdOverride] = []
@@ -153,7 +154,7 @@ class PflSpec(_Strict):
 
 
 class JssaSpec(_Strict):
-    """JSSA parameters (seed 002); see :class:`sara_app.safety.jssa.JssaParams`."""
+    """JSSA parameters (Liu et al. 2022); see :class:`sara_app.safety.jssa.JssaParams`."""
 
     d_min_m: Annotated[float, Field(gt=0, le=2)] = 0.05
     lambda_1: Annotated[float, Field(gt=0, le=1e3)] = 3.0
@@ -168,7 +169,7 @@ class JssaSpec(_Strict):
         if self.lambda_1**2 < 4.0 * self.lambda_2:
             raise ValueError(
                 f"lambda_1 = {self.lambda_1}, lambda_2 = {self.lambda_2}: expected "
-                "lambda_1^2 >= 4 lambda_2 (seed 002 Sec. 3.1: negative real roots)"
+                "lambda_1^2 >= 4 lambda_2 (Liu et al. 2022 Sec. 3.1: negative real roots)"
             )
         return self
 

@@ -15,9 +15,9 @@ PFL ground truth (:class:`ContactTruth`, evaluated in every mode, so SSM runs re
 contact between a true body part and robot link ``i`` is allowed when the link's true kinetic
 energy (eq. 46, ``1/2 q_dot^T E_i B(q) E_i q_dot`` of the executed motion) is below the threshold
 of the contact's ACTUAL class. It is clamped when the body part, or a body part stacked with it
-(touching it and not a safe pair, transitively, as in seed 003 eq. 39-43, other people's parts
-included), touches an environment box or a robot link that can clamp with ``i`` (not ``i``, not
-declared unclampable with it); the threshold is then the smallest constrained one of the stack,
+(touching it and not a safe pair, transitively, as in Thumm et al. 2024 eq. 39-43, other people's
+parts included), touches an environment box or a robot link that can clamp with ``i`` (not ``i``,
+not declared unclampable with it); the threshold is then the smallest constrained one of the stack,
 else the part's unconstrained one. This truth ignores the velocity relaxation (a link moving
 away from the table is still taken as clamping), so it is stricter than the shield's check. A
 contact whose energy reaches that threshold is harmful (``SimMetrics.harmful_contacts``).

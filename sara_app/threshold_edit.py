@@ -1,4 +1,4 @@
-"""Editing a cell's contact-energy thresholds (seed 003 Table I) through its scenario.
+"""Editing a cell's contact-energy thresholds (Thumm et al. 2024 Table I) through its scenario.
 
 A scenario's PFL thresholds are a named set (``shield.pfl.thresholds``, e.g.
 ``thresholds_seed003``) plus ``shield.pfl.overrides``: the entries the safety engineer changed.
@@ -48,7 +48,8 @@ ISO_REGIONS: dict[str, tuple[str, ...]] = {
     "torso_legs": ("back_shoulders", "chest", "abdomen", "pelvis", "thigh", "lower_leg"),
     "head": ("skull_forehead", "face", "neck"),
 }
-"""Seed 003 Table I region -> the ISO/TS 15066 Annex A body regions it covers (reference)."""
+"""Thumm et al. 2024 Table I region -> the ISO/TS 15066 Annex A body regions it covers
+(reference)."""
 
 Entry = tuple[str, str, str]
 

@@ -1,5 +1,5 @@
-"""What the worker publishes for display about a PFL or JSSA cycle (seed 003 contact classes and
-link energies; seed 002 safety index and critical pair), as bus messages.
+"""What the worker publishes for display about a PFL or JSSA cycle (Thumm et al. 2024 contact
+classes and link energies; Liu et al. 2022 safety index and critical pair), as bus messages.
 
 PFL results are ``(K, L, P)`` over intervals, robot links and body parts; ``P`` is the usable
 humans' body parts, human-major (``part_labels`` gives each one's human id and part name).

@@ -1,4 +1,4 @@
-"""Contact classification (seed 003 Sec. VI): constructed cases for every rule, brute-force
+"""Contact classification (Thumm et al. 2024 Sec. VI): constructed cases for every rule, brute-force
 checks of the geometric predicates, and the Thm VI.2 bound against dense sampling."""
 
 from __future__ import annotations

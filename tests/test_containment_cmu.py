@@ -1,9 +1,9 @@
 """Containment of real motion (CMU walk, run, boxing) per model and parameter set.
 
-The seed's Table I set is sound for the walk only where the walk respects its bounds; the
-failures on the fast clips are the finding of seed 000 Sec. III-B and are asserted as such (a
-model that suddenly contained the boxing hands with 2 m/s would mean a broken measurement). The
-shipped calibrated set contains all three clips with every model.
+The paper's Table I set is sound for the walk only where the walk respects its bounds; the
+failures on the fast clips are the finding of Pereira & Althoff 2016 Sec. III-B and are asserted as
+such (a model that suddenly contained the boxing hands with 2 m/s would mean a broken measurement).
+The shipped calibrated set contains all three clips with every model.
 """
 
 from __future__ import annotations
@@ -60,7 +60,7 @@ def test_table1_walk_position_model_is_sound_acceleration_model_misses_a_heel_st
 
 
 def test_table1_velocity_models_miss_the_walks_swinging_ankles(results) -> None:
-    """Seed 001 Table I's 2 m/s does not bound a plain walk's ankles (DESIGN sec. 6)."""
+    """Schepp et al. 2022 Table I's 2 m/s does not bound a plain walk's ankles (DESIGN sec. 6)."""
     walk = results["02_01", "seed001_table1"]
     for m in ("vel", "iso13855"):
         assert walk[m].share < 1.0

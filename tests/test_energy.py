@@ -1,4 +1,4 @@
-"""Link kinetic energies (seed 003 eq. 46-48) and link twists at samples.
+"""Link kinetic energies (Thumm et al. 2024 eq. 46-48) and link twists at samples.
 
 References: pinocchio's own ``computeKineticEnergy`` with the distal joint velocities zeroed (an
 independent path through the RNEA-style kinematics), ``RobotModel.mass_matrix``, and finite

@@ -1,4 +1,4 @@
-"""The seed 002 study: qualitative findings, Table 1 format, plots, eq. 7 sampling."""
+"""The Liu et al. 2022 study: qualitative findings, Table 1 format, plots, eq. 7 sampling."""
 
 from __future__ import annotations
 
@@ -36,7 +36,7 @@ def test_larger_lambda2_smooths_accelerations(runs) -> None:
     small, large = runs[(6.0, 6.0)], runs[(6.0, 8.0)]
     assert large.mean_robot_acc < small.mean_robot_acc
     assert large.mean_rel_acc < small.mean_rel_acc
-    assert large.min_distance_m < small.min_distance_m  # the seed's Table 1 trend as well
+    assert large.min_distance_m < small.min_distance_m  # the paper's Table 1 trend as well
 
 
 def test_ssa_saturates_jerk_more_often_than_jssa(scenario) -> None:

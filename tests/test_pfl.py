@@ -1,4 +1,4 @@
-"""The PFL verdict (seed 003 eq. 6-7, 47-48) on the Panda with a full-body human."""
+"""The PFL verdict (Thumm et al. 2024 eq. 6-7, 47-48) on the Panda with a full-body human."""
 
 from __future__ import annotations
 

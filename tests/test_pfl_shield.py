@@ -448,7 +448,7 @@ def test_threshold_edits_and_boxes_are_validated() -> None:
     edit = {"region": "hand", "contact": "constrained", "shape": "blunt", "energy_J": 0.5}
     shield = make_shield(overrides=[edit])
     assert shield.thresholds.energy_J("hand", "constrained", "blunt") == 0.5
-    assert shield.above_source  # above the seed's 0.12 J: flagged
+    assert shield.above_source  # above the paper's 0.12 J: flagged
     with pytest.raises(ParameterError, match="boxes"):
         PflShield(
             shield.robot, shield.follower, shield.reach, shield.settings, shield.spec,
@@ -459,7 +459,7 @@ def test_threshold_edits_and_boxes_are_validated() -> None:
 def test_interval_energy_bound_covers_dense_samples() -> None:
     """The energy per interval passed to the check covers the link energies densely sampled
     inside every interval (the speed peaks inside the first failsafe interval, where the end
-    samples of seed 003 eq. 47-48 alone miss it)."""
+    samples of Thumm et al. 2024 eq. 47-48 alone miss it)."""
     from sara_app.robot.trajectory import PathFollower
 
     shield = make_shield()

@@ -62,7 +62,7 @@ def test_shipped_scenario_has_no_collision_while_moving(name: str) -> None:
         assert m.time_to_goal_s is not None, m.lines()
         assert m.time_to_goal_s <= sc.sim.duration_s
     if name == "standing_beside_path":
-        # the seed's C++ shield has not arrived after 4 s; the person does slow the robot
+        # the paper's C++ shield has not arrived after 4 s; the person does slow the robot
         assert m.time_to_goal_s is not None and m.time_to_goal_s < 4.0
         assert m.failsafe_share > 0.0
     if name == "empty_cell":

@@ -1,4 +1,4 @@
-"""SSA baseline (seed 002 Sec. 4.3): acceleration-level projection, saturated jerk."""
+"""SSA baseline (Liu et al. 2022 Sec. 4.3): acceleration-level projection, saturated jerk."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""Threshold sets: seed 003 Table I fidelity, sources, validation by name, ISO reference."""
+"""Threshold sets: Thumm et al. 2024 Table I fidelity, sources, validation by name, ISO
+reference."""
 
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ from sara_app.safety.thresholds import (
     threshold_arrays,
 )
 
-# Seed 003 Table I, typed in from the paper: (constrained blunt, wedge, edge, sheet;
+# Thumm et al. 2024 Table I, typed in from the paper: (constrained blunt, wedge, edge, sheet;
 # unconstrained blunt, wedge, edge, sheet) in J.
 TABLE_I = {
     "hand": (0.12, 0.05, 0.02, 0.11, 0.49, 2.0, 0.375, 0.9),

@@ -1,4 +1,4 @@
-"""REST routes of the threshold editor (power and force limiting, seed 003 Table I).
+"""REST routes of the threshold editor (power and force limiting, Thumm et al. 2024 Table I).
 
 - ``GET /api/cells/{cell}/thresholds``: the effective table of the scenario the cell runs (value,
   source value and key, overridden flag, ISO/TS 15066 Annex A reference).

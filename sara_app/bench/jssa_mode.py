@@ -46,7 +46,7 @@ def _bench_cycle(mode: JssaMode, humans: list[HumanState]) -> Callable[[], objec
 
 def bench_rows(n: int = 2000) -> list[tuple[str, float, float, str]]:
     """One :class:`JssaMode` cycle: Panda moving along its task at full speed, one full-body
-    person about 1 m away walking toward it (14 capsules); one constraint (the seed's) and one
+    person about 1 m away walking toward it (14 capsules); one constraint (the paper's) and one
     per capsule pair (``multi``)."""
     from sara_app.bench import timeit_us
 

@@ -336,8 +336,8 @@ class RobotOccupancyMsg(BaseModel):
 
 
 ContactClass = Literal["unconstrained", "env-constrained", "self-constrained"]
-"""Seed 003 Sec. VI contact classes (free collision; clamped against the environment; clamped
-between robot links)."""
+"""Thumm et al. 2024 Sec. VI contact classes (free collision; clamped against the environment;
+clamped between robot links)."""
 
 Point = Annotated[list[Finite], Field(min_length=3, max_length=3)]
 
@@ -359,8 +359,8 @@ class ContactMsg(BaseModel):
 
 
 class LinkEnergyMsg(BaseModel):
-    """One robot link's kinetic energy (max over the shielded trajectory, seed 003 eq. 46-48)
-    and its margin to the smallest threshold of the contacts it could make."""
+    """One robot link's kinetic energy (max over the shielded trajectory, Thumm et al. 2024 eq.
+    46-48) and its margin to the smallest threshold of the contacts it could make."""
 
     model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
 
@@ -376,7 +376,8 @@ class LinkEnergyMsg(BaseModel):
 
 
 class JssaMsg(BaseModel):
-    """The JSSA filter's state this cycle (seed 002): safety index, critical pair, activity."""
+    """The JSSA filter's state this cycle (Liu et al. 2022): safety index, critical pair,
+    activity."""
 
     model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
 

@@ -1,4 +1,4 @@
-"""JSSA commands: ``jssa-study`` (seed 002 Sec. 4 reproduction) and ``jssa-feasibility``."""
+"""JSSA commands: ``jssa-study`` (Liu et al. 2022 Sec. 4 reproduction) and ``jssa-feasibility``."""
 
 from __future__ import annotations
 
@@ -39,7 +39,7 @@ def _study(args: argparse.Namespace) -> int:
         args.out.mkdir(parents=True, exist_ok=True)
         st.plot_trace(tr, str(args.out / "jssa_profile.png"), "JSSA", params.d_min_m)
     values = tuple(float(v) for v in args.lambdas.split(","))
-    print("\nSensitivity (seed 002 Table 1 format)")
+    print("\nSensitivity (Liu et al. 2022 Table 1 format)")
     print(st.format_table(st.sensitivity_table(sc, values, params)))
     for scale in sorted({params.jerk_scale, args.seed_jerk_scale}, reverse=True):
         res = st.compare_ssa(sc, params.model_copy(update={"jerk_scale": scale}))
@@ -82,7 +82,9 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    s = sub.add_parser("jssa-study", help="seed 002 simulation study: profile, Table 1, vs SSA")
+    s = sub.add_parser(
+        "jssa-study", help="Liu et al. 2022 simulation study: profile, Table 1, vs SSA"
+    )
     _common(s)
     s.add_argument("--duration", type=float, default=7.0, help="seconds (default 7)")
     s.add_argument("--lambdas", default="6,7,8", help="values for the sensitivity table")
@@ -90,12 +92,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--seed-jerk-scale",
         type=float,
         default=0.01,
-        help="jerk scale for the seed-like JSSA/SSA comparison (0.01: Panda bounds ~ FANUC's)",
+        help="jerk scale for the paper-like JSSA/SSA comparison (0.01: Panda bounds ~ FANUC's)",
     )
     s.add_argument("--out", type=Path, default=None, help="folder for the PNG plots")
     s.set_defaults(run=_study)
 
-    f = sub.add_parser("jssa-feasibility", help="check seed 002 eq. 7 by sampling states")
+    f = sub.add_parser("jssa-feasibility", help="check Liu et al. 2022 eq. 7 by sampling states")
     _common(f)
     f.add_argument("--robot", default="panda")
     f.add_argument("--samples", type=int, default=2000)

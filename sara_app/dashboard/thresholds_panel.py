@@ -1,4 +1,5 @@
-"""The safety engineer's threshold editor in the viser dashboard (seed 003 Table I entries).
+"""The safety engineer's threshold editor in the viser dashboard (Thumm et al. 2024 Table I
+entries).
 
 ``attach(gui, get_scenario, send, audit, cell) -> ThresholdsPanel`` adds a "Thresholds" folder:
 dropdowns for the body region, contact type and shape, the value in force beside its source's

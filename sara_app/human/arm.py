@@ -1,4 +1,4 @@
-"""Pereira's over-approximative 3-DOF arm model (seed 000 Sec. III-B).
+"""Pereira's over-approximative 3-DOF arm model (Pereira & Althoff 2016 Sec. III-B).
 
 Each arm is a kinematic chain at the shoulder: two orthogonal revolute joints and a prismatic
 extension that reaches the middle of the forearm. In the torso frame (z: pelvis to neck,
@@ -10,16 +10,17 @@ x: left to right shoulder, y = z x x: forward) the coordinates of the mid-forear
 - phi: azimuth about the medial axis, 0 = down, pi/2 = forward;
 - r: |m - S|.
 
-Reachable joint intervals over [0, tau] from three models, intersected (seed 000): position
-limits (theta limits; r <= upper arm + half forearm), velocity limits, acceleration limits (when
-joint velocities are given). Then the Cartesian enclosure: the set of directions is enclosed by
-a cone around the central direction of half angle
+Reachable joint intervals over [0, tau] from three models, intersected (Pereira & Althoff 2016):
+position limits (theta limits; r <= upper arm + half forearm), velocity limits, acceleration limits
+(when joint velocities are given). Then the Cartesian enclosure: the set of directions is enclosed
+by a cone around the central direction of half angle
 alpha = dtheta/2 + dphi/2 * max(sin theta) (a path along a meridian and a parallel bounds the
-great-circle distance), widened by the base rotation (0.1 rad/s in the seed); the arm, i.e. the
+great-circle distance), widened by the base rotation (0.1 rad/s in the paper); the arm, i.e. the
 convex hull of the shoulder ball and the forearm ball (radius half forearm + the largest limb
 half thickness) over all such m, lies in one capsule from S along the cone axis. Its radius then
-grows by delta_y (shoulder position) and the shoulder's translation v_max tau (seed 000: ISO
-13855's 2 m/s). Body parts other than the arms come from the ISO 13855 model, as in seed 000.
+grows by delta_y (shoulder position) and the shoulder's translation v_max tau (Pereira & Althoff
+2016: ISO 13855's 2 m/s). Body parts other than the arms come from the ISO 13855 model, as in
+Pereira & Althoff 2016.
 
 Named conservative shortcuts: the [t_a, t_b] interval uses the [0, t_b] joint hull; the torso
 frame is taken from the measurement (its error is part of the base-rotation allowance).

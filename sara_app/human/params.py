@@ -38,14 +38,15 @@ class JointBound(_Strict):
 
 
 class BodyPartGeometry(_Strict):
-    """Size of one body part: thickness is a diameter (seed 001); iso radius per seed 000."""
+    """Size of one body part: thickness is a diameter (Schepp et al. 2022); iso radius per Pereira &
+    Althoff 2016."""
 
     thickness_m: Pos
     iso_radius_m: Pos
 
 
 class ArmModelParams(_Strict):
-    """Pereira's 3-DOF arm model (seed 000 Sec. III-B), the same for both arms.
+    """Pereira's 3-DOF arm model (Pereira & Althoff 2016 Sec. III-B), the same for both arms.
 
     Coordinates of the mid-forearm point relative to the shoulder, in the torso frame:
     polar angle theta from the medial axis, azimuth phi about it (0 = down, pi/2 = forward),

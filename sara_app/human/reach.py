@@ -1,5 +1,6 @@
-"""Human reachable occupancy as capsules: SaRA's R_POS, R_VEL, R_ACC (seed 001 Sec. II-B) and the
-ISO 13855 expansion model (seed 000 Sec. III-A); Pereira's arm model lives in ``arm.py``.
+"""Human reachable occupancy as capsules: SaRA's R_POS, R_VEL, R_ACC (Schepp et al. 2022 Sec. II-B)
+and the ISO 13855 expansion model (Pereira & Althoff 2016 Sec. III-A); Pereira's arm model lives in
+``arm.py``.
 
 Time: every set is for an interval ``[t_start, t_end]`` of time *since the measurement's time
 stamp*; the caller passes the age of the measurement inside those times (command time minus
@@ -71,7 +72,7 @@ class HumanReach:
         self.jb = sk.part_joints[:, 1]
         self.is_ball = self.ja == self.jb
         p = params
-        # R_POS: one ball per limb, then head and torso from R_VEL (the seed's four balls leave
+        # R_POS: one ball per limb, then head and torso from R_VEL (the paper's four balls leave
         # the head and torso uncovered; a verdict "POS is free" must cover the whole human).
         self.limb_root = np.array([c[0] for c in sk.limb_chains], dtype=int)
         self.limb_pos_parts = np.array([sk.part_index(n) for n in ("head", "torso")], dtype=int)
@@ -221,9 +222,10 @@ class HumanReach:
         return self._static("vel", y, t_end_s, self.vel_base, self.vel_speed)
 
     def iso13855(self, y: np.ndarray, t_end_s: np.ndarray) -> Occupancy:
-        """ISO 13855 expansion (seed 000 Sec. III-A): every body part's capsule at the measured
-        pose, radius iso_radius + delta_y + v_iso tau. Sound when no point moves faster than
-        v_iso (1.6 m/s upper body, 2.0 m/s full body): real fast motion breaks this (seed 000).
+        """ISO 13855 expansion (Pereira & Althoff 2016 Sec. III-A): every body part's capsule at the
+        measured pose, radius iso_radius + delta_y + v_iso tau. Sound when no point moves faster
+        than v_iso (1.6 m/s upper body, 2.0 m/s full body): real fast motion breaks this (Pereira &
+        Althoff 2016).
         """
         return self._static("iso13855", y, t_end_s, self.iso_base, self.iso_speed)
 
@@ -279,7 +281,7 @@ class HumanReach:
         v_root tau + sum of the measured segment lengths + the limb's largest half thickness +
         (1 + 2 n_segments) delta_y, plus head and torso from R_VEL.
 
-        Each measured segment length is off by up to 2 delta_y and the root by delta_y (the seed
+        Each measured segment length is off by up to 2 delta_y and the root by delta_y (the paper
         adds a single delta_y). Sound when the root's speed stays below its v_max and the limb
         lengths are rigid.
         """

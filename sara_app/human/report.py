@@ -104,7 +104,8 @@ def volume_table(
     png: Path | None,
     models: Sequence[str] = MODELS,
 ) -> dict[str, list[float]]:
-    """Mean set volume per model and horizon (the trend of seed 001 Fig. 7), optional PNG."""
+    """Mean set volume per model and horizon (the trend of Schepp et al. 2022 Fig. 7), optional
+    PNG."""
     rec = load_recording(recording)
     ps = load_param_set(params)
     reach = HumanReach(to_reach_params(ps, rec.kind))
@@ -178,8 +179,8 @@ def calibrate_command(
             if label == "calibrated":
                 summary[rec.name] = misses
     sound = [m for m in MODELS if all(s[m] == 0 for s in summary.values())]
-    # The hand ball is centred at the wrist: its radius must reach the fingertips (seed 000's
-    # hand radius 0.205 m), which seed 001's 0.205 m thickness does not.
+    # The hand ball is centred at the wrist: its radius must reach the fingertips (Pereira & Althoff
+    # 2016's hand radius 0.205 m), which Schepp et al. 2022's 0.205 m thickness does not.
     parts = dict(ps.body_parts)
     for hand in ("l_hand", "r_hand"):
         parts[hand] = parts[hand].model_copy(

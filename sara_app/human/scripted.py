@@ -1,4 +1,5 @@
-"""Scripted human motions with rigid limbs, for demo scenarios (seed 001 Sec. IV experiments).
+"""Scripted human motions with rigid limbs, for demo scenarios (Schepp et al. 2022 Sec. IV
+experiments).
 
 A pose is a small parameter vector (pelvis position, yaw, forward lean of the upper body, and the
 unit directions of the four arm segments in the leaned body frame); joint positions follow by
@@ -234,7 +235,7 @@ def build_motion(
         dist = float(np.hypot(*(tgt[:2] - base.pelvis[:2])))
         stop = base.pelvis + fwd * max(dist - 0.55, 0.0)
         near = Pose(stop, yaw, 0.0, base.arms.copy())
-        # the seed's "slow approach": walking speed capped at 0.5 m/s
+        # the paper's "slow approach": walking speed capped at 0.5 m/s
         vm = np.minimum(vm, 0.5 * speed_scale)
         keys += [(near, 2.0), (base, 0.5)]
     elif motion == "punch":

@@ -1,13 +1,14 @@
 """The project's human skeleton: named joints, body parts, and mappings from common sources.
 
 Two skeleton kinds are supported:
-- ``full``: 15 joints and the 14 body parts of seed 001 Fig. 3a (head, torso, upper and lower
+- ``full``: 15 joints and the 14 body parts of Schepp et al. 2022 Fig. 3a (head, torso, upper and
+lower
   arms, hands, thighs, shins, feet);
 - ``upper``: 9 joints and the 8 upper-body parts (head, torso, arms, hands).
 
 A body part is a capsule between two joints (``joint_a != joint_b``) or a ball at one joint
-(``joint_a == joint_b``; head, hands, feet are balls as in seed 001 Sec. II-B). The thickness of a
-body part is a *diameter*; half of it is added to the reachable-set radius.
+(``joint_a == joint_b``; head, hands, feet are balls as in Schepp et al. 2022 Sec. II-B). The
+thickness of a body part is a *diameter*; half of it is added to the reachable-set radius.
 
 Source mappings turn a dictionary of named points from a tracking system into the project's
 ``(J, 3)`` array, deriving virtual joints (e.g. the neck as the middle of the shoulders) as means
@@ -63,8 +64,8 @@ UPPER_BODY_PARTS: dict[str, tuple[str, str]] = {
     k: v for k, v in FULL_BODY_PARTS.items() if v[0] in UPPER_JOINTS and v[1] in UPPER_JOINTS
 }
 
-# Limbs for the position model R_POS (seed 001 Sec. II-B): root joint and the chain to the tip;
-# the tip's body part (hand or foot) is the ball whose thickness is added.
+# Limbs for the position model R_POS (Schepp et al. 2022 Sec. II-B): root joint and the chain to the
+# tip; the tip's body part (hand or foot) is the ball whose thickness is added.
 LIMBS: dict[str, tuple[tuple[str, ...], str]] = {
     "l_arm": (("l_shoulder", "l_elbow", "l_wrist"), "l_hand"),
     "r_arm": (("r_shoulder", "r_elbow", "r_wrist"), "r_hand"),
@@ -180,8 +181,8 @@ SOURCES: dict[str, tuple[str, dict[str, tuple[str, ...]]]] = {
             },
         },
     ),
-    # SaRA's upper-body marker set (seed 001 Sec. IV-A: H, N, LS, LE, LW, RS, RE, RW) plus two
-    # virtual torso points: the mid-shoulder point and the torso base TB (lower spine marker).
+    # SaRA's upper-body marker set (Schepp et al. 2022 Sec. IV-A: H, N, LS, LE, LW, RS, RE, RW) plus
+    # two virtual torso points: the mid-shoulder point and the torso base TB (lower spine marker).
     "sara10": (
         "upper",
         {

@@ -2,10 +2,10 @@
 position uncertainty above the set's ``delta_y``, or an upper-body source that does not measure
 the legs (DESIGN 8, "use it or brake": a contract-valid message is used, never dropped).
 
-Every model's set is a union of balls around functions of the measured joints (seed 001
-Sec. II-B; seed 000 Sec. III). If joint ``j`` lies within ``delta_y + e_j`` of its measurement
-instead of ``delta_y``, a capsule that must contain joints ``{j}`` stays sound when its radius
-grows by ``max_j e_j`` (for R_VEL, R_ACC, ISO 13855 and the head / torso capsules of R_POS,
+Every model's set is a union of balls around functions of the measured joints (Schepp et al. 2022
+Sec. II-B; Pereira & Althoff 2016 Sec. III). If joint ``j`` lies within ``delta_y + e_j`` of its
+measurement instead of ``delta_y``, a capsule that must contain joints ``{j}`` stays sound when its
+radius grows by ``max_j e_j`` (for R_VEL, R_ACC, ISO 13855 and the head / torso capsules of R_POS,
 which are Minkowski sums with B(delta_y)). Exceptions, per model:
 
 - R_POS limbs (ball at the root, radius with the *measured* segment lengths): each of the ``n``

@@ -1,4 +1,5 @@
-"""Link kinetic energies (seed 003 Sec. VII, eq. 44-48) and link twists at trajectory samples.
+"""Link kinetic energies (Thumm et al. 2024 Sec. VII, eq. 44-48) and link twists at trajectory
+samples.
 
 For a link carried by joint ``m`` (pinocchio's parent joint of the link frame), the energy a
 contact with it can transfer is (eq. 46)::
@@ -27,8 +28,8 @@ sampled at the interval ends, with the relative margin :data:`G_MARGIN` measured
 trajectories (``tests/test_pfl_shield.py`` checks it against dense sampling).
 
 :class:`LinkMotion` also returns, at the same samples, the world-frame velocity of each link
-capsule's first end ``p1`` and the link's angular velocity ``omega`` (the inputs of seed 003
-Thm VI.1, eq. 25). Units: J, m/s, rad/s; frames: world (``model.T_world_base`` applied).
+capsule's first end ``p1`` and the link's angular velocity ``omega`` (the inputs of Thumm et al.
+2024 Thm VI.1, eq. 25). Units: J, m/s, rad/s; frames: world (``model.T_world_base`` applied).
 
 Bad input never raises on the hot path: a sample with a non-finite ``q`` or ``q_dot`` gets
 ``T = inf`` and NaN velocities, which every predicate downstream treats as unsafe.
@@ -94,7 +95,7 @@ without margin by at most 3e-5 relative (eq. 47-48's end samples alone: by up to
 
 def interval_energy_J(energy_J: np.ndarray) -> np.ndarray:
     """Eq. 47-48: ``(K+1, L)`` sample energies -> ``(K, L)`` max of both interval ends (the
-    seed's form; it misses energy peaks between the samples, see the module notes)."""
+    paper's form; it misses energy peaks between the samples, see the module notes)."""
     return np.maximum(energy_J[:-1], energy_J[1:])
 
 

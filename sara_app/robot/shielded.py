@@ -1,7 +1,7 @@
-"""The shielded trajectory (seed 000 Sec. II, seed 003 Sec. III-B): one intended control step of the
-path follower followed by the failsafe stop from its end, sampled for verification: sample
-times, path and joint states, and rigorous per-interval bounds on joint speed and acceleration
-(:func:`sara_app.robot.failsafe.interval_bounds`), from one compiled pass
+"""The shielded trajectory (Pereira & Althoff 2016 Sec. II, Thumm et al. 2024 Sec. III-B): one
+intended control step of the path follower followed by the failsafe stop from its end, sampled for
+verification: sample times, path and joint states, and rigorous per-interval bounds on joint speed
+and acceleration (:func:`sara_app.robot.failsafe.interval_bounds`), from one compiled pass
 (:mod:`sara_app.robot.trajectory_kernels`) with the numpy composition as its reference.
 """
 

@@ -1,4 +1,4 @@
-"""Contact classification per interval, robot link and body part (seed 003 Sec. VI).
+"""Contact classification per interval, robot link and body part (Thumm et al. 2024 Sec. VI).
 
 Inputs (all world frame, metres, seconds; ``K`` intervals, ``L`` robot links, ``P`` body parts,
 ``B`` environment boxes):
@@ -19,15 +19,16 @@ Rules (``~`` = not; every predicate is written so that NaN input gives the conse
 - env-constrained (eq. 10-11): the body part touches box ``b`` and no relaxation applies:
   velocity (Thm VI.1 and eq. 25-26, 31): every point of the link moves away from the box along
   the normal ``n`` at the closest points, ``min_samples(n.p1_dot - (r + |p2 - p1|) |n x w|) >=
-  eps_v``. Note the MINUS: seed 003 prints ``+`` in eq. 16/22-25, but ``cos(alpha) >= -1`` gives
-  the lower bound with ``-``; the brute-force test in ``tests/test_contact.py`` checks it.
+  eps_v``. Note the MINUS: Thumm et al. 2024 prints ``+`` in eq. 16/22-25, but ``cos(alpha) >= -1``
+  gives the lower bound with ``-``; the brute-force test in ``tests/test_contact.py`` checks it.
   Human diameter (eq. 33): the link is farther than the body part's diameter from the box;
 - self-constrained (eq. 12-13): the body part also touches another link ``l`` and no
   relaxation applies: topology (eq. 36-37, the pair is declared unclampable), diameter (eq. 34,
-  the two links are farther apart than the diameter; seed 003 prints ``<=``, the relaxation is
-  ``>``), velocity (eq. 32): along the normal ``n_l`` on link ``l`` towards link ``i``, the
+  the two links are farther apart than the diameter; Thumm et al. 2024 prints ``<=``, the relaxation
+  is ``>``), velocity (eq. 32): along the normal ``n_l`` on link ``l`` towards link ``i``, the
   slowest point of ``i`` is at least as fast as the fastest point of ``l`` plus both links'
-  linearisation errors (seed 003 adds one ``eps_v``; each link's velocity has its own error);
+  linearisation errors (Thumm et al. 2024 adds one ``eps_v``; each link's velocity has its own
+  error);
 - multi-body clamping (eq. 39-43): body parts whose occupancies intersect and are not a safe
   pair form stacks. Over-approximation used here: the whole connected component of a body part
   (a superset of every path through it) is its virtual body part, with the summed diameter and
@@ -263,7 +264,7 @@ def _closure(adj: np.ndarray) -> np.ndarray:
 
 
 class ContactClassifier:
-    """Seed 003 Sec. VI for fixed robot/human topology; call :meth:`classify` every cycle.
+    """Thumm et al. 2024 Sec. VI for fixed robot/human topology; call :meth:`classify` every cycle.
 
     ``unclampable (L, L)`` bool (G^(r)), ``human_safe (P, P)`` bool (G^(h)), ``diameters_m
     (P,)``. ``relax_velocity`` / ``relax_diameter`` / ``relax_topology`` / ``multi_body`` switch

@@ -1,4 +1,5 @@
-"""Jerk-based safe set algorithm, JSSA (seed 002): a per-cycle safety filter on the joint jerk.
+"""Jerk-based safe set algorithm, JSSA (Liu et al. 2022): a per-cycle safety filter on the joint
+jerk.
 
 Every control cycle :meth:`JssaController.step` takes the robot state ``(q, q', q'')``, the
 nominal jerk ``u0`` and the humans' (and static obstacles') capsules with their end-point
@@ -72,7 +73,7 @@ class JssaParams(BaseModel):
 
     @model_validator(mode="after")
     def _real_negative_roots(self) -> JssaParams:
-        # 1 + l1 s + l2 s^2 = 0 must have negative real roots (seed 002 Sec. 3.1).
+        # 1 + l1 s + l2 s^2 = 0 must have negative real roots (Liu et al. 2022 Sec. 3.1).
         if self.lambda_1**2 < 4.0 * self.lambda_2:
             raise ValueError(
                 f"lambda_1 = {self.lambda_1}, lambda_2 = {self.lambda_2}: 1 + l1 s + l2 s^2 has "

@@ -1,4 +1,4 @@
-"""JSSA safety index (seed 002 eq. 6, 12) and its linearised constraint (eq. 9-13).
+"""JSSA safety index (Liu et al. 2022 eq. 6, 12) and its linearised constraint (eq. 9-13).
 
 All functions are batched over critical pairs ``K``. A pair's relative state is
 ``delta = [dp; dv; da]`` (robot point minus human/obstacle point, each ``(K, 3)``, world frame)

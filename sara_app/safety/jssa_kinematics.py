@@ -1,11 +1,11 @@
-"""Kinematics of robot points for JSSA (seed 002 eq. 8-11): position, velocity, acceleration
+"""Kinematics of robot points for JSSA (Liu et al. 2022 eq. 8-11): position, velocity, acceleration
 and the jerk map ``p''' = J u + c`` of points fixed in a link frame.
 
 For a point ``p`` fixed in link ``l`` (world frame), with ``J_p (3, n)`` its Jacobian:
 
 - ``p'   = J_p q'``
 - ``p''  = J_p q'' + J_p' q'``
-- ``p''' = J_p u + c``,  ``c = J_p'' q' + 2 J_p' q''``  (seed 002 eq. 10-11, ``u = q'''``)
+- ``p''' = J_p u + c``,  ``c = J_p'' q' + 2 J_p' q''``  (Liu et al. 2022 eq. 10-11, ``u = q'''``)
 
 ``J_p`` and ``J_p'`` come from pinocchio's world-frame joint Jacobians ``data.J`` and their time
 variation ``data.dJ`` (``computeJointJacobiansTimeVariation``): with ``J = [J_lin; J_ang]``

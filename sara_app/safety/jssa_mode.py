@@ -1,4 +1,4 @@
-"""JSSA as a safety mode of the cell (seed 002): the :class:`Shield` interface around a
+"""JSSA as a safety mode of the cell (Liu et al. 2022): the :class:`Shield` interface around a
 jerk-level tracking controller whose jerk :class:`~sara_app.safety.jssa.JssaController` filters.
 
 Per cycle (``dt = settings.dt_s``):

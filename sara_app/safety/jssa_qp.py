@@ -1,4 +1,4 @@
-"""The JSSA projection (seed 002 eq. 14) and the fallback brake.
+"""The JSSA projection (Liu et al. 2022 eq. 14) and the fallback brake.
 
 ``min_u sum_i w_i (u_i - u0_i)^2  s.t.  G u <= b,  lo <= u <= hi``  (``w > 0``: diagonal ``V``).
 

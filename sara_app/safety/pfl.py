@@ -1,11 +1,12 @@
-"""Power and force limiting check (seed 003 eq. 6-7, 47-48): the PFL verdict of one trajectory.
+"""Power and force limiting check (Thumm et al. 2024 eq. 6-7, 47-48): the PFL verdict of one
+trajectory.
 
 ``c_safe,i,j = ~contact  |  (free & T_i < T_free,i^j)  |  (clamped & T_i < T_clamp,i^j)`` for
 every interval ``k``, robot link ``i`` and body part ``j`` (eq. 7), with the contact classes of
 :mod:`sara_app.safety.contact` and ``T_i`` the link's energy over the interval
 (:mod:`sara_app.robot.energy`): :meth:`PflCheck.check` takes it as given (an interval bound
-``(K, L)``, or seed 003's eq. 47-48 end samples); :meth:`PflCheck.check_trajectory` bounds it
-between the samples from ``|q''|`` and the shield (:mod:`sara_app.safety.pfl_shield`) with the
+``(K, L)``, or Thumm et al. 2024's eq. 47-48 end samples); :meth:`PflCheck.check_trajectory` bounds
+it between the samples from ``|q''|`` and the shield (:mod:`sara_app.safety.pfl_shield`) with the
 exact path-speed peak. A clamped stack of body parts (virtual body part) gets the smallest
 constrained threshold of its members.
 

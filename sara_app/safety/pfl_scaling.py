@@ -16,7 +16,7 @@ least ``hysteresis`` times the cap (so a cap that just verified near its limit s
 most ``raise_factor`` per cycle and only ``hold_cycles`` verified cycles after a failure. The
 cap never goes below ``min_speed_scale`` times the admissible speed at the robot's position:
 there the shield brakes instead. Nobody in the cell: no cap. A robot at rest has no energy and
-always verifies (seed 003: a robot at rest cannot hurt), consistent with the SSM shield.
+always verifies (Thumm et al. 2024: a robot at rest cannot hurt), consistent with the SSM shield.
 
 Defaults, measured in closed loop (``sara-app pfl throughput``): a quick rise (no hold, no rate
 limit) keeps PFL at least as fast as SSM, because whatever SSM verifies (no possible contact) PFL

@@ -1,5 +1,5 @@
-"""The PFL shield (seed 003 Sec. V-VII): the robot may touch a person, but never with more kinetic
-energy than the contact's class allows; near a person it slows down instead of stopping.
+"""The PFL shield (Thumm et al. 2024 Sec. V-VII): the robot may touch a person, but never with more
+kinetic energy than the contact's class allows; near a person it slows down instead of stopping.
 
 Every cycle (see :class:`~sara_app.safety.shield.Shield` for the commit/brake logic, the fault
 handling and the induction, all unchanged): plan the shielded trajectory (one intended step +
@@ -39,7 +39,8 @@ Assumptions beyond the SSM shield's: the link energies are those of the commande
 controller tracks it; the tracking margin widens the robot's capsules only). The energy over an
 interval is bounded with the exact path-speed peak and the configuration factor at the interval
 ends plus the measured margin ``G_MARGIN`` (:func:`sara_app.robot.energy.path_interval_energy_J`;
-seed 003's eq. 47-48 end values alone miss the speed peak inside the first failsafe interval).
+Thumm et al. 2024's eq. 47-48 end values alone miss the speed peak inside the first failsafe
+interval).
 
 Speed: the robot-only work of a check (link energies and twists, interval energies, link-link
 and link-box distances) is done once per checked trajectory and shared by the models

@@ -1,5 +1,6 @@
 """The safety shield: every cycle, verify one intended step + failsafe, else brake on the last
-verified failsafe (seed 000 Sec. II, seed 001 Sec. II-C, seed 003 Sec. III-B).
+verified failsafe (Pereira & Althoff 2016 Sec. II, Schepp et al. 2022 Sec. II-C, Thumm et al. 2024
+Sec. III-B).
 
 Induction: the follower always holds a failsafe stop that was verified, together with the step
 that led to it, against human sets that cover the whole stop (the sets grow from the measurement
@@ -7,7 +8,7 @@ time to the end of the stop). A cycle commits the intended step only if the new 
 trajectory (step + its own stop) verifies; otherwise it advances along the held stop, which
 stays verified. So the robot is always on a verified motion or at rest.
 
-Assumptions (seed 003 Sec. V), stated here because the guarantee rests on them:
+Assumptions (Thumm et al. 2024 Sec. V), stated here because the guarantee rests on them:
 
 - a robot at rest cannot hurt a person (SSM: contact with a resting robot is allowed);
 - the tracking system sees every person in the cell; a person's skeleton stamped ``t`` shows

@@ -1,4 +1,5 @@
-"""The SSA baseline of seed 002 Sec. 4.3: acceleration-level safe set algorithm, jerk saturated.
+"""The SSA baseline of Liu et al. 2022 Sec. 4.3: acceleration-level safe set algorithm, jerk
+saturated.
 
 Index ``phi = d_min^2 - d|d| - lambda_1 d'`` (relative degree 2 to the joint acceleration).
 Per cycle, with the acceleration ``a`` applied over the step (``p'' = a_r + J (a - q''_k)``):
@@ -6,7 +7,7 @@ Per cycle, with the acceleration ``a`` applied over the step (``p'' = a_r + J (a
 The nominal acceleration ``a_0 = q''_k + tau u_0`` is projected onto ``phi_{k+1} <= max(0,
 phi_k - eta tau)`` WITHOUT bounds (the original SSA assumes unbounded acceleration), then the jerk
 ``u = (a_S - q''_k) / tau`` is saturated at the jerk bounds, which may break the constraint: that
-is the baseline's weakness the seed measures. ``saturated`` counts cycles where any joint's jerk
+is the baseline's weakness the paper measures. ``saturated`` counts cycles where any joint's jerk
 was clipped.
 
 Geometry, critical pair, kinematics and fallbacks are those of
@@ -26,7 +27,7 @@ class SsaController(JssaController):
     """Acceleration-level SSA with saturated jerk; same API as :class:`JssaController`.
 
     ``params.lambda_2`` is ignored (SSA has no second-derivative term) and only ``single`` mode
-    exists (the seed's baseline); the seed uses ``lambda_1 = 3``."""
+    exists (the paper's baseline); the paper uses ``lambda_1 = 3``."""
 
     def __init__(
         self,

@@ -1,5 +1,5 @@
 """Speed and separation monitoring: human reachable sets against the robot's occupancy, per
-interval of a shielded trajectory (seed 001 Sec. II-B/C, seed 003 Sec. III-B).
+interval of a shielded trajectory (Schepp et al. 2022 Sec. II-B/C, Thumm et al. 2024 Sec. III-B).
 
 An interval is safe for a human when at least one enabled model's set for that interval is free
 of every robot link capsule of the interval; the trajectory is safe when every interval is safe

@@ -1,11 +1,11 @@
-"""Admissible contact energies for power and force limiting (seed 003 Sec. VII, Table I).
+"""Admissible contact energies for power and force limiting (Thumm et al. 2024 Sec. VII, Table I).
 
 A threshold set (``sara_app/params/<name>.json``, default ``thresholds_seed003``) holds, per
 Table I body *region* (``hand``, ``lower_arm``, ``upper_arm``, ``torso_legs``, ``head``), per
 contact type (``constrained`` = clamping, ``unconstrained`` = free collision) and per worst-case
 contact shape (``blunt``, ``wedge``, ``edge``, ``sheet``) an energy in joules and the key of its
-source. It also holds the body-part diameters of the human-diameter relaxation (seed 003 eq.
-33-34) and, for reference only, the ISO/TS 15066 Annex A values with ``E = F^2 / (2 k)``.
+source. It also holds the body-part diameters of the human-diameter relaxation (Thumm et al. 2024
+eq. 33-34) and, for reference only, the ISO/TS 15066 Annex A values with ``E = F^2 / (2 k)``.
 
 Body parts of the project's skeleton (:mod:`sara_app.human.skeleton`) map to Table I regions BY
 NAME in :data:`BODY_PART_REGION` (feet, thighs and shins are "torso and legs"). Robot links are
@@ -50,7 +50,7 @@ BODY_PART_REGION: dict[str, str] = {
     "l_foot": "torso_legs",
     "r_foot": "torso_legs",
 }
-"""Skeleton body part -> seed 003 Table I region, by name (every full-skeleton part)."""
+"""Skeleton body part -> Thumm et al. 2024 Table I region, by name (every full-skeleton part)."""
 
 _missing = set(FULL_BODY_PARTS) ^ set(BODY_PART_REGION)
 if _missing:  # pragma: no cover - a development error, caught by any import
@@ -220,7 +220,8 @@ def threshold_arrays(
     part_names: Sequence[str],
     shapes: Mapping[str, str] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``(T_free (L, P), T_clamp (L, P))`` in J: seed 003 eq. 47-48's ``T_type,i^(h_j)``."""
+    """``(T_free (L, P), T_clamp (L, P))`` in J: Thumm et al. 2024 eq. 47-48's
+    ``T_type,i^(h_j)``."""
     regions = body_part_regions(part_names)
     per_link = link_shapes(link_names, shapes)
     T_free = np.empty((len(per_link), len(regions)))

@@ -1,4 +1,4 @@
-"""Topology declarations of the PFL check, keyed by name (seed 003 eq. 36-37 and eq. 39).
+"""Topology declarations of the PFL check, keyed by name (Thumm et al. 2024 eq. 36-37 and eq. 39).
 
 - :data:`ROBOT_UNCLAMPABLE_PAIRS`: per robot, the link pairs that cannot clamp a body part
   between them (the set G^(r) of eq. 36). These are design declarations, to be confirmed by the

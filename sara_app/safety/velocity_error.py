@@ -1,5 +1,5 @@
-"""Thm VI.2 of seed 003: a bound on the linearisation error of the projected point velocity of
-every robot link over an interval (the ``eps_v`` of the velocity relaxation in
+"""Thm VI.2 of Thumm et al. 2024: a bound on the linearisation error of the projected point velocity
+of every robot link over an interval (the ``eps_v`` of the velocity relaxation in
 :mod:`sara_app.safety.contact`)."""
 
 from __future__ import annotations
@@ -16,9 +16,9 @@ __all__ = ["VelocityErrorBound"]
 class VelocityErrorBound:
     """Bound of ``|d^2/dt^2 (n . p_dot)|`` over all points of each link (Thm VI.2).
 
-    ``eps_v = dt^2 / 8 * C_l`` (eq. 52: interpolation error of a C^2 function; seed 003 eq. 27
-    prints ``dt / 8``, which is not dimensionally a speed). ``C_l`` bounds the jerk of every point
-    of link ``l`` from joint speed, acceleration and jerk bounds. Two forms:
+    ``eps_v = dt^2 / 8 * C_l`` (eq. 52: interpolation error of a C^2 function; Thumm et al. 2024 eq.
+    27 prints ``dt / 8``, which is not dimensionally a speed). ``C_l`` bounds the jerk of every
+    point of link ``l`` from joint speed, acceleration and jerk bounds. Two forms:
 
     - ``"spatial"`` (default, derived for 3-D revolute chains): angular velocity, acceleration
       and jerk bounds of each body propagate along the chain (``W_i = W + |qd_i|``, ``A_i = A +
@@ -26,7 +26,8 @@ class VelocityErrorBound:
       derivatives of ``Omega_i = Omega_i-1 + qd_i a_i`` with the axis ``a_i`` turning with its
       parent), and a point ``s`` metres further on body ``i`` adds ``s (B_i + 3 A_i W_i +
       W_i^3)`` to the jerk (third derivative of ``s`` rotating with the body);
-    - ``"paper"``: seed 003 eq. 27 (planar derivation, with the factor 2 of eq. 53 on the middle
+    - ``"paper"``: Thumm et al. 2024 eq. 27 (planar derivation, with the factor 2 of eq. 53 on the
+    middle
       term), which omits the terms from turning axes. Kept for comparison.
 
     Lengths: ``d`` are the distances between consecutive joint origins along each link's chain
@@ -131,7 +132,7 @@ class VelocityErrorBound:
 def _paper_coefficient(
     chain: list[int], d: np.ndarray, qd: np.ndarray, qdd: np.ndarray, qddd: np.ndarray
 ) -> np.ndarray:
-    """Seed 003 eq. 27 bracket summed over k <= i along ``chain`` (i = segment index)."""
+    """Thumm et al. 2024 eq. 27 bracket summed over k <= i along ``chain`` (i = segment index)."""
     total = np.zeros(qd.shape[:-1])
     if not chain:
         return total

@@ -1,5 +1,5 @@
-"""Sampling check of seed 002 eq. 7: at states on the boundary ``phi = 0``, is there a jerk in
-the box that does not increase ``phi``?
+"""Sampling check of Liu et al. 2022 eq. 7: at states on the boundary ``phi = 0``, is there a jerk
+in the box that does not increase ``phi``?
 
 ``max_{x: phi(x) = 0} min_{u in U} phi'(x, u) <= 0``, approximated as the paper does, by samples.
 A sample: a random configuration within the position limits, joint velocities and accelerations
@@ -23,7 +23,7 @@ from sara_app.safety.jssa import JssaController, JssaParams
 from sara_app.safety.jssa_index import index_terms, linear_constraints, predict_delta, safety_index
 
 HUMAN_RADIUS_M = 0.05
-"""Radius of the sampled human capsule (an arm, seed 001 Table I thickness 0.1 m)."""
+"""Radius of the sampled human capsule (an arm, Schepp et al. 2022 Table I thickness 0.1 m)."""
 
 
 class FeasibilityReport(NamedTuple):

@@ -1,12 +1,12 @@
-"""Seed 002's simulation study (Sec. 4.1-4.3) for the project's robots.
+"""Liu et al. 2022's simulation study (Sec. 4.1-4.3) for the project's robots.
 
 A robot holds its home pose (a jerk-level tracking law as the nominal controller, the role of the
-seed's JPC) while a scripted human walks in front of it, stops and leaves. Each cycle the safety
+paper's JPC) while a scripted human walks in front of it, stops and leaves. Each cycle the safety
 filter (:class:`JssaController` or :class:`SsaController`) modifies the nominal jerk and the
 robot integrates eq. 1. Outputs: the traces of minimum distance, relative velocity and
 acceleration at the critical pair, critical links and filter activity (:func:`run_episode`,
-:func:`plot_trace`), the sensitivity table over ``lambda_1, lambda_2`` in the format of seed 002
-Table 1 (:func:`sensitivity_table`) and JSSA versus SSA (:func:`compare_ssa`).
+:func:`plot_trace`), the sensitivity table over ``lambda_1, lambda_2`` in the format of Liu et al.
+2022 Table 1 (:func:`sensitivity_table`) and JSSA versus SSA (:func:`compare_ssa`).
 
 Reusable: a :class:`Scenario` is a robot, a home pose, a human function ``t -> HumanSample``
 (capsules, end velocities and accelerations; the filter sees only positions and velocities) and
@@ -14,7 +14,7 @@ optional static obstacle capsules; any filter with the ``step`` API of :class:`J
 runs in :func:`run_episode`.
 
 The human is a rigid standing body (the 14 capsules of the ``full`` skeleton, radii = half the
-thickness of the ``seed001_table1`` parameter set) translating in the XY plane, as the seed's
+thickness of the ``seed001_table1`` parameter set) translating in the XY plane, as the paper's
 mouse-driven human does.
 """
 
@@ -87,7 +87,7 @@ def rigid_human(
 def seed_walk(
     x_far: float = 2.6, x_near: float = 1.2, y: float = 0.0, t0: float = 0.5, T: float = 5.0
 ) -> HumanFn:
-    """The seed's Fig. 5 script: the human faces the robot (at the origin, looking along -x),
+    """The paper's Fig. 5 script: the human faces the robot (at the origin, looking along -x),
     walks from ``x_far`` to ``x_near``, decelerates, turns back and leaves; a raised-cosine
     profile ``x(t) = x_far - (x_far - x_near) (1 - cos(2 pi (t - t0) / T)) / 2`` on
     ``[t0, t0 + T]`` (peak speed ``pi (x_far - x_near) / T``)."""
@@ -218,7 +218,7 @@ def run_episode(scenario: Scenario, filt: JssaController) -> Trace:
 
 
 class Summary(NamedTuple):
-    """Seed 002 Table 1 entry plus the counts the comparison needs."""
+    """Liu et al. 2022 Table 1 entry plus the counts the comparison needs."""
 
     min_distance_m: float
     first_trigger_s: float
@@ -255,7 +255,8 @@ def summarize(tr: Trace) -> Summary:
 def sensitivity_table(
     scenario: Scenario, values: tuple[float, ...] = (6.0, 7.0, 8.0), base: JssaParams | None = None
 ) -> dict[tuple[float, float], Summary]:
-    """Summaries for every ``(lambda_1, lambda_2)`` in ``values x values`` (seed 002 Sec. 4.2)."""
+    """Summaries for every ``(lambda_1, lambda_2)`` in ``values x values`` (Liu et al. 2022 Sec.
+    4.2)."""
     base = base or JssaParams()
     out = {}
     for l2 in values:
@@ -266,7 +267,7 @@ def sensitivity_table(
 
 
 def format_table(table: dict[tuple[float, float], Summary]) -> str:
-    """Seed 002 Table 1 layout: rows lambda_2, columns lambda_1, entries (min distance; first
+    """Liu et al. 2022 Table 1 layout: rows lambda_2, columns lambda_1, entries (min distance; first
     trigger; last trigger; duration; mean critical velocity; mean critical acceleration)."""
     l1s = sorted({k[0] for k in table})
     l2s = sorted({k[1] for k in table})
@@ -334,8 +335,8 @@ def format_trace(tr: Trace, every_s: float = 0.25) -> str:
 
 
 def plot_trace(tr: Trace, path: str, title: str, d_min_m: float) -> None:
-    """Seed 002 Fig. 6 style PNG: distance, relative velocity, relative acceleration, critical
-    links, activity."""
+    """Liu et al. 2022 Fig. 6 style PNG: distance, relative velocity, relative acceleration,
+    critical links, activity."""
     import matplotlib
 
     matplotlib.use("Agg")
