@@ -25,8 +25,10 @@ from pydantic import (
 )
 
 from sara_app.errors import SaraError, ScenarioError
+from sara_app.human.params import RENAMED as PARAM_SETS_RENAMED
 from sara_app.human.params import ParamSet, load_param_set, parse_param_set
 from sara_app.human.reach import MODELS
+from sara_app.safety.thresholds import RENAMED as THRESHOLDS_RENAMED
 
 Vec3 = tuple[float, float, float]
 Finite = Annotated[float, Field(allow_inf_nan=False)]
@@ -136,12 +138,17 @@ class PflSpec(_Strict):
     """Power and force limiting (Thumm et al. 2024): threshold set, edits, contact shapes, speed
     scaling."""
 
-    thresholds: str = "thresholds_seed003"
+    thresholds: str = "thresholds_thumm2024"
     overrides: list[ThresholdOverride] = []
     link_shapes: dict[str, Shape] = {}
     """Worst-case contact shape per robot link name (default blunt): the tool's shape."""
     min_speed_scale: Annotated[float, Field(gt=0, le=1)] = 0.02
     """Below this fraction of the path's admissible speed the shield brakes instead."""
+
+    @field_validator("thresholds")
+    @classmethod
+    def _current_name(cls, v: str) -> str:
+        return THRESHOLDS_RENAMED.get(v, v)
 
     @field_validator("overrides")
     @classmethod
@@ -234,7 +241,7 @@ class Scenario(_Strict):
     task: TaskSpec
     environment: list[BoxSpec] = []
     humans: list[HumanSpec] = []
-    human_params: str | dict[str, Any] = "seed001_table1"
+    human_params: str | dict[str, Any] = "schepp2022_table1"
     """A parameter-set name (see ``sara_app/params``) or a full inline parameter set."""
     shield: ShieldSpec = ShieldSpec()
     inputs: InputSpec = InputSpec()
@@ -252,6 +259,8 @@ class Scenario(_Strict):
     @field_validator("human_params")
     @classmethod
     def _params_valid(cls, v: str | dict[str, Any]) -> str | dict[str, Any]:
+        if isinstance(v, str):
+            v = PARAM_SETS_RENAMED.get(v, v)
         try:
             if isinstance(v, str):
                 load_param_set(v)

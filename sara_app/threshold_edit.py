@@ -1,7 +1,7 @@
 """Editing a cell's contact-energy thresholds (Thumm et al. 2024 Table I) through its scenario.
 
 A scenario's PFL thresholds are a named set (``shield.pfl.thresholds``, e.g.
-``thresholds_seed003``) plus ``shield.pfl.overrides``: the entries the safety engineer changed.
+``thresholds_thumm2024``) plus ``shield.pfl.overrides``: the entries the safety engineer changed.
 Every entry has a *source*: the set's value and the key of the publication it comes from. An
 edit is a new scenario with a changed ``overrides`` list, sent to the worker like any other
 scenario edit (validated, acknowledged, never half-applied).

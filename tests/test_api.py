@@ -206,14 +206,14 @@ def test_scenario_save_validates_and_never_overwrites_silently(
 def test_parameter_and_threshold_sets(offline: tuple[CellRegistry, TestClient, Clock]) -> None:
     _, client, _ = offline
     names = client.get("/api/params").json()
-    assert "seed001_table1" in names and set(names) <= set(available_param_sets())
+    assert "schepp2022_table1" in names and set(names) <= set(available_param_sets())
     for name in names:
         assert client.get(f"/api/params/{name}").json() == load_param_set(name).model_dump()
     for name in set(available_param_sets()) - set(names):  # files of another kind
         with pytest.raises(SaraError):
             load_param_set(name)
     r = client.get("/api/params/nope")
-    assert r.status_code == 404 and "seed001_table1" in r.json()["detail"]
+    assert r.status_code == 404 and "schepp2022_table1" in r.json()["detail"]
     assert client.get("/api/params/..").status_code in (404, 422)
     assert client.get("/api/thresholds").json() == list(threshold_set_names())
     for name in threshold_set_names():

@@ -31,7 +31,7 @@ from sara_app.errors import WorkerTimeoutError
 from sara_app.safety.thresholds import load_thresholds
 from sara_app.scenario import parse_scenario, scenarios_dir
 
-SEED = load_thresholds("thresholds_seed003")
+SEED = load_thresholds("thresholds_thumm2024")
 HAND = {"region": "hand", "contact": "constrained", "shape": "blunt"}
 
 
@@ -92,7 +92,7 @@ def test_effective_table(api: tuple[StandInRegistry, TestClient, AuditLog]) -> N
     _, client, _ = api
     t = client.get("/api/cells/c1/thresholds").json()
     assert t["cell"] == "c1" and t["scenario"] == "empty_cell" and t["base"] == "file"
-    assert t["thresholds"] == "thresholds_seed003" and len(t["entries"]) == 40
+    assert t["thresholds"] == "thresholds_thumm2024" and len(t["entries"]) == 40
     assert t["sources"] == SEED.sources
     r = _row(t, "hand", "constrained", "blunt")
     assert r["energy_J"] == r["source_energy_J"] == SEED.energy_J("hand", "constrained", "blunt")

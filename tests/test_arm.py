@@ -97,7 +97,7 @@ def _arm_traj(rng, p, profile):
 @pytest.mark.parametrize("seed", range(4))
 def test_arm_model_contains_bounded_arm_motion(profile: str, seed: int, with_rates: bool) -> None:
     rng = np.random.default_rng(seed)
-    params = to_reach_params(load_param_set("seed001_table1"), "full")
+    params = to_reach_params(load_param_set("schepp2022_table1"), "full")
     reach = HumanReach(params)
     sk = skeleton("full")
     p = params.arm

@@ -65,7 +65,7 @@ def test_glitch_frame_is_reported_as_driver() -> None:
 
 def test_calibrated_set_contains_what_the_base_set_misses() -> None:
     rec = _synthetic(3.5)
-    base = load_param_set("seed001_table1")
+    base = load_param_set("schepp2022_table1")
     before = containment(
         HumanReach(to_reach_params(base, "full")), rec.times_s, rec.positions_m, 0.3
     )

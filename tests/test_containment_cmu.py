@@ -33,7 +33,7 @@ def results():
     out = {}
     for clip in ("02_01", "09_06", "13_18"):
         rec = _rec(clip)
-        for ps_name in ("seed001_table1", "cmu_calibrated"):
+        for ps_name in ("schepp2022_table1", "cmu_calibrated"):
             reach = HumanReach(to_reach_params(load_param_set(ps_name), rec.kind))
             out[clip, ps_name] = containment(reach, rec.times_s, rec.positions_m, HORIZON_S)
     return out
@@ -49,7 +49,7 @@ def test_calibrated_set_contains_every_clip_with_every_model(results) -> None:
 def test_table1_walk_position_model_is_sound_acceleration_model_misses_a_heel_strike(
     results,
 ) -> None:
-    walk = results["02_01", "seed001_table1"]
+    walk = results["02_01", "schepp2022_table1"]
     assert walk["pos"].share == 1.0
     # The right heel strike at t = 2.408 s decelerates the ankle beyond 50 m/s^2: R_ACC with
     # Table I misses it by a few millimetres, and nothing else in the walk.
@@ -61,7 +61,7 @@ def test_table1_walk_position_model_is_sound_acceleration_model_misses_a_heel_st
 
 def test_table1_velocity_models_miss_the_walks_swinging_ankles(results) -> None:
     """Schepp et al. 2022 Table I's 2 m/s does not bound a plain walk's ankles (DESIGN sec. 6)."""
-    walk = results["02_01", "seed001_table1"]
+    walk = results["02_01", "schepp2022_table1"]
     for m in ("vel", "iso13855"):
         assert walk[m].share < 1.0
         assert {"l_ankle", "r_ankle"} <= set(walk[m].misses_per_joint)
@@ -69,9 +69,9 @@ def test_table1_velocity_models_miss_the_walks_swinging_ankles(results) -> None:
 
 
 def test_table1_misses_boxing_hands_and_running_body(results) -> None:
-    box = results["13_18", "seed001_table1"]
+    box = results["13_18", "schepp2022_table1"]
     for m in ("vel", "iso13855"):
         assert {"l_wrist", "r_wrist"} <= set(box[m].misses_per_joint)
-    run = results["09_06", "seed001_table1"]
+    run = results["09_06", "schepp2022_table1"]
     assert run["vel"].share < 0.5  # the runner's whole body exceeds 2 m/s
     assert "pelvis" in run["vel"].misses_per_joint

@@ -149,7 +149,7 @@ def test_delay_edit_flips_the_verdict_for_a_fixed_person(live: Live) -> None:
     person = Person(live, 1.4)  # 1.4 m away: free for the sets at a 10 ms delay
     try:
         assert live.failsafe_share(1.5) < 0.1
-        named = load_param_set("seed001_table1").model_dump(mode="json")
+        named = load_param_set("schepp2022_table1").model_dump(mode="json")
         slow = {**named, "name": "slow_sensor", "delay_s": 0.3}
         r = live.client.post(
             f"/api/cells/{CELL}/scenario", json=_scenario_with(live, human_params=slow)
@@ -168,7 +168,7 @@ def test_delay_edit_flips_the_verdict_for_a_fixed_person(live: Live) -> None:
         assert audit[0]["outcome"] == "applied" and audit[0]["user"] == "e2e"
         r = live.client.post(
             f"/api/cells/{CELL}/scenario",
-            json=_scenario_with(live, human_params="seed001_table1"),
+            json=_scenario_with(live, human_params="schepp2022_table1"),
         )
         assert r.status_code == 200, r.text
         assert live.failsafe_share(1.5) < 0.1  # back to a 10 ms delay: it works again

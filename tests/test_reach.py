@@ -23,7 +23,7 @@ T_END = np.array([0.004, 0.05, 0.1, 0.2, 0.35])
 
 
 def _reach(kind: str) -> HumanReach:
-    return HumanReach(to_reach_params(load_param_set("seed001_table1"), kind))
+    return HumanReach(to_reach_params(load_param_set("schepp2022_table1"), kind))
 
 
 def _rand_ball(rng: np.random.Generator, shape: tuple[int, ...], radius: np.ndarray) -> np.ndarray:
@@ -233,17 +233,17 @@ def test_bad_intervals_and_missing_velocities() -> None:
 
 
 def test_parameter_sets_are_complete_by_name() -> None:
-    data = load_param_set("seed001_table1").model_dump()
+    data = load_param_set("schepp2022_table1").model_dump()
     del data["joints"]["l_elbow"]
     with pytest.raises(ParameterError, match="l_elbow"):
         parse_param_set(data)
-    data = load_param_set("seed001_table1").model_dump()
+    data = load_param_set("schepp2022_table1").model_dump()
     data["body_parts"]["tail"] = data["body_parts"]["head"]
     with pytest.raises(ParameterError, match="tail"):
         parse_param_set(data)
-    data = load_param_set("seed001_table1").model_dump()
+    data = load_param_set("schepp2022_table1").model_dump()
     data["joints"]["head"]["v_max_mps"] = 0.0
     with pytest.raises(ParameterError, match="v_max_mps"):
         parse_param_set(data)
-    with pytest.raises(UnknownNameError, match="seed001_table1"):
+    with pytest.raises(UnknownNameError, match="schepp2022_table1"):
         load_param_set("no_such_set")

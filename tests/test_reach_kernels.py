@@ -17,7 +17,7 @@ from sara_app.human.reach import HumanReach
 
 SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 REACH = {
-    kind: HumanReach(to_reach_params(load_param_set("seed001_table1"), kind))
+    kind: HumanReach(to_reach_params(load_param_set("schepp2022_table1"), kind))
     for kind in ("full", "upper")
 }
 

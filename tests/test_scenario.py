@@ -99,7 +99,7 @@ MALFORMED: list[tuple[str, Callable[[dict], None], tuple[str, ...]]] = [
     ("unknown model", _set("shield.models", ["pos", "fast"]), ("shield.models", "'fast'", "acc")),
     ("no model", _set("shield.models", []), ("shield.models",)),
     ("unknown robot", _set("robot.name", "kuka"), ("robot.name", "panda", "ur5e")),
-    ("unknown parameter set", _set("human_params", "nope"), ("human_params", "seed001_table1")),
+    ("unknown parameter set", _set("human_params", "nope"), ("human_params", "schepp2022_table1")),
     ("negative margin", _set("robot.margin_m", -0.01), ("robot.margin_m",)),
     ("interval too long", _set("shield.max_interval_s", 1.0), ("shield.max_interval_s",)),
     ("no waypoints", _set("task.waypoints_rad", []), ("task.waypoints_rad",)),
@@ -199,7 +199,7 @@ def test_yaml_loads_like_json(tmp_path: Path) -> None:
 TOML = """
 name = "toml_cell"
 description = "written by hand"
-human_params = "seed001_table1"
+human_params = "schepp2022_table1"
 
 [robot]
 name = "panda"
@@ -287,3 +287,16 @@ def test_unknown_recording_is_refused_at_load(tmp_path):
     path.write_text(json.dumps(data))
     with pytest.raises(ScenarioError, match=r"humans\.0\.recording.*99_99"):
         load_scenario(path)
+
+
+def test_set_names_from_before_the_rename_load_the_renamed_sets() -> None:
+    """Scenarios and saved cell states written before the shipped sets were named by their papers
+    (2026-11-25) still load, with the current names."""
+    data = load_scenario("punches").model_dump(mode="json")
+    data["human_params"] = "seed001_table1"
+    data["shield"]["pfl"]["thresholds"] = "thresholds_seed003"
+    sc = parse_scenario(data, "old names")
+    assert (sc.human_params, sc.shield.pfl.thresholds) == (
+        "schepp2022_table1",
+        "thresholds_thumm2024",
+    )

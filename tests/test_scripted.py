@@ -42,7 +42,7 @@ SCRIPTED = [
     for h in load_scenario(name).humans
     if isinstance(h, ScriptedHuman)
 ]
-PARAMS = to_reach_params(load_param_set("seed001_table1"), "full")
+PARAMS = to_reach_params(load_param_set("schepp2022_table1"), "full")
 
 
 def _samples(m: ScriptedMotion, dt: float) -> np.ndarray:

@@ -22,7 +22,7 @@ from sara_app.scenario import parse_scenario
 from sara_app.sim import Simulation
 
 ROBOT = load_robot("panda")
-PARAMS = to_reach_params(load_param_set("seed001_table1"), "full")
+PARAMS = to_reach_params(load_param_set("schepp2022_table1"), "full")
 REACH = HumanReach(PARAMS)
 WPS = np.array([[-1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.8], [1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.8]])
 DT = ShieldSettings().dt_s

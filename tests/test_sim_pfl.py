@@ -25,7 +25,7 @@ from sara_app.sim_episodes import run_episodes
 TABLE = {"name": "table", "center_m": [0.65, 0.0, 0.1], "size_m": [0.5, 1.6, 0.2]}
 Q0 = np.array([0.0, 0.3, 0.0, -1.8, 0.0, 2.1, 0.8])
 V0 = np.array([0.3, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # joint 1 only: every link above it moves
-TS = load_thresholds("thresholds_seed003")
+TS = load_thresholds("thresholds_thumm2024")
 
 
 def _truth(boxes: list[dict[str, object]]) -> ContactTruth:

@@ -23,7 +23,7 @@ from sara_app.human.scripted import aim_arm, joints, standing
 from sara_app.safety.ssm import SsmVerifier, body_distance, boxes_of
 
 SETTINGS = settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-PARAMS = to_reach_params(load_param_set("seed001_table1"), "full")
+PARAMS = to_reach_params(load_param_set("schepp2022_table1"), "full")
 REACH = HumanReach(PARAMS)
 BAND_M = 1e-9  # pairs this close to touching are round-off ties: skipped in exact comparisons
 

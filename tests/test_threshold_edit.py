@@ -23,7 +23,7 @@ from sara_app.threshold_edit import (
     threshold_view,
 )
 
-SEED = load_thresholds("thresholds_seed003")
+SEED = load_thresholds("thresholds_thumm2024")
 ENTRIES = list(itertools.product(REGIONS, CONTACTS, SHAPES))
 
 
@@ -117,7 +117,7 @@ def test_view_is_the_effective_table(sc: Scenario) -> None:
     assert iso["face"]["energy_J"] == pytest.approx(65.0**2 / (2 * 75e3))  # E = F^2 / (2 k)
     free = next(r for r in rows if r["region"] == "hand" and r["contact"] == "unconstrained")
     assert free["iso_reference"][0]["energy_J"] == pytest.approx(4 * 140.0**2 / (2 * 75e3))
-    assert view["thresholds"] == "thresholds_seed003" and view["safety_mode"] == "ssm"
+    assert view["thresholds"] == "thresholds_thumm2024" and view["safety_mode"] == "ssm"
 
 
 def test_apply_records_every_outcome(sc: Scenario, tmp_path: Path) -> None:

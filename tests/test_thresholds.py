@@ -92,7 +92,7 @@ def _write(tmp_path: Path, data: dict) -> Path:
 
 
 def test_incomplete_or_unknown_entries_are_errors_naming_them(tmp_path: Path) -> None:
-    base = json.loads((PARAM_DIR / "thresholds_seed003.json").read_text())
+    base = json.loads((PARAM_DIR / "thresholds_thumm2024.json").read_text())
     d = json.loads(json.dumps(base))
     del d["table"]["head"]
     with pytest.raises(ParameterError, match="missing body region head"):

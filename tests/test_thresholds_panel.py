@@ -18,7 +18,7 @@ from sara_app.errors import ScenarioError
 from sara_app.safety.thresholds import load_thresholds
 from sara_app.scenario import Scenario, check_against_robot, load_scenario, parse_scenario
 
-SEED = load_thresholds("thresholds_seed003")
+SEED = load_thresholds("thresholds_thumm2024")
 
 
 class StandInCell:

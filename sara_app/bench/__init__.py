@@ -33,7 +33,7 @@ def _human(H: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np
 
 def bench_reach(n: int = 2000) -> list[tuple[str, float, float, str]]:
     """All three SaRA models: one human one horizon, 10 intervals, batches of 1, 8, 64."""
-    reach = HumanReach(to_reach_params(load_param_set("seed001_table1"), "full"))
+    reach = HumanReach(to_reach_params(load_param_set("schepp2022_table1"), "full"))
     rng = np.random.default_rng(0)
     rows = []
     one_s, one_e = np.array([0.0]), np.array([0.3])

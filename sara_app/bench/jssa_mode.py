@@ -20,7 +20,7 @@ def _bench_mode(constraints: str = "single") -> tuple[JssaMode, list[HumanState]
     from sara_app.robot.trajectory import PathFollower
 
     robot = load_robot("panda")
-    reach = HumanReach(to_reach_params(load_param_set("seed001_table1"), "full"))
+    reach = HumanReach(to_reach_params(load_param_set("schepp2022_table1"), "full"))
     wps = np.array([[-1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.8], [1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.8]])
     follower = PathFollower(wps, robot.limits, blend_distance=0.1)
     spec = JssaSpec(constraints=constraints)  # type: ignore[arg-type]

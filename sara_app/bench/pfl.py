@@ -45,7 +45,7 @@ def check_scene(K: int = 10) -> tuple[PflCheck, dict[str, np.ndarray]]:
         + [[0.6, 0.1, 0.95], [0.6, -0.1, 0.95], [0.6, 0.1, 0.5], [0.6, -0.1, 0.5]]
         + [[0.6, 0.1, 0.05], [0.6, -0.1, 0.05]]
     )
-    reach = HumanReach(to_reach_params(load_param_set("seed001_table1"), "full"))
+    reach = HumanReach(to_reach_params(load_param_set("schepp2022_table1"), "full"))
     occ = reach.vel(y[None], t[1:])
     h_ends = np.broadcast_to(occ.ends[0], (K, sk.n_parts, 2, 3)).copy()
     h_radius = np.broadcast_to(occ.radius[0], (K, sk.n_parts)).copy()

@@ -34,7 +34,7 @@ PERSON_XY_M = (1.1, 0.3)
 
 def _setup() -> tuple[Shield, PathFollower, list[HumanState], float]:
     robot = load_robot("panda")
-    reach = HumanReach(to_reach_params(load_param_set("seed001_table1"), "full"))
+    reach = HumanReach(to_reach_params(load_param_set("schepp2022_table1"), "full"))
     shield = Shield(robot, PathFollower(WAYPOINTS_RAD, robot.limits), reach, ShieldSettings())
     yaw = math.atan2(-PERSON_XY_M[1], -PERSON_XY_M[0])
     y = joints(standing(PERSON_XY_M, yaw))

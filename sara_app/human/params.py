@@ -21,6 +21,9 @@ from sara_app.errors import ParameterError, UnknownNameError
 from sara_app.human.skeleton import FULL_BODY_PARTS, FULL_JOINTS, skeleton
 
 PARAM_DIR = Path(__file__).resolve().parent.parent / "params"
+RENAMED = {"seed001_table1": "schepp2022_table1"}
+"""Shipped set names before 2026-11-25: scenarios and saved cell states that still name them
+load the renamed set."""
 
 Pos = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
 NonNeg = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
@@ -150,8 +153,9 @@ def parse_param_set(data: object, origin: str = "<data>") -> ParamSet:
         raise ParameterError(f"invalid parameter set {origin}: {e}") from None
 
 
-def load_param_set(name_or_path: str | Path = "seed001_table1") -> ParamSet:
+def load_param_set(name_or_path: str | Path = "schepp2022_table1") -> ParamSet:
     """Load a shipped set by name (see ``available_param_sets``) or a JSON file by path."""
+    name_or_path = RENAMED.get(str(name_or_path), name_or_path)
     path = Path(name_or_path)
     if path.suffix != ".json":
         path = PARAM_DIR / f"{name_or_path}.json"

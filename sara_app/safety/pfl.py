@@ -18,7 +18,7 @@ human set may touch a link.
 
 Usage (built once per cell, :meth:`PflCheck.check` every control cycle)::
 
-    pfl = PflCheck(model, skeleton("full").parts)               # thresholds_seed003, blunt links
+    pfl = PflCheck(model, skeleton("full").parts)               # thresholds_thumm2024, blunt links
     res = pfl.check(r_ends, r_radius, s_ends, p1_dot, omega, dt,
                     h_ends, h_radius, T_world_box, half_extents_m, energy_J)
     res.safe_all  # bool: eq. 6
@@ -162,7 +162,7 @@ class PflCheck:
         model: RobotModel,
         part_names: Sequence[str],
         *,
-        thresholds: ThresholdSet | str = "thresholds_seed003",
+        thresholds: ThresholdSet | str = "thresholds_thumm2024",
         link_shapes: Mapping[str, str] | None = None,
         human_index: Sequence[int] | np.ndarray | None = None,
         unclampable_pairs: Sequence[tuple[str, str]] | None = None,

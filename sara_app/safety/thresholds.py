@@ -1,6 +1,6 @@
 """Admissible contact energies for power and force limiting (Thumm et al. 2024 Sec. VII, Table I).
 
-A threshold set (``sara_app/params/<name>.json``, default ``thresholds_seed003``) holds, per
+A threshold set (``sara_app/params/<name>.json``, default ``thresholds_thumm2024``) holds, per
 Table I body *region* (``hand``, ``lower_arm``, ``upper_arm``, ``torso_legs``, ``head``), per
 contact type (``constrained`` = clamping, ``unconstrained`` = free collision) and per worst-case
 contact shape (``blunt``, ``wedge``, ``edge``, ``sheet``) an energy in joules and the key of its
@@ -28,7 +28,9 @@ from sara_app.errors import ParameterError, UnknownNameError
 from sara_app.human.skeleton import FULL_BODY_PARTS
 
 PARAM_DIR = Path(__file__).resolve().parent.parent / "params"
-DEFAULT_SET = "thresholds_seed003"
+DEFAULT_SET = "thresholds_thumm2024"
+RENAMED = {"thresholds_seed003": DEFAULT_SET}
+"""Shipped set names before 2026-11-25 (scenarios and saved cell states that still name them)."""
 
 REGIONS: tuple[str, ...] = ("hand", "lower_arm", "upper_arm", "torso_legs", "head")
 CONTACTS: tuple[str, ...] = ("constrained", "unconstrained")
@@ -180,7 +182,7 @@ def threshold_set_names() -> tuple[str, ...]:
 
 def load_thresholds(name_or_path: str | Path = DEFAULT_SET) -> ThresholdSet:
     """Load a threshold set by name (``sara_app/params/<name>.json``) or by path."""
-    text = str(name_or_path)
+    text = RENAMED.get(str(name_or_path), str(name_or_path))
     path = Path(text)
     if text in threshold_set_names():
         path = PARAM_DIR / f"{text}.json"

@@ -14,7 +14,7 @@ optional static obstacle capsules; any filter with the ``step`` API of :class:`J
 runs in :func:`run_episode`.
 
 The human is a rigid standing body (the 14 capsules of the ``full`` skeleton, radii = half the
-thickness of the ``seed001_table1`` parameter set) translating in the XY plane, as the paper's
+thickness of the ``schepp2022_table1`` parameter set) translating in the XY plane, as the paper's
 mouse-driven human does.
 """
 
@@ -52,7 +52,7 @@ _WRISTS_M = {"l": (0.42, 0.20, 0.32), "r": (0.38, -0.20, 0.20)}
 
 def _human_geometry() -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
     """Body-part capsule ends relative to the pelvis ``(P, 2, 3)`` (facing +x), radii ``(P,)``
-    (half the thickness of ``seed001_table1``) and part names, of the ``full`` skeleton."""
+    (half the thickness of ``schepp2022_table1``) and part names, of the ``full`` skeleton."""
     from sara_app.human.params import load_param_set, to_reach_params
     from sara_app.human.scripted import aim_arm, joints, standing
     from sara_app.human.skeleton import skeleton
@@ -62,7 +62,7 @@ def _human_geometry() -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
     for side, target in _WRISTS_M.items():
         pose = aim_arm(pose, side, pose.pelvis + np.array(target))
     y = joints(pose) - pose.pelvis
-    radius = to_reach_params(load_param_set("seed001_table1"), "full").half_thickness_m
+    radius = to_reach_params(load_param_set("schepp2022_table1"), "full").half_thickness_m
     return y[sk.part_joints], np.asarray(radius, dtype=float), sk.parts
 
 
