@@ -2,7 +2,7 @@
 the end-to-end latency from a skeleton's publication to the reception of the first verdict that
 used it, through a zenoh router and a cell worker process (all on 127.0.0.1).
 
-Latency set-up (issue 4: p99 at most 5 ms at 120 Hz input): this process hosts the router (as
+Latency set-up (target: p99 at most 5 ms at 120 Hz input): this process hosts the router (as
 ``sara-app serve`` does), publishes one person's skeletons at 120 Hz from a thread, paced on the
 clock (not waiting for the answers), and stamps each verdict when zenoh delivers it (callback
 subscriber; decoding comes after the run). The worker runs ``empty_cell`` with the person 1.5 m

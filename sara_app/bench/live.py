@@ -1,4 +1,4 @@
-"""The worker's cycle time with the dashboard and a browser connected versus without (issue 4:
+"""The worker's cycle time with the dashboard and a browser connected versus without (target:
 no more than 10 % worse), measured on the live stack of ``sara-app serve``.
 
 A Zenoh router (a process of its own), the reference controller, a cell worker and a replayer

@@ -98,6 +98,13 @@ def check_name(what: str, name: object) -> str:
     return name
 
 
+def key_pattern(kind: str) -> str:
+    """The key of ``kind`` with placeholders: ``sara/<cell>/human/<id>/skeleton``."""
+    if kind not in _SUFFIX:
+        raise UnknownNameError("message kind", kind, KINDS)
+    return f"{ROOT}/<cell>/" + _SUFFIX[kind].replace("{id}", "<id>")
+
+
 def key(kind: str, cell: str, human_id: str | None = None) -> str:
     """The key expression of ``kind`` for ``cell``; ``human_id`` is the id the key holds
     (required for skeletons and tracker frames, refused for the others)."""

@@ -41,7 +41,7 @@ def _study(args: argparse.Namespace) -> int:
     values = tuple(float(v) for v in args.lambdas.split(","))
     print("\nSensitivity (Liu et al. 2022 Table 1 format)")
     print(st.format_table(st.sensitivity_table(sc, values, params)))
-    for scale in sorted({params.jerk_scale, args.seed_jerk_scale}, reverse=True):
+    for scale in sorted({params.jerk_scale, args.paper_jerk_scale}, reverse=True):
         res = st.compare_ssa(sc, params.model_copy(update={"jerk_scale": scale}))
         print(f"\nJSSA vs SSA (lambda_1 = 3 for SSA), jerk bounds x{scale}")
         print(st.format_comparison(res))
@@ -89,7 +89,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--duration", type=float, default=7.0, help="seconds (default 7)")
     s.add_argument("--lambdas", default="6,7,8", help="values for the sensitivity table")
     s.add_argument(
-        "--seed-jerk-scale",
+        "--paper-jerk-scale",
         type=float,
         default=0.01,
         help="jerk scale for the paper-like JSSA/SSA comparison (0.01: Panda bounds ~ FANUC's)",
