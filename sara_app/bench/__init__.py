@@ -71,6 +71,7 @@ STAGE_MODULES = (
     "sara_app.bench.shield",
     "sara_app.bench.energy",
     "sara_app.bench.pfl",
+    "sara_app.bench.people",
     "sara_app.bench.jssa",
     "sara_app.bench.jssa_mode",
     "sara_app.bench.bus",
