@@ -15,45 +15,12 @@ from typing import Any
 import numpy as np
 
 from sara_app.bench import timeit_us
-from sara_app.bench.pfl import BENCH_CASES
-from sara_app.human.scripted import joints, standing
+from sara_app.bench.pfl import BENCH_CASES, bench_cell
 from sara_app.robot.trajectory import PathFollower
-from sara_app.safety.shield import CycleResult, HumanState, Shield
+from sara_app.safety.shield import CycleResult, Shield
 
 Row = tuple[str, float, float, str]
 PEOPLE = (1, 2, 4, 8)
-
-
-def people_cell(
-    mode: str, xys: list[tuple[float, float]]
-) -> tuple[Shield, PathFollower, list[Any], float]:
-    """The PFL benchmark's cell in safety mode ``mode`` with the robot at full speed after
-    0.16 s, and standing full-body people at ``xys`` facing the robot base."""
-    from sara_app.cell import build_cell
-    from sara_app.scenario import parse_scenario
-
-    q = [0.3, 0.0, -1.8, 0.0, 2.1, 0.8]
-    sc = parse_scenario(
-        {
-            "name": "bench-people",
-            "task": {"waypoints_rad": [[-1.2, *q], [1.2, *q]]},
-            "environment": [
-                {"name": "table", "center_m": [0.65, 0.0, 0.1], "size_m": [0.5, 1.6, 0.2]}
-            ],
-            "shield": {"mode": mode, "models": ["acc", "vel", "pos"]},
-            "inputs": {"max_people": max(8, len(xys))},
-        }
-    )
-    shield = build_cell(sc).shield
-    t = 0.0
-    for _ in range(40):
-        shield.cycle(t, [])
-        t += shield.settings.dt_s
-    people = []
-    for i, xy in enumerate(xys):
-        y = joints(standing(xy, math.atan2(-xy[1], -xy[0])))
-        people.append(HumanState(f"p{i}", y, np.zeros_like(y), np.full(len(y), 0.05), t - 0.012))
-    return shield, shield.follower.copy(), people, t
 
 
 def others(n: int) -> list[tuple[float, float]]:
@@ -68,7 +35,7 @@ def bench_rows(n: int = 2000) -> list[Row]:
         for case, xy in BENCH_CASES.items():
             one = None
             for H in PEOPLE:
-                shield, template, people, t = people_cell(mode, [xy, *others(H - 1)][:H])
+                shield, template, people, t = bench_cell(mode, [xy, *others(H - 1)][:H])
 
                 def cycle(
                     shield: Shield = shield, template: PathFollower = template,

@@ -14,7 +14,7 @@ from sara_app.errors import InputError, ScenarioError
 from sara_app.robot.trajectory import PathFollower
 from sara_app.safety.pfl import PflCheck, PflResult
 from sara_app.safety.pfl_shield import PflCycle, PflShield
-from sara_app.safety.shield import CycleResult
+from sara_app.safety.shield import CycleResult, Shield
 
 Row = tuple[str, float, float, str]
 
@@ -107,9 +107,12 @@ def check_rows(n: int = 2000) -> list[Row]:
     return rows
 
 
-def shield_cell(xy: tuple[float, float]) -> tuple[PflShield, PathFollower, list[Any], float]:
-    """A PFL cell (Panda, table, models acc/vel/pos) with the robot at full speed after 0.16 s,
-    and one standing full-body person at ``xy`` facing the robot base."""
+def bench_cell(
+    mode: str, xys: list[tuple[float, float]]
+) -> tuple[Shield, PathFollower, list[Any], float]:
+    """The benchmarks' cell (Panda, a table, models acc/vel/pos) in safety mode ``mode`` with
+    the robot at full speed after 0.16 s, and standing full-body people at ``xys`` facing the
+    robot base."""
     from sara_app.cell import build_cell
     from sara_app.human.scripted import joints, standing
     from sara_app.safety.shield import HumanState
@@ -123,19 +126,29 @@ def shield_cell(xy: tuple[float, float]) -> tuple[PflShield, PathFollower, list[
             "environment": [
                 {"name": "table", "center_m": [0.65, 0.0, 0.1], "size_m": [0.5, 1.6, 0.2]}
             ],
-            "shield": {"mode": "pfl", "models": ["acc", "vel", "pos"]},
+            "shield": {"mode": mode, "models": ["acc", "vel", "pos"]},
+            "inputs": {"max_people": max(8, len(xys))},
         }
     )
     shield = build_cell(sc).shield
-    if not isinstance(shield, PflShield):
-        raise ScenarioError(f"the PFL benchmark cell built a {type(shield).__name__}")
     t = 0.0
     for _ in range(40):
         shield.cycle(t, [])
         t += shield.settings.dt_s
-    y = joints(standing(xy, math.atan2(-xy[1], -xy[0])))
-    person = HumanState("p", y, np.zeros_like(y), np.full(len(y), 0.05), t - 0.012)
-    return shield, shield.follower.copy(), [person], t
+    people = []
+    for i, xy in enumerate(xys):
+        y = joints(standing(xy, math.atan2(-xy[1], -xy[0])))
+        pid = "p" if len(xys) == 1 else f"p{i}"
+        people.append(HumanState(pid, y, np.zeros_like(y), np.full(len(y), 0.05), t - 0.012))
+    return shield, shield.follower.copy(), people, t
+
+
+def shield_cell(xy: tuple[float, float]) -> tuple[PflShield, PathFollower, list[Any], float]:
+    """:func:`bench_cell` in PFL with one person at ``xy``."""
+    shield, template, people, t = bench_cell("pfl", [xy])
+    if not isinstance(shield, PflShield):
+        raise ScenarioError(f"the PFL benchmark cell built a {type(shield).__name__}")
+    return shield, template, people, t
 
 
 BENCH_CASES = {
