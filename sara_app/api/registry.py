@@ -1,8 +1,9 @@
 """Live state of every cell on the bus, as the REST service sees it.
 
-``CellRegistry(bus)`` subscribes (zenoh client ``Bus``) to ``sara/*/status``, ``sara/*/verdict``
-and ``sara/*/params/ack``; a background thread drains them at about ``poll_hz`` (50 Hz) and keeps,
-per cell: the last status and verdict, when each was received, a rolling window of verdict cycle
+``CellRegistry(bus)`` subscribes (zenoh client ``Bus``) to ``sara/*/status``, ``sara/*/verdict``,
+``sara/*/params/ack`` and ``sara/*/controller/status``; a background thread drains them at about
+``poll_hz`` (50 Hz) and keeps, per cell: the last status, verdict and controller status (command
+delivery at the robot), when each was received, a rolling window of verdict cycle
 times (p50/p99) and whether the cell is online: a status within ``offline_after_s`` (2 s: two
 heartbeats) and, once verdicts have come, a verdict within ``verdict_stale_s`` (0.5 s: the worker
 cycles). An offline cell's ``mode`` is None (unknown), never its last verdict's.
@@ -45,6 +46,7 @@ from pydantic import ValidationError
 from sara_app.bus import keys
 from sara_app.bus.codec import Decoded
 from sara_app.bus.messages import (
+    ControllerStatusMsg,
     ParamsAckMsg,
     ParamsMsg,
     RetireMsg,
@@ -88,6 +90,8 @@ class _Cell:
     verdict_recv_s: float | None = None
     verdicts: int = 0
     cycle_us: deque[float] = field(default_factory=lambda: deque(maxlen=CYCLE_WINDOW))
+    controller: ControllerStatusMsg | None = None
+    controller_recv_s: float | None = None
 
 
 def _age(now_s: float, then_s: float | None) -> float | None:
@@ -131,6 +135,7 @@ class CellRegistry:
                 bus.subscribe(f"{keys.ROOT}/*/verdict", capacity=4096),
                 bus.subscribe(f"{keys.ROOT}/*/params/ack", capacity=256, fifo=True),
                 bus.subscribe(f"{keys.ROOT}/*/scenario", capacity=64),
+                bus.subscribe(f"{keys.ROOT}/*/controller/status", capacity=64),
             ]
 
     @classmethod
@@ -198,7 +203,7 @@ class CellRegistry:
                 if old is None or msg.stamp_s >= old.stamp_s:  # newest wins, restarts too
                     self._announced[d.key.cell] = msg
                 return
-            if not isinstance(msg, StatusMsg | VerdictMsg):
+            if not isinstance(msg, StatusMsg | VerdictMsg | ControllerStatusMsg):
                 return
             cell = self._cells.get(d.key.cell)
             if cell is None:
@@ -207,6 +212,8 @@ class CellRegistry:
                 cell = self._cells[d.key.cell] = _Cell(d.key.cell)
             if isinstance(msg, StatusMsg):
                 cell.status, cell.status_recv_s = msg, d.recv_s
+            elif isinstance(msg, ControllerStatusMsg):
+                cell.controller, cell.controller_recv_s = msg, d.recv_s
             else:
                 cell.verdict, cell.verdict_recv_s = msg, d.recv_s
                 cell.verdicts += 1
@@ -270,7 +277,19 @@ class CellRegistry:
             "last_seen_s": max(seen) if seen else None,
             "status_age_s": status_age,
             "verdict_age_s": verdict_age,
+            "controller": self._controller(c, now_s),
         }
+
+    def _controller(self, c: _Cell, now_s: float) -> dict[str, Any] | None:
+        """The robot controller's command delivery (None: no controller has reported);
+        ``online``: its status is younger than ``offline_after_s``."""
+        m = c.controller
+        if m is None:
+            return None
+        age = _age(now_s, c.controller_recv_s)
+        data = m.model_dump(exclude={"schema_version", "seq", "stamp_s", "cell"})
+        return {"online": age is not None and age < self.offline_after_s, "status_age_s": age,
+                **data}  # fmt: skip
 
     # -- parameter requests ----------------------------------------------------------------
     def edit_lock(self, cell: str) -> threading.Lock:
