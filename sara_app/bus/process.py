@@ -88,7 +88,7 @@ def process_main(
             auth = client_auth(args.zenoh_user, Credentials(args.zenoh_credentials))
         # the session's I/O threads start with it and inherit the real-time class: received
         # and sent messages then do not wait behind a browser or other normal jobs
-        rt = bool(args.rt_priority) and set_realtime(args.rt_priority, name)
+        rt = bool(args.rt_priority) and set_realtime(args.rt_priority, name, "session threads")
         with Bus.client(args.port, auth=auth) as bus:
             if rt:
                 set_normal()  # building the cell (seconds of kernel loading) at normal priority
@@ -113,7 +113,7 @@ def set_normal() -> None:
         pass
 
 
-def set_realtime(priority: int, name: str = "process") -> bool:
+def set_realtime(priority: int, name: str = "process", what: str = "loop thread") -> bool:
     """Put the calling thread under ``SCHED_FIFO`` at ``priority`` (1-99): it then runs as soon
     as it wakes, ahead of every normally scheduled thread (display, browser, other jobs); threads
     it starts afterwards inherit the class (those started before keep theirs). Linux keeps 5 %
@@ -130,5 +130,5 @@ def set_realtime(priority: int, name: str = "process") -> bool:
     except (AttributeError, OSError) as e:
         log.warning("real-time scheduling not permitted (%s): the loop runs at normal priority", e)
         return False
-    log.info("loop thread under SCHED_FIFO, priority %d", priority)
+    log.info("%s under SCHED_FIFO, priority %d", what, priority)
     return True

@@ -38,7 +38,7 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(sig, lambda *_: stop.set())
     try:
         if args.rt_priority:
-            set_realtime(args.rt_priority, "router")  # the zenoh threads started after inherit
+            set_realtime(args.rt_priority, "router", "router threads")  # zenoh's inherit it
         access = None
         if args.credentials:
             access = router_access(args.cell or ["cell1"], Credentials(args.credentials))
