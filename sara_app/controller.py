@@ -104,23 +104,25 @@ class Controller:
         self.pub = bus.publisher(keys.robot_state_key(self.cell))
         self.pub_status = bus.publisher(keys.controller_status_key(self.cell))
 
-    def _received(self, now: float) -> list[RobotCommandMsg]:
-        """The commands that came since the last tick, in order of arrival, counted (every set
-        point counts: the robot passes through each)."""
-        got = [
-            d.msg
-            for d in self.sub.drain().messages
-            if isinstance(d.msg, RobotCommandMsg) and len(d.msg.q) == len(self.q)
-        ]
+    def _received(self, now: float, given: list[RobotCommandMsg] | None) -> list[RobotCommandMsg]:
+        """The commands that came since the last tick (``given``, else those the subscription
+        decoded), counted, in order of their stamps (every set point counts: the robot passes
+        through each)."""
+        if given is None:
+            given = [d.msg for d in self.sub.drain().messages if isinstance(d.msg, RobotCommandMsg)]
+        got = [m for m in given if len(m.q) == len(self.q)]
         for cmd in got:
             self.delivery.count(cmd, now, self.dt_s)
         return sorted(got, key=lambda m: m.stamp_s)
 
-    def tick(self, now: float) -> None:
+    def tick(self, now: float, commands: list[RobotCommandMsg] | None = None) -> None:
+        """One poll at time ``now``: the commands received (``commands``: these instead of the
+        subscription's, as a driver that receives them otherwise hands them over), then the
+        robot's set point and state."""
         if now - self.status_s >= STATUS_PERIOD_S:
             self.publish_status(now)
         got = False
-        for cmd in self._received(now):
+        for cmd in self._received(now, commands):
             if self._acceptable(cmd, now):
                 self._follow(cmd, now)
                 got = True

@@ -148,7 +148,8 @@ def test_a_restarted_worker_continues_from_where_the_robot_rests(cell) -> None:
 
 
 def test_delivery_is_counted_and_a_restarted_workers_commands_are_followed() -> None:
-    """Hand-made commands over a real bus, the controller ticked at chosen times: a lost
+    """Hand-made commands handed to the controller at chosen times (over the real bus: its status
+    and a command from the far future): a lost
     sequence number, a late command and an expiry are counted; a restarted worker's commands
     (numbered from 0 again, later stamps) are followed at once; a command stamped in the future
     is refused (it would hold back every later one)."""
@@ -169,9 +170,7 @@ def test_delivery_is_counted_and_a_restarted_workers_commands_are_followed() -> 
             msg = RobotCommandMsg(seq=seq, stamp_s=stamp, q=q, q_dot=[0.0] * n, q_ddot=[0.0] * n,
                                   mode="intended", valid_until_s=valid, failsafe_t_s=[dt],
                                   failsafe_q=[q])  # fmt: skip
-            assert pub.put(msg)
-            time.sleep(0.05)  # delivered before the tick that takes it
-            ctl.tick(tick_at)
+            ctl.tick(tick_at, [msg])
 
         t = time.time()
         for k, seq in enumerate([1000, 1001, 1002, 1003, 1005, 1006]):  # 1004 lost
@@ -180,7 +179,16 @@ def test_delivery_is_counted_and_a_restarted_workers_commands_are_followed() -> 
         assert ctl.command is not None and ctl.command.seq == 1007 and not ctl.braking
         ctl.tick(t + 1.0)  # nothing since: braking on its own
         assert ctl.braking
-        send(5, t + 1e4, t + 1.2)  # from the far future: refused before it counts
+        # over the bus, from the far future: refused by the controller's decoder before it counts
+        zero = [0.0] * n
+        far = RobotCommandMsg(seq=5, stamp_s=t + 1e4, q=q0.tolist(), q_dot=zero, q_ddot=zero,
+                              mode="intended", valid_until_s=t + 1e4 + 0.01)  # fmt: skip
+        t_end = time.monotonic() + 10
+        while not ctl.decoder.counts.get("out_of_range"):
+            assert time.monotonic() < t_end, "the far-future command never arrived"
+            pub.put(far)
+            time.sleep(0.01)
+            ctl.tick(t + 1.2)
         assert ctl.decoder.counts.get("out_of_range") == 1 and ctl.command.seq == 1007
         time.sleep(max(t + 1.1 - time.time(), 0.0))  # a restart: stamps 1 s on (the codec)
         t2 = time.time()  # the restarted worker, re-anchored where the robot rests
@@ -203,9 +211,8 @@ def test_a_command_taken_past_the_last_set_point_continues_from_the_stop() -> No
 
     sc = load_scenario("standing_beside_path")
     port = free_port()
-    with Bus.router(port), Bus.client(port) as cbus, Bus.client(port) as wbus:
+    with Bus.router(port), Bus.client(port) as cbus:
         ctl = Controller(CELL, sc, cbus)
-        pub = wbus.publisher(keys.robot_command_key(CELL))
         dt, q0 = ctl.dt_s, ctl.q.copy()
         n, t = len(q0), time.time()
         step = np.r_[0.01, np.zeros(n - 1)]
@@ -215,9 +222,7 @@ def test_a_command_taken_past_the_last_set_point_continues_from_the_stop() -> No
             msg = RobotCommandMsg(seq=seq, stamp_s=stamp, q=q.tolist(), q_dot=[0.0] * n,
                                   q_ddot=[0.0] * n, mode="intended", valid_until_s=stamp + 0.01,
                                   failsafe_t_s=[dt, dt + 0.05], failsafe_q=stop)  # fmt: skip
-            assert pub.put(msg)
-            time.sleep(0.05)
-            ctl.tick(tick_at)
+            ctl.tick(tick_at, [msg])
 
         send(0, t, q0, t + 0.5 * dt)
         first = ctl.command

@@ -13,6 +13,7 @@ the REST service's registry on another):
 
 from __future__ import annotations
 
+import importlib
 import itertools
 import shutil
 import threading
@@ -216,6 +217,10 @@ def test_pfl_threshold_lowered_below_the_link_energies_makes_the_robot_brake(
     """PFL mode, a person 0.8 m in front of the robot: the robot passes them slowed down (it
     never brakes in simulation) at the source thresholds; with every blunt threshold lowered over
     PUT to 1 uJ, far below any moving link's energy, the worker brakes instead."""
+    # the PFL kernels loaded (compiled, on a fresh checkout) before the switch: a cold compile
+    # on a busy 2-core machine can outlast the API's edit timeout (then the answer is 504, "it
+    # may still apply it", which is not what this test is about)
+    importlib.import_module("sara_app.safety.pfl_cycle")
     shield = {**live.worker.cell.scenario.shield.model_dump(mode="json"), "mode": "pfl"}
     r = live.client.post(f"/api/cells/{CELL}/scenario", json=_scenario_with(live, shield=shield))
     assert r.status_code == 200, r.text
