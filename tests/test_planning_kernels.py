@@ -1,5 +1,5 @@
 """The compiled step planning (``PathFollower.peek``, :mod:`sara_app.robot.planning_kernels`)
-equals the Python methods (``peek(dt, reference=True)``) bit for bit, on states reached by
+equals its Python reference (``tests/planning_reference.py``) bit for bit, on states reached by
 following random blended paths (speed caps, brakes before slower pieces and the path end,
 replans, steps across piece starts) and on arbitrary path states (fallbacks when no step or stop
 is valid); and the velocity-change phases both use keep their defining properties."""
@@ -9,8 +9,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import planning_reference
 import pytest
 from panda_limits import PANDA
+from planning_reference import reference_peek
 
 from sara_app.robot import planning_kernels as pk
 from sara_app.robot.profile import phase_maxima, phases_end, velocity_phases
@@ -37,7 +39,7 @@ def _step_bits(st: FollowerStep) -> object:
 
 
 def _same(f: PathFollower, dt: float) -> FollowerStep:
-    fast, ref = f.peek(dt), f.peek(dt, reference=True)
+    fast, ref = f.peek(dt), reference_peek(f, dt)
     assert _step_bits(fast) == _step_bits(ref), (f.s, f.sd, f.sdd, f.speed_cap, dt)
     assert fast.path is ref.path is f.path
     return fast
@@ -67,13 +69,13 @@ class _Count:
 def count(monkeypatch: pytest.MonkeyPatch) -> _Count:
     """Counts the reference's brakes fitted inside a step (the compiled bisection's cases)."""
     c = _Count()
-    fit = PathFollower._fit_brake
+    fit = planning_reference.fit_brake
 
-    def counted(self: PathFollower, *args: object) -> object:
+    def counted(f: PathFollower, *args: object) -> object:
         c.fit_brake += 1
-        return fit(self, *args)  # type: ignore[arg-type]
+        return fit(f, *args)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(PathFollower, "_fit_brake", counted)
+    monkeypatch.setattr(planning_reference, "fit_brake", counted)
     return c
 
 
@@ -142,7 +144,7 @@ def test_velocity_phases_compiled_alike_and_sound() -> None:
 def test_powers_as_python_computes_them() -> None:
     """Python's ``x ** 2`` and ``x ** 3`` of a float are the C library's ``pow``, which differs
     from ``x * x`` (``x * x * x``) in the last bit for some ``x``: at joint limits set exactly
-    to what ``PathFollower._piece_ok`` computes for such ``x``, the kernel's test agrees with it
+    to what the reference's ``piece_ok`` computes for such ``x``, the kernel's test agrees with it
     where products would not."""
     rng = np.random.default_rng(3)
     odd = [x for x in rng.uniform(0.1, 10.0, 100000).tolist() if x**2 != x * x]
@@ -176,9 +178,9 @@ def test_non_finite_and_huge_states_plan_alike() -> None:
         g._a = float(rng.choice([rng.uniform(-5.0, 5.0), *odd]))
         g.speed_cap = float(rng.choice([math.inf, 0.5, 0.0]))
         out = []
-        for reference in (False, True):
+        for peek in (g.peek, lambda dt, g=g: reference_peek(g, dt)):
             try:
-                out.append(_step_bits(g.peek(0.004, reference=reference)))
+                out.append(_step_bits(peek(0.004)))
             except Exception as e:  # noqa: BLE001 - compared, whatever it is
                 out.append(type(e).__name__)
         if out[1] == "OverflowError":

@@ -1,16 +1,15 @@
-"""Compiled (numba) planning of one path-follower step: the intended motion
-(``PathFollower._intended`` with its brakes, ``_fit_brake``), the joint-limit check of the step
-(``_step_ok``, ``_piece_ok``) and the failsafe stop from its end (``failsafe._plan_stop`` with
-``_check_candidate``, ``_entry_bounds``, ``path.piece_room``, ``path.sub_piece_room``), in one
-call from :meth:`PathFollower.peek <sara_app.robot.trajectory.PathFollower.peek>`.
+"""Compiled (numba) planning of one path-follower step: the intended motion with its brakes
+before slower pieces and the path's end, the joint-limit check of the step and the failsafe stop
+from its end (``failsafe.plan_stop_unchecked`` with its candidate checks, entry bounds and piece
+room), in one call from :meth:`PathFollower.peek <sara_app.robot.trajectory.PathFollower.peek>`:
+the only planning the library runs.
 
-The same formulas in the same operation order as those Python functions (which stay as the
-reference: ``peek(dt, reference=True)``; ``tests/test_planning_kernels.py`` checks the two equal
-bit for bit on random paths and states). Python's ``min``/``max`` are spelt as the comparisons
-they make (the same NaN handling) and ``x ** 2`` / ``x ** 3`` of a Python float as ``math.pow``
-with the exponent read at run time from ``consts`` (with a literal exponent LLVM would turn
-``pow(x, 2.0)`` into ``x * x``, which differs from the C library's ``pow`` in the last bit
-for some ``x``).
+``tests/planning_reference.py`` is its reference in Python, in the same formulas and operation
+order (``tests/test_planning_kernels.py`` checks the two equal bit for bit on random paths and
+states). Python's ``min``/``max`` are spelt as the comparisons they make (the same NaN handling)
+and ``x ** 2`` / ``x ** 3`` of a Python float as ``math.pow`` with the exponent read at run time
+from ``consts`` (with a literal exponent LLVM would turn ``pow(x, 2.0)`` into ``x * x``, which
+differs from the C library's ``pow`` in the last bit for some ``x``).
 
 Phase lists of at most three phases (a time-optimal velocity change) are tuples
 ``(count, d0, d1, d2, j0, j1, j2)`` (scalar arguments: no reference counting in the calls);
