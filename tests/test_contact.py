@@ -7,6 +7,13 @@ from typing import Any
 
 import numpy as np
 import pytest
+from contact_reference import (
+    Motion,
+    classify_reference,
+    closure,
+    segment_box_closest,
+    speed_bounds,
+)
 from scipy.sparse.csgraph import connected_components
 
 from sara_app import geometry_kernels
@@ -23,10 +30,6 @@ from sara_app.safety.contact import (
     ContactClassifier,
     ContactResult,
     VelocityErrorBound,
-    _closure,
-    _Motion,
-    _speed_bounds,
-    segment_box_closest,
 )
 from sara_app.safety.contact_kernels import (
     all_pairs,
@@ -244,13 +247,13 @@ def test_thm_vi1_speed_bounds_contain_every_point_velocity() -> None:
         n = rng.normal(size=3)
         n /= np.linalg.norm(n)
         reach = r + np.linalg.norm(p2 - p1)
-        motion = _Motion(
+        motion = Motion(
             np.tile(v1[:, None, None], (1, 2, 1)),
             np.tile(w[:, None, None], (1, 2, 1)),
             np.full((2, 1), reach),
             np.zeros((1, 1)),
         )
-        lo, hi = _speed_bounds(n.reshape(3, 1, 1, 1), motion)
+        lo, hi = speed_bounds(n.reshape(3, 1, 1, 1), motion)
         lam = rng.uniform(0, 1, 4000)
         u = rng.normal(size=(4000, 3))
         u *= (rng.uniform(0, 1, 4000) ** (1 / 3) * r / np.linalg.norm(u, axis=1))[:, None]
@@ -266,7 +269,7 @@ def test_stack_closure_matches_connected_components() -> None:
     rng = np.random.default_rng(2)
     adj = rng.uniform(size=(30, 14, 14)) < 0.08
     adj = adj | adj.transpose(0, 2, 1)
-    reach = _closure(adj)
+    reach = closure(adj)
     for k in range(30):
         _, label = connected_components(adj[k], directed=False)
         assert np.array_equal(reach[k], label[:, None] == label[None, :])
@@ -415,7 +418,7 @@ def test_compiled_classify_equals_the_numpy_reference() -> None:
     n_contact = n_clamped = 0
     for _ in range(300):
         clf, args = _scene(rng)
-        fast, ref = clf.classify(*args), clf.classify_reference(*args)
+        fast, ref = clf.classify(*args), classify_reference(clf, *args)
         for name in ("contact", "contact_single", "env", "self_", "cls", "stack"):
             assert np.array_equal(getattr(fast, name), getattr(ref, name)), name
         np.testing.assert_allclose(fast.stack_diameter_m, ref.stack_diameter_m, rtol=1e-14)

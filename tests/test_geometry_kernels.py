@@ -4,7 +4,7 @@
   parallel, anti-parallel, collinear, nearly parallel pairs), and its parameters lie in [0, 1]
   and realise that distance.
 * ``pair_distances`` / ``set_pair_distances`` against ``capsule_distances`` and the numpy
-  ``all_pairs``, ``box_distances`` against ``contact.segment_box_closest``; ``pair_gaps``
+  ``all_pairs``, ``box_distances`` against the reference's ``segment_box_closest``; ``pair_gaps``
   equals ``pair_distances`` wherever a pair may touch and is a positive lower bound elsewhere;
   so do ``set_pair_gaps`` (against ``set_pair_distances``, over a pair mask) and
   ``box_axis_gaps`` (against ``box_distances``, for every radius of the capsule).
@@ -17,6 +17,7 @@
 from __future__ import annotations
 
 import numpy as np
+from contact_reference import segment_box_closest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -31,7 +32,6 @@ from sara_app.geometry_kernels import (
     set_pair_distances,
     set_pair_gaps,
 )
-from sara_app.safety.contact import segment_box_closest
 from sara_app.safety.contact_kernels import all_pairs
 
 SETTINGS = settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -183,7 +183,7 @@ def _interval_speed(
 
 @njit(cache=True)
 def _unit3(x: float, y: float, z: float) -> tuple[float, float, float]:
-    """Unit vector; a zero vector gives NaN (no relaxation), as ``contact._unit``."""
+    """Unit vector; a zero vector gives NaN (no relaxation), as the numpy reference's ``unit``."""
     n = math.sqrt(x * x + y * y + z * z)
     if not n > 0.0:
         n = np.nan
@@ -331,8 +331,9 @@ def _make_classify_kernels() -> tuple[Any, Any]:
         can_b: np.ndarray,
         can_l: np.ndarray,
     ) -> bool:
-        """:meth:`ContactClassifier.classify_reference` as loops (the rules are documented in
-        :mod:`sara_app.safety.contact`); returns whether any contact is possible.
+        """The contact classification as loops (``tests/contact_reference.py``: the same in numpy;
+        the rules are documented in :mod:`sara_app.safety.contact`); returns whether any contact
+        is possible.
 
         Geometry inputs (surface distances): robot-human ``d_rh (K, L, P)``, human-human ``d_hh (K,
         P, P)``, robot capsules ``r_ends (K, L, 2, 3)``, ``r_radius (K, L)``, boxes ``T_world_box
