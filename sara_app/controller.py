@@ -64,6 +64,8 @@ class Delivery:
     lost: int = 0
     late: int = 0
     expired: int = 0
+    refused: int = 0
+    braking_events: int = 0
     runs: int = 0
     last_seq: int = -1
 
@@ -92,8 +94,6 @@ class Controller:
         self.points: list[tuple[float, np.ndarray]] = []
         """Where the robot is to be when: ``(t, q)``, the first where it stood, then the set
         points not yet reached."""
-        self.refused = 0
-        self.expired = 0
         self.delivery = Delivery()
         self.published_s = -1.0
         self.status_s = -np.inf
@@ -135,11 +135,12 @@ class Controller:
             self._apply(*self._on_points(now))
         else:  # past the set point without a newer command: on its verified stop, on schedule
             if now > self.command.valid_until_s and not self.braking:
-                self.expired += 1  # logged 1st, 2nd, 4th, 8th ...: bounded log volume
-                if self.expired & (self.expired - 1) == 0:
+                self.delivery.braking_events += 1
+                n = self.delivery.braking_events
+                if n & (n - 1) == 0:  # logged 1st, 2nd, 4th, 8th ...: bounded log volume
                     log.warning(
                         "commands expired (#%d): braking along the last verified stop",
-                        self.expired,
+                        n,
                     )
                 self.braking = True
             self._apply(*self.command.stop_position(now))
@@ -173,7 +174,7 @@ class Controller:
             return True
         if float(np.max(np.abs(np.asarray(cmd.q) - self.q))) <= self.tol_rad:
             return True
-        self.refused += 1
+        self.delivery.refused += 1
         return False
 
     def _on_points(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -211,8 +212,8 @@ class Controller:
                 commands_lost=d.lost,
                 commands_late=d.late,
                 commands_expired=d.expired,
-                commands_refused=self.refused,
-                braking_events=self.expired,
+                commands_refused=d.refused,
+                braking_events=d.braking_events,
                 worker_runs=d.runs,
                 braking=self.braking,
             )

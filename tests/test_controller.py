@@ -19,9 +19,9 @@ import pytest
 from sara_app.bus import keys
 from sara_app.bus.heartbeat import Heartbeat
 from sara_app.bus.messages import ControllerStatusMsg, RobotCommandMsg, RobotStateMsg, VerdictMsg
-from sara_app.bus.session import Bus, BusError, free_port
+from sara_app.bus.session import Bus, free_port
 from sara_app.scenario import load_scenario
-from sara_app.serve import WORKER_RT_PRIORITY
+from sara_app.serve import WORKER_RT_PRIORITY, connect_when_listening
 from sara_app.supervisor import stop_processes
 
 CELL = "ctl"
@@ -44,15 +44,7 @@ def cell(tmp_path: Path) -> Iterator[tuple[int, Bus, Path]]:
     router = subprocess.Popen([sys.executable, "-m", "sara_app.bus.router", "--port", str(port),
                                "--rt-priority", str(WORKER_RT_PRIORITY)])  # fmt: skip
     try:
-        t_end = time.monotonic() + 30
-        while True:
-            try:
-                bus = Bus.client(port, timeout_ms=500)
-                break
-            except BusError:
-                assert time.monotonic() < t_end, "the router did not start"
-                time.sleep(0.2)
-        with bus:
+        with connect_when_listening(port, router) as bus:
             yield port, bus, path
     finally:
         stop_processes([router])

@@ -29,10 +29,10 @@ from sara_app.bus.messages import (
     SkeletonMsg,
     VerdictMsg,
 )
-from sara_app.bus.session import Bus, BusError, free_port
+from sara_app.bus.session import Bus, free_port
 from sara_app.human.skeleton import skeleton
 from sara_app.scenario import load_scenario
-from sara_app.serve import WORKER_RT_PRIORITY
+from sara_app.serve import WORKER_RT_PRIORITY, connect_when_listening
 from sara_app.supervisor import stop_processes
 
 CELL = "hostile"
@@ -107,7 +107,7 @@ def _start(tmp_path: Path, serve_layout: bool = False, **changes: Any) -> Iterat
                 router = subprocess.Popen([sys.executable, "-m", "sara_app.bus.router",
                                            "--port", str(port), *rt])  # fmt: skip
                 procs.append(router)
-                bus = stack.enter_context(_client(port, router))
+                bus = stack.enter_context(connect_when_listening(port, router))
             else:
                 stack.enter_context(Bus.router(port))
                 bus = stack.enter_context(Bus.client(port))
@@ -123,17 +123,6 @@ def _start(tmp_path: Path, serve_layout: bool = False, **changes: Any) -> Iterat
             yield cell
         finally:
             stop_processes(procs)
-
-
-def _client(port: int, router: subprocess.Popen[bytes]) -> Bus:
-    """A session to the router process, once it listens."""
-    t_end = time.monotonic() + 30
-    while True:
-        try:
-            return Bus.client(port, timeout_ms=500)
-        except BusError:
-            assert router.poll() is None and time.monotonic() < t_end, "the router did not start"
-            time.sleep(0.2)
 
 
 @pytest.fixture()

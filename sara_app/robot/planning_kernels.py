@@ -28,7 +28,7 @@ from numba import njit, types
 
 from sara_app.kernel_types import B1 as _b1
 from sara_app.kernel_types import F8 as _f8
-from sara_app.kernel_types import I8 as _ip
+from sara_app.kernel_types import IP as _ip
 from sara_app.kernel_types import RO1 as _RO1
 from sara_app.kernel_types import RO2 as _RO2
 from sara_app.kernel_types import RO3 as _RO3
