@@ -104,6 +104,14 @@ def test_long_capsule_pointing_almost_straight_down() -> None:
         _check_capsules(one, np.array([0.2]))
 
 
+def test_capsule_pointing_down_with_a_subnormal_tilt() -> None:
+    """The counterexample hypothesis found (session 11): a tilt of 1e-161 from -z, whose
+    squares are subnormal, gave a quaternion of norm 1.005."""
+    ends = np.zeros((5, 2, 3))
+    ends[2] = [[1.11701239e-161, 0.0, 0.0], [0.0, 0.0, -1.0]]
+    _check_capsules(ends, np.zeros(5))
+
+
 def test_axis_aligned_and_antiparallel_and_nearly_antiparallel() -> None:
     a = np.array([0.3, -0.2, 0.5])
     dirs = np.array(
