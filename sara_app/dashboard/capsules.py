@@ -107,7 +107,7 @@ def quat_z_to(d: np.ndarray) -> np.ndarray:
     # scaled by the largest component first: the squares of components near 1e-161 are
     # subnormal and their norm was off by 0.5 % (found by the property test)
     h = h / np.where(flip, 1.0, m)[:, None]
-    h = h / np.linalg.norm(h, axis=1)[:, None]
+    h = h / np.where(flip, 1.0, np.linalg.norm(h, axis=1))[:, None]
     q = np.zeros((d.shape[0], 4))
     q[:, 0] = h[:, 2]
     q[:, 1] = -h[:, 1]
