@@ -204,6 +204,15 @@ class ShieldSpec(_Strict):
             raise ValueError(f"models listed twice in {v}")
         return v
 
+    @model_validator(mode="after")
+    def _models_of_the_mode(self) -> ShieldSpec:
+        if self.mode == "pfl" and "arm" in self.models:
+            valid = ", ".join(m for m in MODELS if m != "arm")
+            raise ValueError(
+                f"model 'arm' (Pereira's arm model) is not available in PFL mode; valid: {valid}"
+            )
+        return self
+
 
 class InputSpec(_Strict):
     """What the live cell takes from the bus, and its bounds (the contract's freshness rules)."""

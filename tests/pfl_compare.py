@@ -1,4 +1,4 @@
-"""Cycle-by-cycle comparison of PFL shields (the compiled paths against the reference) and the
+"""Cycle-by-cycle comparison of PFL shields (the compiled cycle against the reference) and the
 cells and people they run on."""
 
 from __future__ import annotations
@@ -8,6 +8,7 @@ from dataclasses import fields
 from typing import Any, cast
 
 import numpy as np
+from pfl_reference import as_reference
 
 from sara_app.cell import build_cell
 from sara_app.human.scripted import joints, standing
@@ -65,9 +66,9 @@ def assert_same_trajectory(ra: CycleResult, rb: CycleResult) -> None:
     np.testing.assert_array_equal(ra.robot_radius, rb.robot_radius)
 
 
-def make_cells(models: tuple[str, ...], boxes: bool = True) -> list[PflShield]:
-    """Three identical PFL cells: with the compiled loop, with the fused check only (the
-    Python loop), and the reference (neither)."""
+def make_pair(models: tuple[str, ...], boxes: bool = True) -> tuple[PflShield, PflShield]:
+    """Two identical PFL cells: the production shield and its reference
+    (:class:`pfl_reference.ReferencePflShield`)."""
     sc = parse_scenario(
         {
             "name": "t",
@@ -76,34 +77,24 @@ def make_cells(models: tuple[str, ...], boxes: bool = True) -> list[PflShield]:
             "shield": {"mode": "pfl", "models": list(models)},
         }
     )
-    cells = [build_cell(sc).shield for _ in range(3)]
+    cells = [build_cell(sc).shield for _ in range(2)]
     assert all(isinstance(c, PflShield) for c in cells)
-    a, b, ref = cast(list[PflShield], cells)
-    assert a.fused is not None and a.compiled is not None
-    b.compiled = None
-    ref.fused = ref.compiled = None
-    return [a, b, ref]
+    a, ref = cast(list[PflShield], cells)
+    return a, as_reference(ref)
 
 
-def make_pair(models: tuple[str, ...], boxes: bool = True) -> tuple[PflShield, PflShield]:
-    """The compiled cell and the reference."""
-    a, _, ref = make_cells(models, boxes)
-    return a, ref
-
-
-def person_at(xy: np.ndarray, v: np.ndarray, dv: float, stamp: float) -> HumanState:
+def person_at(xy: np.ndarray, v: np.ndarray, dv: float, stamp: float, hid: str = "p") -> HumanState:
     yj = joints(standing((float(xy[0]), float(xy[1])), math.atan2(-xy[1], -xy[0])))
-    return HumanState("p", yj, np.broadcast_to(v, yj.shape).copy(), np.full(len(yj), dv), stamp)
+    return HumanState(hid, yj, np.broadcast_to(v, yj.shape).copy(), np.full(len(yj), dv), stamp)
 
 
 def bench_pair(case: str) -> tuple[PflShield, PflShield, Any, list[HumanState], float]:
-    """The benchmark cell in state ``case`` (``bench_pfl.BENCH_CASES``) and its reference
-    (neither the fused check nor the compiled loop): ``(shield, ref, template, people, t)``."""
+    """The benchmark cell in state ``case`` (``bench.pfl.BENCH_CASES``) and its reference:
+    ``(shield, ref, template, people, t)``."""
     from sara_app.bench.pfl import BENCH_CASES, shield_cell
 
     shield, template, people, t = shield_cell(BENCH_CASES[case])
-    ref = shield_cell(BENCH_CASES[case])[0]
-    ref.fused = ref.compiled = None
+    ref = as_reference(shield_cell(BENCH_CASES[case])[0])
     return shield, ref, template, people, t
 
 

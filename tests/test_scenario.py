@@ -300,3 +300,15 @@ def test_set_names_from_before_the_rename_load_the_renamed_sets() -> None:
         "schepp2022_table1",
         "thresholds_thumm2024",
     )
+
+
+def test_the_arm_model_is_refused_in_pfl_mode() -> None:
+    """PFL's compiled check computes acc, vel, iso13855 and pos: a PFL scenario (or a switch
+    to PFL) with Pereira's arm model is refused at validation, naming the valid models; SSM
+    keeps it."""
+    data = copy.deepcopy(BASE)
+    data["shield"] = {"mode": "pfl", "models": ["vel", "arm"]}
+    with pytest.raises(ScenarioError, match="'arm'.*not available in PFL mode; valid: pos"):
+        parse_scenario(data)
+    data["shield"]["mode"] = "ssm"
+    assert parse_scenario(data).shield.models == ["vel", "arm"]

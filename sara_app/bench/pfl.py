@@ -12,7 +12,7 @@ import numpy as np
 from sara_app.bench import timeit_us
 from sara_app.errors import InputError, ScenarioError
 from sara_app.robot.trajectory import PathFollower
-from sara_app.safety.pfl import PflCheck, PflResult
+from sara_app.safety.pfl import PflCheck
 from sara_app.safety.pfl_shield import PflCycle, PflShield
 from sara_app.safety.shield import CycleResult, Shield
 
@@ -165,9 +165,9 @@ def shield_rows(n: int = 2000) -> list[Row]:
     Panda at full speed, one standing full-body person, one table, in the three
     :data:`BENCH_CASES` (every cycle from the same state with no cap: the worst case, a
     failed check at full speed first), plus the slowed case in the steady state of a closed
-    loop (the cap found by the previous cycle kept: one check); then the stages of one check
-    in the braking case: the Python composition's parts (the reference), then the whole check
-    as the shield runs it for one person (:mod:`sara_app.safety.pfl_fused`)."""
+    loop (the cap found by the previous cycle kept: one check); then the stages of the braking
+    cycle: the first plan, the link states of one trajectory (inside the check when a contact
+    is possible) and the checks with the replan (:mod:`sara_app.safety.pfl_cycle`)."""
     rows = []
     cases = [(case, xy, False) for case, xy in BENCH_CASES.items()]
     cases.append(("slowed, cap held", BENCH_CASES["slowed"], True))
@@ -204,37 +204,25 @@ def shield_rows(n: int = 2000) -> list[Row]:
         if case == "braking":
             braking = (shield, template, people, t)
     shield, template, people, t = braking
-    # stages of one check (the braking case: every model evaluated)
+    # stages of one cycle (the braking case: two checks, every model evaluated)
     shield.follower = template.copy()
     traj, ends, radius = shield._plan(math.inf)
     hum = shield._human_arrays(people, [0], {"p": t - float(people[0].stamp_s)})
     if hum is None:
         raise InputError("the benchmark's person was not usable by the shield")
     K = len(traj.times) - 1
-    smp, energy, eps = shield._link_energies(traj)
-    dt = np.diff(traj.times)
-    sets = {m: shield._human_sets(m, hum, traj.times, 0, K) for m in shield.settings.models}
+    sc = shield.scaling
 
-    def classify_all() -> PflResult:
-        check = shield.pfl.merged(ends, radius, smp, dt, eps, *shield.boxes, energy)
-        for m in shield.settings.models:
-            lo, hi = check.todo
-            h_ends, h_radius = sets[m]
-            check.add(h_ends[lo:hi] if h_ends.shape[0] > 1 else h_ends, h_radius[lo:hi])
-        return check.result()
+    def checks() -> object:
+        orders = (list(shield._orders[0]), list(shield._orders[1]))
+        return shield.compiled.run(shield.follower, traj, ends, radius, hum,
+                                   (math.inf, 0.0, sc.cut), (sc.max_replans, sc.max_models),
+                                   orders)  # fmt: skip
 
     stages: list[tuple[str, Any]] = [
         ("  shielded trajectory + occupancy", lambda: shield._plan(math.inf)),
         ("  link energies, twists, energy and error bounds", lambda: shield._link_energies(traj)),
-        (
-            "  human sets, 3 models",
-            lambda: [shield._human_sets(m, hum, traj.times, 0, K) for m in shield.settings.models],
-        ),  # fmt: skip
-        ("  classification + merge, 3 models (Python composition)", classify_all),
-        (
-            "  PFL check, all models (fused: one compiled call)",
-            lambda: shield._verify(traj, ends, radius, hum),
-        ),
+        ("  checks and replan (one compiled call)", checks),
     ]
     for name, fn in stages:
         med, p99 = timeit_us(fn, n, warmup=max(10, n // 10))

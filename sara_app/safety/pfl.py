@@ -10,11 +10,9 @@ it between the samples from ``|q''|`` and the shield (:mod:`sara_app.safety.pfl_
 exact path-speed peak. A clamped stack of body parts (virtual body part) gets the smallest
 constrained threshold of its members.
 
-Several human-set models against one trajectory: :meth:`PflCheck.merged` returns a
-:class:`MergedCheck` that validates the robot's inputs and computes its robot-only geometry
-once, then classifies each model's sets over the intervals still unproved and merges per entry
-(compiled); :meth:`PflCheck.merged_deferred` obtains the link states and energies only when a
-human set may touch a link.
+Several human-set models and people against one trajectory, merged per entry, are the
+shield's compiled check (:mod:`sara_app.safety.pfl_cycle`); :meth:`PflCheck.check` is the check
+of one set of human capsules given by the caller.
 
 Usage (built once per cell, :meth:`PflCheck.check` every control cycle)::
 
@@ -58,17 +56,14 @@ next call); the classification allocates its (small) arrays per call, and the
 from __future__ import annotations
 
 import math
-import weakref
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import cast
 
 import numpy as np
 
 from sara_app.errors import InputError
 from sara_app.robot.energy import (
     LinkMotion,
-    LinkSamples,
     bounded_interval_energy_J,
     interval_energy_J,
 )
@@ -78,10 +73,8 @@ from sara_app.safety.contact import (
     CLASS_NAMES,
     ContactClassifier,
     ContactResult,
-    MotionArrays,
-    RobotSide,
 )
-from sara_app.safety.pfl_kernels import merge_kernel, summary_kernel, verdict_kernel
+from sara_app.safety.pfl_kernels import verdict_kernel
 from sara_app.safety.thresholds import (
     ThresholdSet,
     diameters_m,
@@ -136,15 +129,6 @@ def _interval_count(r_radius: np.ndarray, dt: np.ndarray) -> int:
     if np.shape(dt) != (K,):
         raise InputError(f"dt has shape {np.shape(dt)}; expected ({K},)")
     return K
-
-
-def _unproved_range(safe_k: list[bool]) -> tuple[int, int]:
-    """``lo:hi`` from the first to the last interval not proved safe (``(K, K)``: none); a
-    list, not an array: two numpy calls cost more than this loop over ~10 intervals."""
-    K = len(safe_k)
-    if all(safe_k):
-        return K, K
-    return safe_k.index(False), K - safe_k[::-1].index(False)
 
 
 class PflCheck:
@@ -257,60 +241,6 @@ class PflCheck:
             f"({K + 1}, {self.n_links}) (samples) or ({K}, 2, {self.n_links})"
         )
 
-    def merged(
-        self,
-        r_ends: np.ndarray,
-        r_radius: np.ndarray,
-        samples: LinkSamples,
-        dt: np.ndarray,
-        eps_v: np.ndarray,
-        T_world_box: np.ndarray,
-        half_extents_m: np.ndarray,
-        energy_J: np.ndarray,
-    ) -> MergedCheck:
-        """A :class:`MergedCheck` of one trajectory (inputs as in :meth:`check`; ``samples``
-        with ``ends, p1_dot, omega`` at the ``K+1`` samples, ``energy_J`` any form of
-        :meth:`check`, ``eps_v (K, L)``), to which human sets are added model by model."""
-        K = _interval_count(r_radius, dt)
-        robot = self.classifier.robot_side(
-            r_ends, r_radius, samples.ends, self._s_radius, samples.p1_dot, samples.omega,
-            eps_v, T_world_box, half_extents_m,
-        )  # fmt: skip
-        return MergedCheck(self, robot, self._interval_energies(energy_J, K))
-
-    def merged_deferred(
-        self,
-        r_ends: np.ndarray,
-        r_radius: np.ndarray,
-        dt: np.ndarray,
-        T_world_box: np.ndarray,
-        half_extents_m: np.ndarray,
-        link_state: Callable[[], tuple[LinkSamples, np.ndarray, np.ndarray]],
-    ) -> MergedCheck:
-        """:meth:`merged` with the link states deferred: ``link_state()`` returns ``(samples,
-        eps_v, energy_J)`` and is called only when some human set may touch a link (a check
-        without a possible contact needs neither the energies nor the twists; its result has
-        ``energy_known`` False)."""
-        K = _interval_count(r_radius, dt)
-
-        def motion() -> MotionArrays:  # called only after ``check`` below exists
-            check = check_ref()
-            if check is None:
-                raise InputError("the PFL check of these link states no longer exists")
-            samples, eps_v, energy_J = link_state()
-            check.samples = samples
-            check.E_int = self._interval_energies(energy_J, K)
-            return samples.ends, self._s_radius, samples.p1_dot, samples.omega, eps_v
-
-        robot = self.classifier.robot_side_deferred(
-            r_ends, r_radius, motion, T_world_box, half_extents_m
-        )
-        check = MergedCheck(self, robot, None)
-        # a weak reference: check -> robot -> motion -> check would be a reference cycle,
-        # garbage only the cyclic collector frees (~35 objects per cycle: collector pauses)
-        check_ref = weakref.ref(check)
-        return check
-
     def eps_from_bounds(
         self,
         dt: np.ndarray,
@@ -382,75 +312,4 @@ class PflCheck:
             r_ends, r_radius, samples.ends, samples.p1_dot, samples.omega, dt,
             h_ends, h_radius, T_world_box, half_extents_m, energy,
             eps_v=self.eps_from_bounds(dt, qd_bound, qdd_bound),
-        )  # fmt: skip
-
-
-class MergedCheck:
-    """Eq. 6-7 for one trajectory against several human-set models, merged per entry ("safe if
-    any model proves it"; the rules are monotone in the human sets, see
-    :mod:`sara_app.safety.pfl_shield`). Built by :meth:`PflCheck.merged`; :meth:`add` one
-    model's sets (the first over every interval, later ones over the range still unproved);
-    :meth:`result`: each entry from the first model that proves it safe, an unproved one with
-    the highest threshold seen; ``contact`` is the first model's. The robot-only geometry is
-    computed once for all models."""
-
-    def __init__(self, pfl: PflCheck, robot: RobotSide, E_int: np.ndarray | None) -> None:
-        self.pfl, self.robot = pfl, robot
-        self.E_int = E_int
-        """Interval energies ``(K, L)``; None while deferred and not needed yet."""
-        self.samples: LinkSamples | None = None
-        """The link samples of a deferred check once obtained."""
-        self.first: PflResult | None = None
-        self.models = 0
-        self._cls: np.ndarray | None = None
-        self._todo = np.empty(2, dtype=np.int64)
-        self.todo = (0, robot.K)
-        """Interval range ``lo:hi`` with unproved entries (``(K, K)``: every entry proved)."""
-
-    def add(self, h_ends: np.ndarray, h_radius: np.ndarray) -> tuple[int, int]:
-        """Classify and merge one model's human capsules for the intervals :attr:`todo` (shapes
-        as in :meth:`ContactClassifier.classify_humans`); returns the new :attr:`todo`."""
-        lo, hi = self.todo
-        if lo >= hi:
-            return self.todo
-        c = self.pfl.classifier.classify_humans(self.robot, h_ends, h_radius, lo, hi)
-        self.models += 1
-        first = self.first
-        if first is None:
-            E = self.E_int
-            if E is None:  # deferred and no contact possible: the energies do not matter
-                E = np.full((self.robot.K, self.robot.L), np.nan)
-            first = self.first = self.pfl._verdict(c, E, self.E_int is not None)
-            self.todo = _unproved_range(first.safe_interval.tolist())
-            return self.todo
-        if self._cls is None:
-            self._cls = first.cls.copy()
-        if self.E_int is None:  # unproved entries of the first model mean possible contact
-            raise InputError("a deferred check has unproved entries but no link energies")
-        merge_kernel(
-            c.stack, c.cls, c.contact, self.pfl.T_clamp, self.pfl.T_free, self.E_int, lo,
-            first.safe, self._cls, first.threshold_J, self._todo,
-        )  # fmt: skip
-        a, b = int(self._todo[0]), int(self._todo[1])
-        self.todo = (a, b + 1) if a >= 0 else (self.robot.K, self.robot.K)
-        return self.todo
-
-    def result(self) -> PflResult:
-        """The merged verdict (fresh arrays); raises :class:`InputError` before any :meth:`add`."""
-        f = self.first
-        if f is None:
-            raise InputError("no human set was checked (add at least one model)")
-        if self._cls is None:
-            return f
-        E = cast(np.ndarray, self.E_int)  # known: a merge needs it (add)
-        K, L, P = f.cls.shape
-        margin = np.empty((K, L, P))
-        safe_k = np.empty(K, dtype=bool)
-        allowed = np.empty((K, L))
-        part = np.empty((K, L), dtype=np.int64)
-        summary_kernel(self._cls, f.threshold_J, E, f.safe, margin, safe_k, allowed,
-                        part)  # fmt: skip
-        return PflResult(
-            f.safe, safe_k, bool(safe_k.all()), self._cls, f.threshold_J, E, margin,
-            f.contact, allowed, part,
         )  # fmt: skip

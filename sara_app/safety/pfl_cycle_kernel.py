@@ -1,4 +1,4 @@
-"""The compiled replan loop of a PFL shield cycle for one person (:mod:`sara_app.safety.pfl_cycle`).
+"""The compiled checks and replans of a PFL shield cycle (:mod:`sara_app.safety.pfl_cycle`).
 
 From the trajectory the shield planned at the held cap: its check
 (:func:`~sara_app.safety.pfl_fused_kernel.fused_kernel`), and while a check fails and a replan
@@ -6,10 +6,12 @@ can fix it, the plan at the lower cap (:func:`~sara_app.robot.planning_kernels.p
 :func:`~sara_app.robot.trajectory_kernels.shielded_samples_kernel`,
 :func:`~sara_app.robot.occupancy_kernels.intervals_kernel`: the kernels of
 ``PathFollower.peek``, ``shielded_trajectory`` and ``RobotOccupancy.intervals``) and its check,
-with the decisions of ``PflShield._plan_and_verify`` (model budget, replan rule, model orders).
-The same kernels on the same numbers as the Python loop, so the same bits (tested cycle by
-cycle). Numba's cache checks only this file: the source digests of the files whose kernels it
-calls are a closure variable.
+with the shield's decisions (model budget, replan rule, model orders). Compared cycle by cycle
+with the Python composition of the same kernels in ``tests/pfl_reference.py`` (the same bits).
+A replan the follower cannot plan (it falls back on its held failsafe, a non-finite stop, a
+rejected trajectory) ends the loop: the failed check's verdict stands and the shield brakes. Numba's
+cache checks only this file: the source digests of the files whose kernels it calls are a
+closure variable.
 """
 
 from __future__ import annotations
@@ -67,8 +69,8 @@ from sara_app.safety.pfl_fused_kernel import (
 __all__ = ["BAIL", "DONE", "cycle_kernel", "plan_views"]
 
 DONE, BAIL = 0, 1
-"""Return codes: the loop ran to its end / it met a case it leaves to the Python loop (the
-follower falls back on its held failsafe, a rejected trajectory, a non-finite stop)."""
+"""Return codes: the loop ran to its end / a check ended in a state a classification cannot
+produce (unproved entries without link energies: the caller faults the cycle)."""
 
 
 FOLLOWER = types.UniTuple(_f8, 8)
@@ -136,7 +138,7 @@ def _plan(
     """The shielded trajectory at path-speed cap ``cap`` and its robot capsules per interval
     (``Shield._shielded`` with the follower's cap set): ``(ok, status, robot arrays,
     trajectory arrays, slab)`` (``slab``: the plan's arrays in one, see :func:`plan_views`);
-    ``ok`` False where the Python loop must take over, ``status`` ``peek_kernel``'s."""
+    ``ok`` False where there is no plan to check, ``status`` ``peek_kernel``'s."""
     s, v, a, dt, S, A_min, J_min, ramp_c = follower
     pc, rows, geo, consts = planner
     bound_pad, max_interval_s = sampling
@@ -217,7 +219,7 @@ def _make_kernel() -> Any:
     @njit(
         (
             ROBOT, TRAJECTORY, FOLLOWER, PLANNER, PATH, types.UniTuple(_f8, 2), OCCUPANCY,
-            LINK_CONSTANTS, _RO2, MODELS, HUMAN, _f8, types.UniTuple(_f8, 3),
+            LINK_CONSTANTS, _RO2, MODELS, HUMAN, types.UniTuple(_f8, 3),
             types.UniTuple(_i8, 2), _WI2, _W1,
         ),
         cache=True,
@@ -234,7 +236,6 @@ def _make_kernel() -> Any:
         T0_links: np.ndarray,
         models: Any,
         human: Any,
-        age: float,
         control: Any,
         limits: Any,
         orders: np.ndarray,
@@ -255,6 +256,7 @@ def _make_kernel() -> Any:
         M = orders.shape[1]
         r_ends, r_radius, T_box, half, s_radius = robot1
         L, P, B = r_radius.shape[1], models[7].shape[1], T_box.shape[0]
+        H = human[0].shape[0]
         C, n = models[4][3].shape[0], trajectory1[0].shape[1]
         out = np.zeros(OUT_LEN)
         robot = (r_ends.copy(), r_radius.copy())
@@ -262,7 +264,7 @@ def _make_kernel() -> Any:
         trajectory = (q.copy(), dq.copy(), sd.copy(), sd_max.copy(), times.copy(),
                       v_bound.copy(), a_bound.copy())  # fmt: skip
         plan = np.empty(0)
-        slabs, first, verdict, state = check_results(0, L, P)
+        slabs, first, verdict, state = check_results(0, L, H * P)
         checks, left = 0, max_models
         new_cap = math.nan
         plan_status = STEP
@@ -270,13 +272,13 @@ def _make_kernel() -> Any:
         code = DONE if len(sources) > 0 else BAIL  # the digests tie the cache to the callees
         while code == DONE:
             K = robot[1].shape[0]
-            geometry, links, sets, scratch = check_buffers(K, L, P, B, C, n, T0_links)
-            slabs, first, verdict, state = check_results(K, L, P)
+            geometry, links, sets, scratch = check_buffers(K, L, P, H, B, C, n, T0_links)
+            slabs, first, verdict, state = check_results(K, L, H * P)
             row = orders[1 if checks > 0 else 0]
             lazy = checks < max_replans and left > 1
             robot_k = (robot[0], robot[1], T_box, half, s_radius)
             done = fused_kernel(
-                robot_k, geometry, trajectory, link_constants, links, models, human, age, sets,
+                robot_k, geometry, trajectory, link_constants, links, models, human, sets,
                 row, min(M, left), False, (lazy, cap, c_min, cut), first, scratch, verdict, state,
             )  # fmt: skip
             if done == -2:
@@ -300,12 +302,12 @@ def _make_kernel() -> Any:
             new_cap = cand
             if state[6] == 1 or checks > max_replans or left < 1:
                 break
-            cap = cand
-            ok, plan_status, robot, trajectory, plan = _plan(
-                cap, follower, planner, path, sampling, occupancy, out
+            ok, status, robot_c, trajectory_c, plan_c = _plan(
+                cand, follower, planner, path, sampling, occupancy, out
             )
-            if not ok:
-                code = BAIL
+            if not ok:  # no slower plan to check: the failed check's verdict stands (brake)
+                break
+            cap, plan_status, robot, trajectory, plan = cand, status, robot_c, trajectory_c, plan_c
         info[0], info[1], info[2], info[3] = cap, new_cap, checks, state[0]
         info[4], info[5], info[6] = state[5], verdict[9][1], plan_status
         info[8] = max_models - left

@@ -1,15 +1,12 @@
-"""The compiled body of :class:`~sara_app.safety.pfl_fused.FusedCheck`: one person's human sets,
-classification and merged verdict, model after model, in one call.
-
-It composes existing kernels in the order of the Python composition it replaces
-(:meth:`PflShield._add_models <sara_app.safety.pfl_shield.PflShield>`: the model's human sets
-over the intervals still unproved, :meth:`ContactClassifier.classify_humans
-<sara_app.safety.contact.ContactClassifier.classify_humans>` with the link states obtained on
-the first possible contact, then :meth:`MergedCheck.add <sara_app.safety.pfl.MergedCheck.add>`
-and :meth:`MergedCheck.result <sara_app.safety.pfl.MergedCheck.result>`): the same arithmetic on
-the same numbers, so the same bits (tested). Numba's cache checks only this file, so the source
-digests of every file whose kernels it calls are a closure variable (as in
-:mod:`sara_app.safety.contact_kernels`).
+"""The compiled PFL check of one trajectory against every person with every model, merged per
+entry (Thumm et al. 2024 eq. 6-7), model after model, in one call: per model the people's
+capsules over the intervals still unproved (each person's sets from that person's measurement
+time), the contact classification (eq. 8-13, 39-43) with the link states obtained on the first
+possible contact, then the per-entry merge; the speed scaling's path speeds from the verdict.
+Run by :func:`~sara_app.safety.pfl_cycle_kernel.cycle_kernel`; compared with the Python
+composition of the same kernels in ``tests/pfl_reference.py`` (the same bits). Numba's cache
+checks only this file, so the source digests of every file whose kernels it calls are a closure
+variable (as in :mod:`sara_app.safety.contact_kernels`).
 """
 
 from __future__ import annotations
@@ -92,11 +89,13 @@ LINK_BUFFERS = types.Tuple(
 )
 """Its buffers for ``S`` samples (outputs: ``T`` energies at index 9, ``E_int`` at 12)."""
 RULES = types.Tuple((_ROB2, _ROB2, _RO[1], _RO[2], _RO[2]))
-"""``(no_pair (L, L), not_safe_h (P, P), diameters_m (P,), T_clamp, T_free (L, P))``."""
-HUMAN = types.Tuple((_RO[3], _RO[3], _RO[2], _RO[2]))
-"""One person: ``(y (1, J, 3), v (1, J, 3), dv (1, J), widen (4, P))``, ``widen`` the extra
-radius per model kind (``KIND_*`` rows) and body part (:mod:`sara_app.human.widening`)."""
-"""One person: ``y, v (1, J, 3)``, ``dv (1, J)``."""
+"""``(no_pair (L, L), not_safe_h (P, P), diameters_m (P,), T_clamp, T_free (L, P))`` over the
+body parts of every person (``P`` here and in the groups below: ``H`` people's parts, person
+``h``'s at ``h P_1 .. (h+1) P_1``; :func:`~sara_app.safety.pfl_cycle.rules_for`)."""
+HUMAN = types.Tuple((_RO[3], _RO[3], _RO[2], _RO[3], _RO[1]))
+"""``H`` people: ``(y (H, J, 3), v (H, J, 3), dv (H, J), widen (H, 4, P), age_s (H,))``,
+``widen`` the extra radius per model kind (``KIND_*`` rows) and body part
+(:mod:`sara_app.human.widening`), ``age_s`` the time since each one's measurement."""
 STATIC = types.Tuple((_ROI2, _RO[2], _RO[2]))
 """``(part_joints (P, 2), base_m (2, P), speed_mps (2, P))``: rows vel, iso13855."""
 ACC = types.Tuple((_RO[1], _RO[1], _ROI1, _ROI1, _ROI2))
@@ -114,7 +113,7 @@ SET_BUFFERS = types.Tuple(
 )  # fmt: skip
 """``(t_start, t_end (K,), acc ends (1, K, P, 2, 3), acc radius (1, K, P), static ends (1, P,
 2, 3), static radius (K, P), pos ends (1, C, 2, 3), pos radius (1, K, C), gathered h_ends (K,
-P, 2, 3), h_radius (K, P))``."""
+H P, 2, 3), h_radius (K, H P))``: one person's sets at a time, gathered for all ``H``."""
 CLASSES = types.Tuple((_WB3, _WB3, _WB3, _WB3, _WI83, _WB3, _W[2], _W[3]))
 """A classification ``(contact, contact_single, env, self_, cls (k, L, P), stack (k, P, P),
 stack_diameter_m (k, P), distance_m (k, L, P))``."""
@@ -128,50 +127,49 @@ speed at which the contacts reach their thresholds when it holds; NaN: not this 
 
 @njit(cache=True)
 def _human_sets(
-    kind: int,
-    lo: int,
-    hi: int,
-    times: np.ndarray,
-    age: float,
-    human: Any,
-    models: Any,
-    sets: Any,
+    kind: int, lo: int, hi: int, times: np.ndarray, human: Any, models: Any, sets: Any
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The person's capsule per body part for intervals ``lo:hi`` as the shield's
-    ``_human_sets``: ``(1|k, P, 2, 3)``, ``(1|k, P)`` views of the gathered buffers."""
-    y, v, dv, widen = human
+    """Every person's capsule per body part for intervals ``lo:hi``, person ``h``'s parts at
+    ``h P .. (h+1) P``: ``(1|k, H P, 2, 3)``, ``(k, H P)`` views of the gathered buffers (a
+    leading 1: the same capsule axes on every interval). Each person's sets grow from that
+    person's measurement time (``times + age_s[h]``)."""
+    y, v, dv, widen, age_s = human
     static, acc, pos, delays, n_limbs, part_maps = models[2:]
     delay_s, delta_y_m = delays
     part_map = part_maps[kind]
     t_start, t_end, acc_e, acc_r, st_e, st_r, pos_e, pos_r, h_ends, h_radius = sets
     k, P = hi - lo, part_map.shape[0]
-    for x in range(k):
-        t_start[x] = times[lo + x] + age
-        t_end[x] = times[lo + 1 + x] + age
+    ke = k if kind == KIND_ACC else 1
     ts, te = t_start[:k], t_end[:k]
-    if kind == KIND_ACC:
-        a_half, half_thickness, ia, ib, end_index = acc
-        acc_sets(y, v, dv, ts, te, delay_s, a_half, delta_y_m, half_thickness, ia, ib, end_index,
-                 acc_e[:, :k], acc_r[:, :k])  # fmt: skip
-        e_src, r_src, ke = acc_e[0], acc_r[0], k
-    elif kind == KIND_POS:
-        pos_sets(y, pos[0], pos[1], pos[2], pos[3], te, delay_s, pos[4], pos[5], n_limbs, pos_e,
-                 pos_r[:, :k])  # fmt: skip
-        e_src, r_src, ke = pos_e, pos_r[0], 1
-    else:
-        row = 0 if kind == KIND_VEL else 1
-        part_joints, base, speed = static
-        static_sets(y, part_joints, te, delay_s, base[row], speed[row], st_e, st_r[:k])
-        e_src, r_src, ke = st_e, st_r, 1
-    for x in range(ke):
-        for p in range(P):
-            c = part_map[p]
-            for e in range(2):
-                for r in range(3):
-                    h_ends[x, p, e, r] = e_src[x, c, e, r]
-    for x in range(k):
-        for p in range(P):
-            h_radius[x, p] = r_src[x, part_map[p]] + widen[kind, p]
+    for h in range(y.shape[0]):
+        for x in range(k):
+            t_start[x] = times[lo + x] + age_s[h]
+            t_end[x] = times[lo + 1 + x] + age_s[h]
+        yh = y[h : h + 1]
+        if kind == KIND_ACC:
+            a_half, half_thickness, ia, ib, end_index = acc
+            acc_sets(yh, v[h : h + 1], dv[h : h + 1], ts, te, delay_s, a_half, delta_y_m,
+                     half_thickness, ia, ib, end_index, acc_e[:, :k], acc_r[:, :k])  # fmt: skip
+            e_src, r_src = acc_e[0], acc_r[0]
+        elif kind == KIND_POS:
+            pos_sets(yh, pos[0], pos[1], pos[2], pos[3], te, delay_s, pos[4], pos[5], n_limbs,
+                     pos_e, pos_r[:, :k])  # fmt: skip
+            e_src, r_src = pos_e, pos_r[0]
+        else:
+            row = 0 if kind == KIND_VEL else 1
+            part_joints, base, speed = static
+            static_sets(yh, part_joints, te, delay_s, base[row], speed[row], st_e, st_r[:k])
+            e_src, r_src = st_e, st_r
+        o = h * P
+        for x in range(ke):
+            for p in range(P):
+                c = part_map[p]
+                for e in range(2):
+                    for r in range(3):
+                        h_ends[x, o + p, e, r] = e_src[x, c, e, r]
+        for x in range(k):
+            for p in range(P):
+                h_radius[x, o + p] = r_src[x, part_map[p]] + widen[h, kind, p]
     return h_ends[:ke], h_radius[:k]
 
 
@@ -260,8 +258,11 @@ def replan_cap(candidate: float, replan: Any, sd: np.ndarray) -> float:
 
 
 @njit(cache=True)
-def check_buffers(K: int, L: int, P: int, B: int, C: int, n: int, T0: np.ndarray) -> Any:
-    """Fresh buffers of one check of ``K`` intervals, in ``fused_kernel``'s groups."""
+def check_buffers(
+    K: int, L: int, P: int, people: int, B: int, C: int, n: int, T0: np.ndarray
+) -> Any:
+    """Fresh buffers of one check of ``K`` intervals against ``people`` people of ``P`` body parts,
+    in ``fused_kernel``'s groups."""
     S = K + 1
     geometry = (np.empty((K, L, L)), np.empty((K, L, L)), np.empty((K, L, B)),
                 np.empty((K, L, B, 3)), np.full((K, L, B), -2, np.int8),
@@ -273,8 +274,9 @@ def check_buffers(K: int, L: int, P: int, B: int, C: int, n: int, T0: np.ndarray
              np.empty((K, L)), np.empty((K, L)), np.empty(K))  # fmt: skip
     sets = (np.empty(K), np.empty(K), np.empty((1, K, P, 2, 3)), np.empty((1, K, P)),
             np.empty((1, P, 2, 3)), np.empty((K, P)), np.empty((1, C, 2, 3)),
-            np.empty((1, K, C)), np.empty((K, P, 2, 3)), np.empty((K, P)))  # fmt: skip
-    return geometry, links, sets, classes(K, L, P)
+            np.empty((1, K, C)), np.empty((K, people * P, 2, 3)),
+            np.empty((K, people * P)))  # fmt: skip
+    return geometry, links, sets, classes(K, L, people * P)
 
 
 @njit(cache=True)
@@ -331,7 +333,7 @@ def _make_kernel() -> Any:
 
     @njit(
         _i8(
-            ROBOT, GEOMETRY, TRAJECTORY, LINK_CONSTANTS, LINK_BUFFERS, MODELS, HUMAN, _f8,
+            ROBOT, GEOMETRY, TRAJECTORY, LINK_CONSTANTS, LINK_BUFFERS, MODELS, HUMAN,
             SET_BUFFERS, _ROI1, _i8, _b1, types.Tuple((_b1, _f8, _f8, _f8)), CLASSES, CLASSES,
             VERDICT, _WI1,
         ),
@@ -345,7 +347,6 @@ def _make_kernel() -> Any:
         link_buffers: Any,
         models: Any,
         human: Any,
-        age: float,
         sets: Any,
         order: np.ndarray,
         stop: int,
@@ -383,7 +384,7 @@ def _make_kernel() -> Any:
                 break
             k = hi - lo
             is_first = state[0] == 0
-            he, hr = _human_sets(order[i], lo, hi, times, age, human, models, sets)
+            he, hr = _human_sets(order[i], lo, hi, times, human, models, sets)
             out = first if is_first else _view(scratch, k)
             contact, contact_s, env, self_, cls, stack, diam, d_rh = out
             if not pair_gaps(r_ends[lo:hi], r_radius[lo:hi], he, hr, d_rh):

@@ -1,6 +1,7 @@
 """The PFL shield's speed scaling (:mod:`sara_app.safety.pfl_shield`): its tuning
-(:class:`SpeedScaling`), the record of what a cycle checked (:class:`PflCycle`) and the path
-speeds a verdict suggests (:func:`candidate`, :func:`allowed_speed`).
+(:class:`SpeedScaling`) and the record of what a cycle checked (:class:`PflCycle`); the path
+speeds a verdict suggests are computed in the compiled check
+(:func:`~sara_app.safety.pfl_kernels.speed_kernel`, ``stuck_kernel``).
 
 Speed scaling. Link energies along the path scale with the square of the path speed (``v = q'
 s'``), so a violated entry with energy ``E`` and threshold ``T`` at path speed ``s'`` suggests
@@ -31,18 +32,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
-
-import numpy as np
 
 from sara_app.errors import ParameterError
 from sara_app.safety.pfl import PflResult
-from sara_app.safety.pfl_kernels import speed_kernel, stuck_kernel
 
-if TYPE_CHECKING:
-    from sara_app.robot.shielded import ShieldedTrajectory
-
-__all__ = ["PflCycle", "SpeedScaling", "allowed_speed", "candidate"]
+__all__ = ["PflCycle", "SpeedScaling"]
 
 
 @dataclass(frozen=True)
@@ -94,15 +88,3 @@ class SpeedScaling:
                 f"max_models = {self.max_models}, max_replans = {self.max_replans}; expected "
                 "max_models >= 1 and max_replans >= 0"
             )
-
-
-def allowed_speed(res: PflResult, traj: ShieldedTrajectory) -> float:
-    """Speed estimate at which the contacts of a verified trajectory reach their thresholds."""
-    return float(speed_kernel(False, res.safe, res.cls, res.threshold_J, res.energy_J, traj.sd))
-
-
-def candidate(res: PflResult, traj: ShieldedTrajectory, E0: np.ndarray) -> tuple[float, bool]:
-    """Candidate cap from the violated entries, and whether a slower plan can fix them (no
-    violated entry already too energetic at the current state: link energies ``E0 (L,)``)."""
-    cand = speed_kernel(True, res.safe, res.cls, res.threshold_J, res.energy_J, traj.sd)
-    return float(cand), not stuck_kernel(res.safe, res.threshold_J, E0)
