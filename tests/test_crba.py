@@ -10,7 +10,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from sara_app.errors import InputError
+from sara_app.errors import InputError, ParameterError
 from sara_app.robot.crba_kernel import CompiledCrba
 from sara_app.robot.energy import LinkMotion
 from sara_app.robot.model import RobotModel, load_robot
@@ -49,7 +49,7 @@ def _configs(model: RobotModel, S: int, seed: int) -> np.ndarray:
 @pytest.mark.parametrize("S", [1, 10, 40, 300])
 def test_compiled_crba_equals_pinocchio(robot: tuple[RobotModel, LinkMotion], S: int) -> None:
     model, motion = robot
-    assert motion.crba_backend == "compiled"  # S = 40 and 300 exceed the initial buffer (16)
+    # S = 40 and 300 exceed the initial buffer (16)
     Q = _configs(model, S, seed=S)
     ref = _reference(model.pin_model, Q)
     _assert_close(motion.mass_matrices(Q).copy(), ref)
@@ -85,15 +85,21 @@ def test_non_finite_rows(robot: tuple[RobotModel, LinkMotion]) -> None:
         motion.mass_matrices(Q[:, :3])
 
 
-def test_pinocchio_fallback_path_gives_the_same_matrices(
-    robot: tuple[RobotModel, LinkMotion],
+def test_a_model_the_compiled_crba_does_not_support_is_refused(
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    model, _ = robot
-    motion = LinkMotion(model)
-    Q = _configs(model, 20, seed=9)
-    compiled = motion.mass_matrices(Q).copy()
-    motion._compiled_crba = None  # what a model with an unsupported joint gets
-    _assert_close(motion.mass_matrices(Q), compiled)
+    """Link energies run on the compiled CRBA only: a robot with a joint it does not support
+    (here the Panda's kinematics handed a spherical joint) is refused when its
+    :class:`LinkMotion` is built, naming the robot and the joint: no silent switch to
+    another implementation."""
+    from sara_app.robot import energy
+
+    bad = pin.Model()
+    jid = bad.addJoint(0, pin.JointModelSpherical(), pin.SE3.Identity(), "ball")
+    bad.appendBodyToJoint(jid, pin.Inertia.Random(), pin.SE3.Identity())
+    monkeypatch.setattr(energy, "CompiledCrba", lambda pm: CompiledCrba(bad))
+    with pytest.raises(ParameterError, match="robot 'panda'.*compiled CRBA.*'ball'"):
+        LinkMotion(load_robot("panda"))
 
 
 def _tree_model(joints: list[tuple[int, pin.JointModel]], seed: int) -> pin.Model:

@@ -11,6 +11,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from panda_limits import DT, HOME, PANDA, H, check_limits  # noqa: E402
+from shielded_reference import shielded_reference
 
 from sara_app.errors import RobotModelError
 from sara_app.robot.failsafe import plan_joint_stop, plan_stop, straight_line_stop_duration
@@ -184,7 +185,7 @@ def test_shielded_trajectory(wps: np.ndarray, n_steps: int, n_int: int | None) -
         np.testing.assert_array_equal(traj.times[2:], traj.times[1] + T * (np.arange(1, m + 1) / m))
     # ... and so do the joint samples and bounds, up to rounding (the compiled quartic is
     # summed in another order than the reference's matmul; tests/test_trajectory_kernels.py)
-    ref = shielded_trajectory(f, DT, n_int, reference=True)
+    ref = shielded_reference(f, DT, n_int)
     for name in ("q", "v", "a", "v_bound", "a_bound"):
         np.testing.assert_allclose(getattr(traj, name), getattr(ref, name), rtol=1e-12, atol=1e-13)
     # committing the verified step gives the state at the failsafe start

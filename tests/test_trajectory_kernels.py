@@ -6,7 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from panda_limits import DT, PANDA
+from shielded_reference import shielded_reference
 
+from sara_app.robot.failsafe import BOUND_PAD
 from sara_app.robot.shielded import shielded_trajectory
 from sara_app.robot.trajectory import PathFollower
 
@@ -56,7 +58,7 @@ def test_compiled_samples_equal_reference(seed: int) -> None:
         n = None if rng.random() < 0.7 else int(rng.integers(1, 12))
         dt = float(rng.choice([0.001, 0.004, 0.02]))
         fast = shielded_trajectory(f, dt, n, max_interval_s=max_s)
-        ref = shielded_trajectory(f, dt, n, max_interval_s=max_s, reference=True)
+        ref = shielded_reference(f, dt, n, max_interval_s=max_s)
         for name in FIELDS:
             x, y = getattr(fast, name), getattr(ref, name)
             assert x.shape == y.shape, name
@@ -81,7 +83,7 @@ def test_fallback_step_equal_reference() -> None:
     f.speed_cap = 0.0
     for _ in range(5):
         fast = shielded_trajectory(f, 0.004, max_interval_s=0.01)
-        ref = shielded_trajectory(f, 0.004, max_interval_s=0.01, reference=True)
+        ref = shielded_reference(f, 0.004, max_interval_s=0.01)
         for name in FIELDS:
             np.testing.assert_allclose(
                 getattr(fast, name), getattr(ref, name), rtol=1e-12, atol=1e-13
@@ -104,10 +106,26 @@ def test_intervals_across_many_pieces_equal_reference() -> None:
         if i % 20:
             continue
         fast = shielded_trajectory(f, 0.004, 1)
-        ref = shielded_trajectory(f, 0.004, 1, reference=True)
+        ref = shielded_reference(f, 0.004, 1)
         for name in FIELDS:
             x, y = getattr(fast, name), getattr(ref, name)
             np.testing.assert_allclose(x, y, rtol=1e-12, atol=1e-13, err_msg=name)
         k = np.searchsorted(f.path.piece_starts, ref.s, side="right")
         many += int(np.count_nonzero(np.diff(k) > 2))
     assert many > 0
+
+
+def test_a_path_of_one_point_is_sampled_by_the_kernel_as_the_reference() -> None:
+    """A task of one waypoint (the robot rests there): the kernel samples the path's single
+    piece of length 0 exactly as the numpy reference: at rest at the point, bounds zero up to
+    their rounding pad."""
+    q0 = np.array([0.0, -0.3, 0.0, -2.0, 0.0, 1.8, 0.8])
+    f = PathFollower(q0[None], PANDA)
+    assert f.path.n_pieces == 0
+    fast = shielded_trajectory(f, 0.004, max_interval_s=0.01)
+    ref = shielded_reference(f, 0.004, max_interval_s=0.01)
+    for name in FIELDS:
+        np.testing.assert_array_equal(getattr(fast, name), getattr(ref, name), err_msg=name)
+    np.testing.assert_array_equal(fast.q, np.broadcast_to(q0, fast.q.shape))
+    assert not fast.v.any() and not fast.a.any()
+    assert fast.v_bound.max() <= BOUND_PAD and fast.a_bound.max() <= BOUND_PAD

@@ -41,10 +41,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import pinocchio as pin
 from numba import njit, types
 
-from sara_app.errors import InputError
+from sara_app.errors import InputError, ParameterError
 from sara_app.kernel_types import RO1 as _RO1
 from sara_app.kernel_types import RO2 as _RO2
 from sara_app.kernel_types import RO3 as _RO3
@@ -295,7 +294,7 @@ def energy_twist_kernel(
 class LinkMotion:
     """Energies and twists of every capsule link at trajectory samples, for one robot.
 
-    Built once per model (own ``pinocchio.Data``, masks, buffers grown on demand). Not
+    Built once per model (masks, buffers grown on demand). Not
     thread-safe. Typical use per control cycle with a shielded trajectory ``traj``::
 
         samples = motion.evaluate_path(traj.q, traj.dq, traj.sd)   # (K+1, ...) arrays
@@ -305,19 +304,19 @@ class LinkMotion:
     def __init__(self, model: RobotModel, occupancy: RobotOccupancy | None = None) -> None:
         self.model = model
         self.n_dof, self.n_links = model.n_dof, model.n_links
-        self._data = model.pin_model.createData()
         self.mask = support_mask(model)
         self.mask.flags.writeable = False
         self._maskf = self.mask.astype(float)
         self._occ = occupancy or RobotOccupancy(model)
-        self._iu = np.triu_indices(self.n_dof, 1)
         pm = model.pin_model
         self._v_index = np.array([pm.idx_vs[j] for j in range(1, pm.njoints)], dtype=np.int64)
         crba = CompiledCrba(pm)
-        self._compiled_crba = crba if crba.supported else None
-        self.crba_backend = "compiled" if crba.supported else f"pin.crba loop ({crba.reason})"
-        """Which CRBA fills the inertia matrices: the compiled one (:mod:`crba_kernel`) or,
-        for a model it does not support, ``pin.crba`` per sample (with the reason)."""
+        if not crba.supported:
+            raise ParameterError(
+                f"robot {model.name!r}: link energies need the compiled CRBA, which does not "
+                f"support this model ({crba.reason})"
+            )
+        self._compiled_crba = crba
         self._cap = 0
         self._grow(16)
         self._clean = np.zeros(0, dtype=bool)
@@ -328,8 +327,9 @@ class LinkMotion:
         return self._occ
 
     @property
-    def compiled_crba(self) -> CompiledCrba | None:
-        """The compiled CRBA, None when it does not support the model (:attr:`crba_backend`)."""
+    def compiled_crba(self) -> CompiledCrba:
+        """The compiled CRBA (:mod:`sara_app.robot.crba_kernel`) that fills the inertia
+        matrices."""
         return self._compiled_crba
 
     def support_arrays(self) -> tuple[np.ndarray, np.ndarray]:
@@ -374,24 +374,12 @@ class LinkMotion:
         return self._clean[:S]
 
     def _crba(self, Q: np.ndarray) -> np.ndarray:
-        """Inertia matrices ``(S, n, n)`` at ``Q (S, n)`` float64 into the buffer (a view; at
-        least the upper triangle filled): the compiled CRBA (both triangles), or ``pin.crba``
-        per sample for a model the compiled one does not support (:attr:`crba_backend`)."""
+        """Inertia matrices ``(S, n, n)`` at ``Q (S, n)`` float64 into the buffer (a view)."""
         S = Q.shape[0]
         self._grow(S)
         M = self._M[:S]
-        if self._compiled_crba is None:
-            return self._crba_pinocchio(Q)
         self._compiled_crba.compute(Q, M)
         return M
-
-    def _crba_pinocchio(self, Q: np.ndarray) -> np.ndarray:
-        """``pin.crba`` per sample into the buffer: ``(S, n, n)``, upper triangle filled."""
-        self._grow(Q.shape[0])
-        pm, d, M = self.model.pin_model, self._data, self._M
-        for s in range(Q.shape[0]):
-            M[s] = pin.crba(pm, d, Q[s])
-        return M[: Q.shape[0]]
 
     def mass_matrices(self, q: np.ndarray) -> np.ndarray:
         """``(S, n, n)`` inertia matrices ``B(q)`` (a buffer view) at ``q (S, n)``; a
@@ -399,11 +387,7 @@ class LinkMotion:
         Q = np.asarray(q, dtype=np.float64)
         if Q.ndim != 2 or Q.shape[1] != self.n_dof:
             raise InputError(f"q has shape {Q.shape}; expected (S, {self.n_dof}) joint positions")
-        M = self._crba(Q)
-        if self._compiled_crba is None:
-            iu, ju = self._iu
-            M[:, ju, iu] = M[:, iu, ju]  # pin.crba fills the upper triangle
-        return M
+        return self._crba(Q)
 
     def energies(self, q: np.ndarray, q_dot: np.ndarray, M: np.ndarray | None = None) -> np.ndarray:
         """Eq. 46 for all links: ``(S, L)`` J (a buffer view). ``M`` may pass ``B(q)``."""

@@ -195,6 +195,13 @@ class PathTrajectory:
         if pieces is None:
             self.length = 0.0
             self._s0_list: list[float] = [0.0]
+            # for the shielded trajectory's kernel: one piece of length 0 at the point (q there,
+            # every derivative and maximum 0)
+            n = self.n_joints
+            poly = np.zeros((1, 5, 4 * n))
+            poly[0, 0, :n] = self._start
+            z = np.zeros((1, n))
+            self._piece_tables = (np.zeros(1), np.zeros(1), poly, z, z, z)
             return
         p = pieces
         self.length = float(p.s0[-1] + p.length[-1])

@@ -2,7 +2,7 @@
 intended control step of the path follower followed by the failsafe stop from its end, sampled for
 verification: sample times, path and joint states, and rigorous per-interval bounds on joint speed
 and acceleration (:func:`sara_app.robot.failsafe.interval_bounds`), from one compiled pass
-(:mod:`sara_app.robot.trajectory_kernels`) with the numpy composition as its reference.
+(:mod:`sara_app.robot.trajectory_kernels`; its numpy reference is in ``tests/``).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sara_app.errors import RobotModelError
-from sara_app.robot.failsafe import BOUND_PAD, StopProfile, interval_bounds
+from sara_app.robot.failsafe import BOUND_PAD, StopProfile
 from sara_app.robot.path import PathTrajectory
 from sara_app.robot.trajectory import FollowerStep, PathFollower
 from sara_app.robot.trajectory_kernels import shielded_samples_kernel
@@ -39,29 +39,13 @@ def _samples(path: PathTrajectory, step: FollowerStep, m: int) -> _Samples:
     bounds = np.empty((2, K, n))
     sd_max = np.empty(K)
     phases = np.array(head.durs + stop.durs + head.jerks + stop.jerks)  # durations, jerks
-    p_s0, p_len, poly, M1, M2, qs = path._piece_tables  # path.piece_tables: n_pieces >= 1
+    p_s0, p_len, poly, M1, M2, qs = path._piece_tables  # a one-point path: one piece of length 0
     shielded_samples_kernel(
         step.dt, stop.duration, s0, v0, a0, phases, p_s0, p_len, poly, M1, M2, qs, BOUND_PAD,
         times, ps, joint, bounds, sd_max,
     )  # fmt: skip
     s, sd, sdd = ps
     return times, (s, sd, sdd), joint[0], joint[1], joint[3], joint[4], bounds[0], bounds[1], sd_max
-
-
-def _samples_reference(path: PathTrajectory, step: FollowerStep, m: int) -> _Samples:
-    """:func:`_samples` composed of the profile's and the path's numpy methods."""
-    T = step.stop.duration_s
-    times = np.empty(m + 2)
-    times[0], times[1] = 0.0, step.dt
-    times[2:] = step.dt + T * (np.arange(1, m + 1) / max(m, 1))
-    prof = step.profile.then(step.stop.profile)
-    s, sd, sdd = prof.evaluate(times)
-    q, dq, d2q = path._derivatives_array(s, 2)
-    v = dq * sd[:, None]
-    a = d2q * (sd * sd)[:, None] + dq * sdd[:, None]
-    v_bound, a_bound = interval_bounds(path, prof, times, s, sd, sdd, dq)
-    sd_max = prof.interval_maxima(times, sd, sdd)[0]
-    return times, (s, sd, sdd), q, dq, v, a, v_bound, a_bound, sd_max
 
 
 @dataclass(frozen=True)
@@ -104,15 +88,12 @@ def shielded_trajectory(
     n_intervals: int | None = None,
     *,
     max_interval_s: float = 0.01,
-    reference: bool = False,
 ) -> ShieldedTrajectory:
     """The follower's next step of ``dt`` seconds (follower unchanged) + the failsafe after it.
 
     The failsafe part is split into ``n_intervals`` equal intervals (default: as few as keep
     every interval at most ``max_interval_s`` long; none if the robot is at rest after the
-    step). The intended step is always one interval. ``reference``: sample with the numpy
-    composition of the profile and path methods instead of the compiled kernel (the same
-    formulas; for tests).
+    step). The intended step is always one interval.
     """
     step = follower.peek(dt)
     stop = step.stop
@@ -125,8 +106,7 @@ def shielded_trajectory(
         if not isinstance(n_intervals, int) or n_intervals < 1:
             raise RobotModelError(f"n_intervals = {n_intervals!r}; expected an integer >= 1")
         m = n_intervals if T > 0 else 0
-    samples = _samples_reference if reference or not follower.path.n_pieces else _samples
-    return from_samples(step, samples(follower.path, step, m))
+    return from_samples(step, _samples(follower.path, step, m))
 
 
 def from_samples(step: FollowerStep, samples: _Samples) -> ShieldedTrajectory:

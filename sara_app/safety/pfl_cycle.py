@@ -13,8 +13,9 @@ Several people: their body parts are stacked (person ``h``'s parts at ``h P .. (
 person's sets grow from that person's own measurement time, and the classification's constants
 are those of ``H P`` parts (:func:`rules_for`: two parts of different people never form a safe
 pair, so multi-body clamping between people is checked). What the kernel cannot compute is
-refused when the shield is built (:meth:`CompiledCycle.__init__`): models other than
-:data:`KINDS`, a robot the compiled CRBA does not support.
+refused when the shield is built: models other than :data:`KINDS`
+(:meth:`CompiledCycle.__init__`), a robot the compiled CRBA does not support
+(:class:`~sara_app.robot.energy.LinkMotion`).
 """
 
 from __future__ import annotations
@@ -91,7 +92,7 @@ def rules_for(rules: tuple[np.ndarray, ...], H: int) -> tuple[np.ndarray, ...]:
 
 class CompiledCycle:
     """The checks and replans of one PFL shield: ``pfl`` (one person's thresholds, classifier,
-    robot), ``link_states`` (of the same robot; its compiled CRBA is required), ``reach`` (the
+    robot), ``link_states`` (of the same robot), ``reach`` (the
     people's models), ``models`` (names among :data:`KINDS`), the environment ``boxes =
     (T_world_box (B, 4, 4), half_extents_m (B, 3))`` (validated by the caller), the robot
     ``occupancy`` with its tracking margin ``margin_m (L,)``, the control period ``dt_s`` and the
@@ -114,10 +115,6 @@ class CompiledCycle:
         if unknown:
             raise ParameterError(
                 f"model {unknown[0]!r} is not available in PFL mode; valid: {', '.join(KINDS)}"
-            )
-        if not link_states.compiled:
-            raise ParameterError(
-                f"robot {pfl.model.name!r}: PFL needs the compiled CRBA ({pfl.motion.crba_backend})"
             )
         if not (np.isfinite(max_interval_s) and max_interval_s > 0 and dt_s > 0):
             raise ParameterError(

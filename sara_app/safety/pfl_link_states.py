@@ -7,9 +7,8 @@ frames and capsule ends, the inertia matrices, each link's energy and twist at t
 (:func:`~sara_app.robot.energy.path_interval_energy_J`) and the Thm VI.2 velocity error
 (:meth:`~sara_app.safety.velocity_error.VelocityErrorBound.eps_from_bounds` with the joint
 jerk limits). The same compiled kernels as those functions, called from one kernel with
-buffers kept per trajectory length: the composition of the Python methods, which stays the
-reference (:meth:`PathLinkStates.reference`, tested equal), costs ~80 us per check in glue
-around ~25 us of arithmetic (measured on the benchmark's braking case).
+buffers kept per trajectory length; the composition of the Python methods is its reference in
+``tests/test_pfl_link_states.py`` (tested equal).
 
 Bad samples as in :class:`LinkMotion`: a sample whose ``q``, ``dq/ds`` or ``s'`` is not
 finite gets infinite energy, NaN twists and NaN capsule ends; a NaN in ``s'`` or ``sd_max``
@@ -153,9 +152,7 @@ class PathLinkStates:
     outputs are views, valid until the next call with the same number of samples).
 
     ``motion``: the :class:`LinkMotion` whose kinematics, CRBA and supports are used;
-    ``velocity_error``: the Thm VI.2 bound of the same robot. :attr:`compiled` is False when
-    the compiled CRBA does not support the model: :meth:`evaluate` then runs
-    :meth:`reference`.
+    ``velocity_error``: the Thm VI.2 bound of the same robot.
     """
 
     def __init__(self, motion: LinkMotion, velocity_error: VelocityErrorBound) -> None:
@@ -164,12 +161,11 @@ class PathLinkStates:
         self.n_dof, self.n_links = model.n_dof, model.n_links
         self._j_max = np.asarray(model.limits.j_max, dtype=np.float64).reshape(1, -1).copy()
         crba = motion.compiled_crba
-        self.compiled = crba is not None
         q_index, N, parents, link_joint, ends_joint, axes, T0 = motion.occupancy.kernel_arrays()
         mask, v_index = motion.support_arrays()
         # model constants, in the kernel's order
         self._kinematics = (q_index, N, parents, link_joint, ends_joint)
-        self._crba = crba.kernel_arrays() if crba is not None else None
+        self._crba = crba.kernel_arrays()
         self._links = (mask, axes, v_index, *velocity_error.kernel_arrays())
         self._T0 = np.asarray(T0, dtype=np.float64)
         self._buffers: dict[int, tuple[np.ndarray, ...]] = {}
@@ -192,8 +188,6 @@ class PathLinkStates:
 
     def kernel_constants(self) -> tuple[np.ndarray, ...]:
         """The robot's constants in the kernel's order, after the trajectory's arrays."""
-        if self._crba is None:
-            raise InputError("the compiled CRBA does not support this robot")
         return (self._j_max, *self._kinematics, *self._crba, *self._links)
 
     def base_pose(self) -> np.ndarray:
@@ -221,8 +215,6 @@ class PathLinkStates:
         """``(samples, E_int (K, L) J, eps_v (K, L) m/s)`` of a trajectory with arrays ``q,
         dq (K+1, n)``, ``sd, times (K+1,)``, ``sd_max (K,)``, ``v_bound, a_bound (K, n)`` (a
         :class:`~sara_app.robot.shielded.ShieldedTrajectory`)."""
-        if self._crba is None:
-            return self.reference(traj)
         q, dq, sd, sd_max, times, v_bound, a_bound = self.inputs(traj)
         b = self.buffers_for(q.shape[0])
         path_states_kernel(
@@ -231,14 +223,3 @@ class PathLinkStates:
         )  # fmt: skip
         T, ends, pd, w, G = b[9], b[7], b[10], b[11], b[8]
         return LinkSamples(T, ends, pd, w, G), b[12], b[13]
-
-    def reference(self, traj: Any) -> tuple[LinkSamples, np.ndarray, np.ndarray]:
-        """:meth:`evaluate` composed of :meth:`LinkMotion.evaluate_path`,
-        :func:`~sara_app.robot.energy.path_interval_energy_J` and
-        :meth:`VelocityErrorBound.eps_from_bounds` (the readable reference)."""
-        q, dq, sd, sd_max, times, v_bound, a_bound = self.inputs(traj)
-        smp = self.motion.evaluate_path(q, dq, sd)
-        E_int = energy_module.path_interval_energy_J(smp.g_J, smp.energy_J, sd, sd_max)
-        dt = times[1:] - times[:-1]
-        eps = self.velocity_error.eps_from_bounds(dt, v_bound, a_bound, self._j_max[0])
-        return smp, E_int, eps
