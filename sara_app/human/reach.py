@@ -17,6 +17,7 @@ Soundness conditions of each model (what the parameters must bound) are stated p
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -208,6 +209,18 @@ class HumanReach:
                 f"joint {self.skeleton.joints[j]!r} of human {h} is not finite: {y[h, j].tolist()}"
             )
         return y
+
+    def kernel_constants(self) -> tuple[Any, ...]:
+        """The models' constants as the compiled checks take them: ``(static, acc, pos,
+        (delay_s, delta_y_m), n_limbs)`` (:func:`~sara_app.human.reach_kernels.person_sets`)."""
+        p = self.params
+        static = (self.part_joints, np.stack([self.vel_base, self.iso_base]),
+                  np.stack([self.vel_speed, self.iso_speed]))  # fmt: skip
+        acc = (self.a_half, np.asarray(p.half_thickness_m, float), self.acc_ia, self.acc_ib,
+               self.acc_ends)  # fmt: skip
+        pos = (self.pos_seg_a, self.pos_seg_b, self.pos_seg_limb, self.pos_ends,
+               self.pos_rspeed, self.pos_rbase)  # fmt: skip
+        return static, acc, pos, (float(p.delay_s), float(p.delta_y_m)), int(self.n_limbs)
 
     # --- models --------------------------------------------------------------------------------
 

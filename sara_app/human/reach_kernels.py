@@ -14,6 +14,7 @@ call in a control loop.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numba import njit, types
@@ -30,7 +31,20 @@ from sara_app.kernel_types import W3 as _W3
 from sara_app.kernel_types import W4 as _W4
 from sara_app.kernel_types import W5 as _W5
 
-__all__ = ["acc_sets", "pos_sets", "static_sets"]
+__all__ = [
+    "KIND_ACC",
+    "KIND_ISO",
+    "KIND_POS",
+    "KIND_VEL",
+    "acc_sets",
+    "person_sets",
+    "pos_sets",
+    "static_sets",
+]
+
+KIND_ACC, KIND_VEL, KIND_ISO, KIND_POS = 0, 1, 2, 3
+"""Model codes of the compiled checks (``vel`` and ``iso13855`` are rows 0 and 1 of the static
+sets' constants)."""
 
 
 @njit(types.void(_RO3, _ROI2, _RO1, _f8, _RO1, _RO1, _W4, _W2), cache=True)
@@ -150,3 +164,58 @@ def acc_sets(
                     t, j = x // J, x % J
                     for r in range(3):
                         ends[h, k, p, e, r] = y[h, j, r] + v[h, j, r] * times[t]
+
+
+STATIC = types.Tuple((_ROI2, _RO2, _RO2))
+"""``(part_joints (P, 2), base_m (2, P), speed_mps (2, P))``: rows vel, iso13855."""
+ACC = types.Tuple((_RO1, _RO1, _ROI1, _ROI1, _ROI2))
+"""``(a_half (J,), half_thickness_m (P,), ia, ib (P,), end_index (P, 2))``."""
+POS = types.Tuple((_ROI1, _ROI1, _ROI1, _ROI2, _RO1, _RO1))
+"""``(seg_a, seg_b, seg_limb, cap_joints (C, 2), speed_mps (C,), base_m (C,))``."""
+
+
+@njit(cache=True)
+def person_sets(
+    kind: int,
+    h: int,
+    human: Any,
+    age_s: float,
+    times: np.ndarray,
+    lo: int,
+    hi: int,
+    constants: Any,
+    buffers: Any,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Person ``h``'s capsules of model ``kind`` (``KIND_*``) over intervals ``lo:hi`` of the
+    sample times ``times (K+1,)`` (from now), grown from the measurement ``age_s`` ago: ``(ends
+    (ke, C, 2, 3), radius (k, C), ke)`` views of ``buffers``, ``ke = k`` for ACC, else 1 (the
+    same axes on every interval). ``human = (y, v (H, J, 3), dv (H, J), ...)``; ``constants =
+    (static, acc, pos, (delay_s, delta_y_m), n_limbs)`` (:data:`STATIC`, :data:`ACC`,
+    :data:`POS`; :meth:`HumanReach.kernel_constants <sara_app.human.reach.HumanReach>`);
+    ``buffers = (t_start, t_end (K,), acc ends (1, K, P, 2, 3), acc radius (1, K, P), static
+    ends (1, P, 2, 3), static radius (K, P), pos ends (1, C, 2, 3), pos radius (1, K, C))``.
+    The same kernels as :meth:`HumanReach.acc <sara_app.human.reach.HumanReach>`, ``vel``,
+    ``iso13855`` and ``pos``."""
+    y, v, dv = human[0], human[1], human[2]
+    static, acc, pos, delays, n_limbs = constants
+    delay_s, delta_y_m = delays
+    t_start, t_end, acc_e, acc_r, st_e, st_r, pos_e, pos_r = buffers
+    k = hi - lo
+    for x in range(k):
+        t_start[x] = times[lo + x] + age_s
+        t_end[x] = times[lo + 1 + x] + age_s
+    ts, te = t_start[:k], t_end[:k]
+    yh = y[h : h + 1]
+    if kind == KIND_ACC:
+        a_half, half_thickness, ia, ib, end_index = acc
+        acc_sets(yh, v[h : h + 1], dv[h : h + 1], ts, te, delay_s, a_half, delta_y_m,
+                 half_thickness, ia, ib, end_index, acc_e[:, :k], acc_r[:, :k])  # fmt: skip
+        return acc_e[0, :k], acc_r[0, :k], k
+    if kind == KIND_POS:
+        pos_sets(yh, pos[0], pos[1], pos[2], pos[3], te, delay_s, pos[4], pos[5], n_limbs,
+                 pos_e, pos_r[:, :k])  # fmt: skip
+        return pos_e[0:1], pos_r[0, :k], 1
+    row = 0 if kind == KIND_VEL else 1
+    part_joints, base, speed = static
+    static_sets(yh, part_joints, te, delay_s, base[row], speed[row], st_e, st_r[:k])
+    return st_e[0:1], st_r[:k], 1

@@ -27,6 +27,7 @@ import numpy as np
 
 from sara_app.errors import InputError, ParameterError
 from sara_app.human.reach import MODELS, HumanReach, part_capsules
+from sara_app.human.reach_kernels import KIND_ACC, KIND_ISO, KIND_POS, KIND_VEL
 from sara_app.robot.failsafe import BOUND_PAD
 from sara_app.robot.occupancy import RobotOccupancy
 from sara_app.robot.shielded import ShieldedTrajectory, from_samples
@@ -34,7 +35,6 @@ from sara_app.robot.trajectory import PathFollower
 from sara_app.safety.contact import ContactResult
 from sara_app.safety.pfl import PflCheck, PflResult
 from sara_app.safety.pfl_cycle_kernel import DONE, cycle_kernel, plan_views
-from sara_app.safety.pfl_fused_kernel import KIND_ACC, KIND_ISO, KIND_POS, KIND_VEL
 from sara_app.safety.pfl_link_states import PathLinkStates
 from sara_app.safety.shield import Humans
 
@@ -134,14 +134,8 @@ class CompiledCycle:
         self._kind_rows = np.array(
             [MODELS.index(m) for m in sorted(KINDS, key=KINDS.__getitem__)], dtype=np.int64
         )
-        r, p = reach, reach.params
-        static = (r.part_joints, np.stack([r.vel_base, r.iso_base]),
-                  np.stack([r.vel_speed, r.iso_speed]))  # fmt: skip
-        acc = (r.a_half, np.asarray(p.half_thickness_m, float), r.acc_ia, r.acc_ib, r.acc_ends)
-        pos = (r.pos_seg_a, r.pos_seg_b, r.pos_seg_limb, r.pos_ends, r.pos_rspeed, r.pos_rbase)
         self._rules_1 = (*pfl.classifier.kernel_arrays(), pfl.T_clamp, pfl.T_free)
-        self._rest = (pfl.classifier.switches(), static, acc, pos,
-                      (float(p.delay_s), float(p.delta_y_m)), int(r.n_limbs), maps)  # fmt: skip
+        self._rest = (pfl.classifier.switches(), *reach.kernel_constants(), maps)
         self._models: dict[int, tuple[Any, ...]] = {}
         self._s_radius = np.asarray(pfl.model.radius_m, dtype=np.float64)
         self._boxes = boxes

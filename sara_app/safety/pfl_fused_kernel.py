@@ -20,7 +20,16 @@ from numba import njit, types
 from sara_app import geometry_kernels
 from sara_app.geometry_kernels import pair_gaps
 from sara_app.human import reach_kernels
-from sara_app.human.reach_kernels import acc_sets, pos_sets, static_sets
+from sara_app.human.reach_kernels import (
+    ACC,
+    KIND_ACC,
+    KIND_ISO,
+    KIND_POS,
+    KIND_VEL,
+    POS,
+    STATIC,
+    person_sets,
+)
 from sara_app.kernel_types import B1 as _b1
 from sara_app.kernel_types import F8 as _f8
 from sara_app.kernel_types import I8 as _i8
@@ -61,8 +70,6 @@ __all__ = [
     "fused_kernel",
 ]
 
-KIND_ACC, KIND_VEL, KIND_ISO, KIND_POS = 0, 1, 2, 3
-"""Model codes of the kernel (``vel`` and ``iso13855`` are rows 0 and 1 of the static sets)."""
 STATE_SIZE = 7
 """``state (7,)`` int64: models evaluated, unproved range ``lo, hi``, link states known (0/1),
 merged (0/1: a second model was added), eq. 6 holds (0/1), stuck (0/1: an unsafe entry of
@@ -96,12 +103,6 @@ HUMAN = types.Tuple((_RO[3], _RO[3], _RO[2], _RO[3], _RO[1]))
 """``H`` people: ``(y (H, J, 3), v (H, J, 3), dv (H, J), widen (H, 4, P), age_s (H,))``,
 ``widen`` the extra radius per model kind (``KIND_*`` rows) and body part
 (:mod:`sara_app.human.widening`), ``age_s`` the time since each one's measurement."""
-STATIC = types.Tuple((_ROI2, _RO[2], _RO[2]))
-"""``(part_joints (P, 2), base_m (2, P), speed_mps (2, P))``: rows vel, iso13855."""
-ACC = types.Tuple((_RO[1], _RO[1], _ROI1, _ROI1, _ROI2))
-"""``(a_half (J,), half_thickness_m (P,), ia, ib (P,), end_index (P, 2))``."""
-POS = types.Tuple((_ROI1, _ROI1, _ROI1, _ROI2, _RO[1], _RO[1]))
-"""``(seg_a, seg_b, seg_limb, cap_joints (C, 2), speed_mps (C,), base_m (C,))``."""
 MODELS = types.Tuple(
     (RULES, types.UniTuple(_b1, 3), STATIC, ACC, POS, types.UniTuple(_f8, 2), _i8, _ROI2)
 )
@@ -132,34 +133,17 @@ def _human_sets(
     """Every person's capsule per body part for intervals ``lo:hi``, person ``h``'s parts at
     ``h P .. (h+1) P``: ``(1|k, H P, 2, 3)``, ``(k, H P)`` views of the gathered buffers (a
     leading 1: the same capsule axes on every interval). Each person's sets grow from that
-    person's measurement time (``times + age_s[h]``)."""
-    y, v, dv, widen, age_s = human
-    static, acc, pos, delays, n_limbs, part_maps = models[2:]
-    delay_s, delta_y_m = delays
-    part_map = part_maps[kind]
-    t_start, t_end, acc_e, acc_r, st_e, st_r, pos_e, pos_r, h_ends, h_radius = sets
+    person's measurement time (``times + age_s[h]``; :func:`person_sets`)."""
+    widen, age_s = human[3], human[4]
+    part_map = models[7][kind]
+    constants = (models[2], models[3], models[4], models[5], models[6])
+    buffers = (sets[0], sets[1], sets[2], sets[3], sets[4], sets[5], sets[6], sets[7])
+    h_ends, h_radius = sets[8], sets[9]
     k, P = hi - lo, part_map.shape[0]
-    ke = k if kind == KIND_ACC else 1
-    ts, te = t_start[:k], t_end[:k]
-    for h in range(y.shape[0]):
-        for x in range(k):
-            t_start[x] = times[lo + x] + age_s[h]
-            t_end[x] = times[lo + 1 + x] + age_s[h]
-        yh = y[h : h + 1]
-        if kind == KIND_ACC:
-            a_half, half_thickness, ia, ib, end_index = acc
-            acc_sets(yh, v[h : h + 1], dv[h : h + 1], ts, te, delay_s, a_half, delta_y_m,
-                     half_thickness, ia, ib, end_index, acc_e[:, :k], acc_r[:, :k])  # fmt: skip
-            e_src, r_src = acc_e[0], acc_r[0]
-        elif kind == KIND_POS:
-            pos_sets(yh, pos[0], pos[1], pos[2], pos[3], te, delay_s, pos[4], pos[5], n_limbs,
-                     pos_e, pos_r[:, :k])  # fmt: skip
-            e_src, r_src = pos_e, pos_r[0]
-        else:
-            row = 0 if kind == KIND_VEL else 1
-            part_joints, base, speed = static
-            static_sets(yh, part_joints, te, delay_s, base[row], speed[row], st_e, st_r[:k])
-            e_src, r_src = st_e, st_r
+    ke = 1
+    for h in range(human[0].shape[0]):
+        e_src, r_src, ke = person_sets(kind, h, human, age_s[h], times, lo, hi, constants,
+                                       buffers)  # fmt: skip
         o = h * P
         for x in range(ke):
             for p in range(P):

@@ -6,11 +6,11 @@ of every robot link capsule of the interval; the trajectory is safe when every i
 for every human. This is sound exactly when each enabled model is sound for the human's motion
 (its parameters bound it): with "any model free", one unsound model makes the verdict unsound.
 
-Hot path: per human and model, one compiled kernel
-(:func:`sara_app.geometry_kernels.capsule_sets_check`) checks every (interval, human capsule,
-link) triple of the intervals still to clear: bounding spheres prune, exact segment distances
-decide. Models are tried in the given order and only for intervals that no earlier model has
-cleared.
+Hot path: one compiled call for every person (:func:`~sara_app.safety.ssm_kernel.ssm_kernel`):
+per person and model, the model's capsules from the person's measurement time against every
+link capsule of the intervals still to clear (bounding spheres prune, exact segment distances
+decide). Models are tried in the given order and only for intervals that no earlier model has
+cleared. Pereira's arm model (numpy) is computed before the call when it is enabled.
 """
 
 from __future__ import annotations
@@ -20,9 +20,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from sara_app.errors import InputError, UnknownNameError
-from sara_app.geometry_kernels import capsule_sets_check, pair_distances
+from sara_app.geometry_kernels import pair_distances
 from sara_app.human.reach import MODELS, HumanReach, Occupancy, part_capsules
-from sara_app.human.widening import per_capsule
+from sara_app.human.reach_kernels import KIND_ACC, KIND_ISO, KIND_POS, KIND_VEL
+from sara_app.safety.ssm_kernel import KIND_ARM, ssm_kernel
+
+_CODES = {"acc": KIND_ACC, "vel": KIND_VEL, "iso13855": KIND_ISO, "pos": KIND_POS,
+          "arm": KIND_ARM}  # fmt: skip
 
 
 @dataclass
@@ -84,6 +88,12 @@ class SsmVerifier:
         self.models = tuple(models)
         self._model_rows = [MODELS.index(m) for m in self.models]  # rows of a widening
         self._part_maps = [part_capsules(reach, m) for m in self.models]
+        self._maps = np.zeros((len(self.models), reach.skeleton.n_parts), dtype=np.int64)
+        for m, part_map in enumerate(self._part_maps):
+            self._maps[m] = part_map
+        self._codes = np.array([_CODES[m] for m in self.models], dtype=np.int64)
+        self._constants = reach.kernel_constants()
+        self._no_arm = (np.zeros((0, 1, 1, 2, 3)), np.zeros((0, 1, 1)))
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -142,6 +152,7 @@ class SsmVerifier:
             for a in (y, v, dv, age_s, times_s, robot_ends, robot_radius)
         )
         H, M, K = y.shape[0], len(self.models), robot_ends.shape[0]
+        P = self.reach.skeleton.n_parts
         L = robot_ends.shape[1] if robot_ends.ndim == 4 else -1
         J = self.reach.skeleton.n_joints
         shapes = (y.shape, v.shape, dv.shape, age_s.shape, times_s.shape)
@@ -155,45 +166,36 @@ class SsmVerifier:
                 f"{robot_radius.shape}; expected ({H}, {J}, 3) twice, ({H}, {J}), ({H},), (K+1,), "
                 "(K, L, 2, 3) and (K, L)"
             )
-        free = np.zeros((H, M, K), dtype=bool)
-        evaluated = np.zeros((H, M, K), dtype=bool)
-        closest = np.full((H, M), np.inf)
-        hit = np.empty(K, dtype=bool)
-        cleared = np.empty(K, dtype=bool)
-        safe = True
-        for h in range(H):
-            tau = times_s + age_s[h]  # interval starts tau[:-1], ends tau[1:]
-            cleared[:] = False
-            yh, vh, dvh = y[h : h + 1], v[h : h + 1], dv[h : h + 1]
-            for m, name in enumerate(self.models):
-                todo = evaluated[h, m]
-                np.logical_not(cleared, out=todo)
-                occ = self.occupancy(name, yh, vh, dvh, tau[:-1], tau[1:])
-                if widen_m is not None and widen_m[h, self._model_rows[m]].any():
-                    occ = self._widened(occ, m, widen_m[h, self._model_rows[m]])
-                closest[h, m] = self._collides(occ, robot_ends, robot_radius, todo, hit)
-                np.greater(todo, hit, out=free[h, m])  # evaluated and no hit
-                np.logical_or(cleared, free[h, m], out=cleared)
-                if cleared.all():
-                    break
-            safe = safe and bool(cleared.all())
-        return SsmResult(safe, free, evaluated, closest)
+        if widen_m is None:
+            widen = np.zeros((H, M, P))
+        else:
+            widen = np.asarray(widen_m, dtype=np.float64)
+            if widen.shape != (H, len(MODELS), P):
+                raise InputError(
+                    f"widen_m has shape {widen.shape}; expected ({H}, {len(MODELS)}, {P})"
+                )
+            widen = widen[:, self._model_rows]  # rows in the check's model order
+        free = np.empty((H, M, K), dtype=bool)
+        evaluated = np.empty((H, M, K), dtype=bool)
+        closest = np.empty((H, M))
+        safe = ssm_kernel(
+            (y, v, dv, widen, age_s), self._constants, self._codes, self._maps,
+            self._arm_sets(y, age_s, times_s), times_s, robot_ends, robot_radius, free,
+            evaluated, closest,
+        )  # fmt: skip
+        return SsmResult(bool(safe), free, evaluated, closest)
 
-    def _widened(self, occ: Occupancy, m: int, widen_p: np.ndarray) -> Occupancy:
-        """``occ`` with each capsule grown by the largest widening of the body parts mapped to
-        it (a new radius array: only for people whose sets are widened)."""
-        extra = per_capsule(widen_p, self._part_maps[m], occ.radius.shape[-1])
-        return Occupancy(occ.model, occ.ends, occ.radius + extra, occ.names)
+    def _arm_sets(
+        self, y: np.ndarray, age_s: np.ndarray, times_s: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Pereira's arm model's capsules per person ``(H, Ke, C, 2, 3)``, ``(H, K, C)`` (numpy,
+        :func:`~sara_app.human.arm.arm_occupancy`); empty when the check does not use it."""
+        if "arm" not in self.models:
+            return self._no_arm
+        from sara_app.human.arm import arm_occupancy
 
-    @staticmethod
-    def _collides(
-        occ: Occupancy,
-        robot_ends: np.ndarray,
-        robot_radius: np.ndarray,
-        todo: np.ndarray,
-        hit: np.ndarray,
-    ) -> float:
-        """Writes ``hit (K,)`` (one human's capsules may touch the robot on interval ``k``, for
-        the intervals in ``todo``) and returns the exact smallest surface distance over the
-        checked intervals."""
-        return capsule_sets_check(occ.ends[0], occ.radius[0], robot_ends, robot_radius, todo, hit)
+        occ = [
+            arm_occupancy(self.reach, y[h : h + 1], times_s[:-1] + a, times_s[1:] + a)
+            for h, a in enumerate(age_s.tolist())
+        ]
+        return np.concatenate([o.ends for o in occ]), np.concatenate([o.radius for o in occ])
