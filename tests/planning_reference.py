@@ -10,18 +10,18 @@ import math
 from bisect import bisect_right
 
 import numpy as np
-
-from sara_app.errors import RobotModelError
-from sara_app.robot.failsafe import plan_stop_unchecked
-from sara_app.robot.joints import REST_A, REST_V, S_TOL
-from sara_app.robot.profile import (
-    ScalarProfile,
+from profile_reference import (
     cut_phases,
     phase_maxima,
     phases_at,
     phases_end,
     velocity_phases,
 )
+
+from sara_app.errors import RobotModelError
+from sara_app.robot.failsafe import plan_stop_unchecked
+from sara_app.robot.joints import REST_A, REST_V, S_TOL
+from sara_app.robot.profile import ScalarProfile
 from sara_app.robot.trajectory import FollowerStep, PathFollower, _follower_step
 
 

@@ -13,9 +13,10 @@ import planning_reference
 import pytest
 from panda_limits import PANDA
 from planning_reference import reference_peek
+from profile_reference import phase_maxima, phases_end, velocity_phases
 
 from sara_app.robot import planning_kernels as pk
-from sara_app.robot.profile import phase_maxima, phases_end, velocity_phases
+from sara_app.robot import profile
 from sara_app.robot.trajectory import _CONSTS, FollowerStep, PathFollower
 
 
@@ -131,7 +132,7 @@ def test_velocity_phases_compiled_alike_and_sound() -> None:
         )
         A, J = float(rng.uniform(0.1, 20.0)), float(rng.uniform(1.0, 5000.0))
         durs, jerks = velocity_phases(v0, a0, vt, A, J)
-        ph = pk._vphases(v0, a0, vt, A, J)
+        ph = pk.velocity_phases_kernel(v0, a0, vt, A, J)
         n = int(ph[0])
         assert _bits([durs, jerks]) == _bits([list(ph[1 : 1 + n]), list(ph[4 : 4 + n])])
         assert all(t > 0.0 for t in durs) and all(abs(j) in (0.0, J) for j in jerks)
@@ -189,3 +190,35 @@ def test_non_finite_and_huge_states_plan_alike() -> None:
         else:
             assert out[0] == out[1], (g.s, g.sd, g.sdd, g.speed_cap)
     assert overflows > 0
+
+
+def test_the_profile_functions_are_the_compiled_ones_and_equal_the_python_reference() -> None:
+    """``sara_app.robot.profile``'s phase functions run the planner's compiled helpers (one
+    implementation); on random phase lists of up to 8 phases (a step) and times inside and
+    after them they equal the plain Python reference bit for bit."""
+    import profile_reference as ref
+
+    rng = np.random.default_rng(12)
+    for _ in range(3000):
+        n = int(rng.integers(0, 9))
+        durs = [float(x) for x in rng.uniform(1e-4, 0.05, n)]
+        jerks = [float(x) for x in rng.choice([-900.0, 0.0, 450.0, 1e-3], n)]
+        s, v, a = (float(x) for x in rng.normal(0, 1, 3))
+        t = float(rng.uniform(0, 0.05 * n + 0.02))
+        assert _bits([profile.phases_at(s, v, a, durs, jerks, t)]) == _bits(
+            [ref.phases_at(s, v, a, durs, jerks, t)]
+        )
+        assert _bits([profile.phase_maxima(v, a, durs, jerks)]) == _bits(
+            [ref.phase_maxima(v, a, durs, jerks)]
+        )
+        assert _bits(list(profile.cut_phases(durs, jerks, t))) == _bits(
+            list(ref.cut_phases(durs, jerks, t))
+        )
+        if n <= 3:
+            assert _bits([profile.phases_end(s, v, a, durs, jerks)]) == _bits(
+                [ref.phases_end(s, v, a, durs, jerks)]
+            )
+        A, J = float(rng.uniform(0.1, 20.0)), float(rng.uniform(1.0, 5000.0))
+        assert _bits(list(profile.velocity_phases(v, a, s, A, J))) == _bits(
+            list(ref.velocity_phases(v, a, s, A, J))
+        )

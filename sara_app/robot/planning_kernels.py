@@ -34,7 +34,18 @@ from sara_app.kernel_types import RO2 as _RO2
 from sara_app.kernel_types import RO3 as _RO3
 from sara_app.kernel_types import W1 as _W1
 
-__all__ = ["CONSTS", "OUT_LEN", "PC_COLS", "peek_kernel", "profile_record"]
+__all__ = [
+    "CONSTS",
+    "OUT_LEN",
+    "PC_COLS",
+    "cut_phases_kernel",
+    "peek_kernel",
+    "phase_maxima_kernel",
+    "phases_at_kernel",
+    "phases_end_kernel",
+    "profile_record",
+    "velocity_phases_kernel",
+]
 
 # columns of the per-piece table ``pc (P, PC_COLS)``
 S0, V, A, J, A_TAIL, J_TAIL, LIN, V_LIN, A_LIN, J_LIN, X0, X1, INV_L = range(13)
@@ -104,7 +115,7 @@ def _three(t1: float, hold: float, t3: float, j1: float, j3: float, d: float) ->
 
 
 @njit(_PH(_f8, _f8, _f8, _f8, _f8), cache=True)
-def _vphases(v0: float, a0: float, vt: float, A: float, J: float) -> tuple:
+def velocity_phases_kernel(v0: float, a0: float, vt: float, A: float, J: float) -> tuple:
     """``profile.velocity_phases``."""
     two_j = 2.0 * J
     vr = v0 + a0 * abs(a0) / two_j
@@ -136,7 +147,7 @@ def _vphases(v0: float, a0: float, vt: float, A: float, J: float) -> tuple:
 
 
 @njit(_S3(_f8, _f8, _f8, _PH), cache=True)
-def _ph_end(s: float, v: float, a: float, ph: tuple) -> tuple:
+def phases_end_kernel(s: float, v: float, a: float, ph: tuple) -> tuple:
     """``profile.phases_end``."""
     for i in range(int(ph[0])):
         t = ph[1 + i]
@@ -179,7 +190,7 @@ def _ph_duration(ph: tuple) -> float:
 
 
 @njit(_S3(_f8, _f8, _f8, _W1, _W1, _ip, _f8), cache=True)
-def _arr_at(
+def phases_at_kernel(
     s: float, v: float, a: float, durs: np.ndarray, jerks: np.ndarray, n: int, t: float
 ) -> tuple:
     """``profile.phases_at`` of the first ``n`` phases of ``durs``, ``jerks``."""
@@ -200,7 +211,7 @@ def _arr_at(
 
 
 @njit(_S3(_f8, _f8, _W1, _W1, _ip), cache=True)
-def _maxima(v: float, a: float, durs: np.ndarray, jerks: np.ndarray, n: int) -> tuple:
+def phase_maxima_kernel(v: float, a: float, durs: np.ndarray, jerks: np.ndarray, n: int) -> tuple:
     """``profile.phase_maxima`` of the first ``n`` phases."""
     vmax, amax, jmax = v, abs(a), 0.0
     for i in range(n):
@@ -226,7 +237,7 @@ def _maxima(v: float, a: float, durs: np.ndarray, jerks: np.ndarray, n: int) -> 
 
 
 @njit(_ip(_W1, _W1, _ip, _f8, _W1, _W1), cache=True)
-def _cut(
+def cut_phases_kernel(
     durs: np.ndarray, jerks: np.ndarray, n: int, t: float, od: np.ndarray, oj: np.ndarray
 ) -> int:
     """``profile.cut_phases`` of the first ``n`` phases into ``od``, ``oj``; their count."""
@@ -451,8 +462,8 @@ def _check_candidate(
         return False, -1.0, -1.0, _EMPTY
     if a0 < 0.0 and v0 < a0 * a0 / (2.0 * J_) * (1.0 - 1e-9) - 1e-15:
         return False, -1.0, -1.0, _EMPTY
-    ph = _vphases(v0, a0, 0.0, A_, J_)
-    s_end = _ph_end(s, v0, a0, ph)[0]
+    ph = velocity_phases_kernel(v0, a0, 0.0, A_, J_)
+    s_end = phases_end_kernel(s, v0, a0, ph)[0]
     if s_end > S + consts[C_STOL]:
         return False, -1.0, -1.0, ph
     if a0 > 0.0:
@@ -567,7 +578,7 @@ def _brake_gap(
 ) -> float:
     """``PathFollower._brake_gap`` from the state ``(s, v, a)``."""
     s, v, a = _ph_at(s, v, a, base, tau)
-    return _ph_end(s, v, a, _vphases(v, a, target, A_, J_))[0]
+    return phases_end_kernel(s, v, a, velocity_phases_kernel(v, a, target, A_, J_))[0]
 
 
 @njit(_ip(_f8, _f8, _f8, _PH, _f8, _f8, _f8, _f8, _f8, _W1, _W1), cache=True)
@@ -599,7 +610,7 @@ def _fit_brake(
                 break
         tau = lo
     s2, v2, a2 = _ph_at(s, v, a, base, tau)
-    d = _vphases(v2, a2, target, A_, J_)
+    d = velocity_phases_kernel(v2, a2, target, A_, J_)
     n = 0
     if tau > 0.0:  # cut_phases(base, tau)
         rest = tau
@@ -652,8 +663,8 @@ def _intended(
     s_tol = consts[C_STOL]
     k0 = _piece(pc, s)
     if v > 0 or a != 0:
-        ph = _vphases(v, a, 0.0, A_min, J_min)
-        reach = _ph_end(0.0, v, a, ph)[0] if ph[0] > 0.0 else 0.0
+        ph = velocity_phases_kernel(v, a, 0.0, A_min, J_min)
+        reach = phases_end_kernel(0.0, v, a, ph)[0] if ph[0] > 0.0 else 0.0
         reach = 0.0 if 0.0 > reach else reach
     else:
         reach = 0.0
@@ -669,7 +680,7 @@ def _intended(
         x = pc[k, J]
         J_f = x if x < J_f else J_f
     x = pc[k0, V]
-    base = _vphases(v, a, cap if cap < x else x, A_f, J_f)
+    base = velocity_phases_kernel(v, a, cap if cap < x else x, A_f, J_f)
     s1, v1, a1 = _ph_at(s, v, a, base, dt)
     # the constraints ahead, each tried in the order the Python method lists them
     found = False
@@ -699,10 +710,10 @@ def _intended(
             x = pc[k0, J_TAIL]
             J_c = x if x < J_f else J_f
             pos, target = S, 0.0
-        ph = _vphases(v1, a1, target, A_c, J_c)
-        if _ph_end(s1, v1, a1, ph)[0] >= pos - s_tol * 1e-3:
+        ph = velocity_phases_kernel(v1, a1, target, A_c, J_c)
+        if phases_end_kernel(s1, v1, a1, ph)[0] >= pos - s_tol * 1e-3:
             n = _fit_brake(s, v, a, base, dt, target, pos, A_c, J_c, td, tj)
-            _, v_end, a_end = _arr_at(s, v, a, td, tj, n, dt)
+            _, v_end, a_end = phases_at_kernel(s, v, a, td, tj, n, dt)
             if found:
                 better = v_end < bv if v_end != bv else a_end < ba  # (v, a) < (bv, ba)
             else:
@@ -747,7 +758,7 @@ def _step_ok(
     k0 = _piece(pc, s0)
     k1 = _piece(pc, s1)
     if k1 == k0:
-        vmax, amax, jmax = _maxima(v0, a0, hd, hj, n)
+        vmax, amax, jmax = phase_maxima_kernel(v0, a0, hd, hj, n)
         return _piece_ok(k0, vmax, amax, jmax, pc, rows, consts)
     T = 0.0
     for i in range(n):
@@ -759,7 +770,7 @@ def _step_ok(
             lo, hi = t_in, T
             for _ in range(60):
                 mid = 0.5 * (lo + hi)
-                if _arr_at(s0, v0, a0, hd, hj, n, mid)[0] < b:
+                if phases_at_kernel(s0, v0, a0, hd, hj, n, mid)[0] < b:
                     lo = mid
                 else:
                     hi = mid
@@ -769,7 +780,7 @@ def _step_ok(
         else:
             t_out, t_next = T, T
         # prof.tail(t_in): its start state and phases
-        _, pv, pa = _arr_at(s0, v0, a0, hd, hj, n, t_in)
+        _, pv, pa = phases_at_kernel(s0, v0, a0, hd, hj, n, t_in)
         m = 0
         acc = 0.0
         for i in range(n):
@@ -780,8 +791,8 @@ def _step_ok(
                 tj[m] = hj[i]
                 m += 1
         x = t_out - t_in
-        m = _cut(td, tj, m, 0.0 if 0.0 > x else x, cd, cj)
-        vmax, amax, jmax = _maxima(pv, pa, cd, cj, m)
+        m = cut_phases_kernel(td, tj, m, 0.0 if 0.0 > x else x, cd, cj)
+        vmax, amax, jmax = phase_maxima_kernel(pv, pa, cd, cj, m)
         if not _piece_ok(k, vmax, amax, jmax, pc, rows, consts):
             return False
         t_in = t_next
@@ -865,7 +876,7 @@ def peek_kernel(
     n_plan, A_f, J_f = _intended(
         s, v, a, dt, cap, S, A_min, J_min, ramp_c, pc, consts, pd, pj, td, tj
     )
-    n = _cut(pd, pj, n_plan, dt, hd, hj)
+    n = cut_phases_kernel(pd, pj, n_plan, dt, hd, hj)
     if n > H_CAP:  # never (see H_CAP); keeps the record in bounds
         return FALLBACK
     _record(out, O_HEAD, H_CAP, s, v, a, hd, hj, n)
