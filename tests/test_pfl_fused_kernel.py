@@ -33,6 +33,7 @@ from sara_app.safety.pfl_shield import PflCycle
         (("pos",), True),
         (("vel",), True),
         (("acc", "vel", "pos"), False),
+        (("combined", "pos"), True),
     ],
 )
 def test_closed_loop_equals_the_python_composition(models: tuple[str, ...], boxes: bool) -> None:

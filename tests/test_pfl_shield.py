@@ -309,7 +309,7 @@ def test_classification_is_monotone_in_the_human_sets() -> None:
         assert np.all(small.safe | ~big.safe)
 
 
-@pytest.mark.parametrize("model", ["pos", "vel", "acc", "iso13855", "arm"])
+@pytest.mark.parametrize("model", ["pos", "vel", "acc", "iso13855", "arm", "combined"])
 def test_every_body_part_lies_in_its_capsule(model: str) -> None:
     shield = make_shield()
     reach = shield.reach

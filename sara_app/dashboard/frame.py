@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-MODEL_NAMES: tuple[str, ...] = ("pos", "vel", "acc", "iso13855", "arm")
+MODEL_NAMES: tuple[str, ...] = ("pos", "vel", "acc", "iso13855", "arm", "combined")
 """Human reachability models the dashboard knows (one capsule group and one toggle each)."""
 
 CONTACT_NONE, CONTACT_UNCONSTRAINED, CONTACT_ENV, CONTACT_SELF = 0, 1, 2, 3

@@ -44,6 +44,7 @@ MODEL_COLORS: dict[str, tuple[int, int, int]] = {
     "acc": (150, 80, 220),
     "iso13855": (240, 140, 30),
     "arm": (230, 200, 0),
+    "combined": (40, 160, 90),
 }
 VERIFIED_RGB = (30, 190, 60)
 UNVERIFIED_RGB = (225, 30, 30)

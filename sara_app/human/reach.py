@@ -23,10 +23,10 @@ import numpy as np
 
 from sara_app.errors import InputError, ParameterError, UnknownNameError
 from sara_app.human.params import ReachParams
-from sara_app.human.reach_kernels import acc_sets, pos_sets, static_sets
+from sara_app.human.reach_kernels import acc_sets, combined_sets, pos_sets, static_sets
 from sara_app.human.skeleton import skeleton
 
-MODELS: tuple[str, ...] = ("pos", "vel", "acc", "iso13855", "arm")
+MODELS: tuple[str, ...] = ("pos", "vel", "acc", "iso13855", "arm", "combined")
 SARA_MODELS: tuple[str, ...] = ("pos", "vel", "acc")
 
 
@@ -118,6 +118,8 @@ class HumanReach:
             [np.where(ball, ja, J + ja), np.where(ball, 2 * J + jb, J + jb)], 1
         ).astype(i64)
         self.a_half = 0.5 * p.a_max_mps2
+        self.a_max = np.asarray(p.a_max_mps2, dtype=np.float64)
+        self.v_max = np.asarray(p.v_max_mps, dtype=np.float64)
         # R_POS: all limb segments; segment i belongs to limb pos_seg_limb[i].
         seg = [(a, b, i) for i, c in enumerate(sk.limb_chains) for a, b in zip(c[:-1], c[1:])]
         self.pos_seg_a = np.array([a for a, _, _ in seg], dtype=i64)
@@ -163,7 +165,7 @@ class HumanReach:
         sk, p = self.skeleton, self.params
         half = p.iso_radius_m if model in ("iso13855",) else p.half_thickness_m
         rows: list[tuple[int, int, float]] = []
-        if model in ("vel", "acc", "iso13855"):
+        if model in ("vel", "acc", "iso13855", "combined"):
             for i, (a, b) in enumerate(sk.part_joints):
                 rows += [(i, int(a), float(half[i])), (i, int(b), float(half[i]))]
         elif model == "pos":
@@ -217,7 +219,7 @@ class HumanReach:
         static = (self.part_joints, np.stack([self.vel_base, self.iso_base]),
                   np.stack([self.vel_speed, self.iso_speed]))  # fmt: skip
         acc = (self.a_half, np.asarray(p.half_thickness_m, float), self.acc_ia, self.acc_ib,
-               self.acc_ends)  # fmt: skip
+               self.acc_ends, self.a_max, self.v_max)  # fmt: skip
         pos = (self.pos_seg_a, self.pos_seg_b, self.pos_seg_limb, self.pos_ends,
                self.pos_rspeed, self.pos_rbase)  # fmt: skip
         return static, acc, pos, (float(p.delay_s), float(p.delta_y_m)), int(self.n_limbs)
@@ -289,6 +291,38 @@ class HumanReach:
         )  # fmt: skip
         return Occupancy("acc", ends, radius, self.part_names)
 
+    def combined(
+        self,
+        y: np.ndarray,
+        v: np.ndarray,
+        dv: np.ndarray,
+        t_start_s: np.ndarray,
+        t_end_s: np.ndarray,
+    ) -> Occupancy:
+        """The combined speed-and-acceleration model: per joint the reachable ball under BOTH
+        its acceleration bound from the measured velocity (R_ACC's assumption) and its speed
+        bound (R_VEL's), plus ``delta_y`` (:func:`~sara_app.human.reach_kernels.combined_ball`),
+        in R_ACC's capsule layout (:func:`~sara_app.human.reach_kernels.combined_sets`; per
+        joint the smallest of that ball, R_ACC's and R_VEL's); without a velocity estimate
+        (``dv`` infinite) it is R_VEL's ball. Sound when every joint's acceleration stays below
+        a_max and its speed below v_max, and ``dv`` bounds the velocity error."""
+        p = self.params
+        y, t_end_s = self._arrays(y, t_end_s)
+        v, dv, t_start_s = (np.asarray(a, dtype=np.float64) for a in (v, dv, t_start_s))
+        if v.shape != y.shape or dv.shape != y.shape[:2] or t_start_s.shape != t_end_s.shape:
+            raise InputError(
+                f"v {v.shape}, dv {dv.shape}, t_start_s {t_start_s.shape}; expected {y.shape}, "
+                f"{y.shape[:2]} and {t_end_s.shape}"
+            )
+        H, K, P = y.shape[0], t_end_s.shape[0], self.skeleton.n_parts
+        ends = self._buf("combined_e", (H, K, P, 2, 3))
+        radius = self._buf("combined_r", (H, K, P))
+        combined_sets(
+            y, v, dv, t_start_s, t_end_s, p.delay_s, self.a_max, self.v_max, p.delta_y_m,
+            p.half_thickness_m, self.acc_ia, self.acc_ib, self.acc_ends, ends, radius,
+        )  # fmt: skip
+        return Occupancy("combined", ends, radius, self.part_names)
+
     def pos(self, y: np.ndarray, t_end_s: np.ndarray) -> Occupancy:
         """R_POS: per limb a ball at its root joint (shoulder or hip) of radius
         v_root tau + sum of the measured segment lengths + the limb's largest half thickness +
@@ -330,6 +364,9 @@ class HumanReach:
         elif name == "acc":
             v, dv = self.check_velocities(y, v, dv)
             o = self.acc(y, v, dv, t_start_s, t_end_s)
+        elif name == "combined":
+            v, dv = self.check_velocities(y, v, dv)
+            o = self.combined(y, v, dv, t_start_s, t_end_s)
         elif name == "arm":
             from sara_app.human.arm import arm_occupancy
 

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 from numba import njit, types
 
+from sara_app.kernel_types import B1 as _b1
 from sara_app.kernel_types import F8 as _f8
 from sara_app.kernel_types import I8 as _i8
 from sara_app.kernel_types import RO1 as _RO1
@@ -33,16 +34,19 @@ from sara_app.kernel_types import W5 as _W5
 
 __all__ = [
     "KIND_ACC",
+    "KIND_COMBINED",
     "KIND_ISO",
     "KIND_POS",
     "KIND_VEL",
     "acc_sets",
+    "combined_ball",
+    "combined_sets",
     "person_sets",
     "pos_sets",
     "static_sets",
 ]
 
-KIND_ACC, KIND_VEL, KIND_ISO, KIND_POS = 0, 1, 2, 3
+KIND_ACC, KIND_VEL, KIND_ISO, KIND_POS, KIND_COMBINED = 0, 1, 2, 3, 4
 """Model codes of the compiled checks (``vel`` and ``iso13855`` are rows 0 and 1 of the static
 sets' constants)."""
 
@@ -166,10 +170,157 @@ def acc_sets(
                         ends[h, k, p, e, r] = y[h, j, r] + v[h, j, r] * times[t]
 
 
+LENS_STEPS = 8
+"""Sub-steps of the lens phase of :func:`combined_ball` (its radius is summed at each sub-step's
+end: an upper bound, as the lens's radius grows; the excess is at most the phase's length / 8
+times the measured speed, under 4 mm for a person walking at 1.5 m/s against 20 m/s^2)."""
+ROUND_PAD_M = 1e-9
+"""Added to every combined radius: covers the rounding of the closed-form centre integral."""
+
+
+@njit(types.UniTuple(_f8, 2)(_f8, _f8, _f8, _f8, _f8, _b1), cache=True)
+def combined_ball(
+    d: float, dv: float, a: float, V: float, tau: float, want_rho: bool = True
+) -> tuple[float, float]:
+    """The combined speed-and-acceleration model of one joint at ``tau`` after the measurement:
+    ``(C, rho)`` such that the joint lies in the ball of centre ``y + C v / |v|`` (``y + v tau``
+    direction; ``C = 0`` when ``d = |v| = 0``) and radius ``rho`` (plus the position error
+    ``delta_y``, added by the caller), given measured speed ``d``, velocity error bound ``dv``,
+    acceleration bound ``a`` and speed bound ``V`` (m, s).
+
+    Derivation. The velocity ``w(s)`` at ``s <= tau`` lies in ``W(s) = B(v, dv + a s) & B(0, V)``
+    (the acceleration bound from the measured velocity, the speed bound), so the displacement
+    ``int_0^tau w`` lies in the Minkowski integral of ``W``, which lies in the ball with the
+    integrated centre and radius of any balls enclosing each ``W(s)``. With ``r = dv + a s``,
+    ``A = d^2 + V^2`` and ``x = (A - r^2) / (2 d)`` (the plane of the two spheres' circle),
+    the smallest ball enclosing the lens is ``B(v, r)`` while ``x >= d`` (``r^2 <= V^2 - d^2``),
+    ``B(x u, sqrt(V^2 - x^2))`` while ``0 < x < d``, ``B(0, V)`` once ``x <= 0`` (``r^2 >= A``).
+    A measured speed above ``V + dv`` contradicts the speed bound: the acceleration model's
+    ball alone (a person breaking the bounds is the conformance monitor's to catch). The
+    centre integrates in closed form (``int x ds =
+    (A r - r^3 / 3) / (2 a d)``); the lens radius ``sqrt(V^2 - x^2)`` grows with ``r`` and is
+    summed over :data:`LENS_STEPS` sub-steps at their ends (skipped without ``want_rho``: the
+    centre alone, for the interval's start and middle). NaN or infinite ``d`` or ``dv`` (no
+    velocity estimate): ``B(0, V tau)``, the speed bound alone. Tested against dense sampling of
+    bang-bang and random admissible motions (``tests/test_reach_combined.py``)."""
+    if not tau > 0.0:
+        return 0.0, ROUND_PAD_M
+    if not (math.isfinite(d) and math.isfinite(dv)):
+        return 0.0, V * tau + ROUND_PAD_M
+    if d > V + dv:  # the measurement contradicts the speed bound: the acceleration model alone
+        return d * tau, dv * tau + 0.5 * a * tau * tau + ROUND_PAD_M
+    A = d * d + V * V
+    r_b1 = math.sqrt(V * V - d * d) if d <= V else 0.0  # end of B(v, r) (d > V: none)
+    r_b2 = math.sqrt(A)  # start of B(0, V)
+    r0, r1 = dv, dv + a * tau
+    C, rho = 0.0, 0.0
+    # B(v, r): r in [r0, min(r1, r_b1)]
+    lo, hi = r0, min(r1, r_b1)
+    if hi > lo or a == 0.0 and r0 <= r_b1:
+        ds = (hi - lo) / a if a > 0.0 else tau
+        C += d * ds
+        rho += (hi * hi - lo * lo) / (2.0 * a) if a > 0.0 else r0 * tau
+    # the lens: r in (r_b1, r_b2)
+    lo, hi = max(r0, r_b1), min(r1, r_b2)
+    if d > 0.0 and (hi > lo or a == 0.0 and r_b1 < r0 < r_b2):
+        if a > 0.0:
+            C += ((A * hi - hi * hi * hi / 3.0) - (A * lo - lo * lo * lo / 3.0)) / (2.0 * a * d)
+            step = (hi - lo) / LENS_STEPS
+            for i in range(1, LENS_STEPS + 1 if want_rho else 1):
+                r = hi if i == LENS_STEPS else lo + i * step
+                x = (A - r * r) / (2.0 * d)
+                rho += step / a * math.sqrt(max(V * V - x * x, 0.0))
+        else:
+            x = (A - r0 * r0) / (2.0 * d)
+            C += x * tau
+            rho += math.sqrt(max(V * V - x * x, 0.0)) * tau
+    # B(0, V): r in [max(r0, r_b2), r1]
+    lo = max(r0, r_b2)
+    if r1 > lo or a == 0.0 and r0 >= r_b2:
+        rho += V * ((r1 - lo) / a if a > 0.0 else tau)
+    return C, rho + ROUND_PAD_M
+
+
+@njit(
+    types.void(
+        _RO3, _RO3, _RO2, _RO1, _RO1, _f8, _RO1, _RO1, _f8, _RO1, _ROI1, _ROI1, _ROI2, _W5, _W3
+    ),
+    cache=True,
+)  # fmt: skip
+def combined_sets(
+    y: np.ndarray,
+    v: np.ndarray,
+    dv: np.ndarray,
+    t_start_s: np.ndarray,
+    t_end_s: np.ndarray,
+    delay_s: float,
+    a_max: np.ndarray,
+    v_max: np.ndarray,
+    delta_y_m: float,
+    half_thickness_m: np.ndarray,
+    ia: np.ndarray,
+    ib: np.ndarray,
+    end_index: np.ndarray,
+    ends: np.ndarray,
+    radius: np.ndarray,
+) -> None:
+    """The combined model's capsules, laid out as :func:`acc_sets`'. Per joint and interval
+    ``[tau_a, tau_b]`` the smallest of three balls that are each sound under both bounds (by the
+    radius a two-joint part gets from it): the combined ball (:func:`combined_ball`), R_ACC's
+    and R_VEL's;
+    its centre moves along the measured velocity's direction, monotonically, and its radius
+    grows, so the joint's union over the interval lies in the capsule of its centres at
+    ``tau_a``, ``tau_b`` with the radius at ``tau_b``; a two-joint part lies in the capsule
+    between the joints' mid-interval centres with radius ``R(tau_b)`` + the centre's largest
+    distance from its mid-interval place. ``a_max, v_max (J,)``."""
+    H, J, K, P = y.shape[0], y.shape[1], t_end_s.shape[0], ia.shape[0]
+    X = np.empty(2 * J)
+    centre = np.empty((3, J, 3))
+    for h in range(H):
+        for k in range(K):
+            ta = t_start_s[k] + delay_s
+            tb = t_end_s[k] + delay_s
+            tm = 0.5 * (ta + tb)
+            for j in range(J):
+                vx, vy, vz = v[h, j, 0], v[h, j, 1], v[h, j, 2]
+                d = math.sqrt(vx * vx + vy * vy + vz * vz)
+                known = math.isfinite(d) and math.isfinite(dv[h, j])
+                # three capsules, each sound under both bounds: the combined ball, R_ACC's ball
+                # (v tau, dv tau + a tau^2 / 2), R_VEL's (0, V tau); the smallest is used
+                Ca = combined_ball(d, dv[h, j], a_max[j], v_max[j], ta, False)[0]
+                Cm = combined_ball(d, dv[h, j], a_max[j], v_max[j], tm, False)[0]
+                Cb, rho = combined_ball(d, dv[h, j], a_max[j], v_max[j], tb, True)
+                best = rho + max(Cb - Cm, Cm - Ca)
+                acc = dv[h, j] * tb + 0.5 * a_max[j] * tb * tb
+                if known and acc + d * (tb - tm) < best:
+                    Ca, Cm, Cb, rho, best = d * ta, d * tm, d * tb, acc, acc + d * (tb - tm)
+                if v_max[j] * tb < best or not known:
+                    Ca, Cm, Cb, rho = 0.0, 0.0, 0.0, v_max[j] * tb
+                f = 1.0 / d if known and d > 0.0 else 0.0
+                for r in range(3):
+                    u = v[h, j, r] * f
+                    centre[0, j, r] = y[h, j, r] + u * Ca
+                    centre[1, j, r] = y[h, j, r] + u * Cm
+                    centre[2, j, r] = y[h, j, r] + u * Cb
+                R = rho + delta_y_m
+                X[j] = R
+                X[J + j] = R + max(Cb - Cm, Cm - Ca)
+            for p in range(P):
+                xa, xb = X[ia[p]], X[ib[p]]
+                big = xa if xa >= xb else (xb if xb >= xa else math.nan)  # NaN stays NaN
+                radius[h, k, p] = big + half_thickness_m[p]
+                for e in range(2):
+                    x = end_index[p, e]
+                    t, j = x // J, x % J
+                    for r in range(3):
+                        ends[h, k, p, e, r] = centre[t, j, r]
+
+
 STATIC = types.Tuple((_ROI2, _RO2, _RO2))
 """``(part_joints (P, 2), base_m (2, P), speed_mps (2, P))``: rows vel, iso13855."""
-ACC = types.Tuple((_RO1, _RO1, _ROI1, _ROI1, _ROI2))
-"""``(a_half (J,), half_thickness_m (P,), ia, ib (P,), end_index (P, 2))``."""
+ACC = types.Tuple((_RO1, _RO1, _ROI1, _ROI1, _ROI2, _RO1, _RO1))
+"""``(a_half (J,), half_thickness_m (P,), ia, ib (P,), end_index (P, 2), a_max, v_max (J,))``:
+R_ACC's and the combined model's."""
 POS = types.Tuple((_ROI1, _ROI1, _ROI1, _ROI2, _RO1, _RO1))
 """``(seg_a, seg_b, seg_limb, cap_joints (C, 2), speed_mps (C,), base_m (C,))``."""
 
@@ -188,7 +339,8 @@ def person_sets(
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Person ``h``'s capsules of model ``kind`` (``KIND_*``) over intervals ``lo:hi`` of the
     sample times ``times (K+1,)`` (from now), grown from the measurement ``age_s`` ago: ``(ends
-    (ke, C, 2, 3), radius (k, C), ke)`` views of ``buffers``, ``ke = k`` for ACC, else 1 (the
+    (ke, C, 2, 3), radius (k, C), ke)`` views of ``buffers``, ``ke = k`` for ACC and the
+    combined model (which share the ACC buffers), else 1 (the
     same axes on every interval). ``human = (y, v (H, J, 3), dv (H, J), ...)``; ``constants =
     (static, acc, pos, (delay_s, delta_y_m), n_limbs)`` (:data:`STATIC`, :data:`ACC`,
     :data:`POS`; :meth:`HumanReach.kernel_constants <sara_app.human.reach.HumanReach>`);
@@ -206,10 +358,15 @@ def person_sets(
         t_end[x] = times[lo + 1 + x] + age_s
     ts, te = t_start[:k], t_end[:k]
     yh = y[h : h + 1]
-    if kind == KIND_ACC:
-        a_half, half_thickness, ia, ib, end_index = acc
-        acc_sets(yh, v[h : h + 1], dv[h : h + 1], ts, te, delay_s, a_half, delta_y_m,
-                 half_thickness, ia, ib, end_index, acc_e[:, :k], acc_r[:, :k])  # fmt: skip
+    if kind == KIND_ACC or kind == KIND_COMBINED:
+        a_half, half_thickness, ia, ib, end_index, a_max, v_max = acc
+        if kind == KIND_ACC:
+            acc_sets(yh, v[h : h + 1], dv[h : h + 1], ts, te, delay_s, a_half, delta_y_m,
+                     half_thickness, ia, ib, end_index, acc_e[:, :k], acc_r[:, :k])  # fmt: skip
+        else:
+            combined_sets(yh, v[h : h + 1], dv[h : h + 1], ts, te, delay_s, a_max, v_max,
+                          delta_y_m, half_thickness, ia, ib, end_index, acc_e[:, :k],
+                          acc_r[:, :k])  # fmt: skip
         return acc_e[0, :k], acc_r[0, :k], k
     if kind == KIND_POS:
         pos_sets(yh, pos[0], pos[1], pos[2], pos[3], te, delay_s, pos[4], pos[5], n_limbs,

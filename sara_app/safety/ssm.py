@@ -22,11 +22,11 @@ import numpy as np
 from sara_app.errors import InputError, UnknownNameError
 from sara_app.geometry_kernels import pair_distances
 from sara_app.human.reach import MODELS, HumanReach, Occupancy, part_capsules
-from sara_app.human.reach_kernels import KIND_ACC, KIND_ISO, KIND_POS, KIND_VEL
+from sara_app.human.reach_kernels import KIND_ACC, KIND_COMBINED, KIND_ISO, KIND_POS, KIND_VEL
 from sara_app.safety.ssm_kernel import KIND_ARM, ssm_kernel
 
 _CODES = {"acc": KIND_ACC, "vel": KIND_VEL, "iso13855": KIND_ISO, "pos": KIND_POS,
-          "arm": KIND_ARM}  # fmt: skip
+          "combined": KIND_COMBINED, "arm": KIND_ARM}  # fmt: skip
 
 
 @dataclass
@@ -127,6 +127,8 @@ class SsmVerifier:
             return r.iso13855(y, t_end_s)
         if model == "acc":
             return r.acc(y, v, dv, t_start_s, t_end_s)
+        if model == "combined":
+            return r.combined(y, v, dv, t_start_s, t_end_s)
         from sara_app.human.arm import arm_occupancy
 
         return arm_occupancy(r, y, t_start_s, t_end_s)

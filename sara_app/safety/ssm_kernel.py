@@ -24,7 +24,7 @@ from sara_app.safety.contact_kernels import source_digest
 
 __all__ = ["KIND_ARM", "ssm_kernel"]
 
-KIND_ARM = 4
+KIND_ARM = 5
 """Pereira's arm model: its capsules are computed before the call (``arm``)."""
 
 HUMAN = types.Tuple((RO[3], RO[3], RO[2], RO[3], RO[1]))
