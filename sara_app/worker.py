@@ -11,6 +11,7 @@ robot falls back to its failsafe).
 
 from __future__ import annotations
 
+import gc
 import logging
 import sys
 import threading
@@ -357,6 +358,7 @@ class CellWorker:
             if t.widen_key is not None:  # the same message under the new delta_y
                 t.state.widen_m = self._widening(t, t.widen_key[0], t.widen_key[1])
         self.scenario_revision += 1
+        gc.freeze()  # the new cell joins the frozen heap (see bus.process.freeze_heap)
         return True, ""
 
     # -- the cycle -----------------------------------------------------------------------------

@@ -24,7 +24,7 @@ def test_reach_writes_jsonl_and_reports(tmp_path, capsys) -> None:
     out = tmp_path / "caps.jsonl"
     assert main(["reach", str(_csv(tmp_path)), "--horizon", "0.1", "--out", str(out)]) == 0
     lines = [json.loads(x) for x in out.read_text().splitlines()]
-    assert len(lines) == 30 * 5
+    assert len(lines) == 30 * 6  # frames x models (pos, vel, acc, iso13855, arm, combined)
     first = lines[0]
     assert set(first) == {"frame", "t_s", "model", "horizon_s", "params", "capsules"}
     cap = first["capsules"][0]

@@ -103,7 +103,10 @@ def _always_safe(
 ) -> SsmResult:
     H, K = y.shape[0], robot_ends.shape[0]
     free = np.ones((H, models, K), dtype=bool)
-    return SsmResult(True, free, free.copy(), np.full((H, models), np.inf))
+    P = 14
+    return SsmResult(
+        True, free, free.copy(), np.full((H, models), np.inf), np.ones((H, K, P), bool)
+    )
 
 
 @pytest.mark.parametrize("strategy", ["rigid", "limbs"])

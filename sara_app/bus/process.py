@@ -5,6 +5,7 @@ loop."""
 from __future__ import annotations
 
 import argparse
+import gc
 import logging
 import os
 import signal
@@ -96,6 +97,7 @@ def process_main(
             proc = factory(args.cell, sc, bus, **kw)
             for sig in (signal.SIGINT, signal.SIGTERM):
                 signal.signal(sig, lambda *_: proc.stop_event.set())
+            freeze_heap(name)
             if rt:
                 set_realtime(args.rt_priority, name)
             proc.run(args.duration)
@@ -103,6 +105,21 @@ def process_main(
         print(f"error: {e}", file=sys.stderr)
         return 2
     return 0
+
+
+def freeze_heap(name: str = "process") -> int:
+    """Collect once, then move every object alive into the collector's permanent generation
+    (``gc.freeze``): what a process built before its loop (the cell, numba's and pinocchio's
+    objects: ~190 000) is never traversed again. Without it a full collection, which Python
+    starts on its own after enough allocations, takes ~60 ms on this machine and stalls the
+    loop (commands expired at the controller, the robot braked). Frozen objects are still
+    freed by reference counting; only cyclic garbage among them stays. Returns the number
+    frozen."""
+    gc.collect()
+    gc.freeze()
+    n = gc.get_freeze_count()
+    logging.getLogger(f"sara_app.{name}").info("%d objects frozen before the loop", n)
+    return n
 
 
 def set_normal() -> None:

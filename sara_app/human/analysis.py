@@ -86,10 +86,16 @@ def occupancies(
     """
     p = reach.params
     out: dict[str, Occupancy] = {}
+    velocities: tuple[np.ndarray, np.ndarray] | None = None
     for m in models:
-        if m == "acc":
-            v, dv = estimate_recording(times_s, y, p.delta_y_m, p.a_max_mps2)
+        if m in ("acc", "combined") and velocities is None:
+            velocities = estimate_recording(times_s, y, p.delta_y_m, p.a_max_mps2)
+        if m == "acc" and velocities is not None:
+            v, dv = velocities
             out[m] = reach.acc(y, v, np.where(np.isfinite(dv), dv, 1e6), t_start_s, t_end_s)
+        elif m == "combined" and velocities is not None:
+            v, dv = velocities  # no estimate yet (infinite bound): the speed model's ball
+            out[m] = reach.combined(y, np.nan_to_num(v), dv, t_start_s, t_end_s)
         elif m == "arm":
             idx = {j: i for i, j in enumerate(reach.skeleton.joints)}
             q, _ = arm_coordinates(y, idx)

@@ -1,10 +1,12 @@
 """Speed and separation monitoring: human reachable sets against the robot's occupancy, per
 interval of a shielded trajectory (Schepp et al. 2022 Sec. II-B/C, Thumm et al. 2024 Sec. III-B).
 
-An interval is safe for a human when at least one enabled model's set for that interval is free
-of every robot link capsule of the interval; the trajectory is safe when every interval is safe
-for every human. This is sound exactly when each enabled model is sound for the human's motion
-(its parameters bound it): with "any model free", one unsound model makes the verdict unsound.
+An interval is safe for a human when each body part is cleared there by at least one enabled
+model: the model's capsule that contains THAT part is free of every robot link capsule of the
+interval (Schepp et al. 2022 ask one model's whole set to be free: a special case); the
+trajectory is safe when every interval is safe for every human. This is sound exactly when each
+enabled model is sound for the human's motion (its parameters bound it): with "any model
+free", one unsound model makes the verdict unsound.
 
 Hot path: one compiled call for every person (:func:`~sara_app.safety.ssm_kernel.ssm_kernel`):
 per person and model, the model's capsules from the person's measurement time against every
@@ -31,16 +33,19 @@ _CODES = {"acc": KIND_ACC, "vel": KIND_VEL, "iso13855": KIND_ISO, "pos": KIND_PO
 
 @dataclass
 class SsmResult:
-    """``safe``: every interval cleared for every human. ``free (H, M, K)``: model ``m``'s set of
-    human ``h`` is free of the robot on interval ``k`` (False also where it was not evaluated
-    because an earlier model had cleared the interval: see ``evaluated``). ``closest_m (H, M)``:
-    the exact smallest surface distance between that model's sets and the robot capsules over
-    the intervals it was evaluated on (negative: overlap; ``inf`` where not evaluated)."""
+    """``safe``: every body part of every human cleared on every interval. ``free (H, M, K)``:
+    model ``m``'s whole set of human ``h`` is free of the robot on interval ``k`` (False also
+    where it was not evaluated because the earlier models had cleared every part there: see
+    ``evaluated``). ``closest_m (H, M)``: the exact smallest surface distance between that
+    model's sets and the robot capsules over the intervals it was evaluated on (negative:
+    overlap; ``inf`` where not evaluated). ``parts_clear (H, K, P)``: body part ``p`` proved
+    free on interval ``k`` by some model's capsule for it."""
 
     safe: bool
     free: np.ndarray
     evaluated: np.ndarray
     closest_m: np.ndarray
+    parts_clear: np.ndarray
 
 
 def boxes_of(ends: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -180,12 +185,13 @@ class SsmVerifier:
         free = np.empty((H, M, K), dtype=bool)
         evaluated = np.empty((H, M, K), dtype=bool)
         closest = np.empty((H, M))
+        parts = np.empty((H, K, P), dtype=bool)
         safe = ssm_kernel(
             (y, v, dv, widen, age_s), self._constants, self._codes, self._maps,
             self._arm_sets(y, age_s, times_s), times_s, robot_ends, robot_radius, free,
-            evaluated, closest,
+            evaluated, closest, parts,
         )  # fmt: skip
-        return SsmResult(bool(safe), free, evaluated, closest)
+        return SsmResult(bool(safe), free, evaluated, closest, parts)
 
     def _arm_sets(
         self, y: np.ndarray, age_s: np.ndarray, times_s: np.ndarray

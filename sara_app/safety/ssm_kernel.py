@@ -1,8 +1,13 @@
-"""The compiled SSM check of one shielded trajectory against every person (Schepp et al. 2022's
-"safe if one model proves it", per person and interval): for each person, the models in order
-over the intervals no model has cleared yet, each model's capsules (:func:`person_sets`, from
-that person's measurement time) against the robot's capsules per interval
-(:func:`~sara_app.geometry_kernels.capsule_sets_check`). One call for all people; run by
+"""The compiled SSM check of one shielded trajectory against every person: for each person, the
+models in order over the intervals not cleared yet, each model's capsules (:func:`person_sets`,
+from that person's measurement time) against the robot's capsules per interval
+(:func:`~sara_app.geometry_kernels.capsule_sets_check`).
+
+The verdict is per body part: part ``p`` is clear on interval ``k`` when some model's capsule
+for THAT part (``part_maps[m, p]``) is free of the robot there; the interval is clear when every
+part is. Every model's capsule of a part contains the part, so this is sound whenever each
+model is, and at least as tight as "one model free for the whole person" (Schepp et al. 2022's
+rule, which it contains: a free model clears every part). One call for all people; run by
 :meth:`SsmVerifier.verify <sara_app.safety.ssm.SsmVerifier.verify>`, compared with the Python
 composition of the same kernels in ``tests/ssm_reference.py``. Numba's cache checks only this
 file: the source digests of the files whose kernels it calls are a closure variable.
@@ -16,7 +21,7 @@ import numpy as np
 from numba import njit, types
 
 from sara_app import geometry_kernels
-from sara_app.geometry_kernels import capsule_sets_check
+from sara_app.geometry_kernels import capsule_sets_check, segment_closest
 from sara_app.human import reach_kernels
 from sara_app.human.reach_kernels import ACC, POS, STATIC, person_sets
 from sara_app.kernel_types import B1, F8, I8, RO, ROI1, ROI2, WB3, W
@@ -37,12 +42,30 @@ ARM = types.Tuple((RO[5], RO[3]))
 when the check does not use it)."""
 
 
+@njit(cache=True)
+def _touching(
+    ends: np.ndarray, radius: np.ndarray, r_ends: np.ndarray, r_radius: np.ndarray, out: np.ndarray
+) -> None:
+    """``out[c]``: capsule ``c`` of ``ends (C, 2, 3)``, ``radius (C,)`` may touch one of the
+    robot's ``(L, 2, 3)``, ``(L,)`` (surface distance <= 0 or NaN; exact segment distances)."""
+    for c in range(ends.shape[0]):
+        out[c] = False
+        p, q = ends[c, 0], ends[c, 1]
+        for i in range(r_ends.shape[0]):
+            a, b = r_ends[i, 0], r_ends[i, 1]
+            d = segment_closest(p[0], p[1], p[2], q[0], q[1], q[2], a[0], a[1], a[2], b[0], b[1],
+                                b[2])[0]  # fmt: skip
+            if not d - radius[c] - r_radius[i] > 0.0:
+                out[c] = True
+                break
+
+
 def _make_kernel() -> Any:
     """Build :func:`ssm_kernel` with its callees' source digests in the closure."""
     sources = "".join(source_digest(m) for m in (geometry_kernels, reach_kernels))
 
     @njit(
-        B1(HUMAN, CONSTANTS, ROI1, ROI2, ARM, RO[1], RO[4], RO[2], WB3, WB3, W[2]),
+        B1(HUMAN, CONSTANTS, ROI1, ROI2, ARM, RO[1], RO[4], RO[2], WB3, WB3, W[2], WB3),
         cache=True,
     )  # fmt: skip
     def ssm_kernel(
@@ -57,15 +80,17 @@ def _make_kernel() -> Any:
         free: np.ndarray,
         evaluated: np.ndarray,
         closest: np.ndarray,
+        parts: np.ndarray,
     ) -> bool:
-        """Eq. "safe if any model is free" for every person: ``codes (M,)`` the models in order
+        """The per-body-part verdict for every person: ``codes (M,)`` the models in order
         (``KIND_*`` of :mod:`~sara_app.human.reach_kernels`, :data:`KIND_ARM`), ``part_maps
         (M, P)`` each model's capsule of each body part (a widened part grows its capsule),
         ``times (K+1,)`` from now, robot capsules ``(K, L, 2, 3)``, ``(K, L)``. Writes ``free,
-        evaluated (H, M, K)`` (model ``m`` of person ``h`` was checked on interval ``k`` / found
-        no contact there) and ``closest (H, M)`` (exact smallest surface distance over the
-        intervals it checked, ``inf``: none). Returns whether every person is cleared on every
-        interval."""
+        evaluated (H, M, K)`` (model ``m`` of person ``h`` was checked on interval ``k`` / none
+        of its capsules touches the robot there), ``closest (H, M)`` (exact smallest surface
+        distance over the intervals it checked, ``inf``: none) and ``parts (H, K, P)`` (body
+        part ``p`` proved clear on interval ``k``). Returns whether every part of every person
+        is clear on every interval."""
         H, M, K = free.shape[0], codes.shape[0], times.shape[0] - 1
         widen, age_s = human[3], human[4]
         static, pos = constants[0], constants[2]
@@ -76,8 +101,8 @@ def _make_kernel() -> Any:
                    np.empty((1, K, C_pos)))  # fmt: skip
         grown = np.empty((K, C_max))
         extra = np.empty(C_max)
-        cleared = np.empty(K, np.bool_)
         hit = np.empty(K, np.bool_)
+        touch = np.empty(C_max, np.bool_)
         safe = len(sources) > 0  # the digests tie the cache to the callees
         for h in range(H):
             for m in range(M):
@@ -85,12 +110,16 @@ def _make_kernel() -> Any:
                 for k in range(K):
                     free[h, m, k] = False
                     evaluated[h, m, k] = False
+            cleared = parts[h]  # (K, P): part p proved free on interval k by some model
             for k in range(K):
-                cleared[k] = False
+                for p in range(P):
+                    cleared[k, p] = False
             for m in range(M):
                 todo = evaluated[h, m]
                 for k in range(K):
-                    todo[k] = not cleared[k]
+                    todo[k] = False
+                    for p in range(P):
+                        todo[k] = todo[k] or not cleared[k, p]
                 if codes[m] == KIND_ARM:
                     ends, radius = arm[0][h], arm[1][h]
                 else:
@@ -115,13 +144,22 @@ def _make_kernel() -> Any:
                                                    hit)  # fmt: skip
                 done = True
                 for k in range(K):
-                    free[h, m, k] = todo[k] and not hit[k]
-                    cleared[k] = cleared[k] or free[h, m, k]
-                    done = done and cleared[k]
+                    if not todo[k]:
+                        continue
+                    free[h, m, k] = not hit[k]
+                    if hit[k]:  # which of the model's capsules touch the robot here
+                        _touching(ends[k if ends.shape[0] == K else 0],
+                                  radius[k if radius.shape[0] == K else 0], robot_ends[k],
+                                  robot_radius[k], touch)  # fmt: skip
+                    for p in range(P):
+                        if not hit[k] or not touch[part_maps[m, p]]:
+                            cleared[k, p] = True
+                        done = done and cleared[k, p]
                 if done:
                     break
             for k in range(K):
-                safe = safe and cleared[k]
+                for p in range(P):
+                    safe = safe and cleared[k, p]
         return safe
 
     return ssm_kernel
