@@ -47,3 +47,16 @@ def test_calibrate_writes_a_loadable_set(tmp_path) -> None:
     assert main(["calibrate", str(_csv(tmp_path)), "--horizon", "0.1", "--out", str(out)]) == 0
     ps = load_param_set(out)
     assert ps.name == "cmu_calibrated" and ps.sound_for["models"]
+
+
+def test_volumes_report_the_effective_set(tmp_path, capsys) -> None:
+    """``sara-app volumes`` adds the per-body-part intersection of the models (what the verdict
+    uses): never above the smallest model's volume (up to the Monte-Carlo error)."""
+    from sara_app.human.report import volume_table
+
+    table = volume_table(str(_csv(tmp_path)), "schepp2022_table1", [0.1, 0.3], None,
+                         ("vel", "acc", "combined", "pos"))  # fmt: skip
+    assert "effective" in capsys.readouterr().out
+    for k in range(2):
+        smallest = min(table[m][k] for m in ("vel", "acc", "combined", "pos"))
+        assert 0.0 < table["effective"][k] <= 1.05 * smallest

@@ -976,3 +976,30 @@ def test_broadcast_box_functions(box_list, segs):
     for j in range(len(sizes)):
         _close(pd1[j], geo.point_box_distance(pts[0], T[0], sizes[j]), j)
         _close(sd1[j], geo.segment_box_distance(E[0], T[0], sizes[j]), j)
+
+
+def test_effective_volume_is_the_per_part_intersection() -> None:
+    """``effective_volume_mc``: one model alone gives its union's volume; the same model twice
+    too; two models whose capsules for the parts are disjoint give 0; a model nested in another
+    gives the inner one's volume (within 4 Monte-Carlo standard errors)."""
+    from sara_app.geometry import capsule_volume, effective_volume_mc
+
+    rng = np.random.default_rng(3)
+    ends = np.array([[[0.0, 0, 0], [0.3, 0, 0]], [[0.0, 0.5, 0], [0.0, 0.5, 0.2]]])
+    radius = np.array([0.1, 0.15])
+    maps = [np.array([0, 1])]
+    exact = float(capsule_volume(ends[0], radius[0]) + capsule_volume(ends[1], radius[1]))
+    v, err = effective_volume_mc([(ends, radius)], maps, 200_000, rng)
+    assert abs(v - exact) <= 4 * err + 1e-12
+    v, err = effective_volume_mc([(ends, radius), (ends, radius)], maps * 2, 200_000, rng)
+    assert abs(v - exact) <= 4 * err + 1e-12
+    far = (ends + 5.0, radius)
+    assert effective_volume_mc([(ends, radius), far], maps * 2, 50_000, rng)[0] == 0.0
+    big = (ends, radius + 0.2)  # contains the first model's capsules
+    v, err = effective_volume_mc([(ends, radius), big], maps * 2, 200_000, rng)
+    assert abs(v - exact) <= 4 * err + 1e-12
+    # a part held by another model's single ball: the intersection with that ball
+    ball = (np.array([[[0.15, 0.0, 0.0], [0.15, 0.0, 0.0]]]), np.array([0.05]))
+    v, err = effective_volume_mc([(ends[:1], radius[:1]), ball], [np.array([0]), np.array([0])],
+                                 200_000, rng)  # fmt: skip
+    assert abs(v - 4.0 / 3.0 * np.pi * 0.05**3) <= 4 * err + 1e-12

@@ -14,14 +14,14 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from sara_app.errors import InputError
-from sara_app.geometry import point_segment_distance, union_volume_mc
+from sara_app.geometry import effective_volume_mc, point_segment_distance, union_volume_mc
 from sara_app.human.arm import (
     arm_coordinates,
     arm_occupancy,
     coordinate_uncertainty,
     frame_error,
 )
-from sara_app.human.reach import MODELS, HumanReach, Occupancy
+from sara_app.human.reach import MODELS, HumanReach, Occupancy, part_capsules
 from sara_app.human.velocity import estimate_recording
 
 
@@ -47,6 +47,10 @@ class Containment:
     @property
     def share(self) -> float:
         return self.contained / self.checked if self.checked else float("nan")
+
+
+EFFECTIVE = "effective"
+"""The key of the per-body-part intersection in :func:`mean_volume`."""
 
 
 def arm_velocities(
@@ -188,7 +192,9 @@ def mean_volume(
     seed: int = 0,
 ) -> dict[str, float]:
     """Mean Monte-Carlo volume (m^3) of each model's set over [0, horizon] on ``n_frames``
-    evenly spaced frames."""
+    evenly spaced frames; with several models also ``"effective"``: the per-body-part
+    intersection of their sets, what the per-part verdict uses
+    (:func:`~sara_app.geometry.effective_volume_mc`)."""
     rng = np.random.default_rng(seed)
     frames = np.linspace(1, y.shape[0] - 1, min(n_frames, y.shape[0] - 1)).astype(int)
     t = np.array([horizon_s])
@@ -198,4 +204,13 @@ def mean_volume(
         o = occ[m]
         vols = [union_volume_mc(o.ends[f, 0], o.radius[f, 0], n_samples, rng)[0] for f in frames]
         out[m] = float(np.mean(vols))
+    if len(models) > 1:
+        maps = [part_capsules(reach, m) for m in models]
+        vols = [
+            effective_volume_mc(
+                [(occ[m].ends[f, 0], occ[m].radius[f, 0]) for m in models], maps, n_samples, rng
+            )[0]
+            for f in frames
+        ]
+        out[EFFECTIVE] = float(np.mean(vols))
     return out

@@ -13,7 +13,13 @@ from typing import TextIO
 
 import numpy as np
 
-from sara_app.human.analysis import Containment, containment, mean_volume, occupancies
+from sara_app.human.analysis import (
+    EFFECTIVE,
+    Containment,
+    containment,
+    mean_volume,
+    occupancies,
+)
 from sara_app.human.calibrate import CalibrationReport, calibrate
 from sara_app.human.params import ParamSet, load_param_set, save_param_set, to_reach_params
 from sara_app.human.reach import MODELS, HumanReach
@@ -109,15 +115,16 @@ def volume_table(
     rec = load_recording(recording)
     ps = load_param_set(params)
     reach = HumanReach(to_reach_params(ps, rec.kind))
-    table: dict[str, list[float]] = {m: [] for m in models}
+    columns = [*models, EFFECTIVE] if len(models) > 1 else list(models)
+    table: dict[str, list[float]] = {m: [] for m in columns}
     for h in horizons:
         v = mean_volume(reach, rec.times_s, rec.positions_m, h, tuple(models))
-        for m in models:
+        for m in columns:
             table[m].append(v[m])
     print(f"mean set volume [m^3] on {rec.name}, parameters {ps.name!r}")
-    print("horizon_s " + " ".join(f"{m:>9s}" for m in models))
+    print("horizon_s " + " ".join(f"{m:>9s}" for m in columns))
     for k, h in enumerate(horizons):
-        print(f"{h:9.3f} " + " ".join(f"{table[m][k]:9.4f}" for m in models))
+        print(f"{h:9.3f} " + " ".join(f"{table[m][k]:9.4f}" for m in columns))
     if png is not None:
         import matplotlib
 
@@ -125,7 +132,7 @@ def volume_table(
         import matplotlib.pyplot as plt
 
         fig, ax = plt.subplots(figsize=(6, 4))
-        for m in models:
+        for m in columns:
             ax.plot(horizons, table[m], marker="o", label=m)
         ax.set_xlabel("horizon t_f [s]")
         ax.set_ylabel("mean reachable-set volume [m$^3$]")
