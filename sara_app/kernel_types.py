@@ -6,6 +6,14 @@ Names: ``F8`` float64, ``I8`` int64, ``I1`` int8, ``B1`` boolean, ``IP`` intp; a
 / ``WI8_<d>``; of booleans ``ROB<d>`` / ``WB<d>``. ``RO`` and ``W`` map a dimension to the float
 arrays. Signatures are explicit so that a kernel compiles (or loads from numba's cache) at
 import, never in a control cycle.
+
+Caching, one rule. Numba's cache checks only a function's own source file, so a cached function
+whose compiled code includes a kernel of ANOTHER file would keep running that kernel's old code
+after it changes. Therefore a cached kernel that calls kernels of other files carries their
+source digests in its closure (it is built by a ``_make_*`` function; the digests are part of
+its cache key), and a helper that calls kernels of other files is not cached on its own
+(plain ``@njit``: it is compiled into its callers). ``tests/test_kernel_types.py`` checks every
+kernel module for it.
 """
 
 from __future__ import annotations

@@ -212,6 +212,21 @@ class HumanReach:
             )
         return y
 
+    def _moving(
+        self, y: np.ndarray, v: np.ndarray, dv: np.ndarray, t_start_s: np.ndarray,
+        t_end_s: np.ndarray,
+    ) -> tuple[np.ndarray, ...]:  # fmt: skip
+        """The inputs of the velocity-based models as float64, shapes checked (see
+        :meth:`_arrays`)."""
+        y, t_end_s = self._arrays(y, t_end_s)
+        v, dv, t_start_s = (np.asarray(a, dtype=np.float64) for a in (v, dv, t_start_s))
+        if v.shape != y.shape or dv.shape != y.shape[:2] or t_start_s.shape != t_end_s.shape:
+            raise InputError(
+                f"v {v.shape}, dv {dv.shape}, t_start_s {t_start_s.shape}; expected {y.shape}, "
+                f"{y.shape[:2]} and {t_end_s.shape}"
+            )
+        return y, v, dv, t_start_s, t_end_s
+
     def kernel_constants(self) -> tuple[Any, ...]:
         """The models' constants as the compiled checks take them: ``(static, acc, pos,
         (delay_s, delta_y_m), n_limbs)`` (:func:`~sara_app.human.reach_kernels.person_sets`)."""
@@ -275,13 +290,7 @@ class HumanReach:
         below a_max and ``dv`` bounds the velocity error.
         """
         p = self.params
-        y, t_end_s = self._arrays(y, t_end_s)
-        v, dv, t_start_s = (np.asarray(a, dtype=np.float64) for a in (v, dv, t_start_s))
-        if v.shape != y.shape or dv.shape != y.shape[:2] or t_start_s.shape != t_end_s.shape:
-            raise InputError(
-                f"v {v.shape}, dv {dv.shape}, t_start_s {t_start_s.shape}; expected {y.shape}, "
-                f"{y.shape[:2]} and {t_end_s.shape}"
-            )
+        y, v, dv, t_start_s, t_end_s = self._moving(y, v, dv, t_start_s, t_end_s)
         H, K, P = y.shape[0], t_end_s.shape[0], self.skeleton.n_parts
         ends = self._buf("acc_e", (H, K, P, 2, 3))
         radius = self._buf("acc_r", (H, K, P))
@@ -307,13 +316,7 @@ class HumanReach:
         (``dv`` infinite) it is R_VEL's ball. Sound when every joint's acceleration stays below
         a_max and its speed below v_max, and ``dv`` bounds the velocity error."""
         p = self.params
-        y, t_end_s = self._arrays(y, t_end_s)
-        v, dv, t_start_s = (np.asarray(a, dtype=np.float64) for a in (v, dv, t_start_s))
-        if v.shape != y.shape or dv.shape != y.shape[:2] or t_start_s.shape != t_end_s.shape:
-            raise InputError(
-                f"v {v.shape}, dv {dv.shape}, t_start_s {t_start_s.shape}; expected {y.shape}, "
-                f"{y.shape[:2]} and {t_end_s.shape}"
-            )
+        y, v, dv, t_start_s, t_end_s = self._moving(y, v, dv, t_start_s, t_end_s)
         H, K, P = y.shape[0], t_end_s.shape[0], self.skeleton.n_parts
         ends = self._buf("combined_e", (H, K, P, 2, 3))
         radius = self._buf("combined_r", (H, K, P))

@@ -118,6 +118,33 @@ def pos_sets(
                     radius[h, k, c] += lengths[c]
 
 
+@njit(cache=True)
+def _parts(
+    X: np.ndarray,
+    centre: np.ndarray,
+    half_thickness_m: np.ndarray,
+    ia: np.ndarray,
+    ib: np.ndarray,
+    end_index: np.ndarray,
+    ends: np.ndarray,
+    radius: np.ndarray,
+) -> None:
+    """Body-part capsules of one person and interval from the joints' radii ``X (2J,)`` (ball,
+    two-joint) and centres ``centre (3, J, 3)`` at the interval's start, middle, end: radius
+    ``max(X[ia], X[ib]) + half thickness``, ends picked by ``end_index (P, 2)`` in ``[0, 3J)``
+    (``time * J + joint``); into ``ends (P, 2, 3)``, ``radius (P,)``."""
+    J = centre.shape[1]
+    for p in range(ia.shape[0]):
+        xa, xb = X[ia[p]], X[ib[p]]
+        big = xa if xa >= xb else (xb if xb >= xa else math.nan)  # NaN stays NaN
+        radius[p] = big + half_thickness_m[p]
+        for e in range(2):
+            x = end_index[p, e]
+            t, j = x // J, x % J
+            for r in range(3):
+                ends[p, e, r] = centre[t, j, r]
+
+
 @njit(
     types.void(_RO3, _RO3, _RO2, _RO1, _RO1, _f8, _RO1, _f8, _RO1, _ROI1, _ROI1, _ROI2, _W5, _W3),
     cache=True,
@@ -144,9 +171,10 @@ def acc_sets(
     ``max(X[ia], X[ib]) + half thickness``; ends ``y + v tau`` at ``tau_a`` / mid / ``tau_b``,
     picked by ``end_index (P, 2)`` in ``[0, 3J)`` (``time * J + joint``). Outputs ``ends (H, K,
     P, 2, 3)``, ``radius (H, K, P)``."""
-    H, J, K, P = y.shape[0], y.shape[1], t_end_s.shape[0], ia.shape[0]
+    H, J, K = y.shape[0], y.shape[1], t_end_s.shape[0]
     X = np.empty(2 * J)
     times = np.empty(3)
+    centre = np.empty((3, J, 3))
     for h in range(H):
         for k in range(K):
             ta = t_start_s[k] + delay_s
@@ -159,15 +187,11 @@ def acc_sets(
                 speed = math.sqrt(vx * vx + vy * vy + vz * vz)
                 X[j] = R
                 X[J + j] = speed * half_dt + R
-            for p in range(P):
-                xa, xb = X[ia[p]], X[ib[p]]
-                big = xa if xa >= xb else (xb if xb >= xa else math.nan)  # NaN stays NaN
-                radius[h, k, p] = big + half_thickness_m[p]
-                for e in range(2):
-                    x = end_index[p, e]
-                    t, j = x // J, x % J
+            for t in range(3):
+                for j in range(J):
                     for r in range(3):
-                        ends[h, k, p, e, r] = y[h, j, r] + v[h, j, r] * times[t]
+                        centre[t, j, r] = y[h, j, r] + v[h, j, r] * times[t]
+            _parts(X, centre, half_thickness_m, ia, ib, end_index, ends[h, k], radius[h, k])
 
 
 LENS_STEPS = 8
@@ -273,7 +297,7 @@ def combined_sets(
     ``tau_a``, ``tau_b`` with the radius at ``tau_b``; a two-joint part lies in the capsule
     between the joints' mid-interval centres with radius ``R(tau_b)`` + the centre's largest
     distance from its mid-interval place. ``a_max, v_max (J,)``."""
-    H, J, K, P = y.shape[0], y.shape[1], t_end_s.shape[0], ia.shape[0]
+    H, J, K = y.shape[0], y.shape[1], t_end_s.shape[0]
     X = np.empty(2 * J)
     centre = np.empty((3, J, 3))
     for h in range(H):
@@ -305,15 +329,7 @@ def combined_sets(
                 R = rho + delta_y_m
                 X[j] = R
                 X[J + j] = R + max(Cb - Cm, Cm - Ca)
-            for p in range(P):
-                xa, xb = X[ia[p]], X[ib[p]]
-                big = xa if xa >= xb else (xb if xb >= xa else math.nan)  # NaN stays NaN
-                radius[h, k, p] = big + half_thickness_m[p]
-                for e in range(2):
-                    x = end_index[p, e]
-                    t, j = x // J, x % J
-                    for r in range(3):
-                        ends[h, k, p, e, r] = centre[t, j, r]
+            _parts(X, centre, half_thickness_m, ia, ib, end_index, ends[h, k], radius[h, k])
 
 
 STATIC = types.Tuple((_ROI2, _RO2, _RO2))

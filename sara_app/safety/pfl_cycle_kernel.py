@@ -93,7 +93,7 @@ def _record_start(out: np.ndarray, off: int, cap: int) -> tuple[int, float, floa
     return n, out[t + c], out[t + 2 * c], out[t + 3 * c]
 
 
-@njit(types.int64(_i8, _i8, _i8), cache=True)
+@njit(types.int64(_i8, _i8, _i8))  # not cached: reads planning_kernels' OUT_LEN (kernel_types)
 def plan_size(K: int, L: int, n: int) -> int:
     """Length of the slab of a plan of ``K`` intervals (see :func:`plan_views`)."""
     S = K + 1
@@ -105,7 +105,7 @@ def plan_size(K: int, L: int, n: int) -> int:
         (_W1, types.Array(_f8, 2, "C"), types.Array(_f8, 3, "C"), types.Array(_f8, 3, "C"),
          types.Array(_f8, 4, "C"), types.Array(_f8, 2, "C"))
     )(types.Array(_f8, 1, "C"), _i8, _i8, _i8),
-    cache=True,
+    cache=False,  # reads planning_kernels' OUT_LEN (kernel_types, caching)
 )  # fmt: skip
 def plan_views(slab: np.ndarray, K: int, L: int, n: int) -> Any:
     """The arrays of a plan in its slab (one array to return to Python instead of six):
@@ -125,7 +125,7 @@ def plan_views(slab: np.ndarray, K: int, L: int, n: int) -> Any:
     return slab[:OUT_LEN], pts, joint, bounds, r_ends, slab[o : o + K * L].reshape((K, L))
 
 
-@njit(cache=True)
+@njit  # calls kernels of other files: compiled into its callers (kernel_types, caching)
 def _plan(
     cap: float,
     follower: Any,

@@ -126,7 +126,7 @@ limiting_part (K, L), energy_J (K, L), merged cls (K, L, P), todo scratch (2,), 
 speed at which the contacts reach their thresholds when it holds; NaN: not this case)."""
 
 
-@njit(cache=True)
+@njit  # calls kernels of other files: compiled into its callers (kernel_types, caching)
 def _human_sets(
     kind: int, lo: int, hi: int, times: np.ndarray, human: Any, models: Any, sets: Any
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -197,7 +197,7 @@ def _unproved(safe_k: np.ndarray, state: np.ndarray) -> None:
     state[1], state[2] = lo, hi
 
 
-@njit(cache=True)
+@njit  # calls kernels of other files: compiled into its callers (kernel_types, caching)
 def _speeds(
     sd: np.ndarray, T: np.ndarray, cls: np.ndarray, verdict: Any, state: np.ndarray
 ) -> None:

@@ -42,7 +42,7 @@ ARM = types.Tuple((RO[5], RO[3]))
 when the check does not use it)."""
 
 
-@njit(cache=True)
+@njit  # calls kernels of other files: compiled into its callers (kernel_types, caching)
 def _touching(
     ends: np.ndarray, radius: np.ndarray, r_ends: np.ndarray, r_radius: np.ndarray, out: np.ndarray
 ) -> None:
