@@ -13,7 +13,7 @@ from sara_app.human.params import ParamSet, ReachParams, to_reach_params
 from sara_app.human.reach import HumanReach
 from sara_app.robot.model import JointLimits, RobotModel, load_robot
 from sara_app.robot.trajectory import PathFollower
-from sara_app.safety.shield import Shield, ShieldSettings
+from sara_app.safety.shield import Shield, ShieldSettings, SsmScaling
 from sara_app.scenario import Scenario
 
 
@@ -79,7 +79,10 @@ def build_safety(
         from sara_app.safety.jssa_mode import JssaMode
 
         return JssaMode(robot, follower, reach, settings, sc.shield.jssa, environment_boxes(sc))
-    return Shield(robot, follower, reach, settings)
+    ssm = sc.shield.ssm
+    scaling = SsmScaling(cut=ssm.cut, max_replans=ssm.max_replans,
+                         min_speed_scale=ssm.min_speed_scale)  # fmt: skip
+    return Shield(robot, follower, reach, settings, scaling)
 
 
 @dataclass

@@ -181,6 +181,18 @@ class JssaSpec(_Strict):
         return self
 
 
+class SsmSpec(_Strict):
+    """SSM's speed scaling (:class:`~sara_app.safety.shield.SsmScaling`): a check that fails
+    at full path speed is planned again slower, at most ``max_replans`` times (0: brake at
+    once, Schepp et al. 2022's shield)."""
+
+    max_replans: Annotated[int, Field(ge=0, le=5)] = 2
+    cut: Annotated[float, Field(gt=0, lt=1)] = 0.9
+    """Each replan's path-speed cap as a fraction of the previous plan's top speed."""
+    min_speed_scale: Annotated[float, Field(ge=0, le=1)] = 0.05
+    """Below this fraction of the path's admissible speed the shield brakes instead."""
+
+
 class ShieldSpec(_Strict):
     mode: Literal["ssm", "pfl", "jssa"] = "ssm"
     """Safety mode: speed and separation monitoring, power and force limiting, or JSSA."""
@@ -189,6 +201,7 @@ class ShieldSpec(_Strict):
     models: list[str] = ["pos", "vel", "acc"]
     tracking_tol_rad: Annotated[float, Field(gt=0, le=0.1)] = 0.005
     skeleton_timeout_s: Annotated[float, Field(gt=0, le=5)] = 0.2
+    ssm: SsmSpec = SsmSpec()
     pfl: PflSpec = PflSpec()
     jssa: JssaSpec = JssaSpec()
 

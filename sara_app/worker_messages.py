@@ -83,7 +83,7 @@ class CycleMessages:
             faults=[f[:300] for f in res.faults[:8]],
             dropped=dropped,
             intervened=res.intervened,
-            speed_scale=res.speed_scale if res.safety_mode == "pfl" else None,
+            speed_scale=res.speed_scale if res.safety_mode in ("ssm", "pfl") else None,
         )
         return verdict, self._command(now, dt, c, res.mode, seqs[1])
 

@@ -297,8 +297,8 @@ def test_min_distance_is_the_distance_at_the_command() -> None:
     sh = make_shield()
     parts, half = sh.reach.skeleton.part_joints, REACH.params.half_thickness_m
     t, modes = 0.0, set()
-    for i in range(150):
-        xy = (1.5 - 0.008 * i, 0.3)  # walks in: verified cycles first, then braking
+    for i in range(250):
+        xy = (1.5 - 0.008 * i, 0.3)  # walks in: verified, then slowed, then braking cycles
         h = person(xy, t - 0.01)
         res = sh.cycle(t, [h], sh.follower.state)
         ends, rad = ROBOT.link_capsules(res.command.q)

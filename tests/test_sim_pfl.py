@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from sara_app.cell import build_cell, environment_boxes
-from sara_app.compare import format_table, run_mode, with_mode
+from sara_app.compare import run_mode, with_mode
 from sara_app.geometry import capsule_distances
 from sara_app.human.scripted import joints, standing
 from sara_app.safety.thresholds import load_thresholds
@@ -173,15 +173,32 @@ def test_harmful_counter_fires_with_a_shield_that_always_answers_safe() -> None:
     assert m.harmful_contacts > 0 and m.max_energy_ratio >= 1.0
 
 
-def test_close_worker_finishes_sooner_with_pfl() -> None:
+def test_close_worker_finishes_sooner_with_pfl_than_with_braking_ssm() -> None:
+    """PFL slows near the person where braking SSM (no speed scaling: Schepp et al. 2022's
+    shield) stops: it finishes sooner, with no harmful contact."""
     sc = load_scenario("close_worker")
-    rows = [run_mode(sc, mode) for mode in ("ssm", "pfl")]
-    ssm, pfl = (r.metrics for r in rows)
+    data = sc.model_dump(mode="json")
+    data["shield"]["ssm"] = {"max_replans": 0}
+    braking = parse_scenario(data)
+    ssm, pfl = run_mode(braking, "ssm").metrics, run_mode(sc, "pfl").metrics
     assert ssm is not None and pfl is not None
     assert pfl.time_to_goal_s is not None
     assert ssm.time_to_goal_s is None or pfl.time_to_goal_s < ssm.time_to_goal_s
     assert pfl.harmful_contacts == 0 and ssm.collisions_moving == 0
     assert pfl.intervened_share > 0.0 and pfl.speed_scale_mean < 1.0
     assert pfl.safety_mode == "pfl" and ssm.safety_mode == "ssm"
-    lines = format_table(rows).splitlines()
-    assert lines[2].split()[:2] == ["close_worker", "ssm"] and lines[3].split()[1] == "pfl"
+
+
+def test_ssm_speed_scaling_finishes_close_worker_sooner_than_braking() -> None:
+    """SSM's speed scaling (a failed check planned again slower) instead of braking: sooner at
+    the goal, still no collision while moving, and it did slow down."""
+    sc = load_scenario("close_worker")
+    data = sc.model_dump(mode="json")
+    data["shield"]["ssm"] = {"max_replans": 0}
+    braking = run_mode(parse_scenario(data), "ssm").metrics
+    scaled = run_mode(sc, "ssm").metrics
+    assert braking is not None and scaled is not None
+    assert scaled.time_to_goal_s is not None and braking.time_to_goal_s is not None
+    assert scaled.time_to_goal_s < 0.9 * braking.time_to_goal_s
+    assert scaled.collisions_moving == 0 and braking.collisions_moving == 0
+    assert scaled.speed_scale_mean < 1.0 == braking.speed_scale_mean

@@ -165,15 +165,6 @@ class PflShield(Shield):
         """``(V at the robot's position, largest V of the path)`` (rad/s)."""
         return self.follower.admissible_here()
 
-    def _plan(self, cap: float) -> tuple[ShieldedTrajectory, np.ndarray, np.ndarray]:
-        f = self.follower
-        old = f.speed_cap
-        f.speed_cap = cap
-        try:
-            return self._shielded()
-        finally:
-            f.speed_cap = old
-
     def _plan_and_verify(
         self, hum: Humans | None
     ) -> tuple[ShieldedTrajectory, np.ndarray, np.ndarray, bool]:
