@@ -3,7 +3,8 @@
 Your loop owns the clock, the robot driver and the tracker. Every cycle it gives the shield the
 people it measured (joints, velocities with an error bound, the measurement's time stamp) and
 the robot state it measured; the shield verifies the next step with its stop and returns the
-command to send: the intended step when verified, else the next step of the last verified stop.
+command to send: the intended step when verified (slowed down when only a slower step
+verifies), else the next step of the last verified stop.
 
 Here the tracker is a scripted person walking toward the robot and the robot is ideal (it
 reaches each command exactly). Replace ``measure_person`` and ``send_to_robot`` with yours.
@@ -53,19 +54,22 @@ def main() -> int:
     shield, dt = cell.shield, cell.scenario.shield.dt_s
     measured: JointState | None = None
     modes: Counter[str] = Counter()
-    closest, task = math.inf, 0
+    closest, task, slowed = math.inf, 0, 0
     for k in range(args.cycles):
         t = k * dt
         result = shield.cycle(t, [measure_person(t)], measured)
         measured = send_to_robot(result.command)
         modes[result.mode] += 1
+        slowed += result.mode == "intended" and result.speed_scale < 1.0
         if result.min_distance_m is not None:
             closest = min(closest, result.min_distance_m)
         if shield.task_done:  # back and forth along the task's waypoints
             task = cell.next_pass(task, loop=True) or 0
             shield.follower.replan(cell.passes[task])
     share = ", ".join(f"{m} {100 * n / args.cycles:.0f} %" for m, n in sorted(modes.items()))
-    print(f"{args.cycles} cycles of {dt * 1e3:g} ms: {share}; closest {closest:.3f} m")
+    slow = 100 * slowed / args.cycles
+    print(f"{args.cycles} cycles of {dt * 1e3:g} ms: {share} (slowed {slow:.0f} %); closest "
+          f"{closest:.3f} m")  # fmt: skip
     return 0
 
 
