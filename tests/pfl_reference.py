@@ -1,12 +1,12 @@
 """The PFL shield's reference: the Python composition of the same kernels that the compiled
 cycle (:mod:`sara_app.safety.pfl_cycle`) runs in one call.
 
-Per model: each person's capsules from :meth:`SsmVerifier.occupancy
-<sara_app.safety.ssm.SsmVerifier.occupancy>` (the reach models' own entry points), stacked for
-several people and classified with a :class:`PflCheck` of ``H`` people's parts built from their
-``human_index`` (an independent construction of the multi-person constants), merged per entry
-by :class:`MergedCheck`; the replans and decisions of the shield in a Python loop. Tests compare
-the production shield with :class:`ReferencePflShield` cycle by cycle.
+Per model: each person's capsules from ``ssm_reference.model_sets`` (the reach models' own
+entry points), stacked for several people and classified with a :class:`PflCheck` of ``H``
+people's parts built from their ``human_index`` (an independent construction of the
+multi-person constants), merged per entry by :class:`MergedCheck`; the replans and decisions
+of the shield in a Python loop. Tests compare the production shield with
+:class:`ReferencePflShield` cycle by cycle.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from collections.abc import Callable
 from typing import Any, cast
 
 import numpy as np
+from ssm_reference import model_sets
 
 from sara_app.errors import InputError, SaraError
 from sara_app.human.reach import MODELS, part_capsules
@@ -330,7 +331,9 @@ class ReferencePflShield(PflShield):
         for h in range(H):
             ts = times[lo:hi] + age[h]
             te = times[lo + 1 : hi + 1] + age[h]
-            occ = self.verifier.occupancy(model, y[h : h + 1], v[h : h + 1], dv[h : h + 1], ts, te)
+            occ = model_sets(
+                self.verifier.reach, model, y[h : h + 1], v[h : h + 1], dv[h : h + 1], ts, te
+            )
             C = occ.radius.shape[-1]
             e = np.broadcast_to(occ.ends[0], (k, C, 2, 3))
             r = np.broadcast_to(occ.radius[0], (k, C))

@@ -1,6 +1,6 @@
 """The SSM check composed in Python: per person and model, the model's sets from
-:meth:`SsmVerifier.occupancy <sara_app.safety.ssm.SsmVerifier.occupancy>` (the reach models'
-own entry points), widened per capsule with :func:`~sara_app.human.widening.per_capsule`,
+:func:`model_sets` (the reach models' own entry points), widened per capsule with
+:func:`~sara_app.human.widening.per_capsule`,
 checked with :func:`~sara_app.geometry_kernels.capsule_sets_check` (the whole model) and by brute
 force per capsule (:func:`~sara_app.geometry.capsule_distances`: which body parts the model
 clears): the reference of the compiled :func:`~sara_app.safety.ssm_kernel.ssm_kernel`
@@ -12,9 +12,35 @@ import numpy as np
 
 from sara_app.geometry import capsule_distances
 from sara_app.geometry_kernels import capsule_sets_check
-from sara_app.human.reach import MODELS, Occupancy, part_capsules
+from sara_app.human.reach import MODELS, HumanReach, Occupancy, part_capsules
 from sara_app.human.widening import per_capsule
 from sara_app.safety.ssm import SsmResult, SsmVerifier
+
+
+def model_sets(
+    reach: HumanReach,
+    model: str,
+    y: np.ndarray,
+    v: np.ndarray,
+    dv: np.ndarray,
+    t_start_s: np.ndarray,
+    t_end_s: np.ndarray,
+) -> Occupancy:
+    """One human's set ``(1, K|1, C, 2, 3)`` of ``model`` for intervals since its measurement,
+    from the reach models' own entry points (no input checks: the references see NaNs too)."""
+    if model == "vel":
+        return reach.vel(y, t_end_s)
+    if model == "pos":
+        return reach.pos(y, t_end_s)
+    if model == "iso13855":
+        return reach.iso13855(y, t_end_s)
+    if model == "acc":
+        return reach.acc(y, v, dv, t_start_s, t_end_s)
+    if model == "combined":
+        return reach.combined(y, v, dv, t_start_s, t_end_s)
+    from sara_app.human.arm import arm_occupancy
+
+    return arm_occupancy(reach, y, t_start_s, t_end_s)
 
 
 def verify_reference(
@@ -43,8 +69,8 @@ def verify_reference(
         for m, name in enumerate(verifier.models):
             todo = ~parts[h].all(axis=1)
             evaluated[h, m] = todo
-            occ = verifier.occupancy(name, y[h : h + 1], v[h : h + 1], dv[h : h + 1], tau[:-1],
-                                     tau[1:])  # fmt: skip
+            yh, vh, dvh = y[h : h + 1], v[h : h + 1], dv[h : h + 1]
+            occ = model_sets(verifier.reach, name, yh, vh, dvh, tau[:-1], tau[1:])
             if widen_m is not None and widen_m[h, rows[m]].any():
                 extra = per_capsule(widen_m[h, rows[m]], maps[m], occ.radius.shape[-1])
                 occ = Occupancy(occ.model, occ.ends, occ.radius + extra, occ.names)

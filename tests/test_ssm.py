@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from ssm_reference import model_sets
 
 from sara_app import geometry as geo
 from sara_app.human.params import load_param_set, to_reach_params
@@ -121,7 +122,8 @@ def cell(draw: st.DrawFn) -> dict:
 def _brute_min_distance(vf: SsmVerifier, c: dict, h: int, name: str) -> np.ndarray:
     """Smallest (human capsule, robot capsule) surface distance per interval ``(K,)``."""
     times, age = c["times"], c["age"][h]
-    occ = vf.occupancy(
+    occ = model_sets(
+        vf.reach,
         name,
         c["y"][h : h + 1],
         c["v"][h : h + 1],
@@ -184,7 +186,7 @@ def _brute_capsule_distances(vf: SsmVerifier, c: dict, h: int, name: str) -> np.
     """Smallest surface distance of each of the model's capsules to the robot, per interval
     ``(K, C)``."""
     times, age = c["times"], c["age"][h]
-    occ = vf.occupancy(name, c["y"][h : h + 1], c["v"][h : h + 1], c["dv"][h : h + 1],
+    occ = model_sets(vf.reach, name, c["y"][h : h + 1], c["v"][h : h + 1], c["dv"][h : h + 1],
                        times[:-1] + age, times[1:] + age)  # fmt: skip
     K, C = c["ends"].shape[0], occ.ends.shape[2]
     h_ends = np.broadcast_to(occ.ends[0], (K, C, 2, 3))

@@ -38,6 +38,7 @@ __all__ = [
     "KIND_ISO",
     "KIND_POS",
     "KIND_VEL",
+    "KINDS",
     "acc_sets",
     "combined_ball",
     "combined_sets",
@@ -49,6 +50,9 @@ __all__ = [
 KIND_ACC, KIND_VEL, KIND_ISO, KIND_POS, KIND_COMBINED = 0, 1, 2, 3, 4
 """Model codes of the compiled checks (``vel`` and ``iso13855`` are rows 0 and 1 of the static
 sets' constants)."""
+KINDS = {"acc": KIND_ACC, "vel": KIND_VEL, "iso13855": KIND_ISO, "pos": KIND_POS,
+         "combined": KIND_COMBINED}  # fmt: skip
+"""The models :func:`person_sets` computes, by name (Pereira's arm model is numpy)."""
 
 
 @njit(types.void(_RO3, _ROI2, _RO1, _f8, _RO1, _RO1, _W4, _W2), cache=True)

@@ -27,7 +27,7 @@ import numpy as np
 
 from sara_app.errors import InputError, ParameterError
 from sara_app.human.reach import MODELS, HumanReach, part_capsules
-from sara_app.human.reach_kernels import KIND_ACC, KIND_COMBINED, KIND_ISO, KIND_POS, KIND_VEL
+from sara_app.human.reach_kernels import KINDS  # Pereira's arm model is refused in PFL
 from sara_app.robot.failsafe import BOUND_PAD
 from sara_app.robot.occupancy import RobotOccupancy
 from sara_app.robot.shielded import ShieldedTrajectory, from_samples
@@ -40,14 +40,6 @@ from sara_app.safety.shield import Humans
 
 __all__ = ["KINDS", "CompiledCycle", "CycleOutcome", "result_of", "rules_for"]
 
-KINDS = {
-    "acc": KIND_ACC,
-    "vel": KIND_VEL,
-    "iso13855": KIND_ISO,
-    "pos": KIND_POS,
-    "combined": KIND_COMBINED,
-}
-"""The models the kernel computes (Pereira's arm model is refused in PFL)."""
 _NAMES = {code: name for name, code in KINDS.items()}
 _NO_FOLLOWER = (
     (0.0,) * 8,

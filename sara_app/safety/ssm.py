@@ -23,12 +23,11 @@ import numpy as np
 
 from sara_app.errors import InputError, UnknownNameError
 from sara_app.geometry_kernels import pair_distances
-from sara_app.human.reach import MODELS, HumanReach, Occupancy, part_capsules
-from sara_app.human.reach_kernels import KIND_ACC, KIND_COMBINED, KIND_ISO, KIND_POS, KIND_VEL
+from sara_app.human.reach import MODELS, HumanReach, part_capsules
+from sara_app.human.reach_kernels import KINDS
 from sara_app.safety.ssm_kernel import KIND_ARM, ssm_kernel
 
-_CODES = {"acc": KIND_ACC, "vel": KIND_VEL, "iso13855": KIND_ISO, "pos": KIND_POS,
-          "combined": KIND_COMBINED, "arm": KIND_ARM}  # fmt: skip
+_CODES = {**KINDS, "arm": KIND_ARM}
 
 
 @dataclass
@@ -92,10 +91,7 @@ class SsmVerifier:
         self.reach = reach
         self.models = tuple(models)
         self._model_rows = [MODELS.index(m) for m in self.models]  # rows of a widening
-        self._part_maps = [part_capsules(reach, m) for m in self.models]
-        self._maps = np.zeros((len(self.models), reach.skeleton.n_parts), dtype=np.int64)
-        for m, part_map in enumerate(self._part_maps):
-            self._maps[m] = part_map
+        self._maps = np.array([part_capsules(reach, m) for m in self.models], dtype=np.int64)
         self._codes = np.array([_CODES[m] for m in self.models], dtype=np.int64)
         self._constants = reach.kernel_constants()
         self._no_arm = (np.zeros((0, 1, 1, 2, 3)), np.zeros((0, 1, 1)))
@@ -112,31 +108,6 @@ class SsmVerifier:
                     ends, radius)  # fmt: skip
         half = self.reach.params.half_thickness_m
         body_distance(y[0], sk.part_joints, half, ends[0], radius[0])
-
-    def occupancy(
-        self,
-        model: str,
-        y: np.ndarray,
-        v: np.ndarray,
-        dv: np.ndarray,
-        t_start_s: np.ndarray,
-        t_end_s: np.ndarray,
-    ) -> Occupancy:
-        """One human's set ``(1, K|1, C, 2, 3)`` for intervals since its measurement."""
-        r = self.reach
-        if model == "vel":
-            return r.vel(y, t_end_s)
-        if model == "pos":
-            return r.pos(y, t_end_s)
-        if model == "iso13855":
-            return r.iso13855(y, t_end_s)
-        if model == "acc":
-            return r.acc(y, v, dv, t_start_s, t_end_s)
-        if model == "combined":
-            return r.combined(y, v, dv, t_start_s, t_end_s)
-        from sara_app.human.arm import arm_occupancy
-
-        return arm_occupancy(r, y, t_start_s, t_end_s)
 
     def verify(
         self,
