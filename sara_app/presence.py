@@ -34,7 +34,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sara_app.bus.messages import FUTURE_TOLERANCE_S
-from sara_app.human.velocity import VelocityEstimator
+from sara_app.human.conformance import Violation
+from sara_app.human.intake import Intake, IntakeSettings
 from sara_app.safety.shield import HumanState
 
 FORGET_AFTER_S = 0.05
@@ -45,12 +46,13 @@ MAX_OVERFLOW = 256
 
 @dataclass
 class Track:
-    """One person: the shield's view (``state``), the velocity estimator and ``evidence_s``,
+    """One person: the shield's view (``state``), their intake (gate, velocity estimator and
+    conformance monitor) and ``evidence_s``,
     the wall-clock time of the newest evidence of them (skeleton stamp, refusal time or the
     stamp of a frame that listed them)."""
 
     state: HumanState
-    estimator: VelocityEstimator
+    intake: Intake
     evidence_s: float = -math.inf
     widen_key: tuple[float | None, bool, float] | None = None
     widen_m: np.ndarray | None = None
@@ -181,12 +183,38 @@ class Presence:
             )
         return out
 
+    def tracking(self) -> dict[str, dict[str, int]]:
+        """Per person with any flag: the gate's and the monitor's counts."""
+        out = {}
+        for hid, t in self.tracks.items():
+            c = t.intake.counts()
+            if any(c.values()):
+                out[hid] = {k: v for k, v in c.items() if v}
+        return out
+
+    def violations(self) -> list[tuple[str, Violation]]:
+        """``(human id, violation)`` of every person now faulted for breaking the bounds."""
+        return [(hid, v) for hid, t in self.tracks.items() if t.intake.monitor.violating
+                for v in t.intake.monitor.last]  # fmt: skip
+
+    def conformance(self) -> list[str]:
+        """The faults of people whose motion broke the parameter set's bounds."""
+        found = (t.intake.fault(hid) for hid, t in self.tracks.items())
+        return [f for f in found if f is not None]
+
     def humans(self) -> list[HumanState]:
         return [t.state for t in self.tracks.values()]
 
 
-def unmeasured_track(human_id: str, n_joints: int, delta_y_m: float, a_max: np.ndarray) -> Track:
+def unmeasured_track(
+    human_id: str,
+    delta_y_m: float,
+    v_max: np.ndarray,
+    a_max: np.ndarray,
+    settings: IntakeSettings | None = None,
+) -> Track:
     """A known person without a measurement yet (a fault until one arrives)."""
     return Track(
-        HumanState.unmeasured(human_id, n_joints), VelocityEstimator(n_joints, delta_y_m, a_max)
+        HumanState.unmeasured(human_id, len(v_max)),
+        Intake(delta_y_m, v_max, a_max, settings or IntakeSettings()),
     )

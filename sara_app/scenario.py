@@ -25,9 +25,12 @@ from pydantic import (
 )
 
 from sara_app.errors import SaraError, ScenarioError
+from sara_app.human.gate import GateSettings
+from sara_app.human.intake import IntakeSettings
 from sara_app.human.params import RENAMED as PARAM_SETS_RENAMED
 from sara_app.human.params import ParamSet, load_param_set, parse_param_set
 from sara_app.human.reach import MODELS
+from sara_app.human.skeleton import FULL_JOINTS
 from sara_app.safety.thresholds import RENAMED as THRESHOLDS_RENAMED
 
 Vec3 = tuple[float, float, float]
@@ -73,10 +76,25 @@ class BoxSpec(_Strict):
     rpy_rad: tuple[Finite, Finite, Finite] = (0.0, 0.0, 0.0)
 
 
+class GlitchSpec(_Strict):
+    """A scripted tracking glitch (``sara_app.human.glitches``): ``swap`` reports ``joint`` at
+    ``other``'s position, ``freeze`` holds it, ``spike`` offsets it by ``offset_m``."""
+
+    kind: Literal["swap", "freeze", "spike"]
+    joint: Literal[FULL_JOINTS]  # type: ignore[valid-type]
+    other: Literal[FULL_JOINTS] = "head"  # type: ignore[valid-type]
+    start_s: NonNeg = 1.0
+    duration_s: Annotated[float, Field(gt=0, le=600)] = 0.01
+    offset_m: tuple[Finite, Finite, Finite] = (0.15, 0.0, 0.0)
+
+
 class SensorSpec(_Strict):
     rate_hz: Annotated[float, Field(ge=1, le=1000)] = 100.0
-    noise_m: NonNeg = 0.0
-    """Position noise, uniform in a cube whose corners lie at this distance (keep <= delta_y)."""
+    noise_m: NonNeg = 0.002
+    """Position noise, uniform in a cube whose corners lie at this distance (keep <= delta_y).
+    Real trackers always have some; a noiseless sensor repeats the exact values of a joint at
+    rest, which the tracking gate takes for a frozen marker while other joints move."""
+    glitches: list[GlitchSpec] = Field(default=[], max_length=64)
 
 
 class _HumanBase(_Strict):
@@ -227,6 +245,24 @@ class ShieldSpec(_Strict):
         return self
 
 
+class GateSpec(_Strict):
+    """The tracking quality gate and the conformance monitor (``sara_app.human.gate``,
+    ``sara_app.human.conformance``)."""
+
+    bone_tol_m: Annotated[float, Field(ge=0, le=0.5)] = 0.05
+    """How far a bone's measured length may drift beyond 2 delta_y from the person's own."""
+    learn_frames: Annotated[int, Field(ge=1, le=1000)] = 15
+    """Frames whose median gives a person's bone lengths."""
+    max_hold_s: Annotated[float, Field(gt=0, le=5)] = 0.5
+    """A joint distrusted longer than this refuses its person's skeletons (the person ages)."""
+    recover_s: Annotated[float, Field(gt=0.1, le=60)] = 0.5
+    """A person beyond the parameter set's bounds is a fault until this long within them."""
+
+    def intake(self) -> IntakeSettings:
+        gate = GateSettings(self.bone_tol_m, self.learn_frames, self.max_hold_s)
+        return IntakeSettings(gate, self.recover_s)
+
+
 class InputSpec(_Strict):
     """What the live cell takes from the bus, and its bounds (the contract's freshness rules)."""
 
@@ -240,6 +276,7 @@ class InputSpec(_Strict):
     """Coordinates (and speeds in m/s) beyond this magnitude are refused as ``out_of_range``."""
     robot_state_timeout_s: Annotated[float, Field(gt=0, le=5)] = 0.05
     """Once a controller publishes ``robot/state``, a state older than this is a fault."""
+    gate: GateSpec = GateSpec()
 
     @field_validator("trackers")
     @classmethod

@@ -33,8 +33,10 @@ import numpy as np
 
 from sara_app.cell import build_cell, environment_boxes
 from sara_app.geometry import capsule_box_distances, segment_pair_distances
+from sara_app.human.glitches import Glitches
+from sara_app.human.intake import Intake
 from sara_app.human.motions import HumanMotion, make_motion, measured
-from sara_app.human.velocity import VelocityEstimator
+from sara_app.human.widening import widening
 from sara_app.robot.energy import LinkMotion
 from sara_app.robot.model import RobotModel, load_robot
 from sara_app.safety.shield import CycleResult, HumanState
@@ -51,7 +53,8 @@ class _Sensor:
     rate_hz: float
     noise_m: float
     next_s: float
-    estimator: VelocityEstimator
+    intake: Intake
+    glitches: Glitches
     state: HumanState
 
 
@@ -82,6 +85,9 @@ class SimMetrics:
     """Largest link energy / actual threshold over all contacts (harmful from 1 on)."""
     speed_scale_mean: float = 1.0
     intervened_share: float = 0.0
+    tracking: dict[str, int] = field(default_factory=dict)
+    """Flags of the tracking gate and the conformance monitor, summed over people
+    (``sara_app.human.intake``); ``refused``: skeletons refused for a joint held too long."""
 
     def lines(self) -> list[str]:
         ttg = f"{self.time_to_goal_s:.2f} s" if self.time_to_goal_s is not None else "not reached"
@@ -101,6 +107,8 @@ class SimMetrics:
             f"intervened          {100 * self.intervened_share:.1f} % of cycles"
             f" (mean speed scale {self.speed_scale_mean:.2f})",
             f"time to goal        {ttg}",
+            "tracking flags      "
+            + (", ".join(f"{k} {v}" for k, v in self.tracking.items() if v) or "none"),
             f"shield cycle        p50 {self.cycle_us_p50:.0f} us, p99 {self.cycle_us_p99:.0f} us",
             "modes               " + ", ".join(f"{k} {v}" for k, v in sorted(self.modes.items())),
         ]
@@ -228,12 +236,14 @@ class Simulation:
         self.rng = np.random.default_rng(sc.sim.seed)
         self.motions: list[HumanMotion] = [make_motion(h, self.params) for h in sc.humans]
         J = reach.skeleton.n_joints
+        p, gate = self.params, sc.inputs.gate.intake()
         self.sensors = [
             _Sensor(
                 h.sensor.rate_hz,
                 h.sensor.noise_m,
                 0.0,
-                VelocityEstimator(J, ps.delta_y_m, self.params.a_max_mps2),
+                Intake(ps.delta_y_m, p.v_max_mps, p.a_max_mps2, gate),
+                Glitches(h.sensor.glitches),
                 HumanState.unmeasured(h.id, J),
             )
             for h in sc.humans
@@ -283,12 +293,16 @@ class Simulation:
             return
         t_m = self._hist_t[k]
         y = self._hist_y[i][k]
-        y = measured(y, sen.noise_m, self.rng)
+        y = sen.glitches.apply(t_m, measured(y, sen.noise_m, self.rng))
         stamp = t_m + self.params.delay_s
         if sen.state.stamp_s is not None and stamp <= sen.state.stamp_s:
             return
-        v, dv = sen.estimator.update(stamp, y)
-        sen.state.y, sen.state.v, sen.state.dv = y, v.copy(), dv.copy()
+        taken = sen.intake.take(stamp, y, self.params.delta_y_m, len(y))
+        if taken is None:  # a joint distrusted too long: the skeleton is refused, the person ages
+            return
+        g, v, dv = taken
+        sen.state.y, sen.state.v, sen.state.dv = g.y.copy(), v.copy(), dv.copy()
+        sen.state.widen_m = widening(self.shield.reach, g.extra_m, True) if g.held else None
         sen.state.stamp_s = stamp
 
     def _collide(self, q: np.ndarray, v: np.ndarray, poses: list[np.ndarray], moving: bool) -> None:
@@ -338,7 +352,10 @@ class Simulation:
         v = shield.robot_state.v
         moving = bool(np.max(np.abs(v), initial=0.0) > _MOVING_RAD_S)
         self._collide(q, v, poses, moving)
-        res = self.shield.cycle(t, [s.state for s in self.sensors], None, want_distance=False)
+        faults = [f for f in (s.intake.fault(s.state.id) for s in self.sensors) if f]
+        res = self.shield.cycle(
+            t, [s.state for s in self.sensors], None, input_faults=faults, want_distance=False
+        )
         self.last = res
         self._scale_sum += res.speed_scale
         self._intervened += res.intervened
@@ -398,4 +415,12 @@ class Simulation:
             max_energy_ratio=self.max_energy_ratio,
             speed_scale_mean=self._scale_sum / max(self.cycles, 1),
             intervened_share=self._intervened / max(self.cycles, 1),
+            tracking=self.tracking_counts(),
         )
+
+    def tracking_counts(self) -> dict[str, int]:
+        out: dict[str, int] = {}
+        for s in self.sensors:
+            for k, v in s.intake.counts().items():
+                out[k] = out.get(k, 0) + v
+        return out

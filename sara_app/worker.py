@@ -44,6 +44,7 @@ from sara_app.bus.session import Bus
 from sara_app.cell import Cell, build_cell
 from sara_app.cell_state import CellState
 from sara_app.errors import SaraError
+from sara_app.human.gate import GateResult
 from sara_app.human.reach import MODELS, part_capsules
 from sara_app.human.skeleton import UPPER_JOINTS, full_body
 from sara_app.human.widening import per_capsule, widening
@@ -177,7 +178,8 @@ class CellWorker:
 
     def _new_track(self, human_id: str) -> Track:
         p = self.cell.params
-        return unmeasured_track(human_id, len(p.v_max_mps), p.delta_y_m, p.a_max_mps2)
+        gate = self.cell.scenario.inputs.gate.intake()
+        return unmeasured_track(human_id, p.delta_y_m, p.v_max_mps, p.a_max_mps2, gate)
 
     # -- inputs --------------------------------------------------------------------------------
 
@@ -197,31 +199,40 @@ class CellWorker:
             return
         unc = msg.position_uncertainty_m
         delta_y = p.delta_y_m if unc is None else max(unc, p.delta_y_m)
-        if track.estimator.delta_y_m != delta_y:  # its velocity error bound grows with it
-            track.estimator.retune(delta_y, p.a_max_mps2)
+        n_measured = len(y) if msg.kind == "full" else len(UPPER_JOINTS)
         try:
-            v_est, dv_est = track.estimator.update(msg.stamp_s, y)
+            taken = track.intake.take(msg.stamp_s, y, delta_y, n_measured)
         except SaraError:
             self._drop("stamp_not_advancing")
             return
+        if taken is None:  # a joint distrusted too long: the person ages
+            self._drop("tracking_inconsistent")
+            return
+        g, v_est, dv_est = taken
         st = track.state
-        st.widen_m = self._widening(track, msg.position_uncertainty_m, msg.kind == "full")
+        st.widen_m = self._widening(track, msg.position_uncertainty_m, msg.kind == "full", g)
         if v is not None:
             unc = msg.velocity_uncertainty_mps
             st.v = v
             st.dv = np.full(len(y), p.delta_v_mps if unc is None else max(unc, p.delta_v_mps))
+            st.dv[~g.trusted] = np.inf
         else:
             st.v, st.dv = v_est.copy(), dv_est.copy()
         if msg.kind != "full":
             st.dv[len(UPPER_JOINTS) :] = np.inf  # the legs' velocities are not measured
-        st.y = y
+        st.y = g.y.copy()
         st.stamp_s = msg.stamp_s
 
-    def _widening(self, track: Track, unc_m: float | None, legs: bool) -> np.ndarray | None:
-        """The person's widening for a message's stated uncertainty and whether its source
-        measures the legs (cached on the track: recomputed when they or the parameters
-        change)."""
+    def _widening(
+        self, track: Track, unc_m: float | None, legs: bool, gated: GateResult | None = None
+    ) -> np.ndarray | None:
+        """The person's widening for a message's stated uncertainty, whether its source
+        measures the legs and the joints the gate holds (cached on the track while nothing
+        is held: recomputed when they or the parameters change)."""
         extra = 0.0 if unc_m is None else max(unc_m - self.cell.params.delta_y_m, 0.0)
+        if gated is not None and gated.held:
+            track.widen_key = None
+            return widening(self.shield.reach, extra + gated.extra_m, legs_measured=legs)
         key = (unc_m, legs, extra)
         if track.widen_key != key:
             track.widen_key = key
@@ -351,9 +362,9 @@ class CellWorker:
         self.presence.configure(
             inp.trackers, inp.tracker_timeout_s, inp.max_people, self._new_track
         )
-        p = new.params
+        p, gate = new.params, inp.gate.intake()
         for t in self.presence.tracks.values():
-            t.estimator.retune(p.delta_y_m, p.a_max_mps2)  # the next skeleton retunes further
+            t.intake.retune(p.delta_y_m, p.v_max_mps, p.a_max_mps2, gate)
             t.state.dv = np.full(len(p.v_max_mps), np.inf)
             if t.widen_key is not None:  # the same message under the new delta_y
                 t.state.widen_m = self._widening(t, t.widen_key[0], t.widen_key[1])
@@ -378,7 +389,7 @@ class CellWorker:
             robot = self.robot_in.faults(
                 now, sc.inputs.robot_state_timeout_s, sc.shield.tracking_tol_rad
             )
-            faults = self.presence.faults(now) + robot + problems
+            faults = self.presence.faults(now) + self.presence.conformance() + robot + problems
             # the tracking check is the measured robot's (at the measurement's time)
             res = self.shield.cycle(now, self.presence.humans(), None, input_faults=faults)
         except Exception as e:  # noqa: BLE001 - last line of defence: brake, report, go on
@@ -447,7 +458,9 @@ class CellWorker:
         seqs = (self.pub_verdict.next_seq(), self.pub_cmd.next_seq())
         try:
             self.messages.observe(now, res)
-            verdict, command = self.messages.verdict_and_command(now, dt, res, self.dropped(), seqs)
+            verdict, command = self.messages.verdict_and_command(
+                now, dt, res, self.dropped(), seqs, self.presence
+            )
         except Exception as e:  # noqa: BLE001 - a message that cannot be built: a fault cycle
             self.errors("building the cycle's messages failed", repr(e), e)
             why = f"messages failed: {e!r}"[:200]

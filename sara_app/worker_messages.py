@@ -13,7 +13,7 @@ verifies no stop: its commands carry none.
 from __future__ import annotations
 
 import math
-from typing import Any, cast
+from typing import Any, Protocol, cast
 
 import numpy as np
 
@@ -22,8 +22,10 @@ from sara_app.bus.messages import (
     COMMAND_VALID_PERIODS,
     RobotCommandMsg,
     VerdictMsg,
+    ViolationMsg,
 )
 from sara_app.errors import InputError
+from sara_app.human.conformance import Violation
 from sara_app.robot.trajectory import JointState
 from sara_app.safety.shield import CycleResult
 
@@ -63,9 +65,10 @@ class CycleMessages:
         res: CycleResult,
         dropped: dict[str, int],
         seqs: tuple[int, int],
+        people: People | None = None,
     ) -> tuple[VerdictMsg, RobotCommandMsg]:
         """The cycle's verdict and command, numbered ``seqs``; raises when a value cannot be
-        sent (non-finite)."""
+        sent (non-finite). ``people``: the tracking flags and violations to report."""
         c = res.command
         if not all(np.isfinite(a).all() for a in (c.q, c.v, c.a)):
             raise InputError(f"the command is not finite: q {c.q.tolist()}")
@@ -84,6 +87,8 @@ class CycleMessages:
             dropped=dropped,
             intervened=res.intervened,
             speed_scale=res.speed_scale if res.safety_mode in ("ssm", "pfl") else None,
+            tracking=cast(Any, {} if people is None else people.tracking()),
+            violations=[] if people is None else violation_msgs(people.violations()),
         )
         return verdict, self._command(now, dt, c, res.mode, seqs[1])
 
@@ -133,3 +138,19 @@ class CycleMessages:
             intervened=True,
         )
         return verdict, self._command(now, dt, c, "fault", seqs[1])
+
+
+class People(Protocol):
+    """What a verdict reports of the people (``sara_app.presence.Presence``)."""
+
+    def tracking(self) -> dict[str, dict[str, int]]: ...
+
+    def violations(self) -> list[tuple[str, Violation]]: ...
+
+
+def violation_msgs(found: list[tuple[str, Violation]]) -> list[ViolationMsg]:
+    return [
+        ViolationMsg(human_id=h, joint=v.joint, quantity=cast(Any, v.quantity),
+                     value=v.value, bound=v.bound, stamp_s=v.t_s)
+        for h, v in found[:64]
+    ]  # fmt: skip

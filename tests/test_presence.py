@@ -10,11 +10,15 @@ from hypothesis import strategies as st
 from sara_app.presence import FORGET_AFTER_S, Presence, unmeasured_track
 
 A_MAX = np.full(15, 50.0)
+V_MAX = np.full(15, 2.0)
 
 
 def _presence(trackers=("main",), max_people: int = 4) -> Presence:
     return Presence(
-        tuple(trackers), 0.2, max_people, lambda h: unmeasured_track(h, 15, 0.004, A_MAX)
+        tuple(trackers),
+        0.2,
+        max_people,
+        lambda h: unmeasured_track(h, 0.004, V_MAX, A_MAX),
     )
 
 

@@ -242,6 +242,25 @@ class RobotCommandMsg(_Msg):
         return q[k] + slope * (t_s - t[k]), slope
 
 
+TrackingFlag = Literal["jump", "bone", "frozen", "refused", "speed", "acceleration"]
+"""The tracking gate's flags (``jump``, ``bone``, ``frozen``; ``refused``: skeletons refused
+for a joint distrusted too long) and the conformance monitor's (``speed``, ``acceleration``)."""
+
+
+class ViolationMsg(BaseModel):
+    """A person's joint beyond the active parameter set's bound (the person is a fault)."""
+
+    model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
+
+    human_id: Name
+    joint: Name
+    quantity: Literal["speed", "acceleration"]
+    value: Finite
+    """m/s or m/s^2: the least speed or acceleration that explains the measured motion."""
+    bound: Finite
+    stamp_s: Finite
+
+
 class VerdictMsg(_Msg):
     """The outcome of one control cycle (key ``sara/<cell>/verdict``).
 
@@ -263,6 +282,11 @@ class VerdictMsg(_Msg):
     """The safety layer changed the nominal motion (failsafe, slowed down, jerk filtered)."""
     speed_scale: NonNeg | None = None
     """PFL: the path-speed cap as a fraction of the admissible speed (1: full speed)."""
+    tracking: dict[Name, dict[TrackingFlag, Annotated[int, Field(ge=0)]]] = {}
+    """human id -> flag -> joint-frames flagged since the person became known (people with
+    no flag are left out)."""
+    violations: list[ViolationMsg] = Field(default=[], max_length=64)
+    """The newest violations of every person now on the failsafe for breaking the bounds."""
 
 
 class CapsulesMsg(BaseModel):

@@ -30,10 +30,20 @@ class Scripted:
         return self.motion.pose(t)
 
 
+RAMP_S = 1.0
+"""How long a replayed recording takes to come up to its own speed, and to come to rest."""
+
+
 class Playback:
     """A recording replayed from ``clip_start_s`` at scenario time ``start_s``, turned by
     ``yaw_rad`` about the vertical through its first pelvis position and moved by ``offset_m``;
-    linear interpolation between frames, held at the ends."""
+    linear interpolation between frames.
+
+    A clip starts and ends mid-motion (a walk at 1.3 m/s); held still before and after it, the
+    person would change speed in no time, which no parameter set allows (the conformance monitor
+    rightly reports it). So the clip's time is eased in and out: its rate rises linearly from 0
+    to 1 over ``RAMP_S`` (at most half the clip) and falls back to 0 before its end, adding at
+    most (clip speed) / ``RAMP_S`` to the clip's accelerations."""
 
     def __init__(
         self,
@@ -46,20 +56,46 @@ class Playback:
     ) -> None:
         if rec.kind != "full":
             raise ParameterError(f"recording {rec.name!r} is {rec.kind!r}; simulation needs 'full'")
-        self.t = rec.times_s - rec.times_s[0] - clip_start_s + start_s
+        self.t = rec.times_s - rec.times_s[0]
+        self.start_s, self.clip_start_s = start_s, min(clip_start_s, float(self.t[-1]))
+        self.clip_s = float(self.t[-1]) - self.clip_start_s
+        self.ramp_s = min(RAMP_S, self.clip_s / 2.0)
         pelvis = rec.positions_m[0, rec.joints.index("pelvis")]
         pivot = np.array([pelvis[0], pelvis[1], 0.0])
         c, s = np.cos(yaw_rad), np.sin(yaw_rad)
         R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         self.y = (rec.positions_m - pivot) @ R.T + pivot + np.asarray(offset_m)
 
+    @property
+    def duration_s(self) -> float:
+        """Scenario time from ``start_s`` until the person rests at the clip's last pose."""
+        return self.clip_s + self.ramp_s
+
+    def clip_time(self, t: float) -> float:
+        """The clip's time (s from its first frame) shown at scenario time ``t``."""
+        tau, R, D = t - self.start_s, self.ramp_s, self.clip_s
+        if R <= 0.0:
+            warped = min(max(tau, 0.0), D)
+        elif tau <= 0.0:
+            warped = 0.0
+        elif tau < R:
+            warped = tau * tau / (2.0 * R)
+        elif tau < self.duration_s - R:
+            warped = R / 2.0 + (tau - R)
+        elif tau < self.duration_s:
+            warped = D - (self.duration_s - tau) ** 2 / (2.0 * R)
+        else:
+            warped = D
+        return self.clip_start_s + warped
+
     def pose(self, t: float, robot_ends: np.ndarray, robot_radius: np.ndarray) -> np.ndarray:
-        i = int(np.searchsorted(self.t, t, side="right"))
+        c = self.clip_time(t)
+        i = int(np.searchsorted(self.t, c, side="right"))
         if i <= 0:
             return self.y[0].copy()
         if i >= len(self.t):
             return self.y[-1].copy()
-        w = (t - self.t[i - 1]) / (self.t[i] - self.t[i - 1])
+        w = (c - self.t[i - 1]) / (self.t[i] - self.t[i - 1])
         return (1.0 - w) * self.y[i - 1] + w * self.y[i]
 
 

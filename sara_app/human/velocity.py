@@ -9,6 +9,10 @@ within delta_y (Euclidean) and a joint acceleration bounded by a_max, is off by 
 bound is smallest at h* = 2 sqrt(delta_y / a_max); each joint uses the available lag closest to
 its optimum. The bound assumes a_max holds: it is exactly the assumption of the ACC model that
 consumes it, so the model stays sound under its own assumptions.
+
+Frames the tracking quality gate distrusts for a joint (:mod:`sara_app.human.gate`) are never
+used for that joint: a glitch at either end would break the bound. A joint without a trusted
+frame in reach has no estimate (infinite bound).
 """
 
 from __future__ import annotations
@@ -23,9 +27,14 @@ def velocity_error_bound(lag_s: np.ndarray, delta_y_m: float, a_max_mps2: np.nda
     return 2.0 * delta_y_m / lag_s + 0.5 * a_max_mps2 * lag_s
 
 
-def _best_lags(dts: np.ndarray, delta_y_m: float, a_max: np.ndarray) -> tuple[np.ndarray, ...]:
-    """For candidate lags ``(L,)`` and joints ``(J,)``: index of the best lag and its bound."""
+def _best_lags(
+    dts: np.ndarray, delta_y_m: float, a_max: np.ndarray, usable: np.ndarray | None = None
+) -> tuple[np.ndarray, ...]:
+    """For candidate lags ``(L,)`` and joints ``(J,)``: index of the best lag and its bound;
+    ``usable`` ``(L, J)``: which past frames may serve each joint (None: all)."""
     bounds = velocity_error_bound(dts[:, None], delta_y_m, a_max[None, :])  # (L, J)
+    if usable is not None:
+        bounds = np.where(usable, bounds, np.inf)
     best = np.argmin(bounds, axis=0)
     return best, bounds[best, np.arange(a_max.shape[0])]
 
@@ -36,22 +45,26 @@ def estimate_recording(
     delta_y_m: float,
     a_max_mps2: np.ndarray,
     max_lag_frames: int = 8,
+    trusted: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Causal velocity estimates for a whole recording.
 
-    ``positions_m`` ``(T, J, 3)``; returns ``v (T, J, 3)`` and the error bound ``dv (T, J)``.
-    Frame 0 has no past: its bound is infinite (the ACC model is then unusable there).
+    ``positions_m`` ``(T, J, 3)``; ``trusted`` ``(T, J)`` the gate's verdicts (None: all);
+    returns ``v (T, J, 3)`` and the error bound ``dv (T, J)``. Frame 0 has no past: its bound
+    is infinite (the ACC model is then unusable there), as for an untrusted joint.
     """
     T, J, _ = positions_m.shape
+    ok = np.ones((T, J), bool) if trusted is None else np.asarray(trusted, bool)
     v = np.zeros_like(positions_m)
     dv = np.full((T, J), np.inf)
     for i in range(1, T):
         lags = np.arange(1, min(max_lag_frames, i) + 1)
         dts = times_s[i] - times_s[i - lags]
-        best, bound = _best_lags(dts, delta_y_m, a_max_mps2)
+        best, bound = _best_lags(dts, delta_y_m, a_max_mps2, ok[i - lags])
         past = positions_m[i - lags[best], np.arange(J)]
         v[i] = (positions_m[i] - past) / dts[best][:, None]
-        dv[i] = bound
+        dv[i] = np.where(ok[i], bound, np.inf)
+    v[~np.isfinite(dv)] = 0.0
     return v, dv
 
 
@@ -65,6 +78,7 @@ class VelocityEstimator:
         self.a_max = np.asarray(a_max_mps2, dtype=float)
         self.times = np.full(max_lag_frames + 1, -np.inf)
         self.frames = np.zeros((max_lag_frames + 1, n_joints, 3))
+        self.trusted = np.ones((max_lag_frames + 1, n_joints), bool)
         self.count = 0
         self.v = np.zeros((n_joints, 3))
         self.dv = np.full(n_joints, np.inf)
@@ -79,19 +93,28 @@ class VelocityEstimator:
         self.a_max = np.asarray(a_max_mps2, dtype=float)
         self.dv[:] = np.inf
 
-    def update(self, t_s: float, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Add a frame; returns the velocity ``(J, 3)`` and its error bound ``(J,)`` at ``t_s``.
-
-        A time stamp that does not advance raises InputError (the caller drops the frame).
-        """
+    def check_stamp(self, t_s: float) -> None:
+        """Raise InputError when ``t_s`` does not advance past the newest frame's stamp."""
         if self.count and not t_s > self.times[0]:
             raise InputError(
                 f"skeleton time stamp {t_s} does not advance past the previous {self.times[0]}"
             )
+
+    def update(
+        self, t_s: float, y: np.ndarray, trusted: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Add a frame; returns the velocity ``(J, 3)`` and its error bound ``(J,)`` at ``t_s``.
+        ``trusted`` ``(J,)``: the gate's verdict per joint (None: all trusted).
+
+        A time stamp that does not advance raises InputError (the caller drops the frame).
+        """
+        self.check_stamp(t_s)
         self.times[1:] = self.times[:-1]
         self.frames[1:] = self.frames[:-1]
         self.times[0] = t_s
         self.frames[0] = y
+        self.trusted[1:] = self.trusted[:-1]
+        self.trusted[0] = True if trusted is None else trusted
         self.count = min(self.count + 1, len(self.times))
         n = self.count - 1
         if n == 0:
@@ -99,8 +122,9 @@ class VelocityEstimator:
             self.dv[:] = np.inf
             return self.v, self.dv
         dts = t_s - self.times[1 : n + 1]
-        best, bound = _best_lags(dts, self.delta_y_m, self.a_max)
+        best, bound = _best_lags(dts, self.delta_y_m, self.a_max, self.trusted[1 : n + 1])
         past = self.frames[1 + best, np.arange(self.a_max.shape[0])]
         self.v[:] = (y - past) / dts[best][:, None]
-        self.dv[:] = bound
+        self.dv[:] = np.where(self.trusted[0], bound, np.inf)
+        self.v[~np.isfinite(self.dv)] = 0.0
         return self.v, self.dv

@@ -36,24 +36,30 @@ from sara_app.human.skeleton import UPPER_JOINTS
 UNMEASURED_LEG_REACH_M = 1.2
 
 
-def widening(reach: HumanReach, extra_m: float, legs_measured: bool) -> np.ndarray | None:
+def widening(
+    reach: HumanReach, extra_m: float | np.ndarray, legs_measured: bool
+) -> np.ndarray | None:
     """Extra radius per model and body part ``(len(MODELS), P)`` (rows in ``MODELS`` order;
     a part's value is that of the model's capsule containing it), or None when nothing is
-    widened. ``extra_m``: the stated position uncertainty minus the parameter set's (>= 0)."""
-    extra_m = max(float(extra_m), 0.0)
-    if extra_m == 0.0 and legs_measured:
+    widened. ``extra_m``: the position uncertainty beyond the parameter set's ``delta_y``, one
+    value or one per joint ``(J,)`` (>= 0; a joint held by the tracking gate)."""
+    e = np.maximum(np.broadcast_to(np.asarray(extra_m, float), (reach.skeleton.n_joints,)), 0.0)
+    if not e.any() and legs_measured:
         return None
-    caps = capsule_widening(reach, extra_m, legs_measured)
+    caps = capsule_widening(reach, e, legs_measured)
     return np.stack([caps[m][part_capsules(reach, m)] for m in MODELS])
 
 
 def capsule_widening(
-    reach: HumanReach, extra_m: float, legs_measured: bool
+    reach: HumanReach, extra_m: float | np.ndarray, legs_measured: bool
 ) -> dict[str, np.ndarray]:
-    """Extra radius per capsule of every model: ``{model: (C,)}`` (see the module notes)."""
+    """Extra radius per capsule of every model: ``{model: (C,)}`` (see the module notes);
+    ``extra_m`` one value or ``(J,)``. A limb of R_POS takes its chain's largest extra."""
     sk = reach.skeleton
+    extra = np.maximum(np.broadcast_to(np.asarray(extra_m, float), (sk.n_joints,)), 0.0)
     unmeasured = np.array([not legs_measured and j not in UPPER_JOINTS for j in sk.joints])
-    e = np.where(unmeasured, extra_m + UNMEASURED_LEG_REACH_M, extra_m)  # (J,)
+    e = np.where(unmeasured, extra + UNMEASURED_LEG_REACH_M, extra)  # (J,)
+    arm_joints = [sk.joints.index(f"{s}_{j}") for s in "lr" for j in ("shoulder", "elbow", "wrist")]
     out = {}
     for m in MODELS:
         cap, joint, _ = reach.coverage[m]
@@ -62,8 +68,9 @@ def capsule_widening(
         if m == "pos":
             for i, chain in enumerate(sk.limb_chains):
                 leg = bool(unmeasured[list(chain)].any())
-                ext[i] = (1 + 2 * (len(chain) - 1)) * extra_m + UNMEASURED_LEG_REACH_M * leg
-        elif m == "arm" and extra_m > 0.0:
+                worst = float(extra[list(chain)].max())
+                ext[i] = (1 + 2 * (len(chain) - 1)) * worst + UNMEASURED_LEG_REACH_M * leg
+        elif m == "arm" and extra[arm_joints].max() > 0.0:
             ext[:2] = np.inf
         out[m] = ext
     return out

@@ -1,0 +1,142 @@
+"""Live conformance monitor: does the observed motion keep to the parameter set's bounds?
+
+Every guarantee the shield gives rests on the person moving within the active parameter set
+(``v_max``, ``a_max`` per joint) and the tracker keeping within ``delta_y``. The monitor checks,
+per person and joint, two necessary conditions on the motion the tracking quality gate trusts
+(:mod:`sara_app.human.gate`), over spans of 1 to ``2**(SPANS-1)`` frames back (a short span sees
+a jump, a long one a small excess sustained); a violation proves that an assumption does not
+hold right now:
+
+- **speed**: ``|y_2 - y_0| <= 2 delta_y + v_max (t_2 - t_0)`` (and the gate's ``jump`` of a trusted
+  joint, the same test against its last trusted position); value reported:
+  ``(|y_2 - y_0| - 2 delta_y) / (t_2 - t_0)``;
+- **acceleration**: a point whose acceleration is bounded by ``a_max`` lies within
+  ``a_max (t_1 - t_0)(t_2 - t_1) / 2`` of the chord between its positions at ``t_0`` and ``t_2``
+  (the linear interpolation error bound), so a measured midpoint lies within that plus
+  ``2 delta_y`` of the measured chord; value reported: the least acceleration that explains the
+  measured distance, ``2 (d - 2 delta_y) / ((t_1 - t_0)(t_2 - t_1))``.
+
+The fallback is the failsafe: a person with a violation is a fault (the robot stays on its
+verified failsafe) until frames stamped ``recover_s`` after their last violation show them
+within bounds; messages that stop make them age into the stale-measurement fault instead.
+``recover_s`` is longer than the velocity estimator's reach (8 frames), so no estimate made
+from a violating frame is used once the fault lifts. A wider parameter set as fallback would
+need per-person parameters in the compiled kernels; not done.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sara_app.errors import ParameterError
+
+QUANTITIES = ("speed", "acceleration")
+
+
+@dataclass(frozen=True)
+class Violation:
+    """One joint beyond its bound: ``quantity`` in ``QUANTITIES``, ``value`` and ``bound`` in
+    m/s or m/s^2, ``t_s`` the frame's stamp."""
+
+    joint: str
+    quantity: str
+    value: float
+    bound: float
+    t_s: float
+
+
+SPANS = 5
+"""Spans checked: 1, 2, 4, 8 and 16 frames back."""
+
+
+@dataclass
+class Monitor:
+    """The monitor of one person; ``joints`` names ``v_max_mps``/``a_max_mps2`` ``(J,)``."""
+
+    joints: tuple[str, ...]
+    v_max_mps: np.ndarray
+    a_max_mps2: np.ndarray
+    recover_s: float = 0.5
+    counts: dict[str, int] = field(default_factory=lambda: dict.fromkeys(QUANTITIES, 0))
+    """Frames x joints beyond a bound, per quantity, since the monitor was built."""
+    last: list[Violation] = field(default_factory=list)
+    """The violations of the newest frame that had any."""
+    last_violation_s: float = -np.inf
+    newest_s: float = -np.inf
+
+    def __post_init__(self) -> None:
+        if not self.recover_s > 0:
+            raise ParameterError(f"monitor recover_s = {self.recover_s}; expected > 0")
+        self.v_max_mps = np.asarray(self.v_max_mps, dtype=float)
+        self.a_max_mps2 = np.asarray(self.a_max_mps2, dtype=float)
+        J, N = len(self.joints), 2 ** (SPANS - 1) + 1
+        self._t = np.full(N, -np.inf)  # newest first
+        self._y = np.zeros((N, J, 3))
+        self._ok = np.zeros((N, J), bool)
+
+    def retune(self, v_max_mps: np.ndarray, a_max_mps2: np.ndarray, recover_s: float) -> None:
+        self.v_max_mps = np.asarray(v_max_mps, dtype=float)
+        self.a_max_mps2 = np.asarray(a_max_mps2, dtype=float)
+        self.recover_s = recover_s
+
+    def observe(
+        self,
+        t_s: float,
+        y: np.ndarray,
+        trusted: np.ndarray,
+        delta_y_m: float,
+        jump_speed_mps: np.ndarray,
+    ) -> list[Violation]:
+        """One gated frame ``y (J, 3)`` with the gate's ``trusted (J,)`` and, for trusted joints
+        that jumped, the speed they needed ``jump_speed_mps (J,)`` (0 elsewhere)."""
+        for arr, new in ((self._t, t_s), (self._y, y), (self._ok, trusted)):
+            arr[1:] = arr[:-1]
+            arr[0] = new
+        speed = np.where(trusted, jump_speed_mps, 0.0)
+        acc = np.zeros(len(self.joints))
+        for e in range(SPANS):
+            k = 2**e
+            if not np.isfinite(self._t[k]):
+                break
+            dt = t_s - self._t[k]
+            ok = self._ok[0] & self._ok[k]
+            d = np.linalg.norm(y - self._y[k], axis=1) - 2.0 * delta_y_m
+            speed = np.maximum(speed, np.where(ok, d / dt, 0.0))
+            if k >= 2:
+                h = k // 2
+                t1 = self._t[h]
+                w = (t1 - self._t[k]) / dt
+                chord = self._y[k] + w * (y - self._y[k])
+                dev = np.linalg.norm(self._y[h] - chord, axis=1) - 2.0 * delta_y_m
+                span2 = (t1 - self._t[k]) * (t_s - t1)
+                acc = np.maximum(acc, np.where(ok & self._ok[h], 2.0 * dev / span2, 0.0))
+        found = [Violation(self.joints[j], "speed", float(speed[j]), float(self.v_max_mps[j]), t_s)
+                 for j in np.flatnonzero(speed > self.v_max_mps)]  # fmt: skip
+        found += [Violation(self.joints[j], "acceleration", float(acc[j]),
+                            float(self.a_max_mps2[j]), t_s)
+                  for j in np.flatnonzero(acc > self.a_max_mps2)]  # fmt: skip
+        self.newest_s = max(self.newest_s, t_s)
+        if found:
+            self.last = found
+            self.last_violation_s = t_s
+            for f in found:
+                self.counts[f.quantity] += 1
+        return found
+
+    @property
+    def violating(self) -> bool:
+        """Within ``recover_s`` of the last violation (by the frames' own stamps)."""
+        return self.newest_s - self.last_violation_s < self.recover_s
+
+    def fault(self, human_id: str) -> str | None:
+        """The person's fault string while violating, else None."""
+        if not self.violating or not self.last:
+            return None
+        v = self.last[0]
+        more = f" (+{len(self.last) - 1} more)" if len(self.last) > 1 else ""
+        return (
+            f"human {human_id!r}: {v.joint} {v.quantity} {v.value:.2f} > bound {v.bound:.2f}"
+            f"{more}; failsafe until {self.recover_s} s within bounds"
+        )

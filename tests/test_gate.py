@@ -1,0 +1,137 @@
+"""The tracking quality gate: no flag on clean motion, every scripted glitch flagged, and the
+gated skeleton always contains the true joints (held joints widened soundly)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sara_app.errors import ParameterError
+from sara_app.human.gate import FLAGS, Gate, GateSettings
+from sara_app.human.glitches import Glitches
+from sara_app.human.recordings import load_recording
+from sara_app.scenario import GlitchSpec
+
+DY = 0.004
+V_MAX = np.full(15, 2.0)
+RATE_HZ = 60.0
+
+
+def _walk(seed: int, T: int = 240) -> tuple[np.ndarray, np.ndarray]:
+    """A rigid skeleton (the shipped clip's first pose) translated and turned along a random
+    path within 1.2 m/s and 15 m/s^2: times ``(T,)`` and true joints ``(T, 15, 3)``."""
+    rng = np.random.default_rng(seed)
+    pose = load_recording("02_01").positions_m[0]
+    pose = pose - pose.mean(axis=0)
+    dt = 1.0 / RATE_HZ
+    acc = np.repeat(rng.uniform(-1, 1, (T // 6 + 1, 3)) * 8.0, 6, axis=0)[:T]
+    acc[:, 2] = 0.0
+    v = np.cumsum(acc * dt, axis=0)
+    v *= np.minimum(1.0, 0.8 / np.maximum(np.linalg.norm(v, axis=1), 1e-9))[:, None]
+    x = np.cumsum(v * dt, axis=0)
+    yaw = np.cumsum(rng.uniform(-0.3, 0.3, T)) * dt  # at most 0.3 rad/s: joints < 0.4 m/s more
+    c, s = np.cos(yaw), np.sin(yaw)
+    R = np.zeros((T, 3, 3))
+    R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = c, -s, s, c, 1.0
+    y = np.einsum("tab,jb->tja", R, pose) + x[:, None, :]
+    return np.arange(T) * dt, y
+
+
+def _noisy(y: np.ndarray, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed + 100)
+    n = rng.normal(size=y.shape)
+    n *= DY * rng.random(y.shape[:-1] + (1,)) / np.linalg.norm(n, axis=-1, keepdims=True)
+    return y + n
+
+
+def _run(t, y_meas, y_true, settings=None, n_measured=15):
+    gate = Gate(V_MAX, settings or GateSettings())
+    flags, held, refused = [], [], []
+    for k in range(len(t)):
+        g = gate.check(float(t[k]), y_meas[k], DY, n_measured)
+        # soundness: every true joint lies within delta_y + extra of the gated joint
+        err = np.linalg.norm(y_true[k] - g.y, axis=1)
+        assert np.all(err <= DY + g.extra_m + 1e-9), (k, err - DY - g.extra_m)
+        flags.append(g.flags.copy())
+        held.append(~g.trusted)
+        refused.append(g.refused)
+    return gate, np.array(flags), np.array(held), np.array(refused)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_clean_motion_is_never_flagged(seed: int) -> None:
+    t, y = _walk(seed)
+    gate, flags, held, refused = _run(t, _noisy(y, seed), y)
+    assert not flags.any() and not held.any() and not refused.any()
+    assert gate.bone_m is not None  # learned from the first frames
+
+
+def _glitched(kind: str, seed: int = 0, **kw: object):
+    t, y = _walk(seed)
+    spec = GlitchSpec(kind=kind, joint="l_wrist", start_s=1.0, **kw)  # type: ignore[arg-type]
+    g = Glitches([spec])
+    meas = np.array([g.apply(float(tk), yk) for tk, yk in zip(t, _noisy(y, seed))])
+    on = (t >= 1.0) & (t < 1.0 + spec.duration_s)
+    return t, y, meas, on
+
+
+def test_a_swap_is_held_soundly_and_trusted_again_after_it() -> None:
+    t, y, meas, on = _glitched("swap", other="head", duration_s=0.3)
+    gate, flags, held, refused = _run(t, meas, y)
+    j = 7  # l_wrist
+    assert flags[on, j, FLAGS.index("bone")].all()
+    assert held[on, j].all() and not held[~on, j].any()
+    assert not held[:, np.arange(15) != j].any()  # the elbow is not blamed
+    assert gate.counts["bone"] == on.sum()
+    assert not refused.any()
+
+
+def test_a_frozen_joint_is_held_from_its_first_repeat() -> None:
+    t, y, meas, on = _glitched("freeze", duration_s=0.3)
+    gate, flags, held, _ = _run(t, meas, y)
+    first = np.flatnonzero(on)[0]
+    frozen = flags[:, 7, FLAGS.index("frozen")]
+    assert frozen[first + 1 : np.flatnonzero(on)[-1] + 1].all() and not frozen[~on].any()
+    assert gate.counts["frozen"] == on.sum() - 1
+
+
+def test_a_spike_is_a_jump_of_a_trusted_joint() -> None:
+    """Along its bone a spike cannot be told from real motion: trusted, flagged ``jump``."""
+    t, y, meas, on = _glitched("spike", offset_m=(0.0, 0.0, 0.0), duration_s=0.02)
+    _, flags, _, _ = _run(t, meas, y)
+    assert not flags.any()  # a zero spike is no glitch
+    t, y = _walk(1)
+    meas = _noisy(y, 1)
+    k = 80
+    bone = y[k, 7] - y[k, 5]  # l_elbow -> l_wrist
+    side = np.cross(bone, [1.0, 0.0, 0.0])
+    meas[k, 7] = y[k, 7] + 0.1 * side / np.linalg.norm(side)  # 0.1 m across: length +2.5 cm
+    gate = Gate(V_MAX)
+    for i in range(len(t)):
+        g = gate.check(float(t[i]), meas[i], DY, 15)
+        if i == k:
+            assert g.flags[7, FLAGS.index("jump")] and g.trusted[7]
+            assert g.jump_speed_mps[7] > V_MAX[7]
+
+
+def test_a_joint_held_too_long_refuses_the_frame() -> None:
+    t, y, meas, on = _glitched("swap", other="head", duration_s=1.0)
+    _, _, held, refused = _run(t, meas, y, GateSettings(max_hold_s=0.5))
+    hold_s = t[on] - t[on][0]
+    assert refused[on].tolist() == (hold_s > 0.5 + 1e-9).tolist()
+    assert not refused[~on].any()
+
+
+def test_an_upper_body_source_leaves_the_legs_unchecked() -> None:
+    t, y = _walk(2)
+    meas = _noisy(y, 2)
+    meas[:, 9:] = 0.0  # placeholders, all at one point: bones of length 0, never moving
+    gate = Gate(V_MAX)
+    for k in range(len(t)):
+        g = gate.check(float(t[k]), meas[k], DY, 9)
+        assert g.trusted.all() and not g.flags.any()
+
+
+def test_settings_are_checked() -> None:
+    with pytest.raises(ParameterError, match="max_hold_s"):
+        GateSettings(max_hold_s=0.0)
