@@ -32,6 +32,7 @@ from sara_app.bus.process import process_main
 from sara_app.bus.session import Bus, Publisher
 from sara_app.cell import base_pose
 from sara_app.errors import SaraError
+from sara_app.human.glitches import Glitches
 from sara_app.human.motions import HumanMotion, make_motion, measured
 from sara_app.human.params import to_reach_params
 from sara_app.robot.model import RobotModel, load_robot
@@ -71,6 +72,7 @@ class Replayer:
             make_motion(h, self.params) for h in self.scenario.humans
         ]
         self.next_s = [now for _ in self.scenario.humans]
+        self.glitches = [Glitches(h.sensor.glitches) for h in self.scenario.humans]
         for h in self.scenario.humans:
             if h.id not in self.pubs:
                 self.pubs[h.id] = self.bus.publisher(keys.skeleton_key(self.cell, h.id))
@@ -108,7 +110,7 @@ class Replayer:
             if now < self.next_s[i]:
                 continue
             self.next_s[i] = max(self.next_s[i] + 1.0 / h.sensor.rate_hz, now - 0.5)
-            y = measured(y, h.sensor.noise_m, self.rng)
+            y = self.glitches[i].apply(t_scn, measured(y, h.sensor.noise_m, self.rng))
             pub = self.pubs[h.id]
             msg = SkeletonMsg.from_arrays("full", y, seq=pub.next_seq(), stamp_s=now)
             sent += pub.put(msg)

@@ -89,7 +89,9 @@ class DisplayFrame:
       ``cycle_p50_us`` / ``cycle_p99_us`` (float), ``skeleton_age_ms`` (float, or dict human id
       to float), ``dropped`` (int, or dict reason to count), ``intervened`` (bool),
       ``speed_scale`` (PFL, float), ``jssa`` (dict: ``phi_m2``, ``active``, ``fallback``,
-      ``reason``, ``link``, ``distance_m``, ``d_min_m``); missing keys show as "n/a";
+      ``reason``, ``link``, ``distance_m``, ``d_min_m``), ``tracking`` (dict human id to dict
+      flag to count), ``violations`` (list of dicts: ``human_id``, ``joint``, ``quantity``,
+      ``value``, ``bound``); missing keys show as "n/a";
     - ``critical_pair (2, 3)`` or None: the JSSA critical pair (robot point, other point);
       ``critical_active``: whether JSSA modified the command this cycle;
     - ``links``: PFL energy and threshold per robot link (empty outside PFL);

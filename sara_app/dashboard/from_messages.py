@@ -123,6 +123,8 @@ def verdict_status(v: VerdictMsg, cycle_us: np.ndarray) -> dict[str, Any]:
         "faults": list(v.faults),
         "intervened": v.intervened,
         "speed_scale": v.speed_scale,
+        "tracking": {h: dict(c) for h, c in v.tracking.items()},
+        "violations": [x.model_dump() for x in v.violations],
         "jssa": None,
     }
 

@@ -106,10 +106,37 @@ def status_markdown(status: dict[str, Any]) -> str:
         rows.append(("Intervening", "yes" if status["intervened"] else "no"))
     if status.get("speed_scale") is not None:
         rows.append(("Speed scale (PFL)", _fmt(100.0 * _float(status["speed_scale"]), ".0f", " %")))
+    rows += _people_rows(status)
     jssa = status.get("jssa")
     if isinstance(jssa, dict):
         rows += _jssa_rows(jssa)
     return "| | |\n|---|---|\n" + "\n".join(f"| {k} | {v} |" for k, v in rows)
+
+
+_UNIT = {"speed": "m/s", "acceleration": "m/s²"}
+
+
+def _people_rows(status: dict[str, Any]) -> list[tuple[str, str]]:
+    """The tracking gate's and the conformance monitor's flags, and who breaks the bounds."""
+    rows = []
+    tracking = status.get("tracking")
+    if isinstance(tracking, dict):
+        flags = "; ".join(
+            f"{_escape(str(h))}: " + ", ".join(f"{_escape(str(k))} {v}" for k, v in c.items())
+            for h, c in tracking.items()
+            if isinstance(c, dict)
+        )
+        rows.append(("Tracking flags", flags or "none"))
+    for v in (status.get("violations") or [])[:4]:
+        if isinstance(v, dict):
+            unit = _UNIT.get(str(v.get("quantity")), "")
+            rows.append((
+                "**Beyond bounds**",
+                f"**{_escape(str(v.get('human_id')))}** {_escape(str(v.get('joint')))} "
+                f"{_escape(str(v.get('quantity')))} {_fmt(v.get('value'), '.2f')} > "
+                f"{_fmt(v.get('bound'), '.2f', ' ' + unit)}: failsafe",
+            ))  # fmt: skip
+    return rows
 
 
 def _jssa_rows(jssa: dict[str, Any]) -> list[tuple[str, str]]:
