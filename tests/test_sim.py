@@ -31,7 +31,11 @@ PLAN: dict[str, tuple[float | None, bool]] = {
     "cmu_walk": (5.0, False),
     "adversarial": (2.0, False),
     "close_worker": (None, True),
+    "tracking_glitches": (None, True),
 }
+FAULTS_BY_DESIGN = {"tracking_glitches"}
+"""Its spike is a fault until the person has kept within the bounds for recover_s
+(tests/test_sim_tracking.py counts every flag)."""
 
 
 def run_until_goal(sim: Simulation, horizon_s: float) -> SimMetrics:
@@ -54,7 +58,7 @@ def test_shipped_scenario_has_no_collision_while_moving(name: str) -> None:
     sim = Simulation(sc)
     m = run_until_goal(sim, sc.sim.duration_s if horizon is None else horizon)
     assert m.collisions_moving == 0, (m.first_collision_s, m.min_separation_moving_m)
-    assert m.fault_cycles == 0
+    assert m.fault_cycles == 0 or name in FAULTS_BY_DESIGN
     assert sum(m.modes.values()) == m.cycles
     if sc.humans:
         assert np.isfinite(m.min_separation_m)
