@@ -7,9 +7,10 @@ import pytest
 
 from sara_app.human.analysis import containment
 from sara_app.human.calibrate import calibrate, fit_velocity
+from sara_app.human.intake import screen
 from sara_app.human.params import load_param_set, to_reach_params
 from sara_app.human.reach import HumanReach
-from sara_app.human.recordings import Recording
+from sara_app.human.recordings import Recording, load_recording
 from sara_app.human.skeleton import FULL_JOINTS
 
 
@@ -78,3 +79,24 @@ def test_calibrated_set_contains_what_the_base_set_misses() -> None:
     assert 3.0 < ps.joints["r_wrist"].v_max_mps < 3.6
     assert ps.joints["head"].v_max_mps == base.joints["head"].v_max_mps  # never tightened
     assert rep.drivers_v["r_wrist"]
+
+
+def test_frames_the_gate_distrusts_are_left_out_and_listed() -> None:
+    """The shipped walk (rigid bones) with its right wrist label swapped to the head for 10
+    frames: without the gate the fit would need tens of m/s; the gate blames the wrist's bone,
+    the frames are excluded and listed, and the wrist's bound is the walk's own (2.36 m/s
+    without the swap). The calibrated set keeps the monitor quiet on the recording."""
+    walk = load_recording("02_01")
+    rng = np.random.default_rng(0)
+    y = walk.positions_m + rng.uniform(-1, 1, walk.positions_m.shape) * 0.001
+    y[120:130, 8] = y[120:130, 0]  # r_wrist reported at the head
+    rec = Recording("swapped", "full", walk.times_s, y, "test")
+    base = load_param_set("schepp2022_table1")
+    ps, rep = calibrate(base, [rec], 0.3, "swap_fit", delta_y_m=0.005)
+    assert ps.delta_y_m == rep.delta_y_m == 0.005
+    assert rep.excluded["swapped"] == ["bone r_wrist: 10 frames"]
+    assert ps.joints["r_wrist"].v_max_mps < 2.5
+    assert rep.noise_m["r_wrist"] > 0.1  # the swap shows in the raw chord deviation
+    p = to_reach_params(ps, "full")
+    s = screen(rec.times_s, y, p.delta_y_m, p.v_max_mps, p.a_max_mps2)
+    assert s.counts["speed"] == s.counts["acceleration"] == 0

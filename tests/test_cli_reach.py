@@ -26,11 +26,17 @@ def test_reach_writes_jsonl_and_reports(tmp_path, capsys) -> None:
     lines = [json.loads(x) for x in out.read_text().splitlines()]
     assert len(lines) == 30 * 6  # frames x models (pos, vel, acc, iso13855, arm, combined)
     first = lines[0]
-    assert set(first) == {"frame", "t_s", "model", "horizon_s", "params", "capsules"}
+    keys = {"frame", "t_s", "model", "horizon_s", "params", "available", "capsules"}
+    assert set(first) == keys
     cap = first["capsules"][0]
     assert len(cap["p1"]) == 3 and cap["radius"] > 0
+    # the first frame has no velocity estimate: acc is unavailable there, never a huge capsule
+    acc0 = [x for x in lines if x["model"] == "acc" and x["frame"] == 0][0]
+    assert acc0["available"] is False and acc0["capsules"] == []
+    assert all(x["available"] for x in lines if x["frame"] > 0)
     text = capsys.readouterr().out
     assert "containment" in text and "vel" in text and "m^3" in text
+    assert "unavailable for" in text and "tracking gate and conformance monitor" in text
 
 
 def test_bad_recording_is_a_clear_error(tmp_path, capsys) -> None:

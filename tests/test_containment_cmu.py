@@ -12,6 +12,7 @@ import pytest
 
 from sara_app.errors import RecordingError
 from sara_app.human.analysis import containment
+from sara_app.human.intake import screen
 from sara_app.human.params import load_param_set, to_reach_params
 from sara_app.human.reach import MODELS, HumanReach
 from sara_app.human.recordings import load_recording, shared_data_dir
@@ -33,10 +34,31 @@ def results():
     out = {}
     for clip in ("02_01", "09_06", "13_18"):
         rec = _rec(clip)
-        for ps_name in ("schepp2022_table1", "cmu_calibrated"):
+        for ps_name in ("schepp2022_table1", "cmu_calibrated", "work", "fast"):
             reach = HumanReach(to_reach_params(load_param_set(ps_name), rec.kind))
             out[clip, ps_name] = containment(reach, rec.times_s, rec.positions_m, HORIZON_S)
     return out
+
+
+ACTIVITY = {"work": ("02_01",), "fast": ("02_01", "09_06", "13_18")}
+
+
+@pytest.mark.parametrize("ps_name", sorted(ACTIVITY))
+def test_activity_sets_contain_their_recordings_and_keep_the_monitor_quiet(
+    results, ps_name: str
+) -> None:
+    """``work`` (walking) and ``fast`` (walking, running, boxing): every model contains every
+    recording of the activity, and the conformance monitor finds nothing beyond the bounds."""
+    ps = load_param_set(ps_name)
+    for clip in ACTIVITY[ps_name]:
+        res = results[clip, ps_name]
+        for m in MODELS:
+            assert res[m].share == 1.0, (clip, m, res[m].misses_per_joint, res[m].worst[:2])
+        rec = _rec(clip)
+        p = to_reach_params(ps, rec.kind)
+        s = screen(rec.times_s, rec.positions_m, p.delta_y_m, p.v_max_mps, p.a_max_mps2)
+        assert s.counts["speed"] == s.counts["acceleration"] == 0, (clip, s.violations[:3])
+        assert not s.held.any()
 
 
 def test_calibrated_set_contains_every_clip_with_every_model(results) -> None:

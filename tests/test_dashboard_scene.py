@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from sara_app.bus.messages import VerdictMsg, ViolationMsg
 from sara_app.dashboard.frame import (
     CONTACT_ENV,
     CONTACT_SELF,
@@ -16,6 +17,7 @@ from sara_app.dashboard.frame import (
     MODEL_NAMES,
     LinkEnergy,
 )
+from sara_app.dashboard.from_messages import verdict_status
 from sara_app.dashboard.panels import (
     MARGIN_RGB,
     RollingSeries,
@@ -228,6 +230,19 @@ def test_status_rows_of_the_safety_modes() -> None:
     jssa = {"phi_m2": None, "active": False, "fallback": False, "d_min_m": 0.05}
     md = status_markdown({**base, "jssa": jssa})
     assert "JSSA | inactive" in md and "JSSA phi | n/a" in md and "n/a / 0.050 m" in md
+
+
+def test_status_rows_of_tracking_flags_and_violations() -> None:
+    """A verdict's tracking counts and violations, through the dashboard's conversion."""
+    v = VerdictMsg(seq=1, stamp_s=1.0, cell="c", safety_mode="ssm", mode="fault",
+                   cycle_time_us=1.0, tracking={"p1": {"bone": 3, "speed": 2}},
+                   violations=[ViolationMsg(human_id="p1", joint="l_wrist", quantity="speed",
+                                            value=3.25, bound=2.0, stamp_s=1.0)])  # fmt: skip
+    md = status_markdown(verdict_status(v, np.zeros(0)))
+    assert "Tracking flags | p1: bone 3, speed 2" in md
+    assert "**p1** l_wrist speed 3.25 > 2.00 m/s: failsafe" in md
+    assert "Tracking flags | none" in status_markdown(verdict_status(
+        v.model_copy(update={"tracking": {}, "violations": []}), np.zeros(0)))  # fmt: skip
 
 
 def test_contact_parts_layer_and_critical_colour(dash: Dashboard) -> None:

@@ -338,3 +338,36 @@ def test_a_200_mb_put_is_refused_by_the_router_and_stalls_nothing(served_cell: C
     gaps = np.diff(stamps)
     assert len(vs) > 500 and gaps.max() < 3 * 0.004, gaps.max()
     assert "too_large" not in vs[-1].dropped  # refused before the worker
+
+
+def test_tracking_glitches_and_a_too_fast_person_reach_the_verdict(cell: Cell) -> None:
+    """A tracker that swaps a wrist to the head is flagged (the wrist held, the person still
+    verified); a person who moves 1 m between frames (bones intact) breaks the parameter set's
+    speed bound: a fault with the violation named in the verdict, no intended command."""
+    rng = np.random.default_rng(0)
+    base = STANDING + [2.5, 0, 0]
+
+    def noisy() -> np.ndarray:
+        return base + rng.uniform(-1, 1, base.shape) * 0.001
+
+    def swapped() -> None:
+        y = noisy()
+        y[NAMES.index("l_wrist")] = y[NAMES.index("head")]
+        cell.put_skeleton("p1", y)
+
+    with Heartbeat(cell.bus, CELL) as hb:
+        hb.people = {"p1"}
+        cell.collect(0.5, every=lambda: cell.put_skeleton("p1", noisy()))  # bones learned
+        vs, _ = cell.collect(0.2, every=swapped)
+        assert vs[-1].tracking["p1"]["bone"] > 0
+        assert vs[-1].violations == []
+        hop = iter(range(10**6))
+        vs, cs = cell.collect(
+            0.6, every=lambda: cell.put_skeleton("p1", noisy() + [0, 1.0 * (next(hop) % 2), 0])
+        )
+    late = [v for v in vs if v.violations]
+    assert late and late[-1].tracking["p1"]["speed"] > 0
+    v = late[-1].violations[0]
+    assert v.human_id == "p1" and v.quantity == "speed" and v.value > v.bound
+    assert late[-1].mode == "fault" and any("speed" in f for f in late[-1].faults)
+    assert not any(c.mode == "intended" for c in cs if c.stamp_s > late[0].stamp_s)

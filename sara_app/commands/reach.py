@@ -32,7 +32,7 @@ def _volumes(args: argparse.Namespace) -> None:
 def _calibrate(args: argparse.Namespace) -> None:
     from sara_app.human.report import calibrate_command
 
-    calibrate_command(args.recordings, args.horizon, args.base, args.name, args.out)
+    calibrate_command(args.recordings, args.horizon, args.base, args.name, args.out, args.delta_y)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -60,5 +60,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--horizon", type=float, default=0.5)
     c.add_argument("--base", default="schepp2022_table1")
     c.add_argument("--name", default="cmu_calibrated")
+    c.add_argument(
+        "--delta-y",
+        type=float,
+        default=None,
+        help="the tracker's noise bound in m (default: the base set's); fitted apart from the "
+        "bounds: the report shows each joint's one-frame chord deviation to choose it",
+    )
     c.add_argument("--out", type=Path, required=True)
     c.set_defaults(run=_calibrate)

@@ -13,7 +13,6 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from sara_app.errors import InputError
 from sara_app.geometry import effective_volume_mc, point_segment_distance, union_volume_mc
 from sara_app.human.arm import (
     arm_coordinates,
@@ -43,6 +42,9 @@ class Containment:
     contained: int
     misses_per_joint: dict[str, int] = field(default_factory=dict)
     worst: list[Miss] = field(default_factory=list)
+    unavailable: int = 0
+    """Future joint positions not checked: the model had no set for them (no velocity
+    estimate at the measurement)."""
 
     @property
     def share(self) -> float:
@@ -75,6 +77,29 @@ def arm_velocities(
     return qd, bound
 
 
+Rates = dict[str, tuple[np.ndarray, np.ndarray]]
+"""Per model that needs them, rates per frame and their error bounds: velocity estimates
+``(T, J, 3)``, ``(T, J)`` (``acc``, ``combined``) or arm coordinate rates (``arm``)."""
+
+
+def rates(reach: HumanReach, times_s: np.ndarray, y: np.ndarray, models: tuple[str, ...]) -> Rates:
+    """The rates each model in ``models`` needs, estimated causally on the real time stamps
+    with their error bounds (infinite where a frame has no usable past)."""
+    p = reach.params
+    out: Rates = {}
+    if "acc" in models or "combined" in models:
+        v = estimate_recording(times_s, y, p.delta_y_m, p.a_max_mps2)
+        out["acc"] = out["combined"] = v
+    if "arm" in models:
+        idx = {j: i for i, j in enumerate(reach.skeleton.joints)}
+        q, _ = arm_coordinates(y, idx)
+        dq = coordinate_uncertainty(q, p.delta_y_m, frame_error(y, idx, p.delta_y_m))
+        a = p.arm
+        amax = np.array([a.angle_a_max_rad_s2, a.angle_a_max_rad_s2, a.r_a_max_mps2])
+        out["arm"] = arm_velocities(times_s, q, dq, amax)
+    return out
+
+
 def occupancies(
     reach: HumanReach,
     times_s: np.ndarray,
@@ -82,40 +107,57 @@ def occupancies(
     t_start_s: np.ndarray,
     t_end_s: np.ndarray,
     models: tuple[str, ...] = MODELS,
+    frames: np.ndarray | None = None,
+    given: Rates | None = None,
 ) -> dict[str, Occupancy]:
-    """Each model's capsules for every frame ``y (T, J, 3)`` as a measurement.
+    """Each model's capsules for every frame ``y (T, J, 3)`` (or only ``frames``) as a
+    measurement, for intervals ``(K,)``: ``(F, K, C)``.
 
-    Velocities (for acc, and for the arm model's acceleration sub-model) are estimated causally
-    with their error bounds; frames without a past have an infinite bound.
+    Rates come from :func:`rates` (``given``: computed once by the caller). A model that needs
+    a velocity estimate a frame does not have (the first frame; a joint whose estimate has no
+    bound) is UNAVAILABLE there: its capsules that stand for such a joint get an infinite
+    radius (never a capsule of made-up size). The combined model falls back on the speed
+    model's ball, which needs no estimate; the arm model on its velocity sub-model.
     """
-    p = reach.params
+    rs = rates(reach, times_s, y, models) if given is None else given
+    sel = np.arange(y.shape[0]) if frames is None else np.asarray(frames)
+    ys = y[sel]
     out: dict[str, Occupancy] = {}
-    velocities: tuple[np.ndarray, np.ndarray] | None = None
     for m in models:
-        if m in ("acc", "combined") and velocities is None:
-            velocities = estimate_recording(times_s, y, p.delta_y_m, p.a_max_mps2)
-        if m == "acc" and velocities is not None:
-            v, dv = velocities
-            out[m] = reach.acc(y, v, np.where(np.isfinite(dv), dv, 1e6), t_start_s, t_end_s)
-        elif m == "combined" and velocities is not None:
-            v, dv = velocities  # no estimate yet (infinite bound): the speed model's ball
-            out[m] = reach.combined(y, np.nan_to_num(v), dv, t_start_s, t_end_s)
+        if m == "acc":
+            v, dv = (a[sel] for a in rs[m])
+            o = reach.acc(ys, v, np.where(np.isfinite(dv), dv, 0.0), t_start_s, t_end_s)
+            cap, joint, _ = reach.coverage[m]
+            missing = np.zeros((len(sel), len(o.names)), bool)
+            np.logical_or.at(missing, (slice(None), cap), ~np.isfinite(dv[:, joint]))  # type: ignore[arg-type]
+            radius = np.where(missing[:, None, :], np.inf, o.radius)
+            o = Occupancy(m, o.ends, radius, o.names)
+        elif m == "combined":
+            v, dv = (a[sel] for a in rs[m])  # no estimate (infinite bound): the speed ball
+            o = reach.combined(ys, np.nan_to_num(v), dv, t_start_s, t_end_s)
         elif m == "arm":
-            idx = {j: i for i, j in enumerate(reach.skeleton.joints)}
-            q, _ = arm_coordinates(y, idx)
-            dq = coordinate_uncertainty(q, p.delta_y_m, frame_error(y, idx, p.delta_y_m))
-            a = p.arm
-            amax = np.array([a.angle_a_max_rad_s2, a.angle_a_max_rad_s2, a.r_a_max_mps2])
-            qd, bound = arm_velocities(times_s, q, dq, amax)
-            bound = np.where(np.isfinite(bound), bound, 1e6)
-            out[m] = arm_occupancy(reach, y, t_start_s, t_end_s, qd, bound)
+            qd, bound = (a[sel] for a in rs[m])
+            bound = np.where(np.isfinite(bound), bound, 1e6)  # the rate sub-model is unused
+            o = arm_occupancy(reach, ys, t_start_s, t_end_s, qd, bound)
         else:
-            out[m] = reach.model(m, y, None, None, t_start_s, t_end_s)
-        o, shape = out[m], (y.shape[0], len(t_end_s), len(out[m].names))
+            o = reach.model(m, ys, None, None, t_start_s, t_end_s)
+        shape = (len(sel), len(t_end_s), len(o.names))
         out[m] = Occupancy(
             m, np.broadcast_to(o.ends, shape + (2, 3)), np.broadcast_to(o.radius, shape), o.names
         )
     return out
+
+
+def _future(times_s: np.ndarray, horizon_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Future frame offsets: ``tau (T, K)`` = t_(i+k) - t_i on the real time stamps and
+    ``valid (T, K)`` (a frame exists and lies within the horizon)."""
+    T = len(times_s)
+    K = max(1, int(np.max(np.searchsorted(times_s, times_s + horizon_s + 1e-12, "right")
+                          - np.arange(T))) - 1)  # fmt: skip
+    frame = np.arange(T)[:, None] + np.arange(1, K + 1)[None, :]
+    tau = times_s[np.minimum(frame, T - 1)] - times_s[:, None]
+    valid = (frame < T) & (tau <= horizon_s + 1e-12)
+    return np.where(valid, tau, np.nan), valid
 
 
 def containment(
@@ -128,57 +170,75 @@ def containment(
 ) -> dict[str, Containment]:
     """Share of future joint positions inside each model's set, per model (see module doc).
 
+    Every frame pair is evaluated at its own time difference, so jittered time stamps (a 60 Hz
+    tracker stamped in milliseconds) are analysed as they are. A (frame, joint) the model is
+    unavailable for (:func:`occupancies`) is counted as ``unavailable``, not checked.
     The recording is ground truth with zero latency: the models run with delay 0 here, so
     a measured miss is a miss of the motion model itself, not hidden by the delay's slack.
     """
     reach = HumanReach(replace(reach.params, delay_s=0.0))
-    dt = float(np.median(np.diff(times_s)))
-    n_off = max(1, int(np.floor(horizon_s / dt + 1e-9)))
-    offsets = np.arange(1, n_off + 1)
     T = y.shape[0]
-    # Future frames are indexed by offset, so every frame must be one period apart.
-    if not np.allclose(np.diff(times_s), dt, rtol=1e-6, atol=1e-9):
-        raise InputError(
-            f"containment needs a uniformly sampled recording; frame periods range from "
-            f"{np.diff(times_s).min():.6f} to {np.diff(times_s).max():.6f} s: resample it first"
-        )
-    taus = offsets * dt
-    results: dict[str, Containment] = {}
-    occ = occupancies(reach, times_s, y, taus, taus, models)
+    tau, valid = _future(times_s, horizon_s)
+    K = tau.shape[1]
+    occ = _occupancies_at(reach, times_s, y, tau, models)
     names = reach.skeleton.joints
+    frame = np.minimum(np.arange(T)[:, None] + np.arange(1, K + 1)[None, :], T - 1)
+    fut = y[frame]  # (T, K, J, 3)
+    results: dict[str, Containment] = {}
     for m in models:
         o = occ[m]
         cap, joint, margin = reach.coverage[m]
-        frame = np.arange(T)[:, None] + offsets[None, :]  # (T, K) future frame index
-        valid = frame < T
-        fut = y[np.minimum(frame, T - 1)]  # (T, K, J, 3)
         d = point_segment_distance(fut[:, :, joint], o.ends[:, :, cap])  # (T, K, M)
         excess = d + margin - o.radius[:, :, cap]
-        inside_entry = excess <= 1e-12
-        # A joint is contained when every capsule that must hold it does.
         J = len(names)
-        inside = np.ones((T, len(offsets), J), dtype=bool)
-        np.logical_and.at(inside, (slice(None), slice(None), joint), inside_entry)  # type: ignore[arg-type]
-        worst_excess = np.full((T, len(offsets), J), -np.inf)
+        # A joint is contained when every capsule that must hold it does.
+        inside = np.ones((T, K, J), dtype=bool)
+        np.logical_and.at(inside, (slice(None), slice(None), joint), excess <= 1e-12)  # type: ignore[arg-type]
+        worst_excess = np.full((T, K, J), -np.inf)
         np.maximum.at(worst_excess, (slice(None), slice(None), joint), excess)  # type: ignore[arg-type]
-        if m == "acc":  # frame 0 has no velocity estimate: the model is not available there
-            valid = valid & (np.arange(T)[:, None] > 0)
-        v3 = np.broadcast_to(valid[:, :, None], inside.shape)
+        known = np.ones((T, K, J), dtype=bool)
+        np.logical_and.at(known, (slice(None), slice(None), joint),  # type: ignore[arg-type]
+                          np.isfinite(o.radius[:, :, cap]))  # fmt: skip
+        v3 = valid[:, :, None] & known
         res = Containment(m, int(v3.sum()), int((inside & v3).sum()))
+        res.unavailable = int((valid[:, :, None] & ~known).sum())
         miss = ~inside & v3
         for j in np.unique(np.nonzero(miss)[2]):
             res.misses_per_joint[names[j]] = int(miss[:, :, j].sum())
         flat = np.where(miss, worst_excess, -np.inf)
-        order = np.argsort(flat, axis=None)[::-1][:n_worst]
-        for f in order:
+        for f in np.argsort(flat, axis=None)[::-1][:n_worst]:
             i, k, j = np.unravel_index(f, flat.shape)
             if not np.isfinite(flat[i, k, j]):
                 break
             res.worst.append(
-                Miss(names[j], int(i), float(times_s[i]), float(taus[k]), float(flat[i, k, j]))
+                Miss(names[j], int(i), float(times_s[i]), float(tau[i, k]), float(flat[i, k, j]))
             )
         results[m] = res
     return results
+
+
+def _occupancies_at(
+    reach: HumanReach,
+    times_s: np.ndarray,
+    y: np.ndarray,
+    tau: np.ndarray,
+    models: tuple[str, ...],
+) -> dict[str, Occupancy]:
+    """Each model's sets at the instants ``tau (T, K)`` after each frame (nan: unused):
+    ``(T, K, C)``. One call when every frame has the same offsets (uniform sampling), else
+    one per frame."""
+    filled = np.where(np.isfinite(tau), tau, np.nanmax(tau, initial=0.0))
+    first = filled[0]
+    if np.allclose(filled[np.isfinite(tau).all(axis=1)], first, rtol=0, atol=1e-12):
+        return occupancies(reach, times_s, y, first, first, models)
+    rs = rates(reach, times_s, y, models)
+    rows = [occupancies(reach, times_s, y, filled[i], filled[i], models, np.array([i]), rs)
+            for i in range(y.shape[0])]  # fmt: skip
+    return {
+        m: Occupancy(m, np.concatenate([r[m].ends for r in rows]),
+                     np.concatenate([r[m].radius for r in rows]), rows[0][m].names)
+        for m in models
+    }  # fmt: skip
 
 
 def mean_volume(
@@ -200,11 +260,14 @@ def mean_volume(
     t = np.array([horizon_s])
     occ = occupancies(reach, times_s, y, np.zeros(1), t, models)
     out = {}
-    for m in models:
+    known = {m: np.isfinite(occ[m].radius[frames, 0]).all(axis=-1) for m in models}
+    for m in models:  # frames where a model is unavailable (no velocity estimate) are left out
         o = occ[m]
-        vols = [union_volume_mc(o.ends[f, 0], o.radius[f, 0], n_samples, rng)[0] for f in frames]
-        out[m] = float(np.mean(vols))
-    if len(models) > 1:
+        vols = [union_volume_mc(o.ends[f, 0], o.radius[f, 0], n_samples, rng)[0]
+                for f, ok in zip(frames, known[m]) if ok]  # fmt: skip
+        out[m] = float(np.mean(vols)) if vols else float("nan")
+    frames = frames[np.all([known[m] for m in models], axis=0)]
+    if len(models) > 1 and len(frames):
         maps = [part_capsules(reach, m) for m in models]
         vols = [
             effective_volume_mc(

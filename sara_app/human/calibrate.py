@@ -10,8 +10,20 @@ For every recording, every frame i as a measurement and every later frame j with
 - the arm model: its four rate limits are scaled together (bisection) until every arm joint is
   contained, its shoulder speed is the shoulders' v_max.
 
-Nothing is dropped: each bound comes with the frames that drive it (recording, time, horizon,
-value), so a one-frame tracking glitch shows up in the report and a person judges it.
+Tracker noise is fitted apart from human dynamics: ``delta_y`` is the calibration's argument
+(the tracker's noise bound), not absorbed into the bounds; the report gives each joint's largest
+one-frame chord deviation ``|y_i - (y_(i-1) + y_(i+1)) / 2|``, which noise alone keeps below
+``2 delta_y`` (a larger value is either a glitch or acceleration beyond ``2 (d - 2 delta_y) /
+dt^2``, which the bounds then must allow).
+
+Frames are screened first as a live cell would (:func:`sara_app.human.intake.screen`): a joint
+the tracking gate distrusts in a frame (bone, frozen) is excluded from every pair it is in, and
+the report lists those frames. The bounds also cover what the conformance monitor needs on the
+recordings (its values do not depend on the bounds), so a cell running the calibrated set does
+not fault on the motion it was calibrated on.
+
+Otherwise nothing is dropped: each bound comes with the frames that drive it (recording, time,
+horizon, value), so a one-frame tracking glitch shows up in the report and a person judges it.
 Recordings are taken as ground truth with zero latency (the delay is a property of the sensor
 in the cell; the fitted bounds hold for motion, whatever delay is added later).
 """
@@ -23,6 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sara_app.human.analysis import containment
+from sara_app.human.intake import screen
 from sara_app.human.params import ParamSet, to_reach_params
 from sara_app.human.reach import HumanReach
 from sara_app.human.recordings import Recording
@@ -50,6 +63,13 @@ class CalibrationReport:
     iso_v_max: float = 0.0
     arm_scale: float = 1.0
     shoulder_v_max: float = 0.0
+    delta_y_m: float = 0.0
+    excluded: dict[str, list[str]] = field(default_factory=dict)
+    """Per recording: what the tracking gate flagged (those joint-frames are left out)."""
+    noise_m: dict[str, float] = field(default_factory=dict)
+    """Per joint: the largest one-frame chord deviation over the recordings."""
+    monitor_v: dict[str, float] = field(default_factory=dict)
+    monitor_a: dict[str, float] = field(default_factory=dict)
 
 
 def _pairs(rec: Recording, horizon_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -72,20 +92,28 @@ def _top(values: np.ndarray, rec: Recording, i: np.ndarray, tau: np.ndarray, n: 
     ]
 
 
+def _trusted(recs: list[Recording], trusted: list[np.ndarray] | None) -> list[np.ndarray]:
+    if trusted is None:
+        return [np.ones(r.positions_m.shape[:2], bool) for r in recs]
+    return trusted
+
+
 def fit_velocity(
     recs: list[Recording],
     joints: tuple[str, ...],
     delta_y_m: float,
     horizon_s: float,
     n_drivers: int = 3,
+    trusted: list[np.ndarray] | None = None,
 ) -> tuple[np.ndarray, list[list[Driver]]]:
-    """Least v_max per joint ``(J,)`` that contains every displacement, and its drivers."""
+    """Least v_max per joint ``(J,)`` that contains every displacement, and its drivers;
+    ``trusted`` ``[(T, J)]`` per recording: joint-frames to use (None: all)."""
     best = np.zeros(len(joints))
     drivers: list[list[Driver]] = [[] for _ in joints]
-    for rec in recs:
+    for rec, ok in zip(recs, _trusted(recs, trusted)):
         i, j, tau = _pairs(rec, horizon_s)
         disp = np.linalg.norm(rec.positions_m[j] - rec.positions_m[i], axis=-1)  # (N, J)
-        need = (disp - delta_y_m) / tau[:, None]
+        need = np.where(ok[i] & ok[j], (disp - delta_y_m) / tau[:, None], -np.inf)
         for q in range(len(joints)):
             drivers[q] += _top(need[:, q], rec, i, tau, n_drivers)
         best = np.maximum(best, need.max(axis=0))
@@ -95,20 +123,25 @@ def fit_velocity(
 
 
 def _acc_need(
-    recs: list[Recording], a: np.ndarray, delta_y_m: float, horizon_s: float, n_drivers: int
+    recs: list[Recording],
+    a: np.ndarray,
+    delta_y_m: float,
+    horizon_s: float,
+    n_drivers: int,
+    trusted: list[np.ndarray] | None = None,
 ) -> tuple[np.ndarray, list[list[Driver]]]:
     """Largest a_max the data need per joint when velocities are estimated with ``a``."""
     J = a.shape[0]
     need_all = np.full(J, -np.inf)
     drivers: list[list[Driver]] = [[] for _ in range(J)]
-    for rec in recs:
-        v, dv = estimate_recording(rec.times_s, rec.positions_m, delta_y_m, a)
+    for rec, ok_t in zip(recs, _trusted(recs, trusted)):
+        v, dv = estimate_recording(rec.times_s, rec.positions_m, delta_y_m, a, trusted=ok_t)
         i, j, tau = _pairs(rec, horizon_s)
-        ok = np.isfinite(dv[i]).all(axis=1)
-        i, j, tau = i[ok], j[ok], tau[ok]
+        use = ok_t[i] & ok_t[j] & np.isfinite(dv[i])  # (N, J)
         resid = rec.positions_m[j] - rec.positions_m[i] - v[i] * tau[:, None, None]
-        slack = np.linalg.norm(resid, axis=-1) - delta_y_m - dv[i] * tau[:, None]
-        need = 2.0 * slack / tau[:, None] ** 2
+        dv_i = np.where(use, dv[i], 0.0)
+        slack = np.linalg.norm(resid, axis=-1) - delta_y_m - dv_i * tau[:, None]
+        need = np.where(use, 2.0 * slack / tau[:, None] ** 2, -np.inf)
         for q in range(J):
             drivers[q] += _top(need[:, q], rec, i, tau, n_drivers)
         need_all = np.maximum(need_all, need.max(axis=0))
@@ -122,6 +155,7 @@ def fit_acceleration(
     horizon_s: float,
     n_drivers: int = 3,
     rel_tol: float = 0.01,
+    trusted: list[np.ndarray] | None = None,
 ) -> tuple[np.ndarray, list[list[Driver]]]:
     """Least a_max per joint (to ``rel_tol``) for R_ACC with estimated velocities.
 
@@ -132,22 +166,22 @@ def fit_acceleration(
     tightens a given set).
     """
     lo = np.asarray(a_start, dtype=float).copy()
-    need, drivers = _acc_need(recs, lo, delta_y_m, horizon_s, n_drivers)
+    need, drivers = _acc_need(recs, lo, delta_y_m, horizon_s, n_drivers, trusted)
     ok_lo = need <= lo
     hi = np.where(ok_lo, lo, np.maximum(lo * 2.0, need))
     for _ in range(40):  # grow hi until every joint is contained there
-        need, _ = _acc_need(recs, hi, delta_y_m, horizon_s, n_drivers)
+        need, _ = _acc_need(recs, hi, delta_y_m, horizon_s, n_drivers, trusted)
         bad = need > hi
         if not bad.any():
             break
         hi = np.where(bad, hi * 2.0, hi)
     while np.any((hi / lo > 1 + rel_tol) & ~ok_lo):
         mid = np.where(ok_lo, lo, np.sqrt(lo * hi))
-        need, _ = _acc_need(recs, mid, delta_y_m, horizon_s, n_drivers)
+        need, _ = _acc_need(recs, mid, delta_y_m, horizon_s, n_drivers, trusted)
         good = need <= mid
         hi = np.where(good & ~ok_lo, mid, hi)
         lo = np.where(~good & ~ok_lo, mid, lo)
-    _, drivers = _acc_need(recs, hi, delta_y_m, horizon_s, n_drivers)
+    _, drivers = _acc_need(recs, hi, delta_y_m, horizon_s, n_drivers, trusted)
     return hi, drivers
 
 
@@ -161,24 +195,58 @@ def _arm_contained(ps: ParamSet, recs: list[Recording], horizon_s: float) -> boo
     return True
 
 
+def _screened(
+    base: ParamSet,
+    recs: list[Recording],
+    dy: float,
+    joints: tuple[str, ...],
+    rep: CalibrationReport,
+) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+    """Each recording through a live cell's intake under ``base``: the joint-frames to use,
+    and the monitor's needs ``(J,)`` (speed, acceleration) over all recordings."""
+    trusted, need_v, need_a = [], np.zeros(len(joints)), np.zeros(len(joints))
+    for rec in recs:
+        p = to_reach_params(base.model_copy(update={"delta_y_m": dy}), rec.kind)
+        J = rec.positions_m.shape[1]
+        s = screen(rec.times_s, rec.positions_m, dy, p.v_max_mps[:J], p.a_max_mps2[:J])
+        trusted.append(~s.held)
+        rep.excluded[rec.name] = [line for line in s.summary(rec.joints)
+                                  if not line.startswith(("jump", "beyond"))]  # fmt: skip
+        need_v = np.maximum(need_v, s.peak_speed_mps)
+        need_a = np.maximum(need_a, s.peak_acc_mps2)
+        y = rec.positions_m
+        chord = np.linalg.norm(y[1:-1] - 0.5 * (y[:-2] + y[2:]), axis=-1).max(axis=0, initial=0)
+        for q, jn in enumerate(joints):
+            rep.noise_m[jn] = max(rep.noise_m.get(jn, 0.0), float(chord[q]))
+    return trusted, need_v, need_a
+
+
 def calibrate(
-    base: ParamSet, recs: list[Recording], horizon_s: float, name: str
+    base: ParamSet,
+    recs: list[Recording],
+    horizon_s: float,
+    name: str,
+    delta_y_m: float | None = None,
 ) -> tuple[ParamSet, CalibrationReport]:
-    """A new parameter set whose bounds contain ``recs`` for the given horizon.
+    """A new parameter set whose bounds contain ``recs`` for the given horizon, with the
+    tracker noise bound ``delta_y_m`` (None: ``base``'s).
 
     Bounds are never lowered below ``base``'s: calibration only widens.
     """
     kinds = {r.kind for r in recs}
     joints = skeleton("full" if kinds == {"full"} else "upper").joints
-    dy = base.delta_y_m
-    rep = CalibrationReport(horizon_s)
-    v_fit, dvs = fit_velocity(recs, joints, dy, horizon_s)
-    a0 = np.array([base.joints[j].a_max_mps2 for j in joints])
-    a_fit, das = fit_acceleration(recs, a0, dy, horizon_s)
+    dy = base.delta_y_m if delta_y_m is None else float(delta_y_m)
+    rep = CalibrationReport(horizon_s, delta_y_m=dy)
+    trusted, need_v, need_a = _screened(base, recs, dy, joints, rep)
+    v_fit, dvs = fit_velocity(recs, joints, dy, horizon_s, trusted=trusted)
+    a0 = np.maximum([base.joints[j].a_max_mps2 for j in joints], need_a)
+    a_fit, das = fit_acceleration(recs, a0, dy, horizon_s, trusted=trusted)
     new_joints = dict(base.joints)
     for q, jn in enumerate(joints):
-        v = max(base.joints[jn].v_max_mps, float(np.ceil(v_fit[q] * 1.01 * 100) / 100))
-        a = max(base.joints[jn].a_max_mps2, float(np.ceil(a_fit[q])))
+        rep.monitor_v[jn], rep.monitor_a[jn] = float(need_v[q]), float(need_a[q])
+        v_need = max(v_fit[q], need_v[q])
+        v = max(base.joints[jn].v_max_mps, float(np.ceil(v_need * 1.01 * 100) / 100))
+        a = max(base.joints[jn].a_max_mps2, float(np.ceil(max(a_fit[q], need_a[q]))))
         new_joints[jn] = base.joints[jn].model_copy(update={"v_max_mps": v, "a_max_mps2": a})
         rep.v_max[jn], rep.a_max[jn] = v, a
         rep.drivers_v[jn], rep.drivers_a[jn] = dvs[q], das[q]
@@ -187,6 +255,7 @@ def calibrate(
     ps = base.model_copy(
         update={
             "name": name,
+            "delta_y_m": dy,
             "joints": new_joints,
             "iso_v_max_full_mps": max(base.iso_v_max_full_mps, iso_v),
             "iso_v_max_upper_mps": max(base.iso_v_max_upper_mps, iso_v),

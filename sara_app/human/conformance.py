@@ -75,6 +75,10 @@ class Monitor:
         self._t = np.full(N, -np.inf)  # newest first
         self._y = np.zeros((N, J, 3))
         self._ok = np.zeros((N, J), bool)
+        self.peak_speed_mps = np.zeros(J)
+        """The largest speed and acceleration any frame needed, per joint (whatever the
+        bounds: what a parameter set must allow for this motion to conform)."""
+        self.peak_acc_mps2 = np.zeros(J)
 
     def retune(self, v_max_mps: np.ndarray, a_max_mps2: np.ndarray, recover_s: float) -> None:
         self.v_max_mps = np.asarray(v_max_mps, dtype=float)
@@ -112,6 +116,8 @@ class Monitor:
                 dev = np.linalg.norm(self._y[h] - chord, axis=1) - 2.0 * delta_y_m
                 span2 = (t1 - self._t[k]) * (t_s - t1)
                 acc = np.maximum(acc, np.where(ok & self._ok[h], 2.0 * dev / span2, 0.0))
+        np.maximum(self.peak_speed_mps, speed, out=self.peak_speed_mps)
+        np.maximum(self.peak_acc_mps2, acc, out=self.peak_acc_mps2)
         found = [Violation(self.joints[j], "speed", float(speed[j]), float(self.v_max_mps[j]), t_s)
                  for j in np.flatnonzero(speed > self.v_max_mps)]  # fmt: skip
         found += [Violation(self.joints[j], "acceleration", float(acc[j]),

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sara_app.human.conformance import Monitor
-from sara_app.human.gate import Gate, GateResult, GateSettings
+from sara_app.human.conformance import Monitor, Violation
+from sara_app.human.gate import FLAGS, Gate, GateResult, GateSettings
 from sara_app.human.skeleton import FULL_JOINTS
 from sara_app.human.velocity import VelocityEstimator
 
@@ -76,3 +76,64 @@ class Intake:
     def counts(self) -> dict[str, int]:
         """Flags of the gate and the monitor since the intake was built."""
         return {**self.gate.counts, **self.monitor.counts}
+
+
+@dataclass
+class Screening:
+    """A recording through one person's intake: ``held (T, J)`` joints the gate distrusted,
+    ``flags (T, J, len(FLAGS))``, ``refused (T,)`` frames refused, ``violations`` the monitor's
+    (every one, in order) and ``counts`` as :meth:`Intake.counts`."""
+
+    held: np.ndarray
+    flags: np.ndarray
+    refused: np.ndarray
+    violations: list[Violation]
+    counts: dict[str, int]
+    peak_speed_mps: np.ndarray
+    """``(J,)`` the largest speed / acceleration the trusted motion needed (the monitor's)."""
+    peak_acc_mps2: np.ndarray
+
+    def summary(self, joints: tuple[str, ...]) -> list[str]:
+        """Lines naming what was flagged, per flag and joint with its first time."""
+        out = []
+        for k, name in enumerate(FLAGS):
+            hit = self.flags[:, :, k]
+            for j in np.flatnonzero(hit.any(axis=0)):
+                out.append(f"{name} {joints[j]}: {int(hit[:, j].sum())} frames")
+        by: dict[tuple[str, str], list[Violation]] = {}
+        for v in self.violations:
+            by.setdefault((v.joint, v.quantity), []).append(v)
+        for (joint, q), vs in by.items():
+            worst = max(vs, key=lambda v: v.value)
+            out.append(
+                f"beyond {q} bound {joint}: {len(vs)} frames, worst {worst.value:.2f} > "
+                f"{worst.bound:.2f} at t={worst.t_s:.3f}s"
+            )
+        return out
+
+
+def screen(
+    times_s: np.ndarray,
+    y: np.ndarray,
+    delta_y_m: float,
+    v_max_mps: np.ndarray,
+    a_max_mps2: np.ndarray,
+    settings: IntakeSettings | None = None,
+) -> Screening:
+    """Every frame ``y (T, J, 3)`` through a fresh intake (as a live cell would see it)."""
+    intake = Intake(delta_y_m, v_max_mps, a_max_mps2, settings or IntakeSettings())
+    T, J = y.shape[:2]
+    held = np.zeros((T, J), bool)
+    flags = np.zeros((T, J, len(FLAGS)), bool)
+    refused = np.zeros(T, bool)
+    violations: list[Violation] = []
+    for i in range(T):
+        g = intake.gate.check(float(times_s[i]), y[i], delta_y_m, J)
+        held[i], flags[i], refused[i] = ~g.trusted, g.flags, g.refused
+        intake.estimator.update(float(times_s[i]), g.y, g.trusted)
+        violations += intake.monitor.observe(
+            float(times_s[i]), g.y, g.trusted, delta_y_m, g.jump_speed_mps
+        )
+    m = intake.monitor
+    return Screening(held, flags, refused, violations, intake.counts(), m.peak_speed_mps,
+                     m.peak_acc_mps2)  # fmt: skip

@@ -13,6 +13,7 @@ from typing import TextIO
 
 import numpy as np
 
+from sara_app.errors import InputError
 from sara_app.human.analysis import (
     EFFECTIVE,
     Containment,
@@ -21,6 +22,7 @@ from sara_app.human.analysis import (
     occupancies,
 )
 from sara_app.human.calibrate import CalibrationReport, calibrate
+from sara_app.human.intake import screen
 from sara_app.human.params import ParamSet, load_param_set, save_param_set, to_reach_params
 from sara_app.human.reach import MODELS, HumanReach
 from sara_app.human.recordings import Recording, load_recording
@@ -35,9 +37,10 @@ def write_jsonl(
 ) -> int:
     """One JSON line per frame and model: the capsules for [0, horizon] after that frame.
 
-    ``{"frame": i, "t_s": t, "model": m, "horizon_s": h, "params": name, "capsules":
-    [{"part": name, "p1": [x, y, z], "p2": [x, y, z], "radius": r}, ...]}`` (metres, world frame).
-    Returns the number of lines written.
+    ``{"frame": i, "t_s": t, "model": m, "horizon_s": h, "params": name, "available": bool,
+    "capsules": [{"part": name, "p1": [x, y, z], "p2": [x, y, z], "radius": r}, ...]}`` (metres,
+    world frame); a model without a set at that frame (no velocity estimate yet) is
+    ``"available": false`` with no capsules. Returns the number of lines written.
     """
     occ = occupancies(
         reach, rec.times_s, rec.positions_m, np.zeros(1), np.array([horizon_s]), tuple(models)
@@ -46,6 +49,7 @@ def write_jsonl(
     for i in range(rec.n_frames):
         for m in models:
             o = occ[m]
+            available = bool(np.isfinite(o.radius[i, 0]).all())
             caps = [
                 {
                     "part": name,
@@ -54,6 +58,7 @@ def write_jsonl(
                     "radius": round(float(o.radius[i, 0, c]), 6),
                 }
                 for c, name in enumerate(o.names)
+                if available
             ]
             line = {
                 "frame": i,
@@ -61,6 +66,7 @@ def write_jsonl(
                 "model": m,
                 "horizon_s": horizon_s,
                 "params": reach.params.name,
+                "available": available,
                 "capsules": caps,
             }
             out.write(json.dumps(line) + "\n")
@@ -71,7 +77,8 @@ def write_jsonl(
 def format_containment(name: str, res: dict[str, Containment]) -> str:
     lines = [f"containment on {name} (share of future joint positions inside the set):"]
     for m, c in res.items():
-        lines.append(f"  {m:9s} {100 * c.share:8.3f} %  ({c.checked - c.contained} misses)")
+        na = f"; unavailable for {c.unavailable} (no velocity estimate)" if c.unavailable else ""
+        lines.append(f"  {m:9s} {100 * c.share:8.3f} %  ({c.checked - c.contained} misses{na})")
         if c.misses_per_joint:
             worst = ", ".join(
                 f"{w.joint} at t={w.t_s:.3f}s +{w.dt_s:.3f}s by {100 * w.excess_m:.1f} cm"
@@ -86,15 +93,26 @@ def format_containment(name: str, res: dict[str, Containment]) -> str:
 def reach_command(
     recording: str, horizon_s: float, params: str, out: Path | None, models: Sequence[str]
 ) -> dict[str, Containment]:
+    if not (np.isfinite(horizon_s) and horizon_s > 0):
+        raise InputError(f"horizon {horizon_s} s; expected a finite value > 0")
     rec = load_recording(recording)
     ps = load_param_set(params)
     reach = HumanReach(to_reach_params(ps, rec.kind))
+    # every input error comes before anything is written
+    res = containment(reach, rec.times_s, rec.positions_m, horizon_s, tuple(models))
     if out is not None:
         with open(out, "w") as f:
             n = write_jsonl(reach, rec, horizon_s, f, models)
         print(f"wrote {n} lines to {out}")
-    res = containment(reach, rec.times_s, rec.positions_m, horizon_s, tuple(models))
     print(f"{rec.name}: {rec.n_frames} frames, parameters {ps.name!r}, horizon {horizon_s} s")
+    p = reach.params
+    s = screen(rec.times_s, rec.positions_m, p.delta_y_m, p.v_max_mps[: rec.positions_m.shape[1]],
+               p.a_max_mps2[: rec.positions_m.shape[1]])  # fmt: skip
+    flagged = s.summary(rec.joints)
+    print("tracking gate and conformance monitor (as a live cell would see it): "
+          + ("nothing flagged" if not flagged else ""))  # fmt: skip
+    for line in flagged:
+        print(f"  {line}")
     print(format_containment(rec.name, res))
     vols = mean_volume(reach, rec.times_s, rec.positions_m, horizon_s, tuple(models))
     print("mean set volume over [0, horizon] (Monte Carlo, 20 frames):")
@@ -147,7 +165,13 @@ def volume_table(
 
 
 def format_calibration(rep: CalibrationReport) -> str:
-    lines = [f"calibrated bounds (horizon {rep.horizon_s} s) and the frames that drive them:"]
+    lines = [f"tracker noise bound delta_y {1e3 * rep.delta_y_m:.1f} mm; largest one-frame chord "
+             "deviation per joint (noise alone stays below 2 delta_y):"]  # fmt: skip
+    lines.append("  " + ", ".join(f"{j} {1e3 * d:.1f} mm" for j, d in rep.noise_m.items()))
+    for name, flagged in rep.excluded.items():
+        what = "; ".join(flagged) if flagged else "flagged nothing (no frame left out)"
+        lines.append(f"  {name}: tracking gate {what}")
+    lines.append(f"calibrated bounds (horizon {rep.horizon_s} s) and the frames that drive them:")
     for j in rep.v_max:
         dv = rep.drivers_v[j][0] if rep.drivers_v[j] else None
         da = rep.drivers_a[j][0] if rep.drivers_a[j] else None
@@ -156,6 +180,8 @@ def format_calibration(rep: CalibrationReport) -> str:
             line += f" | v by {dv.recording} t={dv.t_s:.3f}s +{dv.tau_s:.3f}s ({dv.value:.2f})"
         if da:
             line += f" | a by {da.recording} t={da.t_s:.3f}s +{da.tau_s:.3f}s ({da.value:.1f})"
+        if j in rep.monitor_v:
+            line += f" | monitor needs {rep.monitor_v[j]:.2f} m/s, {rep.monitor_a[j]:.1f} m/s^2"
         lines.append(line)
     lines.append(f"  ISO 13855 speed needed: {rep.iso_v_max:.2f} m/s")
     lines.append(
@@ -166,10 +192,15 @@ def format_calibration(rep: CalibrationReport) -> str:
 
 
 def calibrate_command(
-    recordings: Sequence[str], horizon_s: float, base: str, name: str, out: Path
+    recordings: Sequence[str],
+    horizon_s: float,
+    base: str,
+    name: str,
+    out: Path,
+    delta_y_m: float | None = None,
 ) -> tuple[ParamSet, CalibrationReport]:
     recs = [load_recording(r) for r in recordings]
-    ps, rep = calibrate(load_param_set(base), recs, horizon_s, name)
+    ps, rep = calibrate(load_param_set(base), recs, horizon_s, name, delta_y_m)
     print(format_calibration(rep))
     summary = {}
     for rec in recs:

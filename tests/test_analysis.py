@@ -1,0 +1,60 @@
+"""Containment on recordings as they come: jittered time stamps are analysed on their real
+times, and a model without a velocity estimate is reported unavailable, never checked with a
+made-up set."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from sara_app.human.analysis import containment, occupancies
+from sara_app.human.params import load_param_set, to_reach_params
+from sara_app.human.reach import HumanReach
+from sara_app.human.recordings import load_recording
+
+SPEED = 1.9  # m/s, below Table I's 2.0 for every joint
+
+
+def _jittered(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """A rigid skeleton moving at SPEED along x, stamped by a 60 Hz tracker in milliseconds
+    with up to 4 ms of jitter: times ``(T,)`` and joints ``(T, 15, 3)`` exact at those times."""
+    rng = np.random.default_rng(seed)
+    nominal = np.arange(120) / 60.0
+    t = np.round(nominal + rng.uniform(-0.004, 0.004, nominal.shape), 3)
+    pose = load_recording("02_01").positions_m[0]
+    return t, pose[None] + (SPEED * t)[:, None, None] * np.array([1.0, 0.0, 0.0])
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_jittered_stamps_are_analysed_on_their_real_times(seed: int) -> None:
+    t, y = _jittered(seed)
+    assert np.ptp(np.diff(t)) > 0.004  # really jittered
+    exact = to_reach_params(load_param_set("schepp2022_table1"), "full")
+    exact = replace(exact, delta_y_m=0.0)
+    res = containment(HumanReach(exact), t, y, 0.3, ("vel",))
+    assert res["vel"].share == 1.0  # 1.9 m/s within 2.0 at every real time difference
+    slow = replace(exact, v_max_mps=np.full(15, 1.85))
+    res = containment(HumanReach(slow), t, y, 0.3, ("vel",))
+    # beyond the bound by 0.05 m/s: every pair more than (half thickness margin) apart misses
+    assert res["vel"].share < 1.0
+    worst = res["vel"].worst[0]
+    assert worst.excess_m == pytest.approx(0.05 * worst.dt_s, abs=1e-9)
+    i = int(np.flatnonzero(t == worst.t_s)[0])
+    assert any(np.isclose(t[i + k] - t[i], worst.dt_s, atol=1e-12) for k in range(1, 30))
+
+
+def test_a_model_without_a_velocity_estimate_is_unavailable() -> None:
+    t, y = _jittered(0)
+    reach = HumanReach(to_reach_params(load_param_set("schepp2022_table1"), "full"))
+    occ = occupancies(reach, t, y, np.zeros(1), np.array([0.2]), ("acc", "combined"))
+    assert np.isinf(occ["acc"].radius[0]).all()  # the first frame: no estimate
+    assert np.isfinite(occ["acc"].radius[1:]).all() and (occ["acc"].radius[1:] < 10).all()
+    assert np.isfinite(occ["combined"].radius).all()  # falls back on the speed ball
+    res = containment(reach, t, y, 0.3, ("acc",))
+    K = res["acc"].unavailable // 15
+    assert res["acc"].unavailable == 15 * K > 0  # the first frame's future, every joint
+    assert res["acc"].checked + res["acc"].unavailable == sum(
+        15 * int(((t > ti) & (t <= ti + 0.3 + 1e-12)).sum()) for ti in t
+    )
