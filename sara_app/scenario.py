@@ -216,7 +216,7 @@ class ShieldSpec(_Strict):
     """Safety mode: speed and separation monitoring, power and force limiting, or JSSA."""
     dt_s: Annotated[float, Field(ge=1e-4, le=0.05)] = 0.004
     max_interval_s: Annotated[float, Field(gt=0, le=0.1)] = 0.02
-    models: list[str] = ["pos", "vel", "acc"]
+    models: list[str] = ["pos", "vel", "acc", "combined"]
     tracking_tol_rad: Annotated[float, Field(gt=0, le=0.1)] = 0.005
     skeleton_timeout_s: Annotated[float, Field(gt=0, le=5)] = 0.2
     ssm: SsmSpec = SsmSpec()

@@ -218,12 +218,12 @@ def test_a_failed_lazy_first_check_rotates_the_first_checks_order() -> None:
     from sara_app.safety.pfl_shield import PflCycle
 
     shield, template, people, t = shield_cell(BENCH_CASES["slowed"])
-    shield._orders[0][:] = ["acc", "vel", "pos"]
+    shield._orders[0][:] = ["acc", "vel", "pos", "combined"]
     out = shield.cycle(t, people, want_distance=False)
     info = shield._res
     assert isinstance(info, PflCycle) and info.checks == 2 and out.verified
-    assert shield._orders[0] == ["vel", "pos", "acc"]
-    assert shield._orders[1][0] in ("acc", "vel", "pos")
+    assert shield._orders[0] == ["vel", "pos", "combined", "acc"]
+    assert shield._orders[1][0] in ("acc", "vel", "pos", "combined")
     assert shield._orders[0] is not shield._orders[1]
 
 

@@ -126,7 +126,7 @@ def bench_cell(
             "environment": [
                 {"name": "table", "center_m": [0.65, 0.0, 0.1], "size_m": [0.5, 1.6, 0.2]}
             ],
-            "shield": {"mode": mode, "models": ["acc", "vel", "pos"]},
+            "shield": {"mode": mode, "models": ["acc", "vel", "pos", "combined"]},
             "inputs": {"max_people": max(8, len(xys))},
         }
     )

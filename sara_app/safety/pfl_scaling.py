@@ -74,13 +74,15 @@ class SpeedScaling:
     """No possible contact in a verified trajectory: lift the cap at once."""
     max_replans: int = 1
     """Replans per cycle after a failed check (each one PFL check more)."""
-    max_models: int = 4
+    max_models: int = 6
     """Model evaluations (classifications, the main cost of a check) per cycle, over all its
     checks. When they run out, the check counts as failed with what it proved (conservative:
     the robot brakes on the held failsafe, the candidate is the next cycle's cap) and no replan
-    follows. Bounds the worst cycle (2 checks x 3 models = 6 otherwise); in closed loop the
-    shipped scenarios' times to goal were unchanged with 4 (one more braking cycle of 2500 in
-    close_worker), with 3 they grew by up to 2.4 %."""
+    follows. Bounds the worst cycle (2 checks x 4 models = 8 otherwise). With the shipped four
+    models (acc, vel, pos, combined) 4 left no replan after a full first check: close_worker
+    took 4.52 s (braking SSM 4.30 s); 6 gives 4.24 s and no other shipped scenario slower
+    (docs/measurements/2026-11-26-sound-sets.md); with three models 4 and 6 gave the same
+    times to goal."""
 
     def __post_init__(self) -> None:
         if self.max_models < 1 or self.max_replans < 0:
