@@ -25,7 +25,7 @@ from pydantic import (
 )
 
 from sara_app.errors import SaraError, ScenarioError
-from sara_app.human.gate import GateSettings
+from sara_app.human.gate import BONES, GateSettings
 from sara_app.human.intake import IntakeSettings
 from sara_app.human.params import RENAMED as PARAM_SETS_RENAMED
 from sara_app.human.params import ParamSet, load_param_set, parse_param_set
@@ -257,9 +257,23 @@ class GateSpec(_Strict):
     """A joint distrusted longer than this refuses its person's skeletons (the person ages)."""
     recover_s: Annotated[float, Field(gt=0.1, le=60)] = 0.5
     """A person beyond the parameter set's bounds is a fault until this long within them."""
+    bone_lengths_m: dict[str, Annotated[float, Field(gt=0, lt=2)]] = {}
+    """Known bone lengths (e.g. of the one operator of a cell), keyed ``joint-joint`` as in
+    ``sara_app.human.gate.BONES`` (``"l_elbow-l_wrist"``): checked from the first frame; the
+    other bones are learned from each person's first frames."""
+
+    @field_validator("bone_lengths_m")
+    @classmethod
+    def _known_bones(cls, v: dict[str, float]) -> dict[str, float]:
+        names = [f"{a}-{b}" for a, b in BONES]
+        bad = [k for k in v if k not in names]
+        if bad:
+            raise ValueError(f"unknown bone {bad[0]!r}; valid: {', '.join(names)}")
+        return v
 
     def intake(self) -> IntakeSettings:
-        gate = GateSettings(self.bone_tol_m, self.learn_frames, self.max_hold_s)
+        known = tuple((*k.split("-"), length) for k, length in self.bone_lengths_m.items())
+        gate = GateSettings(self.bone_tol_m, self.learn_frames, self.max_hold_s, known)  # type: ignore[arg-type]
         return IntakeSettings(gate, self.recover_s)
 
 

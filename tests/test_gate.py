@@ -10,7 +10,7 @@ from sara_app.errors import ParameterError
 from sara_app.human.gate import FLAGS, Gate, GateSettings
 from sara_app.human.glitches import Glitches
 from sara_app.human.recordings import load_recording
-from sara_app.scenario import GlitchSpec
+from sara_app.scenario import GateSpec, GlitchSpec
 
 DY = 0.004
 V_MAX = np.full(15, 2.0)
@@ -63,7 +63,7 @@ def test_clean_motion_is_never_flagged(seed: int) -> None:
     t, y = _walk(seed)
     gate, flags, held, refused = _run(t, _noisy(y, seed), y)
     assert not flags.any() and not held.any() and not refused.any()
-    assert gate.bone_m is not None  # learned from the first frames
+    assert not np.isnan(gate.length_m).any()  # learned from the first frames
 
 
 def _glitched(kind: str, seed: int = 0, **kw: object):
@@ -135,3 +135,22 @@ def test_an_upper_body_source_leaves_the_legs_unchecked() -> None:
 def test_settings_are_checked() -> None:
     with pytest.raises(ParameterError, match="max_hold_s"):
         GateSettings(max_hold_s=0.0)
+
+
+def test_bone_lengths_from_the_scenario_are_checked_from_the_first_frame() -> None:
+    """A known forearm length: a wrist swapped to the head in the person's FIRST frames (before
+    anything could be learned) is flagged; a wrong known length is flagged at once too."""
+    t, y = _walk(3)
+    meas = _noisy(y, 3)
+    forearm = float(np.linalg.norm(y[0, 7] - y[0, 5]))
+    meas[2:6, 7] = meas[2:6, 0]  # frames 2-5: l_wrist at the head
+    spec = GateSpec(bone_lengths_m={"l_elbow-l_wrist": forearm})
+    gate = Gate(V_MAX, spec.intake().gate)
+    flags = [gate.check(float(t[k]), meas[k], DY, 15).flags[7, FLAGS.index("bone")]
+             for k in range(8)]  # fmt: skip
+    assert flags == [False, False, True, True, True, True, False, False]
+    wrong = GateSpec(bone_lengths_m={"l_elbow-l_wrist": forearm + 0.3}).intake().gate
+    g = Gate(V_MAX, wrong).check(0.0, meas[0], DY, 15)
+    assert g.flags[:, FLAGS.index("bone")].any()
+    with pytest.raises(ValueError, match="unknown bone 'l_wrist-l_elbow'"):
+        GateSpec(bone_lengths_m={"l_wrist-l_elbow": 0.25})

@@ -12,8 +12,9 @@ against three necessary conditions and never trusts a joint that fails one:
   glitch or the person is faster than the set allows (the conformance monitor,
   :mod:`sara_app.human.conformance`, answers for it).
 - **Bone**: the distance between two joints joined by a bone stays within
-  ``2 delta_y + bone_tol_m`` of the person's own bone length, learned online as the median of
-  the first ``learn_frames`` frames whose joints all passed the jump test (or given). An
+  ``2 delta_y + bone_tol_m`` of the person's own bone length: given by the scenario
+  (``known_bones_m``) or learned online as the median of the first ``learn_frames`` frames whose
+  joints all passed the jump test. An
   inconsistent bone is blamed on its end joints that jumped or are held; on both when neither
   (conservative: holding a good joint only widens its set). ``bone_tol_m`` covers how much
   trackers' joint centres drift along a bone (soft tissue, joint-centre estimation); a named,
@@ -81,6 +82,9 @@ class GateSettings:
     bone_tol_m: float = 0.05
     learn_frames: int = 15
     max_hold_s: float = 0.5
+    known_bones_m: tuple[tuple[str, str, float], ...] = ()
+    """Bone lengths given by the scenario ``(joint, joint, m)``: checked from the first frame;
+    the other bones are learned."""
 
     def __post_init__(self) -> None:
         if not (self.bone_tol_m >= 0 and self.learn_frames >= 1 and self.max_hold_s > 0):
@@ -88,6 +92,12 @@ class GateSettings:
                 f"gate bone_tol_m = {self.bone_tol_m}, learn_frames = {self.learn_frames}, "
                 f"max_hold_s = {self.max_hold_s}; expected >= 0, >= 1, > 0"
             )
+        for a, b, length in self.known_bones_m:
+            if (a, b) not in BONES or not (0 < length < 2):
+                raise ParameterError(
+                    f"known bone {a}-{b} of {length} m; expected one of "
+                    f"{', '.join(f'{x}-{y}' for x, y in BONES)} with 0 < length < 2 m"
+                )
 
 
 @dataclass
@@ -120,8 +130,8 @@ def bone_indices(joints: tuple[str, ...] = FULL_JOINTS) -> np.ndarray:
 
 @dataclass
 class Gate:
-    """The gate of one person. ``v_max_mps`` ``(J,)``; ``bone_m`` ``(B,)`` known bone lengths
-    (None: learned online)."""
+    """The gate of one person. ``v_max_mps`` ``(J,)``; ``bone_m`` ``(B,)`` this person's bone
+    lengths in ``bones`` order (None: the settings' known ones, the rest learned online)."""
 
     v_max_mps: np.ndarray
     settings: GateSettings = GateSettings()
@@ -133,6 +143,8 @@ class Gate:
     def __post_init__(self) -> None:
         self.v_max_mps = np.asarray(self.v_max_mps, dtype=float)
         J = len(self.v_max_mps)
+        self.length_m = self._known(self.settings) if self.bone_m is None else np.array(self.bone_m)
+        """``(B,)`` the bone lengths checked (nan: not known yet, being learned)."""
         self.y_trusted = np.zeros((J, 3))
         self.t_trusted = np.full(J, -np.inf)
         self.y_prev = np.full((J, 3), np.nan)
@@ -143,9 +155,12 @@ class Gate:
                               np.zeros((J, len(FLAGS)), bool), np.zeros(J))  # fmt: skip
 
     def retune(self, v_max_mps: np.ndarray, settings: GateSettings) -> None:
-        """New bounds (a scenario edit); what was learned and held stays."""
+        """New bounds (a scenario edit); what was learned and held stays, bone lengths the
+        scenario now gives replace it."""
         self.v_max_mps = np.asarray(v_max_mps, dtype=float)
         self.settings = settings
+        known = self._known(settings)
+        self.length_m = np.where(np.isnan(known), self.length_m, known)
 
     def check(self, t_s: float, y: np.ndarray, delta_y_m: float, n_measured: int) -> GateResult:
         """Gate one frame ``y (J, 3)`` stamped ``t_s`` (see the module notes). A joint that only
@@ -183,7 +198,7 @@ class Gate:
         out.refused = bool((held_s > self.settings.max_hold_s).any())
         self.first_seen_s = np.where(same, self.first_seen_s, t_s)
         self.y_prev[:] = y
-        if self.bone_m is None and not (bad | jump)[m].any():
+        if np.isnan(self.length_m).any() and not (bad | jump)[m].any():
             self._learn_bones(y)
         for k, name in enumerate(FLAGS):
             self.counts[name] += int(out.flags[:, k].sum())
@@ -196,11 +211,12 @@ class Gate:
         """``(J,)`` joints blamed for an inconsistent bone of two measured joints: its suspect
         ends, else both."""
         blame = np.zeros(y.shape[0], dtype=bool)
-        if self.bone_m is None or not len(self.bones):
+        if not len(self.bones):
             return blame
         a, b = self.bones[:, 0], self.bones[:, 1]
         length = np.linalg.norm(y[a] - y[b], axis=1)
-        off = np.abs(length - self.bone_m) > 2.0 * delta_y_m + self.settings.bone_tol_m
+        with np.errstate(invalid="ignore"):  # nan: a bone not known yet is not checked
+            off = np.abs(length - self.length_m) > 2.0 * delta_y_m + self.settings.bone_tol_m
         off &= measured[a] & measured[b]
         sa, sb = suspect[a], suspect[b]
         either = sa | sb
@@ -212,5 +228,14 @@ class Gate:
         a, b = self.bones[:, 0], self.bones[:, 1]
         self._learn.append(np.linalg.norm(y[a] - y[b], axis=1))
         if len(self._learn) >= self.settings.learn_frames:
-            self.bone_m = np.median(np.array(self._learn), axis=0)
+            learned = np.median(np.array(self._learn), axis=0)
+            self.length_m = np.where(np.isnan(self.length_m), learned, self.length_m)
             self._learn.clear()
+
+    def _known(self, settings: GateSettings) -> np.ndarray:
+        """``(B,)`` the scenario's bone lengths, nan where not given."""
+        out = np.full(len(self.bones), np.nan)
+        given = {(a, b): v for a, b, v in settings.known_bones_m}
+        for k, (a, b) in enumerate(self.bones):
+            out[k] = given.get((FULL_JOINTS[a], FULL_JOINTS[b]), np.nan)
+        return out
