@@ -95,6 +95,19 @@ def test_page_connects_and_renders_the_verdict(
         returnByValue=True,
     )["result"]["value"]
     assert swatches == [1, False, True], swatches
+    # The tracking gate's and the monitor's flags, and who breaks the bounds, in the status.
+    frame.status = {**frame.status, "tracking": {"p1": {"bone": 3, "speed": 2}},
+                    "violations": [{"human_id": "p1", "joint": "l_wrist", "quantity": "speed",
+                                    "value": 3.25, "bound": 2.0}]}  # fmt: skip
+    dash.update(frame)
+
+    def tracking_text() -> str | None:
+        text = str(devtools.call("Runtime.evaluate", expression="document.body.innerText",
+                                 returnByValue=True)["result"]["value"])  # fmt: skip
+        return text if "Beyond bounds" in text else None
+
+    text = wait_for(tracking_text, 60.0, "the tracking rows in the status")
+    assert "p1: bone 3, speed 2" in str(text) and "l_wrist speed 3.25 > 2.00 m/s" in str(text)
     # The URDF robot alone: everything else hidden, then the robot too; the images differ.
     scene = dash.scene
     assert scene is not None
