@@ -583,3 +583,39 @@ def test_concurrent_patches_are_serialised_and_none_is_lost(folder: Path) -> Non
         assert (sc.shield.dt_s, sc.shield.max_interval_s) == (0.005, 0.03)
         assert (sc.shield.tracking_tol_rad, sc.shield.skeleton_timeout_s) == (0.006, 0.15)
         assert (sc.inputs.max_people, sc.inputs.tracker_timeout_s) == (7, 0.3)
+
+
+# -- the API docs without internet ---------------------------------------------------------------
+
+
+def test_docs_load_their_assets_from_the_service(offline) -> None:
+    """``/docs`` references Swagger UI's files on this service (installed package), no CDN."""
+    _, client, _ = offline
+    html = client.get("/docs").text
+    assert "/docs-assets/swagger-ui-bundle.js" in html and "/docs-assets/swagger-ui.css" in html
+    assert "cdn." not in html and "https://" not in html.replace("https://swagger.io", "")
+    js = client.get("/docs-assets/swagger-ui-bundle.js")
+    assert js.status_code == 200 and len(js.content) > 100_000
+    assert client.get("/docs-assets/swagger-ui.css").status_code == 200
+    assert client.get("/docs/oauth2-redirect").status_code == 200
+    redoc = client.get("/redoc").text
+    assert "/docs-assets/redoc.standalone.js" in redoc and "fonts.googleapis" not in redoc
+
+
+@pytest.mark.skipif(not Path(CHROMIUM).exists(), reason=f"{CHROMIUM} is absent")
+def test_docs_list_the_routes_in_chromium(folder: Path) -> None:
+    """In a browser that cannot reach the internet (this machine), /docs renders every route."""
+    port = free_port()
+    with Bus.router(port), CellRegistry.connect(port) as reg:
+        server = ApiServer(create_app(reg, folder, viewer_url=VIEWER), port=0)
+        url = server.start()
+        try:
+            with chromium_on(url + "docs") as page:
+                assert _wait_until(
+                    lambda: "/api/health" in str(page.eval("document.body.innerText")), 30.0
+                )
+                text = str(page.eval("document.body.innerText"))
+        finally:
+            server.stop()
+    for route in ("/api/cells/{cell}/scenario", "/api/cells/{cell}/thresholds", "/api/params"):
+        assert route in text, route

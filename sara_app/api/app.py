@@ -36,8 +36,14 @@ from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Annotated, Any
 
+import fastapi_offline
 from fastapi import Body, FastAPI, HTTPException, Query, Request
-from fastapi.responses import StreamingResponse
+from fastapi.openapi.docs import (
+    get_redoc_html,
+    get_swagger_ui_html,
+    get_swagger_ui_oauth2_redirect_html,
+)
+from fastapi.responses import HTMLResponse, StreamingResponse
 from fastapi.staticfiles import StaticFiles
 
 import sara_app
@@ -321,6 +327,44 @@ def _add_param_routes(app: FastAPI) -> None:
             raise HTTPException(500, str(e)) from None
 
 
+DOCS_ASSETS = "/docs-assets"
+"""Where the Swagger UI's and ReDoc's files are served from (the ``fastapi-offline``
+package's copies)."""
+
+
+def _add_docs(app: FastAPI) -> None:
+    """``/docs`` and ``/redoc`` without internet: their scripts, style sheet and icon come from
+    the installed ``fastapi-offline`` package, not from a CDN (a cell's network may have no
+    way out)."""
+    assets = Path(fastapi_offline.__file__).parent / "static"
+    app.mount(DOCS_ASSETS, StaticFiles(directory=assets), name="docs")
+
+    @app.get("/docs", include_in_schema=False)
+    def docs() -> HTMLResponse:
+        return get_swagger_ui_html(
+            openapi_url=app.openapi_url or "/openapi.json",
+            title=f"{app.title} - API",
+            swagger_js_url=f"{DOCS_ASSETS}/swagger-ui-bundle.js",
+            swagger_css_url=f"{DOCS_ASSETS}/swagger-ui.css",
+            swagger_favicon_url=f"{DOCS_ASSETS}/favicon.png",
+            oauth2_redirect_url="/docs/oauth2-redirect",
+        )
+
+    @app.get("/docs/oauth2-redirect", include_in_schema=False)
+    def docs_redirect() -> HTMLResponse:
+        return get_swagger_ui_oauth2_redirect_html()
+
+    @app.get("/redoc", include_in_schema=False)
+    def redoc() -> HTMLResponse:
+        return get_redoc_html(
+            openapi_url=app.openapi_url or "/openapi.json",
+            title=f"{app.title} - ReDoc",
+            redoc_js_url=f"{DOCS_ASSETS}/redoc.standalone.js",
+            redoc_favicon_url=f"{DOCS_ASSETS}/favicon.png",
+            with_google_fonts=False,
+        )
+
+
 def create_app(
     registry: CellRegistry,
     scenarios_folder: Path | str | None = None,
@@ -346,7 +390,10 @@ def create_app(
         title="SaRA cell service",
         version=sara_app.__dict__.get("__version__", "0.1.0"),
         description="Live status of SaRA cells, scenarios and human-model parameter sets.",
+        docs_url=None,  # served below from installed assets: the default loads them from a CDN
+        redoc_url=None,
     )
+    _add_docs(app)
     app.state.registry = registry
     app.state.stopping = threading.Event()  # set by ApiServer.stop(): ends event streams
 
