@@ -192,6 +192,9 @@ def test_rolling_series_keeps_window_and_skips_nonfinite() -> None:
     assert t[-1] == pytest.approx(0.05 * 99) and t[0] >= t[-1] - 1.0 - 1e-12
     np.testing.assert_allclose(y, t / 0.05)
     assert np.all(np.diff(t) > 0)
+    rel, y_rel = s.plot_data()  # the plots' x axis: seconds before the newest sample
+    np.testing.assert_allclose(rel, t - t[-1])
+    assert rel[-1] == 0.0 and rel[0] >= -1.0 - 1e-12 and np.array_equal(y_rel, y)
 
 
 def test_all_model_groups_exist(dash: Dashboard) -> None:

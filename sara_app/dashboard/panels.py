@@ -253,11 +253,17 @@ class RollingSeries:
         i0 = int(np.searchsorted(t, t[-1] - self.window_s)) if self._n else 0
         return (t[i0:].copy(), *(y[i0 : self._n].copy() for y in self._y))
 
+    def plot_data(self) -> tuple[np.ndarray, ...]:
+        """As :meth:`data` with times in seconds relative to the newest sample (``<= 0``): an
+        axis a person reads ("2 s ago"), not Unix time."""
+        t, *ys = self.data()
+        return (t - t[-1] if t.shape[0] else t, *ys)
+
 
 def _uplot(
     gui: viser.GuiApi, title: str, labels: tuple[str, ...], strokes: tuple[str, ...], unit: str
 ) -> viser.GuiUplotHandle:
-    series: list[dict[str, Any]] = [{"label": "t [s]"}]
+    series: list[dict[str, Any]] = [{"label": "t - now [s]"}]
     series += [
         {"label": lab, "stroke": s, "width": 2, "scale": "y"} for lab, s in zip(labels, strokes)
     ]
@@ -266,7 +272,7 @@ def _uplot(
         series=tuple(series),  # type: ignore[arg-type]
         title=title,
         scales={"x": {"time": False, "auto": True}, "y": {"auto": True}},
-        axes=({"scale": "x"}, {"scale": "y", "label": unit}),
+        axes=({"scale": "x", "label": "seconds before now"}, {"scale": "y", "label": unit}),
         aspect=1.6,
     )
 
@@ -480,7 +486,7 @@ class DashboardPanels:
                 (self.plot_phi, self.phi),
                 (self.plot_speed, self.speed),
             ):
-                data = series.data()
+                data = series.plot_data()
                 if plot.visible and data[0].shape[0] >= 2:
                     plot.data = data
 
