@@ -93,6 +93,11 @@ def test_apply_confirm_refuse_and_audit(
     assert cell.scenario.shield.pfl.overrides[0].energy_J == 0.1
     assert "0.12 → 0.1 J applied" in p.message.content
     assert "In force: **0.1 J** (edited)" in p.source.content
+    # the table of every value in force opens with the tab, the edit in bold beside its source
+    assert p.folder.expand_by_default
+    assert "| hand, constrained | **0.1** (0.12) |" in p.table.content
+    head = SEED.energy_J("head", "unconstrained", "blunt")
+    assert f"| head, unconstrained | {head:g} |" in p.table.content
     # above the source: the warning and the checkbox appear as soon as the value is typed
     p.energy.value = 0.3
     assert p.warning.visible and p.confirm.visible and f"{src:g} J" in p.warning.content

@@ -75,9 +75,10 @@ class ThresholdsPanel:
         self.get_scenario, self.send, self.audit, self.cell = get_scenario, send, audit, cell
         self.who = who
         self.no_answer = no_answer
-        self.folder = gui.add_folder("Thresholds", expand_by_default=False)
+        self.folder = gui.add_folder("Thresholds", expand_by_default=True)
         with self.folder:
             self.header = gui.add_markdown("")
+            self.table = gui.add_markdown("")
             self.region = gui.add_dropdown("Body region", REGIONS)
             self.contact = gui.add_dropdown("Contact", CONTACTS)
             self.shape = gui.add_dropdown("Shape", SHAPES)
@@ -128,6 +129,7 @@ class ThresholdsPanel:
         row = next(
             r for r in view["entries"] if (r["region"], r["contact"], r["shape"]) == self.entry()
         )
+        self.table.content = table_markdown(view["entries"])
         iso = ", ".join(f"{x['iso_region']} {x['energy_J']:.3g} J" for x in row["iso_reference"])
         mode = view["safety_mode"]
         note = "" if mode == "pfl" else " (thresholds act in PFL mode)"
@@ -223,3 +225,26 @@ def attach(
 ) -> ThresholdsPanel:
     """Add the threshold editor to ``gui`` (e.g. inside a tab: ``with tab: attach(...)``)."""
     return ThresholdsPanel(gui, get_scenario, send, audit, cell, **kwargs)
+
+
+def table_markdown(entries: list[dict[str, Any]]) -> str:
+    """The thresholds in force (J) as one table: a row per body region and contact type, a
+    column per contact shape; edited values in bold with their source value beside."""
+    cell = {(e["region"], e["contact"], e["shape"]): e for e in entries}
+    lines = ["| region, contact | " + " | ".join(SHAPES) + " |",
+             "|---|" + "---|" * len(SHAPES)]  # fmt: skip
+    for region in REGIONS:
+        for contact in CONTACTS:
+            vals = []
+            for shape in SHAPES:
+                e = cell.get((region, contact, shape))
+                if e is None:
+                    vals.append("n/a")
+                elif e["overridden"]:
+                    vals.append(f"**{e['energy_J']:g}** ({e['source_energy_J']:g})")
+                else:
+                    vals.append(f"{e['energy_J']:g}")
+            lines.append(f"| {region}, {contact} | " + " | ".join(vals) + " |")
+    return "Energies in force, J (edited: **bold**, source value in brackets)\n\n" + "\n".join(
+        lines
+    )
