@@ -223,6 +223,8 @@ def serve(
             frame = view.poll()
             if frame is not None:
                 dash.update(frame)
+            elif dash.panels is not None:  # until the first verdict: what the worker is doing
+                dash.panels.show_waiting(view.waiting_status())
             sup.poll(time.monotonic(), _verdict_age(registry, cell, sup))
             time.sleep(max(period - (time.monotonic() - t0), 0.0))
         return 0

@@ -106,7 +106,9 @@ class CellWorker:
         self.loop_task = loop_task
         self.display_period = 1.0 / display_hz
         self.status_period = 1.0 / status_hz
-        self.cell = build_cell(scenario)
+        self.pub_status = bus.publisher(keys.status_key(self.name))
+        with Starting(self.pub_status, self.name, scenario.name):
+            self.cell = build_cell(scenario)
         inp = scenario.inputs
         self.presence = Presence(
             tuple(inp.trackers), inp.tracker_timeout_s, inp.max_people, self._new_track
@@ -133,7 +135,6 @@ class CellWorker:
         self.pub_verdict = bus.publisher(keys.verdict_key(self.name))
         self.pub_occ = bus.publisher(keys.occupancy_key(self.name), express=False)
         self.pub_ack = bus.publisher(keys.params_ack_key(self.name))
-        self.pub_status = bus.publisher(keys.status_key(self.name))
         self.pub_scenario = bus.publisher(keys.scenario_key(self.name))
         self.scenario_revision = revision
         self.messages = CycleMessages(self.name, self.cell.robot.n_dof)
@@ -603,6 +604,40 @@ class CellWorker:
             except Exception:  # noqa: BLE001 - a closed session has released it already
                 pass
             self.token = None
+
+
+class Starting:
+    """While the cell is being built (seconds: the robot model, the kernels' compilation or
+    cache loading), a ``starting`` status every ``period_s`` with what it is doing, so that
+    the landing page and the dashboard say so instead of "no cell"."""
+
+    def __init__(self, pub: Any, cell: str, scenario: str, period_s: float = 0.5) -> None:
+        self.pub, self.cell, self.scenario, self.period_s = pub, cell, scenario, period_s
+        self.t0 = time.time()
+        self.done = threading.Event()
+        self.thread = threading.Thread(target=self._run, name="starting", daemon=True)
+
+    def __enter__(self) -> Starting:
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.done.set()
+        self.thread.join(2.0)
+
+    def _run(self) -> None:
+        while True:
+            now = time.time()
+            detail = (f"building the cell: loading the robot model and compiling the safety "
+                      f"kernels ({now - self.t0:.0f} s)")  # fmt: skip
+            try:
+                self.pub.put(StatusMsg(seq=self.pub.next_seq(), stamp_s=now, cell=self.cell,
+                                       state="starting", scenario=self.scenario,
+                                       uptime_s=now - self.t0, detail=detail))  # fmt: skip
+            except Exception:  # noqa: BLE001 - a display heartbeat: never stops the build
+                log.exception("starting status failed")
+            if self.done.wait(self.period_s):
+                return
 
 
 def _id_in(key_expr: str, kind: str) -> str | None:

@@ -41,7 +41,10 @@ function card(c) {
   h.textContent = c.cell;
   const badge = document.createElement("span");
   badge.className = "badge";
-  badge.textContent = !c.online ? "offline" : stale ? "no recent verdict" : c.mode;
+  const starting = c.online && c.state === "starting";
+  if (starting) el.dataset.mode = "starting";
+  badge.textContent = !c.online ? "offline" : starting ? "starting"
+    : stale ? "no recent verdict" : c.mode;
   const safety = document.createElement("span");
   safety.className = "tag";
   safety.title = "safety mode (from the latest verdict)";
@@ -56,7 +59,7 @@ function card(c) {
   row(dl, "skeleton age", ages(c.skeleton_age_s));
   row(dl, "dropped", dropped(c.dropped));
   if (c.faults && c.faults.length) row(dl, "faults", c.faults.join("; "));
-  row(dl, "state", c.state || "–");
+  row(dl, "state", (c.state || "–") + (c.detail ? ": " + c.detail : ""));
   row(dl, "last verdict", fmt(c.verdict_age_s, 1, "s ago"));
   row(dl, "last status", fmt(c.status_age_s, 1, "s ago"));
   const more = document.createElement("p");

@@ -312,6 +312,7 @@ class FakeWorker:
         self.bus = Bus.client(port)
         self.cell, self.answer = cell, answer
         self.mode: str | None = None  # None: alternate intended / failsafe
+        self.starting = False  # True: "starting" statuses and no verdicts (building the cell)
         self.received: list[dict[str, Any]] = []
         self._stop = threading.Event()
         self._status = self.bus.publisher(keys.status_key(cell))
@@ -330,11 +331,15 @@ class FakeWorker:
                         seq=self._status.next_seq(),
                         stamp_s=time.time(),
                         cell=self.cell,
-                        state="running",
+                        state="starting" if self.starting else "running",
                         scenario="empty_cell",
                         humans=["h1"],
+                        detail="building the cell: compiling (2 s)" if self.starting else "",
                     )
                 )
+            if self.starting:
+                i += 1
+                continue
             mode = self.mode or ("failsafe" if i % 2 else "intended")
             self._verdict.put(
                 _verdict(
@@ -619,3 +624,27 @@ def test_docs_list_the_routes_in_chromium(folder: Path) -> None:
             server.stop()
     for route in ("/api/cells/{cell}/scenario", "/api/cells/{cell}/thresholds", "/api/params"):
         assert route in text, route
+
+
+@pytest.mark.skipif(not Path(CHROMIUM).exists(), reason=f"{CHROMIUM} is absent")
+def test_landing_page_says_a_cell_is_starting(folder: Path) -> None:
+    """A worker still building its cell (no verdict yet) shows as "starting", with what it
+    does, not as offline or as a cell with no recent verdict."""
+    port = free_port()
+    with Bus.router(port), CellRegistry.connect(port) as reg:
+        server = ApiServer(create_app(reg, folder, viewer_url=VIEWER), port=0)
+        url = server.start()
+        worker = FakeWorker(port, "cell1", answer=False)
+        worker.starting = True
+        try:
+            with chromium_on(url) as page:
+                card = "document.querySelector('article[data-cell=\"cell1\"]')"
+                assert _wait_until(
+                    lambda: page.eval(f"{card} ? {card}.dataset.mode : ''") == "starting", 20.0
+                )
+                text = str(page.eval(f"{card}.textContent"))
+            assert "building the cell: compiling (2 s)" in text
+            assert reg.cell("cell1")["state"] == "starting"  # type: ignore[index]
+        finally:
+            worker.close()
+            server.stop()

@@ -25,6 +25,7 @@ from sara_app.bus.messages import (
     ParamsMsg,
     RobotCommandMsg,
     RobotOccupancyMsg,
+    StatusMsg,
     VerdictMsg,
 )
 from sara_app.bus.session import Drained
@@ -499,3 +500,21 @@ def test_view_follows_the_scenario_the_worker_announces(view) -> None:
     )
     v.poll()  # unreadable: kept what it had, no exception
     assert v.scenario.shield.mode == "pfl"
+
+
+def test_before_the_first_verdict_the_status_says_what_the_worker_does(
+    view: tuple[CellView, FakeBus], dash: Dashboard
+) -> None:
+    v, bus = view
+    assert v.poll() is None
+    assert "waiting for the cell worker" in v.waiting_status()["mode"]
+    bus.feed(keys.status_key(CELL), StatusMsg(
+        seq=1, stamp_s=1.0, cell=CELL, state="starting", scenario="empty_cell",
+        detail="building the cell: loading the robot model and compiling the safety kernels (3 s)",
+    ))  # fmt: skip
+    assert v.poll() is None
+    status = v.waiting_status()
+    assert status["mode"].startswith("starting: building the cell") and "(3 s)" in status["mode"]
+    assert dash.panels is not None
+    dash.panels.show_waiting(status)
+    assert "starting: building the cell" in dash.panels.status.content

@@ -17,7 +17,13 @@ import pytest
 
 from sara_app.bus import keys
 from sara_app.bus.heartbeat import Heartbeat
-from sara_app.bus.messages import ParamsAckMsg, ParamsMsg, ScenarioStateMsg, VerdictMsg
+from sara_app.bus.messages import (
+    ParamsAckMsg,
+    ParamsMsg,
+    ScenarioStateMsg,
+    StatusMsg,
+    VerdictMsg,
+)
 from sara_app.bus.session import Bus, free_port
 from sara_app.scenario import load_scenario
 from sara_app.worker import CellWorker
@@ -236,3 +242,29 @@ def test_a_slow_edit_is_built_off_the_loop(cell, monkeypatch) -> None:
     while worker.shield.verifier.models != ("vel",):
         assert time.monotonic() < t_end
         time.sleep(0.02)
+
+
+def test_a_starting_worker_says_so_before_its_first_verdict() -> None:
+    """While the cell is built (robot model, kernels), the worker publishes ``starting``
+    statuses saying what it does; ``running`` ones follow with the verdicts."""
+    port = free_port()
+    with Bus.router(port), Bus.client(port) as wb, Bus.client(port) as tb:
+        status = tb.subscribe(keys.status_key("cell1"), fifo=True, capacity=1000)
+        verdicts = tb.subscribe(keys.verdict_key("cell1"), fifo=True, capacity=20000)
+        time.sleep(0.3)  # the subscriptions reach the router before the worker speaks
+        worker = CellWorker("cell1", load_scenario("standing_beside_path"), wb)
+        thread = threading.Thread(target=worker.run, daemon=True)
+        thread.start()
+        try:
+            time.sleep(1.5)
+        finally:
+            worker.stop_event.set()
+            thread.join(10)
+        seen = [d.msg for d in status.drain().messages if isinstance(d.msg, StatusMsg)]
+        first_verdict = min(d.msg.stamp_s for d in verdicts.drain().messages
+                            if isinstance(d.msg, VerdictMsg))  # fmt: skip
+    starting = [s for s in seen if s.state == "starting"]
+    assert starting and starting[0] is seen[0]
+    assert all(s.stamp_s < first_verdict for s in starting)
+    assert "building the cell" in starting[0].detail and "compiling" in starting[0].detail
+    assert any(s.state == "running" for s in seen)

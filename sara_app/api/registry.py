@@ -259,6 +259,7 @@ class CellRegistry:
             "cell": c.name,
             "online": online,
             "state": None if st is None else st.state,
+            "detail": "" if st is None else st.detail,
             "scenario": None if st is None else st.scenario,
             "uptime_s": None if st is None else st.uptime_s,
             "humans": [] if st is None else list(st.humans),

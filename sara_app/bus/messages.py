@@ -469,6 +469,9 @@ class StatusMsg(_Msg):
     humans: list[str] = []
     cycle_time_p50_us: NonNeg | None = None
     cycle_time_p99_us: NonNeg | None = None
+    detail: Annotated[str, Field(max_length=300)] = ""
+    """What a ``starting`` worker is doing (building the cell: loading the robot model and
+    compiling the kernels, with the seconds so far)."""
 
 
 class ScenarioStateMsg(_Msg):

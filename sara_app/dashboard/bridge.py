@@ -37,6 +37,7 @@ from sara_app.bus.messages import (
     ParamsMsg,
     RobotCommandMsg,
     ScenarioStateMsg,
+    StatusMsg,
     VerdictMsg,
 )
 from sara_app.bus.session import Bus
@@ -86,6 +87,8 @@ class CellView(GizmoEditing):
         self.sub_cmd = bus.subscribe(keys.robot_command_key(cell), dec)
         self.sub_ack = bus.subscribe(keys.params_ack_key(cell), dec, fifo=True)
         self.sub_scenario = bus.subscribe(keys.scenario_key(cell), dec)
+        self.sub_status = bus.subscribe(keys.status_key(cell), dec)
+        self.worker_status: StatusMsg | None = None
         self.scenario_revision: int | None = None
         self.pub_params = bus.publisher(keys.params_key(cell))
         self.q: np.ndarray | None = None
@@ -115,11 +118,22 @@ class CellView(GizmoEditing):
         for d in self.sub_occ.drain().messages:
             if isinstance(d.msg, OccupancyMsg):
                 self.occ = d.msg
+        for d in self.sub_status.drain().messages:
+            if isinstance(d.msg, StatusMsg):
+                self.worker_status = d.msg
         self._late_answer()
         self._follow_worker()
         if self.q is None or self.verdict is None:
             return None
         return self.frame()
+
+    def waiting_status(self) -> dict[str, Any]:
+        """The status table's entries before the first verdict: what the worker says it is
+        doing (``starting: building the cell ...``), or that nothing has reported yet."""
+        st = self.worker_status
+        if st is not None and st.state == "starting":
+            return {"mode": f"starting: {st.detail}" if st.detail else "starting"}
+        return {"mode": "waiting for the cell worker's first verdict"}
 
     def frame(self) -> DisplayFrame:
         """The frame of the latest verdict, robot command and occupancy."""

@@ -490,6 +490,12 @@ class DashboardPanels:
                 if plot.visible and data[0].shape[0] >= 2:
                     plot.data = data
 
+    def show_waiting(self, status: dict[str, Any]) -> None:
+        """The status table before the cell's first verdict (only when it changes)."""
+        md = status_markdown(status)
+        if md != self.status.content:
+            self.status.content = md
+
     def _show_mode_plots(self, mode: str) -> None:
         if mode == self._shown_mode:
             return
