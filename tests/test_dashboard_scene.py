@@ -264,3 +264,13 @@ def test_contact_parts_layer_and_critical_colour(dash: Dashboard) -> None:
     scene.set_visible("contacts", True)
     bad = replace(frame, contact_parts=replace(frame.contact_parts, radius=np.zeros(5)))
     assert not dash.update(bad)
+
+
+def test_the_legend_names_every_human_model_in_its_colour() -> None:
+    from sara_app.dashboard.panels import LEGEND_MD
+    from sara_app.dashboard.scene import MODEL_COLORS
+
+    assert len(set(MODEL_COLORS.values())) == len(MODEL_NAMES)  # distinguishable
+    for m in MODEL_NAMES:
+        r, g, b = MODEL_COLORS[m]
+        assert f'<span style="color:rgb({r},{g},{b})">&#9632;</span> {m}' in LEGEND_MD

@@ -37,6 +37,7 @@ from sara_app.dashboard.scene import (
     CONTACT_RGB,
     CRITICAL_ACTIVE_RGB,
     CRITICAL_IDLE_RGB,
+    MODEL_COLORS,
     UNVERIFIED_RGB,
     VERIFIED_RGB,
 )
@@ -71,6 +72,8 @@ LEGEND_MD = (
             _swatch(CONTACT_RGB[CONTACT_SELF], "clamped between robot links"),
         )
     )
+    + "<br/>**Human sets** (one colour per model, each can be hidden under Show): "
+    + ", ".join(_swatch(MODEL_COLORS[m], m) for m in MODEL_NAMES)
     + "<br/>**JSSA critical pair** (robot point to human point): "
     + ", ".join(
         (_swatch(CRITICAL_ACTIVE_RGB, "JSSA active"), _swatch(CRITICAL_IDLE_RGB, "inactive"))
