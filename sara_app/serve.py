@@ -242,7 +242,9 @@ def serve(
             hub.close()
 
 
-CONTROLLER, WORKER, REPLAYER = "sara_app.controller", "sara_app.worker", "sara_app.replayer"
+CONTROLLER, REPLAYER = "sara_app.controller", "sara_app.replayer"
+WORKER = "sara_app.worker_start"
+"""The worker as serve starts it: it says ``starting`` while its modules load."""
 ROUTER = "sara_app.bus.router"
 
 

@@ -41,6 +41,7 @@ from sara_app.bus.messages import (
 from sara_app.bus.ownership import claim_cell
 from sara_app.bus.process import process_main
 from sara_app.bus.session import Bus
+from sara_app.bus.starting import Starting
 from sara_app.cell import Cell, build_cell
 from sara_app.cell_state import CellState
 from sara_app.errors import SaraError
@@ -61,6 +62,7 @@ from sara_app.worker_messages import CycleMessages
 from sara_app.worker_robot import MeasuredRobot
 
 log = logging.getLogger("sara_app.worker")
+BUILDING = "building the cell: loading the robot model and compiling the safety kernels"
 _MIN_SLEEP_S = 20e-6  # the least the loop sleeps per cycle, even when late (s)
 SKELETON_QUEUE = 4096
 """Skeleton samples queued between two drains (all people); each drain decodes only the newest
@@ -107,7 +109,7 @@ class CellWorker:
         self.display_period = 1.0 / display_hz
         self.status_period = 1.0 / status_hz
         self.pub_status = bus.publisher(keys.status_key(self.name))
-        with Starting(self.pub_status, self.name, scenario.name):
+        with Starting(self.pub_status, self.name, scenario.name, BUILDING):
             self.cell = build_cell(scenario)
         inp = scenario.inputs
         self.presence = Presence(
@@ -604,40 +606,6 @@ class CellWorker:
             except Exception:  # noqa: BLE001 - a closed session has released it already
                 pass
             self.token = None
-
-
-class Starting:
-    """While the cell is being built (seconds: the robot model, the kernels' compilation or
-    cache loading), a ``starting`` status every ``period_s`` with what it is doing, so that
-    the landing page and the dashboard say so instead of "no cell"."""
-
-    def __init__(self, pub: Any, cell: str, scenario: str, period_s: float = 0.5) -> None:
-        self.pub, self.cell, self.scenario, self.period_s = pub, cell, scenario, period_s
-        self.t0 = time.time()
-        self.done = threading.Event()
-        self.thread = threading.Thread(target=self._run, name="starting", daemon=True)
-
-    def __enter__(self) -> Starting:
-        self.thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.done.set()
-        self.thread.join(2.0)
-
-    def _run(self) -> None:
-        while True:
-            now = time.time()
-            detail = (f"building the cell: loading the robot model and compiling the safety "
-                      f"kernels ({now - self.t0:.0f} s)")  # fmt: skip
-            try:
-                self.pub.put(StatusMsg(seq=self.pub.next_seq(), stamp_s=now, cell=self.cell,
-                                       state="starting", scenario=self.scenario,
-                                       uptime_s=now - self.t0, detail=detail))  # fmt: skip
-            except Exception:  # noqa: BLE001 - a display heartbeat: never stops the build
-                log.exception("starting status failed")
-            if self.done.wait(self.period_s):
-                return
 
 
 def _id_in(key_expr: str, kind: str) -> str | None:

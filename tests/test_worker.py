@@ -268,3 +268,29 @@ def test_a_starting_worker_says_so_before_its_first_verdict() -> None:
     assert all(s.stamp_s < first_verdict for s in starting)
     assert "building the cell" in starting[0].detail and "compiling" in starting[0].detail
     assert any(s.state == "running" for s in seen)
+
+
+def test_the_worker_as_serve_starts_it_says_starting_while_it_loads(tmp_path: Path) -> None:
+    """``python -m sara_app.worker_start`` (what serve runs) says ``starting`` from its first
+    second on, while the worker's modules load, then while it builds its cell, then runs."""
+    port = free_port()
+    path = tmp_path / "cell.json"
+    path.write_text(json.dumps(load_scenario("standing_beside_path").model_dump(mode="json")))
+    with Bus.router(port), Bus.client(port) as tb:
+        status = tb.subscribe(keys.status_key("cell1"), fifo=True, capacity=1000)
+        time.sleep(0.3)
+        proc = subprocess.Popen([sys.executable, "-m", "sara_app.worker_start", "--cell", "cell1",
+                                 "--scenario", str(path), "--port", str(port),
+                                 "--duration", "2"])  # fmt: skip
+        try:
+            proc.wait(90)
+        finally:
+            proc.kill()
+        seen = [d.msg for d in status.drain().messages if isinstance(d.msg, StatusMsg)]
+    details = [s.detail for s in seen if s.state == "starting"]
+    assert details and details[0].startswith("loading the worker and compiling")
+    # (the "building the cell" statuses of a warm start can all come before the worker's new
+    # session reaches the router; the in-process test above sees them)
+    first_running = next(i for i, s in enumerate(seen) if s.state == "running")
+    assert all(s.state == "starting" for s in seen[:first_running])
+    assert proc.returncode == 0

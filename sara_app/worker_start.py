@@ -1,0 +1,57 @@
+"""The cell worker's entry point as ``serve`` starts it (``python -m sara_app.worker_start``,
+the same arguments as ``python -m sara_app.worker``).
+
+Importing the worker loads (and on a fresh install compiles) the safety kernels: up to a
+minute before the worker could say anything. This module imports only the bus, opens a session
+with the worker's credentials and publishes ``starting`` statuses (:mod:`sara_app.bus.starting`)
+while the worker's modules load; then it hands over to :func:`sara_app.worker.main`, which says
+``starting`` again while it builds its cell. Without a router it just starts the worker.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import sys
+from pathlib import Path
+
+from sara_app.bus import keys
+from sara_app.bus.access import Credentials, client_auth
+from sara_app.bus.session import Bus
+from sara_app.bus.starting import Starting
+from sara_app.errors import SaraError
+
+LOADING = "loading the worker and compiling the safety kernels"
+
+
+def _early_args(argv: list[str]) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(add_help=False)
+    ap.add_argument("--cell", default="cell1")
+    ap.add_argument("--scenario", default="standing_beside_path")
+    ap.add_argument("--port", type=int, default=7447)
+    ap.add_argument("--zenoh-user", default=None)
+    ap.add_argument("--zenoh-credentials", default=None)
+    return ap.parse_known_args(argv)[0]
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    a = _early_args(argv)
+    with contextlib.ExitStack() as stack:
+        try:
+            cell = keys.check_name("cell", a.cell)
+            auth = None
+            if a.zenoh_user and a.zenoh_credentials:
+                auth = client_auth(a.zenoh_user, Credentials(a.zenoh_credentials))
+            bus = stack.enter_context(Bus.client(a.port, auth=auth))
+            pub = bus.publisher(keys.status_key(cell))
+            stack.enter_context(Starting(pub, cell, Path(a.scenario).stem, LOADING))
+        except (SaraError, OSError):
+            pass  # no early word: the worker reports its own errors
+        from sara_app import worker  # the heavy import this module exists for
+
+    return worker.main(argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
