@@ -41,7 +41,7 @@ from sara_app.bus.messages import (
 from sara_app.bus.ownership import claim_cell
 from sara_app.bus.process import process_main
 from sara_app.bus.session import Bus
-from sara_app.bus.starting import Starting
+from sara_app.bus.starting import Starting, last_status_seq
 from sara_app.cell import Cell, build_cell
 from sara_app.cell_state import CellState
 from sara_app.errors import SaraError
@@ -109,6 +109,7 @@ class CellWorker:
         self.display_period = 1.0 / display_hz
         self.status_period = 1.0 / status_hz
         self.pub_status = bus.publisher(keys.status_key(self.name))
+        self.pub_status.continue_after(last_status_seq(self.name))  # after the entry point's
         with Starting(self.pub_status, self.name, scenario.name, BUILDING):
             self.cell = build_cell(scenario)
         inp = scenario.inputs

@@ -287,6 +287,9 @@ def test_the_worker_as_serve_starts_it_says_starting_while_it_loads(tmp_path: Pa
         finally:
             proc.kill()
         seen = [d.msg for d in status.drain().messages if isinstance(d.msg, StatusMsg)]
+        # the worker numbers its statuses after the entry point's: none refused as out of order
+        assert status.decoder.rejected == 0
+    assert all(b.seq > a.seq for a, b in zip(seen, seen[1:]))
     details = [s.detail for s in seen if s.state == "starting"]
     assert details and details[0].startswith("loading the worker and compiling")
     # (the "building the cell" statuses of a warm start can all come before the worker's new

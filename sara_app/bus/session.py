@@ -191,6 +191,11 @@ class Publisher:
         self._seq += 1
         return self._seq
 
+    def continue_after(self, seq: int) -> None:
+        """Number the next message after ``seq`` (another publisher of this process used the
+        key before: its subscribers would refuse a restart from 0 as out of order)."""
+        self._seq = max(self._seq, int(seq))
+
     def has_subscribers(self) -> bool:
         """Whether a matching subscriber is known (e.g. to wait before a first message)."""
         try:

@@ -17,6 +17,15 @@ from sara_app.bus.messages import StatusMsg
 
 log = logging.getLogger("sara_app.worker")
 
+_LAST_SEQ: dict[str, int] = {}
+"""Per cell, the last status seq a :class:`Starting` of this process sent."""
+
+
+def last_status_seq(cell: str) -> int:
+    """The last status seq this process sent for ``cell`` (-1: none): a later publisher
+    continues after it (:meth:`~sara_app.bus.session.Publisher.continue_after`)."""
+    return _LAST_SEQ.get(cell, -1)
+
 
 class Starting:
     """A ``starting`` status of ``cell`` every ``period_s`` on ``pub`` saying ``what`` is being
@@ -40,10 +49,12 @@ class Starting:
         self.thread.join(2.0)
 
     def _run(self) -> None:
+        self.pub.continue_after(last_status_seq(self.cell))
         while True:
             now = time.time()
             try:
-                self.pub.put(StatusMsg(seq=self.pub.next_seq(), stamp_s=now, cell=self.cell,
+                seq = _LAST_SEQ[self.cell] = self.pub.next_seq()
+                self.pub.put(StatusMsg(seq=seq, stamp_s=now, cell=self.cell,
                                        state="starting", scenario=self.scenario,
                                        uptime_s=now - self.t0,
                                        detail=f"{self.what} ({now - self.t0:.0f} s)"))  # fmt: skip
