@@ -38,6 +38,7 @@ from sara_app.dashboard.scene import (
 )
 from sara_app.dashboard.viewer import Dashboard
 from sara_app.errors import ScenarioError, UnknownNameError
+from sara_app.scenario import load_scenario, scenario_names
 
 
 @pytest.fixture(scope="module")
@@ -168,6 +169,19 @@ def test_scenario_callbacks_and_refusals(dash: Dashboard) -> None:
     params = {"human": {"v_max": 2.0, "full_body": True, "name": "x", "radii": [0.1, 0.2]}}
     panels.set_params(params)
     assert panels.apply_params() and got[-1] == ("edit", params)
+    # a box's centre is a vector input of its own; editing it edits that box only
+    boxes = {"human": params["human"], "environment": [
+        {"name": "table", "center_m": [0.6, 0.0, 0.1], "size_m": [0.5, 1.6, 0.2]},
+        {"name": "shelf", "center_m": [0.0, 0.8, 0.5], "size_m": [0.3, 0.3, 1.0]}]}  # fmt: skip
+    panels.set_params(boxes)
+    centre = panels._param_inputs["environment[1].center_m"]
+    assert tuple(centre.value) == (0.0, 0.8, 0.5)
+    centre.value = (0.1, 0.9, 0.5)
+    assert panels.apply_params()
+    sent = got[-1][1]
+    assert sent["environment"][1]["center_m"] == [0.1, 0.9, 0.5]
+    assert sent["environment"][0] == boxes["environment"][0]
+    panels.set_params(params)
     panels._param_inputs["human.v_max"].value = -1.0
     n = len(got)
     assert not panels.apply_params() and len(got) == n
@@ -178,6 +192,14 @@ def test_flatten_round_trip_and_status_table() -> None:
     nested = {"a": {"b": 1, "c": {"d": [1, 2]}}, "e": "x"}
     assert flatten(nested) == {"a.b": 1, "a.c.d": [1, 2], "e": "x"}
     assert unflatten(flatten(nested)) == nested
+    # people and boxes: one input per field of each item; every shipped scenario round-trips
+    people = {"humans": [{"id": "p1", "sensor": {"rate_hz": 60.0}}, {"id": "p2"}], "none": []}
+    assert flatten(people) == {"humans[0].id": "p1", "humans[0].sensor.rate_hz": 60.0,
+                               "humans[1].id": "p2", "none": []}  # fmt: skip
+    assert unflatten(flatten(people)) == people
+    for name in scenario_names():
+        data = load_scenario(name).model_dump(mode="json")
+        assert unflatten(flatten(data)) == data, name
     status = {"mode": "failsafe", "min_distance_m": float("inf"), "dropped": {"bad": 3}}
     md = status_markdown(status)
     assert "failsafe" in md and "inf" in md and "bad: 3" in md and "n/a" in md

@@ -202,12 +202,17 @@ def link_energy_markdown(links: list[LinkEnergy]) -> str:
 
 
 def flatten(params: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    """Nested dict to ``{"a.b.c": leaf}``."""
+    """Nested dict to ``{"a.b.c": leaf}`` (an empty dict is a leaf); a non-empty list of
+    objects (the people, the boxes) is flattened item by item as ``"humans[0].position_m"``, so
+    each field gets its own input."""
     out: dict[str, Any] = {}
     for k, v in params.items():
         key = f"{prefix}{k}"
-        if isinstance(v, dict):
+        if isinstance(v, dict) and v:
             out.update(flatten(v, key + "."))
+        elif isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
+            for i, item in enumerate(v):
+                out.update(flatten(item, f"{key}[{i}]."))
         else:
             out[key] = v
     return out
@@ -217,12 +222,25 @@ def unflatten(flat: dict[str, Any]) -> dict[str, Any]:
     """Inverse of :func:`flatten`."""
     out: dict[str, Any] = {}
     for key, v in flat.items():
-        node = out
+        node: Any = out
         *path, leaf = key.split(".")
         for p in path:
-            node = node.setdefault(p, {})
+            name, _, index = p.partition("[")
+            if index:  # "humans[0]": item 0 of the list "humans"
+                items = node.setdefault(name, [])
+                i = int(index.rstrip("]"))
+                while len(items) <= i:
+                    items.append({})
+                node = items[i]
+            else:
+                node = node.setdefault(p, {})
         node[leaf] = v
     return out
+
+
+def _is_vector(v: Any, n: int) -> bool:
+    return (isinstance(v, list | tuple) and len(v) == n
+            and all(isinstance(x, int | float) and not isinstance(x, bool) for x in v))  # fmt: skip
 
 
 class RollingSeries:
@@ -432,7 +450,9 @@ class DashboardPanels:
 
     def set_params(self, params: dict[str, Any]) -> None:
         """Show editable inputs for ``params`` (nested dict of numbers, bools, strings, lists;
-        keys must not contain '.'). Replaces the previous inputs."""
+        keys must not contain '.' or '['): a number box, checkbox or text per field, 2- and
+        3-vectors as vector inputs, the fields of each person and box on their own, other lists
+        as JSON text. Replaces the previous inputs."""
         for handle in self._param_inputs.values():
             handle.remove()
         self._params = flatten(params)
@@ -444,6 +464,11 @@ class DashboardPanels:
                     inputs[key] = gui.add_checkbox(key, v)
                 elif isinstance(v, int | float):
                     inputs[key] = gui.add_number(key, v, step=1 if isinstance(v, int) else None)
+                elif _is_vector(v, 2):  # positions on the floor, e.g. a person's
+                    inputs[key] = gui.add_vector2(key, (float(v[0]), float(v[1])), step=0.01)
+                elif _is_vector(v, 3):  # box centres and sizes, targets, offsets
+                    xyz = (float(v[0]), float(v[1]), float(v[2]))
+                    inputs[key] = gui.add_vector3(key, xyz, step=0.01)
                 else:
                     text = v if isinstance(v, str) else json.dumps(v)
                     inputs[key] = gui.add_text(key, text)
@@ -455,7 +480,9 @@ class DashboardPanels:
         out: dict[str, Any] = {}
         for key, orig in self._params.items():
             value = self._param_inputs[key].value
-            if not isinstance(orig, bool | int | float | str):
+            if _is_vector(orig, 2) or _is_vector(orig, 3):
+                value = [float(x) for x in value]
+            elif not isinstance(orig, bool | int | float | str):
                 value = json.loads(value)
             out[key] = value
         return unflatten(out)
