@@ -34,16 +34,16 @@ function card(c) {
   const stale = c.online && (c.verdict_age_s === null || c.verdict_age_s > STALE_S);
   const mode = c.online && !stale && MODES.includes(c.mode) ? c.mode : "rest";
   const el = document.createElement("article");
-  el.className = "cell mode-" + mode + (c.online ? "" : " offline");
+  el.className = "cell mode-" + mode + (c.online || c.starting ? "" : " offline");
   el.dataset.cell = c.cell;
   el.dataset.mode = !c.online ? "offline" : stale ? "stale" : c.mode || "";
   const h = document.createElement("h2");
   h.textContent = c.cell;
   const badge = document.createElement("span");
   badge.className = "badge";
-  const starting = c.online && c.state === "starting";
+  const starting = !!c.starting;
   if (starting) el.dataset.mode = "starting";
-  badge.textContent = !c.online ? "offline" : starting ? "starting"
+  badge.textContent = starting ? "starting" : !c.online ? "offline"
     : stale ? "no recent verdict" : c.mode;
   const safety = document.createElement("span");
   safety.className = "tag";

@@ -644,7 +644,9 @@ def test_landing_page_says_a_cell_is_starting(folder: Path) -> None:
                 )
                 text = str(page.eval(f"{card}.textContent"))
             assert "building the cell: compiling (2 s)" in text
-            assert reg.cell("cell1")["state"] == "starting"  # type: ignore[index]
+            snap = reg.cell("cell1")
+            assert snap is not None and snap["state"] == "starting" and snap["starting"]
+            assert not snap["online"]  # online means running and reporting
         finally:
             worker.close()
             server.stop()

@@ -250,14 +250,16 @@ class CellRegistry:
         elif st is not None:
             p50, p99 = st.cycle_time_p50_us, st.cycle_time_p99_us
         verdict_age = _age(now_s, c.verdict_recv_s)
+        fresh = status_age is not None and status_age < self.offline_after_s
+        starting = fresh and st is not None and st.state == "starting"
+        # online: running and reporting (a worker still building its cell is "starting")
         online = (
-            status_age is not None
-            and status_age < self.offline_after_s
-            and (verdict_age is None or verdict_age < self.verdict_stale_s)
+            fresh and not starting and (verdict_age is None or verdict_age < self.verdict_stale_s)
         )
         return {
             "cell": c.name,
             "online": online,
+            "starting": starting,
             "state": None if st is None else st.state,
             "detail": "" if st is None else st.detail,
             "scenario": None if st is None else st.scenario,
