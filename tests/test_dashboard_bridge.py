@@ -518,3 +518,21 @@ def test_before_the_first_verdict_the_status_says_what_the_worker_does(
     assert dash.panels is not None
     dash.panels.show_waiting(status)
     assert "starting: building the cell" in dash.panels.status.content
+
+
+def test_the_pfl_table_and_the_status_show_the_same_cycle(view: tuple[CellView, FakeBus]) -> None:
+    """The occupancy (link table, colours) comes at display rate, verdicts every cycle: the
+    frame shows the verdict of the occupancy's own cycle, not a later one."""
+    v, bus = view
+    occ = _occupancy()  # stamped 1.0
+    own = _verdict("pfl", speed_scale=0.07, intervened=True).model_copy(update={"stamp_s": 1.0})
+    later = _verdict("pfl", speed_scale=1.0).model_copy(update={"stamp_s": 1.004, "seq": 2})
+    _feed(bus, occ, own)
+    bus.feed(keys.verdict_key(CELL), later)
+    frame = v.poll()
+    assert frame is not None and frame.t_s == 1.0
+    assert frame.status["speed_scale"] == 0.07 and frame.status["intervened"]
+    # an occupancy whose cycle's verdict is gone: the latest verdict
+    _feed(bus, occ.model_copy(update={"stamp_s": 0.5}), later.model_copy(update={"seq": 3}))
+    frame = v.poll()
+    assert frame is not None and frame.status["speed_scale"] == 1.0

@@ -59,6 +59,9 @@ from sara_app.scenario import (
 
 log = logging.getLogger("sara_app.dashboard")
 _EDIT_EXCLUDE = ("schema_version", "name", "description")
+VERDICTS_KEPT = 256
+"""Verdicts kept to find the one of an occupancy's cycle (about 0.5 s at 500 Hz; occupancies
+come at 15 Hz)."""
 
 
 class CellView(GizmoEditing):
@@ -94,6 +97,8 @@ class CellView(GizmoEditing):
         self.q: np.ndarray | None = None
         self.occ: OccupancyMsg | None = None
         self.verdict: VerdictMsg | None = None
+        self.recent: deque[VerdictMsg] = deque(maxlen=VERDICTS_KEPT)
+        """The latest verdicts: the one of the occupancy's own cycle is shown with it."""
         self.cycle_us: deque[float] = deque(maxlen=1000)
         self.gizmos: list[Any] = []
         self._seq = 0
@@ -114,6 +119,7 @@ class CellView(GizmoEditing):
         for d in self.sub_verdict.drain().messages:
             if isinstance(d.msg, VerdictMsg):
                 self.verdict = d.msg
+                self.recent.append(d.msg)
                 self.cycle_us.append(d.msg.cycle_time_us)
         for d in self.sub_occ.drain().messages:
             if isinstance(d.msg, OccupancyMsg):
@@ -139,7 +145,7 @@ class CellView(GizmoEditing):
         """The frame of the latest verdict, robot command and occupancy."""
         if self.q is None or self.verdict is None:
             raise ScenarioError("no verdict and robot command received yet")
-        v = self.verdict
+        v = self._verdict_of_occupancy() or self.verdict
         frame = DisplayFrame(
             t_s=v.stamp_s,
             q=self.q,
@@ -150,6 +156,18 @@ class CellView(GizmoEditing):
         if self.occ is not None:
             occupancy_into(frame, self.occ)
         return frame
+
+    def _verdict_of_occupancy(self) -> VerdictMsg | None:
+        """The verdict of the cycle the latest occupancy comes from (the worker stamps both
+        with the cycle's time): the status, the colours and the PFL link table then show one
+        cycle (the occupancy comes at display rate, the verdicts every cycle). None when it
+        is no longer kept (the latest verdict is shown then)."""
+        if self.occ is None:
+            return None
+        for v in reversed(self.recent):
+            if v.stamp_s == self.occ.stamp_s:
+                return v
+        return None
 
     # -- editing -------------------------------------------------------------------------------
 
