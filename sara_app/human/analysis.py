@@ -232,16 +232,16 @@ def _occupancies_at(
     if np.allclose(filled[np.isfinite(tau).all(axis=1)], first, rtol=0, atol=1e-12):
         return occupancies(reach, times_s, y, first, first, models)
     rs = rates(reach, times_s, y, models)
-    out = {m: Occupancy(m, np.empty((0,)), np.empty((0,)), ()) for m in models}
     ends: dict[str, list[np.ndarray]] = {m: [] for m in models}
     radius: dict[str, list[np.ndarray]] = {m: [] for m in models}
+    names: dict[str, tuple[str, ...]] = {}
     for i in range(y.shape[0]):
         row = occupancies(reach, times_s, y, filled[i], filled[i], models, np.array([i]), rs)
         for m in models:  # copies: the kernels' outputs are buffers reused by the next call
             ends[m].append(np.array(row[m].ends))
             radius[m].append(np.array(row[m].radius))
-            out[m] = Occupancy(m, out[m].ends, out[m].radius, row[m].names)
-    return {m: Occupancy(m, np.concatenate(ends[m]), np.concatenate(radius[m]), out[m].names)
+            names[m] = row[m].names
+    return {m: Occupancy(m, np.concatenate(ends[m]), np.concatenate(radius[m]), names[m])
             for m in models}  # fmt: skip
 
 

@@ -130,12 +130,11 @@ def bone_indices(joints: tuple[str, ...] = FULL_JOINTS) -> np.ndarray:
 
 @dataclass
 class Gate:
-    """The gate of one person. ``v_max_mps`` ``(J,)``; ``bone_m`` ``(B,)`` this person's bone
-    lengths in ``bones`` order (None: the settings' known ones, the rest learned online)."""
+    """The gate of one person. ``v_max_mps`` ``(J,)``; the bone lengths are the settings'
+    known ones, the rest learned online."""
 
     v_max_mps: np.ndarray
     settings: GateSettings = GateSettings()
-    bone_m: np.ndarray | None = None
     bones: np.ndarray = field(default_factory=bone_indices)
     counts: dict[str, int] = field(default_factory=lambda: dict.fromkeys(FLAGS + ("refused",), 0))
     """Joint-frames flagged per check, and frames refused, since the gate was built."""
@@ -143,7 +142,7 @@ class Gate:
     def __post_init__(self) -> None:
         self.v_max_mps = np.asarray(self.v_max_mps, dtype=float)
         J = len(self.v_max_mps)
-        self.length_m = self._known(self.settings) if self.bone_m is None else np.array(self.bone_m)
+        self.length_m = self._known(self.settings)
         """``(B,)`` the bone lengths checked (nan: not known yet, being learned)."""
         self.y_trusted = np.zeros((J, 3))
         self.t_trusted = np.full(J, -np.inf)

@@ -120,20 +120,21 @@ def screen(
     a_max_mps2: np.ndarray,
     settings: IntakeSettings | None = None,
 ) -> Screening:
-    """Every frame ``y (T, J, 3)`` through a fresh intake (as a live cell would see it)."""
+    """Every frame ``y (T, J, 3)`` through a fresh intake (:meth:`Intake.take`, as a live cell
+    takes it: a refused frame feeds neither the estimator nor the monitor)."""
     intake = Intake(delta_y_m, v_max_mps, a_max_mps2, settings or IntakeSettings())
     T, J = y.shape[:2]
     held = np.zeros((T, J), bool)
     flags = np.zeros((T, J, len(FLAGS)), bool)
     refused = np.zeros(T, bool)
     violations: list[Violation] = []
-    for i in range(T):
-        g = intake.gate.check(float(times_s[i]), y[i], delta_y_m, J)
-        held[i], flags[i], refused[i] = ~g.trusted, g.flags, g.refused
-        intake.estimator.update(float(times_s[i]), g.y, g.trusted)
-        violations += intake.monitor.observe(
-            float(times_s[i]), g.y, g.trusted, delta_y_m, g.jump_speed_mps
-        )
     m = intake.monitor
+    for i in range(T):
+        t = float(times_s[i])
+        intake.take(t, y[i], delta_y_m, J)
+        g = intake.gate.out  # this frame's gate result, refused or not
+        held[i], flags[i], refused[i] = ~g.trusted, g.flags, g.refused
+        if m.last_violation_s == t:  # the monitor found violations in this frame
+            violations += m.last
     return Screening(held, flags, refused, violations, intake.counts(), m.peak_speed_mps,
                      m.peak_acc_mps2)  # fmt: skip
