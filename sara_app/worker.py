@@ -56,7 +56,14 @@ from sara_app.safety.pfl_shield import PflShield
 from sara_app.safety.shield import CycleResult, Shield
 from sara_app.safety.thresholds import link_shapes
 from sara_app.scenario import Scenario, check_against_robot, parse_scenario
-from sara_app.worker_display import jssa_state, part_labels, pfl_contacts, pfl_links
+from sara_app.worker_display import (
+    EFFECTIVE,
+    effective_set,
+    jssa_state,
+    part_labels,
+    pfl_contacts,
+    pfl_links,
+)
 from sara_app.worker_edits import MAX_PENDING_EDITS, Built, CellBuilder, build
 from sara_app.worker_messages import CycleMessages
 from sara_app.worker_robot import MeasuredRobot
@@ -498,6 +505,7 @@ class CellWorker:
                 continue
             age = max(now - st.stamp_s, 0.0)
             models = {}
+            per_part = []  # (ends, radius, part map) of the models that map body parts
             for name in self.shield.verifier.models:
                 try:
                     o = reach.model(
@@ -508,14 +516,19 @@ class CellWorker:
                         np.array([age]),
                         np.array([age + horizon]),
                     )
+                    part_map = part_capsules(reach, name)
                 except SaraError:
                     continue
                 radius = o.radius[0, 0]
                 if st.widen_m is not None:  # as verified: widened per body part
                     row = st.widen_m[MODELS.index(name)]
-                    radius = radius + per_capsule(row, part_capsules(reach, name), len(radius))
+                    radius = radius + per_capsule(row, part_map, len(radius))
                 if np.all(np.isfinite(radius)):
                     models[name] = CapsulesMsg.from_arrays(o.ends[0, 0], radius)
+                    per_part.append((o.ends[0, 0], radius, part_map))
+            eff = effective_set(per_part)
+            if eff is not None:
+                models[EFFECTIVE] = CapsulesMsg.from_arrays(*eff)
             humans.append(
                 HumanOccupancyMsg(
                     id=st.id, kind="full", joints_m=st.y.ravel().tolist(), models=models

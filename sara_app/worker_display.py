@@ -13,6 +13,9 @@ from typing import Any, cast
 import numpy as np
 
 from sara_app.bus.messages import ContactMsg, JssaMsg, LinkEnergyMsg
+from sara_app.dashboard.frame import EFFECTIVE
+
+__all__ = ["EFFECTIVE", "effective_set", "jssa_state", "part_labels", "pfl_contacts", "pfl_links"]
 
 CLASS_BY_CODE: dict[int, str] = {1: "unconstrained", 2: "env-constrained", 3: "self-constrained"}
 """Contact class codes of :mod:`sara_app.safety.contact` (0: none) as message names."""
@@ -24,6 +27,30 @@ MAX_CONTACTS = 64
 def part_labels(human_ids: Sequence[str], part_names: Sequence[str]) -> list[tuple[str, str]]:
     """``(human id, body part)`` of each of the ``len(human_ids) * len(part_names)`` parts."""
     return [(h, p) for h in human_ids for p in part_names]
+
+
+def effective_set(
+    sets: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """What the per-body-part verdict uses, one capsule per body part: of the models' capsules
+    for that part (``sets``: per model ``ends (C, 2, 3)``, ``radius (C,)`` and its part ->
+    capsule map ``(P,)``, :func:`~sara_app.human.reach.part_capsules`), the one of least
+    volume. Every model's capsule of a part contains the part, so the shown capsule contains
+    the intersection the verdict proves clear (it is never smaller). Returns ``ends (P, 2, 3)``,
+    ``radius (P,)``, or None without any model."""
+    best: tuple[np.ndarray, np.ndarray] | None = None
+    volume: np.ndarray | None = None
+    for ends, radius, part_map in sets:
+        e, r = ends[part_map], radius[part_map]
+        length = np.linalg.norm(e[:, 1] - e[:, 0], axis=1)
+        v = np.pi * r**2 * (length + 4.0 / 3.0 * r)
+        v = np.where(np.isfinite(v), v, np.inf)
+        if best is None or volume is None:
+            best, volume = (e.copy(), r.copy()), v
+            continue
+        smaller = v < volume
+        best[0][smaller], best[1][smaller], volume[smaller] = e[smaller], r[smaller], v[smaller]
+    return best
 
 
 def _finite_or_none(x: float) -> float | None:

@@ -260,7 +260,7 @@ def test_pfl_frame_is_drawn_coloured_by_contact_with_the_link_table(
     scene, panels = dash.scene, dash.panels
     assert scene is not None and panels is not None
     n = frame.robot_radius.size
-    colors = np.asarray(scene.occupancy.tubes.handle.batched_colors)[:n].reshape(3, 9, 3)  # type: ignore[union-attr]
+    colors = np.asarray(scene.occupancy_contact.tubes.handle.batched_colors)[:n].reshape(3, 9, 3)  # type: ignore[union-attr]
     assert frame.contact_class is not None
     for (k, i), cls in np.ndenumerate(frame.contact_class):
         if cls:

@@ -12,7 +12,7 @@ import pytest
 from browser import CHROMIUM, DevTools, chromium_on, wait_for
 
 from sara_app.dashboard.frame import CONTACT_ENV, MODEL_NAMES
-from sara_app.dashboard.scene import demo_frame
+from sara_app.dashboard.scene import LAYERS, demo_frame
 from sara_app.dashboard.viewer import Dashboard
 
 pytestmark = pytest.mark.skipif(
@@ -111,7 +111,7 @@ def test_page_connects_and_renders_the_verdict(
     # The URDF robot alone: everything else hidden, then the robot too; the images differ.
     scene = dash.scene
     assert scene is not None
-    for name in (*MODEL_NAMES, "occupancy", "skeletons", "contacts", "boxes", "critical_pair"):
+    for name in (*MODEL_NAMES, *(n for n in LAYERS if n != "robot")):
         scene.set_visible(name, False)
     dash.update(frame)
     red_elsewhere = _dominant(green, 0) + 50  # e.g. the axes gizmo

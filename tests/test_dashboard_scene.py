@@ -14,6 +14,7 @@ from sara_app.dashboard.frame import (
     CONTACT_ENV,
     CONTACT_SELF,
     CONTACT_UNCONSTRAINED,
+    EFFECTIVE,
     MODEL_NAMES,
     LinkEnergy,
 )
@@ -31,8 +32,10 @@ from sara_app.dashboard.scene import (
     CONTACT_RGB,
     CRITICAL_ACTIVE_RGB,
     CRITICAL_IDLE_RGB,
+    DEFAULT_VISIBLE,
     UNVERIFIED_RGB,
     VERIFIED_RGB,
+    VIEW_NAMES,
     demo_frame,
     occupancy_colors,
 )
@@ -45,8 +48,33 @@ from sara_app.scenario import load_scenario, scenario_names
 def dash() -> Iterator[Dashboard]:
     d = Dashboard()
     d.start(port=8690)
+    assert d.scene is not None
+    for name in (*MODEL_NAMES, "occupancy"):  # every group sends its data
+        d.scene.set_visible(name, True)
     yield d
     d.stop()
+
+
+def test_by_default_the_effective_set_and_the_robot_are_shown() -> None:
+    """What a new dashboard shows before any browser chose otherwise: each person's effective
+    set (no per-model sets), the robot, its occupancy coloured by contact class; a hidden set
+    is not sent."""
+    d = Dashboard()
+    d.start(port=8695)
+    try:
+        scene = d.scene
+        assert scene is not None
+        assert d.update(demo_frame(1.0))
+        shown = {m for m, g in scene.models.items() if g.visible}
+        assert shown == {EFFECTIVE}
+        assert scene.robot_frame.visible and scene.occupancy_contact.visible
+        assert not scene.occupancy.visible
+        assert scene.models[EFFECTIVE].count == 14 and scene.models["pos"].count == 0
+        hidden = np.asarray(scene.models["pos"].tubes.handle.batched_scales)  # type: ignore[union-attr]
+        assert np.all(hidden == 0.0)
+        assert set(DEFAULT_VISIBLE) == set(VIEW_NAMES)
+    finally:
+        d.stop()
 
 
 def test_start_reports_real_port_on_loopback(dash: Dashboard) -> None:
@@ -66,13 +94,15 @@ def test_occupancy_colours_follow_verdict_and_contact(dash: Dashboard) -> None:
         frame = demo_frame(1.0, verified=verified)
         assert dash.update(frame)
         n = frame.robot_radius.size
-        colors = np.asarray(scene.occupancy.tubes.handle.batched_colors)[:n]  # type: ignore[union-attr]
+        plain = np.asarray(scene.occupancy.tubes.handle.batched_colors)[:n]  # type: ignore[union-attr]
+        assert np.all(plain == rgb)  # the verdict colouring
+        colors = np.asarray(scene.occupancy_contact.tubes.handle.batched_colors)[:n]  # type: ignore[union-attr]
         cc = frame.contact_class.reshape(-1)  # type: ignore[union-attr]
         assert np.all(colors[cc == 0] == rgb)
         for cls in (CONTACT_UNCONSTRAINED, CONTACT_ENV, CONTACT_SELF):
             assert np.all(colors[cc == cls] == CONTACT_RGB[cls])
         # the caps of capsule i carry capsule i's colour
-        caps = np.asarray(scene.occupancy.caps.handle.batched_colors)[: 2 * n]  # type: ignore[union-attr]
+        caps = np.asarray(scene.occupancy_contact.caps.handle.batched_colors)[: 2 * n]  # type: ignore[union-attr]
         assert np.all(caps.reshape(n, 2, 3) == colors[:, None])
     plain = occupancy_colors(4, True, np.array([0, 1, 2, 3]), by_contact=False)
     assert np.all(plain == VERIFIED_RGB)
@@ -104,7 +134,9 @@ def test_model_toggle_and_unknown_model(dash: Dashboard) -> None:
     assert dash.update(demo_frame(3.0))
     scene.set_visible("vel", True)
     assert scene.models["vel"].caps.handle.visible  # type: ignore[union-attr]
-    with pytest.raises(UnknownNameError, match="valid choices: pos, vel.*robot, occupancy"):
+    with pytest.raises(
+        UnknownNameError, match="valid choices: effective, pos, vel.*robot, occupancy"
+    ):
         scene.set_visible("speed", True)
     scene.set_visible("skeletons", False)
     assert dash.update(demo_frame(3.05)) and not scene.skeleton.visible

@@ -93,3 +93,43 @@ def test_jssa_state_from_a_real_cycle():
     d = np.linalg.norm(np.subtract(msg.robot_point_m, msg.other_point_m))
     assert d == pytest.approx(res.distance_m, abs=1e-6)
     assert msg.active == res.active and msg.d_min_m == 0.05
+
+
+def test_the_effective_set_is_per_body_part_the_least_model_capsule_that_holds_it() -> None:
+    """``effective_set`` on real reach models of a walking pose: one capsule per body part,
+    each one of the models' own capsules for that part and the one of least volume (checked
+    against a brute-force loop), and every point of the part's body inside it."""
+    from sara_app.geometry import point_segment_distance
+    from sara_app.human.params import load_param_set, to_reach_params
+    from sara_app.human.reach import HumanReach, part_capsules
+    from sara_app.human.scripted import joints, standing
+    from sara_app.worker_display import effective_set
+
+    reach = HumanReach(to_reach_params(load_param_set("work"), "full"))
+    y = joints(standing((1.0, 0.2), 0.3))
+    rng = np.random.default_rng(3)
+    v = rng.normal(scale=0.8, size=y.shape)
+    dv = np.full(len(y), 0.04)
+    sets = []
+    for name in ("pos", "vel", "acc", "combined"):
+        o = reach.model(name, y[None], v[None], dv[None], np.array([0.01]), np.array([0.3]))
+        sets.append((o.ends[0, 0], o.radius[0, 0], part_capsules(reach, name)))
+    eff = effective_set(sets)
+    assert eff is not None and effective_set([]) is None
+    ends, radius = eff
+    P = reach.skeleton.n_parts
+    assert ends.shape == (P, 2, 3) and radius.shape == (P,)
+
+    def volume(e: np.ndarray, r: float) -> float:
+        return float(np.pi * r**2 * (np.linalg.norm(e[1] - e[0]) + 4.0 / 3.0 * r))
+
+    half = reach.params.half_thickness_m
+    for p, (a, b) in enumerate(reach.skeleton.part_joints):
+        options = [(volume(e[m[p]], r[m[p]]), e[m[p]], r[m[p]]) for e, r, m in sets]
+        best = min(options, key=lambda o: o[0])
+        np.testing.assert_array_equal(ends[p], best[1])
+        assert radius[p] == best[2]
+        assert volume(ends[p], radius[p]) <= min(o[0] for o in options)
+        for s in np.linspace(0.0, 1.0, 5):  # the part's axis, grown by its half thickness
+            x = (1 - s) * y[a] + s * y[b]
+            assert float(point_segment_distance(x, ends[p])) + half[p] <= radius[p] + 1e-9

@@ -11,8 +11,12 @@ from typing import Any
 
 import numpy as np
 
-MODEL_NAMES: tuple[str, ...] = ("pos", "vel", "acc", "iso13855", "arm", "combined")
-"""Human reachability models the dashboard knows (one capsule group and one toggle each)."""
+EFFECTIVE = "effective"
+"""Each person's effective set: per body part the least of the models' capsules for it (the
+worker's :func:`~sara_app.worker_display.effective_set`)."""
+MODEL_NAMES: tuple[str, ...] = (EFFECTIVE, "pos", "vel", "acc", "iso13855", "arm", "combined")
+"""Human sets the dashboard knows: the effective set and the reachability models (one capsule
+group and one toggle each)."""
 
 CONTACT_NONE, CONTACT_UNCONSTRAINED, CONTACT_ENV, CONTACT_SELF = 0, 1, 2, 3
 """Values of :attr:`DisplayFrame.contact_class`: no contact possible, free (unconstrained)

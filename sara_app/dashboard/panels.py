@@ -72,7 +72,8 @@ LEGEND_MD = (
             _swatch(CONTACT_RGB[CONTACT_SELF], "clamped between robot links"),
         )
     )
-    + "<br/>**Human sets** (one colour per model, each can be hidden under Show): "
+    + "<br/>**Human sets** (by default each person's effective set, what the verdict uses; the "
+    "models' own sets on demand under View (this browser)): "
     + ", ".join(_swatch(MODEL_COLORS[m], m) for m in MODEL_NAMES)
     + "<br/>**JSSA critical pair** (robot point to human point): "
     + ", ".join(
@@ -299,21 +300,18 @@ def _uplot(
 
 
 class DashboardPanels:
-    """The GUI of one dashboard. ``on_toggle(name, visible)`` (one checkbox per name of
-    ``toggle_names``) and ``on_color_by_contact(flag)`` act on the scene; the scenario callbacks
-    on the owner."""
+    """The shared GUI of one dashboard (status, plots, scenario, thresholds); the scenario
+    callbacks act on the owner. What each browser shows is its own
+    (:mod:`sara_app.dashboard.view`)."""
 
     def __init__(
         self,
         server: viser.ViserServer,
-        on_toggle: Callable[[str, bool], None],
-        on_color_by_contact: Callable[[bool], None],
         window_s: float = 30.0,
         plot_period_s: float = 0.2,
         on_select_scenario: Callable[[str], None] | None = None,
         on_save_as: Callable[[str], None] | None = None,
         on_params_edit: Callable[[dict[str, Any]], None] | None = None,
-        toggle_names: tuple[str, ...] = MODEL_NAMES,
         on_set_mode: Callable[[str], None] | None = None,
     ) -> None:
         self.server = server
@@ -346,12 +344,6 @@ class DashboardPanels:
             self.links_folder = gui.add_folder("PFL: link energies and thresholds")
             with self.links_folder:
                 self.links = gui.add_markdown(link_energy_markdown([]))
-            with gui.add_folder("Show"):
-                self.toggles = {m: gui.add_checkbox(m, True) for m in toggle_names}
-            for m, box in self.toggles.items():
-                _forward_toggle(box, m, on_toggle)
-            self.contact_toggle = gui.add_checkbox("Colour by contact state", True)
-            self.contact_toggle.on_update(lambda _e: on_color_by_contact(self.contact_toggle.value))
             gui.add_markdown(LEGEND_MD)
             self.plot_sep = _uplot(gui, "Minimum separation", ("min dist [m]",), ("green",), "m")
             self.plot_cycle = _uplot(
@@ -539,12 +531,6 @@ class DashboardPanels:
         self.error.visible = text is not None
         if text is not None:
             self.error.content = f"**⚠ display error:** {text}"
-
-
-def _forward_toggle(
-    box: viser.GuiCheckboxHandle, model: str, on_toggle: Callable[[str, bool], None]
-) -> None:
-    box.on_update(lambda _e: on_toggle(model, box.value))
 
 
 def _float(value: Any) -> float:

@@ -1,13 +1,18 @@
 """The cell's 3D scene in viser: robot (URDF), skeletons, human and robot capsules, boxes.
 
-Node layout (scene paths): ``/robot`` (URDF via :class:`viser.extras.ViserUrdf`),
-``/humans/skeleton`` (line segments) and ``/humans/joints`` (points), ``/humans/<model>``
-(one translucent capsule group per model of :data:`MODEL_NAMES`), ``/robot_occupancy`` (one
-translucent capsule group, colour per capsule), ``/environment/boxes`` (batched unit boxes),
-``/humans/contact_parts`` (the body parts in possible contact, coloured by contact class),
-``/critical_pair`` (a line, red while JSSA intervenes). :meth:`CellScene.update` sends one
-:class:`DisplayFrame` in one ``server.atomic()`` block; the robot's URDF pose is only recomputed
-when ``q`` changed.
+Every part that can be shown or hidden lives under its own frame ``/view/<name>`` (``name`` one
+of :data:`VIEW_NAMES`): ``/view/robot/base`` (URDF via :class:`viser.extras.ViserUrdf`),
+``/view/skeletons/bones`` (line segments) and ``/view/skeletons/joints`` (points),
+``/view/<model>/capsules`` (one translucent capsule group per set of :data:`MODEL_NAMES`),
+``/view/occupancy/capsules`` (robot capsules in the verdict colour) and
+``/view/occupancy_contact/capsules`` (the same, coloured by contact class),
+``/view/boxes/batch`` (batched unit boxes), ``/view/contacts/capsules`` (the body parts in
+possible contact, coloured by contact class), ``/view/critical_pair/line`` (a line, red while
+JSSA intervenes). Each browser shadows the ``/view/<name>`` frames with its own
+(:mod:`sara_app.dashboard.view`), so what one browser hides stays shown in another;
+:meth:`CellScene.set_visible` says whether any browser shows a part, and parts no browser shows
+are not sent at all. :meth:`CellScene.update` sends one :class:`DisplayFrame` in one
+``server.atomic()`` block; the robot's URDF pose is only recomputed when ``q`` changed.
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ from sara_app.dashboard.frame import (
     CONTACT_ENV,
     CONTACT_SELF,
     CONTACT_UNCONSTRAINED,
+    EFFECTIVE,
     MODEL_NAMES,
     ContactParts,
     DisplayFrame,
@@ -39,6 +45,7 @@ from sara_app.errors import InputError, UnknownNameError
 from sara_app.robot.model import ROBOT_NAMES, urdf_dir
 
 MODEL_COLORS: dict[str, tuple[int, int, int]] = {
+    "effective": (245, 150, 110),
     "pos": (70, 110, 230),
     "vel": (0, 170, 210),
     "acc": (150, 80, 220),
@@ -61,16 +68,34 @@ CRITICAL_IDLE_RGB = (110, 110, 130)
 LAYERS: tuple[str, ...] = (
     "robot",
     "occupancy",
+    "occupancy_contact",
     "skeletons",
     "contacts",
     "boxes",
     "critical_pair",
 )
-"""Scene parts that can be shown or hidden besides the human models."""
+"""Scene parts that can be shown or hidden besides the human sets (``occupancy``: the robot's
+capsules in the verdict colour; ``occupancy_contact``: the same coloured by contact class)."""
+VIEW_NAMES: tuple[str, ...] = MODEL_NAMES + LAYERS
+DEFAULT_VISIBLE: dict[str, bool] = {
+    **{m: m == EFFECTIVE for m in MODEL_NAMES},
+    **dict.fromkeys(LAYERS, True),
+    "occupancy": False,
+}
+"""What a new browser shows: each person's effective set, the skeletons, the robot's mesh and
+its occupancy coloured by contact class (the verdict colour where no contact is possible)."""
+
+
+def view_node(name: str) -> str:
+    """The scene frame that holds view part ``name`` (one of :data:`VIEW_NAMES`)."""
+    return f"/view/{name}"
+
 
 HUMAN_OPACITY = 0.25
 CONTACT_PART_OPACITY = 0.6
 ROBOT_OPACITY = 0.35
+"""Light enough that the robot's mesh shows through its occupancy, dense enough that the verdict
+colour reads over a white background."""
 BOX_OPACITY = 0.5
 Q_EPS_RAD = 1e-4
 """Joint change below which the URDF pose is not redrawn (0.1 mm at 1 m; it costs ~3 ms)."""
@@ -156,25 +181,27 @@ class CellScene:
         if robot not in ROBOT_NAMES:
             raise UnknownNameError("robot", robot, ROBOT_NAMES)
         self.server = server
-        self.color_by_contact = True
         server.scene.set_up_direction("+z")
         server.scene.add_grid("/grid", width=4.0, height=4.0, cell_size=0.25)
+        for name in VIEW_NAMES:  # shadowed per browser (sara_app.dashboard.view)
+            server.scene.add_frame(view_node(name), show_axes=False)
         T = np.eye(4) if T_world_base is None else np.asarray(T_world_base, dtype=float)
         self.robot_frame = server.scene.add_frame(
-            "/robot",
+            "/view/robot/base",
             wxyz=rotation_to_wxyz(T[None, :3, :3])[0],
             position=T[:3, 3],
             show_axes=False,
         )
         urdf = yourdfpy.URDF.load(str(urdf_dir() / f"{robot}.urdf"))
-        self.urdf = ViserUrdf(server, urdf, root_node_name="/robot")
+        self.urdf = ViserUrdf(server, urdf, root_node_name="/view/robot/base")
         self.joint_names = self.urdf.get_actuated_joint_names()
         self._q_shown = np.full(len(self.joint_names), np.nan)
         self.skeleton = server.scene.add_line_segments(
-            "/humans/skeleton", np.zeros((1, 2, 3)), (40, 40, 40), thickness=0.015, visible=False
-        )
+            "/view/skeletons/bones", np.zeros((1, 2, 3)), (40, 40, 40), thickness=0.015,
+            visible=False,
+        )  # fmt: skip
         self.joints = server.scene.add_point_cloud(
-            "/humans/joints",
+            "/view/skeletons/joints",
             np.zeros((1, 3)),
             (20, 20, 20),
             point_size=0.04,
@@ -182,36 +209,46 @@ class CellScene:
             visible=False,
         )
         self.models = {
-            m: CapsuleGroup(server, f"/humans/{m}", HUMAN_OPACITY, 16, MODEL_COLORS[m])
+            m: CapsuleGroup(server, f"{view_node(m)}/capsules", HUMAN_OPACITY, 16, MODEL_COLORS[m])
             for m in MODEL_NAMES
         }
-        self.occupancy = CapsuleGroup(server, "/robot_occupancy", ROBOT_OPACITY, 64)
-        self.contact_parts = CapsuleGroup(
-            server, "/humans/contact_parts", CONTACT_PART_OPACITY, 8, CONTACT_RGB[1]
+        self.occupancy = CapsuleGroup(server, "/view/occupancy/capsules", ROBOT_OPACITY, 64)
+        self.occupancy_contact = CapsuleGroup(
+            server, "/view/occupancy_contact/capsules", ROBOT_OPACITY, 64
         )
-        self.boxes = InstanceBatch(server, "/environment/boxes", unit_box(), BOX_OPACITY, 4)
+        self.contact_parts = CapsuleGroup(
+            server, "/view/contacts/capsules", CONTACT_PART_OPACITY, 8, CONTACT_RGB[1]
+        )
+        self.boxes = InstanceBatch(server, "/view/boxes/batch", unit_box(), BOX_OPACITY, 4)
         self._boxes_shown: tuple[np.ndarray, np.ndarray] | None = None
         self.critical = server.scene.add_line_segments(
-            "/critical_pair", np.zeros((1, 2, 3)), (255, 0, 0), thickness=0.02, visible=False
-        )
+            "/view/critical_pair/line", np.zeros((1, 2, 3)), (255, 0, 0), thickness=0.02,
+            visible=False,
+        )  # fmt: skip
         self.layers = dict.fromkeys(LAYERS, True)
         self._layer_nodes: dict[str, tuple[viser.SceneNodeHandle, ...]] = {
             "skeletons": (self.skeleton, self.joints),
             "critical_pair": (self.critical,),
         }
+        for name, shown in DEFAULT_VISIBLE.items():
+            self.set_visible(name, shown)
 
     # ------------------------------------------------------------------------------------------
     def set_visible(self, name: str, visible: bool) -> None:
-        """Show or hide a human model's capsules (one of :data:`MODEL_NAMES`, all humans) or a
-        layer (one of :data:`LAYERS`)."""
+        """Whether any browser shows a human set (one of :data:`MODEL_NAMES`, all humans) or a
+        layer (one of :data:`LAYERS`): a part no browser shows is hidden and not sent."""
         if name in self.models:
             self.models[name].visible = visible
         elif name in LAYERS:
             self.layers[name] = bool(visible)
             if name == "robot":
                 self.robot_frame.visible = bool(visible)
+                if not visible:
+                    self._q_shown[:] = np.nan  # redrawn when shown again
             elif name == "occupancy":
                 self.occupancy.visible = visible
+            elif name == "occupancy_contact":
+                self.occupancy_contact.visible = visible
             elif name == "boxes":
                 self.boxes.visible = visible
             elif name == "contacts":
@@ -220,7 +257,7 @@ class CellScene:
                 for handle in self._layer_nodes[name]:
                     handle.visible = handle.visible and bool(visible)
         else:
-            raise UnknownNameError("layer or human model", name, MODEL_NAMES + LAYERS)
+            raise UnknownNameError("layer or human set", name, VIEW_NAMES)
 
     def update(self, frame: DisplayFrame) -> None:
         """Render ``frame`` in one atomic batch of messages. The whole frame is checked first:
@@ -240,7 +277,8 @@ class CellScene:
             self._update_skeletons(seg, joints)
             for name, (ends, radius) in models.items():
                 self.models[name].set(ends, radius)
-            self.occupancy.set(*occ)
+            self.occupancy.set(*occ[:2], occ[2])
+            self.occupancy_contact.set(*occ[:2], occ[3])
             self.contact_parts.set(*parts)
             self._update_boxes(*boxes)
             self._update_critical(pair, bool(frame.critical_active))
@@ -275,8 +313,11 @@ class CellScene:
                 out[name] = (np.zeros((0, 2, 3)), np.zeros(0))
         return out
 
-    def _occupancy(self, frame: DisplayFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Occupancy capsules flattened: ends ``(K L, 2, 3)``, radii ``(K L,)``, colours."""
+    def _occupancy(
+        self, frame: DisplayFrame
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Occupancy capsules flattened: ends ``(K L, 2, 3)``, radii ``(K L,)``, colours by
+        verdict and by contact class ``(K L, 3)``."""
         ends = np.asarray(frame.robot_ends, dtype=float)
         radius = np.asarray(frame.robot_radius, dtype=float)
         if ends.ndim != 4 or ends.shape[2:] != (2, 3) or radius.shape != ends.shape[:2]:
@@ -290,12 +331,13 @@ class CellScene:
             if cc.shape != radius.shape:
                 raise InputError(f"contact_class has shape {cc.shape}; expected {radius.shape}")
             cc = cc.reshape(-1)
-        n = radius.size
-        colors = occupancy_colors(n, bool(frame.verified), cc, self.color_by_contact)
-        return ends.reshape(n, 2, 3), radius.reshape(n), colors
+        n, ok = radius.size, bool(frame.verified)
+        by_verdict = occupancy_colors(n, ok, None, False)
+        by_contact = occupancy_colors(n, ok, cc, True)
+        return ends.reshape(n, 2, 3), radius.reshape(n), by_verdict, by_contact
 
     def _update_robot(self, q: np.ndarray) -> None:
-        if not np.all(np.isfinite(q)):
+        if not self.layers["robot"] or not np.all(np.isfinite(q)):
             return  # keep the last drawn pose
         if np.all(np.abs(q - self._q_shown) <= Q_EPS_RAD):
             return

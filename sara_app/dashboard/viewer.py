@@ -18,9 +18,10 @@ import numpy as np
 import viser
 
 from sara_app.dashboard.access import DashboardAccess
-from sara_app.dashboard.frame import MODEL_NAMES, DisplayFrame
+from sara_app.dashboard.frame import DisplayFrame
 from sara_app.dashboard.panels import DashboardPanels
-from sara_app.dashboard.scene import LAYERS, CellScene
+from sara_app.dashboard.scene import CellScene
+from sara_app.dashboard.view import BrowserViews
 from sara_app.errors import InputError, SaraError
 
 log = logging.getLogger(__name__)
@@ -45,6 +46,7 @@ class Dashboard:
         self.server: viser.ViserServer | None = None
         self.scene: CellScene | None = None
         self.panels: DashboardPanels | None = None
+        self.views: BrowserViews | None = None
         self.url: str | None = None
         self.frames_rejected = 0
 
@@ -61,14 +63,8 @@ class Dashboard:
             server.gui.configure_theme(control_width="large")  # room for the tables
             self.access.attach(server)
             scene = CellScene(server, self.robot, self.T_world_base)
-
-            def set_contact(flag: bool) -> None:
-                scene.color_by_contact = flag
-
-            names = MODEL_NAMES + LAYERS
-            self.panels = DashboardPanels(
-                server, scene.set_visible, set_contact, toggle_names=names, **callbacks
-            )
+            self.panels = DashboardPanels(server, **callbacks)
+            self.views = BrowserViews(server, scene.set_visible)
         except BaseException:
             server.stop()
             raise
@@ -98,5 +94,5 @@ class Dashboard:
         """Stop serving (idempotent)."""
         if self.server is not None:
             self.server.stop()
-        self.server = self.scene = self.panels = None
+        self.server = self.scene = self.panels = self.views = None
         self.url = None
