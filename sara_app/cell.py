@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sara_app.checksum import config_checksum
 from sara_app.human.params import ParamSet, ReachParams, to_reach_params
 from sara_app.human.reach import HumanReach
 from sara_app.robot.model import JointLimits, RobotModel, load_robot
@@ -97,6 +98,9 @@ class Cell:
     param_set: ParamSet
     params: ReachParams
     shield: Shield
+    checksum: str
+    """The configuration checksum (:func:`~sara_app.checksum.config_checksum`): reported in the
+    worker's status, printed in the evidence report."""
 
     def next_pass(self, index: int, loop: bool) -> int | None:
         """The pass after ``index``: the next one, or (``loop``) the first one that starts where
@@ -120,4 +124,4 @@ def build_cell(sc: Scenario) -> Cell:
     ps = sc.param_set()
     params = to_reach_params(ps, "full")
     shield = build_safety(sc, robot, follower, HumanReach(params))
-    return Cell(sc, robot, lim, passes, ps, params, shield)
+    return Cell(sc, robot, lim, passes, ps, params, shield, config_checksum(sc))

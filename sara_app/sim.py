@@ -257,6 +257,10 @@ class Simulation:
         self.collisions = 0
         self.first_collision_s: float | None = None
         self.min_sep = math.inf
+        self.separation_m = math.inf
+        """The smallest true body-robot distance of the last step (inf: nobody)."""
+        self.poses: list[np.ndarray] = []
+        """Every person's true joints ``(J, 3)`` at the last step."""
         self.min_sep_moving = math.inf
         self.time_to_goal_s: float | None = None
         self.cycle_us: list[float] = []
@@ -312,6 +316,7 @@ class Simulation:
         touching = False
         for y in poses:
             dmin = body_distance(y, self._parts, self._half_th, ends, rad)
+            self.separation_m = min(self.separation_m, dmin)
             self.min_sep = min(self.min_sep, dmin)
             if moving:
                 self.min_sep_moving = min(self.min_sep_moving, dmin)
@@ -340,6 +345,7 @@ class Simulation:
         q = shield.robot_state.q
         ends, rad = self.robot.link_capsules(q)
         poses = [m.pose(t, ends, rad) for m in self.motions]
+        self.poses = poses
         if not self._hist_t:
             # the people stood still before the start: the sensors have a first frame at once
             self._hist_t.append(t - self.params.delay_s - self.dt)
@@ -351,6 +357,7 @@ class Simulation:
             self._sense(t, i)
         v = shield.robot_state.v
         moving = bool(np.max(np.abs(v), initial=0.0) > _MOVING_RAD_S)
+        self.separation_m = math.inf
         self._collide(q, v, poses, moving)
         faults = [f for f in (s.intake.fault(s.state.id) for s in self.sensors) if f]
         res = self.shield.cycle(

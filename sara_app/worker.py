@@ -588,6 +588,7 @@ class CellWorker:
             humans=sorted(self.presence.tracks),
             cycle_time_p50_us=None if cu is None else float(np.median(cu)),
             cycle_time_p99_us=None if cu is None else float(np.percentile(cu, 99)),
+            config_sha256=self.cell.checksum,
         )
 
     def run(self, duration_s: float | None = None) -> None:

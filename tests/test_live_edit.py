@@ -241,3 +241,41 @@ def test_pfl_threshold_lowered_below_the_link_energies_makes_the_robot_brake(
         assert share_after > max(0.5, share_before + 0.3), (share_before, share_after)
     finally:
         person.close()
+
+
+def _status_checksum(live: Live, not_equal: str | None = None) -> str:
+    deadline = time.monotonic() + 10.0
+    while True:
+        got = live.client.get(f"/api/cells/{CELL}").json().get("config_sha256")
+        if got and got != not_equal:
+            return str(got)
+        assert time.monotonic() < deadline, f"no new checksum in the status (still {got})"
+        time.sleep(0.05)
+
+
+def test_the_report_checksum_is_the_running_workers_and_changes_with_any_edit(
+    live: Live,
+) -> None:
+    """The worker reports its configuration checksum; an evidence report made over the API
+    (a background job) prints the same one; a threshold edit changes the worker's, which then
+    equals the checksum of the edited scenario and no longer the report's."""
+    from sara_app.checksum import config_checksum
+
+    running = _status_checksum(live)
+    assert running == config_checksum(live.worker.cell.scenario)
+    r = live.client.post(f"/api/cells/{CELL}/report", params={"duration_s": 0.3, "episodes": 0})
+    assert r.status_code == 202, r.text
+    job = r.json()["id"]
+    deadline = time.monotonic() + 240
+    while (st := live.client.get(f"/api/jobs/{job}").json())["state"] == "running":
+        assert time.monotonic() < deadline, st
+        time.sleep(0.5)
+    assert st["state"] == "done", st
+    assert st["checksum"] == running
+    page = live.client.get(st["report_url"])
+    assert page.status_code == 200 and running in page.text
+    body = {"region": "hand", "contact": "constrained", "shape": "blunt", "energy_J": 0.1}
+    r = live.client.put(f"/api/cells/{CELL}/thresholds", json={**body, "user": "auditor"})
+    assert r.status_code == 200, r.text
+    edited = _status_checksum(live, not_equal=running)
+    assert edited == config_checksum(live.worker.cell.scenario) != st["checksum"]

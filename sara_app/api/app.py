@@ -48,12 +48,14 @@ from fastapi.staticfiles import StaticFiles
 
 import sara_app
 from sara_app.api.guard import Guard
+from sara_app.api.jobs import add_job_routes
 from sara_app.api.people import add_people_routes
 from sara_app.api.registry import EDIT_TIMEOUT_S, CellRegistry
 from sara_app.api.thresholds import add_threshold_routes
-from sara_app.audit import AuditLog
+from sara_app.audit import AuditLog, default_audit_path
 from sara_app.errors import ParameterError, SaraError, ScenarioError, WorkerTimeoutError
 from sara_app.human.params import available_param_sets, load_param_set
+from sara_app.jobs import JobRunner
 from sara_app.safety.thresholds import load_thresholds, threshold_set_names
 from sara_app.scenario import (
     Scenario,
@@ -224,21 +226,31 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
     def _patch(
         cell: str, changes: dict[str, Any], base: str | None, timeout_s: float
     ) -> dict[str, Any]:
-        running = None if base else registry.applied_scenario(cell)
-        if running is not None:
-            data = running
-        else:
-            base = base or str(known_cell(cell).get("scenario") or "")
-            check_known("scenario", base, sorted(set(scenario_names(folder))))
-            data = load_scenario(base, folder).model_dump(mode="json")
-        hp = data["human_params"]
-        if isinstance(hp, str) and isinstance(changes.get("human_params"), dict):
-            # a partial edit of a named set: start from the set's values, under a new name
-            named = load_param_set(hp).model_dump(mode="json")
-            data["human_params"] = {**named, "name": f"{hp}_edited"}
-        merged = merge_sections(data, changes)
-        sc = validate_scenario(merged, f"{base!r} with the changes")
+        _, sc = with_changes(registry, folder, cell, changes, base)
         return {**send(cell, sc, timeout_s), "applied": sc.model_dump(mode="json")}
+
+
+def with_changes(
+    registry: CellRegistry, folder: Path, cell: str, changes: dict[str, Any], base: str | None
+) -> tuple[Scenario, Scenario]:
+    """The scenario ``cell`` runs now (as its worker announces it; else the scenario file
+    ``base``, or the one its status names) and that scenario with ``changes`` (see the PATCH
+    route), both validated (an invalid result: HTTP 422)."""
+    running = None if base else registry.applied_scenario(cell)
+    if running is not None:
+        data = running
+    else:
+        base = base or str(known_cell_check(registry)(cell).get("scenario") or "")
+        check_known("scenario", base, sorted(set(scenario_names(folder))))
+        data = load_scenario(base, folder).model_dump(mode="json")
+    current = validate_scenario(data, f"the scenario of cell {cell!r}")
+    hp = data["human_params"]
+    if isinstance(hp, str) and isinstance(changes.get("human_params"), dict):
+        # a partial edit of a named set: start from the set's values, under a new name
+        named = load_param_set(hp).model_dump(mode="json")
+        data = {**data, "human_params": {**named, "name": f"{hp}_edited"}}
+    merged = merge_sections(data, changes)
+    return current, validate_scenario(merged, f"{base!r} with the changes")
 
 
 def merge_sections(data: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]:
@@ -376,6 +388,7 @@ def create_app(
     tokens: dict[str, str] | None = None,
     require_token: bool = False,
     hosts: tuple[str, ...] = (),
+    jobs: JobRunner | None = None,
 ) -> FastAPI:
     """The FastAPI app; ``registry`` supplies live cells, ``scenarios_folder`` the scenarios
     (default: the shipped ``scenarios/``), ``viewer_url`` the 3D view's address for the page,
@@ -426,6 +439,19 @@ def create_app(
     add_people_routes(
         app, registry, app.state.threshold_audit, known_cell_check(registry), check_url_name
     )
+    runner = jobs if jobs is not None else JobRunner()
+    app.state.jobs = runner
+
+    def audit_path() -> Path | None:
+        if isinstance(audit, AuditLog):
+            return Path(audit.path)
+        return Path(audit) if audit is not None else default_audit_path()
+
+    add_job_routes(
+        app, registry, runner,
+        lambda cell, changes, base: with_changes(registry, folder, cell, changes, base),
+        check_url_name, audit_path,
+    )  # fmt: skip
     _add_scenario_routes(app, folder)
     _add_param_routes(app)
     app.add_middleware(

@@ -264,6 +264,7 @@ class CellRegistry:
             "detail": "" if st is None else st.detail,
             "scenario": None if st is None else st.scenario,
             "uptime_s": None if st is None else st.uptime_s,
+            "config_sha256": None if st is None else (st.config_sha256 or None),
             "humans": [] if st is None else list(st.humans),
             "mode": None if v is None or not online else v.mode,  # offline: unknown
             "safety_mode": None if v is None else v.safety_mode,

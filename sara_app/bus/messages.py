@@ -472,6 +472,10 @@ class StatusMsg(_Msg):
     detail: Annotated[str, Field(max_length=300)] = ""
     """What a ``starting`` worker is doing (building the cell: loading the robot model and
     compiling the kernels, with the seconds so far)."""
+    config_sha256: Annotated[str, Field(pattern="^([0-9a-f]{64})?$")] = ""
+    """The running configuration's checksum (scenario, parameter and threshold sets, code; see
+    ``sara_app.checksum``): the one printed in the cell's evidence report. Empty while
+    starting."""
 
 
 class ScenarioStateMsg(_Msg):

@@ -1,0 +1,161 @@
+"""Background jobs of the dashboard and the API: what-if runs and evidence reports.
+
+A job is a separate Python process (:mod:`sara_app.job_main`) at the lowest CPU priority, so a
+long simulation never runs in the worker, never blocks the dashboard or the API, and yields the
+CPU to the live cell. :class:`JobRunner` starts at most one job at a time (this is a small
+machine beside a 250 Hz worker: a second request is refused, not queued), follows its progress
+lines and keeps the results of the last jobs.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from sara_app.errors import InputError, SaraError, UnknownNameError
+
+KEEP = 20
+"""Finished jobs kept (their files too); older ones are removed."""
+
+
+class JobBusyError(SaraError):
+    """A job is running already."""
+
+
+@dataclass
+class Job:
+    id: str
+    kind: str
+    state: str = "running"
+    """``running``, ``done`` or ``failed``."""
+    progress: float = 0.0
+    what: str = "starting"
+    error: str | None = None
+    started_s: float = field(default_factory=time.time)
+    finished_s: float | None = None
+    folder: Path = Path()
+    label: str = ""
+    pid: int | None = None
+    """The job's process (while it runs)."""
+
+    @property
+    def output(self) -> Path:
+        return self.folder / ("out.html" if self.kind == "report" else "out.json")
+
+    def result(self) -> Any:
+        """The what-if comparison (dict) or the report's evidence (dict); None before done."""
+        if self.state != "done":
+            return None
+        path = self.output if self.kind == "whatif" else self.output.with_suffix(".json")
+        return json.loads(path.read_text())
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "id": self.id, "kind": self.kind, "label": self.label, "state": self.state,
+            "progress": self.progress, "what": self.what, "error": self.error,
+            "started_s": self.started_s, "finished_s": self.finished_s,
+        }  # fmt: skip
+
+
+class JobRunner:
+    def __init__(self) -> None:
+        self._jobs: dict[str, Job] = {}
+        self._lock = threading.Lock()
+        self._ids = itertools.count(1)
+        self._root = Path(tempfile.mkdtemp(prefix="sara-jobs-"))
+        self._procs: dict[str, subprocess.Popen[str]] = {}
+
+    def start(self, kind: str, data: dict[str, Any], label: str = "") -> Job:
+        """Start job ``kind`` (``whatif`` or ``report``) on ``data`` (see
+        :mod:`sara_app.job_main`); :class:`JobBusyError` while another one runs."""
+        if kind not in ("whatif", "report"):
+            raise UnknownNameError("job kind", kind, ("whatif", "report"))
+        with self._lock:
+            busy = [j for j in self._jobs.values() if j.state == "running"]
+            if busy:
+                raise JobBusyError(
+                    f"job {busy[0].id} ({busy[0].kind}) is still running "
+                    f"({100 * busy[0].progress:.0f} %); one job runs at a time"
+                )
+            job = Job(f"{kind}-{next(self._ids)}", kind, label=label)
+            job.folder = self._root / job.id
+            job.folder.mkdir()
+            self._jobs[job.id] = job
+            self._forget_old()
+        inp = job.folder / "in.json"
+        inp.write_text(json.dumps(data))
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "sara_app.job_main", kind, str(inp), str(job.output)],
+            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+            text=True,
+        )  # fmt: skip
+        job.pid = proc.pid
+        self._procs[job.id] = proc
+        threading.Thread(target=self._follow, args=(job, proc), daemon=True).start()
+        return job
+
+    def _follow(self, job: Job, proc: subprocess.Popen[str]) -> None:
+        stream = proc.stderr
+        lines: list[str] = []
+        if stream is not None:
+            for line in stream:
+                try:
+                    msg = json.loads(line)
+                except ValueError:
+                    lines.append(line.strip())
+                    continue
+                if isinstance(msg, dict) and "progress" in msg:
+                    job.progress, job.what = float(msg["progress"]), str(msg.get("what", ""))
+                elif isinstance(msg, dict) and "error" in msg:
+                    job.error = str(msg["error"])
+        rc = proc.wait()
+        self._procs.pop(job.id, None)
+        job.finished_s = time.time()
+        if rc == 0 and job.output.exists():
+            job.state, job.progress, job.what = "done", 1.0, "done"
+        else:
+            job.state = "failed"
+            job.error = job.error or f"exit status {rc}: " + " | ".join(lines[-3:])[:500]
+
+    def _forget_old(self) -> None:
+        done = [j for j in self._jobs.values() if j.state != "running"]
+        for j in sorted(done, key=lambda j: j.started_s)[: max(len(done) - KEEP, 0)]:
+            shutil.rmtree(j.folder, ignore_errors=True)
+            del self._jobs[j.id]
+
+    def get(self, job_id: str) -> Job:
+        with self._lock:
+            job = self._jobs.get(job_id)
+            if job is None:
+                raise UnknownNameError("job", job_id, tuple(self._jobs))
+            return job
+
+    def list(self) -> list[dict[str, Any]]:
+        with self._lock:
+            return [j.summary() for j in self._jobs.values()]
+
+    def wait(self, job_id: str, timeout_s: float) -> Job:
+        """Block until the job has finished (tests, the CLI); :class:`InputError` on timeout."""
+        t_end = time.monotonic() + timeout_s
+        job = self.get(job_id)
+        while job.state == "running":
+            if time.monotonic() > t_end:
+                raise InputError(f"job {job_id} still running after {timeout_s} s")
+            time.sleep(0.1)
+        return job
+
+    def close(self) -> None:
+        """Stop a running job and remove every job's files."""
+        for proc in list(self._procs.values()):
+            proc.kill()
+            proc.wait(timeout=10)
+        shutil.rmtree(self._root, ignore_errors=True)

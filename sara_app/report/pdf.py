@@ -1,0 +1,33 @@
+"""The evidence report as PDF: the HTML page printed by Debian's chromium (headless), where it
+is installed; nothing is downloaded."""
+
+from __future__ import annotations
+
+import subprocess
+import tempfile
+from pathlib import Path
+
+from sara_app.bench.live import CHROMIUM_FLAGS, chromium_path
+from sara_app.errors import InputError
+
+TIMEOUT_S = 120.0
+
+
+def print_pdf(html_path: Path, pdf_path: Path) -> None:
+    """Print ``html_path`` to ``pdf_path``; :class:`InputError` without chromium or when it
+    fails."""
+    exe = chromium_path()
+    if exe is None:
+        raise InputError(
+            "a PDF needs chromium (Debian: apt-get install -y chromium); the HTML report was "
+            f"written to {html_path}"
+        )
+    with tempfile.TemporaryDirectory(prefix="sara-pdf-") as profile:
+        cmd = [exe, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", "--no-pdf-header-footer",
+               f"--print-to-pdf={pdf_path.resolve()}", html_path.resolve().as_uri()]  # fmt: skip
+        try:
+            subprocess.run(cmd, capture_output=True, timeout=TIMEOUT_S, check=False)
+        except subprocess.TimeoutExpired:
+            raise InputError(f"chromium did not print {html_path} within {TIMEOUT_S} s") from None
+    if not pdf_path.exists() or pdf_path.stat().st_size == 0:
+        raise InputError(f"chromium did not write {pdf_path}")

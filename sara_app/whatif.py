@@ -1,0 +1,63 @@
+"""What-if runs: the cell's scenario with an edit (parameters, thresholds, safety mode, people)
+run offline beside the scenario in force, so the safety engineer sees what the edit does to
+safety and throughput before applying it.
+
+Both runs are the same closed loop (:func:`~sara_app.closed_loop.run_closed_loop`, same seed,
+same duration); the edited one keeps frames to scrub through in the dashboard. Runs happen in a
+background process at the lowest CPU priority (:mod:`sara_app.jobs`), never in the worker.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from sara_app.closed_loop import run_closed_loop
+from sara_app.scenario import Scenario
+
+COMPARED: tuple[tuple[str, str], ...] = (
+    ("time_to_goal_s", "time to goal (s)"),
+    ("intervened_share", "cycles intervening"),
+    ("failsafe_share", "cycles on the failsafe"),
+    ("min_separation_m", "min. separation (m)"),
+    ("collisions_moving", "collisions while moving"),
+    ("harmful_contacts", "harmful contacts"),
+)
+"""The numbers shown side by side: key of the run summary and label."""
+
+
+def compare(
+    current: Scenario,
+    edited: Scenario,
+    duration_s: float | None = None,
+    progress: Callable[[float, str], None] | None = None,
+) -> dict[str, Any]:
+    """``{"current": run, "edited": run}`` (run summaries, the edited one with frames); the
+    duration is the longer of the two scenarios' unless given."""
+    say = progress or (lambda _f, _w: None)
+    T = duration_s if duration_s is not None else max(current.sim.duration_s, edited.sim.duration_s)
+    say(0.0, "running the settings in force")
+    now = run_closed_loop(current, T, lambda f: say(0.5 * f, "running the settings in force"))
+    say(0.5, "running the edited settings")
+    new = run_closed_loop(edited, T, lambda f: say(0.5 + 0.5 * f, "running the edited settings"),
+                          frames=True)  # fmt: skip
+    say(1.0, "done")
+    return {"current": now, "edited": new}
+
+
+def table_markdown(result: dict[str, Any]) -> str:
+    """The two runs side by side as a markdown table."""
+
+    def fmt(key: str, v: Any) -> str:
+        if v is None:
+            return "not reached" if key == "time_to_goal_s" else "n/a"
+        if key.endswith("_share"):
+            return f"{100 * v:.1f} %"
+        if isinstance(v, float):
+            return f"{v:.3f}" if key.endswith("_m") else f"{v:.2f}"
+        return str(v)
+
+    cur, new = result["current"], result["edited"]
+    rows = ["| | in force | edited |", "|---|---|---|"]
+    rows += [f"| {label} | {fmt(k, cur.get(k))} | {fmt(k, new.get(k))} |" for k, label in COMPARED]
+    return "\n".join(rows)

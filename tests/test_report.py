@@ -1,0 +1,91 @@
+"""The evidence report: ``sara-app report`` writes one self-contained HTML page (no external
+asset; plots embedded) with every section and the configuration checksum, and a PDF where
+chromium is installed; the robot's stops are checked against a brute-force recomputation and
+ISO 13855's formula against hand-computed values."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sara_app.cell import build_cell
+from sara_app.checksum import config_checksum
+from sara_app.report.stopping import iso13855_separation_m, stop_rows
+from sara_app.robot.failsafe import plan_joint_stop
+from sara_app.scenario import load_scenario
+
+
+def test_iso13855_separation_follows_the_standard_formula() -> None:
+    # S = 2000 T + 850 mm is over 500 mm for any T: then S = 1600 T + 850 (not below 500)
+    assert iso13855_separation_m(0.3) == pytest.approx(1.6 * 0.3 + 0.85)
+    assert iso13855_separation_m(0.1, c_m=0.0) == pytest.approx(0.2)  # 2000 T <= 500 mm
+    assert iso13855_separation_m(0.3, c_m=0.0) == pytest.approx(0.5)  # 1600 T < 500: 500 mm
+    assert iso13855_separation_m(0.5, c_m=0.0) == pytest.approx(0.8)
+
+
+def test_stop_rows_match_a_dense_recomputation() -> None:
+    cell = build_cell(load_scenario("close_worker"))
+    wps = np.asarray(cell.scenario.task.waypoints_rad)
+    rows = stop_rows(cell.robot, cell.limits, wps, 0.01, 0.004)
+    assert len(rows) == len(wps)
+    for row, q in zip(rows, wps, strict=True):
+        best_t, best_d = 0.0, 0.0
+        for sign in (1.0, -1.0):
+            prof = plan_joint_stop(q, sign * cell.limits.v_max, np.zeros_like(q), cell.limits)
+            qs, v, _ = prof.sample(np.linspace(0.0, prof.duration_s, 4000))
+            assert np.abs(v[-1]).max() < 1e-9  # at rest at the end
+            ends = cell.robot.link_capsules_batch(qs)
+            best_d = max(best_d, float(np.linalg.norm(np.diff(ends, axis=0), axis=-1)
+                                       .sum(axis=0).max()))  # fmt: skip
+            best_t = max(best_t, prof.duration_s)
+        assert row.stop_time_s == pytest.approx(best_t)
+        assert row.stop_distance_m == pytest.approx(best_d, abs=1e-3)
+        assert row.response_time_s == pytest.approx(best_t + 0.014)
+        assert row.iso_separation_m == pytest.approx(iso13855_separation_m(best_t + 0.014))
+
+
+def test_report_command_writes_a_self_contained_page(tmp_path: Path) -> None:
+    out, js = tmp_path / "r.html", tmp_path / "r.json"
+    pdf = tmp_path / "r.pdf"
+    want_pdf = os.path.exists("/usr/bin/chromium")
+    cmd = [sys.executable, "-m", "sara_app.cli", "report", "close_worker", "--out", str(out),
+           "--json", str(js), "--duration", "0.5", "--episodes", "1", "--modes", "ssm,pfl",
+           "--audit", str(tmp_path / "none.sqlite"), "--quiet"]  # fmt: skip
+    if want_pdf:
+        cmd += ["--pdf", str(pdf)]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    page = out.read_text()
+    checksum = config_checksum(load_scenario("close_worker"))
+    assert f'id="checksum">{checksum}<' in page and checksum in done.stdout
+    for title in ("1. Configuration", "2. Containment on recordings", "3. Contact energy",
+                  "Audit log", "4. Robot stops and ISO 13855", "5. Closed loop per safety mode",
+                  "Adversarial episodes"):  # fmt: skip
+        assert title in page, title
+    # self-contained: no script, stylesheet, image or link fetched from elsewhere
+    assert not re.search(r"""(src|href)\s*=\s*["']?(https?:|//)""", page)
+    assert "<script" not in page
+    assert page.count('src="data:image/png;base64,') == 2  # containment and closed-loop plots
+    assert "02_01" in page and "SSM" in page and "PFL" in page and "JSSA" not in page
+    if want_pdf:
+        assert pdf.read_bytes().startswith(b"%PDF")
+
+
+def test_report_refuses_bad_input_before_writing(tmp_path: Path) -> None:
+    out = tmp_path / "r.html"
+    for extra, why in ((["--modes", "ssm,fly"], "valid choices"),
+                       (["--episodes", "-1"], "expected >= 0")):  # fmt: skip
+        done = subprocess.run(
+            [sys.executable, "-m", "sara_app.cli", "report", "close_worker", "--out", str(out),
+             *extra], capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        assert done.returncode == 2 and why in done.stderr and not out.exists()
+    cmd = [sys.executable, "-m", "sara_app.cli", "report", "no_such_cell", "--out", str(out)]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert done.returncode != 0 and "no_such_cell" in done.stderr and not out.exists()
