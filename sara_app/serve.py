@@ -136,6 +136,8 @@ def serve(
     from sara_app.dashboard.access import DashboardAccess
     from sara_app.dashboard.bridge import CellView
     from sara_app.dashboard.viewer import Dashboard
+    from sara_app.dashboard.whatif_panel import WhatIfPanels
+    from sara_app.jobs import JobRunner
 
     folder = scenarios_dir()
     sc = load_scenario(scenario, folder)
@@ -158,6 +160,8 @@ def serve(
     )
     api = None
     registry = None
+    jobs: JobRunner | None = None
+    whatif: WhatIfPanels | None = None
     hub: Bus | None = None
     sup: Supervisor | None = None
     try:
@@ -198,11 +202,14 @@ def serve(
             on_params_edit=view.edit,
         )
         view.refresh_panels()
+        jobs = JobRunner()  # what-if runs and reports, for the dashboard and the API
+        whatif = view.attach_whatif(jobs)
         registry = CellRegistry(hub)
         registry.start()
         app = create_app(
             registry, folder, viewer_url=viewer_url, processes=sup.status, tokens=tokens,
             require_token=tokens is not None, hosts=() if not exposed else (api_host,),
+            jobs=jobs,
         )  # fmt: skip
         api = ApiServer(app, host=api_host, port=api_port)
         api_url = api.start().rstrip("/")
@@ -231,6 +238,10 @@ def serve(
     except KeyboardInterrupt:
         return 0
     finally:
+        if whatif is not None:
+            whatif.close()
+        if jobs is not None:
+            jobs.close()
         if sup is not None:
             sup.stop()
         if api is not None:

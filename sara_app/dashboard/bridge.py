@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from sara_app.audit import AuditLog
+from sara_app.audit import AuditLog, default_audit_path
 from sara_app.bus import keys
 from sara_app.bus.codec import Decoder
 from sara_app.bus.messages import (
@@ -41,11 +41,14 @@ from sara_app.bus.messages import (
     VerdictMsg,
 )
 from sara_app.bus.session import Bus
+from sara_app.cell import base_pose
 from sara_app.dashboard.frame import DisplayFrame
 from sara_app.dashboard.from_messages import boxes_of, occupancy_into, verdict_status
 from sara_app.dashboard.gizmos import GizmoEditing
 from sara_app.dashboard.viewer import Dashboard
+from sara_app.dashboard.whatif_panel import WhatIfHooks, WhatIfPanels
 from sara_app.errors import SaraError, ScenarioError, UnknownNameError, WorkerTimeoutError
+from sara_app.jobs import JobRunner
 from sara_app.robot.model import RobotModel
 from sara_app.scenario import (
     SAFETY_MODES,
@@ -279,6 +282,39 @@ class CellView(GizmoEditing):
         data.update(params)
         self.send(data, "parameters")
         self.refresh_panels()
+
+    def edited(self, mode: str | None = None) -> dict[str, Any]:
+        """The scenario in force with the Scenario tab's parameters (and safety ``mode``),
+        validated (:class:`ScenarioError` if not); nothing is sent."""
+        data = self.scenario.model_dump(mode="json")
+        if self.dash.panels is not None:
+            data.update(self.dash.panels.params())
+        if mode is not None:
+            data["shield"] = {**data["shield"], "mode": mode}
+        return parse_scenario(data, "the edited parameters").model_dump(mode="json")
+
+    def apply_whatif(self, data: dict[str, Any]) -> None:
+        """Apply a what-if's edited scenario (the validated, audited edit path)."""
+        self.send(data, "what-if")
+        self.refresh_panels()
+
+    def attach_whatif(self, jobs: JobRunner) -> WhatIfPanels | None:
+        """The per-browser what-if and report folder (:mod:`~.whatif_panel`)."""
+        server = self.dash.server
+        if server is None:
+            return None
+        audit = self.audit.path if isinstance(self.audit, AuditLog) else self.audit
+        robot = self.scenario.robot
+        hooks = WhatIfHooks(
+            current=lambda: self.scenario.model_dump(mode="json"),
+            edited=self.edited,
+            apply=self.apply_whatif,
+            cell=self.cell,
+            robot=self.scenario.robot.name,
+            T_world_base=base_pose(robot.base_xyz_m, robot.base_rpy_rad),
+            audit_path=Path(audit) if audit is not None else default_audit_path(),
+        )
+        return WhatIfPanels(server, jobs, hooks)
 
     def save_as(self, name: str) -> Path:
         """Save the scenario in force as a new file ``name`` (never overwrites); audited."""

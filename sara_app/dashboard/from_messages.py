@@ -28,7 +28,7 @@ from sara_app.dashboard.frame import (
 from sara_app.human.skeleton import skeleton
 from sara_app.scenario import Scenario
 
-_BONES = skeleton("full").part_joints[
+BONES = skeleton("full").part_joints[
     skeleton("full").part_joints[:, 0] != skeleton("full").part_joints[:, 1]
 ]
 
@@ -135,7 +135,7 @@ def occupancy_into(frame: DisplayFrame, occ: OccupancyMsg) -> None:
     for h in occ.humans:
         models = {name: caps.arrays() for name, caps in h.models.items()}
         y = np.asarray(h.joints_m).reshape(-1, 3)
-        frame.humans.append(HumanDisplay(h.id, y, _BONES, models))
+        frame.humans.append(HumanDisplay(h.id, y, BONES, models))
     if occ.robot is not None:
         r = occ.robot
         e, rad = r.capsules.arrays()

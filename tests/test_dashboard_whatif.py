@@ -1,0 +1,111 @@
+"""The dashboard's what-if and report folder in a real headless chromium: a click runs the
+edited settings offline (a background job), the progress bar and then the side-by-side table
+show in that browser, the edited run is drawn as a ghost at the scrubbed time, one more click
+applies it through the edit hook, and the evidence report is made and sent to the browser."""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+import pytest
+from browser import CHROMIUM, DevTools, chromium_on, wait_for
+
+from sara_app.dashboard.scene import demo_frame
+from sara_app.dashboard.viewer import Dashboard
+from sara_app.dashboard.whatif_panel import WhatIfHooks, WhatIfPanels
+from sara_app.jobs import JobRunner
+from sara_app.scenario import load_scenario, parse_scenario
+
+pytestmark = pytest.mark.skipif(
+    not os.path.exists(CHROMIUM), reason=f"{CHROMIUM} is absent (apt-get install chromium)"
+)
+_BUTTON = "[...document.querySelectorAll('button')].find(b => b.textContent === {!r})"
+_FOLDER = (
+    "document.evaluate(\"//*[text()='What-if and evidence report']\", document, null, 9, null)"
+    ".singleNodeValue"
+)
+_CHECKBOX = (
+    "document.getElementById([...document.querySelectorAll('label')]"
+    ".find(l => l.textContent === {!r})?.htmlFor)"
+)
+
+
+@pytest.fixture()
+def setup(tmp_path: Any) -> Iterator[tuple[Dashboard, WhatIfPanels, list[dict[str, Any]]]]:
+    sc = load_scenario("close_worker")
+    applied: list[dict[str, Any]] = []
+
+    def edited(mode: str | None) -> dict[str, Any]:
+        data = sc.model_dump(mode="json")
+        if mode is not None:
+            data["shield"]["mode"] = mode
+        return parse_scenario(data, "edited").model_dump(mode="json")
+
+    hooks = WhatIfHooks(lambda: sc.model_dump(mode="json"), edited, applied.append,
+                        "c1", "panda", np.eye(4), tmp_path / "audit.sqlite")  # fmt: skip
+    dash = Dashboard()
+    dash.start(port=8726)
+    dash.update(demo_frame(1.0))
+    jobs = JobRunner()
+    assert dash.server is not None
+    panels = WhatIfPanels(dash.server, jobs, hooks)
+    try:
+        yield dash, panels, applied
+    finally:
+        panels.close()
+        jobs.close()
+        dash.stop()
+
+
+def _text(page: DevTools) -> str:
+    return str(page.eval("document.body.innerText"))
+
+
+def test_a_whatif_from_the_browser(setup: tuple[Dashboard, WhatIfPanels, list]) -> None:
+    dash, panels, applied = setup
+    with chromium_on(str(dash.url)) as page:
+        wait_for(lambda: dash.client_count() == 1, 60.0, "the browser to connect")
+        wait_for(lambda: page.eval(_FOLDER + " != null"), 60.0, "the what-if folder")
+        page.click(_FOLDER)  # expand it
+        run = _BUTTON.format("Run what-if")
+        wait_for(lambda: page.eval(f"(e => !!e && e.getBoundingClientRect().height > 0)({run})"),
+                 30.0, "the folder to open")  # fmt: skip
+        time.sleep(1.0)  # the folder's opening animation: the button still moves
+        b = next(iter(panels._browsers.values()))  # noqa: SLF001 - this browser's controls
+        b.gui["duration"].value = 1.5
+        b.gui["mode"].value = "SSM"
+        page.click(run)
+        wait_for(
+            lambda: b.job is not None or "What-if done" in _text(page),
+            30.0,
+            f"a job ({b.gui['status'].content!r})",
+        )
+        wait_for(lambda: "What-if done" in _text(page), 300.0, "the what-if to finish")
+        text = _text(page)
+        assert "in force" in text and "edited" in text and "time to goal" in text
+        assert "harmful contacts" in text
+        assert not b.gui["scrub"].disabled and b.gui["scrub"].max > 1.0
+        # scrub to the middle and show the ghost: the 3D view (left of the panel) changes
+        scene_before = page.screenshot()[:, :540]
+        b.gui["scrub"].value = 0.7
+        page.click(_CHECKBOX.format("Show it in the 3D view"))
+        ghost = wait_for(lambda: (lambda im: im if np.sum(np.abs(im[:, :540] - scene_before)
+                                                          .sum(-1) > 60) > 300 else None)(
+            page.screenshot()), 60.0, "the ghost robot in the 3D view")  # fmt: skip
+        assert isinstance(ghost, np.ndarray)
+        page.click(_BUTTON.format("Apply the edit to the cell"))
+        wait_for(lambda: applied, 30.0, "the edit to be applied")
+        assert applied[0]["shield"]["mode"] == "ssm"
+        wait_for(lambda: "Applied" in _text(page), 30.0, "the applied message")
+        # the evidence report of the scenario in force, sent to this browser
+        page.click(_BUTTON.format("Evidence report (download)"))
+        wait_for(lambda: "Evidence report downloaded" in _text(page), 300.0, "the report")
+        if os.environ.get("SARA_SCREENSHOT_DIR"):
+            from PIL import Image
+
+            path = os.path.join(os.environ["SARA_SCREENSHOT_DIR"], "whatif.png")
+            Image.fromarray(ghost.astype(np.uint8)).save(path)
