@@ -62,6 +62,9 @@ function card(c) {
   row(dl, "state", (c.state || "–") + (c.detail ? ": " + c.detail : ""));
   row(dl, "last verdict", fmt(c.verdict_age_s, 1, "s ago"));
   row(dl, "last status", fmt(c.status_age_s, 1, "s ago"));
+  // the configuration checksum an evidence report prints (sara-app report)
+  row(dl, "configuration", c.config_sha256 || "–");
+  dl.lastElementChild.className = "checksum";
   const more = document.createElement("p");
   more.className = "more";
   for (const [text, path] of [["thresholds", "/thresholds"], ["threshold audit", "/thresholds/audit"]]) {
