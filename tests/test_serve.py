@@ -66,6 +66,11 @@ def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(sig: signal.Signals) ->
             time.sleep(0.5)
         assert cell is not None, "the cell never came online in the API"
         assert cell["cell"] == "cell1" and cell["mode"] in ("intended", "failsafe", "rest")
+        # the worker runs (and says it runs) the default scenario's configuration
+        from sara_app.checksum import config_checksum
+        from sara_app.scenario import load_scenario
+
+        assert cell["config_sha256"] == config_checksum(load_scenario("punches"))
         status, page = _get(f"http://127.0.0.1:{vp}/")
         assert status == 200 and b"<html" in page.lower()
         status, _ = _get(f"http://127.0.0.1:{ap}/")
