@@ -124,3 +124,18 @@ def test_a_failing_job_reports_its_error(tmp_path: Path) -> None:
         assert done.state == "failed" and "edited scenario" in str(done.error)
     finally:
         runner.close()
+
+
+def test_a_whatif_on_a_recording(api: tuple[TestClient, JobRunner]) -> None:
+    """The person replaced by a recorded one (the shipped CMU walk) in the what-if only."""
+    client, runner = api
+    walker = {"id": "walker", "type": "recording", "recording": "02_01",
+              "offset_m": [0.9, 0.0, 0.0]}  # fmt: skip
+    r = client.post("/api/cells/c1/whatif", json={"humans": [walker], "human_params": "work"},
+                    params={"duration_s": 1.0})  # fmt: skip
+    assert r.status_code == 202, r.text
+    done = runner.wait(r.json()["id"], 300)
+    assert done.state == "done", done.error
+    res = done.result()
+    assert res["edited"]["scenario"] == "close_worker" and res["edited"]["frames"]
+    assert res["edited"]["collisions_moving"] == 0
