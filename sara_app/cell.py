@@ -12,7 +12,7 @@ import numpy as np
 from sara_app.checksum import config_checksum
 from sara_app.human.params import ParamSet, ReachParams, to_reach_params
 from sara_app.human.reach import HumanReach
-from sara_app.robot.model import JointLimits, RobotModel, load_robot
+from sara_app.robot.model import JointLimits, RobotModel
 from sara_app.robot.trajectory import PathFollower
 from sara_app.safety.shield import Shield, ShieldSettings, SsmScaling
 from sara_app.scenario import Scenario
@@ -116,7 +116,7 @@ class Cell:
 
 def build_cell(sc: Scenario) -> Cell:
     T = base_pose(sc.robot.base_xyz_m, sc.robot.base_rpy_rad)
-    robot = load_robot(sc.robot.name, T_world_base=T, margin_m=sc.robot.margin_m)
+    robot = sc.robot.load(T)
     lim = scaled_limits(robot.limits, sc.limits.velocity, sc.limits.acceleration, sc.limits.jerk)
     wps = np.asarray(sc.task.waypoints_rad, dtype=float)
     passes = [wps if i % 2 == 0 else wps[::-1] for i in range(sc.task.cycles)]

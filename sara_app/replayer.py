@@ -35,7 +35,7 @@ from sara_app.errors import SaraError
 from sara_app.human.glitches import Glitches
 from sara_app.human.motions import HumanMotion, make_motion, measured
 from sara_app.human.params import to_reach_params
-from sara_app.robot.model import RobotModel, load_robot
+from sara_app.robot.model import RobotModel
 from sara_app.scenario import Scenario, parse_scenario
 
 log = logging.getLogger("sara_app.replayer")
@@ -62,7 +62,7 @@ class Replayer:
         self.scenario = sc
         self.params = to_reach_params(sc.param_set(), "full")
         T = base_pose(sc.robot.base_xyz_m, sc.robot.base_rpy_rad)
-        self.robot: RobotModel = load_robot(sc.robot.name, T_world_base=T)
+        self.robot: RobotModel = sc.robot.load(T, margin=False)
         self.q = np.asarray(sc.task.waypoints_rad[0], dtype=float)
         self._restart(time.time())
 

@@ -47,11 +47,47 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
+class JointLimitSpec(_Strict):
+    """What a URDF cannot hold: one joint's acceleration and jerk limits."""
+
+    acceleration_rad_s2: Pos
+    jerk_rad_s3: Pos
+
+
 class RobotSpec(_Strict):
-    name: Literal["panda", "ur5e"] = "panda"
+    name: Annotated[str, Field(min_length=1, max_length=500)] = "panda"
+    """A shipped robot (``panda``, ``ur5e``, ``ur10e``) or the path of a URDF file (absolute,
+    or relative to the directory the cell is started in)."""
     base_xyz_m: tuple[Finite, Finite, Finite] = (0.0, 0.0, 0.0)
     base_rpy_rad: tuple[Finite, Finite, Finite] = (0.0, 0.0, 0.0)
     margin_m: NonNeg = 0.0
+    joint_limits: dict[str, JointLimitSpec] = {}
+    """Acceleration and jerk limits per joint name, for a URDF without ``<sara_limits>`` (or
+    overriding it)."""
+
+    @field_validator("name")
+    @classmethod
+    def _robot_name(cls, v: str) -> str:
+        from sara_app.robot.model import robot_names
+
+        if v in robot_names() or v.endswith(".urdf"):
+            return v
+        raise ValueError(
+            f"unknown robot {v!r}; valid choices: {', '.join(robot_names())}, or a path to a "
+            "URDF file (ending in .urdf)"
+        )
+
+    def limits_given(self) -> dict[str, tuple[float, float]]:
+        return {j: (x.acceleration_rad_s2, x.jerk_rad_s3) for j, x in self.joint_limits.items()}
+
+    def load(self, T_world_base: np.ndarray | None = None, margin: bool = True) -> Any:
+        """The :class:`~sara_app.robot.model.RobotModel` (with this margin unless ``margin`` is
+        False); :class:`RobotModelError` for a URDF that cannot be used."""
+        from sara_app.robot.model import load_robot
+
+        return load_robot(self.name, T_world_base=T_world_base,
+                          margin_m=self.margin_m if margin else 0.0,
+                          joint_limits=self.limits_given())  # fmt: skip
 
 
 class LimitScale(_Strict):
@@ -162,6 +198,11 @@ class PflSpec(_Strict):
     """Worst-case contact shape per robot link name (default blunt): the tool's shape."""
     min_speed_scale: Annotated[float, Field(gt=0, le=1)] = 0.02
     """Below this fraction of the path's admissible speed the shield brakes instead."""
+    unclampable_pairs: list[tuple[Name, Name]] | None = None
+    """Robot link pairs that cannot clamp a body part between them (Thumm et al. 2024 eq. 36),
+    a design declaration for the safety engineer to confirm; None: the shipped robot's
+    declaration (``sara_app.safety.topology``), none for any other robot (every pair may
+    clamp: conservative)."""
 
     @field_validator("thresholds")
     @classmethod
@@ -433,9 +474,10 @@ def save_scenario(sc: Scenario, path: str | Path) -> Path:
 def check_against_robot(sc: Scenario) -> None:
     """Waypoints have the robot's joint count and lie inside its position limits; tool shapes
     name links of the robot; recordings exist (checks that need more than the file itself)."""
-    from sara_app.robot.model import load_robot
-
-    robot = load_robot(sc.robot.name)
+    try:
+        robot = sc.robot.load(margin=False)
+    except SaraError as e:
+        raise ScenarioError(f"robot: {e}") from None
     lim = robot.limits
     for i, wp in enumerate(sc.task.waypoints_rad):
         if len(wp) != robot.n_dof:
@@ -459,9 +501,10 @@ def check_against_robot(sc: Scenario) -> None:
                 find_recording(h.recording)
             except SaraError as e:
                 raise ScenarioError(f"humans.{i}.recording: {e}") from None
-    for link in sc.shield.pfl.link_shapes:
+    pairs = sc.shield.pfl.unclampable_pairs or []
+    for link in [*sc.shield.pfl.link_shapes, *(n for pair in pairs for n in pair)]:
         if link not in robot.link_names:
             raise ScenarioError(
-                f"shield.pfl.link_shapes: {link!r} is not a link of {sc.robot.name!r}; "
+                f"shield.pfl: {link!r} is not a link of {sc.robot.name!r}; "
                 f"valid: {', '.join(robot.link_names)}"
             )

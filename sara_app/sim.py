@@ -38,7 +38,7 @@ from sara_app.human.intake import Intake
 from sara_app.human.motions import HumanMotion, make_motion, measured
 from sara_app.human.widening import widening
 from sara_app.robot.energy import LinkMotion
-from sara_app.robot.model import RobotModel, load_robot
+from sara_app.robot.model import RobotModel
 from sara_app.safety.shield import CycleResult, HumanState
 from sara_app.safety.ssm import body_distance
 from sara_app.safety.thresholds import ThresholdSet, load_thresholds, threshold_arrays
@@ -159,7 +159,8 @@ class ContactTruth:
         )
         self.T_free, self.T_clamp = np.tile(T_free, (1, H)), np.tile(T_clamp, (1, H))
         L = robot.n_links
-        self.no_clamp = unclampable_matrix(robot.name, robot.link_names) | np.eye(L, dtype=bool)
+        declared = unclampable_matrix(robot.name, robot.link_names, spec.unclampable_pairs)
+        self.no_clamp = declared | np.eye(L, dtype=bool)
         owner = np.repeat(np.arange(H), P)
         self.owner = owner
         self.safe_pair = human_safe_matrix(list(part_names) * H, owner) | np.eye(H * P, dtype=bool)
@@ -223,7 +224,7 @@ class Simulation:
         self.truth_robot = (
             cell.robot
             if sc.robot.margin_m == 0
-            else load_robot(sc.robot.name, T_world_base=cell.robot.T_world_base)
+            else sc.robot.load(cell.robot.T_world_base, margin=False)
         )
         self.cell = cell
         self.pass_index = 0

@@ -401,6 +401,8 @@ PRISMATIC_URDF = """<?xml version="1.0"?>
 <robot name="slider">
   <link name="base"><collision><geometry><box size="0.2 0.2 0.2"/></geometry></collision></link>
   <link name="carriage">
+    <inertial><mass value="1.0"/><inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" iyz="0"
+      izz="0.01"/></inertial>
     <collision><geometry><box size="0.1 0.1 0.1"/></geometry></collision>
   </link>
   <joint name="slide" type="prismatic">

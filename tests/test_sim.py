@@ -32,6 +32,7 @@ PLAN: dict[str, tuple[float | None, bool]] = {
     "adversarial": (2.0, False),
     "close_worker": (None, True),
     "tracking_glitches": (None, True),
+    "ur10e_close_worker": (None, True),
 }
 FAULTS_BY_DESIGN = {"tracking_glitches"}
 """Its spike is a fault until the person has kept within the bounds for recover_s

@@ -17,7 +17,7 @@ from sara_app.dashboard.capsules import rotation_to_wxyz
 from sara_app.dashboard.viewer import Dashboard
 from sara_app.errors import SaraError, ScenarioError
 from sara_app.robot.ik import end_effector_frame, pose_from_wxyz, solve_ik
-from sara_app.robot.model import RobotModel, load_robot
+from sara_app.robot.model import RobotModel
 from sara_app.scenario import Scenario
 
 log = logging.getLogger("sara_app.dashboard")
@@ -55,7 +55,7 @@ class GizmoEditing:
         key = (r.name, tuple(r.base_xyz_m), tuple(r.base_rpy_rad))
         if self._robot_model is None or key != self._robot_key:
             T = base_pose(r.base_xyz_m, r.base_rpy_rad)
-            self._robot_model = load_robot(r.name, T_world_base=T)
+            self._robot_model = r.load(T, margin=False)
             self._robot_key = key
         return self._robot_model
 

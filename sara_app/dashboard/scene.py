@@ -42,7 +42,7 @@ from sara_app.dashboard.frame import (
     LinkEnergy,
 )
 from sara_app.errors import InputError, UnknownNameError
-from sara_app.robot.model import ROBOT_NAMES, urdf_dir
+from sara_app.robot.model import urdf_path
 
 MODEL_COLORS: dict[str, tuple[int, int, int]] = {
     "effective": (245, 150, 110),
@@ -169,7 +169,8 @@ def _boxes(boxes: EnvBoxes | None) -> tuple[np.ndarray, np.ndarray]:
 class CellScene:
     """The cell scene for one robot; ``update(frame)`` renders one :class:`DisplayFrame`.
 
-    ``robot``: one of :data:`ROBOT_NAMES`; ``T_world_base (4, 4)``: robot base pose.
+    ``robot``: a shipped robot name or a URDF path (:func:`~sara_app.robot.model.urdf_path`);
+    ``T_world_base (4, 4)``: robot base pose.
     """
 
     def __init__(
@@ -178,8 +179,7 @@ class CellScene:
         robot: str = "panda",
         T_world_base: np.ndarray | None = None,
     ) -> None:
-        if robot not in ROBOT_NAMES:
-            raise UnknownNameError("robot", robot, ROBOT_NAMES)
+        path = urdf_path(robot)  # a shipped name or a URDF file; UnknownNameError otherwise
         self.server = server
         server.scene.set_up_direction("+z")
         server.scene.add_grid("/grid", width=4.0, height=4.0, cell_size=0.25)
@@ -192,7 +192,7 @@ class CellScene:
             position=T[:3, 3],
             show_axes=False,
         )
-        urdf = yourdfpy.URDF.load(str(urdf_dir() / f"{robot}.urdf"))
+        urdf = yourdfpy.URDF.load(str(path))
         self.urdf = ViserUrdf(server, urdf, root_node_name="/view/robot/base")
         self.joint_names = self.urdf.get_actuated_joint_names()
         self._q_shown = np.full(len(self.joint_names), np.nan)

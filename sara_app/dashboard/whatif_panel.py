@@ -28,7 +28,7 @@ from sara_app.dashboard.from_messages import BONES
 from sara_app.dashboard.view import ORDER
 from sara_app.errors import SaraError
 from sara_app.jobs import Job, JobRunner
-from sara_app.robot.model import urdf_dir
+from sara_app.robot.model import urdf_path
 from sara_app.whatif import table_markdown
 
 log = logging.getLogger("sara_app.dashboard")
@@ -213,7 +213,7 @@ class WhatIfPanels:
             b.root = scene.add_frame("/whatif", show_axes=False)
             scene.add_frame("/whatif/base", position=T[:3, 3], show_axes=False,
                             wxyz=viser.transforms.SO3.from_matrix(T[:3, :3]).wxyz)  # fmt: skip
-            urdf = yourdfpy.URDF.load(str(urdf_dir() / f"{self.hooks.robot}.urdf"))
+            urdf = yourdfpy.URDF.load(str(urdf_path(self.hooks.robot)))
             b.ghost = ViserUrdf(b.client, urdf, root_node_name="/whatif/base",
                                 mesh_color_override=GHOST_RGBA)  # fmt: skip
         b.root.visible = True

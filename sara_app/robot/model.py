@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import os
 import xml.etree.ElementTree as ET
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,9 +27,9 @@ import pinocchio as pin
 
 from sara_app.errors import InputError, ParameterError, RobotModelError, UnknownNameError
 from sara_app.robot.capsule_fit import fitted_capsules
-from sara_app.robot.urdf import parse_sara_limits
+from sara_app.robot.urdf import check_links, parse_sara_limits
 
-ROBOT_NAMES: tuple[str, ...] = ("panda", "ur5e")
+ROBOT_NAMES: tuple[str, ...] = ("panda", "ur10e", "ur5e")
 """Robots shipped in the repository's ``urdf/`` folder (``<name>.urdf``)."""
 
 
@@ -125,7 +126,10 @@ class RobotModel:
         name: str | None = None,
         T_world_base: np.ndarray | None = None,
         margin_m: float = 0.0,
+        joint_limits: Mapping[str, tuple[float, float]] | None = None,
     ) -> None:
+        """``joint_limits``: joint name -> (acceleration, jerk) for what the URDF's
+        ``<sara_limits>`` lacks (or overriding it)."""
         path = Path(urdf_path)
         if not path.is_file():
             raise RobotModelError(f"URDF file {str(path)!r} not found")
@@ -169,7 +173,8 @@ class RobotModel:
                         f"joint {jn!r} {label} limit = {arr[i]}; expected a positive value in "
                         "<limit>"
                     )
-        a_max, j_max = parse_sara_limits(root, joint_names, path)
+        a_max, j_max = parse_sara_limits(root, joint_names, path, joint_limits)
+        check_links(root, path)
 
         link_names, local, radius = fitted_capsules(path, root)
         frame_ids = []
@@ -351,18 +356,10 @@ def robot_names() -> tuple[str, ...]:
     return tuple(sorted(found | set(ROBOT_NAMES)))
 
 
-def load_robot(
-    name_or_path: str | os.PathLike[str],
-    *,
-    T_world_base: np.ndarray | None = None,
-    margin_m: float = 0.0,
-) -> RobotModel:
-    """Load a robot by name (``'panda'``, ``'ur5e'``, or any ``<name>.urdf`` in
-    :func:`urdf_dir`) or by URDF path. Capsule fits are cached per file.
-
-    Raises :class:`UnknownNameError` for an unknown name (listing the valid choices) and
-    :class:`RobotModelError` for a missing or invalid URDF.
-    """
+def urdf_path(name_or_path: str | os.PathLike[str]) -> Path:
+    """The URDF file of a robot name (``'panda'``, ``'ur5e'``, ``'ur10e'``, or any
+    ``<name>.urdf`` in :func:`urdf_dir`) or path. Raises :class:`UnknownNameError` for an
+    unknown name (listing the valid choices) and :class:`RobotModelError` for a missing file."""
     text = os.fspath(name_or_path)
     names = robot_names()
     if text in names:
@@ -372,8 +369,27 @@ def load_robot(
                 f"robot {text!r}: URDF {str(path)!r} not found; expected it in the folder set by "
                 "SARA_URDF_DIR or the repository's urdf/ folder"
             )
-        return RobotModel(path, name=text, T_world_base=T_world_base, margin_m=margin_m)
+        return path
     looks_like_path = text.endswith(".urdf") or os.sep in text or "/" in text
     if looks_like_path or Path(text).is_file():
-        return RobotModel(text, T_world_base=T_world_base, margin_m=margin_m)
+        if not Path(text).is_file():
+            raise RobotModelError(f"URDF file {text!r} not found")
+        return Path(text)
     raise UnknownNameError("robot", text, names)
+
+
+def load_robot(
+    name_or_path: str | os.PathLike[str],
+    *,
+    T_world_base: np.ndarray | None = None,
+    margin_m: float = 0.0,
+    joint_limits: Mapping[str, tuple[float, float]] | None = None,
+) -> RobotModel:
+    """Load a robot by name or URDF path (:func:`urdf_path`); ``joint_limits`` as for
+    :class:`RobotModel`. Capsule fits are cached per file."""
+    path = urdf_path(name_or_path)
+    text = os.fspath(name_or_path)
+    name = text if text in robot_names() else None
+    return RobotModel(
+        path, name=name, T_world_base=T_world_base, margin_m=margin_m, joint_limits=joint_limits
+    )

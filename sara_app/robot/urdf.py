@@ -25,6 +25,7 @@ primitive lies in ``conv{p_k} + ball(rho)``:
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -185,10 +186,45 @@ def link_supports(
     return supports
 
 
+def check_links(root: ET.Element, path: Path) -> None:
+    """Every link a joint moves has an ``<inertial>`` with a positive mass (PFL needs the link
+    energies) and, when it has visual geometry, ``<collision>`` geometry (the verification only
+    sees the capsules fitted to it); :class:`RobotModelError` naming the link and element."""
+    moved = {j.find("child").get("link", "") for j in root.findall("joint")  # type: ignore[union-attr]
+             if j.get("type") != "fixed" and j.find("child") is not None}  # fmt: skip
+    if not any(link.find("collision") is not None for link in root.findall("link")):
+        raise RobotModelError(
+            f"URDF {path} has no <collision> geometry on any link; expected collision "
+            "primitives or meshes on every moving link (their capsules are what is verified)"
+        )
+    for link in root.findall("link"):
+        name = link.get("name", "")
+        if name not in moved:
+            continue
+        inertial = link.find("inertial")
+        mass = None if inertial is None else inertial.find("mass")
+        if inertial is None or mass is None:
+            raise RobotModelError(
+                f"link {name!r} in {path} has no <inertial> with a <mass>; expected the link's "
+                "mass, centre of mass and inertia (PFL computes link energies from them)"
+            )
+        _positive(mass, "value", f"link {name!r} <inertial><mass>")
+        if link.find("visual") is not None and link.find("collision") is None:
+            raise RobotModelError(
+                f"link {name!r} in {path} has <visual> but no <collision> geometry; expected "
+                "<collision> (the verification sees only the capsule fitted to it)"
+            )
+
+
 def parse_sara_limits(
-    root: ET.Element, joint_names: tuple[str, ...], path: Path
+    root: ET.Element,
+    joint_names: tuple[str, ...],
+    path: Path,
+    given: Mapping[str, tuple[float, float]] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Acceleration and jerk limits ``(n_dof,)`` each from ``<sara_limits>``."""
+    """Acceleration and jerk limits ``(n_dof,)`` each from ``<sara_limits>``, completed or
+    overridden by ``given`` (joint name -> (acceleration, jerk), e.g. a scenario's
+    ``robot.joint_limits`` for a URDF that has no ``<sara_limits>``)."""
     entries: dict[str, tuple[float, float]] = {}
     for block in root.findall("sara_limits"):
         for joint in block.findall("joint"):
@@ -205,13 +241,25 @@ def parse_sara_limits(
                 _positive(joint, "acceleration", what),
                 _positive(joint, "jerk", what),
             )
+    for name, (acc, jerk) in (given or {}).items():
+        if name not in joint_names:
+            raise RobotModelError(
+                f"joint limits given for {name!r}, which is not an actuated joint of {path}; "
+                f"valid choices: {', '.join(joint_names)}"
+            )
+        if not (np.isfinite(acc) and acc > 0 and np.isfinite(jerk) and jerk > 0):
+            raise RobotModelError(
+                f"joint {name!r} limits acceleration {acc}, jerk {jerk}; expected positive values"
+            )
+        entries[name] = (float(acc), float(jerk))
     missing = [name for name in joint_names if name not in entries]
     if missing:
         raise RobotModelError(
             f"joint {missing[0]!r} has no acceleration/jerk limits in {path}"
             + (f" (nor {', '.join(repr(m) for m in missing[1:])})" if len(missing) > 1 else "")
             + f'; expected <sara_limits><joint name="{missing[0]}" acceleration="..." '
-            'jerk="..."/></sara_limits> inside <robot>'
+            'jerk="..."/></sara_limits> inside <robot>, or the scenario\'s robot.joint_limits '
+            f'{{"{missing[0]}": {{"acceleration_rad_s2": ..., "jerk_rad_s3": ...}}}}'
         )
     a = np.array([entries[name][0] for name in joint_names])
     j = np.array([entries[name][1] for name in joint_names])

@@ -123,7 +123,8 @@ class PflShield(Shield):
         """Model orders of a cycle's first check and of its replans (a slower trajectory is
         often proved by another model): the last one that completed such a check first."""
         self.pfl = PflCheck(robot, reach.skeleton.parts, thresholds=ts,
-                            link_shapes=spec.link_shapes)  # fmt: skip
+                            link_shapes=spec.link_shapes,
+                            unclampable_pairs=spec.unclampable_pairs)  # fmt: skip
         self._link_states = PathLinkStates(self.pfl.motion, self.pfl.velocity_error)
         s = self.settings
         self.compiled = CompiledCycle(

@@ -5,7 +5,8 @@
   safety engineer for the actual robot and tool. Declared here: pairs of links joined by one
   joint whose gap the manufacturer keeps finger-safe. NOT declared (so they can clamp): the
   Panda's elbow pinch between ``panda_link3`` and ``panda_link5`` and the UR5e's elbow between
-  ``upper_arm_link`` and ``forearm_link`` (both fold far enough to trap a hand or forearm).
+  ``upper_arm_link`` and ``forearm_link`` (both fold far enough to trap a hand or forearm); the
+  UR10e's as the UR5e's. Any other robot declares none unless its scenario does.
 - :data:`HUMAN_SAFE_PAIRS`: body-part pairs that cannot be clamped together as one stack (G^(h)
   of eq. 39): parts of the same extremity and parts joined by a joint (they always touch, and
   pressing a limb against its own neighbour is not a clamping against a fixed object).
@@ -38,6 +39,7 @@ ROBOT_UNCLAMPABLE_PAIRS: dict[str, tuple[tuple[str, str], ...]] = {
         ("wrist_2_link", "wrist_3_link"),
     ),
 }
+ROBOT_UNCLAMPABLE_PAIRS["ur10e"] = ROBOT_UNCLAMPABLE_PAIRS["ur5e"]  # the same links and joints
 
 _LIMBS = (
     ("l_upper_arm", "l_lower_arm", "l_hand"),
@@ -60,11 +62,11 @@ def unclampable_matrix(
     robot: str, link_names: Sequence[str], pairs: Sequence[tuple[str, str]] | None = None
 ) -> np.ndarray:
     """``(L, L)`` bool, symmetric: link pair ``(i, l)`` is in G^(r). ``pairs`` overrides the
-    declaration of ``robot``; an unknown robot (without ``pairs``) or link name raises."""
+    declaration of ``robot``; an unknown link name raises. A robot without a declaration (a
+    URDF of your own, without the scenario's ``shield.pfl.unclampable_pairs``) declares no
+    pair: CONSERVATIVE, every link pair is taken to be able to clamp a body part."""
     if pairs is None:
-        if robot not in ROBOT_UNCLAMPABLE_PAIRS:
-            raise UnknownNameError("robot with a link topology", robot, ROBOT_UNCLAMPABLE_PAIRS)
-        pairs = ROBOT_UNCLAMPABLE_PAIRS[robot]
+        pairs = ROBOT_UNCLAMPABLE_PAIRS.get(robot, ())
     names = list(link_names)
     out = np.zeros((len(names), len(names)), dtype=bool)
     for a, b in pairs:
