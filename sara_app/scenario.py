@@ -331,6 +331,10 @@ class InputSpec(_Strict):
     """Coordinates (and speeds in m/s) beyond this magnitude are refused as ``out_of_range``."""
     robot_state_timeout_s: Annotated[float, Field(gt=0, le=5)] = 0.05
     """Once a controller publishes ``robot/state``, a state older than this is a fault."""
+    low_confidence_extra_m: Annotated[float, Field(ge=0, le=2)] = 0.10
+    """How much farther than ``delta_y`` a joint the tracker reports with low confidence may
+    be (``sara_app.human.trackers``): its sets grow by this. A named conservative choice, not
+    a measured one: confirm it with the tracker at hand."""
     gate: GateSpec = GateSpec()
 
     @field_validator("trackers")

@@ -204,15 +204,21 @@ class CellWorker:
             return
         p = self.cell.params
         y, v = full_body(*msg.to_arrays())
+        n_measured = len(y) if msg.kind == "full" else len(UPPER_JOINTS)
+        missing, low = (np.pad(a, (0, len(y) - len(a))) for a in msg.joint_states())
+        seen = ~missing  # a missing joint's row is NaN: the gate holds it
         bound = self.cell.scenario.inputs.cell_bound_m
-        if not (np.abs(y).max() <= bound and (v is None or np.abs(v).max() <= bound)):
+        if not (
+            seen.any()
+            and np.abs(y[seen]).max() <= bound
+            and (v is None or np.abs(v[seen]).max() <= bound)
+        ):
             self._drop("out_of_range")  # NaN and overflow to inf fail the test too
             return
         unc = msg.position_uncertainty_m
         delta_y = p.delta_y_m if unc is None else max(unc, p.delta_y_m)
-        n_measured = len(y) if msg.kind == "full" else len(UPPER_JOINTS)
         try:
-            taken = track.intake.take(msg.stamp_s, y, delta_y, n_measured)
+            taken = track.intake.take(msg.stamp_s, y, delta_y, n_measured, missing)
         except SaraError:
             self._drop("stamp_not_advancing")
             return
@@ -221,10 +227,13 @@ class CellWorker:
             return
         g, v_est, dv_est = taken
         st = track.state
-        st.widen_m = self._widening(track, msg.position_uncertainty_m, msg.kind == "full", g)
+        low_m = np.where(low, self.cell.scenario.inputs.low_confidence_extra_m, 0.0)
+        st.widen_m = self._widening(
+            track, msg.position_uncertainty_m, msg.kind == "full", g, low_m if low.any() else None
+        )
         if v is not None:
             unc = msg.velocity_uncertainty_mps
-            st.v = v
+            st.v = np.where(seen[:, None], v, 0.0)
             st.dv = np.full(len(y), p.delta_v_mps if unc is None else max(unc, p.delta_v_mps))
             st.dv[~g.trusted] = np.inf
         else:
@@ -235,15 +244,23 @@ class CellWorker:
         st.stamp_s = msg.stamp_s
 
     def _widening(
-        self, track: Track, unc_m: float | None, legs: bool, gated: GateResult | None = None
+        self,
+        track: Track,
+        unc_m: float | None,
+        legs: bool,
+        gated: GateResult | None = None,
+        low_m: np.ndarray | None = None,
     ) -> np.ndarray | None:
         """The person's widening for a message's stated uncertainty, whether its source
-        measures the legs and the joints the gate holds (cached on the track while nothing
-        is held: recomputed when they or the parameters change)."""
+        measures the legs, the joints the gate holds and the tracker's low-confidence joints
+        ``low_m (J,)`` (cached on the track while nothing is held or low: recomputed when they
+        or the parameters change)."""
         extra = 0.0 if unc_m is None else max(unc_m - self.cell.params.delta_y_m, 0.0)
-        if gated is not None and gated.held:
+        if (gated is not None and gated.held) or low_m is not None:
             track.widen_key = None
-            return widening(self.shield.reach, extra + gated.extra_m, legs_measured=legs)
+            per_joint = extra + (0.0 if gated is None else gated.extra_m)
+            per_joint = per_joint + (0.0 if low_m is None else low_m)
+            return widening(self.shield.reach, per_joint, legs_measured=legs)
         key = (unc_m, legs, extra)
         if track.widen_key != key:
             track.widen_key = key

@@ -18,6 +18,7 @@ from sara_app.bus.keys import KINDS
 from sara_app.bus.messages import SCHEMA_VERSIONS, CapsulesMsg, SkeletonMsg, encode, source_points
 from sara_app.errors import SaraError
 from sara_app.human.skeleton import COCO17_NAMES, SOURCES, from_source, skeleton
+from sara_app.human.trackers import UNIT_M
 
 EXAMPLES = example_messages()
 SKEL_KEY = EXAMPLES["skeleton"][0]
@@ -70,9 +71,10 @@ def test_joint_mapping_matches_the_reach_code() -> None:
         np.testing.assert_allclose(y_m, from_source(source, joints), rtol=1e-15, atol=1e-15)
         np.testing.assert_allclose(v_mps, from_source(source, vel), rtol=1e-15, atol=1e-15)  # type: ignore[arg-type]
         table = SOURCES[source][1]
+        unit = UNIT_M.get(source, 1.0)  # millimetres for Azure Kinect
         for i, j in enumerate(sk.joints):  # virtual joints are means, velocities too
-            np.testing.assert_allclose(y_m[i], np.mean([joints[n] for n in table[j]], axis=0))
-            np.testing.assert_allclose(v_mps[i], np.mean([vel[n] for n in table[j]], axis=0))  # type: ignore[index]
+            np.testing.assert_allclose(y_m[i], unit * np.mean([joints[n] for n in table[j]], 0))
+            np.testing.assert_allclose(v_mps[i], unit * np.mean([vel[n] for n in table[j]], 0))  # type: ignore[index]
     assert source_points("coco17")[1] == frozenset(COCO17_NAMES)
     y = rng.normal(size=(15, 3))
     back = SkeletonMsg.from_arrays("full", y, seq=1, stamp_s=2.0, v_mps=-y).to_arrays()

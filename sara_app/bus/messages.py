@@ -26,6 +26,7 @@ from pydantic_core import PydanticCustomError
 
 from sara_app.bus.keys import NAME_PATTERN
 from sara_app.human.skeleton import COCO17_NAMES, SOURCES, skeleton
+from sara_app.human.trackers import TRACKER_POINTS, UNIT_M, joint_confidence
 
 SCHEMA_VERSION = 1
 """The schema version of every message kind but those in ``SCHEMA_VERSIONS``."""
@@ -39,7 +40,7 @@ JointVector = Annotated[list[Finite], Field(min_length=1, max_length=64)]
 Mode = Literal["intended", "failsafe", "rest", "fault"]
 
 # Point names a source may send beyond those its mapping uses (accepted, not required).
-_OPTIONAL_POINTS: dict[str, tuple[str, ...]] = {"coco17": COCO17_NAMES}
+_OPTIONAL_POINTS: dict[str, tuple[str, ...]] = {"coco17": COCO17_NAMES, **TRACKER_POINTS}
 
 
 def source_points(source: str) -> tuple[frozenset[str], frozenset[str]]:
@@ -91,6 +92,11 @@ class SkeletonMsg(_Msg):
     velocities: dict[str, Vec3] | None = None
     position_uncertainty_m: NonNeg | None = None
     velocity_uncertainty_mps: NonNeg | None = None
+    confidence: dict[str, Finite] | None = None
+    """Per point, the tracker's own confidence (``sara_app.human.trackers``: Azure Kinect
+    levels, BlazePose visibility, ZED 0-100). With it, a point may be left out: it counts as
+    missing (its joint is held and widened), as does a point below the source's missing
+    level; a low one widens its joint by ``inputs.low_confidence_extra_m``."""
 
     @field_validator("frame")
     @classmethod
@@ -120,8 +126,18 @@ class SkeletonMsg(_Msg):
                     f"valid: {sorted(allowed)}",
                 )
             missing = sorted(required - set(points))
-            if missing:
+            if missing and self.confidence is None:
                 raise _fail("missing_joint", f"{field}: source {self.source!r} needs {missing}")
+        if self.confidence is not None:
+            unknown = sorted(set(self.confidence) - allowed)
+            if unknown:
+                raise _fail(
+                    "unknown_joint",
+                    f"confidence: {unknown} are not points of source {self.source!r}; "
+                    f"valid: {sorted(allowed)}",
+                )
+            if not set(self.joints) & required:
+                raise _fail("missing_joint", f"joints: source {self.source!r}: none is given")
         return self
 
     @property
@@ -136,10 +152,26 @@ class SkeletonMsg(_Msg):
         same mapping as ``sara_app.human.skeleton.from_source``, as one matrix product.
         """
         names, W = _MATRICES[self.source]
-        y_m = W @ np.array([self.joints[n] for n in names])
-        if self.velocities is None:
-            return y_m, None
-        return y_m, W @ np.array([self.velocities[n] for n in names])
+        unit = UNIT_M.get(self.source, 1.0)
+
+        def mapped(points: dict[str, list[float]]) -> np.ndarray:
+            zero = [0.0] * 3
+            out = W @ np.array([points.get(n, zero) for n in names]) * unit
+            absent = np.array([n not in points for n in names])
+            if absent.any():  # a point left out (confidence given): its joints are unknown
+                out[(W[:, absent] != 0).any(axis=1)] = np.nan
+            return out
+
+        y_m = mapped(self.joints)
+        return y_m, None if self.velocities is None else mapped(self.velocities)
+
+    def joint_states(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(missing (J,), low (J,))`` per joint of ``kind`` from the points given and their
+        confidences (:func:`~sara_app.human.trackers.joint_confidence`); a missing joint's
+        position from :meth:`to_arrays` is NaN."""
+        kind, table = SOURCES[self.source]
+        return joint_confidence(self.source, table, skeleton(kind).joints, self.joints,
+                                self.confidence)  # fmt: skip
 
     @classmethod
     def from_arrays(

@@ -69,8 +69,9 @@ are the midpoints of the shoulders and hips, or markers on the spine)."""
 FROZEN_EPS_M = 1e-9
 """A coordinate change below this is a repeat (a frozen output, not motion or noise)."""
 
-FLAGS = ("jump", "bone", "frozen")
-"""The gate's per-joint flags, in the order of :attr:`GateResult.flags`' columns."""
+FLAGS = ("jump", "bone", "frozen", "missing")
+"""The gate's per-joint flags, in the order of :attr:`GateResult.flags`' columns (``missing``:
+the tracker said it has no measurement of the joint, :mod:`sara_app.human.trackers`)."""
 
 
 @dataclass(frozen=True)
@@ -161,12 +162,19 @@ class Gate:
         known = self._known(settings)
         self.length_m = np.where(np.isnan(known), self.length_m, known)
 
-    def check(self, t_s: float, y: np.ndarray, delta_y_m: float, n_measured: int) -> GateResult:
+    def check(
+        self, t_s: float, y: np.ndarray, delta_y_m: float, n_measured: int,
+        missing: np.ndarray | None = None,
+    ) -> GateResult:  # fmt: skip
         """Gate one frame ``y (J, 3)`` stamped ``t_s`` (see the module notes). A joint that only
         jumped is trusted (flagged: the conformance monitor answers for it); a joint blamed
-        for a bone or frozen is held."""
+        for a bone, frozen, or ``missing`` ``(J,)`` (the tracker has no measurement of it; its
+        ``y`` row may be NaN) is held. A missing joint never trusted before refuses the
+        frame: there is no position to hold."""
         out = self.out
-        m = np.arange(y.shape[0]) < n_measured
+        lost = np.zeros(y.shape[0], bool) if missing is None else np.asarray(missing, bool)
+        y = np.where(lost[:, None], self.y_trusted, y)  # a held joint's value, never NaN
+        m = (np.arange(y.shape[0]) < n_measured) & ~lost
         held = np.isfinite(self.since_s)
         dist = np.linalg.norm(y - self.y_trusted, axis=1)
         reach = 2.0 * delta_y_m + self.v_max_mps * (t_s - self.t_trusted)
@@ -179,8 +187,13 @@ class Gate:
         moved = m & ~same & np.isfinite(self.y_prev[:, 0])
         frozen = same & (moved.any() | held)
         bone = m & self._bone_blame(y, delta_y_m, jump | frozen | held, m)
-        out.flags[:, 0], out.flags[:, 1], out.flags[:, 2] = jump, bone, frozen
-        bad = bone | frozen
+        out.flags[:, 0], out.flags[:, 1], out.flags[:, 2], out.flags[:, 3] = (
+            jump,
+            bone,
+            frozen,
+            lost,
+        )
+        bad = bone | frozen | lost
         # A frozen joint's repeated value was a measurement when it first came: held from then.
         restart = frozen & (self.t_trusted > self.first_seen_s)
         self.t_trusted[restart] = self.first_seen_s[restart]
@@ -194,7 +207,9 @@ class Gate:
         out.y[:] = np.where(good[:, None], y, self.y_trusted)
         out.extra_m[:] = np.where(good, 0.0, self.v_max_mps * (t_s - self.t_trusted))
         held_s = np.where(bad, t_s - self.since_s, 0.0)
-        out.refused = bool((held_s > self.settings.max_hold_s).any())
+        out.refused = bool((held_s > self.settings.max_hold_s).any()) or bool(
+            (lost & ~np.isfinite(self.t_trusted)).any()
+        )
         self.first_seen_s = np.where(same, self.first_seen_s, t_s)
         self.y_prev[:] = y
         if np.isnan(self.length_m).any() and not (bad | jump)[m].any():

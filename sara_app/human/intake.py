@@ -54,16 +54,17 @@ class Intake:
         self.monitor.retune(v_max_mps, a_max_mps2, settings.recover_s)
 
     def take(
-        self, t_s: float, y: np.ndarray, delta_y_m: float, n_measured: int
-    ) -> tuple[GateResult, np.ndarray, np.ndarray] | None:
+        self, t_s: float, y: np.ndarray, delta_y_m: float, n_measured: int,
+        missing: np.ndarray | None = None,
+    ) -> tuple[GateResult, np.ndarray, np.ndarray] | None:  # fmt: skip
         """Gate, estimate and monitor one frame ``y (J, 3)``; returns the gate's result and the
         velocity ``(J, 3)`` with its bound ``(J,)`` (arrays owned by the intake), or None when
-        the frame is refused. A stamp that does not advance raises InputError (nothing is
-        changed then)."""
+        the frame is refused. ``missing (J,)``: joints the tracker did not measure (held by the
+        gate). A stamp that does not advance raises InputError (nothing is changed then)."""
         if self.estimator.delta_y_m != delta_y_m:  # its velocity error bound grows with it
             self.estimator.retune(delta_y_m, self.estimator.a_max)
         self.estimator.check_stamp(t_s)
-        g = self.gate.check(t_s, y, delta_y_m, n_measured)
+        g = self.gate.check(t_s, y, delta_y_m, n_measured, missing)
         if g.refused:
             return None
         v, dv = self.estimator.update(t_s, g.y, g.trusted)

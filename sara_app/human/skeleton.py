@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sara_app.errors import InputError, UnknownNameError
+from sara_app.human.trackers import TRACKER_SOURCES, UNIT_M
 
 FULL_JOINTS: tuple[str, ...] = (
     "head",
@@ -200,6 +201,8 @@ SOURCES: dict[str, tuple[str, dict[str, tuple[str, ...]]]] = {
     # The project's own names, for CSV files and Zenoh clients that already use them.
     "sara_full": ("full", {j: (j,) for j in FULL_JOINTS}),
     "sara_upper": ("upper", {j: (j,) for j in UPPER_JOINTS}),
+    # Azure Kinect, BlazePose, ZED BODY_34 (units and confidence: sara_app.human.trackers).
+    **TRACKER_SOURCES,
 }
 
 
@@ -226,7 +229,8 @@ def source_kind(source: str) -> str:
 
 
 def from_source(source: str, points: Mapping[str, object]) -> np.ndarray:
-    """Map named source points (each a 3-vector, metres) to the ``(J, 3)`` joint array.
+    """Map named source points (each a 3-vector in the source's unit, metres but for
+    :data:`~sara_app.human.trackers.UNIT_M`) to the ``(J, 3)`` joint array in metres.
 
     Raises InputError naming every missing point and every non-finite one. Extra names are
     ignored: tracking systems often send more points than the model needs.
@@ -247,4 +251,4 @@ def from_source(source: str, points: Mapping[str, object]) -> np.ndarray:
             if not np.all(np.isfinite(p)):
                 raise InputError(f"point {n!r} is not finite: {p.tolist()}")
         out[i] = np.mean(pts, axis=0)
-    return out
+    return out * UNIT_M.get(source, 1.0)
