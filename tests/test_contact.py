@@ -283,8 +283,9 @@ def test_topology_declarations_by_name() -> None:
     ur = load_robot("ur5e")
     Gu = unclampable_matrix("ur5e", ur.link_names)
     assert not Gu[ur.link_names.index("upper_arm_link"), ur.link_names.index("forearm_link")]
-    with pytest.raises(UnknownNameError, match="'kuka'"):
-        unclampable_matrix("kuka", panda.link_names)
+    # a robot without a declaration (a URDF of your own): no pair is exempt, every one may clamp
+    assert not unclampable_matrix("kuka", panda.link_names).any()
+    assert (unclampable_matrix("ur10e", ur.link_names) == Gu).all()
     with pytest.raises(UnknownNameError, match="'link9'"):
         unclampable_matrix("panda", panda.link_names, [("panda_link1", "link9")])
     H = human_safe_matrix(["l_hand", "l_lower_arm", "r_hand", "l_hand"], [0, 0, 0, 1])
