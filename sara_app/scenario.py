@@ -350,6 +350,26 @@ class SimSpec(_Strict):
     seed: int = 0
 
 
+RosTopic = Annotated[str, Field(pattern=r"^/?[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*$")]
+
+
+class Ros2Spec(_Strict):
+    """The optional bridge to a ROS 2 system running rmw_zenoh (``sara_app.ros2.bridge``)."""
+
+    enabled: bool = False
+    router: Annotated[str, Field(pattern=r"^tcp/[^\s/]+:[0-9]{1,5}$")] = "tcp/127.0.0.1:7447"
+    """The ROS 2 system's zenoh router (rmw_zenoh's ``ros2 run rmw_zenoh_cpp rmw_zenohd``)."""
+    domain_id: Annotated[int, Field(ge=0, le=232)] = 0
+    state_topic: RosTopic = "/joint_states"
+    """``sensor_msgs/JointState`` read as the measured robot state (with velocities)."""
+    command_topic: RosTopic = "/sara/joint_command"
+    """``sensor_msgs/JointState`` published with every command (the set point)."""
+    occupancy_topic: RosTopic = "/sara/occupancy"
+    """``visualization_msgs/MarkerArray`` of the occupancy (capsules as cylinders + spheres)."""
+    frame_id: Annotated[str, Field(min_length=1, max_length=64)] = "world"
+    occupancy_hz: Annotated[float, Field(gt=0, le=60)] = 10.0
+
+
 class Scenario(_Strict):
     schema_version: Literal[1] = 1
     name: Name
@@ -364,6 +384,7 @@ class Scenario(_Strict):
     shield: ShieldSpec = ShieldSpec()
     inputs: InputSpec = InputSpec()
     sim: SimSpec = SimSpec()
+    ros2: Ros2Spec = Ros2Spec()
 
     @field_validator("humans")
     @classmethod

@@ -167,15 +167,23 @@ def serve(
     try:
         rt = WORKER_RT_PRIORITY
         keep = ("--state-dir", str(default_data_dir() / "cells"))  # edits survive restarts
+        robot = Child(  # the reference controller, or the ROS 2 system through the bridge
+            "controller",
+            lambda: spawn_cell_process(
+                CONTROLLER, cell, scenario, zenoh_port, 0, rt, login("controller")
+            ),
+        )
+        if sc.ros2.enabled:
+            robot = Child(
+                "ros2",
+                lambda: spawn_cell_process(
+                    ROS2_BRIDGE, cell, scenario, zenoh_port, 0, 0, login("controller")
+                ),
+            )
         sup = Supervisor(  # the router, then the robot (the controller): the worker tracks it
             [
                 Child("router", lambda: start_process(router_cmd)),
-                Child(
-                    "controller",
-                    lambda: spawn_cell_process(
-                        CONTROLLER, cell, scenario, zenoh_port, 0, rt, login("controller")
-                    ),
-                ),
+                robot,
                 Child(
                     "worker",
                     lambda: spawn_cell_process(
@@ -254,6 +262,8 @@ def serve(
 
 
 CONTROLLER, REPLAYER = "sara_app.controller", "sara_app.replayer"
+ROS2_BRIDGE = "sara_app.ros2.bridge"
+"""Started instead of the reference controller when the scenario enables ``ros2``."""
 WORKER = "sara_app.worker_start"
 """The worker as serve starts it: it says ``starting`` while its modules load."""
 ROUTER = "sara_app.bus.router"
