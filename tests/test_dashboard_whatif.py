@@ -98,7 +98,7 @@ def test_a_whatif_from_the_browser(setup: tuple[Dashboard, WhatIfPanels, list]) 
             page.screenshot()), 60.0, "the ghost robot in the 3D view")  # fmt: skip
         assert isinstance(ghost, np.ndarray)
         page.click(_BUTTON.format("Apply the edit to the cell"))
-        wait_for(lambda: applied, 30.0, "the edit to be applied")
+        wait_for(lambda: len(applied) > 0, 30.0, "the edit to be applied")
         assert applied[0]["shield"]["mode"] == "ssm"
         wait_for(lambda: "Applied" in _text(page), 30.0, "the applied message")
         # the evidence report of the scenario in force, sent to this browser

@@ -57,7 +57,9 @@ def process_main(
     ap = argparse.ArgumentParser(prog=f"sara_app.{name}", description=description)
     ap.add_argument("--cell", default="cell1")
     ap.add_argument("--scenario", default="standing_beside_path")
-    ap.add_argument("--port", type=int, default=7447, help="zenoh router port on 127.0.0.1")
+    ap.add_argument("--port", type=int, default=7447, help="zenoh router port")
+    ap.add_argument("--router-host", default="127.0.0.1",
+                    help="the router's address (another machine: docs/deployment.md)")  # fmt: skip
     ap.add_argument("--duration", type=float, default=None)
     ap.add_argument(
         "--rt-priority",
@@ -90,7 +92,7 @@ def process_main(
         # the session's I/O threads start with it and inherit the real-time class: received
         # and sent messages then do not wait behind a browser or other normal jobs
         rt = bool(args.rt_priority) and set_realtime(args.rt_priority, name, "session threads")
-        with Bus.client(args.port, auth=auth) as bus:
+        with Bus.client(args.port, args.router_host, auth=auth) as bus:
             if rt:
                 set_normal()  # building the cell (seconds of kernel loading) at normal priority
             kw = {"state_dir": args.state_dir, "origin": args.scenario} if state else {}

@@ -3,14 +3,17 @@ neither the dashboard, the API nor their clients (browsers, event streams) can d
 messages between trackers, worker and controller: ``serve`` starts it first, supervised, at the
 real-time priority of the worker where the system permits, with the cell's access control.
 
-``--port``: the loopback port; ``--cell`` (repeatable): the cells of the access rules;
+``--port``: the port; ``--cell`` (repeatable): the cells of the access rules;
 ``--credentials``: the credentials file (without it the router has no access control, as for a
-development bus).
+development bus); ``--listen-host``: the address to listen on (default 127.0.0.1; another one
+only for a deployment on several machines, docs/deployment.md); ``--print-config``: print the
+router's configuration as a stand-alone ``zenohd`` file instead of running it.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import signal
 import sys
@@ -18,7 +21,7 @@ import threading
 
 from sara_app.bus.access import Credentials, router_access
 from sara_app.bus.process import die_with_parent, set_realtime
-from sara_app.bus.session import Bus
+from sara_app.bus.session import Bus, router_config_dict
 from sara_app.errors import SaraError
 
 
@@ -29,7 +32,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--credentials", default=None)
     ap.add_argument("--rt-priority", type=int, default=0)
     ap.add_argument("--die-with-parent", action="store_true")
+    ap.add_argument("--listen-host", default="127.0.0.1")
+    ap.add_argument("--print-config", action="store_true")
     args = ap.parse_args(argv)
+    if args.print_config:
+        access = None
+        if args.credentials:
+            access = router_access(args.cell or ["cell1"], Credentials(args.credentials))
+        print(json.dumps(router_config_dict(args.port, args.listen_host, access), indent=2))
+        return 0
     if args.die_with_parent:
         die_with_parent()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s router %(message)s")
@@ -42,8 +53,10 @@ def main(argv: list[str] | None = None) -> int:
         access = None
         if args.credentials:
             access = router_access(args.cell or ["cell1"], Credentials(args.credentials))
-        with Bus.router(args.port, access=access):
-            logging.getLogger("sara_app.router").info("listening on 127.0.0.1:%d", args.port)
+        with Bus.router(args.port, args.listen_host, access=access):
+            logging.getLogger("sara_app.router").info(
+                "listening on %s:%d", args.listen_host, args.port
+            )
             stop.wait()
     except SaraError as e:
         print(f"error: {e}", file=sys.stderr)

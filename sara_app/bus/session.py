@@ -63,15 +63,20 @@ def free_port(host: str = LOOPBACK) -> int:
         return int(s.getsockname()[1])
 
 
-def endpoint(port: int, host: str = LOOPBACK) -> str:
-    """``tcp/<host>:<port>`` for a loopback ``host``; ParameterError otherwise."""
+def endpoint(port: int, host: str = LOOPBACK, secured: bool = False) -> str:
+    """``tcp/<host>:<port>``. ``host`` must be a loopback address unless the session is
+    ``secured`` (authenticated, with the router's access control): a bus reachable from other
+    machines is never open (ParameterError otherwise)."""
     if host != "localhost":
         try:
-            loopback = ipaddress.ip_address(host).is_loopback
+            address = ipaddress.ip_address(host)
         except ValueError:
-            loopback = False
-        if not loopback:
-            raise ParameterError(f"bus host {host!r} is not a loopback address; use 127.0.0.1")
+            raise ParameterError(f"bus host {host!r} is not an IP address") from None
+        if not address.is_loopback and not secured:
+            raise ParameterError(
+                f"bus host {host!r} is not a loopback address; use 127.0.0.1, or credentials "
+                "and access control for a bus on several machines (docs/deployment.md)"
+            )
     if not isinstance(port, int) or not 0 < port < 65536:
         raise ParameterError(f"bus port {port!r} is not in 1..65535")
     return f"tcp/{host}:{port}"
@@ -80,19 +85,28 @@ def endpoint(port: int, host: str = LOOPBACK) -> str:
 def router_config(
     port: int = DEFAULT_PORT, host: str = LOOPBACK, access: dict[str, Any] | None = None
 ) -> zenoh.Config:
-    """A router session listening on ``tcp/<host>:<port>`` (loopback only), no scouting;
+    """A router session listening on ``tcp/<host>:<port>`` (loopback by default), no scouting;
     ``access``: authentication and access control (:func:`sara_app.bus.access.router_access`)."""
+    return zenoh.Config.from_json5(json.dumps(router_config_dict(port, host, access)))
+
+
+def router_config_dict(
+    port: int = DEFAULT_PORT, host: str = LOOPBACK, access: dict[str, Any] | None = None
+) -> dict[str, Any]:
+    """:func:`router_config` as a plain dict: also a stand-alone ``zenohd`` configuration file
+    (JSON is JSON5) for a router on a machine of its own (``python -m sara_app.bus.router
+    --print-config``)."""
     transport: dict[str, Any] = {"link": {"rx": {"max_message_size": ROUTER_MAX_MESSAGE_BYTES}}}
     cfg: dict[str, Any] = {
         "mode": "router",
-        "listen": {"endpoints": [endpoint(port, host)]},
+        "listen": {"endpoints": [endpoint(port, host, secured=access is not None)]},
         "scouting": _NO_SCOUTING,
         "transport": transport,
     }
     if access is not None:
         transport.update(access["transport"])
         cfg["access_control"] = access["access_control"]
-    return zenoh.Config.from_json5(json.dumps(cfg))
+    return cfg
 
 
 def client_config(
@@ -103,7 +117,8 @@ def client_config(
 ) -> zenoh.Config:
     """A client session that connects to ``tcp/<host>:<port>``, giving up after ``timeout_ms``;
     ``auth``: its credentials (:func:`sara_app.bus.access.client_auth`)."""
-    connect = {"endpoints": [endpoint(port, host)], "timeout_ms": int(timeout_ms)}
+    connect = {"endpoints": [endpoint(port, host, secured=auth is not None)],
+               "timeout_ms": int(timeout_ms)}  # fmt: skip
     cfg: dict[str, Any] = {"mode": "client", "connect": connect, "scouting": _NO_SCOUTING}
     if auth is not None:
         cfg["transport"] = auth

@@ -29,7 +29,8 @@ def _controller(args: argparse.Namespace) -> int:
 
 
 def _process_argv(args: argparse.Namespace) -> list[str]:
-    argv = ["--cell", args.cell, "--scenario", args.scenario, "--port", str(args.zenoh_port)]
+    argv = ["--cell", args.cell, "--scenario", args.scenario, "--port", str(args.zenoh_port),
+            "--router-host", args.router_host]  # fmt: skip
     if args.duration is not None:
         argv += ["--duration", str(args.duration)]
     if args.credentials is not None:
@@ -67,6 +68,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         w.add_argument("--scenario", default=DEFAULT_SCENARIO)
         w.add_argument("--cell", default="cell1")
         w.add_argument("--zenoh-port", type=int, default=7447)
+        w.add_argument("--router-host", default="127.0.0.1", help="the zenoh router's address")
         w.add_argument("--duration", type=float, default=None)
         w.add_argument("--credentials", default=None, help="serve's zenoh credentials file")
         w.add_argument("--user", default=name, help="the zenoh user (role) to log in as")
