@@ -94,7 +94,7 @@ LATENCY_DT_S = (0.004, 0.002, 0.001)
 1 kHz); a row says whether the worker kept up (cycle p99 below the period, every cycle run)."""
 
 
-def _set_dt(bus: Any, pub: Any, cell: str, dt_s: float) -> bool:
+def set_dt(bus: Any, pub: Any, cell: str, dt_s: float) -> bool:
     """Send the cell's scenario with ``shield.dt_s`` changed on ``pub`` (the params key); True
     once the worker accepted it."""
     from sara_app.scenario import load_scenario
@@ -152,24 +152,35 @@ def _latency_run(
         time.sleep(0.2)  # the last answers
     finally:
         sub.undeclare()
+    return first_verdict_latencies(received, {"p": sent}, cell)
+
+
+def first_verdict_latencies(
+    received: list[tuple[float, bytes]], sent: dict[str, dict[float, int]], cell: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """From verdicts ``(receive time, payload)`` and the skeletons sent per person (stamp ->
+    index): the latency (us) of each skeleton to the first verdict that used it (a verdict's
+    ``skeleton_age_s`` gives the stamp of the skeleton it used), and the verdicts' cycle times
+    (us)."""
     dec = Decoder()
-    first: dict[int, float] = {}
+    first: dict[tuple[str, int], float] = {}
     cycles = []
-    stamps = np.array(sorted(sent))
+    stamps = {h: np.array(sorted(s)) for h, s in sent.items()}
     for t_recv, payload in received:
         d = dec.decode(keys.verdict_key(cell), payload)
         if d is None or not isinstance(d.msg, VerdictMsg):
             continue
         cycles.append(d.msg.cycle_time_us)
-        age = d.msg.skeleton_age_s.get("p")
-        if age is None or not len(stamps):
-            continue
-        t_skel = d.msg.stamp_s - age  # the stamp of the skeleton the verdict used
-        j = int(np.clip(np.searchsorted(stamps, t_skel), 1, len(stamps) - 1))
-        k = j if abs(stamps[j] - t_skel) < abs(stamps[j - 1] - t_skel) else j - 1
-        if abs(stamps[k] - t_skel) < 1e-6:
-            i = sent[float(stamps[k])]
-            first.setdefault(i, (t_recv - float(stamps[k])) * 1e6)
+        for h, st in stamps.items():
+            age = d.msg.skeleton_age_s.get(h)
+            if age is None or len(st) < 2:
+                continue
+            t_skel = d.msg.stamp_s - age  # the stamp of the skeleton the verdict used
+            j = int(np.clip(np.searchsorted(st, t_skel), 1, len(st) - 1))
+            k = j if abs(st[j] - t_skel) < abs(st[j - 1] - t_skel) else j - 1
+            if abs(st[k] - t_skel) < 1e-6:
+                i = sent[h][float(st[k])]
+                first.setdefault((h, i), (t_recv - float(st[k])) * 1e6)
     return np.array(list(first.values())), np.array(cycles)
 
 
@@ -200,7 +211,7 @@ def bench_latency(
             params = hub.publisher(keys.params_key(cell))
             for dt_s in dts_s:
                 name = f"skeleton -> verdict, {rate_hz:.0f} Hz in, dt {dt_s * 1e3:g} ms"
-                if not _set_dt(hub, params, cell, dt_s):
+                if not set_dt(hub, params, cell, dt_s):
                     rows.append((name, float("nan"), float("nan"), "dt update refused"))
                     continue
                 time.sleep(0.5)  # settle
@@ -234,7 +245,7 @@ def _flood_row(hub: Any, pub: Any, params: Any, cell: str, port: int, n: int, ra
     import sys
 
     name = f"skeleton -> verdict, {FLOOD_RATE_HZ:.0f} msg/s flood on another id, dt 4 ms"
-    if not _set_dt(hub, params, cell, 0.004):
+    if not set_dt(hub, params, cell, 0.004):
         return name, float("nan"), float("nan"), "dt update refused"
     seconds = n / rate + 1.0
     cmd = [sys.executable, "-m", "sara_app.bench.bus", "flood", str(port), cell, "flood",

@@ -13,6 +13,11 @@ def _bench(args: argparse.Namespace) -> None:
 
         bench.print_rows(bench_sse_load(args.clients))
         return
+    if args.cells:
+        from sara_app.bench.cells import bench_cells
+
+        bench.print_rows(bench_cells(rate_hz=args.rate))
+        return
     if args.view:
         from sara_app.bench.live import bench_view_load
 
@@ -35,6 +40,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="instead: verdict delivery and command loss at a bus subscriber, idle and with "
         "many API event streams",
     )
+    b.add_argument(
+        "--cells",
+        action="store_true",
+        help="instead: many cells on one router, cells x people at --rate: latency and rate",
+    )
+    b.add_argument("--rate", type=float, default=120.0, help="skeletons per second of --cells")
     b.add_argument("--clients", type=int, default=50, help="event streams of --sse")
     b.add_argument("--scenario", default="punches", help="scenario of the --view benchmark")
     b.add_argument("--phase-s", type=float, default=6.0, help="seconds per --view phase")
