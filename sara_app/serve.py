@@ -40,7 +40,7 @@ from sara_app.audit import default_data_dir
 from sara_app.bus.access import Credentials, client_auth
 from sara_app.bus.session import Bus
 from sara_app.cell import base_pose
-from sara_app.errors import SaraError
+from sara_app.errors import ParameterError, SaraError
 from sara_app.scenario import load_scenario, scenarios_dir
 from sara_app.supervisor import Child, Supervisor
 
@@ -124,8 +124,11 @@ def serve(
     display_nice: int = DISPLAY_NICE,
     api_host: str = "127.0.0.1",
     require_token: bool = False,
+    cells: int = 1,
 ) -> int:
-    """Run everything until Ctrl-C (or ``duration_s``); returns the exit code.
+    """Run everything until Ctrl-C (or ``duration_s``); returns the exit code. ``cells``: run
+    that many cells of the scenario on the one router (:func:`cell_names`), each with its
+    processes and its 3D view (ports from ``viewer_port`` on).
 
     Lowers the calling thread's CPU priority by ``display_nice`` once the worker and the
     replayer are started (the dashboard and the API run on it and on threads it starts): call
@@ -142,112 +145,83 @@ def serve(
     folder = scenarios_dir()
     sc = load_scenario(scenario, folder)
     creds = Credentials.create(default_data_dir() / "zenoh_credentials.txt")
-
-    def login(role: str) -> tuple[str, ...]:
-        return ("--zenoh-user", role, "--zenoh-credentials", str(creds.path))
-
-    router_cmd = [sys.executable, "-m", ROUTER, "--port", str(zenoh_port), "--cell", cell,
-                  "--credentials", str(creds.path), "--rt-priority", str(WORKER_RT_PRIORITY),
-                  "--die-with-parent"]  # fmt: skip
+    names = cell_names(cell, cells)
+    router_cmd = [sys.executable, "-m", ROUTER, "--port", str(zenoh_port),
+                  *(x for c in names for x in ("--cell", c)), "--credentials", str(creds.path),
+                  "--rt-priority", str(WORKER_RT_PRIORITY), "--die-with-parent"]  # fmt: skip
 
     exposed = not _is_loopback(api_host)
     tokens_path = default_data_dir() / "api_tokens.json"
     tokens = load_tokens(tokens_path, create=True) if (require_token or exposed) else None
-    dash = Dashboard(
-        robot=sc.robot.name,
-        T_world_base=base_pose(sc.robot.base_xyz_m, sc.robot.base_rpy_rad),
-        access=DashboardAccess(tokens, cell),  # the API's tokens sign browsers in
-    )
+    dashes = {
+        c: Dashboard(
+            robot=sc.robot.name,
+            T_world_base=base_pose(sc.robot.base_xyz_m, sc.robot.base_rpy_rad),
+            access=DashboardAccess(tokens, c),  # the API's tokens sign browsers in
+        )
+        for c in names
+    }
     api = None
     registry = None
     jobs: JobRunner | None = None
-    whatif: WhatIfPanels | None = None
+    whatifs: list[WhatIfPanels] = []
     hub: Bus | None = None
     sup: Supervisor | None = None
     try:
-        rt = WORKER_RT_PRIORITY
-        keep = ("--state-dir", str(default_data_dir() / "cells"))  # edits survive restarts
-        robot = Child(  # the reference controller, or the ROS 2 system through the bridge
-            "controller",
-            lambda: spawn_cell_process(
-                CONTROLLER, cell, scenario, zenoh_port, 0, rt, login("controller")
-            ),
-        )
-        if sc.ros2.enabled:
-            robot = Child(
-                "ros2",
-                lambda: spawn_cell_process(
-                    ROS2_BRIDGE, cell, scenario, zenoh_port, 0, 0, login("controller")
-                ),
-            )
-        sup = Supervisor(  # the router, then the robot (the controller): the worker tracks it
-            [
-                Child("router", lambda: start_process(router_cmd)),
-                robot,
-                Child(
-                    "worker",
-                    lambda: spawn_cell_process(
-                        WORKER, cell, scenario, zenoh_port, 0, rt, keep + login("worker")
-                    ),
-                ),
-                Child(
-                    "replayer",
-                    lambda: spawn_cell_process(
-                        REPLAYER, cell, scenario, zenoh_port, REPLAYER_NICE, 0, login("tracker")
-                    ),
-                ),
-            ]
-        )
+        children = [Child("router", lambda: start_process(router_cmd))]
+        for c in names:
+            children += _cell_children(c, scenario, sc.ros2.enabled, zenoh_port, creds,
+                                       len(names) > 1)  # fmt: skip
+        sup = Supervisor(children, tuple(_child_name("worker", c, len(names) > 1) for c in names))
         sup.start(("router",))
         hub = _connect(zenoh_port, client_auth("editor", creds), sup)
         sup.start()
         lower_thread_priority(display_nice)  # after the spawns: children inherit the caller's
-        view = CellView(cell, hub, dash, sc, folder)
-        viewer_url = dash.start(
-            port=viewer_port,
-            on_select_scenario=view.select,
-            on_save_as=view.save_as,
-            on_params_edit=view.edit,
-        )
-        view.refresh_panels()
-        jobs = JobRunner()  # what-if runs and reports, for the dashboard and the API
-        whatif = view.attach_whatif(jobs)
+        jobs = JobRunner()  # what-if runs and reports, for the dashboards and the API
+        views, urls = {}, {}
+        for i, c in enumerate(names):
+            view = CellView(c, hub, dashes[c], sc, folder)
+            urls[c] = dashes[c].start(
+                port=viewer_port + i,
+                on_select_scenario=view.select,
+                on_save_as=view.save_as,
+                on_params_edit=view.edit,
+            )
+            view.refresh_panels()
+            panels = view.attach_whatif(jobs)
+            if panels is not None:
+                whatifs.append(panels)
+            views[c] = view
         registry = CellRegistry(hub)
         registry.start()
         app = create_app(
-            registry, folder, viewer_url=viewer_url, processes=sup.status, tokens=tokens,
+            registry, folder, viewer_url=urls[names[0]], processes=sup.status, tokens=tokens,
             require_token=tokens is not None, hosts=() if not exposed else (api_host,),
-            jobs=jobs,
+            jobs=jobs, viewers=urls if len(names) > 1 else None,
         )  # fmt: skip
         api = ApiServer(app, host=api_host, port=api_port)
         api_url = api.start().rstrip("/")
-        print(f"SaRA cell {cell!r}, scenario {scenario!r}", flush=True)
-        print(f"  3D dashboard   {viewer_url}", flush=True)
-        print(f"  cells + API    {api_url}/   (OpenAPI docs: {api_url}/docs)", flush=True)
-        print(
-            f"  zenoh router   tcp/127.0.0.1:{zenoh_port}   (Ctrl-C stops everything)", flush=True
-        )
-        print(f"  zenoh users    tracker, controller, editor: passwords in {creds.path}")
-        if tokens is not None:
-            print(f"  API changes need 'Authorization: Bearer <token>'; tokens: {tokens_path}")
-            print("  dashboard changes: sign in with a token in its Access panel")
+        _print_urls(names, scenario, urls, api_url, zenoh_port, creds.path, tokens_path, tokens)
         period = 1.0 / frame_hz
         t_end = None if duration_s is None else time.monotonic() + duration_s
         while (t_end is None or time.monotonic() < t_end) and not _STOP.is_set():
             t0 = time.monotonic()
-            frame = view.poll()
-            if frame is not None:
-                dash.update(frame)
-            elif dash.panels is not None:  # until the first verdict: what the worker is doing
-                dash.panels.show_waiting(view.waiting_status())
-            sup.poll(time.monotonic(), _verdict_age(registry, cell, sup))
+            for c in names:
+                _show(views[c], dashes[c])
+            ages = {
+                _child_name("worker", c, len(names) > 1): _verdict_age(
+                    registry, c, sup, _child_name("worker", c, len(names) > 1)
+                )
+                for c in names
+            }
+            sup.poll(time.monotonic(), ages)
             time.sleep(max(period - (time.monotonic() - t0), 0.0))
         return 0
     except KeyboardInterrupt:
         return 0
     finally:
-        if whatif is not None:
-            whatif.close()
+        for w in whatifs:
+            w.close()
         if jobs is not None:
             jobs.close()
         if sup is not None:
@@ -256,11 +230,82 @@ def serve(
             api.stop()
         if registry is not None:
             registry.close()
-        dash.stop()
+        for d in dashes.values():
+            d.stop()
         if hub is not None:
             hub.close()
 
 
+def cell_names(cell: str, n: int) -> list[str]:
+    """``[cell]`` for one cell; for ``n`` cells ``<base>1 .. <base>n`` (``cell1`` gives
+    ``cell1, cell2, ...``)."""
+    if n < 1 or n > MAX_CELLS:
+        raise ParameterError(f"--cells {n}; expected 1..{MAX_CELLS}")
+    if n == 1:
+        return [cell]
+    base = cell.rstrip("0123456789") or "cell"
+    return [f"{base}{i}" for i in range(1, n + 1)]
+
+
+def _child_name(role: str, cell: str, several: bool) -> str:
+    return f"{role}:{cell}" if several else role
+
+
+def _cell_children(
+    cell: str, scenario: str, ros2: bool, zenoh_port: int, creds: Credentials, several: bool
+) -> list[Child]:
+    """One cell's supervised processes: the robot (the reference controller, or the ROS 2
+    system through the bridge), the worker and the replayer."""
+    rt = WORKER_RT_PRIORITY
+    keep = ("--state-dir", str(default_data_dir() / "cells"))  # edits survive restarts
+
+    def login(role: str) -> tuple[str, ...]:
+        return ("--zenoh-user", role, "--zenoh-credentials", str(creds.path))
+
+    def name(role: str) -> str:
+        return _child_name(role, cell, several)
+
+    if ros2:
+        robot = Child(name("ros2"), lambda: spawn_cell_process(
+            ROS2_BRIDGE, cell, scenario, zenoh_port, 0, 0, login("controller")))  # fmt: skip
+    else:
+        robot = Child(name("controller"), lambda: spawn_cell_process(
+            CONTROLLER, cell, scenario, zenoh_port, 0, rt, login("controller")))  # fmt: skip
+    return [  # the robot first: the worker tracks it
+        robot,
+        Child(name("worker"), lambda: spawn_cell_process(
+            WORKER, cell, scenario, zenoh_port, 0, rt, keep + login("worker"))),
+        Child(name("replayer"), lambda: spawn_cell_process(
+            REPLAYER, cell, scenario, zenoh_port, REPLAYER_NICE, 0, login("tracker"))),
+    ]  # fmt: skip
+
+
+def _show(view: Any, dash: Any) -> None:
+    frame = view.poll()
+    if frame is not None:
+        dash.update(frame)
+    elif dash.panels is not None:  # until the first verdict: what the worker is doing
+        dash.panels.show_waiting(view.waiting_status())
+
+
+def _print_urls(
+    names: list[str], scenario: str, urls: dict[str, str], api_url: str, zenoh_port: int,
+    creds_path: Path, tokens_path: Path, tokens: dict[str, str] | None,
+) -> None:  # fmt: skip
+    for c in names:
+        print(f"SaRA cell {c!r}, scenario {scenario!r}", flush=True)
+        print(f"  3D dashboard   {urls[c]}", flush=True)
+    print(f"  cells + API    {api_url}/   (OpenAPI docs: {api_url}/docs)", flush=True)
+    print(f"  zenoh router   tcp/127.0.0.1:{zenoh_port}   (Ctrl-C stops everything)", flush=True)
+    print(f"  zenoh users    tracker, controller, editor: passwords in {creds_path}")
+    if tokens is not None:
+        print(f"  API changes need 'Authorization: Bearer <token>'; tokens: {tokens_path}")
+        print("  dashboard changes: sign in with a token in its Access panel")
+
+
+MAX_CELLS = 8
+"""Cells one ``serve`` runs at most (each a worker at real-time priority: see
+docs/measurements/2026-11-26-many-cells.md for what this machine carries)."""
 CONTROLLER, REPLAYER = "sara_app.controller", "sara_app.replayer"
 ROS2_BRIDGE = "sara_app.ros2.bridge"
 """Started instead of the reference controller when the scenario enables ``ros2``."""
@@ -297,14 +342,16 @@ def _is_loopback(host: str) -> bool:
         return host == "localhost"
 
 
-def _verdict_age(registry: Any, cell: str, sup: Supervisor) -> float | None:
+def _verdict_age(
+    registry: Any, cell: str, sup: Supervisor, worker: str | None = None
+) -> float | None:
     """Age of the cell's newest verdict when it came from the worker process running now
     through the router running now (received after both started), else None."""
     snap = registry.cell(cell)
     age = None if snap is None else snap.get("verdict_age_s")
     if age is None:
         return None
-    running_s = time.monotonic() - sup.verdicts_due_s()
+    running_s = time.monotonic() - sup.verdicts_due_s(worker)
     return age if age < running_s else None
 
 
@@ -329,6 +376,7 @@ def main_for_cli(
     duration_s: float | None,
     api_host: str = "127.0.0.1",
     require_token: bool = False,
+    cells: int = 1,
 ) -> int:
     logging.basicConfig(level=logging.WARNING)
     os.environ.setdefault("PYTHONUNBUFFERED", "1")
@@ -347,6 +395,7 @@ def main_for_cli(
             duration_s=duration_s,
             api_host=api_host,
             require_token=require_token,
+            cells=cells,
         )
     except SaraError as e:
         print(f"error: {e}", file=sys.stderr)

@@ -17,7 +17,7 @@ import logging
 import signal
 import subprocess
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 log = logging.getLogger("sara_app.serve")
@@ -53,10 +53,15 @@ class Supervisor:
     """Starts, watches and restarts children; ``poll(now, last_verdict_s)`` once a frame."""
 
     def __init__(
-        self, children: list[Child], worker: str = "worker", router: str = "router"
+        self,
+        children: list[Child],
+        worker: str | tuple[str, ...] = "worker",
+        router: str = "router",
     ) -> None:
+        """``worker``: the name of the worker child, or of every cell's worker."""
         self.children = children
-        self.worker, self.router = worker, router
+        self.workers = (worker,) if isinstance(worker, str) else tuple(worker)
+        self.worker, self.router = self.workers[0], router
 
     def start(self, names: tuple[str, ...] | None = None) -> None:
         """Start the children not started yet (only ``names`` when given)."""
@@ -65,10 +70,12 @@ class Supervisor:
             if c.proc is None and (names is None or c.name in names):
                 c.spawn(now)
 
-    def poll(self, now: float, verdict_age_s: float | None) -> list[str]:
+    def poll(
+        self, now: float, verdict_age_s: float | None | Mapping[str, float | None]
+    ) -> list[str]:
         """Restart what died or hung; returns what happened (for the log). ``verdict_age_s``:
         the age of the cell's newest verdict received since the worker last started (None:
-        none yet)."""
+        none yet), or per worker child name for several cells."""
         events = []
         for c in self.children:
             if c.due_s is not None:
@@ -76,16 +83,14 @@ class Supervisor:
                     c.spawn(now)
                     events.append(f"{c.name} restarted (#{c.restarts})")
                 continue
-            hung = (
-                c.name == self.worker
-                and c.alive
-                and verdict_age_s is not None
-                and verdict_age_s > HUNG_AFTER_S
-            )
+            age = verdict_age_s.get(c.name) if isinstance(verdict_age_s, Mapping) else (
+                verdict_age_s if c.name == self.worker else None
+            )  # fmt: skip
+            hung = c.name in self.workers and c.alive and age is not None and age > HUNG_AFTER_S
             if hung and c.proc is not None:
                 c.proc.send_signal(signal.SIGKILL)
                 c.proc.wait()
-                events.append(f"{c.name} hung ({verdict_age_s:.1f} s without a verdict): killed")
+                events.append(f"{c.name} hung ({age:.1f} s without a verdict): killed")
             if not c.alive:
                 code = None if c.proc is None else c.proc.returncode
                 if now - c.started_s > STABLE_S:
@@ -98,12 +103,13 @@ class Supervisor:
             log.warning("supervisor: %s", e)
         return events
 
-    def verdicts_due_s(self) -> float:
+    def verdicts_due_s(self, worker: str | None = None) -> float:
         """Since when the worker's verdicts can reach the supervisor (monotonic clock): the
         later of the worker's last start and the router's (after a router restart every session
         reconnects, about 2 s; until the first verdict after that, no hang is diagnosed: the bus
         was down, not the worker)."""
-        return max(c.started_s for c in self.children if c.name in (self.worker, self.router))
+        w = self.worker if worker is None else worker
+        return max(c.started_s for c in self.children if c.name in (w, self.router))
 
     def status(self) -> dict[str, dict[str, object]]:
         return {

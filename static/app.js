@@ -4,6 +4,7 @@
 const POLL_MS = 500;
 const MODES = ["intended", "failsafe", "fault", "rest"];
 const STALE_S = 1.0; // a mode older than this is not shown as live
+const VIEWERS = {}; // cell -> its 3D view (serve --cells N), from /api/links
 
 function fmt(x, digits, unit) {
   if (x === null || x === undefined || !Number.isFinite(x)) return "–";
@@ -67,6 +68,13 @@ function card(c) {
   dl.lastElementChild.className = "checksum";
   const more = document.createElement("p");
   more.className = "more";
+  const viewer = VIEWERS[c.cell];
+  if (viewer) {  // serve --cells N: each cell has its own 3D view
+    const a = document.createElement("a");
+    a.href = viewer;
+    a.textContent = "3D view";
+    more.append(a);
+  }
   for (const [text, path] of [["thresholds", "/thresholds"], ["threshold audit", "/thresholds/audit"]]) {
     const a = document.createElement("a");
     a.href = "/api/cells/" + encodeURIComponent(c.cell) + path;
@@ -99,6 +107,7 @@ async function links() {
   try {
     const r = await fetch("/api/links");
     const l = await r.json();
+    Object.assign(VIEWERS, l.viewers || {});
     if (l.viewer) {
       const a = document.getElementById("viewer-link");
       a.href = l.viewer;

@@ -180,3 +180,45 @@ def test_lower_thread_priority_acts_on_the_calling_thread_only() -> None:
     t.join()
     assert seen == [min(before + 3, 19)] * 2  # its own threads inherit it
     assert os.nice(0) == before  # the main thread keeps its priority (Linux: per thread)
+
+
+def test_serve_runs_several_cells_on_one_router() -> None:
+    """``serve --cells 2``: two cells of the scenario, each with its processes and its own 3D
+    view, on one router; the API lists both running and links each cell's view."""
+    zp, vp, ap = free_port(), free_port(), free_port()
+    cmd = [sys.executable, "-m", "sara_app.cli", "serve", "--cells", "2", "--zenoh-port",
+           str(zp), "--viewer-port", str(vp), "--api-port", str(ap)]  # fmt: skip
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        cells: dict[str, dict] = {}
+        t_end = time.monotonic() + 120
+        while time.monotonic() < t_end and proc.poll() is None:
+            try:
+                cells = {
+                    c["cell"]: c for c in json.loads(_get(f"http://127.0.0.1:{ap}/api/cells")[1])
+                }
+            except OSError:
+                pass
+            if all(c in cells and cells[c]["online"] and cells[c]["humans"]
+                   for c in ("cell1", "cell2")):  # fmt: skip
+                break
+            time.sleep(0.5)
+        assert set(cells) == {"cell1", "cell2"}, cells
+        assert all(cells[c]["online"] and cells[c]["humans"] for c in cells), cells
+        links = json.loads(_get(f"http://127.0.0.1:{ap}/api/links")[1])
+        assert set(links["viewers"]) == {"cell1", "cell2"}
+        assert len(set(links["viewers"].values())) == 2
+        for url in links["viewers"].values():
+            assert _get(url)[0] == 200
+        procs = json.loads(_get(f"http://127.0.0.1:{ap}/api/processes")[1])
+        assert {"router", "worker:cell1", "worker:cell2", "controller:cell1",
+                "replayer:cell2"} <= set(procs)  # fmt: skip
+        assert len(_child_pids(zp)) == 1 + 2 * 3
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out = _communicate_or_dump(proc, zp, timeout_s=30)
+    assert proc.returncode == 0, out
+    t_end = time.monotonic() + 10
+    while _children(zp) and time.monotonic() < t_end:
+        time.sleep(0.2)
+    assert _children(zp) == []

@@ -389,6 +389,7 @@ def create_app(
     require_token: bool = False,
     hosts: tuple[str, ...] = (),
     jobs: JobRunner | None = None,
+    viewers: dict[str, str] | None = None,
 ) -> FastAPI:
     """The FastAPI app; ``registry`` supplies live cells, ``scenarios_folder`` the scenarios
     (default: the shipped ``scenarios/``), ``viewer_url`` the 3D view's address for the page,
@@ -427,7 +428,10 @@ def create_app(
 
     @app.get("/api/links", tags=["service"])
     def links() -> dict[str, Any]:
-        return {"viewer": viewer_url, "docs": "/docs"}
+        out: dict[str, Any] = {"viewer": viewer_url, "docs": "/docs"}
+        if viewers:
+            out["viewers"] = viewers  # one 3D view per cell (serve --cells N)
+        return out
 
     _add_cell_routes(app, registry, folder)
     audit_log: AuditLog | Callable[[], AuditLog] = (

@@ -12,7 +12,7 @@ def _serve(args: argparse.Namespace) -> int:
 
     return main_for_cli(
         args.scenario, args.cell, args.zenoh_port, args.viewer_port, args.api_port, args.duration,
-        api_host=args.api_host, require_token=args.require_token,
+        api_host=args.api_host, require_token=args.require_token, cells=args.cells,
     )  # fmt: skip
 
 
@@ -44,6 +44,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("serve", help="run the dashboard on the built-in demo cell (127.0.0.1)")
     s.add_argument("--scenario", default=DEFAULT_SCENARIO, help="a name in scenarios/ or a file")
     s.add_argument("--cell", default="cell1")
+    s.add_argument(
+        "--cells", type=int, default=1, help="run this many cells (cell1, cell2, ...) on one router"
+    )
     s.add_argument("--zenoh-port", type=int, default=7447)
     s.add_argument("--viewer-port", type=int, default=8080)
     s.add_argument("--api-port", type=int, default=8000)
