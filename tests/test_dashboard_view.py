@@ -70,7 +70,8 @@ def test_two_browsers_keep_their_own_view_settings(dash: Dashboard) -> None:
         for i in ids:
             assert views.shows(i) == DEFAULT_VISIBLE
         before_one, before_two = _settled(one), _settled(two)
-        assert np.abs(before_one - before_two).max() <= 60  # the same default picture
+        # the same default picture in the scene (below the WebGL notice, left of the panel)
+        assert _changed(before_one[150:, :540], before_two[150:, :540]) < 200
 
         # The robot is visible in the default view: hiding it in browser one changes pixels.
         _untick(one, "robot")

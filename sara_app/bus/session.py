@@ -71,7 +71,10 @@ def endpoint(port: int, host: str = LOOPBACK, secured: bool = False) -> str:
         try:
             address = ipaddress.ip_address(host)
         except ValueError:
-            raise ParameterError(f"bus host {host!r} is not an IP address") from None
+            raise ParameterError(
+                f"bus host {host!r} is not an IP address; use 127.0.0.1 (loopback), or the "
+                "router machine's address with credentials"
+            ) from None
         if not address.is_loopback and not secured:
             raise ParameterError(
                 f"bus host {host!r} is not a loopback address; use 127.0.0.1, or credentials "
