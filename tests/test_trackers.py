@@ -19,6 +19,7 @@ from sara_app.human.trackers import (
     AZURE_KINECT_JOINTS,
     BLAZEPOSE_LANDMARKS,
     ZED_BODY34_KEYPOINTS,
+    ZED_BODY38_KEYPOINTS,
 )
 from sara_app.scenario import load_scenario
 from sara_app.worker import CellWorker
@@ -79,7 +80,21 @@ def zed_frame(y: np.ndarray, rng: np.random.Generator) -> dict[str, list[float]]
     return out
 
 
-FRAMES = {"azure_kinect": azure_frame, "blazepose": blazepose_frame, "zed_body34": zed_frame}
+def zed38_frame(y: np.ndarray, rng: np.random.Generator) -> dict[str, list[float]]:
+    """BODY_38: no head keypoint; the ears either side of the head centre."""
+    out = {n: _near(y[1], rng) for n in ZED_BODY38_KEYPOINTS}
+    for j in ("neck", "pelvis"):
+        out[j] = y[FULL_JOINTS.index(j)].tolist()
+    for s, side in SIDE.items():
+        for j in ("shoulder", "elbow", "wrist", "hip", "knee", "ankle"):
+            out[f"{side}_{j}"] = y[FULL_JOINTS.index(f"{s}_{j}")].tolist()
+    off = np.array([0.0, 0.08, 0.0])
+    out["left_ear"], out["right_ear"] = (y[0] + off).tolist(), (y[0] - off).tolist()
+    return out
+
+
+FRAMES = {"azure_kinect": azure_frame, "blazepose": blazepose_frame, "zed_body34": zed_frame,
+          "zed_body38": zed38_frame}  # fmt: skip
 
 
 @pytest.mark.parametrize("source", sorted(FRAMES))

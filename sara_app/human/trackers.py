@@ -9,9 +9,10 @@ Three layouts besides COCO-17 and SaRA's markers (:data:`sara_app.human.skeleton
 - ``blazepose``: MediaPipe BlazePose, 33 world landmarks in metres; confidence is the landmark's
   ``visibility`` in [0, 1]. Head, neck and pelvis are the midpoints of the ears, shoulders and
   hips (BlazePose has no such landmark).
-- ``zed_body34``: Stereolabs ZED, BODY_34, 34 keypoints in metres (set the SDK's
-  ``coordinate_units`` to METER); confidence is the keypoint's ``keypoint_confidence`` in
-  [0, 100] (NaN keypoints: leave the point out).
+- ``zed_body34`` / ``zed_body38``: Stereolabs ZED, BODY_34 (34 keypoints) or BODY_38 (38; the
+  head is the ears' midpoint), in metres (set the SDK's ``coordinate_units`` to METER);
+  confidence is the keypoint's ``keypoint_confidence`` in [0, 100] (NaN keypoints: leave the
+  point out).
 
 Point names are the SDKs' enum names in lower case. Positions must be in the cell's world
 frame (the tracker's extrinsic calibration is applied by the client that publishes them).
@@ -63,6 +64,17 @@ ZED_BODY34_KEYPOINTS: tuple[str, ...] = (
 )  # fmt: skip
 """ZED SDK BODY_34_PARTS in index order."""
 
+ZED_BODY38_KEYPOINTS: tuple[str, ...] = (
+    "pelvis", "spine_1", "spine_2", "spine_3", "neck", "nose", "left_eye", "right_eye",
+    "left_ear", "right_ear", "left_clavicle", "right_clavicle", "left_shoulder",
+    "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hip",
+    "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle", "left_big_toe",
+    "right_big_toe", "left_small_toe", "right_small_toe", "left_heel", "right_heel",
+    "left_hand_thumb_4", "right_hand_thumb_4", "left_hand_index_1", "right_hand_index_1",
+    "left_hand_middle_4", "right_hand_middle_4", "left_hand_pinky_1", "right_hand_pinky_1",
+)  # fmt: skip
+"""ZED SDK BODY_38_PARTS in index order (no head keypoint: the head is the ears' midpoint)."""
+
 _LIMB_JOINTS = ("shoulder", "elbow", "wrist", "hip", "knee", "ankle")
 
 
@@ -80,6 +92,8 @@ TRACKER_SOURCES: dict[str, tuple[str, dict[str, tuple[str, ...]]]] = {
                            "pelvis": ("left_hip", "right_hip"), **_limbs("{side}_{joint}")}),
     "zed_body34": ("full", {"head": ("head",), "neck": ("neck",), "pelvis": ("pelvis",),
                             **_limbs("{side}_{joint}")}),
+    "zed_body38": ("full", {"head": ("left_ear", "right_ear"), "neck": ("neck",),
+                            "pelvis": ("pelvis",), **_limbs("{side}_{joint}")}),
 }  # fmt: skip
 """Source name -> (skeleton kind, project joint -> tracker points averaged)."""
 
@@ -87,6 +101,7 @@ TRACKER_POINTS: dict[str, tuple[str, ...]] = {
     "azure_kinect": AZURE_KINECT_JOINTS,
     "blazepose": BLAZEPOSE_LANDMARKS,
     "zed_body34": ZED_BODY34_KEYPOINTS,
+    "zed_body38": ZED_BODY38_KEYPOINTS,
 }
 """Every point a tracker may send (the ones the mapping does not use are accepted, unused)."""
 
@@ -107,6 +122,7 @@ CONFIDENCE: dict[str, ConfidenceRule] = {
     "azure_kinect": ConfidenceRule(1.0, 2.0, "K4ABT level 0 none, 1 low, 2 medium, 3 high"),
     "blazepose": ConfidenceRule(0.1, 0.5, "visibility in [0, 1]"),
     "zed_body34": ConfidenceRule(10.0, 50.0, "keypoint confidence in [0, 100]"),
+    "zed_body38": ConfidenceRule(10.0, 50.0, "keypoint confidence in [0, 100]"),
 }
 
 
