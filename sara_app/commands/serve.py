@@ -16,6 +16,21 @@ def _serve(args: argparse.Namespace) -> int:
     )  # fmt: skip
 
 
+def _observe(args: argparse.Namespace) -> int:
+    import signal
+
+    from sara_app.observe import observe
+    from sara_app.serve import _interrupt
+
+    signal.signal(signal.SIGINT, _interrupt)
+    signal.signal(signal.SIGTERM, _interrupt)
+    return observe(
+        args.cell, router_host=args.router_host, zenoh_port=args.zenoh_port,
+        credentials=args.credentials, viewer_port=args.viewer_port, api_port=args.api_port,
+        api_host=args.api_host, require_token=args.require_token, duration_s=args.duration,
+    )  # fmt: skip
+
+
 def _worker(args: argparse.Namespace) -> int:
     from sara_app.worker import main
 
@@ -62,6 +77,20 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="require an API token for every change, also on loopback (tokens file printed)",
     )
     s.set_defaults(run=_serve)
+
+    o = sub.add_parser(
+        "observe", help="dashboards and API for cells running on another router (no cell here)"
+    )
+    o.add_argument("--cell", action="append", default=[], help="a cell to show (repeatable)")
+    o.add_argument("--router-host", default="127.0.0.1", help="the zenoh router's address")
+    o.add_argument("--zenoh-port", type=int, default=7447)
+    o.add_argument("--credentials", default=None, help="the cells' zenoh credentials file")
+    o.add_argument("--viewer-port", type=int, default=8080)
+    o.add_argument("--api-port", type=int, default=8000)
+    o.add_argument("--api-host", default="127.0.0.1")
+    o.add_argument("--require-token", action="store_true")
+    o.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    o.set_defaults(run=_observe)
 
     for name, run, text in (
         ("worker", _worker, "run one cell worker against a running zenoh router"),
