@@ -69,7 +69,7 @@ def observe(
     from sara_app.dashboard.bridge import CellView
     from sara_app.dashboard.viewer import Dashboard
     from sara_app.jobs import JobRunner
-    from sara_app.serve import _STOP, _is_loopback, _show
+    from sara_app.serve import _is_loopback, frame_loop
 
     if not cells:
         raise ParameterError("no cell given; expected --cell NAME (repeatable)")
@@ -112,13 +112,7 @@ def observe(
                 print(f"SaRA cell {c!r} on tcp/{router_host}:{zenoh_port}: 3D view {urls[c]}",
                       flush=True)  # fmt: skip
             print(f"  cells + API    {api_url}/   (Ctrl-C stops)", flush=True)
-            period = 1.0 / frame_hz
-            t_end = None if duration_s is None else time.monotonic() + duration_s
-            while (t_end is None or time.monotonic() < t_end) and not _STOP.is_set():
-                t0 = time.monotonic()
-                for c in cells:
-                    _show(views[c], dashes[c])
-                time.sleep(max(period - (time.monotonic() - t0), 0.0))
+            frame_loop([(views[c], dashes[c]) for c in cells], frame_hz, duration_s)
             return 0
         except KeyboardInterrupt:
             return 0

@@ -32,6 +32,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -202,20 +203,14 @@ def serve(
         api = ApiServer(app, host=api_host, port=api_port)
         api_url = api.start().rstrip("/")
         _print_urls(names, scenario, urls, api_url, zenoh_port, creds.path, tokens_path, tokens)
-        period = 1.0 / frame_hz
-        t_end = None if duration_s is None else time.monotonic() + duration_s
-        while (t_end is None or time.monotonic() < t_end) and not _STOP.is_set():
-            t0 = time.monotonic()
-            for c in names:
-                _show(views[c], dashes[c])
-            ages = {
-                _child_name("worker", c, len(names) > 1): _verdict_age(
-                    registry, c, sup, _child_name("worker", c, len(names) > 1)
-                )
-                for c in names
-            }
+        several = len(names) > 1
+
+        def supervise() -> None:
+            workers = {c: _child_name("worker", c, several) for c in names}
+            ages = {w: _verdict_age(registry, c, sup, w) for c, w in workers.items()}
             sup.poll(time.monotonic(), ages)
-            time.sleep(max(period - (time.monotonic() - t0), 0.0))
+
+        frame_loop([(views[c], dashes[c]) for c in names], frame_hz, duration_s, supervise)
         return 0
     except KeyboardInterrupt:
         return 0
@@ -278,6 +273,25 @@ def _cell_children(
         Child(name("replayer"), lambda: spawn_cell_process(
             REPLAYER, cell, scenario, zenoh_port, REPLAYER_NICE, 0, login("tracker"))),
     ]  # fmt: skip
+
+
+def frame_loop(
+    pairs: list[tuple[Any, Any]],
+    frame_hz: float,
+    duration_s: float | None,
+    each: Callable[[], None] | None = None,
+) -> None:
+    """Draw every (cell view, dashboard) pair ``frame_hz`` times a second (and run ``each``)
+    until Ctrl-C or ``duration_s``."""
+    period = 1.0 / frame_hz
+    t_end = None if duration_s is None else time.monotonic() + duration_s
+    while (t_end is None or time.monotonic() < t_end) and not _STOP.is_set():
+        t0 = time.monotonic()
+        for view, dash in pairs:
+            _show(view, dash)
+        if each is not None:
+            each()
+        time.sleep(max(period - (time.monotonic() - t0), 0.0))
 
 
 def _show(view: Any, dash: Any) -> None:

@@ -70,27 +70,28 @@ def blazepose_frame(y: np.ndarray, rng: np.random.Generator) -> dict[str, list[f
     return out
 
 
-def zed_frame(y: np.ndarray, rng: np.random.Generator) -> dict[str, list[float]]:
-    out = {n: _near(y[1], rng) for n in ZED_BODY34_KEYPOINTS}
+def _zed(names: tuple[str, ...], y: np.ndarray, rng: np.random.Generator) -> dict[str, list]:
+    """A ZED frame: the mapped keypoints at the pose (the ears either side of the head centre,
+    as BODY_38 has no head keypoint), the others near the neck."""
+    out = {n: _near(y[1], rng) for n in names}
     for j in ("head", "neck", "pelvis"):
-        out[j] = y[FULL_JOINTS.index(j)].tolist()
-    for s, side in SIDE.items():
-        for j in ("shoulder", "elbow", "wrist", "hip", "knee", "ankle"):
-            out[f"{side}_{j}"] = y[FULL_JOINTS.index(f"{s}_{j}")].tolist()
-    return out
-
-
-def zed38_frame(y: np.ndarray, rng: np.random.Generator) -> dict[str, list[float]]:
-    """BODY_38: no head keypoint; the ears either side of the head centre."""
-    out = {n: _near(y[1], rng) for n in ZED_BODY38_KEYPOINTS}
-    for j in ("neck", "pelvis"):
         out[j] = y[FULL_JOINTS.index(j)].tolist()
     for s, side in SIDE.items():
         for j in ("shoulder", "elbow", "wrist", "hip", "knee", "ankle"):
             out[f"{side}_{j}"] = y[FULL_JOINTS.index(f"{s}_{j}")].tolist()
     off = np.array([0.0, 0.08, 0.0])
     out["left_ear"], out["right_ear"] = (y[0] + off).tolist(), (y[0] - off).tolist()
+    if "head" not in names:
+        del out["head"]
     return out
+
+
+def zed_frame(y: np.ndarray, rng: np.random.Generator) -> dict[str, list[float]]:
+    return _zed(ZED_BODY34_KEYPOINTS, y, rng)
+
+
+def zed38_frame(y: np.ndarray, rng: np.random.Generator) -> dict[str, list[float]]:
+    return _zed(ZED_BODY38_KEYPOINTS, y, rng)
 
 
 FRAMES = {"azure_kinect": azure_frame, "blazepose": blazepose_frame, "zed_body34": zed_frame,
