@@ -101,6 +101,13 @@ def test_a_whatif_from_the_browser(setup: tuple[Dashboard, WhatIfPanels, list]) 
         wait_for(lambda: len(applied) > 0, 30.0, "the edit to be applied")
         assert applied[0]["shield"]["mode"] == "ssm"
         wait_for(lambda: "Applied" in _text(page), 30.0, "the applied message")
+        # the people replaced by the shipped recorded walk, in the what-if only
+        b.gui["people"].value = "recording 02_01 (CMU walk)"
+        page.click(run)
+        wait_for(lambda: b.job is not None, 30.0, "the recording's what-if to start")
+        wait_for(lambda: b.job is None and "What-if done" in _text(page), 300.0,
+                 "the recording's what-if")  # fmt: skip
+        assert b.edited is not None and b.edited["humans"][0]["recording"] == "02_01"
         # the evidence report of the scenario in force, sent to this browser
         page.click(_BUTTON.format("Evidence report (download)"))
         wait_for(lambda: "Evidence report downloaded" in _text(page), 300.0, "the report")

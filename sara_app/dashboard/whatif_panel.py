@@ -33,6 +33,11 @@ from sara_app.whatif import table_markdown
 
 log = logging.getLogger("sara_app.dashboard")
 MODES = ("as edited", "SSM", "PFL", "JSSA")
+PEOPLE = ("as edited", "recording 02_01 (CMU walk)")
+"""Who is in the what-if: the scenario's people, or them replaced by a shipped recording."""
+WALKER = {"id": "walker", "type": "recording", "recording": "02_01", "offset_m": [0.9, 0.0, 0.0],
+          "start_s": 1.0}  # fmt: skip
+"""The recorded walk passing the cell (as the shipped ``cmu_walk`` scenario places it)."""
 POLL_S = 0.3
 GHOST_RGBA = (0.25, 0.45, 1.0, 0.45)
 INTRO = (
@@ -91,6 +96,7 @@ class WhatIfPanels:
                             expand_by_default=False):  # fmt: skip
             gui.add_markdown(INTRO)
             g["mode"] = gui.add_dropdown("Safety mode", MODES, initial_value=MODES[0])
+            g["people"] = gui.add_dropdown("People", PEOPLE, initial_value=PEOPLE[0])
             g["duration"] = gui.add_number("Duration (s)", 10.0, min=1.0, max=60.0, step=1.0)
             g["run"] = gui.add_button("Run what-if")
             g["progress"] = gui.add_progress_bar(0.0, visible=False, animated=True)
@@ -130,6 +136,8 @@ class WhatIfPanels:
         except (SaraError, ValueError) as e:
             b.gui["status"].content = f"**Not started**: the edit is invalid: {e}"
             return
+        if str(b.gui["people"].value) != PEOPLE[0]:
+            edited = {**edited, "humans": [dict(WALKER)]}
         b.edited, b.frames = edited, []
         for name in ("scrub", "ghost", "apply"):
             b.gui[name].disabled = True
