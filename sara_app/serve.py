@@ -173,7 +173,8 @@ def serve(
         for c in names:
             children += _cell_children(c, scenario, sc.ros2.enabled, zenoh_port, creds,
                                        len(names) > 1)  # fmt: skip
-        sup = Supervisor(children, tuple(_child_name("worker", c, len(names) > 1) for c in names))
+        workers = {c: _child_name("worker", c, len(names) > 1) for c in names}
+        sup = Supervisor(children, tuple(workers.values()))
         sup.start(("router",))
         hub = _connect(zenoh_port, client_auth("editor", creds), sup)
         sup.start()
@@ -203,10 +204,8 @@ def serve(
         api = ApiServer(app, host=api_host, port=api_port)
         api_url = api.start().rstrip("/")
         _print_urls(names, scenario, urls, api_url, zenoh_port, creds.path, tokens_path, tokens)
-        several = len(names) > 1
 
         def supervise() -> None:
-            workers = {c: _child_name("worker", c, several) for c in names}
             ages = {w: _verdict_age(registry, c, sup, w) for c, w in workers.items()}
             sup.poll(time.monotonic(), ages)
 

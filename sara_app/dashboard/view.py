@@ -69,15 +69,6 @@ class BrowserViews:
         with self._lock:
             return self._browsers[client_id].shows()
 
-    def set(self, client_id: int, name: str, shown: bool) -> None:
-        """Tick or untick a checkbox of one browser, as its user would (``name`` one of the
-        :data:`CHECKBOXES`' names, or ``"by_contact"``)."""
-        with self._lock:
-            b = self._browsers[client_id]
-        box = b.by_contact if name == "by_contact" else b.boxes[name]
-        if box is not None:
-            box.value = shown  # type: ignore[misc]  # runs the checkbox's update callback
-
     def _connect(self, client: viser.ClientHandle) -> None:
         frames = {
             name: client.scene.add_frame(

@@ -151,6 +151,7 @@ class Gate:
         self.first_seen_s = np.full(J, -np.inf)  # when each joint's current value first came
         self.since_s = np.full(J, np.nan)  # when the current hold began (nan: not held)
         self._learn: list[np.ndarray] = []
+        self._none = np.zeros(J, bool)  # no joint missing (a frame without confidences)
         self.out = GateResult(np.zeros((J, 3)), np.zeros(J), np.ones(J, bool),
                               np.zeros((J, len(FLAGS)), bool), np.zeros(J))  # fmt: skip
 
@@ -172,8 +173,9 @@ class Gate:
         ``y`` row may be NaN) is held. A missing joint never trusted before refuses the
         frame: there is no position to hold."""
         out = self.out
-        lost = np.zeros(y.shape[0], bool) if missing is None else np.asarray(missing, bool)
-        y = np.where(lost[:, None], self.y_trusted, y)  # a held joint's value, never NaN
+        lost = self._none if missing is None else np.asarray(missing, bool)
+        if lost.any():
+            y = np.where(lost[:, None], self.y_trusted, y)  # a held joint's value, never NaN
         m = (np.arange(y.shape[0]) < n_measured) & ~lost
         held = np.isfinite(self.since_s)
         dist = np.linalg.norm(y - self.y_trusted, axis=1)

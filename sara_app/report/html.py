@@ -46,25 +46,29 @@ def _table(head: Sequence[str], rows: Iterable[Sequence[str]]) -> str:
     return "\n".join(out) + "</table>"
 
 
-def _png(fig: Any) -> str:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
-    return (
-        '<img alt="plot" src="data:image/png;base64,'
-        + base64.b64encode(buf.getvalue()).decode()
-        + '"/>'
-    )
-
-
-def _closed_loop_plot(ev: Evidence) -> str:
-    if not ev.closed_loop:
-        return ""
+def _pyplot() -> Any:
+    """matplotlib's pyplot on the Agg backend (no display), imported on use."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(8, 3))
+    return plt
+
+
+def _png(fig: Any) -> str:
+    """The figure as an embedded PNG ``<img>``; the figure is closed."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+    _pyplot().close(fig)
+    data = base64.b64encode(buf.getvalue()).decode()
+    return f'<img alt="plot" src="data:image/png;base64,{data}"/>'
+
+
+def _closed_loop_plot(ev: Evidence) -> str:
+    if not ev.closed_loop:
+        return ""
+    fig, ax = _pyplot().subplots(figsize=(8, 3))
     for run in ev.closed_loop:
         s = run["series"]
         sep = [float("nan") if v is None else v for v in s["separation_m"]]
@@ -74,20 +78,13 @@ def _closed_loop_plot(ev: Evidence) -> str:
     ax.set_ylabel("true separation (m)")
     ax.legend()
     ax.grid(alpha=0.3)
-    out = _png(fig)
-    plt.close(fig)
-    return out
+    return _png(fig)
 
 
 def _containment_plot(ev: Evidence) -> str:
     if not ev.containment:
         return ""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(8, 3))
+    fig, ax = _pyplot().subplots(figsize=(8, 3))
     models = sorted({r["model"] for r in ev.containment})
     for i, h in enumerate(HORIZONS_S):
         vals = [min((r["share"] for r in ev.containment
@@ -99,9 +96,7 @@ def _containment_plot(ev: Evidence) -> str:
     ax.set_ylabel("contained (%), worst recording")
     ax.set_ylim(min(90.0, ax.get_ylim()[0]), 100.5)
     ax.legend(title="horizon")
-    out = _png(fig)
-    plt.close(fig)
-    return out
+    return _png(fig)
 
 
 def _configuration(ev: Evidence) -> str:
