@@ -26,7 +26,7 @@ from pydantic import (
 
 from sara_app.errors import SaraError, ScenarioError
 from sara_app.human.gate import BONES, GateSettings
-from sara_app.human.intake import IntakeSettings
+from sara_app.human.intake import STALE_AFTER_S, IntakeSettings
 from sara_app.human.params import RENAMED as PARAM_SETS_RENAMED
 from sara_app.human.params import ParamSet, load_param_set, parse_param_set
 from sara_app.human.reach import MODELS
@@ -298,6 +298,12 @@ class GateSpec(_Strict):
     """A joint distrusted longer than this refuses its person's skeletons (the person ages)."""
     recover_s: Annotated[float, Field(gt=0.1, le=60)] = 0.5
     """A person beyond the parameter set's bounds is a fault until this long within them."""
+    stale_tracker: bool = True
+    """A whole skeleton repeated bit-exactly is no new measurement (the person ages) and, for
+    longer than ``stale_after_s``, a stale tracker (a fault). Off only for a noiseless
+    synthetic source, whose people at rest repeat their skeletons exactly."""
+    stale_after_s: Annotated[float, Field(gt=0, le=2)] = STALE_AFTER_S
+    """How long a whole skeleton may repeat before its person is a fault."""
     bone_lengths_m: dict[str, Annotated[float, Field(gt=0, lt=2)]] = {}
     """Known bone lengths (e.g. of the one operator of a cell), keyed ``joint-joint`` as in
     ``sara_app.human.gate.BONES`` (``"l_elbow-l_wrist"``): checked from the first frame; the
@@ -315,7 +321,8 @@ class GateSpec(_Strict):
     def intake(self) -> IntakeSettings:
         known = tuple((*k.split("-"), length) for k, length in self.bone_lengths_m.items())
         gate = GateSettings(self.bone_tol_m, self.learn_frames, self.max_hold_s, known)  # type: ignore[arg-type]
-        return IntakeSettings(gate, self.recover_s)
+        stale = self.stale_after_s if self.stale_tracker else None
+        return IntakeSettings(gate, self.recover_s, stale)
 
 
 class InputSpec(_Strict):

@@ -45,10 +45,9 @@ from sara_app.bus.starting import Starting, last_status_seq
 from sara_app.cell import Cell, build_cell
 from sara_app.cell_state import CellState
 from sara_app.errors import SaraError
-from sara_app.human.gate import GateResult
 from sara_app.human.reach import MODELS, part_capsules
-from sara_app.human.skeleton import UPPER_JOINTS, full_body
-from sara_app.human.widening import per_capsule, widening
+from sara_app.human.widening import per_capsule
+from sara_app.ingest import ingest_skeleton, rewiden
 from sara_app.presence import Presence, Track, unmeasured_track
 from sara_app.robot.trajectory import JointState
 from sara_app.safety.jssa_mode import JssaMode
@@ -202,70 +201,9 @@ class CellWorker:
         if track is None:
             self._drop("too_many_people")
             return
-        p = self.cell.params
-        y, v = full_body(*msg.to_arrays())
-        n_measured = len(y) if msg.kind == "full" else len(UPPER_JOINTS)
-        missing, low = (np.pad(a, (0, len(y) - len(a))) for a in msg.joint_states())
-        seen = ~missing  # a missing joint's row is NaN: the gate holds it
-        bound = self.cell.scenario.inputs.cell_bound_m
-        if not (
-            seen.any()
-            and np.abs(y[seen]).max() <= bound
-            and (v is None or np.abs(v[seen]).max() <= bound)
-        ):
-            self._drop("out_of_range")  # NaN and overflow to inf fail the test too
-            return
-        unc = msg.position_uncertainty_m
-        delta_y = p.delta_y_m if unc is None else max(unc, p.delta_y_m)
-        try:
-            taken = track.intake.take(msg.stamp_s, y, delta_y, n_measured, missing)
-        except SaraError:
-            self._drop("stamp_not_advancing")
-            return
-        if taken is None:  # a joint distrusted too long: the person ages
-            self._drop("tracking_inconsistent")
-            return
-        g, v_est, dv_est = taken
-        st = track.state
-        low_m = np.where(low, self.cell.scenario.inputs.low_confidence_extra_m, 0.0)
-        st.widen_m = self._widening(
-            track, msg.position_uncertainty_m, msg.kind == "full", g, low_m if low.any() else None
-        )
-        if v is not None:
-            unc = msg.velocity_uncertainty_mps
-            st.v = np.where(seen[:, None], v, 0.0)
-            st.dv = np.full(len(y), p.delta_v_mps if unc is None else max(unc, p.delta_v_mps))
-            st.dv[~g.trusted] = np.inf
-        else:
-            st.v, st.dv = v_est.copy(), dv_est.copy()
-        if msg.kind != "full":
-            st.dv[len(UPPER_JOINTS) :] = np.inf  # the legs' velocities are not measured
-        st.y = g.y.copy()
-        st.stamp_s = msg.stamp_s
-
-    def _widening(
-        self,
-        track: Track,
-        unc_m: float | None,
-        legs: bool,
-        gated: GateResult | None = None,
-        low_m: np.ndarray | None = None,
-    ) -> np.ndarray | None:
-        """The person's widening for a message's stated uncertainty, whether its source
-        measures the legs, the joints the gate holds and the tracker's low-confidence joints
-        ``low_m (J,)`` (cached on the track while nothing is held or low: recomputed when they
-        or the parameters change)."""
-        extra = 0.0 if unc_m is None else max(unc_m - self.cell.params.delta_y_m, 0.0)
-        if (gated is not None and gated.held) or low_m is not None:
-            track.widen_key = None
-            per_joint = extra + (0.0 if gated is None else gated.extra_m)
-            per_joint = per_joint + (0.0 if low_m is None else low_m)
-            return widening(self.shield.reach, per_joint, legs_measured=legs)
-        key = (unc_m, legs, extra)
-        if track.widen_key != key:
-            track.widen_key = key
-            track.widen_m = widening(self.shield.reach, extra, legs_measured=legs)
-        return track.widen_m
+        reason = ingest_skeleton(self.cell, track, msg)
+        if reason is not None:
+            self._drop(reason)
 
     def _ingest(self, now: float) -> None:
         skel = self.sub_skel.drain_latest()
@@ -394,8 +332,7 @@ class CellWorker:
         for t in self.presence.tracks.values():
             t.intake.retune(p.delta_y_m, p.v_max_mps, p.a_max_mps2, gate)
             t.state.dv = np.full(len(p.v_max_mps), np.inf)
-            if t.widen_key is not None:  # the same message under the new delta_y
-                t.state.widen_m = self._widening(t, t.widen_key[0], t.widen_key[1])
+            rewiden(new, t)  # the same message under the new delta_y
         self.scenario_revision += 1
         gc.freeze()  # the new cell joins the frozen heap (see bus.process.freeze_heap)
         return True, ""

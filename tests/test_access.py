@@ -17,6 +17,7 @@ from sara_app.bus.access import Credentials, client_auth, router_access
 from sara_app.bus.heartbeat import Heartbeat
 from sara_app.bus.messages import ParamsMsg, RobotStateMsg, SkeletonMsg, VerdictMsg
 from sara_app.bus.session import Bus, BusError, free_port
+from sara_app.human.motions import measured
 from sara_app.human.scripted import joints, standing
 from sara_app.scenario import load_scenario
 from sara_app.worker import CellWorker
@@ -70,12 +71,14 @@ def test_a_foreign_publisher_cannot_move_a_person(tmp_path: Path) -> None:
         thread = threading.Thread(target=worker.run, daemon=True)
         thread.start()
         near, far = joints(standing((0.8, 0.0), np.pi)), joints(standing((5.0, 0.0), np.pi))
+        rng = np.random.default_rng(0)
         pub = tb.publisher(keys.skeleton_key(CELL, "p1"))
         stop = threading.Event()
 
         def real() -> None:
             while not stop.wait(1 / 60):
-                pub.put(SkeletonMsg.from_arrays("full", near, seq=pub.next_seq(),
+                y = measured(near, 0.002, rng)  # a real tracker's noise
+                pub.put(SkeletonMsg.from_arrays("full", y, seq=pub.next_seq(),
                                                 stamp_s=time.time()))  # fmt: skip
 
         def stranger() -> None:

@@ -30,6 +30,7 @@ from sara_app.bus.messages import (
     VerdictMsg,
 )
 from sara_app.bus.session import Bus, free_port
+from sara_app.human.motions import measured
 from sara_app.human.skeleton import skeleton
 from sara_app.scenario import load_scenario
 from sara_app.serve import WORKER_RT_PRIORITY, connect_when_listening
@@ -55,12 +56,14 @@ class Cell:
         self.commands = bus.subscribe(keys.robot_command_key(CELL), fifo=True, capacity=50000)
         self.acks = bus.subscribe(keys.params_ack_key(CELL), fifo=True)
         self.pubs: dict[str, Any] = {}
+        self.rng = np.random.default_rng(0)
 
     def put_skeleton(self, human: str, y: np.ndarray, stamp_s: float | None = None) -> None:
         pub = self.pubs.get(human) or self.pubs.setdefault(
             human, self.bus.publisher(keys.skeleton_key(CELL, human))
         )
         stamp = time.time() if stamp_s is None else stamp_s
+        y = measured(np.asarray(y, float), 0.002, self.rng)  # a real tracker's noise
         pub.put(SkeletonMsg.from_arrays("full", y, seq=pub.next_seq(), stamp_s=stamp))
 
     def collect(self, seconds: float, every=None) -> tuple[list[VerdictMsg], list[RobotCommandMsg]]:
@@ -215,20 +218,24 @@ def test_joints_at_1e300_give_fault_verdicts_and_no_intended_command(cell: Cell)
 
 
 FLOOD = """
-import json, sys, time, zenoh
+import json, random, sys, time, zenoh
 port, cell, n_ids = sys.argv[1], sys.argv[2], int(sys.argv[3])
 rate, seconds = float(sys.argv[4]), float(sys.argv[5])
 joints, prefix = json.loads(sys.argv[6]), sys.argv[7]
 conf = {"mode": "client", "connect": {"endpoints": [f"tcp/127.0.0.1:{port}"]}}
 with zenoh.open(zenoh.Config.from_json5(json.dumps(conf))) as s:
     pubs = [s.declare_publisher(f"sara/{cell}/human/{prefix}{i}/skeleton") for i in range(n_ids)]
-    body = json.dumps({"source": "sara_full", "joints": joints})[1:]
+    # a real tracker's noise (1 mm): 64 variants, so that no skeleton repeats the one before
+    bodies = [json.dumps({"source": "sara_full", "joints": {
+        k: [c + random.uniform(-0.001, 0.001) for c in v] for k, v in joints.items()}})[1:]
+        for _ in range(64)]
     t0 = time.time(); sent = 0
     while time.time() - t0 < seconds:
         now = time.time()
         due = int((now - t0) * rate) - sent
         for _ in range(max(due, 0)):
-            msg = '{"schema_version": 1, "seq": %d, "stamp_s": %.6f, ' % (sent, time.time()) + body
+            head = '{"schema_version": 1, "seq": %d, "stamp_s": %.6f, ' % (sent, time.time())
+            msg = head + bodies[sent % 64]
             pubs[sent % n_ids].put(msg.encode()); sent += 1
         time.sleep(0.0005)
     print(sent)

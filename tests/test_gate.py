@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from sara_app.errors import ParameterError
-from sara_app.human.gate import FLAGS, Gate, GateSettings
+from sara_app.human.gate import FLAGS, Gate, GateSettings, enclose
 from sara_app.human.glitches import Glitches
 from sara_app.human.recordings import load_recording
 from sara_app.scenario import GateSpec, GlitchSpec
@@ -95,8 +97,9 @@ def test_a_frozen_joint_is_held_from_its_first_repeat() -> None:
     assert gate.counts["frozen"] == on.sum() - 1
 
 
-def test_a_spike_is_a_jump_of_a_trusted_joint() -> None:
-    """Along its bone a spike cannot be told from real motion: trusted, flagged ``jump``."""
+def test_a_spike_along_its_bone_is_held_and_its_set_holds_both_positions() -> None:
+    """Along its bone a spike cannot be told from real motion: held (flagged ``jump``, with the
+    speed it needed for the monitor), and its set encloses both the history and the spike."""
     t, y, meas, on = _glitched("spike", offset_m=(0.0, 0.0, 0.0), duration_s=0.02)
     _, flags, _, _ = _run(t, meas, y)
     assert not flags.any()  # a zero spike is no glitch
@@ -110,8 +113,68 @@ def test_a_spike_is_a_jump_of_a_trusted_joint() -> None:
     for i in range(len(t)):
         g = gate.check(float(t[i]), meas[i], DY, 15)
         if i == k:
-            assert g.flags[7, FLAGS.index("jump")] and g.trusted[7]
+            assert g.flags[7, FLAGS.index("jump")] and not g.trusted[7]
             assert g.jump_speed_mps[7] > V_MAX[7]
+            # the measurement is kept: the spike lies in the joint's set as well as the truth
+            for point in (meas[k, 7], y[k, 7]):
+                assert np.linalg.norm(point - g.y[7]) <= DY + g.extra_m[7] + 1e-12
+        elif i == k + 1:
+            assert g.trusted.all()  # history and measurement agree again
+
+
+def test_a_whole_skeleton_jump_keeps_both_places_until_they_agree() -> None:
+    """A person measured 2.5 m away from one frame to the next: every joint's set holds the
+    old place (grown at v_max) and the new one until the new one is within reach of the old
+    one; no joint's velocity is estimated across the jump meanwhile."""
+    t, y = _walk(3)
+    y[:] = y[0]  # standing still
+    meas = _noisy(y, 3)
+    k = 60
+    meas[k:] += [2.5, 0.0, 0.0]
+    gate = Gate(V_MAX, GateSettings(max_hold_s=5.0))
+    seen_agreement = False
+    for i in range(len(t)):
+        g = gate.check(float(t[i]), meas[i], DY, 15)
+        if i < k:
+            continue
+        lag = t[i] - t[k - 1]
+        agree = 2.5 + 0.05 <= 2 * DY + 2.0 * lag  # surely within reach
+        if 2.5 - 0.05 > 2 * DY + 2.0 * lag:  # surely not
+            assert not g.trusted.any() and g.flags[:, FLAGS.index("jump")].all()
+            # the new place (measured), the old one (measured, and here the truth) are kept
+            for points in (meas[i], y[i], meas[k - 1]):
+                err = np.linalg.norm(points - g.y, axis=1)
+                assert np.all(err <= DY + g.extra_m + 1e-9)
+        elif agree:
+            assert g.trusted.all() and not g.extra_m.any()
+            seen_agreement = True
+    assert seen_agreement
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.lists(st.floats(-2, 2), min_size=6, max_size=6),
+    st.floats(0, 1), st.floats(0, 1), st.booleans(), st.integers(0, 2**31),
+)  # fmt: skip
+def test_enclose_contains_both_balls_and_is_no_larger_than_needed(
+    xs: list[float], r1: float, r2: float, missing: bool, seed: int
+) -> None:
+    c1, c2 = np.array([xs[:3]]), np.array([xs[3:]])
+    R2 = np.array([-np.inf if missing else r2])
+    c, R = enclose(c1, np.array([r1]), c2, R2)
+    rng = np.random.default_rng(seed)
+    u = rng.normal(size=(200, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    balls = [(c1[0], r1)] + ([] if missing else [(c2[0], r2)])
+    for centre, r in balls:  # the far side of each ball, and random boundary points
+        off = centre - c[0]
+        n = np.linalg.norm(off)
+        far = [centre + r * off / n] if n > 1e-9 else []
+        for p in np.vstack([*far, centre + r * u]):
+            assert np.linalg.norm(p - c[0]) <= R[0] + 1e-9
+    d = np.linalg.norm(c2 - c1)
+    smallest = r1 if missing else max(r1, r2, (d + r1 + r2) / 2)  # the diameter needs it
+    assert R[0] <= smallest + 1e-12
 
 
 def test_a_joint_held_too_long_refuses_the_frame() -> None:

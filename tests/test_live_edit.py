@@ -36,6 +36,7 @@ from sara_app.bus import keys
 from sara_app.bus.heartbeat import Heartbeat
 from sara_app.bus.messages import OccupancyMsg, RobotCommandMsg, SkeletonMsg, VerdictMsg
 from sara_app.bus.session import Bus, Subscription, free_port
+from sara_app.human.motions import measured
 from sara_app.human.params import load_param_set
 from sara_app.human.skeleton import skeleton
 from sara_app.robot.model import load_robot
@@ -71,6 +72,7 @@ class Person:
         live.heartbeat.people = {"p1"}  # the tracker sees them
         names = skeleton("full").joints
         self.y = np.array([STANDING[n] for n in names], float) + [x_m, 0.0, 0.0]
+        self.rng = np.random.default_rng(1)
         self.bus = Bus.client(port)
         self.pub = self.bus.publisher(keys.skeleton_key(CELL, "p1"))
         self._stop = threading.Event()
@@ -80,7 +82,8 @@ class Person:
     def _run(self) -> None:
         while not self._stop.wait(1 / 60):
             seq = self.pub.next_seq()
-            self.pub.put(SkeletonMsg.from_arrays("full", self.y, seq=seq, stamp_s=time.time()))
+            y = measured(self.y, 0.002, self.rng)  # a real tracker's noise
+            self.pub.put(SkeletonMsg.from_arrays("full", y, seq=seq, stamp_s=time.time()))
 
     def close(self) -> None:
         self._stop.set()

@@ -33,7 +33,7 @@ EXAMPLE = Path(__file__).resolve().parent.parent / "sara_app" / "bus" / "example
 # An independent client that stands a person at x (m) in front of the robot, on the end
 # effector's path when x is about 0.6.
 NEAR_CLIENT = """
-import json, sys, time, zenoh
+import json, random, sys, time, zenoh
 port, x, n = sys.argv[1], float(sys.argv[2]), int(sys.argv[3])
 J = {"head": (0, 0, 1.65), "neck": (0, 0, 1.45), "pelvis": (0, 0, 0.95),
      "l_shoulder": (0, 0.18, 1.42), "r_shoulder": (0, -0.18, 1.42), "l_elbow": (0, 0.22, 1.15),
@@ -44,7 +44,8 @@ conf = {"mode": "client", "connect": {"endpoints": [f"tcp/127.0.0.1:{port}"]}}
 with zenoh.open(zenoh.Config.from_json5(json.dumps(conf))) as s:
     pub = s.declare_publisher("sara/cell1/human/near/skeleton")
     for seq in range(n):
-        joints = {k: [x + a, b, c] for k, (a, b, c) in J.items()}
+        u = lambda: random.uniform(-0.001, 0.001)  # a real tracker's noise
+        joints = {k: [x + a + u(), b + u(), c + u()] for k, (a, b, c) in J.items()}
         msg = {"schema_version": 1, "seq": seq, "stamp_s": time.time(), "source": "sara_full",
                "joints": joints}
         pub.put(json.dumps(msg).encode())

@@ -36,6 +36,7 @@ from sara_app.bus.messages import (
     VerdictMsg,
     encode,
 )
+from sara_app.human.motions import measured
 
 Row = tuple[str, float, float, str]
 
@@ -88,6 +89,9 @@ def _loopback_row(n: int) -> Row:
     return "bus: skeleton build+put+drain, one session", med, p99, "in-process zenoh"
 
 
+TRACKER_NOISE_M = 0.002
+"""The benches' trackers add noise (within delta_y): a skeleton repeated bit-exactly is no new
+measurement for the cell (a stale tracker), as from no real tracker."""
 LATENCY_SCENARIO = "empty_cell"
 LATENCY_DT_S = (0.004, 0.002, 0.001)
 """Control periods of the latency rows: the scenarios' default, then faster loops (the mission's
@@ -121,6 +125,7 @@ def _publish_at(pub: Any, rate_hz: float, n: int, out: dict[float, int]) -> None
     from sara_app.human.scripted import joints, standing
 
     y = joints(standing((1.5, 0.0), 0.0))
+    rng = np.random.default_rng(0)
     period = 1.0 / rate_hz
     t_next = time.monotonic()
     for i in range(n):
@@ -129,7 +134,8 @@ def _publish_at(pub: Any, rate_hz: float, n: int, out: dict[float, int]) -> None
             time.sleep(delay)
         t_pub = time.time()
         out[t_pub] = i
-        pub.put(SkeletonMsg.from_arrays("full", y, seq=pub.next_seq(), stamp_s=t_pub))
+        y_meas = measured(y, TRACKER_NOISE_M, rng)  # a real tracker never repeats a skeleton
+        pub.put(SkeletonMsg.from_arrays("full", y_meas, seq=pub.next_seq(), stamp_s=t_pub))
         t_next += period
 
 
@@ -274,13 +280,18 @@ def flood(port: int, cell: str, human: str, rate_hz: float, seconds: float) -> i
     from sara_app.human.scripted import joints, standing
 
     y = joints(standing((3.0, 0.0), 0.0))
+    rng = np.random.default_rng(1)
+    noisy = [measured(y, TRACKER_NOISE_M, rng) for _ in range(64)]  # precomputed: a cheap flood
     with Bus.client(port) as bus:
         p = bus.publisher(keys.skeleton_key(cell, human))
         t0 = time.monotonic()
         sent = 0
         while (now := time.monotonic()) - t0 < seconds:
             for _ in range(int((now - t0) * rate_hz) - sent):
-                p.put(SkeletonMsg.from_arrays("full", y, seq=p.next_seq(), stamp_s=time.time()))
+                y_meas = noisy[sent % len(noisy)]  # never a repeat of the one before
+                p.put(
+                    SkeletonMsg.from_arrays("full", y_meas, seq=p.next_seq(), stamp_s=time.time())
+                )
                 sent += 1
             time.sleep(0.0005)
     return sent

@@ -19,11 +19,18 @@ from typing import Any
 
 import numpy as np
 
-from sara_app.bench.bus import LATENCY_SCENARIO, Row, first_verdict_latencies, set_dt
+from sara_app.bench.bus import (
+    LATENCY_SCENARIO,
+    TRACKER_NOISE_M,
+    Row,
+    first_verdict_latencies,
+    set_dt,
+)
 from sara_app.bus import keys
 from sara_app.bus.heartbeat import Heartbeat
 from sara_app.bus.messages import SkeletonMsg
 from sara_app.errors import SaraError
+from sara_app.human.motions import measured
 
 LATENCY_P99_MS = 5.0
 DT_S = 0.002
@@ -44,6 +51,7 @@ def _publish(pubs: list[Any], ys: list[np.ndarray], rate_hz: float, seconds: flo
              sent: dict[str, dict[float, int]]) -> None:  # fmt: skip
     """Every person's skeleton at ``rate_hz`` for ``seconds`` (stamps recorded per person)."""
     period, t_next = 1.0 / rate_hz, time.monotonic()
+    rng = np.random.default_rng(0)
     for i in range(int(seconds * rate_hz)):
         delay = t_next - time.monotonic()
         if delay > 0:
@@ -51,7 +59,8 @@ def _publish(pubs: list[Any], ys: list[np.ndarray], rate_hz: float, seconds: flo
         for k, (pub, y) in enumerate(zip(pubs, ys, strict=True)):
             t = time.time()
             sent[f"p{k}"][t] = i
-            pub.put(SkeletonMsg.from_arrays("full", y, seq=pub.next_seq(), stamp_s=t))
+            y_meas = measured(y, TRACKER_NOISE_M, rng)  # a real tracker never repeats a skeleton
+            pub.put(SkeletonMsg.from_arrays("full", y_meas, seq=pub.next_seq(), stamp_s=t))
         t_next += period
 
 

@@ -14,8 +14,8 @@ Reasons (``REASONS``, the contract's list; a test holds the two equal): too_larg
 malformed_json, non_finite, schema_version, missing_field, unknown_field, unknown_source,
 unknown_joint, missing_joint, unknown_frame, inconsistent_length, invalid, key_mismatch,
 out_of_order, internal; and, counted by the worker through ``Decoder.count``: superseded,
-out_of_range, stamp_not_advancing, tracking_inconsistent, unknown_tracker, too_many_people,
-wrong_dof.
+out_of_range, stamp_not_advancing, tracking_inconsistent, repeated, unknown_tracker,
+too_many_people, wrong_dof.
 """
 
 from __future__ import annotations
@@ -56,6 +56,7 @@ REASONS: tuple[str, ...] = (
     "out_of_range",
     "stamp_not_advancing",
     "tracking_inconsistent",
+    "repeated",
     "unknown_tracker",
     "too_many_people",
     "wrong_dof",

@@ -274,7 +274,9 @@ class RobotCommandMsg(_Msg):
         return q[k] + slope * (t_s - t[k]), slope
 
 
-TrackingFlag = Literal["jump", "bone", "frozen", "refused", "speed", "acceleration"]
+TrackingFlag = Literal[
+    "jump", "bone", "frozen", "missing", "refused", "speed", "acceleration", "repeated"
+]
 """The tracking gate's flags (``jump``, ``bone``, ``frozen``; ``refused``: skeletons refused
 for a joint distrusted too long) and the conformance monitor's (``speed``, ``acceleration``)."""
 

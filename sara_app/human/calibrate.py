@@ -16,7 +16,8 @@ one-frame chord deviation ``|y_i - (y_(i-1) + y_(i+1)) / 2|``, which noise alone
 ``2 delta_y`` (a larger value is either a glitch or acceleration beyond ``2 (d - 2 delta_y) /
 dt^2``, which the bounds then must allow).
 
-Frames are screened first as a live cell would (:func:`sara_app.human.intake.screen`): a joint
+Frames are screened first as a live cell would (:func:`sara_app.human.intake.screen`, with no
+speed bound: a joint faster than the base set allows is motion to fit): a joint
 the tracking gate distrusts in a frame (bone, frozen) is excluded from every pair it is in, and
 the report lists those frames. The bounds also cover what the conformance monitor needs on the
 recordings (its values do not depend on the bounds), so a cell running the calibrated set does
@@ -201,24 +202,42 @@ def _screened(
     dy: float,
     joints: tuple[str, ...],
     rep: CalibrationReport,
-) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
-    """Each recording through a live cell's intake under ``base``: the joint-frames to use,
-    and the monitor's needs ``(J,)`` (speed, acceleration) over all recordings."""
-    trusted, need_v, need_a = [], np.zeros(len(joints)), np.zeros(len(joints))
+) -> list[np.ndarray]:
+    """Each recording through a live cell's intake under ``base``: the joint-frames to fit (those
+    the gate does not blame for a glitch: bone, frozen, missing; a joint faster than ``base``
+    allows is held by the live gate as a jump, but it is motion to fit)."""
+    trusted = []
     for rec in recs:
         p = to_reach_params(base.model_copy(update={"delta_y_m": dy}), rec.kind)
         J = rec.positions_m.shape[1]
         s = screen(rec.times_s, rec.positions_m, dy, p.v_max_mps[:J], p.a_max_mps2[:J])
-        trusted.append(~s.held)
+        trusted.append(~s.glitched)
         rep.excluded[rec.name] = [line for line in s.summary(rec.joints)
                                   if not line.startswith(("jump", "beyond"))]  # fmt: skip
-        need_v = np.maximum(need_v, s.peak_speed_mps)
-        need_a = np.maximum(need_a, s.peak_acc_mps2)
         y = rec.positions_m
         chord = np.linalg.norm(y[1:-1] - 0.5 * (y[:-2] + y[2:]), axis=-1).max(axis=0, initial=0)
         for q, jn in enumerate(joints):
             rep.noise_m[jn] = max(rep.noise_m.get(jn, 0.0), float(chord[q]))
-    return trusted, need_v, need_a
+    return trusted
+
+
+def _monitor_needs(
+    base: ParamSet, recs: list[Recording], dy: float, v: np.ndarray, a: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(J,)`` the largest speed and acceleration the conformance monitor measures on ``recs``
+    with the bounds ``v``, ``a`` ``(J,)`` in force (the full-skeleton order; what an upper-body
+    recording measures is its joints')."""
+    need_v, need_a = np.zeros(len(v)), np.zeros(len(v))
+    for rec in recs:
+        J = rec.positions_m.shape[1]
+        s = screen(rec.times_s, rec.positions_m, dy, v[:J], a[:J])
+        need_v[:J] = np.maximum(need_v[:J], s.peak_speed_mps)
+        need_a[:J] = np.maximum(need_a[:J], s.peak_acc_mps2)
+    return need_v, need_a
+
+
+def _round_up(x: np.ndarray, margin: float, step: float) -> np.ndarray:
+    return np.ceil(x * margin / step) * step
 
 
 def calibrate(
@@ -231,24 +250,34 @@ def calibrate(
     """A new parameter set whose bounds contain ``recs`` for the given horizon, with the
     tracker noise bound ``delta_y_m`` (None: ``base``'s).
 
-    Bounds are never lowered below ``base``'s: calibration only widens.
+    Bounds are never lowered below ``base``'s: calibration only widens. The monitor's needs are
+    measured with the fitted bounds in force (under them no joint jumps, so the monitor checks
+    every joint) and the bounds raised until they cover them.
     """
     kinds = {r.kind for r in recs}
     joints = skeleton("full" if kinds == {"full"} else "upper").joints
     dy = base.delta_y_m if delta_y_m is None else float(delta_y_m)
     rep = CalibrationReport(horizon_s, delta_y_m=dy)
-    trusted, need_v, need_a = _screened(base, recs, dy, joints, rep)
+    trusted = _screened(base, recs, dy, joints, rep)
     v_fit, dvs = fit_velocity(recs, joints, dy, horizon_s, trusted=trusted)
-    a0 = np.maximum([base.joints[j].a_max_mps2 for j in joints], need_a)
-    a_fit, das = fit_acceleration(recs, a0, dy, horizon_s, trusted=trusted)
+    a_base = np.array([base.joints[j].a_max_mps2 for j in joints])
+    v_base = np.array([base.joints[j].v_max_mps for j in joints])
+    a_fit, das = fit_acceleration(recs, a_base, dy, horizon_s, trusted=trusted)
+    v = np.maximum(v_base, _round_up(v_fit, 1.01, 0.01))
+    a = np.maximum(a_base, _round_up(a_fit, 1.0, 1.0))
+    for _ in range(8):  # raising a bound only lowers what the monitor finds beyond it
+        need_v, need_a = _monitor_needs(base, recs, dy, v, a)
+        if (need_v <= v).all() and (need_a <= a).all():
+            break
+        v = np.maximum(v, _round_up(need_v, 1.01, 0.01))
+        a = np.maximum(a, _round_up(need_a, 1.0, 1.0))
     new_joints = dict(base.joints)
     for q, jn in enumerate(joints):
         rep.monitor_v[jn], rep.monitor_a[jn] = float(need_v[q]), float(need_a[q])
-        v_need = max(v_fit[q], need_v[q])
-        v = max(base.joints[jn].v_max_mps, float(np.ceil(v_need * 1.01 * 100) / 100))
-        a = max(base.joints[jn].a_max_mps2, float(np.ceil(max(a_fit[q], need_a[q]))))
-        new_joints[jn] = base.joints[jn].model_copy(update={"v_max_mps": v, "a_max_mps2": a})
-        rep.v_max[jn], rep.a_max[jn] = v, a
+        new_joints[jn] = base.joints[jn].model_copy(
+            update={"v_max_mps": float(v[q]), "a_max_mps2": float(a[q])}
+        )
+        rep.v_max[jn], rep.a_max[jn] = float(v[q]), float(a[q])
         rep.drivers_v[jn], rep.drivers_a[jn] = dvs[q], das[q]
     iso_v = max(rep.v_max.values())
     sh_v = max(rep.v_max.get("l_shoulder", 0.0), rep.v_max.get("r_shoulder", 0.0))

@@ -7,8 +7,8 @@ per person and joint, two necessary conditions on the motion the tracking qualit
 a jump, a long one a small excess sustained); a violation proves that an assumption does not
 hold right now:
 
-- **speed**: ``|y_2 - y_0| <= 2 delta_y + v_max (t_2 - t_0)`` (and the gate's ``jump`` of a trusted
-  joint, the same test against its last trusted position); value reported:
+- **speed**: ``|y_2 - y_0| <= 2 delta_y + v_max (t_2 - t_0)`` (and the gate's ``jump`` of a joint
+  that only jumped, the same test against its last trusted position); value reported:
   ``(|y_2 - y_0| - 2 delta_y) / (t_2 - t_0)``;
 - **acceleration**: a point whose acceleration is bounded by ``a_max`` lies within
   ``a_max (t_1 - t_0)(t_2 - t_1) / 2`` of the chord between its positions at ``t_0`` and ``t_2``
@@ -93,12 +93,13 @@ class Monitor:
         delta_y_m: float,
         jump_speed_mps: np.ndarray,
     ) -> list[Violation]:
-        """One gated frame ``y (J, 3)`` with the gate's ``trusted (J,)`` and, for trusted joints
-        that jumped, the speed they needed ``jump_speed_mps (J,)`` (0 elsewhere)."""
+        """One gated frame ``y (J, 3)`` with the gate's ``trusted (J,)`` and, for joints that
+        only jumped (held by the gate, bones consistent), the speed they needed
+        ``jump_speed_mps (J,)`` (0 elsewhere)."""
         for arr, new in ((self._t, t_s), (self._y, y), (self._ok, trusted)):
             arr[1:] = arr[:-1]
             arr[0] = new
-        speed = np.where(trusted, jump_speed_mps, 0.0)
+        speed = np.array(jump_speed_mps, dtype=float)  # the gate's: joints that only jumped
         acc = np.zeros(len(self.joints))
         for e in range(SPANS):
             k = 2**e

@@ -24,15 +24,26 @@ against three necessary conditions and never trusts a joint that fails one:
   joint is distrusted from the first repeated frame on (its true position at that frame is the
   repeated value).
 
-A joint that only jumped stays trusted and flagged: a glitch along its bones cannot be told
-from a person faster than the set allows, and the monitor puts that person on the failsafe.
-A joint blamed for a bone or frozen is distrusted ("held"): it is replaced by its last trusted
-position ``y_T`` and its position uncertainty grows soundly by ``v_max (t - t_T)`` (the
-returned ``extra_m``, applied by :mod:`sara_app.human.widening`; its velocity is unknown: the
-estimator excludes such frames).
-It is trusted again as soon as a frame passes all three checks against the held state. A joint
-held for longer than ``max_hold_s`` makes the whole frame refused (counted; the person ages and
-the shield's stale-measurement rule brakes the robot).
+A joint that fails a check is distrusted ("held") until a frame passes all three against its
+last trusted position ``y_T`` (stamped ``t_T``): then the history and the newest measurement
+agree again. Meanwhile neither is discarded (DESIGN 10, "a measurement is never discarded for
+history"): a jump is ambiguous (the old position may be the glitch and the new one the truth: a
+tracker that recovers from a wrong association, a person found again after an occlusion), so
+the joint's set must hold both the history, ``B(y_T, delta_T + v_max (t - t_T))``, and the
+measurement, ``B(y, delta_y)`` (a frozen value ages from when it first came; a missing joint
+has no measurement). The gate returns the smallest ball enclosing the two (:func:`enclose`): its
+centre as the joint's position and its radius beyond ``delta_y`` as ``extra_m``, which
+:mod:`sara_app.human.widening` adds to every model's capsules containing the joint (each model
+is a union of balls around the measured joints grown by ``delta_y``, so it stays sound for a
+joint known to within ``delta_y + extra``). A held joint's velocity is unknown: the estimator
+excludes such frames, so no model's set is centred on a velocity measured across a jump.
+
+A joint that only jumped (its bones are consistent: the whole skeleton moved, or a joint moved
+faster than the set allows) also reports the speed it needed (``jump_speed_mps``): the
+conformance monitor puts that person on the failsafe. A joint blamed for a bone (a swapped or
+spiking marker) does not: its widened set covers it. A joint held for longer than
+``max_hold_s`` makes the whole frame refused (counted; the person ages and the shield's
+stale-measurement rule brakes the robot).
 
 Only the first ``n_measured`` joints are checked (an upper-body source places the legs at the
 pelvis; they are covered by :mod:`sara_app.human.widening`, not measured).
@@ -123,6 +134,23 @@ class GateResult:
         return not bool(self.trusted.all())
 
 
+def enclose(
+    c1: np.ndarray, r1: np.ndarray, c2: np.ndarray, r2: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The smallest ball enclosing the balls ``B(c1, r1)`` and ``B(c2, r2)``, per row: centres
+    ``(N, 3)``, radii ``(N,)``; returns the centres ``(N, 3)`` and radii ``(N,)``. A radius of
+    ``-inf`` is no ball (the other is returned). For distance ``d`` between the centres the
+    radius is ``max(r1, r2, (d + r1 + r2) / 2)`` and the centre lies on the segment from
+    ``c1`` to ``c2``, ``(R - r1) / d`` of the way."""
+    d = np.linalg.norm(c2 - c1, axis=1)
+    with np.errstate(invalid="ignore"):  # -inf + inf: one ball missing
+        R = np.maximum(np.maximum(r1, r2), np.nan_to_num((d + r1 + r2) / 2.0, nan=-np.inf))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w = np.where(d > 0.0, (R - r1) / d, np.where(r2 > r1, 1.0, 0.0))
+    w = np.clip(np.nan_to_num(w, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
+    return c1 + w[:, None] * (c2 - c1), R
+
+
 def bone_indices(joints: tuple[str, ...] = FULL_JOINTS) -> np.ndarray:
     """``(B, 2)`` joint indices of the bones whose joints are all in ``joints``."""
     return np.array([[joints.index(a), joints.index(b)] for a, b in BONES
@@ -147,6 +175,7 @@ class Gate:
         """``(B,)`` the bone lengths checked (nan: not known yet, being learned)."""
         self.y_trusted = np.zeros((J, 3))
         self.t_trusted = np.full(J, -np.inf)
+        self.dy_trusted = np.zeros(J)  # delta_y of each joint's last trusted measurement
         self.y_prev = np.full((J, 3), np.nan)
         self.first_seen_s = np.full(J, -np.inf)  # when each joint's current value first came
         self.since_s = np.full(J, np.nan)  # when the current hold began (nan: not held)
@@ -181,10 +210,6 @@ class Gate:
         dist = np.linalg.norm(y - self.y_trusted, axis=1)
         reach = 2.0 * delta_y_m + self.v_max_mps * (t_s - self.t_trusted)
         jump = m & np.isfinite(self.t_trusted) & (dist > reach)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            out.jump_speed_mps[:] = np.where(
-                jump, (dist - 2.0 * delta_y_m) / (t_s - self.t_trusted), 0.0
-            )
         same = m & np.all(np.abs(y - self.y_prev) <= FROZEN_EPS_M, axis=1)
         moved = m & ~same & np.isfinite(self.y_prev[:, 0])
         frozen = same & (moved.any() | held)
@@ -195,7 +220,13 @@ class Gate:
             frozen,
             lost,
         )
-        bad = bone | frozen | lost
+        glitch = bone | frozen | lost
+        only_jump = jump & ~glitch
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out.jump_speed_mps[:] = np.where(
+                only_jump, (dist - 2.0 * delta_y_m) / (t_s - self.t_trusted), 0.0
+            )
+        bad = glitch | jump
         # A frozen joint's repeated value was a measurement when it first came: held from then.
         restart = frozen & (self.t_trusted > self.first_seen_s)
         self.t_trusted[restart] = self.first_seen_s[restart]
@@ -205,9 +236,9 @@ class Gate:
         good = ~bad
         self.y_trusted[good] = y[good]
         self.t_trusted[good] = t_s
+        self.dy_trusted[good] = delta_y_m
         out.trusted[:] = good
-        out.y[:] = np.where(good[:, None], y, self.y_trusted)
-        out.extra_m[:] = np.where(good, 0.0, self.v_max_mps * (t_s - self.t_trusted))
+        self._enclose_held(t_s, y, delta_y_m, good, frozen, lost)
         held_s = np.where(bad, t_s - self.since_s, 0.0)
         out.refused = bool((held_s > self.settings.max_hold_s).any()) or bool(
             (lost & ~np.isfinite(self.t_trusted)).any()
@@ -220,6 +251,22 @@ class Gate:
             self.counts[name] += int(out.flags[:, k].sum())
         self.counts["refused"] += int(out.refused)
         return out
+
+    def _enclose_held(
+        self, t_s: float, y: np.ndarray, delta_y_m: float, good: np.ndarray,
+        frozen: np.ndarray, lost: np.ndarray,
+    ) -> None:  # fmt: skip
+        """``out.y`` and ``out.extra_m``: a trusted joint as measured; a held one as the ball
+        enclosing its history and its measurement (see the module notes)."""
+        out = self.out
+        age = np.maximum(t_s - self.t_trusted, 0.0)
+        r_hist = self.dy_trusted + self.v_max_mps * age
+        # A frozen value is a measurement from when it first came; a missing joint has none.
+        since = np.where(frozen, np.minimum(self.first_seen_s, t_s), t_s)
+        r_meas = np.where(lost, -np.inf, delta_y_m + self.v_max_mps * (t_s - since))
+        centre, radius = enclose(self.y_trusted, r_hist, y, r_meas)
+        out.y[:] = np.where(good[:, None], y, centre)
+        out.extra_m[:] = np.where(good, 0.0, np.maximum(radius - delta_y_m, 0.0))
 
     def _bone_blame(
         self, y: np.ndarray, delta_y_m: float, suspect: np.ndarray, measured: np.ndarray

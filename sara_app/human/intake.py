@@ -15,18 +15,38 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sara_app.errors import InputError
 from sara_app.human.conformance import Monitor, Violation
-from sara_app.human.gate import FLAGS, Gate, GateResult, GateSettings
+from sara_app.human.gate import FLAGS, FROZEN_EPS_M, Gate, GateResult, GateSettings
 from sara_app.human.skeleton import FULL_JOINTS
 from sara_app.human.velocity import VelocityEstimator
+
+STALE_AFTER_S = 0.1
+"""A whole skeleton repeated bit-exactly for longer than this, its stamps advancing, is a stale
+tracker (a pipeline that stalled and republishes its last pose): a fault until it changes. A
+real tracker's noise never repeats every coordinate of a skeleton; a tracker that republishes
+each pose once at twice its rate (a 30 Hz camera behind a 60 Hz stream) repeats for one
+period, well below this."""
+
+
+SETTLE_S = 0.3
+"""How long a person must have been measured standing at one place before their sets there are
+at least as conservative as a fresh person's, whatever came before (jumps, swaps, freezes, gaps:
+the history property, ``tests/test_ingest_history.py``). It is the velocity estimator's reach
+(8 frames: 0.27 s at 30 Hz) with margin: before it, a fresh person's first frames have no
+velocity estimate (the acceleration models are unusable for them) while a person who walked
+there has a sound one; a held joint's set meanwhile encloses its history and its measurement."""
 
 
 @dataclass(frozen=True)
 class IntakeSettings:
-    """The gate's settings and the monitor's ``recover_s``."""
+    """The gate's settings, the monitor's ``recover_s`` and the stale-tracker rule:
+    ``stale_after_s`` (None: off, for noiseless synthetic sources, whose people at rest repeat
+    their skeleton exactly)."""
 
     gate: GateSettings = GateSettings()
     recover_s: float = 0.5
+    stale_after_s: float | None = STALE_AFTER_S
 
 
 class Intake:
@@ -43,6 +63,14 @@ class Intake:
         self.gate = Gate(np.asarray(v_max_mps, float), settings.gate)
         self.estimator = VelocityEstimator(J, delta_y_m, a_max_mps2)
         self.monitor = Monitor(FULL_JOINTS[:J], v_max_mps, a_max_mps2, settings.recover_s)
+        self.stale_after_s = settings.stale_after_s
+        self.refusal: str | None = None
+        """Why the last frame :meth:`take` returned None for: ``tracking_inconsistent`` or
+        ``repeated`` (the contract's reasons)."""
+        self._raw = np.full((J, 3), np.nan)  # the last frame as measured
+        self._raw_since_s = -np.inf  # stamp of the first frame with those values
+        self.newest_s = -np.inf  # the newest stamp taken, repeated or not
+        self.repeats = 0
 
     def retune(
         self, delta_y_m: float, v_max_mps: np.ndarray, a_max_mps2: np.ndarray,
@@ -52,6 +80,7 @@ class Intake:
         self.gate.retune(v_max_mps, settings.gate)
         self.estimator.retune(delta_y_m, a_max_mps2)
         self.monitor.retune(v_max_mps, a_max_mps2, settings.recover_s)
+        self.stale_after_s = settings.stale_after_s
 
     def take(
         self, t_s: float, y: np.ndarray, delta_y_m: float, n_measured: int,
@@ -59,24 +88,68 @@ class Intake:
     ) -> tuple[GateResult, np.ndarray, np.ndarray] | None:  # fmt: skip
         """Gate, estimate and monitor one frame ``y (J, 3)``; returns the gate's result and the
         velocity ``(J, 3)`` with its bound ``(J,)`` (arrays owned by the intake), or None when
-        the frame is refused. ``missing (J,)``: joints the tracker did not measure (held by the
-        gate). A stamp that does not advance raises InputError (nothing is changed then)."""
+        the frame is not taken (``refusal`` says why). ``missing (J,)``: joints the tracker did
+        not measure (held by the gate). A stamp that does not advance raises InputError
+        (nothing is changed then).
+
+        A frame whose measured joints all repeat the previous frame's bit-exactly (the
+        stale-tracker rule on) is no new measurement: nothing is changed, the person keeps the
+        stamp of the first frame with those values and ages (``repeated``); past
+        ``stale_after_s`` the person is a fault (:meth:`fault`)."""
+        self.refusal = None
         if self.estimator.delta_y_m != delta_y_m:  # its velocity error bound grows with it
             self.estimator.retune(delta_y_m, self.estimator.a_max)
         self.estimator.check_stamp(t_s)
+        if not t_s > self.newest_s:
+            raise InputError(f"skeleton time stamp {t_s} does not advance past {self.newest_s}")
+        self.newest_s = t_s
+        if self._repeated(t_s, y, n_measured, missing):
+            self.repeats += 1
+            self.refusal = "repeated"
+            return None
         g = self.gate.check(t_s, y, delta_y_m, n_measured, missing)
+        # The monitor sees refused frames too: a measurement that still disagrees with the
+        # history keeps the person's fault alive (recover_s counts from the last one).
+        self.monitor.observe(t_s, g.y, g.trusted, delta_y_m, g.jump_speed_mps)
         if g.refused:
+            self.refusal = "tracking_inconsistent"
             return None
         v, dv = self.estimator.update(t_s, g.y, g.trusted)
-        self.monitor.observe(t_s, g.y, g.trusted, delta_y_m, g.jump_speed_mps)
         return g, v, dv
 
+    def _repeated(
+        self, t_s: float, y: np.ndarray, n_measured: int, missing: np.ndarray | None
+    ) -> bool:
+        """Whether ``y``'s measured joints repeat the last frame's exactly (rule on); keeps the
+        last frame and when its values first came."""
+        m = np.arange(len(y)) < n_measured
+        if missing is not None:
+            m &= ~np.asarray(missing, bool)
+        same = bool(m.any()) and bool(
+            np.all(np.abs(y[m] - self._raw[m]) <= FROZEN_EPS_M)  # NaN (no last frame): False
+        )
+        if not same:
+            self._raw[:] = y
+            self._raw_since_s = t_s
+        return same and self.stale_after_s is not None
+
+    @property
+    def stale_s(self) -> float:
+        """How long the newest frame's values have repeated (0: they changed last frame)."""
+        return self.newest_s - self._raw_since_s if self.stale_after_s is not None else 0.0
+
     def fault(self, human_id: str) -> str | None:
+        """The person's fault: a stale tracker, or motion beyond the bounds; else None."""
+        if self.stale_after_s is not None and self.stale_s > self.stale_after_s:
+            return (
+                f"human {human_id!r}: skeleton repeated bit-exactly for {self.stale_s:.2f} s > "
+                f"{self.stale_after_s} s (a stale tracker): aging as unseen"
+            )
         return self.monitor.fault(human_id)
 
     def counts(self) -> dict[str, int]:
-        """Flags of the gate and the monitor since the intake was built."""
-        return {**self.gate.counts, **self.monitor.counts}
+        """Flags of the gate and the monitor since the intake was built, and frames repeated."""
+        return {**self.gate.counts, **self.monitor.counts, "repeated": self.repeats}
 
 
 @dataclass
@@ -93,6 +166,13 @@ class Screening:
     peak_speed_mps: np.ndarray
     """``(J,)`` the largest speed / acceleration the trusted motion needed (the monitor's)."""
     peak_acc_mps2: np.ndarray
+
+    @property
+    def glitched(self) -> np.ndarray:
+        """``(T, J)`` joint-frames the gate blamed for a glitch (bone, frozen, missing): not a
+        measurement of the person (a joint that only jumped is one, of motion beyond the set)."""
+        cols = [FLAGS.index(f) for f in ("bone", "frozen", "missing")]
+        return np.asarray(self.flags[:, :, cols].any(axis=2))
 
     def summary(self, joints: tuple[str, ...]) -> list[str]:
         """Lines naming what was flagged, per flag and joint with its first time."""
@@ -122,7 +202,7 @@ def screen(
     settings: IntakeSettings | None = None,
 ) -> Screening:
     """Every frame ``y (T, J, 3)`` through a fresh intake (:meth:`Intake.take`, as a live cell
-    takes it: a refused frame feeds neither the estimator nor the monitor)."""
+    takes it: a refused frame does not feed the estimator)."""
     intake = Intake(delta_y_m, v_max_mps, a_max_mps2, settings or IntakeSettings())
     T, J = y.shape[:2]
     held = np.zeros((T, J), bool)
