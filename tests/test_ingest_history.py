@@ -203,7 +203,7 @@ def _verdicts(cell: Cell, follower: Any, track: Track, t_now: float) -> tuple[st
 
 
 @settings(
-    max_examples=60,
+    max_examples=120,
     deadline=None,
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
 )
