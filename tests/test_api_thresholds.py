@@ -23,13 +23,14 @@ with warnings.catch_warnings():
 
 from sara_app.api import CellRegistry, create_app
 from sara_app.api.registry import ParamsAnswer
+from sara_app.api.thresholds import NOT_ANNOUNCED
 from sara_app.audit import AuditLog
 from sara_app.bus import keys
 from sara_app.bus.codec import Decoded
-from sara_app.bus.messages import StatusMsg
+from sara_app.bus.messages import ScenarioStateMsg, StatusMsg
 from sara_app.errors import WorkerTimeoutError
 from sara_app.safety.thresholds import load_thresholds
-from sara_app.scenario import parse_scenario, scenarios_dir
+from sara_app.scenario import load_scenario, parse_scenario, scenarios_dir
 
 SEED = load_thresholds("thresholds_thumm2024")
 HAND = {"region": "hand", "contact": "constrained", "shape": "blunt"}
@@ -56,7 +57,11 @@ class StandInRegistry(CellRegistry):
         self._remember(cell, scenario)
         return ParamsAnswer("r", True, "")
 
-    def status(self, cell: str, scenario: str, started_s: float = 100.0) -> None:
+    def status(
+        self, cell: str, scenario: str, started_s: float = 100.0, announce: bool = True
+    ) -> None:
+        """A worker's heartbeat: its status and (``announce``, as a real worker does with each
+        heartbeat) the scenario it runs: ``scenario`` from the shipped folder."""
         now = time.time()
         msg = StatusMsg(
             seq=int(now * 1e6),
@@ -67,6 +72,11 @@ class StandInRegistry(CellRegistry):
             uptime_s=now - started_s,
         )
         self.ingest(Decoded(keys.parse_key(keys.status_key(cell)), msg, now))
+        if announce:
+            sc = load_scenario(scenario).model_dump(mode="json")
+            ann = ScenarioStateMsg(seq=int(now * 1e6), stamp_s=now, cell=cell, revision=0,
+                                   scenario=sc)  # fmt: skip
+            self.ingest(Decoded(keys.parse_key(keys.scenario_key(cell)), ann, now))
 
 
 @pytest.fixture
@@ -91,7 +101,7 @@ def _row(table: dict[str, Any], region: str, contact: str, shape: str) -> dict[s
 def test_effective_table(api: tuple[StandInRegistry, TestClient, AuditLog]) -> None:
     _, client, _ = api
     t = client.get("/api/cells/c1/thresholds").json()
-    assert t["cell"] == "c1" and t["scenario"] == "empty_cell" and t["base"] == "file"
+    assert t["cell"] == "c1" and t["scenario"] == "empty_cell" and t["state"] == "running"
     assert t["thresholds"] == "thresholds_thumm2024" and len(t["entries"]) == 40
     assert t["sources"] == SEED.sources
     r = _row(t, "hand", "constrained", "blunt")
@@ -164,7 +174,7 @@ def test_put_outcomes_and_audit(api: tuple[StandInRegistry, TestClient, AuditLog
     assert client.get("/api/cells/c1/thresholds/audit", params={"limit": 0}).status_code == 422
     # the table shows the value in force (the last accepted edit)
     t = client.get("/api/cells/c1/thresholds").json()
-    assert t["base"] == "applied"
+    assert t["state"] == "running"
     r0 = _row(t, "hand", "constrained", "blunt")
     assert r0["energy_J"] == 0.5 and r0["overridden"] and r0["exceeds_source"]
 
@@ -183,23 +193,43 @@ def test_back_to_source_removes_the_override(
     assert reg.received[-1]["shield"]["pfl"]["overrides"] == [{**head, "energy_J": 0.05}]
 
 
-def test_applied_base_dropped_when_the_cell_runs_something_else(
+def test_the_table_is_the_running_workers_or_none_while_it_has_not_said(
     api: tuple[StandInRegistry, TestClient, AuditLog],
 ) -> None:
+    """After an edit the table is the edited scenario; a restarted worker (a new start time)
+    that has not announced what it runs yet gives no values (its saved edits may differ from
+    the file); once it has, its scenario."""
     reg, client, _ = api
     assert client.put("/api/cells/c1/thresholds", json={**HAND, "energy_J": 0.1}).is_success
-    reg.status("c1", "empty_cell")  # same worker, same scenario: still the applied one
-    assert client.get("/api/cells/c1/thresholds").json()["base"] == "applied"
-    reg.status("c1", "empty_cell", started_s=time.time() - 1.0)  # restarted from its file
+    reg.status("c1", "empty_cell", announce=False)  # same worker, same scenario: the edit
     t = client.get("/api/cells/c1/thresholds").json()
-    assert t["base"] == "file" and not _row(t, "hand", "constrained", "blunt")["overridden"]
-    assert client.put("/api/cells/c1/thresholds", json={**HAND, "energy_J": 0.1}).is_success
-    reg.status("c1", "punches", started_s=time.time() - 1.0)  # another scenario (e.g. dashboard)
+    assert t["state"] == "running" and _row(t, "hand", "constrained", "blunt")["overridden"]
+    time.sleep(0.1)  # a worker restarts after the last announcement of the previous one
+    reg.status("c1", "empty_cell", started_s=time.time(), announce=False)  # restarted
     t = client.get("/api/cells/c1/thresholds").json()
-    assert t["base"] == "file" and t["scenario"] == "punches"
-    reg.status("c1", "not_in_folder")
-    r = client.get("/api/cells/c1/thresholds")
-    assert r.status_code == 409 and "not_in_folder" in r.json()["detail"]
+    assert t == {"cell": "c1", "state": "starting", "detail": NOT_ANNOUNCED}
+    r = client.put("/api/cells/c1/thresholds", json={**HAND, "energy_J": 0.1})
+    assert r.status_code == 409 and "not announced" in r.json()["detail"]
+    reg.status("c1", "punches", started_s=time.time() - 1.0)  # it says what it runs
+    t = client.get("/api/cells/c1/thresholds").json()
+    assert t["state"] == "running" and t["scenario"] == "punches"
+    assert not _row(t, "hand", "constrained", "blunt")["overridden"]
+
+
+def test_a_new_service_knows_nothing_until_the_worker_announces(tmp_path: Path) -> None:
+    """``serve`` restarted with a saved edit: the API must not answer the file's values while
+    the worker runs the saved ones."""
+    reg = StandInRegistry()
+    reg.status("c1", "punches", announce=False)
+    with TestClient(create_app(reg, tmp_path, audit=AuditLog(tmp_path / "a.sqlite"))) as client:
+        assert client.get("/api/cells/c1/thresholds").json()["state"] == "starting"
+        saved = load_scenario("punches").model_dump(mode="json")
+        saved["shield"]["pfl"]["overrides"] = [{**HAND, "energy_J": 0.05}]
+        now = time.time()
+        ann = ScenarioStateMsg(seq=1, stamp_s=now, cell="c1", revision=3, scenario=saved)
+        reg.ingest(Decoded(keys.parse_key(keys.scenario_key("c1")), ann, now))
+        t = client.get("/api/cells/c1/thresholds").json()
+        assert _row(t, "hand", "constrained", "blunt")["energy_J"] == 0.05
 
 
 def test_concurrent_puts_are_serialised(api: tuple[StandInRegistry, TestClient, AuditLog]) -> None:

@@ -66,6 +66,9 @@ off its control loop, which takes seconds where a safety mode's kernels load for
 (about a minute on a fresh checkout, where they are compiled)."""
 CYCLE_WINDOW = 1000  # verdicts in the rolling cycle-time window
 RESTART_TOLERANCE_S = 2.0  # a worker's start time (stamp - uptime) moving more: a restart
+ANNOUNCED_TOLERANCE_S = 0.05
+"""An announcement stamped this much before the running worker's start (both on the worker's
+own clock) was a previous worker's."""
 
 
 @dataclass
@@ -411,15 +414,22 @@ class CellRegistry:
                 self._applied.pop(next(iter(self._applied)))
 
     def applied_scenario(self, cell: str) -> dict[str, Any] | None:
-        """The last scenario ``cell``'s worker accepted from this registry, while no later
-        status contradicts it (another scenario name, or a worker started since); else None.
-        The worker's own announcement (see the module notes) takes precedence."""
+        """The scenario ``cell``'s worker runs: its own announcement (see the module notes),
+        unless a status shows a worker started after it; else the last scenario it accepted
+        from this registry, while no later status contradicts it (another scenario name, or a
+        worker started since); else None (not known yet: never the scenario file's values)."""
         with self._lock:
+            c = self._cells.get(cell)
             announced = self._announced.get(cell)
+            st = None if c is None else c.status
+            if announced is not None and st is not None:
+                started = st.stamp_s - st.uptime_s
+                if announced.stamp_s < started - ANNOUNCED_TOLERANCE_S:  # a previous worker's
+                    del self._announced[cell]
+                    announced = None
             if announced is not None:
                 return dict(announced.scenario)
             a = self._applied.get(cell)
-            c = self._cells.get(cell)
             if a is None:
                 return None
             st, st_recv = (None, None) if c is None else (c.status, c.status_recv_s)

@@ -10,9 +10,11 @@
 - ``GET /api/cells/{cell}/thresholds/audit?limit=``: the cell's audit rows, newest first.
 
 Every PUT outcome is recorded by :func:`sara_app.threshold_edit.apply_edit` (the same
-function the dashboard's panel uses). The scenario edited is the last one this service had
-accepted by the cell's worker while the cell still runs it, else the scenario file the cell
-reports running (:meth:`CellRegistry.applied_scenario`). Edits of one cell are serialised.
+function the dashboard's panel uses). The scenario shown and edited is the one the cell's
+worker runs (:meth:`CellRegistry.applied_scenario`: its announcement, or what it accepted from
+this service). Until the worker has announced it (a worker or ``serve`` that just started) the
+GET answers ``state: starting`` with no values and a PUT 409: never the scenario file's values,
+which a worker restarted with saved edits does not run. Edits of one cell are serialised.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ from sara_app.api.registry import EDIT_TIMEOUT_S, CellRegistry
 from sara_app.audit import MAX_LIMIT, AuditLog
 from sara_app.errors import SaraError, WorkerTimeoutError
 from sara_app.safety.thresholds import CONTACTS, REGIONS, SHAPES
-from sara_app.scenario import Scenario, load_scenario, parse_scenario, scenario_names
+from sara_app.scenario import Scenario, parse_scenario
 from sara_app.threshold_edit import ConfirmationRequired, apply_edit, threshold_view
 
 
@@ -91,23 +93,17 @@ class _Editor:
     def cell_lock(self, cell: str) -> threading.Lock:
         return self.registry.edit_lock(cell)  # shared with the scenario routes
 
-    def base(self, cell: str, snap: dict[str, Any]) -> tuple[Scenario, str]:
-        """The scenario the cell runs and where it came from (``applied`` or ``file``)."""
+    def base(self, cell: str) -> Scenario | None:
+        """The scenario the cell's worker runs, as it announced it (or accepted it from this
+        service); None until it has: never the scenario file's, which a restarted worker with
+        saved edits does not run."""
         data = self.registry.applied_scenario(cell)
-        if data is not None:
-            return parse_scenario(data, f"scenario applied to {cell}"), "applied"
-        name = str(snap.get("scenario") or "")
-        if name not in scenario_names(self.folder):
-            raise HTTPException(
-                409,
-                f"cell {cell!r} runs scenario {name!r}, which is neither in the scenarios "
-                "folder nor was applied through this service; send it first "
-                "(POST /api/cells/{cell}/scenario)",
-            )
+        if data is None:
+            return None
         try:
-            return load_scenario(name, self.folder), "file"
+            return parse_scenario(data, f"scenario {cell} runs")
         except SaraError as e:
-            raise HTTPException(500, f"stored scenario {name!r} is invalid: {e}") from None
+            raise HTTPException(500, f"the scenario cell {cell!r} runs is invalid: {e}") from None
 
     def send(self, cell: str, timeout_s: float) -> Callable[[dict[str, Any]], None]:
         def send(data: dict[str, Any]) -> None:
@@ -116,6 +112,12 @@ class _Editor:
                 raise WorkerRefusedError(f"the worker of cell {cell!r} refused: {ans.reason}")
 
         return send
+
+
+NOT_ANNOUNCED = (
+    "the cell's worker has not announced the scenario it runs yet (it does on starting and "
+    "every second): no values until it has"
+)
 
 
 def _confirmation_detail(e: ConfirmationRequired) -> dict[str, Any]:
@@ -152,8 +154,11 @@ def add_threshold_routes(
     def get_cell_thresholds(cell: str) -> dict[str, Any]:
         """The cell's effective contact-energy table: per entry the value in force, its
         source's value and key, whether it is overridden, and the ISO/TS 15066 reference."""
-        sc, origin = ed.base(cell, known_cell(cell))
-        return {"cell": cell, "base": origin, **threshold_view(sc)}
+        known_cell(cell)
+        sc = ed.base(cell)
+        if sc is None:
+            return {"cell": cell, "state": "starting", "detail": NOT_ANNOUNCED}
+        return {"cell": cell, "state": "running", **threshold_view(sc)}
 
     @app.put(
         "/api/cells/{cell}/thresholds",
@@ -174,10 +179,13 @@ def add_threshold_routes(
     ) -> ThresholdEditAnswer:
         """Change one entry of the cell's thresholds live (validated, confirmed when above its
         source value, sent to the worker, recorded in the audit log whatever the outcome)."""
-        snap = known_cell(cell)
+        known_cell(cell)
         log = ed.audit()
         with ed.cell_lock(cell):
-            sc, _ = ed.base(cell, snap)
+            base = ed.base(cell)
+            if base is None:
+                raise HTTPException(409, f"cell {cell!r}: {NOT_ANNOUNCED}")
+            sc = base
             try:
                 plan, row = apply_edit(
                     sc,
