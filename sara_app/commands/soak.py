@@ -1,0 +1,41 @@
+"""``sara-app soak``: the default cell for a long time (and under faults): rate, latency,
+command delivery, memory and file descriptors over time, and what the robot executed."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def _soak(args: argparse.Namespace) -> int:
+    from sara_app.bench.soak import run_soak, write
+
+    res = run_soak(
+        args.duration,
+        chaos=args.chaos,
+        chaos_every_s=args.chaos_every,
+        sample_s=args.sample,
+        scenario=args.scenario,
+        seed=args.seed,
+    )
+    for line in write(res, Path(args.out)):
+        print(line)
+    print(f"written: {args.out}/soak.md, soak.json, soak.png")
+    unrecovered = [e for e in res.events if e.recovered_s is None]
+    bad = bool(res.off_path or res.orphans or (res.chaos and unrecovered[:-1]))
+    return 1 if bad else 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    s = sub.add_parser(
+        "soak",
+        help="the default cell for a long time (--chaos: killing and stopping its processes)",
+    )
+    s.add_argument("--duration", type=float, default=1800.0, help="seconds (default 30 min)")
+    s.add_argument("--chaos", action="store_true", help="kill -9 or SIGSTOP a random process")
+    s.add_argument("--chaos-every", type=float, default=5.0, help="seconds between faults")
+    s.add_argument("--sample", type=float, default=None, help="seconds between samples")
+    s.add_argument("--scenario", default=None, help="scenario (default: serve's default)")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--out", default="soak", help="folder for soak.md, soak.json, soak.png")
+    s.set_defaults(run=_soak)
