@@ -14,9 +14,10 @@ def test_latency_rows_match_every_control_period() -> None:
     assert [r[0] for r in rows] == [
         "skeleton -> verdict, 120 Hz in, dt 4 ms",
         "skeleton -> verdict, 120 Hz in, dt 2 ms",
-        "skeleton -> verdict, 10000 msg/s flood on another id, dt 4 ms",
+        "skeleton -> verdict, 10000 msg/s flood on another id, dt 2 ms",
     ]
+    assert "median of 3" in rows[-1][3]
     for _, p50, p99, note in rows:
         assert math.isfinite(p50) and 0 < p50 <= p99, note
-        matched = int(note.split(" matched")[0].split()[-1].split("/")[0])
-        assert matched >= 30, note  # nearly every skeleton is answered by a verdict
+        matched, sent = note.split(" matched")[0].split()[-1].split("/")
+        assert int(matched) >= 0.75 * int(sent), note  # nearly every skeleton is answered

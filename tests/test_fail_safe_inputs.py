@@ -271,6 +271,32 @@ def test_a_flood_on_one_id_leaves_another_persons_stream_intact(cell: Cell) -> N
     assert vs[-1].dropped.get("superseded", 0) > 10_000
 
 
+def test_a_flood_at_the_default_rate_leaves_a_near_persons_verdicts_correct(
+    tmp_path: Path,
+) -> None:
+    """The default control rate (500 Hz), a person standing at the robot (their own tracker
+    process, 60 Hz) and a flood of 10 000 skeletons a second on another id from a process of
+    its own: the loop keeps 90 % of its rate and never lets the robot move at the person."""
+    for cell in _start(tmp_path, shield={"dt_s": 0.002}):
+        with Heartbeat(cell.bus, CELL) as hb:
+            hb.people = {"p0", "x0"}
+            person = _flood(cell, 1, 60.0, 5.0, prefix="p", x_m=0.3)
+            before, _ = cell.collect(1.0)
+            proc = _flood(cell, 1, 10_000.0, 3.0)
+            time.sleep(0.7)  # the flood is on
+            vs, cs = cell.collect(2.0)
+            sent = int(proc.communicate(timeout=30)[0])
+            person.communicate(timeout=30)
+        assert not any(v.mode == "intended" for v in before[20:])  # the person stops the robot
+        assert sent > 20_000
+        assert len(vs) / 2.0 > 0.9 * 500, len(vs) / 2.0
+        assert not any(v.mode == "intended" for v in vs) and not any(
+            c.mode == "intended" for c in cs
+        )
+        ages = [v.skeleton_age_s.get("p0") for v in vs]
+        assert all(a is not None and a < 0.1 for a in ages), max(a or 1e9 for a in ages)
+
+
 def test_a_thousand_ids_fault_the_cell_and_the_loop_keeps_its_rate(cell: Cell) -> None:
     with Heartbeat(cell.bus, CELL):  # the real tracker sees nobody
         cell.collect(0.5)

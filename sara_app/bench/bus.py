@@ -244,31 +244,38 @@ FLOOD_RATE_HZ = 10_000.0
 
 
 def _flood_row(hub: Any, pub: Any, params: Any, cell: str, port: int, n: int, rate: float) -> Row:
-    """The latency run again (dt 4 ms) while another process floods one other person's key
-    with ``FLOOD_RATE_HZ`` valid skeletons: verdict latency, and the loop's rate against its
-    nominal one (the contract's bound: >= 95 %)."""
+    """The latency run again at the default control rate (dt 2 ms, 500 Hz) while another
+    process floods one other person's key with ``FLOOD_RATE_HZ`` valid skeletons, three times:
+    verdict latency over all three, and the loop's rate against its nominal one, median of the
+    three (the contract's bound: >= 90 %)."""
     import subprocess
     import sys
 
-    name = f"skeleton -> verdict, {FLOOD_RATE_HZ:.0f} msg/s flood on another id, dt 4 ms"
-    if not set_dt(hub, params, cell, 0.004):
+    dt = 0.002
+    name = f"skeleton -> verdict, {FLOOD_RATE_HZ:.0f} msg/s flood on another id, dt 2 ms"
+    if not set_dt(hub, params, cell, dt):
         return name, float("nan"), float("nan"), "dt update refused"
     seconds = n / rate + 1.0
     cmd = [sys.executable, "-m", "sara_app.bench.bus", "flood", str(port), cell, "flood",
            str(FLOOD_RATE_HZ), str(seconds)]  # fmt: skip
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
-    try:
-        time.sleep(0.5)  # the flood is on
-        lat, cyc = _latency_run(hub, pub, cell, n, rate)
-    finally:
-        out = proc.communicate(timeout=seconds + 30)[0]
-    sent = int(out.strip() or 0)
+    lats, shares, sent = [], [], []
+    for _ in range(3):
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+        try:
+            time.sleep(0.5)  # the flood is on
+            lat, cyc = _latency_run(hub, pub, cell, n, rate)
+        finally:
+            out = proc.communicate(timeout=seconds + 30)[0]
+        sent.append(int(out.strip() or 0) / seconds)
+        lats.append(lat)
+        shares.append(cyc.size / ((n / rate + 0.2) / dt))
+    lat = np.concatenate(lats)
     if not lat.size:
         return name, float("nan"), float("nan"), "no verdict matched"
-    loop_share = cyc.size / ((n / rate + 0.2) / 0.004)
     note = (
-        f"{sent / seconds:.0f} msg/s sent; loop at {100 * loop_share:.0f} % of 250 Hz; "
-        f"{lat.size}/{n} matched"
+        f"{np.median(sent):.0f} msg/s sent; loop at {100 * np.median(shares):.0f} % of 500 Hz "
+        f"(median of 3: {', '.join(f'{100 * x:.0f}' for x in shares)} %); "
+        f"{lat.size}/{3 * n} matched"
     )
     return name, float(np.median(lat)), float(np.percentile(lat, 99)), note
 

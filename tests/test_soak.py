@@ -1,0 +1,53 @@
+"""``sara-app soak --chaos`` for 60 s, as CI runs it: the default cell's processes killed
+(SIGKILL) or stopped (SIGSTOP / SIGCONT) every few seconds while the replayed person works
+next to the robot. From what the controller executed: the robot only moved along commands the
+worker verified; no process is left after the run; the cell recovered from every fault that
+had time to recover; the table and the plot are written."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from sara_app.bench.soak import run_soak, write
+
+
+@pytest.mark.slow
+def test_a_minute_of_chaos_never_moves_the_robot_off_a_verified_command(tmp_path: Path) -> None:
+    res = run_soak(60.0, chaos=True, chaos_every_s=4.0, sample_s=2.0, seed=1, progress=False)
+    assert len(res.samples) >= 25 and len(res.events) >= 12
+    assert {e.target for e in res.events} >= {"router", "worker", "controller", "replayer"}
+    assert res.commands > 5000 and res.states_checked > 5000
+    assert res.off_path == [], res.off_path[:5]
+    assert res.orphans == []
+    # a worker restarts in a few seconds (it loads its kernels): faults near the end may not
+    late = 60.0 - 10.0
+    missed = [e for e in res.events if e.recovered_s is None and e.t_s < late]
+    assert missed == [], missed
+    lines = write(res, tmp_path)
+    assert (tmp_path / "soak.png").stat().st_size > 10_000
+    assert any(line.startswith("| RSS worker (MB)") for line in lines)
+    assert any(line.startswith("recovery (s)") for line in lines)
+
+
+def test_the_path_check_accepts_a_commands_path_and_its_stop_only() -> None:
+    """A state on the segment to a set point or on its verified stop is on the path; one
+    beside it, or ahead of any command, is not."""
+    import numpy as np
+
+    from sara_app.bench.soak import ON_PATH_TOL_RAD, PathCheck
+    from sara_app.bus.messages import RobotCommandMsg
+
+    check = PathCheck()
+    for k in range(3):  # set points 0.0, 0.1, 0.2 rad on joint 0; each stop ends 0.05 further
+        q = [0.1 * k, 0.0]
+        check.command(RobotCommandMsg(
+            seq=k, stamp_s=10.0 + 0.01 * k, q=q, q_dot=[1.0, 0.0], q_ddot=[0.0, 0.0],
+            valid_until_s=10.0 + 0.01 * k + 0.02, mode="intended",
+            failsafe_q=[q, [0.1 * k + 0.05, 0.0]], failsafe_t_s=[0.01, 0.1],
+        ))  # fmt: skip
+    assert check.distance(10.025, np.array([0.15, 0.0])) <= ON_PATH_TOL_RAD  # segment 0.1->0.2
+    assert check.distance(10.025, np.array([0.24, 0.0])) <= ON_PATH_TOL_RAD  # the last stop
+    assert check.distance(10.025, np.array([0.15, 0.01])) > ON_PATH_TOL_RAD  # beside it
+    assert check.distance(10.025, np.array([0.4, 0.0])) > ON_PATH_TOL_RAD  # beyond every stop
