@@ -3,7 +3,8 @@
 The cell's processes are started and supervised as ``serve`` starts them (router, controller,
 worker, replayer; no dashboard), with credentials and saved state in a folder of their own.
 Over the run it samples, every ``sample_s``: the control rate (verdicts received per second),
-the verdict latency (the age of the newest skeleton at the decision, as the verdict reports it),
+the verdict latency as the age of the newest skeleton at the decision (the verdicts report it:
+sensor delay, the tracker's period and every transport and scheduling delay on the way),
 the controller's own delivery counts (commands lost, late, expired; braking events) and, for
 every process, its resident memory and open file descriptors (``/proc``). The result is a table
 (median and extremes per quantity, growth over the run as a least-squares slope per hour) and a
@@ -21,6 +22,7 @@ distribution.
 
 from __future__ import annotations
 
+import bisect
 import json
 import os
 import random
@@ -68,6 +70,9 @@ class Sample:
     controller: dict[str, int]
     rss_mb: dict[str, float]
     fds: dict[str, int]
+    loop_ms: float = 0.0
+    """The observer's longest time between two passes through its loop (10 ms when it keeps
+    up)."""
 
 
 @dataclass
@@ -122,7 +127,7 @@ class PathCheck:
         self.stamps.append(c.stamp_s)
         self.paths.append(np.array(pts))
         if len(self.stamps) > 4096 and self.stamps[0] < c.stamp_s - self.WINDOW_S:
-            k = int(np.searchsorted(self.stamps, c.stamp_s - self.WINDOW_S))
+            k = bisect.bisect_left(self.stamps, c.stamp_s - self.WINDOW_S)
             del self.stamps[:k], self.paths[:k]
 
     @staticmethod
@@ -138,8 +143,8 @@ class PathCheck:
     def distance(self, t_s: float, q: np.ndarray) -> float:
         """The smallest max-norm distance (rad) from ``q`` to the path of a command sent before
         ``t_s`` (within ``WINDOW_S``)."""
-        hi = int(np.searchsorted(self.stamps, t_s + 0.05))
-        lo = int(np.searchsorted(self.stamps, t_s - self.WINDOW_S))
+        hi = bisect.bisect_right(self.stamps, t_s + 0.05)
+        lo = bisect.bisect_left(self.stamps, t_s - self.WINDOW_S)
         best = np.inf
         order = list(range(hi - 1, max(lo, hi - self.NEWEST) - 1, -1))
         order += list(range(max(lo, hi - self.NEWEST) - 1, lo - 1, -1))
@@ -163,7 +168,14 @@ def run_soak(
     """Run the default cell (or ``scenario``) for ``duration_s``; see the module notes."""
     from sara_app.bus.access import Credentials, client_auth
     from sara_app.bus.session import free_port
-    from sara_app.serve import DEFAULT_SCENARIO, ROUTER, _cell_children, _connect, start_process
+    from sara_app.serve import (
+        DEFAULT_SCENARIO,
+        ROUTER,
+        WORKER_RT_PRIORITY,
+        _cell_children,
+        _connect,
+        start_process,
+    )
     from sara_app.supervisor import Child, Supervisor
 
     rng = random.Random(seed)
@@ -173,7 +185,8 @@ def run_soak(
     cell, port = "cell1", free_port()
     creds = Credentials.create(data / "zenoh_credentials.txt")
     router_cmd = [sys.executable, "-m", ROUTER, "--port", str(port), "--cell", cell,
-                  "--credentials", str(creds.path), "--die-with-parent"]  # fmt: skip
+                  "--credentials", str(creds.path), "--rt-priority", str(WORKER_RT_PRIORITY),
+                  "--die-with-parent"]  # as serve starts it  # fmt: skip
     children = [Child("router", lambda: start_process(router_cmd))]
     children += _cell_children(cell, scenario or DEFAULT_SCENARIO, False, port, creds, False)
     sup = Supervisor(children, "worker")
@@ -228,6 +241,8 @@ def _loop(
         time.sleep(0.1)
     t0 = time.time()
     next_sample, next_chaos = t0 + sample_s, t0 + chaos_every_s
+    last_sample, loop_max = t0, 0.0  # the observer's own longest pass (it must keep up)
+    t_pass = t0
     window: list[float] = []  # skeleton ages of the verdicts since the last sample
     n_window = 0
     last_verdict = time.monotonic()
@@ -237,6 +252,7 @@ def _loop(
     q_prev: np.ndarray | None = None
     state_seq = -1
     while (now := time.time()) < t0 + duration_s:
+        loop_max, t_pass = max(loop_max, now - t_pass), now
         for d in subs["command"].drain().messages:
             if isinstance(d.msg, RobotCommandMsg):
                 check.command(d.msg)
@@ -292,12 +308,14 @@ def _loop(
         if now >= next_sample:
             next_sample += sample_s
             total = {k: ctl_banked.get(k, 0) + v for k, v in ctl_last.items()}
-            res.samples.append(_sample(now - t0, window, n_window, sample_s, total, sup))
-            window, n_window = [], 0
+            span = now - last_sample
+            res.samples.append(_sample(now - t0, window, n_window, span, total, sup))
+            res.samples[-1].loop_ms = 1e3 * loop_max
+            window, n_window, last_sample, loop_max = [], 0, now, 0.0
             if progress:
                 s = res.samples[-1]
                 print(f"\r{now - t0:7.0f} s  {s.rate_hz:6.0f} verdicts/s  "
-                      f"latency p99 {s.latency_ms[1]:5.1f} ms  events {len(res.events)}",
+                      f"skeleton age p99 {s.latency_ms[1]:5.1f} ms  faults {len(res.events)}",
                       end="", file=sys.stderr, flush=True)  # fmt: skip
         time.sleep(0.01)
     for _, child, _ in stopped:
@@ -386,8 +404,9 @@ def table(res: SoakResult) -> list[str]:
         out.append(f"| {name} | " + " | ".join(cells) + f" | {slope_per_h(t, ys):+.2f} |")
 
     row("control rate (verdicts/s)", [s.rate_hz for s in S])
-    row("verdict latency median (ms)", [s.latency_ms[0] for s in S], "{:.2f}")
-    row("verdict latency p99 (ms)", [s.latency_ms[1] for s in S], "{:.2f}")
+    row("observer's longest pass (ms)", [s.loop_ms for s in S])
+    row("skeleton age at the decision, median (ms)", [s.latency_ms[0] for s in S], "{:.2f}")
+    row("skeleton age at the decision, p99 (ms)", [s.latency_ms[1] for s in S], "{:.2f}")
     for k in ("commands_lost", "commands_late", "commands_expired", "braking_events"):
         row(f"controller {k} (total)", [float(s.controller.get(k, np.nan)) for s in S], "{:.0f}")
     names = sorted({n for s in S for n in s.rss_mb})
@@ -428,7 +447,7 @@ def plot(res: SoakResult, path: Path) -> None:
     ax[0].set_ylabel("verdicts / s")
     ax[1].plot(t, [s.latency_ms[0] for s in S], label="median")
     ax[1].plot(t, [s.latency_ms[1] for s in S], label="p99")
-    ax[1].set_ylabel("verdict latency (ms)")
+    ax[1].set_ylabel("skeleton age at decision (ms)")
     ax[1].legend()
     for n in sorted({n for s in S for n in s.rss_mb}):
         ax[2].plot(t, [s.rss_mb.get(n, np.nan) for s in S], label=n)
@@ -464,3 +483,15 @@ def write(res: SoakResult, out: Path) -> list[str]:
     (out / "soak.json").write_text(json.dumps(doc, indent=1, default=float))
     plot(res, out / "soak.png")
     return lines
+
+
+def load(path: Path) -> SoakResult:
+    """A result written by :func:`write` (``soak.json``), to render it again."""
+    doc = json.loads(Path(path).read_text())
+    res = SoakResult(doc["duration_s"], doc["chaos"])
+    res.samples = [Sample(**{**s, "latency_ms": tuple(s["latency_ms"])}) for s in doc["samples"]]
+    res.events = [Event(**e) for e in doc["events"]]
+    res.states_checked, res.commands = doc["states_checked"], doc["commands"]
+    res.off_path = [tuple(x) for x in doc["off_path"]]  # type: ignore[misc]
+    res.orphans = doc["orphans"]
+    return res
