@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from sara_app.bench.soak import run_soak, write
+from sara_app.commands.soak import RECOVERY_GRACE_S
 
 
 @pytest.mark.slow
@@ -22,7 +23,7 @@ def test_a_minute_of_chaos_never_moves_the_robot_off_a_verified_command(tmp_path
     assert res.off_path == [], res.off_path[:5]
     assert res.orphans == []
     # a worker restarts in a few seconds (it loads its kernels): faults near the end may not
-    late = 60.0 - 10.0
+    late = 60.0 - RECOVERY_GRACE_S
     missed = [e for e in res.events if e.recovered_s is None and e.t_s < late]
     assert missed == [], missed
     lines = write(res, tmp_path)
@@ -51,3 +52,5 @@ def test_the_path_check_accepts_a_commands_path_and_its_stop_only() -> None:
     assert check.distance(10.025, np.array([0.24, 0.0])) <= ON_PATH_TOL_RAD  # the last stop
     assert check.distance(10.025, np.array([0.15, 0.01])) > ON_PATH_TOL_RAD  # beside it
     assert check.distance(10.025, np.array([0.4, 0.0])) > ON_PATH_TOL_RAD  # beyond every stop
+    # the router was down for 10 s: the robot rests at the end of the last stop it had
+    assert check.distance(20.0, np.array([0.25, 0.0])) <= ON_PATH_TOL_RAD

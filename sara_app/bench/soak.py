@@ -104,9 +104,9 @@ def _proc_stats(pid: int) -> tuple[float, int]:
 class PathCheck:
     """Executed states against the commands' paths: each command's set point, the straight
     segment to it from the previous command's set point, and its verified stop (a polyline).
-    The newest commands stamped before a state are tried first (the controller follows the
-    newest one it received, or the stop of the last one), then every command of the last
-    ``WINDOW_S``."""
+    The newest commands stamped before a state are tried first, however old (the controller
+    follows the newest one it received, or the stop of the last one), then every command of
+    the last ``WINDOW_S``."""
 
     WINDOW_S = 3.0
     NEWEST = 8
@@ -144,7 +144,9 @@ class PathCheck:
         """The smallest max-norm distance (rad) from ``q`` to the path of a command sent before
         ``t_s`` (within ``WINDOW_S``)."""
         hi = bisect.bisect_right(self.stamps, t_s + 0.05)
-        lo = bisect.bisect_left(self.stamps, t_s - self.WINDOW_S)
+        # the newest commands before the state however old: while the router was down the
+        # controller braked along the stop of the last one it had (and no state reached here)
+        lo = min(bisect.bisect_left(self.stamps, t_s - self.WINDOW_S), max(hi - self.NEWEST, 0))
         best = np.inf
         order = list(range(hi - 1, max(lo, hi - self.NEWEST) - 1, -1))
         order += list(range(max(lo, hi - self.NEWEST) - 1, lo - 1, -1))
