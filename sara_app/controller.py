@@ -11,7 +11,10 @@ plain Python, simulating a robot that tracks its set points exactly.
 - A late command is followed while it is valid (``valid_until_s``: the robot has left the
   commanded path by less than a tracking tolerance then). Once the newest command expired it
   follows commands again only when their set point is within ``tracking_tol_rad`` of where it
-  stands (the worker re-anchors on the measured state); others are counted as refused.
+  stands (the worker re-anchors on the measured state); others are counted as refused. The same
+  holds for its first command: a controller started while a worker runs follows nothing until
+  the worker commands from where the robot stands (found by ``sara-app soak --chaos``: a
+  restarted controller took a set point 1.4 rad from its robot).
 - The newest command is the one with the latest ``stamp_s`` (a restarted worker numbers its
   commands from 0 again). Delivery is counted (:class:`Delivery`: received, lost within a
   worker run, late, expired, refused) and published about once a second on
@@ -165,13 +168,15 @@ class Controller:
         self.command, self.braking = cmd, False
 
     def _acceptable(self, cmd: RobotCommandMsg, now: float) -> bool:
-        """A command is followed while valid; once the robot brakes on its own (the newest
-        command expired), only one whose set point is where the robot stands (the worker
-        re-anchored on the measured state)."""
+        """A command is followed while valid; before the first one and once the robot brakes on
+        its own (the newest command expired), only one whose set point is where the robot
+        stands (the worker re-anchored on the measured state)."""
         if self.command is not None and cmd.stamp_s <= self.command.stamp_s:
             return False  # not newer than the one followed (by time: seq restarts per run)
-        if not self.braking and now <= cmd.valid_until_s:
+        if self.command is not None and not self.braking and now <= cmd.valid_until_s:
             return True
+        # braking on its own, or no command followed yet (a controller that just started: the
+        # worker's command was verified from where the worker believed the robot to be)
         if float(np.max(np.abs(np.asarray(cmd.q) - self.q))) <= self.tol_rad:
             return True
         self.delivery.refused += 1

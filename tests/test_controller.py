@@ -225,3 +225,32 @@ def test_a_command_taken_past_the_last_set_point_continues_from_the_stop() -> No
         send(1, t + dt, q0 + 0.5 * step, now)  # the next command, taken at that moment
         assert ctl.command.seq == 1
         np.testing.assert_allclose(ctl.q, on_stop, atol=1e-12)  # no jump back to q0
+
+
+def test_a_started_controller_follows_no_command_from_elsewhere() -> None:
+    """A controller (re)started while a worker runs: the worker's commands were verified from
+    where the worker believed the robot to be. It follows none whose set point is not where
+    its robot stands (``sara-app soak --chaos`` saw a restarted one take a set point 1.4 rad
+    away), and follows the worker once it commands from there."""
+    from sara_app.controller import Controller
+
+    sc = load_scenario("standing_beside_path")
+    port = free_port()
+    with Bus.router(port), Bus.client(port) as cbus:
+        ctl = Controller(CELL, sc, cbus)
+        dt, q0 = ctl.dt_s, ctl.q.copy()
+        n, t = len(q0), time.time()
+
+        def cmd(seq: int, q: np.ndarray) -> RobotCommandMsg:
+            stamp = t + seq * dt
+            return RobotCommandMsg(seq=seq, stamp_s=stamp, q=q.tolist(), q_dot=[0.0] * n,
+                                   q_ddot=[0.0] * n, mode="intended", valid_until_s=stamp + 0.05,
+                                   failsafe_t_s=[dt], failsafe_q=[q.tolist()])  # fmt: skip
+
+        far = q0 + np.r_[1.4, np.zeros(n - 1)]
+        ctl.tick(t + 0.5 * dt, [cmd(0, far)])
+        ctl.tick(t + 3 * dt)
+        assert ctl.command is None and np.allclose(ctl.q, q0)  # it did not move
+        assert ctl.delivery.refused == 1
+        ctl.tick(t + 1.5 * dt, [cmd(1, q0)])  # the worker re-anchored where the robot stands
+        assert ctl.command is not None and ctl.command.seq == 1

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import copy
 import math
+import os
 from dataclasses import dataclass
 from typing import Any
 
@@ -203,7 +204,7 @@ def _verdicts(cell: Cell, follower: Any, track: Track, t_now: float) -> tuple[st
 
 
 @settings(
-    max_examples=120,
+    max_examples=int(os.environ.get("SARA_HISTORY_EXAMPLES", "120")),
     deadline=None,
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
 )
