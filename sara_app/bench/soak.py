@@ -31,6 +31,7 @@ import statistics
 import sys
 import tempfile
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -48,6 +49,8 @@ from sara_app.bus.messages import (
 CHAOS_TARGETS = ("router", "worker", "controller", "replayer")
 STOP_S = (0.2, 2.0)
 """How long a SIGSTOP lasts before its SIGCONT (uniform)."""
+CHECK_DELAY_S = 1.0
+"""How long after its arrival a robot state is checked (see ``_loop``)."""
 ON_PATH_TOL_RAD = 0.005
 """An executed state farther than this (per joint) from every command's path is a violation:
 the scenario's tracking tolerance, within which the worker accepts the robot's state."""
@@ -109,6 +112,7 @@ class PathCheck:
     the last ``WINDOW_S``."""
 
     WINDOW_S = 3.0
+    KEEP_S = 30.0  # commands kept: states are checked up to CHECK_DELAY_S late, or later
     NEWEST = 8
 
     def __init__(self) -> None:
@@ -126,8 +130,8 @@ class PathCheck:
         self.first_s = min(self.first_s, c.stamp_s)
         self.stamps.append(c.stamp_s)
         self.paths.append(np.array(pts))
-        if len(self.stamps) > 4096 and self.stamps[0] < c.stamp_s - self.WINDOW_S:
-            k = bisect.bisect_left(self.stamps, c.stamp_s - self.WINDOW_S)
+        if len(self.stamps) > 4096 and self.stamps[0] < c.stamp_s - self.KEEP_S:
+            k = bisect.bisect_left(self.stamps, c.stamp_s - self.KEEP_S)
             del self.stamps[:k], self.paths[:k]
 
     @staticmethod
@@ -253,6 +257,7 @@ def _loop(
     stopped: list[tuple[float, Any, Event]] = []
     q_prev: np.ndarray | None = None
     state_seq = -1
+    pending: deque[tuple[float, RobotStateMsg]] = deque()
     while (now := time.time()) < t0 + duration_s:
         loop_max, t_pass = max(loop_max, now - t_pass), now
         for d in subs["command"].drain().messages:
@@ -261,21 +266,27 @@ def _loop(
                 res.commands += 1
         for d in subs["state"].drain().messages:
             if isinstance(d.msg, RobotStateMsg):
-                q = np.asarray(d.msg.q, float)
-                still = q_prev is not None and q.shape == q_prev.shape and (q == q_prev).all()
-                # a controller that (re)started publishes where its simulated robot starts
-                fresh = d.msg.seq < state_seq or d.msg.stamp_s < check.first_s
-                q_prev, state_seq = q, d.msg.seq
-                res.states_checked += 1
-                if still or fresh:  # no motion executed
-                    continue
-                dist = check.distance(d.msg.stamp_s, q)
-                if dist > ON_PATH_TOL_RAD:
-                    res.off_path.append((d.msg.stamp_s - t0, dist))
-                    if len(res.off_path) <= 10:  # the first few, as they happen
-                        last = res.events[-1].__dict__ if res.events else None
-                        print(f"\noff path at {d.msg.stamp_s - t0:.3f} s by {dist:.4f} rad; "
-                              f"last fault {last}", file=sys.stderr)  # fmt: skip
+                pending.append((now, d.msg))
+        # A state is judged CHECK_DELAY_S after it arrived: the command it followed travels on
+        # another key from another process and may reach this observer later (after a router
+        # stall the router flushes its queues in any order).
+        while pending and pending[0][0] < now - CHECK_DELAY_S:
+            msg = pending.popleft()[1]
+            q = np.asarray(msg.q, float)
+            still = q_prev is not None and q.shape == q_prev.shape and (q == q_prev).all()
+            # a controller that (re)started publishes where its simulated robot starts
+            fresh = msg.seq < state_seq or msg.stamp_s < check.first_s
+            q_prev, state_seq = q, msg.seq
+            res.states_checked += 1
+            if still or fresh:  # no motion executed
+                continue
+            dist = check.distance(msg.stamp_s, q)
+            if dist > ON_PATH_TOL_RAD:
+                res.off_path.append((msg.stamp_s - t0, dist))
+                if len(res.off_path) <= 10:  # the first few, as they happen
+                    last = res.events[-1].__dict__ if res.events else None
+                    print(f"\noff path at {msg.stamp_s - t0:.3f} s by {dist:.4f} rad; "
+                          f"last fault {last}", file=sys.stderr)  # fmt: skip
         for d in subs["verdict"].drain().messages:
             if isinstance(d.msg, VerdictMsg):
                 window += d.msg.skeleton_age_s.values()
