@@ -496,15 +496,3 @@ def write(res: SoakResult, out: Path) -> list[str]:
     (out / "soak.json").write_text(json.dumps(doc, indent=1, default=float))
     plot(res, out / "soak.png")
     return lines
-
-
-def load(path: Path) -> SoakResult:
-    """A result written by :func:`write` (``soak.json``), to render it again."""
-    doc = json.loads(Path(path).read_text())
-    res = SoakResult(doc["duration_s"], doc["chaos"])
-    res.samples = [Sample(**{**s, "latency_ms": tuple(s["latency_ms"])}) for s in doc["samples"]]
-    res.events = [Event(**e) for e in doc["events"]]
-    res.states_checked, res.commands = doc["states_checked"], doc["commands"]
-    res.off_path = [tuple(x) for x in doc["off_path"]]  # type: ignore[misc]
-    res.orphans = doc["orphans"]
-    return res

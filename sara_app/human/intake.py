@@ -99,8 +99,7 @@ class Intake:
         self.refusal = None
         if self.estimator.delta_y_m != delta_y_m:  # its velocity error bound grows with it
             self.estimator.retune(delta_y_m, self.estimator.a_max)
-        self.estimator.check_stamp(t_s)
-        if not t_s > self.newest_s:
+        if not t_s > self.newest_s:  # newest_s is at least the estimator's newest stamp
             raise InputError(f"skeleton time stamp {t_s} does not advance past {self.newest_s}")
         self.newest_s = t_s
         if self._repeated(t_s, y, n_measured, missing):
