@@ -20,7 +20,7 @@ from collections import Counter
 
 import numpy as np
 
-from sara_app.cell import build_cell
+from sara_app.cell.build import build_cell
 from sara_app.human.scripted import joints, standing
 from sara_app.robot.trajectory import JointState
 from sara_app.safety.shield import HumanState

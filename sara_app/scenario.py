@@ -16,12 +16,9 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import (
-    BaseModel,
-    ConfigDict,
     Field,
     ValidationError,
     field_validator,
-    model_validator,
 )
 
 from sara_app.errors import SaraError, ScenarioError
@@ -29,32 +26,22 @@ from sara_app.human.gate import BONES, GateSettings
 from sara_app.human.intake import STALE_AFTER_S, IntakeSettings
 from sara_app.human.params import RENAMED as PARAM_SETS_RENAMED
 from sara_app.human.params import ParamSet, load_param_set, parse_param_set
-from sara_app.human.reach import MODELS
 from sara_app.human.skeleton import FULL_JOINTS
-from sara_app.safety.thresholds import RENAMED as THRESHOLDS_RENAMED
-
-Vec3 = tuple[float, float, float]
-Finite = Annotated[float, Field(allow_inf_nan=False)]
-Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
-Name = Annotated[str, Field(pattern=r"^[A-Za-z0-9_\-]+$", min_length=1, max_length=64)]
+from sara_app.safety.settings import ShieldSettings
+from sara_app.settings import Finite, Name, NonNeg, Pos, StrictFinite
 
 MOTIONS = ("stand", "approach", "punch", "headbutt", "box_pick")
 STRATEGIES = ("rigid", "limbs")
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-
-
-class JointLimitSpec(_Strict):
+class JointLimitSpec(StrictFinite):
     """What a URDF cannot hold: one joint's acceleration and jerk limits."""
 
     acceleration_rad_s2: Pos
     jerk_rad_s3: Pos
 
 
-class RobotSpec(_Strict):
+class RobotSpec(StrictFinite):
     name: Annotated[str, Field(min_length=1, max_length=500)] = "panda"
     """A shipped robot (``panda``, ``ur5e``, ``ur10e``) or the path of a URDF file (absolute,
     or relative to the directory the cell is started in)."""
@@ -90,7 +77,7 @@ class RobotSpec(_Strict):
                           joint_limits=self.limits_given())  # fmt: skip
 
 
-class LimitScale(_Strict):
+class LimitScale(StrictFinite):
     """Fractions of the URDF's joint limits the task may use (the failsafe uses the same)."""
 
     velocity: Annotated[float, Field(gt=0, le=1)] = 1.0
@@ -98,21 +85,21 @@ class LimitScale(_Strict):
     jerk: Annotated[float, Field(gt=0, le=1)] = 1.0
 
 
-class TaskSpec(_Strict):
+class TaskSpec(StrictFinite):
     waypoints_rad: list[list[Finite]] = Field(min_length=1)
     blend_distance_rad: Pos = 0.1
     cycles: Annotated[int, Field(ge=1, le=1000)] = 1
     """How often the waypoints are run through (back and forth between the last and the first)."""
 
 
-class BoxSpec(_Strict):
+class BoxSpec(StrictFinite):
     name: Name
     center_m: tuple[Finite, Finite, Finite]
     size_m: tuple[Pos, Pos, Pos]
     rpy_rad: tuple[Finite, Finite, Finite] = (0.0, 0.0, 0.0)
 
 
-class GlitchSpec(_Strict):
+class GlitchSpec(StrictFinite):
     """A scripted tracking glitch (``sara_app.human.glitches``): ``swap`` reports ``joint`` at
     ``other``'s position, ``freeze`` holds it, ``spike`` offsets it by ``offset_m``."""
 
@@ -124,7 +111,7 @@ class GlitchSpec(_Strict):
     offset_m: tuple[Finite, Finite, Finite] = (0.15, 0.0, 0.0)
 
 
-class SensorSpec(_Strict):
+class SensorSpec(StrictFinite):
     rate_hz: Annotated[float, Field(ge=1, le=1000)] = 100.0
     noise_m: NonNeg = 0.002
     """Position noise, uniform in a cube whose corners lie at this distance (keep <= delta_y).
@@ -133,7 +120,7 @@ class SensorSpec(_Strict):
     glitches: list[GlitchSpec] = Field(default=[], max_length=64)
 
 
-class _HumanBase(_Strict):
+class _HumanBase(StrictFinite):
     id: Name
     sensor: SensorSpec = SensorSpec()
     start_s: NonNeg = 0.0
@@ -169,124 +156,7 @@ HumanSpec = Annotated[
 ]
 
 
-SAFETY_MODES = ("ssm", "pfl", "jssa")
-SHAPES = ("blunt", "wedge", "edge", "sheet")
-Shape = Literal["blunt", "wedge", "edge", "sheet"]
-
-
-MAX_THRESHOLD_J = 10.0
-"""The physical ceiling of an admissible contact energy: five times the largest value of seed
-003 Table I (2 J). No body part's threshold can be set above it, confirmed or not."""
-
-
-class ThresholdOverride(_Strict):
-    """One edited entry of the threshold table (Thumm et al. 2024 Table I cell), in J."""
-
-    region: Literal["hand", "lower_arm", "upper_arm", "torso_legs", "head"]
-    contact: Literal["constrained", "unconstrained"]
-    shape: Shape
-    energy_J: Annotated[float, Field(gt=0, le=MAX_THRESHOLD_J, allow_inf_nan=False)]
-
-
-class PflSpec(_Strict):
-    """Power and force limiting (Thumm et al. 2024): threshold set, edits, contact shapes, speed
-    scaling."""
-
-    thresholds: str = "thresholds_thumm2024"
-    overrides: list[ThresholdOverride] = []
-    link_shapes: dict[str, Shape] = {}
-    """Worst-case contact shape per robot link name (default blunt): the tool's shape."""
-    min_speed_scale: Annotated[float, Field(gt=0, le=1)] = 0.02
-    """Below this fraction of the path's admissible speed the shield brakes instead."""
-    unclampable_pairs: list[tuple[Name, Name]] | None = None
-    """Robot link pairs that cannot clamp a body part between them (Thumm et al. 2024 eq. 36),
-    a design declaration for the safety engineer to confirm; None: the shipped robot's
-    declaration (``sara_app.safety.topology``), none for any other robot (every pair may
-    clamp: conservative)."""
-
-    @field_validator("thresholds")
-    @classmethod
-    def _current_name(cls, v: str) -> str:
-        return THRESHOLDS_RENAMED.get(v, v)
-
-    @field_validator("overrides")
-    @classmethod
-    def _unique_entries(cls, v: list[ThresholdOverride]) -> list[ThresholdOverride]:
-        keys = [(o.region, o.contact, o.shape) for o in v]
-        dup = sorted({k for k in keys if keys.count(k) > 1})
-        if dup:
-            raise ValueError(f"threshold entry {'/'.join(dup[0])} overridden twice")
-        return v
-
-
-class JssaSpec(_Strict):
-    """JSSA parameters (Liu et al. 2022); see :class:`sara_app.safety.jssa.JssaParams`."""
-
-    d_min_m: Annotated[float, Field(gt=0, le=2)] = 0.05
-    lambda_1: Annotated[float, Field(gt=0, le=1e3)] = 3.0
-    lambda_2: Annotated[float, Field(ge=0, le=1e3)] = 1.0
-    constraints: Literal["single", "multi"] = "multi"
-    """One constraint per close capsule pair (default: the paper's single critical pair let the
-    distance fall below d_min in 2 of 30 constant-velocity crossings, multi in none of 60)."""
-    eta_per_s: NonNeg | None = None
-
-    @model_validator(mode="after")
-    def _real_negative_roots(self) -> JssaSpec:
-        if self.lambda_1**2 < 4.0 * self.lambda_2:
-            raise ValueError(
-                f"lambda_1 = {self.lambda_1}, lambda_2 = {self.lambda_2}: expected "
-                "lambda_1^2 >= 4 lambda_2 (Liu et al. 2022 Sec. 3.1: negative real roots)"
-            )
-        return self
-
-
-class SsmSpec(_Strict):
-    """SSM's speed scaling (:class:`~sara_app.safety.shield.SsmScaling`): a check that fails
-    at full path speed is planned again slower, at most ``max_replans`` times (0: brake at
-    once, Schepp et al. 2022's shield)."""
-
-    max_replans: Annotated[int, Field(ge=0, le=5)] = 2
-    cut: Annotated[float, Field(gt=0, lt=1)] = 0.9
-    """Each replan's path-speed cap as a fraction of the previous plan's top speed."""
-    min_speed_scale: Annotated[float, Field(ge=0, le=1)] = 0.05
-    """Below this fraction of the path's admissible speed the shield brakes instead."""
-
-
-class ShieldSpec(_Strict):
-    mode: Literal["ssm", "pfl", "jssa"] = "ssm"
-    """Safety mode: speed and separation monitoring, power and force limiting, or JSSA."""
-    dt_s: Annotated[float, Field(ge=1e-4, le=0.05)] = 0.004
-    max_interval_s: Annotated[float, Field(gt=0, le=0.1)] = 0.02
-    models: list[str] = ["pos", "vel", "acc", "combined"]
-    tracking_tol_rad: Annotated[float, Field(gt=0, le=0.1)] = 0.005
-    skeleton_timeout_s: Annotated[float, Field(gt=0, le=5)] = 0.2
-    ssm: SsmSpec = SsmSpec()
-    pfl: PflSpec = PflSpec()
-    jssa: JssaSpec = JssaSpec()
-
-    @field_validator("models")
-    @classmethod
-    def _known_models(cls, v: list[str]) -> list[str]:
-        if not v:
-            raise ValueError(f"at least one model is needed; valid: {', '.join(MODELS)}")
-        bad = [m for m in v if m not in MODELS]
-        if bad:
-            raise ValueError(f"unknown model {bad[0]!r}; valid: {', '.join(MODELS)}")
-        if len(set(v)) != len(v):
-            raise ValueError(f"models listed twice in {v}")
-        return v
-
-    @model_validator(mode="after")
-    def _models_of_the_mode(self) -> ShieldSpec:
-        if self.mode == "pfl" and "arm" in self.models:
-            valid = ", ".join(m for m in MODELS if m != "arm")
-            raise ValueError(
-                f"model 'arm' (Pereira's arm model) is not available in PFL mode; valid: {valid}"
-            )
-        return self
-
-
-class GateSpec(_Strict):
+class GateSpec(StrictFinite):
     """The tracking quality gate and the conformance monitor (``sara_app.human.gate``,
     ``sara_app.human.conformance``)."""
 
@@ -325,7 +195,7 @@ class GateSpec(_Strict):
         return IntakeSettings(gate, self.recover_s, stale)
 
 
-class InputSpec(_Strict):
+class InputSpec(StrictFinite):
     """What the live cell takes from the bus, and its bounds (the contract's freshness rules)."""
 
     trackers: list[Name] = Field(default=["main"], min_length=1, max_length=16)
@@ -352,7 +222,7 @@ class InputSpec(_Strict):
         return v
 
 
-class SimSpec(_Strict):
+class SimSpec(StrictFinite):
     duration_s: Annotated[float, Field(gt=0, le=600)] = 10.0
     seed: int = 0
 
@@ -360,7 +230,7 @@ class SimSpec(_Strict):
 RosTopic = Annotated[str, Field(pattern=r"^/?[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*$")]
 
 
-class Ros2Spec(_Strict):
+class Ros2Spec(StrictFinite):
     """The optional bridge to a ROS 2 system running rmw_zenoh (``sara_app.ros2.bridge``)."""
 
     enabled: bool = False
@@ -377,7 +247,7 @@ class Ros2Spec(_Strict):
     occupancy_hz: Annotated[float, Field(gt=0, le=60)] = 10.0
 
 
-class Scenario(_Strict):
+class Scenario(StrictFinite):
     schema_version: Literal[1] = 1
     name: Name
     description: str = ""
@@ -388,7 +258,7 @@ class Scenario(_Strict):
     humans: list[HumanSpec] = []
     human_params: str | dict[str, Any] = "schepp2022_table1"
     """A parameter-set name (see ``sara_app/params``) or a full inline parameter set."""
-    shield: ShieldSpec = ShieldSpec()
+    shield: ShieldSettings = ShieldSettings()
     inputs: InputSpec = InputSpec()
     sim: SimSpec = SimSpec()
     ros2: Ros2Spec = Ros2Spec()

@@ -10,7 +10,7 @@ from typing import Any, cast
 import numpy as np
 from pfl_reference import as_reference
 
-from sara_app.cell import build_cell
+from sara_app.cell.build import build_cell
 from sara_app.human.scripted import joints, standing
 from sara_app.safety.pfl import PflResult
 from sara_app.safety.pfl_shield import PflCycle, PflShield

@@ -17,9 +17,9 @@ from profile_reference import (
     phases_end,
     velocity_phases,
 )
+from stop_reference import plan_stop_unchecked
 
 from sara_app.errors import RobotModelError
-from sara_app.robot.failsafe import plan_stop_unchecked
 from sara_app.robot.joints import REST_A, REST_V, S_TOL
 from sara_app.robot.profile import ScalarProfile
 from sara_app.robot.trajectory import FollowerStep, PathFollower, _follower_step

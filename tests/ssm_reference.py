@@ -1,17 +1,17 @@
 """The SSM check composed in Python: per person and model, the model's sets from
 :func:`model_sets` (the reach models' own entry points), widened per capsule with
 :func:`~sara_app.human.widening.per_capsule`,
-checked with :func:`~sara_app.geometry_kernels.capsule_sets_check` (the whole model) and by brute
-force per capsule (:func:`~sara_app.geometry.capsule_distances`: which body parts the model
-clears): the reference of the compiled :func:`~sara_app.safety.ssm_kernel.ssm_kernel`
+checked with :func:`~sara_app.geometry.shape_kernels.capsule_sets_check` (the whole model) and by
+brute force per capsule (:func:`~sara_app.geometry.shapes.capsule_distances`: which body parts the
+model clears): the reference of the compiled :func:`~sara_app.safety.ssm_kernels.ssm_kernel`
 (tests/test_ssm_kernel.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from sara_app.geometry import capsule_distances
-from sara_app.geometry_kernels import capsule_sets_check
+from sara_app.geometry.shape_kernels import capsule_sets_check
+from sara_app.geometry.shapes import capsule_distances
 from sara_app.human.reach import MODELS, HumanReach, Occupancy, part_capsules
 from sara_app.human.widening import per_capsule
 from sara_app.safety.ssm import SsmResult, SsmVerifier

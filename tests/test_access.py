@@ -17,10 +17,10 @@ from sara_app.bus.access import Credentials, client_auth, router_access
 from sara_app.bus.heartbeat import Heartbeat
 from sara_app.bus.messages import ParamsMsg, RobotStateMsg, SkeletonMsg, VerdictMsg
 from sara_app.bus.session import Bus, BusError, free_port
-from sara_app.human.motions import measured
 from sara_app.human.scripted import joints, standing
+from sara_app.runtime.worker import CellWorker
 from sara_app.scenario import load_scenario
-from sara_app.worker import CellWorker
+from sara_app.sim.motions import measured
 
 CELL = "acl1"
 

@@ -527,7 +527,7 @@ def test_server_stop_ends_open_event_streams(folder: Path) -> None:
 def test_edit_over_the_api_reaches_the_real_worker(folder: Path) -> None:
     """The project's cell worker (in a thread here) applies a scenario sent over the API: its
     status then reports the new scenario, and the verdicts keep coming."""
-    from sara_app.worker import CellWorker
+    from sara_app.runtime.worker import CellWorker
 
     port = free_port()
     with Bus.router(port), CellRegistry.connect(port) as reg, Bus.client(port) as wbus:

@@ -15,8 +15,8 @@ with warnings.catch_warnings():
 
 from sara_app.api import CellRegistry, create_app
 from sara_app.api.guard import MAX_BODY_BYTES, load_tokens
-from sara_app.audit import AuditLog
 from sara_app.errors import ParameterError
+from sara_app.ops.audit import AuditLog
 
 TOKEN = "t" * 24
 

@@ -16,9 +16,9 @@ with warnings.catch_warnings():
 from worker_thread import running_worker
 
 from sara_app.api import CellRegistry, create_app
-from sara_app.audit import AuditLog
 from sara_app.bus import keys
 from sara_app.bus.session import Bus, free_port
+from sara_app.ops.audit import AuditLog
 from sara_app.scenario import load_scenario, scenarios_dir
 
 CELL = "retire1"

@@ -24,11 +24,11 @@ with warnings.catch_warnings():
 from sara_app.api import CellRegistry, create_app
 from sara_app.api.registry import ParamsAnswer
 from sara_app.api.thresholds import NOT_ANNOUNCED
-from sara_app.audit import AuditLog
 from sara_app.bus import keys
 from sara_app.bus.codec import Decoded
 from sara_app.bus.messages import ScenarioStateMsg, StatusMsg
 from sara_app.errors import WorkerTimeoutError
+from sara_app.ops.audit import AuditLog
 from sara_app.safety.thresholds import load_thresholds
 from sara_app.scenario import load_scenario, parse_scenario, scenarios_dir
 
@@ -285,7 +285,7 @@ def test_a_threshold_above_the_physical_ceiling_or_a_loose_confirm_is_refused(
 ) -> None:
     """1e300 J is refused even when confirmed (the ceiling: MAX_THRESHOLD_J), and ``confirm``
     must be a JSON boolean ("yes" is not true); the scenario model holds the same ceiling."""
-    from sara_app.scenario import MAX_THRESHOLD_J, ThresholdOverride
+    from sara_app.safety.settings import MAX_THRESHOLD_J, ThresholdOverride
 
     reg, client, _ = api
     for value in (1e300, MAX_THRESHOLD_J * 1.01):

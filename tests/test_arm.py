@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sara_app.geometry import point_segment_distance
+from sara_app.geometry.shapes import point_segment_distance
 from sara_app.human.arm import arm_coordinates, arm_occupancy
 from sara_app.human.params import load_param_set, to_reach_params
 from sara_app.human.reach import HumanReach

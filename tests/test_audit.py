@@ -10,14 +10,14 @@ from pathlib import Path
 
 import pytest
 
-from sara_app.audit import (
+from sara_app.errors import ParameterError
+from sara_app.ops.audit import (
     ENV_VAR,
     SCHEMA_VERSION,
     AuditError,
     AuditLog,
     default_audit_path,
 )
-from sara_app.errors import ParameterError
 
 
 class Clock:

@@ -16,7 +16,7 @@ def test_the_heap_built_before_the_loop_is_frozen() -> None:
         """
         import gc
         from sara_app.bus.process import freeze_heap
-        from sara_app.cell import build_cell
+        from sara_app.cell.build import build_cell
         from sara_app.scenario import load_scenario
 
         cell = build_cell(load_scenario("standing_beside_path"))

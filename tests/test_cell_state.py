@@ -18,15 +18,15 @@ with warnings.catch_warnings():
     from fastapi.testclient import TestClient
 
 from sara_app.api import CellRegistry, create_app
-from sara_app.audit import AuditLog
 from sara_app.bus.session import Bus, free_port
-from sara_app.cell_state import CellState
+from sara_app.ops.audit import AuditLog
+from sara_app.runtime.cell_state import CellState
 
 CELL = "keep1"
 
 
 def _worker(port: int, state: Path, scenario: str = "empty_cell") -> subprocess.Popen[bytes]:
-    cmd = [sys.executable, "-m", "sara_app.worker", "--cell", CELL, "--scenario", scenario,
+    cmd = [sys.executable, "-m", "sara_app.runtime.worker", "--cell", CELL, "--scenario", scenario,
            "--port", str(port), "--state-dir", str(state)]  # fmt: skip
     return subprocess.Popen(cmd)
 

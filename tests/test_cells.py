@@ -16,8 +16,8 @@ from sara_app.api.server import ApiServer
 from sara_app.bench.cells import bench_cells
 from sara_app.bus.heartbeat import Heartbeat
 from sara_app.bus.session import Bus, free_port
-from sara_app.serve import spawn_cell_process
-from sara_app.supervisor import stop_processes
+from sara_app.ops.supervisor import stop_processes
+from sara_app.processes.serve import spawn_cell_process
 
 CELLS = ("alpha", "beta")
 
@@ -26,7 +26,9 @@ CELLS = ("alpha", "beta")
 def test_two_workers_on_one_router_and_the_landing_page_shows_both(tmp_path) -> None:
     port = free_port()
     with Bus.router(port) as hub:
-        workers = [spawn_cell_process("sara_app.worker", c, "empty_cell", port) for c in CELLS]
+        workers = [
+            spawn_cell_process("sara_app.runtime.worker", c, "empty_cell", port) for c in CELLS
+        ]
         beats = [Heartbeat(hub, c).start() for c in CELLS]
         registry = CellRegistry.connect(port).start()
         api = ApiServer(create_app(registry), port=free_port())

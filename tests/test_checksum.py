@@ -4,10 +4,12 @@ of the code gives another."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
-from sara_app import checksum
-from sara_app.checksum import config_checksum
+from sara_app.cell import checksum
+from sara_app.cell.checksum import config_checksum
 from sara_app.human.params import load_param_set
 from sara_app.scenario import load_scenario, parse_scenario
 
@@ -63,3 +65,12 @@ def test_the_code_is_part_of_the_checksum(monkeypatch: pytest.MonkeyPatch) -> No
     assert config_checksum(sc) != base
     monkeypatch.setattr(checksum, "__version__", "9.9.9")
     assert config_checksum(sc) != base
+
+
+def test_the_code_digest_covers_every_folder_of_the_package() -> None:
+    import sara_app
+
+    root = Path(sara_app.__file__).resolve().parent
+    assert checksum.PACKAGE_DIR == root
+    folders = {p.parent.relative_to(root).parts[:1] for p in root.rglob("*.py")}
+    assert {("safety",), ("human",), ("robot",), ("runtime",), ()} <= folders

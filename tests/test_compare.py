@@ -1,4 +1,5 @@
-"""The SSM / PFL / JSSA comparison (``sara_app.compare``, ``sara-app compare``) at small size."""
+"""The SSM / PFL / JSSA comparison (``sara_app.sim.compare``, ``sara-app compare``) at small
+size."""
 
 from __future__ import annotations
 
@@ -6,8 +7,8 @@ import numpy as np
 import pytest
 
 from sara_app.cli import main
-from sara_app.compare import _Recorder, compare, format_table, run_mode, with_mode
 from sara_app.scenario import load_scenario
+from sara_app.sim.compare import _Recorder, compare, format_table, run_mode, with_mode
 
 
 class _Line:

@@ -16,10 +16,10 @@ from contact_reference import (
 )
 from scipy.sparse.csgraph import connected_components
 
-from sara_app import geometry_kernels
 from sara_app.errors import InputError, ParameterError, UnknownNameError
-from sara_app.geometry import segment_box_distance, segment_segment_closest
-from sara_app.geometry_kernels import sphere_slack_m
+from sara_app.geometry import shape_kernels
+from sara_app.geometry.shape_kernels import sphere_slack_m
+from sara_app.geometry.shapes import segment_box_distance, segment_segment_closest
 from sara_app.robot.energy import LinkMotion
 from sara_app.robot.model import load_robot
 from sara_app.safety.contact import (
@@ -501,4 +501,4 @@ def test_classify_cache_keys_carry_the_geometry_kernels_source(kernel: Any) -> N
     the geometry kernels, so their closures (hashed into numba's cache key) must hold their
     source digest."""
     cells = [c.cell_contents for c in kernel.py_func.__closure__ or ()]
-    assert source_digest(geometry_kernels) in cells
+    assert source_digest(shape_kernels) in cells

@@ -20,9 +20,9 @@ from sara_app.bus import keys
 from sara_app.bus.heartbeat import Heartbeat
 from sara_app.bus.messages import ControllerStatusMsg, RobotCommandMsg, RobotStateMsg, VerdictMsg
 from sara_app.bus.session import Bus, free_port
+from sara_app.ops.supervisor import stop_processes
+from sara_app.processes.serve import WORKER_RT_PRIORITY, connect_when_listening
 from sara_app.scenario import load_scenario
-from sara_app.serve import WORKER_RT_PRIORITY, connect_when_listening
-from sara_app.supervisor import stop_processes
 
 CELL = "ctl"
 
@@ -67,8 +67,8 @@ def test_a_killed_worker_leaves_the_robot_on_its_verified_stop(cell) -> None:
     states = bus.subscribe(keys.robot_state_key(CELL), fifo=True, capacity=100000)
     cmds = bus.subscribe(keys.robot_command_key(CELL), fifo=True, capacity=100000)
     verdicts = bus.subscribe(keys.verdict_key(CELL), fifo=True, capacity=100000)
-    controller = _proc("sara_app.controller", path, port)
-    worker = _proc("sara_app.worker", path, port)
+    controller = _proc("sara_app.peers.controller", path, port)
+    worker = _proc("sara_app.runtime.worker", path, port)
     try:
         with Heartbeat(bus, CELL):
             _wait_moving(states)
@@ -113,8 +113,8 @@ def test_a_restarted_worker_continues_from_where_the_robot_rests(cell) -> None:
     port, bus, path = cell
     states = bus.subscribe(keys.robot_state_key(CELL), fifo=True, capacity=100000)
     verdicts = bus.subscribe(keys.verdict_key(CELL), fifo=True, capacity=100000)
-    controller = _proc("sara_app.controller", path, port)
-    worker = _proc("sara_app.worker", path, port)
+    controller = _proc("sara_app.peers.controller", path, port)
+    worker = _proc("sara_app.runtime.worker", path, port)
     try:
         with Heartbeat(bus, CELL):
             _wait_moving(states)
@@ -123,7 +123,7 @@ def test_a_restarted_worker_continues_from_where_the_robot_rests(cell) -> None:
             worker.wait(10)
             time.sleep(1.5)  # braked to rest on its own
             q_rest = np.asarray(_drain(states, RobotStateMsg)[-1].q)
-            worker = _proc("sara_app.worker", path, port)
+            worker = _proc("sara_app.runtime.worker", path, port)
             t_end = time.monotonic() + 60
             got: list[VerdictMsg] = []
             while sum(v.mode == "intended" for v in got) < 100:
@@ -145,7 +145,7 @@ def test_delivery_is_counted_and_a_restarted_workers_commands_are_followed() -> 
     sequence number, a late command and an expiry are counted; a restarted worker's commands
     (numbered from 0 again, later stamps) are followed at once; a command stamped in the future
     is refused (it would hold back every later one)."""
-    from sara_app.controller import Controller
+    from sara_app.peers.controller import Controller
 
     sc = load_scenario("standing_beside_path")
     port = free_port()
@@ -199,7 +199,7 @@ def test_a_command_taken_past_the_last_set_point_continues_from_the_stop() -> No
     """Past a set point the robot is on that command's stop; the next command takes it on from
     there (it once restarted from the set point: a jump back by speed x delay, which the worker
     saw as a tracking fault whenever a command took over ~2 ms to arrive)."""
-    from sara_app.controller import Controller
+    from sara_app.peers.controller import Controller
 
     sc = load_scenario("standing_beside_path")
     port = free_port()
@@ -232,7 +232,7 @@ def test_a_started_controller_follows_no_command_from_elsewhere() -> None:
     where the worker believed the robot to be. It follows none whose set point is not where
     its robot stands (``sara-app soak --chaos`` saw a restarted one take a set point 1.4 rad
     away), and follows the worker once it commands from there."""
-    from sara_app.controller import Controller
+    from sara_app.peers.controller import Controller
 
     sc = load_scenario("standing_beside_path")
     port = free_port()

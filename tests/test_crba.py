@@ -1,4 +1,4 @@
-"""Compiled CRBA (sara_app/robot/crba_kernel.py) against ``pin.crba``, through ``LinkMotion``.
+"""Compiled CRBA (sara_app/robot/crba_kernels.py) against ``pin.crba``, through ``LinkMotion``.
 
 Reference: pinocchio's own CRBA per configuration, upper triangle mirrored. Relative error is
 measured against the largest entry of each matrix (entries near zero are cancellations).
@@ -11,7 +11,7 @@ import pinocchio as pin
 import pytest
 
 from sara_app.errors import InputError, ParameterError
-from sara_app.robot.crba_kernel import CompiledCrba
+from sara_app.robot.crba_kernels import CompiledCrba
 from sara_app.robot.energy import LinkMotion
 from sara_app.robot.model import RobotModel, load_robot
 

@@ -15,12 +15,12 @@ import pytest
 from browser import CHROMIUM, chromium_on, wait_for
 from worker_thread import running_worker
 
-from sara_app.audit import AuditLog
 from sara_app.bus.session import Bus, free_port
 from sara_app.dashboard.access import DashboardAccess, acting
 from sara_app.dashboard.bridge import CellView
 from sara_app.dashboard.viewer import Dashboard
 from sara_app.errors import AccessError, ScenarioError, WorkerTimeoutError
+from sara_app.ops.audit import AuditLog
 from sara_app.scenario import load_scenario, scenarios_dir
 
 TOKEN = "t0ken-of-the-operator-0123"

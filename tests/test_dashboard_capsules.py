@@ -18,7 +18,7 @@ from sara_app.dashboard.capsules import (
     unit_hemisphere,
     unit_tube,
 )
-from sara_app.geometry import point_segment_distance
+from sara_app.geometry.shapes import point_segment_distance
 
 TUBE = unit_tube(16)
 HEMI = unit_hemisphere(16, 5)

@@ -17,7 +17,7 @@ from browser import CHROMIUM, DevTools, chromium_on, wait_for
 from sara_app.dashboard.scene import demo_frame
 from sara_app.dashboard.viewer import Dashboard
 from sara_app.dashboard.whatif_panel import WhatIfHooks, WhatIfPanels
-from sara_app.jobs import JobRunner
+from sara_app.ops.jobs import JobRunner
 from sara_app.scenario import load_scenario, parse_scenario
 
 pytestmark = pytest.mark.skipif(

@@ -1,6 +1,6 @@
 """The live cell's input boundary, as a hostile client would try it (issue "Fail-safe inputs"):
-a real worker process (``python -m sara_app.worker``) on a zenoh router on 127.0.0.1, and this
-test's own zenoh publishers (and a flooding subprocess). Each case failed before the tracker
+a real worker process (``python -m sara_app.runtime.worker``) on a zenoh router on 127.0.0.1, and
+this test's own zenoh publishers (and a flooding subprocess). Each case failed before the tracker
 heartbeat, the presence rules and the exception-safe cycle existed."""
 
 from __future__ import annotations
@@ -30,11 +30,11 @@ from sara_app.bus.messages import (
     VerdictMsg,
 )
 from sara_app.bus.session import Bus, free_port
-from sara_app.human.motions import measured
 from sara_app.human.skeleton import skeleton
+from sara_app.ops.supervisor import stop_processes
+from sara_app.processes.serve import WORKER_RT_PRIORITY, connect_when_listening
 from sara_app.scenario import load_scenario
-from sara_app.serve import WORKER_RT_PRIORITY, connect_when_listening
-from sara_app.supervisor import stop_processes
+from sara_app.sim.motions import measured
 
 CELL = "hostile"
 NAMES = skeleton("full").joints
@@ -114,7 +114,7 @@ def _start(tmp_path: Path, serve_layout: bool = False, **changes: Any) -> Iterat
             else:
                 stack.enter_context(Bus.router(port))
                 bus = stack.enter_context(Bus.client(port))
-            cmd = [sys.executable, "-m", "sara_app.worker", "--cell", CELL, "--scenario",
+            cmd = [sys.executable, "-m", "sara_app.runtime.worker", "--cell", CELL, "--scenario",
                    str(path), "--port", str(port), *rt]  # fmt: skip
             proc = subprocess.Popen(cmd)
             procs.insert(0, proc)

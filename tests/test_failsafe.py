@@ -12,9 +12,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from panda_limits import DT, HOME, PANDA, H, check_limits  # noqa: E402
 from shielded_reference import shielded_reference
+from stop_reference import plan_stop, straight_line_stop_duration
 
 from sara_app.errors import RobotModelError
-from sara_app.robot.failsafe import plan_joint_stop, plan_stop, straight_line_stop_duration
+from sara_app.robot.failsafe import plan_joint_stop
 from sara_app.robot.model import JointLimits
 from sara_app.robot.shielded import shielded_trajectory
 from sara_app.robot.trajectory import PathFollower, PathTrajectory

@@ -1,4 +1,4 @@
-"""Property tests of ``sara_app.geometry`` against brute-force and independent references.
+"""Property tests of ``sara_app.geometry.shapes`` against brute-force and independent references.
 
 Every distance function is checked two ways:
 
@@ -22,7 +22,7 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from sara_app import geometry as geo
+from sara_app.geometry import shapes as geo
 
 # ----------------------------------------------------------------------------------------------
 # Settings and tolerances
@@ -982,7 +982,7 @@ def test_effective_volume_is_the_per_part_intersection() -> None:
     """``effective_volume_mc``: one model alone gives its union's volume; the same model twice
     too; two models whose capsules for the parts are disjoint give 0; a model nested in another
     gives the inner one's volume (within 4 Monte-Carlo standard errors)."""
-    from sara_app.geometry import capsule_volume, effective_volume_mc
+    from sara_app.geometry.shapes import capsule_volume, effective_volume_mc
 
     rng = np.random.default_rng(3)
     ends = np.array([[[0.0, 0, 0], [0.3, 0, 0]], [[0.0, 0.5, 0], [0.0, 0.5, 0.2]]])

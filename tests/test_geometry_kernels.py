@@ -1,4 +1,4 @@
-"""The compiled capsule kernels (``sara_app.geometry_kernels``) against the numpy references.
+"""The compiled capsule kernels (``sara_app.geometry.shape_kernels``) against the numpy references.
 
 * ``segment_closest`` gives the distance of ``geometry.segment_segment_closest`` (points,
   parallel, anti-parallel, collinear, nearly parallel pairs), and its parameters lie in [0, 1]
@@ -21,8 +21,8 @@ from contact_reference import segment_box_closest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from sara_app import geometry as geo
-from sara_app.geometry_kernels import (
+from sara_app.geometry import shapes as geo
+from sara_app.geometry.shape_kernels import (
     box_axis_gaps,
     box_distances,
     capsule_sets_check,

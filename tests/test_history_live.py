@@ -20,9 +20,9 @@ import pytest
 from sara_app.bus import keys
 from sara_app.bus.messages import RobotCommandMsg, SkeletonMsg, TrackerFrameMsg
 from sara_app.bus.session import Bus, free_port
-from sara_app.human.motions import measured
 from sara_app.human.scripted import joints, standing
-from sara_app.supervisor import stop_processes
+from sara_app.ops.supervisor import stop_processes
+from sara_app.sim.motions import measured
 
 CELL = "hist"
 P_X_M = 0.3  # in front of the robot base, facing it: a fresh person there stops the robot
@@ -75,7 +75,7 @@ def _cell() -> Iterator[Tracker]:
     procs: list[subprocess.Popen[bytes]] = []
     with Bus.router(port), Bus.client(port) as bus:
         try:
-            for prog in ("worker", "controller"):
+            for prog in ("runtime.worker", "peers.controller"):
                 procs.append(subprocess.Popen([sys.executable, "-m", f"sara_app.{prog}",
                                                "--cell", CELL, "--scenario", "punches",
                                                "--port", str(port)]))  # fmt: skip

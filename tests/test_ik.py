@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sara_app.cell import base_pose
+from sara_app.cell.build import base_pose
 from sara_app.errors import InputError, UnknownNameError
 from sara_app.robot.ik import (
     end_effector_frame,

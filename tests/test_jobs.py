@@ -20,11 +20,11 @@ with warnings.catch_warnings():
 from test_api_thresholds import StandInRegistry
 
 from sara_app.api import create_app
-from sara_app.audit import AuditLog
-from sara_app.closed_loop import run_closed_loop
-from sara_app.job_main import NICENESS
-from sara_app.jobs import JobRunner
+from sara_app.ops.audit import AuditLog
+from sara_app.ops.jobs import JobRunner
+from sara_app.processes.job_main import NICENESS
 from sara_app.scenario import load_scenario, parse_scenario, scenarios_dir
+from sara_app.sim.closed_loop import run_closed_loop
 
 DURATION_S = 2.0
 

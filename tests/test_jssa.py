@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from jssa_reference import project_halfspace_box
 
 from sara_app.errors import ParameterError
 from sara_app.robot.model import load_robot
 from sara_app.safety.jssa import JssaController, JssaParams, integrate, make_params
 from sara_app.safety.jssa_index import index_gradient, index_terms, safety_index
 from sara_app.safety.jssa_kinematics import PointKinematics
-from sara_app.safety.jssa_qp import project_halfspace_box, project_polytope_box
+from sara_app.safety.jssa_qp import project_polytope_box
 from sara_app.studies.jssa_study import PANDA_HOME, panda_on_table, rigid_human
 
 
@@ -193,8 +194,9 @@ def test_sliding_correction_gives_the_second_derivative_of_the_capsule_distance(
     """A rigid link (translating with acceleration, rotating) against a limb whose ends move at
     constant but different velocities: d'' with the sliding correction matches finite
     differences of the true segment distance; the material-point d'' of eq. 12 does not."""
-    from sara_app.geometry import segment_segment_closest
-    from sara_app.safety.jssa_index import sliding_correction
+    from jssa_reference import sliding_correction
+
+    from sara_app.geometry.shapes import segment_segment_closest
 
     rng = np.random.default_rng(7)
     errors_material, checked = [], 0
@@ -239,8 +241,9 @@ def test_sliding_correction_gives_the_second_derivative_of_the_capsule_distance(
 
 
 def test_compiled_constraint_terms_equal_the_index_functions() -> None:
+    from jssa_reference import linear_constraints
+
     from sara_app.safety import jssa_kernels
-    from sara_app.safety.jssa_index import linear_constraints
     from sara_app.safety.jssa_kernels import constraint_terms
 
     rng = np.random.default_rng(3)
@@ -257,7 +260,7 @@ def test_compiled_constraint_terms_equal_the_index_functions() -> None:
     for got, want in zip(out, expect):
         np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
     # the sliding correction, with interior, boundary and parallel closest points
-    from sara_app.safety.jssa_index import sliding_correction
+    from jssa_reference import sliding_correction
 
     axis_r, omega, axis_o, axis_o_dot = rng.normal(0, 0.3, (4, K, 3))
     axis_o[0] = 2.0 * axis_r[0]  # parallel

@@ -7,16 +7,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sara_app.cell import build_cell
-from sara_app.compare import with_mode
+from sara_app.cell.build import build_cell
 from sara_app.errors import ParameterError
-from sara_app.geometry import capsule_distances
+from sara_app.geometry.shapes import capsule_distances
 from sara_app.human.scripted import joints, standing
 from sara_app.robot.trajectory import JointState
 from sara_app.safety.jssa_mode import JssaMode, tracking_jerk
 from sara_app.safety.shield import HumanState, Shield
 from sara_app.scenario import load_scenario, parse_scenario
-from sara_app.sim import Simulation
+from sara_app.sim.compare import with_mode
+from sara_app.sim.simulator import Simulation
 
 
 def jssa_cell(name: str = "empty_cell", constraints: str = "single"):

@@ -30,7 +30,13 @@ def _imported(tree: ast.Module) -> tuple[set[str], set[str]]:
         if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("sara_app"):
             if node.module == "sara_app.kernel_types":
                 continue
-            packages = ("sara_app", "sara_app.robot", "sara_app.safety", "sara_app.human")
+            packages = (
+                "sara_app",
+                "sara_app.geometry",
+                "sara_app.robot",
+                "sara_app.safety",
+                "sara_app.human",
+            )
             for a in node.names:
                 (modules if node.module in packages else names).add(a.asname or a.name)
     return names, modules

@@ -31,18 +31,18 @@ with warnings.catch_warnings():
     from fastapi.testclient import TestClient
 
 from sara_app.api import CellRegistry, create_app
-from sara_app.audit import AuditLog
 from sara_app.bus import keys
 from sara_app.bus.heartbeat import Heartbeat
 from sara_app.bus.messages import OccupancyMsg, RobotCommandMsg, SkeletonMsg, VerdictMsg
 from sara_app.bus.session import Bus, Subscription, free_port
-from sara_app.human.motions import measured
 from sara_app.human.params import load_param_set
 from sara_app.human.skeleton import skeleton
+from sara_app.ops.audit import AuditLog
 from sara_app.robot.model import load_robot
+from sara_app.runtime.worker import CellWorker
 from sara_app.safety.thresholds import CONTACTS, REGIONS
 from sara_app.scenario import load_scenario, scenarios_dir
-from sara_app.worker import CellWorker
+from sara_app.sim.motions import measured
 
 CELL = "live1"
 STANDING = {  # a person standing upright, feet at x = 0
@@ -262,7 +262,7 @@ def test_the_report_checksum_is_the_running_workers_and_changes_with_any_edit(
     """The worker reports its configuration checksum; an evidence report made over the API
     (a background job) prints the same one; a threshold edit changes the worker's, which then
     equals the checksum of the edited scenario and no longer the report's."""
-    from sara_app.checksum import config_checksum
+    from sara_app.cell.checksum import config_checksum
 
     running = _status_checksum(live)
     assert running == config_checksum(live.worker.cell.scenario)

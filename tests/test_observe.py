@@ -14,9 +14,9 @@ import urllib.request
 from sara_app.bus.heartbeat import Heartbeat
 from sara_app.bus.session import Bus, free_port
 from sara_app.errors import ParameterError
-from sara_app.observe import announced_scenario
-from sara_app.serve import spawn_cell_process
-from sara_app.supervisor import stop_processes
+from sara_app.ops.supervisor import stop_processes
+from sara_app.processes.observe import announced_scenario
+from sara_app.processes.serve import spawn_cell_process
 
 
 def _get(url: str) -> tuple[int, bytes]:
@@ -27,7 +27,7 @@ def _get(url: str) -> tuple[int, bytes]:
 def test_observe_shows_a_cell_running_on_another_router() -> None:
     port, vp, ap = free_port(), free_port(), free_port()
     with Bus.router(port) as hub:
-        worker = spawn_cell_process("sara_app.worker", "far1", "empty_cell", port)
+        worker = spawn_cell_process("sara_app.runtime.worker", "far1", "empty_cell", port)
         beat = Heartbeat(hub, "far1").start()
         proc = subprocess.Popen(
             [sys.executable, "-m", "sara_app.cli", "observe", "--cell", "far1", "--zenoh-port",

@@ -17,24 +17,24 @@ from pfl_compare import (  # noqa: E402
     same_state_cycles,
 )
 
-from sara_app import geometry_kernels
 from sara_app.bench.pfl import BENCH_CASES, shield_cell
 from sara_app.errors import ParameterError
+from sara_app.geometry import shape_kernels
 from sara_app.human import reach_kernels
 from sara_app.robot import (
-    crba_kernel,
+    crba_kernels,
     energy,
     occupancy_kernels,
     planning_kernels,
     trajectory_kernels,
 )
 from sara_app.robot.planning_kernels import OUT_LEN
-from sara_app.safety import contact_kernels, pfl_fused_kernel, pfl_kernels, pfl_link_states
+from sara_app.safety import contact_kernels, pfl_fused_kernels, pfl_kernels, pfl_link_states
 from sara_app.safety import pfl_cycle as pfl_cycle_module
 from sara_app.safety.contact_kernels import source_digest
 from sara_app.safety.pfl import PflCheck
 from sara_app.safety.pfl_cycle import CompiledCycle
-from sara_app.safety.pfl_cycle_kernel import BAIL, cycle_kernel, plan_size, plan_views
+from sara_app.safety.pfl_cycle_kernels import BAIL, cycle_kernel, plan_size, plan_views
 from sara_app.safety.pfl_shield import PflCycle
 
 
@@ -139,9 +139,9 @@ def test_cache_key_carries_the_callees_sources() -> None:
     cells = [c.cell_contents for c in cycle_kernel.py_func.__closure__ or ()]
     text = "".join(c for c in cells if isinstance(c, str))
     for module in (
-        geometry_kernels, reach_kernels, crba_kernel, energy, occupancy_kernels,
+        shape_kernels, reach_kernels, crba_kernels, energy, occupancy_kernels,
         planning_kernels, trajectory_kernels, contact_kernels, pfl_kernels, pfl_link_states,
-        pfl_fused_kernel,
+        pfl_fused_kernels,
     ):  # fmt: skip
         assert source_digest(module) in text, module.__name__
 

@@ -1,4 +1,4 @@
-"""The compiled PFL check (sara_app.safety.pfl_fused_kernel, run by the shield's compiled cycle)
+"""The compiled PFL check (sara_app.safety.pfl_fused_kernels, run by the shield's compiled cycle)
 against the Python composition of the same kernels in tests/pfl_reference.py: the same
 verdicts, classes, thresholds, margins, link energies, model counts, model orders and commands,
 bit for bit, cycle after cycle, for one person and for several."""
@@ -15,13 +15,13 @@ from pfl_compare import (  # noqa: E402
     same_state_cycles,
 )
 
-from sara_app import geometry_kernels
+from sara_app.geometry import shape_kernels
 from sara_app.human import reach_kernels
 from sara_app.human.widening import widening
-from sara_app.robot import crba_kernel, energy, occupancy_kernels
+from sara_app.robot import crba_kernels, energy, occupancy_kernels
 from sara_app.safety import contact_kernels, pfl_kernels, pfl_link_states
 from sara_app.safety.contact_kernels import source_digest
-from sara_app.safety.pfl_fused_kernel import fused_kernel
+from sara_app.safety.pfl_fused_kernels import fused_kernel
 from sara_app.safety.pfl_shield import PflCycle
 
 
@@ -107,7 +107,7 @@ def test_cache_key_carries_the_callees_sources() -> None:
     cells = [c.cell_contents for c in fused_kernel.py_func.__closure__ or ()]
     text = "".join(c for c in cells if isinstance(c, str))
     for module in (
-        geometry_kernels, reach_kernels, crba_kernel, energy, occupancy_kernels,
+        shape_kernels, reach_kernels, crba_kernels, energy, occupancy_kernels,
         contact_kernels, pfl_kernels, pfl_link_states,
     ):  # fmt: skip
         assert source_digest(module) in text, module.__name__

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from sara_app.errors import InputError
-from sara_app.robot import crba_kernel, energy, occupancy_kernels
+from sara_app.robot import crba_kernels, energy, occupancy_kernels
 from sara_app.robot.energy import LinkMotion, path_interval_energy_J
 from sara_app.robot.model import load_robot
 from sara_app.robot.shielded import shielded_trajectory
@@ -146,5 +146,5 @@ def test_cache_key_carries_the_callees_sources() -> None:
     own, so its closure (hashed into the cache key) must hold their source digests."""
     cells = [c.cell_contents for c in path_states_kernel.py_func.__closure__ or ()]
     text = "".join(c for c in cells if isinstance(c, str))
-    for module in (occupancy_kernels, crba_kernel, energy, contact_kernels):
+    for module in (occupancy_kernels, crba_kernels, energy, contact_kernels):
         assert source_digest(module) in text, module.__name__

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from pfl_reference import ReferencePflShield, allowed_speed, as_reference, candidate, merged
 
-from sara_app.cell import build_cell
+from sara_app.cell.build import build_cell
 from sara_app.errors import ParameterError
-from sara_app.geometry import points_in_capsules
+from sara_app.geometry.shapes import points_in_capsules
 from sara_app.human.scripted import joints, standing
 from sara_app.robot.trajectory import JointState
 from sara_app.safety.pfl_shield import PflShield, part_capsules

@@ -7,7 +7,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sara_app.presence import FORGET_AFTER_S, Presence, unmeasured_track
+from sara_app.cell.intake import unmeasured_track
+from sara_app.runtime.presence import FORGET_AFTER_S, Presence
 
 A_MAX = np.full(15, 50.0)
 V_MAX = np.full(15, 2.0)
@@ -132,7 +133,7 @@ def test_forgetting_needs_positive_evidence(events) -> None:
 
 
 def test_a_full_overflow_list_faults_until_every_tracker_has_spoken_since() -> None:
-    from sara_app.presence import MAX_OVERFLOW
+    from sara_app.runtime.presence import MAX_OVERFLOW
 
     p = _presence(("a", "b"), max_people=1)
     p.frame("a", 1.0, [])

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from sara_app.errors import InputError, ParameterError, UnknownNameError
-from sara_app.geometry import point_segment_distance
+from sara_app.geometry.shapes import point_segment_distance
 from sara_app.human.params import load_param_set, parse_param_set, to_reach_params
 from sara_app.human.reach import MODELS, HumanReach
 from sara_app.human.skeleton import skeleton

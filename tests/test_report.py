@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sara_app.cell import build_cell
-from sara_app.checksum import config_checksum
+from sara_app.cell.build import build_cell
+from sara_app.cell.checksum import config_checksum
 from sara_app.report.stopping import iso13855_separation_m, stop_rows
 from sara_app.robot.failsafe import plan_joint_stop
 from sara_app.scenario import load_scenario

@@ -17,7 +17,7 @@ from sara_app.errors import (
     RobotModelError,
     UnknownNameError,
 )
-from sara_app.geometry import point_segment_distance
+from sara_app.geometry.shapes import point_segment_distance
 from sara_app.robot.capsule_fit import fit_capsule
 from sara_app.robot.model import RobotModel, load_robot, robot_names, urdf_dir
 

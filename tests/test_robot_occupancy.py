@@ -282,7 +282,7 @@ def test_added_radius_is_small_for_a_1ms_interval() -> None:
 def test_returned_capsule_is_inside_the_conservative_shortcut(robot) -> None:
     """The shortcut (enclose the two sample capsules, then grow by P/2) has the same axis and a
     radius larger by h (half the larger end displacement): measured here at 1 ms."""
-    from sara_app.geometry import capsule_enclosing_capsules
+    from sara_app.geometry.shapes import capsule_enclosing_capsules
 
     model, occ = robot
     rng = np.random.default_rng(3)

@@ -15,7 +15,7 @@ import pytest
 from sara_app.errors import RobotModelError, ScenarioError
 from sara_app.robot.model import load_robot, urdf_dir
 from sara_app.scenario import check_against_robot, load_scenario, parse_scenario
-from sara_app.sim import Simulation
+from sara_app.sim.simulator import Simulation
 
 # Universal Robots' DH table of the UR10e: a, d, alpha (standard convention)
 A = (0.0, -0.6127, -0.57155, 0.0, 0.0, 0.0)

@@ -20,7 +20,7 @@ from sara_app.bus import keys
 from sara_app.bus.examples import example_messages
 from sara_app.bus.messages import OccupancyMsg, RobotCommandMsg, RobotStateMsg
 from sara_app.bus.session import Bus, free_port
-from sara_app.geometry import quat_rotate
+from sara_app.geometry.shapes import quat_rotate
 from sara_app.ros2.bridge import JOINT_STATE, MARKER_ARRAY, Ros2Bridge, ros_session
 from sara_app.ros2.convert import header
 from sara_app.ros2.interfaces import MARKER_CYLINDER, MARKER_DELETEALL, MARKER_SPHERE, codec

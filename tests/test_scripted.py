@@ -9,7 +9,6 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from sara_app.human.motions import Scripted, make_motion
 from sara_app.human.params import load_param_set, to_reach_params
 from sara_app.human.scripted import (
     FOREARM_M,
@@ -20,6 +19,7 @@ from sara_app.human.scripted import (
 )
 from sara_app.human.skeleton import FULL_JOINTS
 from sara_app.scenario import MOTIONS, ScriptedHuman, load_scenario, scenario_names
+from sara_app.sim.motions import Scripted, make_motion
 
 J = {n: i for i, n in enumerate(FULL_JOINTS)}
 LIMBS = {

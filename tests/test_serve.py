@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from sara_app.bus.session import free_port
-from sara_app.serve import REPLAYER_NICE, lower_thread_priority, start_process
+from sara_app.processes.serve import REPLAYER_NICE, lower_thread_priority, start_process
 
 
 def _get(url: str) -> tuple[int, bytes]:
@@ -39,7 +39,8 @@ def _child_pids(zenoh_port: int) -> dict[int, str]:
             continue
         text = b" ".join(args).decode(errors="replace")
         if any(
-            f"sara_app.{m}" in text for m in ("worker", "replayer", "controller", "bus.router")
+            f"sara_app.{m}" in text
+            for m in ("processes.worker_start", "peers.replayer", "peers.controller", "bus.router")
         ) and (f"--port {zenoh_port}" in text):
             out[int(cmdline.parent.name)] = text
     return out
@@ -67,7 +68,7 @@ def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(sig: signal.Signals) ->
         assert cell is not None, "the cell never came online in the API"
         assert cell["cell"] == "cell1" and cell["mode"] in ("intended", "failsafe", "rest")
         # the worker runs (and says it runs) the default scenario's configuration
-        from sara_app.checksum import config_checksum
+        from sara_app.cell.checksum import config_checksum
         from sara_app.scenario import load_scenario
 
         assert cell["config_sha256"] == config_checksum(load_scenario("punches"))
@@ -78,11 +79,11 @@ def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(sig: signal.Signals) ->
         kids = _child_pids(zp)
         assert len(kids) == 4  # router, controller, worker, replayer
         for pid, text in kids.items():  # the safety worker first: the replayer runs niced
-            want = REPLAYER_NICE if "sara_app.replayer" in text else 0
+            want = REPLAYER_NICE if "sara_app.peers.replayer" in text else 0
             assert os.getpriority(os.PRIO_PROCESS, pid) - os.getpriority(os.PRIO_PROCESS, 0) == want
             assert os.getsid(pid) != os.getsid(proc.pid)  # a session (autogroup) of its own
             policy = os.sched_getscheduler(pid)  # of the main thread: the loop
-            rt = "sara_app.replayer" not in text and _rt_permitted()
+            rt = "sara_app.peers.replayer" not in text and _rt_permitted()
             assert policy == (os.SCHED_FIFO if rt else os.SCHED_OTHER), (text, policy)
     finally:
         proc.send_signal(sig)

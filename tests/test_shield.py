@@ -11,15 +11,16 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from sara_app.geometry import point_segment_distance
+from sara_app.geometry.shapes import point_segment_distance
 from sara_app.human.params import load_param_set, to_reach_params
 from sara_app.human.reach import HumanReach
 from sara_app.human.scripted import joints, standing
 from sara_app.robot.model import load_robot
 from sara_app.robot.trajectory import JointState, PathFollower
-from sara_app.safety.shield import CycleResult, HumanState, Shield, ShieldSettings
+from sara_app.safety.settings import FUTURE_TOLERANCE_S, ShieldSettings
+from sara_app.safety.shield import CycleResult, HumanState, Shield
 from sara_app.scenario import parse_scenario
-from sara_app.sim import Simulation
+from sara_app.sim.simulator import Simulation
 
 ROBOT = load_robot("panda")
 PARAMS = to_reach_params(load_param_set("schepp2022_table1"), "full")
@@ -69,7 +70,7 @@ def bad_inputs(
     elif kind == "stale":
         h.stamp_s = t - ShieldSettings().skeleton_timeout_s - 0.001 - u
     elif kind == "future":
-        h.stamp_s = t + ShieldSettings().future_tolerance_s + 0.001 + u
+        h.stamp_s = t + FUTURE_TOLERANCE_S + 0.001 + u
     elif kind == "shape":
         h.y = h.y[:14]
     elif kind == "missing":

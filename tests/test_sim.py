@@ -1,5 +1,5 @@
-"""Closed-loop simulation (``sara_app.sim``): zero collisions while moving in every shipped
-scenario and in seeded randomised adversarial episodes; the robot reaches its goal where the
+"""Closed-loop simulation (``sara_app.sim.simulator``): zero collisions while moving in every
+shipped scenario and in seeded randomised adversarial episodes; the robot reaches its goal where the
 person stays clear and beside the path; and the collision counter does fire when the shield is
 replaced by one that always commits the intended step.
 
@@ -17,8 +17,8 @@ import pytest
 
 from sara_app.safety.ssm import SsmResult
 from sara_app.scenario import load_scenario, parse_scenario, scenario_names
-from sara_app.sim import SimMetrics, Simulation
-from sara_app.sim_episodes import run_episodes
+from sara_app.sim.episodes import run_episodes
+from sara_app.sim.simulator import SimMetrics, Simulation
 
 # scenario -> (horizon s or None for the scenario's duration, goal must be reached)
 PLAN: dict[str, tuple[float | None, bool]] = {

@@ -1,6 +1,6 @@
-"""PFL in closed loop (``sara_app.sim`` ground truth, ``sara_app.sim_episodes``): the contact
-ground truth on constructed cases (free vs clamped by the table, by a stacked body part, between
-two links; adjacent links do not clamp; no energy, no harm; energy scales with the speed
+"""PFL in closed loop (``sara_app.sim.simulator`` ground truth, ``sara_app.sim.episodes``): the
+contact ground truth on constructed cases (free vs clamped by the table, by a stacked body part,
+between two links; adjacent links do not clamp; no energy, no harm; energy scales with the speed
 squared); seeded adversarial episodes with a table have contacts but none harmful; a shield
 that always answers "safe" does cause harmful contacts (the counter fires); and where a person
 works close beside the path PFL reaches the goal sooner than SSM.
@@ -13,14 +13,15 @@ import math
 import numpy as np
 import pytest
 
-from sara_app.cell import build_cell, environment_boxes
-from sara_app.compare import run_mode, with_mode
-from sara_app.geometry import capsule_distances
+from sara_app.cell.build import build_cell, environment_boxes
+from sara_app.geometry.shapes import capsule_distances
 from sara_app.human.scripted import joints, standing
+from sara_app.safety.settings import PflSettings
 from sara_app.safety.thresholds import load_thresholds
-from sara_app.scenario import PflSpec, load_scenario, parse_scenario
-from sara_app.sim import ContactTruth, Simulation
-from sara_app.sim_episodes import run_episodes
+from sara_app.scenario import load_scenario, parse_scenario
+from sara_app.sim.compare import run_mode, with_mode
+from sara_app.sim.episodes import run_episodes
+from sara_app.sim.simulator import ContactTruth, Simulation
 
 TABLE = {"name": "table", "center_m": [0.65, 0.0, 0.1], "size_m": [0.5, 1.6, 0.2]}
 Q0 = np.array([0.0, 0.3, 0.0, -1.8, 0.0, 2.1, 0.8])
@@ -35,7 +36,7 @@ def _truth(boxes: list[dict[str, object]]) -> ContactTruth:
     cell = build_cell(sc)
     sk = cell.shield.reach.skeleton
     return ContactTruth(
-        cell.robot, sk.part_joints, cell.params.half_thickness_m, sk.parts, 1, PflSpec(),
+        cell.robot, sk.part_joints, cell.params.half_thickness_m, sk.parts, 1, PflSettings(),
         environment_boxes(sc),
     )  # fmt: skip
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from sara_app.scenario import load_scenario
-from sara_app.sim import Simulation
+from sara_app.sim.simulator import Simulation
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
 

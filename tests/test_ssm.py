@@ -17,7 +17,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from ssm_reference import model_sets
 
-from sara_app import geometry as geo
+from sara_app.geometry import shapes as geo
 from sara_app.human.params import load_param_set, to_reach_params
 from sara_app.human.reach import MODELS, HumanReach, part_capsules
 from sara_app.human.scripted import aim_arm, joints, standing

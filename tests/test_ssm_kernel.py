@@ -1,4 +1,4 @@
-"""The compiled SSM check (sara_app.safety.ssm_kernel, run by SsmVerifier.verify) against the
+"""The compiled SSM check (sara_app.safety.ssm_kernels, run by SsmVerifier.verify) against the
 Python composition of the same kernels (tests/ssm_reference.py): the same verdict, free and
 evaluated intervals and closest distances, bit for bit, for 1-8 people with their own ages,
 every model order (the arm model included), widened people and non-finite inputs."""
@@ -11,12 +11,12 @@ from hypothesis import strategies as st
 from ssm_reference import verify_reference
 from test_ssm import REACH, SETTINGS, cell
 
-from sara_app import geometry_kernels
+from sara_app.geometry import shape_kernels
 from sara_app.human import reach_kernels
 from sara_app.human.reach import MODELS
 from sara_app.safety.contact_kernels import source_digest
 from sara_app.safety.ssm import SsmResult, SsmVerifier
-from sara_app.safety.ssm_kernel import ssm_kernel
+from sara_app.safety.ssm_kernels import ssm_kernel
 
 
 def _assert_same(a: SsmResult, b: SsmResult) -> None:
@@ -66,5 +66,5 @@ def test_several_people_and_non_finite_inputs_equal_the_reference() -> None:
 def test_cache_key_carries_the_callees_sources() -> None:
     cells = [c.cell_contents for c in ssm_kernel.py_func.__closure__ or ()]
     text = "".join(c for c in cells if isinstance(c, str))
-    for module in (geometry_kernels, reach_kernels):
+    for module in (shape_kernels, reach_kernels):
         assert source_digest(module) in text, module.__name__

@@ -18,11 +18,11 @@ from typing import Any
 
 from test_serve import _child_pids
 
-from sara_app.audit import default_data_dir
 from sara_app.bus import keys
 from sara_app.bus.access import Credentials, client_auth
 from sara_app.bus.messages import RobotCommandMsg
 from sara_app.bus.session import Bus, free_port
+from sara_app.ops.audit import default_data_dir
 
 
 def _api(port: int, path: str) -> Any:
@@ -94,7 +94,7 @@ def test_serve_supervises_its_worker_and_leaves_nothing_behind() -> None:
 
         # one worker per cell: a second one refuses, loudly
         second = subprocess.run(
-            [sys.executable, "-m", "sara_app.worker", "--cell", "cell1", "--port", str(zp),
+            [sys.executable, "-m", "sara_app.runtime.worker", "--cell", "cell1", "--port", str(zp),
              "--zenoh-user", "worker", "--zenoh-credentials", str(creds.path)],
             capture_output=True, text=True, timeout=120,
         )  # fmt: skip

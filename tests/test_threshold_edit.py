@@ -11,17 +11,17 @@ from typing import Any
 
 import pytest
 
-from sara_app.audit import AuditLog
 from sara_app.errors import ParameterError, ScenarioError, UnknownNameError
-from sara_app.safety.thresholds import CONTACTS, REGIONS, SHAPES, load_thresholds
-from sara_app.scenario import Scenario, load_scenario, parse_scenario
-from sara_app.threshold_edit import (
+from sara_app.ops.audit import AuditLog
+from sara_app.ops.threshold_edit import (
     ConfirmationRequired,
     apply_edit,
     check_energy,
     plan_edit,
     threshold_view,
 )
+from sara_app.safety.thresholds import CONTACTS, REGIONS, SHAPES, load_thresholds
+from sara_app.scenario import Scenario, load_scenario, parse_scenario
 
 SEED = load_thresholds("thresholds_thumm2024")
 ENTRIES = list(itertools.product(REGIONS, CONTACTS, SHAPES))

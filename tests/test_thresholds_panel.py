@@ -11,10 +11,10 @@ from typing import Any
 import pytest
 import viser
 
-from sara_app.audit import AuditLog
 from sara_app.bus.session import free_port
 from sara_app.dashboard.thresholds_panel import ThresholdsPanel, attach, audit_markdown
 from sara_app.errors import ScenarioError
+from sara_app.ops.audit import AuditLog
 from sara_app.safety.thresholds import load_thresholds
 from sara_app.scenario import Scenario, check_against_robot, load_scenario, parse_scenario
 

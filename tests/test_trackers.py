@@ -21,8 +21,8 @@ from sara_app.human.trackers import (
     ZED_BODY34_KEYPOINTS,
     ZED_BODY38_KEYPOINTS,
 )
+from sara_app.runtime.worker import CellWorker
 from sara_app.scenario import load_scenario
-from sara_app.worker import CellWorker
 
 STANDING = {
     "head": (1.4, 0.0, 1.65), "neck": (1.4, 0.0, 1.45), "pelvis": (1.4, 0.0, 0.95),

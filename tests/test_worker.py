@@ -25,8 +25,8 @@ from sara_app.bus.messages import (
     VerdictMsg,
 )
 from sara_app.bus.session import Bus, free_port
+from sara_app.runtime.worker import CellWorker
 from sara_app.scenario import load_scenario
-from sara_app.worker import CellWorker
 
 EXAMPLE = Path(__file__).resolve().parent.parent / "sara_app" / "bus" / "example_publisher.py"
 
@@ -193,7 +193,7 @@ def test_control_period_changes_live(cell) -> None:
 def test_an_overrunning_loop_still_sleeps_every_cycle(monkeypatch) -> None:
     """Cycles longer than the control period: the loop counts overruns and still sleeps a
     little each cycle (under SCHED_FIFO a busy loop would starve the zenoh threads)."""
-    import sara_app.worker as wmod
+    import sara_app.runtime.worker as wmod
 
     port = free_port()
     with Bus.router(port), Bus.client(port) as wb:
@@ -221,7 +221,7 @@ def test_an_overrunning_loop_still_sleeps_every_cycle(monkeypatch) -> None:
 def test_a_slow_edit_is_built_off_the_loop(cell, monkeypatch) -> None:
     """An edit whose cell takes a second to build (a safety mode's kernels loading): the loop
     keeps publishing a verdict every cycle meanwhile, and the edit is applied afterwards."""
-    import sara_app.worker_edits as edits
+    import sara_app.runtime.edits as edits
 
     _, worker, verdicts, tb = cell
     real = edits.build_cell
@@ -272,15 +272,16 @@ def test_a_starting_worker_says_so_before_its_first_verdict() -> None:
 
 
 def test_the_worker_as_serve_starts_it_says_starting_while_it_loads(tmp_path: Path) -> None:
-    """``python -m sara_app.worker_start`` (what serve runs) says ``starting`` from its first
-    second on, while the worker's modules load, then while it builds its cell, then runs."""
+    """``python -m sara_app.processes.worker_start`` (what serve runs) says ``starting`` from its
+    first second on, while the worker's modules load, then while it builds its cell, then runs."""
     port = free_port()
     path = tmp_path / "cell.json"
     path.write_text(json.dumps(load_scenario("standing_beside_path").model_dump(mode="json")))
     with Bus.router(port), Bus.client(port) as tb:
         status = tb.subscribe(keys.status_key("cell1"), fifo=True, capacity=1000)
         time.sleep(0.3)
-        proc = subprocess.Popen([sys.executable, "-m", "sara_app.worker_start", "--cell", "cell1",
+        proc = subprocess.Popen([sys.executable, "-m", "sara_app.processes.worker_start",
+                                 "--cell", "cell1",
                                  "--scenario", str(path), "--port", str(port),
                                  "--duration", "2"])  # fmt: skip
         try:

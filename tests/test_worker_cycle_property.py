@@ -18,8 +18,8 @@ from sara_app.bus import keys
 from sara_app.bus.messages import RobotCommandMsg, VerdictMsg
 from sara_app.bus.session import Bus, free_port
 from sara_app.human.skeleton import skeleton
+from sara_app.runtime.worker import CellWorker
 from sara_app.scenario import load_scenario
-from sara_app.worker import CellWorker
 
 CELL = "prop"
 NAMES = skeleton("full").joints

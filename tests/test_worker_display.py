@@ -10,7 +10,7 @@ from sara_app.bench.pfl import check_scene
 from sara_app.bus.codec import decode
 from sara_app.bus.messages import OccupancyMsg, encode
 from sara_app.human.skeleton import skeleton
-from sara_app.worker_display import CLASS_BY_CODE, jssa_state, part_labels, pfl_contacts, pfl_links
+from sara_app.runtime.display import CLASS_BY_CODE, jssa_state, part_labels, pfl_contacts, pfl_links
 
 
 @pytest.fixture(scope="module")
@@ -99,11 +99,11 @@ def test_the_effective_set_is_per_body_part_the_least_model_capsule_that_holds_i
     """``effective_set`` on real reach models of a walking pose: one capsule per body part,
     each one of the models' own capsules for that part and the one of least volume (checked
     against a brute-force loop), and every point of the part's body inside it."""
-    from sara_app.geometry import point_segment_distance
+    from sara_app.geometry.shapes import point_segment_distance
     from sara_app.human.params import load_param_set, to_reach_params
     from sara_app.human.reach import HumanReach, part_capsules
     from sara_app.human.scripted import joints, standing
-    from sara_app.worker_display import effective_set
+    from sara_app.runtime.display import effective_set
 
     reach = HumanReach(to_reach_params(load_param_set("work"), "full"))
     y = joints(standing((1.0, 0.2), 0.3))

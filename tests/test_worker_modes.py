@@ -10,8 +10,8 @@ import pytest
 from sara_app.bus import keys
 from sara_app.bus.messages import OccupancyMsg, VerdictMsg
 from sara_app.bus.session import Bus, free_port
+from sara_app.runtime.worker import CellWorker
 from sara_app.scenario import load_scenario
-from sara_app.worker import CellWorker
 
 
 @pytest.fixture()

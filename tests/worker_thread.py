@@ -8,8 +8,8 @@ from contextlib import contextmanager
 from typing import Any
 
 from sara_app.bus.session import Bus
+from sara_app.runtime.worker import CellWorker
 from sara_app.scenario import Scenario
-from sara_app.worker import CellWorker
 
 
 @contextmanager

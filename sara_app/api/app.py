@@ -52,10 +52,10 @@ from sara_app.api.jobs import add_job_routes
 from sara_app.api.people import add_people_routes
 from sara_app.api.registry import EDIT_TIMEOUT_S, CellRegistry
 from sara_app.api.thresholds import add_threshold_routes
-from sara_app.audit import AuditLog, default_audit_path
 from sara_app.errors import ParameterError, SaraError, ScenarioError, WorkerTimeoutError
 from sara_app.human.params import available_param_sets, load_param_set
-from sara_app.jobs import JobRunner
+from sara_app.ops.audit import AuditLog, default_audit_path
+from sara_app.ops.jobs import JobRunner
 from sara_app.safety.thresholds import load_thresholds, threshold_set_names
 from sara_app.scenario import (
     Scenario,
@@ -394,7 +394,7 @@ def create_app(
     """The FastAPI app; ``registry`` supplies live cells, ``scenarios_folder`` the scenarios
     (default: the shipped ``scenarios/``), ``viewer_url`` the 3D view's address for the page,
     ``audit`` the threshold audit log (an open log or a path; default
-    :func:`~sara_app.audit.default_audit_path`, opened on first use)."""
+    :func:`~sara_app.ops.audit.default_audit_path`, opened on first use)."""
     if require_token and not tokens:
         raise ParameterError("require_token needs at least one API token")
     folder = Path(scenarios_folder) if scenarios_folder is not None else scenarios_dir()

@@ -26,8 +26,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from sara_app.audit import AuditLog
 from sara_app.errors import ParameterError
+from sara_app.ops.audit import AuditLog
 
 log = logging.getLogger("sara_app.api")
 MAX_BODY_BYTES = 1024 * 1024

@@ -1,4 +1,4 @@
-"""REST routes of the background jobs (:mod:`sara_app.jobs`): what-if runs and evidence reports.
+"""REST routes of the background jobs (:mod:`sara_app.ops.jobs`): what-if runs and evidence reports.
 
 - ``POST /api/cells/{cell}/whatif``: body ``changes`` as for ``PATCH .../scenario`` (applied to
   the scenario the cell runs now); runs both offline, returns the job (202). Nothing is sent to
@@ -21,9 +21,9 @@ from fastapi.responses import HTMLResponse
 
 from sara_app.api.registry import CellRegistry
 from sara_app.errors import UnknownNameError
-from sara_app.jobs import JobBusyError, JobRunner
+from sara_app.ops.jobs import JobBusyError, JobRunner
 from sara_app.scenario import Scenario
-from sara_app.whatif import table_markdown
+from sara_app.sim.whatif import table_markdown
 
 MAX_DURATION_S = 60.0
 MAX_EPISODES = 50

@@ -17,8 +17,8 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from sara_app.api.guard import credential_user
 from sara_app.api.registry import CellRegistry
-from sara_app.audit import AuditLog
 from sara_app.errors import WorkerTimeoutError
+from sara_app.ops.audit import AuditLog
 
 
 class RetireBody(BaseModel):

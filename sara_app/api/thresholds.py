@@ -9,7 +9,7 @@
   answer (it may still apply it: the audit row says ``no_answer``).
 - ``GET /api/cells/{cell}/thresholds/audit?limit=``: the cell's audit rows, newest first.
 
-Every PUT outcome is recorded by :func:`sara_app.threshold_edit.apply_edit` (the same
+Every PUT outcome is recorded by :func:`sara_app.ops.threshold_edit.apply_edit` (the same
 function the dashboard's panel uses). The scenario shown and edited is the one the cell's
 worker runs (:meth:`CellRegistry.applied_scenario`: its announcement, or what it accepted from
 this service). Until the worker has announced it (a worker or ``serve`` that just started) the
@@ -29,11 +29,11 @@ from pydantic import BaseModel, ConfigDict, Field, StrictBool
 
 from sara_app.api.guard import credential_user
 from sara_app.api.registry import EDIT_TIMEOUT_S, CellRegistry
-from sara_app.audit import MAX_LIMIT, AuditLog
 from sara_app.errors import SaraError, WorkerTimeoutError
+from sara_app.ops.audit import MAX_LIMIT, AuditLog
+from sara_app.ops.threshold_edit import ConfirmationRequired, apply_edit, threshold_view
 from sara_app.safety.thresholds import CONTACTS, REGIONS, SHAPES
 from sara_app.scenario import Scenario, parse_scenario
-from sara_app.threshold_edit import ConfirmationRequired, apply_edit, threshold_view
 
 
 class WorkerRefusedError(SaraError):

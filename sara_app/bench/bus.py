@@ -36,7 +36,7 @@ from sara_app.bus.messages import (
     VerdictMsg,
     encode,
 )
-from sara_app.human.motions import measured
+from sara_app.sim.motions import measured
 
 Row = tuple[str, float, float, str]
 
@@ -195,15 +195,15 @@ def bench_latency(
 ) -> list[Row]:
     """Skeleton publication -> verdict reception, p50/p99 (us), per control period."""
     from sara_app.bus.session import Bus, free_port
-    from sara_app.serve import WORKER_RT_PRIORITY, spawn_cell_process
-    from sara_app.supervisor import stop_processes
+    from sara_app.ops.supervisor import stop_processes
+    from sara_app.processes.serve import WORKER_RT_PRIORITY, spawn_cell_process
 
     port = free_port()
     cell = "benchlat"
     rows: list[Row] = []
     with Bus.router(port) as hub:
         worker = spawn_cell_process(
-            "sara_app.worker", cell, LATENCY_SCENARIO, port, rt_priority=WORKER_RT_PRIORITY
+            "sara_app.runtime.worker", cell, LATENCY_SCENARIO, port, rt_priority=WORKER_RT_PRIORITY
         )
         beat = Heartbeat(hub, cell).start()  # the tracker's frames: the cell is not silent
         beat.people = {"p", "flood"}

@@ -30,7 +30,7 @@ from sara_app.bus import keys
 from sara_app.bus.heartbeat import Heartbeat
 from sara_app.bus.messages import SkeletonMsg
 from sara_app.errors import SaraError
-from sara_app.human.motions import measured
+from sara_app.sim.motions import measured
 
 LATENCY_P99_MS = 5.0
 DT_S = 0.002
@@ -108,8 +108,8 @@ def bench_cells(
 ) -> list[Row]:
     """One row per load (worst cell's latency p50 / p99 in us), then the largest passing."""
     from sara_app.bus.session import Bus, free_port
-    from sara_app.serve import WORKER_RT_PRIORITY, spawn_cell_process
-    from sara_app.supervisor import stop_processes
+    from sara_app.ops.supervisor import stop_processes
+    from sara_app.processes.serve import WORKER_RT_PRIORITY, spawn_cell_process
 
     rows: list[Row] = []
     measured: list[tuple[int, int]] = []
@@ -118,7 +118,7 @@ def bench_cells(
         cells = [f"load{i + 1}" for i in range(n)]
         with Bus.router(port) as hub:
             rt = WORKER_RT_PRIORITY
-            workers = [spawn_cell_process("sara_app.worker", c, LATENCY_SCENARIO, port,
+            workers = [spawn_cell_process("sara_app.runtime.worker", c, LATENCY_SCENARIO, port,
                                           rt_priority=rt) for c in cells]  # fmt: skip
             beats = [Heartbeat(hub, c).start() for c in cells]
             try:

@@ -9,8 +9,8 @@ import numpy as np
 
 from sara_app.human.reach import HumanReach
 from sara_app.safety.jssa_mode import JssaMode
-from sara_app.safety.shield import HumanState, ShieldSettings
-from sara_app.scenario import JssaSpec
+from sara_app.safety.settings import JssaSettings, ShieldSettings
+from sara_app.safety.shield import HumanState
 
 
 def _bench_mode(constraints: str = "single") -> tuple[JssaMode, list[HumanState]]:
@@ -23,7 +23,7 @@ def _bench_mode(constraints: str = "single") -> tuple[JssaMode, list[HumanState]
     reach = HumanReach(to_reach_params(load_param_set("schepp2022_table1"), "full"))
     wps = np.array([[-1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.8], [1.2, 0.3, 0.0, -1.8, 0.0, 2.1, 0.8]])
     follower = PathFollower(wps, robot.limits, blend_distance=0.1)
-    spec = JssaSpec(constraints=constraints)  # type: ignore[arg-type]
+    spec = JssaSettings(constraints=constraints)  # type: ignore[arg-type]
     mode = JssaMode(robot, follower, reach, ShieldSettings(), spec)
     for k in range(150):  # moving at speed
         mode.cycle(k * mode.settings.dt_s, [])

@@ -147,11 +147,11 @@ class _Display(threading.Thread):
         self.stop_event = threading.Event()
 
     def run(self) -> None:
-        from sara_app.cell import base_pose
+        from sara_app.cell.build import base_pose
         from sara_app.dashboard.bridge import CellView
         from sara_app.dashboard.viewer import Dashboard
+        from sara_app.processes.serve import lower_thread_priority
         from sara_app.scenario import load_scenario, scenarios_dir
-        from sara_app.serve import lower_thread_priority
 
         lower_thread_priority(self.nice)
         sc = load_scenario(self.scenario)
@@ -174,7 +174,7 @@ class _Display(threading.Thread):
 @contextmanager
 def _view(hub: Bus, cell: str, scenario: str, browser: str | None, nice: int) -> Iterator[str]:
     """The dashboard (at ``nice``) and a headless browser on it (at ``nice`` too)."""
-    from sara_app.serve import start_process
+    from sara_app.processes.serve import start_process
 
     display = _Display(hub, cell, scenario, nice)
     display.start()
@@ -207,8 +207,8 @@ def bench_view_load(
 ) -> list[tuple[str, float, float, str]]:
     """Rows: worker cycle time without a view, with the dashboard + browser at lowered priority
     (as ``serve`` runs them) and at the worker's own priority, and the ratios to no view."""
-    from sara_app.scenario import load_scenario
-    from sara_app.serve import (
+    from sara_app.ops.supervisor import stop_processes
+    from sara_app.processes.serve import (
         DISPLAY_NICE,
         REPLAYER_NICE,
         ROUTER,
@@ -217,7 +217,7 @@ def bench_view_load(
         spawn_cell_process,
         start_process,
     )
-    from sara_app.supervisor import stop_processes
+    from sara_app.scenario import load_scenario
 
     port = free_port()
     cell = "benchview"
@@ -233,12 +233,12 @@ def bench_view_load(
         procs = [  # as serve runs them: the controller follows the worker's commands
             router,
             spawn_cell_process(
-                "sara_app.controller", cell, scenario, port, rt_priority=WORKER_RT_PRIORITY
+                "sara_app.peers.controller", cell, scenario, port, rt_priority=WORKER_RT_PRIORITY
             ),
             spawn_cell_process(
-                "sara_app.worker", cell, scenario, port, rt_priority=WORKER_RT_PRIORITY
+                "sara_app.runtime.worker", cell, scenario, port, rt_priority=WORKER_RT_PRIORITY
             ),
-            spawn_cell_process("sara_app.replayer", cell, scenario, port, nice=REPLAYER_NICE),
+            spawn_cell_process("sara_app.peers.replayer", cell, scenario, port, nice=REPLAYER_NICE),
         ]
         try:
             _collect(hub, cell, 3.0)  # start-up

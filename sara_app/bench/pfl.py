@@ -113,7 +113,7 @@ def bench_cell(
     """The benchmarks' cell (Panda, a table, models acc/vel/pos) in safety mode ``mode`` with
     the robot at full speed after 0.16 s, and standing full-body people at ``xys`` facing the
     robot base."""
-    from sara_app.cell import build_cell
+    from sara_app.cell.build import build_cell
     from sara_app.human.scripted import joints, standing
     from sara_app.safety.shield import HumanState
     from sara_app.scenario import parse_scenario

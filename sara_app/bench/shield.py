@@ -23,7 +23,8 @@ from sara_app.human.scripted import joints, standing
 from sara_app.robot.model import load_robot
 from sara_app.robot.shielded import shielded_trajectory
 from sara_app.robot.trajectory import PathFollower
-from sara_app.safety.shield import CycleResult, HumanState, Shield, ShieldSettings
+from sara_app.safety.settings import ShieldSettings
+from sara_app.safety.shield import CycleResult, HumanState, Shield
 
 Row = tuple[str, float, float, str]
 WAYPOINTS_RAD = np.array(

@@ -174,7 +174,8 @@ def run_soak(
     """Run the default cell (or ``scenario``) for ``duration_s``; see the module notes."""
     from sara_app.bus.access import Credentials, client_auth
     from sara_app.bus.session import free_port
-    from sara_app.serve import (
+    from sara_app.ops.supervisor import Child, Supervisor
+    from sara_app.processes.serve import (
         DEFAULT_SCENARIO,
         ROUTER,
         WORKER_RT_PRIORITY,
@@ -182,7 +183,6 @@ def run_soak(
         _connect,
         start_process,
     )
-    from sara_app.supervisor import Child, Supervisor
 
     rng = random.Random(seed)
     sample_s = sample_s or max(1.0, duration_s / 120.0)

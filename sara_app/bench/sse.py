@@ -69,7 +69,7 @@ def _probe(port: int, cell: str, seconds: float) -> dict:
 def bench_sse_load(clients: int = 50, seconds: float = 5.0, rounds: int = 2) -> list[Row]:
     """Rows: verdict delivery p50/p99 (us) idle and with ``clients`` event streams."""
     from sara_app.api import ApiServer, CellRegistry, create_app
-    from sara_app.serve import ROUTER, WORKER, spawn_cell_process, start_process
+    from sara_app.processes.serve import ROUTER, WORKER, spawn_cell_process, start_process
 
     zp, ap = free_port(), free_port()
     cell = "ssebench"

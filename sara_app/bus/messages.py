@@ -212,9 +212,6 @@ class RobotStateMsg(_Msg):
         return self
 
 
-FUTURE_TOLERANCE_S = 0.002
-"""How far a message's stamp may lie ahead of the receiver's clock (clocks of one cell are
-synchronised); a message stamped further ahead is refused as ``out_of_range``."""
 COMMAND_VALID_PERIODS = 2
 COMMAND_VALID_MIN_S = 0.010
 """A command is valid for this many control periods after its stamp, and at least
@@ -508,7 +505,7 @@ class StatusMsg(_Msg):
     compiling the kernels, with the seconds so far)."""
     config_sha256: Annotated[str, Field(pattern="^([0-9a-f]{64})?$")] = ""
     """The running configuration's checksum (scenario, parameter and threshold sets, code; see
-    ``sara_app.checksum``): the one printed in the cell's evidence report. Empty while
+    ``sara_app.cell.checksum``): the one printed in the cell's evidence report. Empty while
     starting."""
 
 

@@ -2,8 +2,8 @@
 it is doing instead of "no cell" (on a fresh install the kernels compile for about a minute).
 
 Light on purpose (the bus messages only): the worker's entry point
-(:mod:`sara_app.worker_start`) publishes with it while the heavy modules import, the worker
-while it builds its cell.
+(:mod:`sara_app.processes.worker_start`) publishes with it while the heavy modules import, the
+worker while it builds its cell.
 """
 
 from __future__ import annotations

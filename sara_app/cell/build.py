@@ -9,12 +9,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sara_app.checksum import config_checksum
+from sara_app.cell.checksum import config_checksum
 from sara_app.human.params import ParamSet, ReachParams, to_reach_params
 from sara_app.human.reach import HumanReach
 from sara_app.robot.model import JointLimits, RobotModel
 from sara_app.robot.trajectory import PathFollower
-from sara_app.safety.shield import Shield, ShieldSettings, SsmScaling
+from sara_app.safety.modes import build_safety
+from sara_app.safety.shield import Shield
 from sara_app.scenario import Scenario
 
 
@@ -45,45 +46,12 @@ def scaled_limits(limits: JointLimits, v: float, a: float, j: float) -> JointLim
     )
 
 
-def shield_settings(sc: Scenario) -> ShieldSettings:
-    s = sc.shield
-    return ShieldSettings(
-        dt_s=s.dt_s,
-        max_interval_s=s.max_interval_s,
-        models=tuple(s.models),
-        tracking_tol_rad=s.tracking_tol_rad,
-        skeleton_timeout_s=s.skeleton_timeout_s,
-    )
-
-
 def environment_boxes(sc: Scenario) -> tuple[np.ndarray, np.ndarray]:
     """The scenario's boxes as ``T_world_box (B, 4, 4)`` and ``half_extents_m (B, 3)``."""
     if not sc.environment:
         return np.zeros((0, 4, 4)), np.zeros((0, 3))
     T = np.stack([base_pose(b.center_m, b.rpy_rad) for b in sc.environment])
     return T, np.array([b.size_m for b in sc.environment], dtype=float) * 0.5
-
-
-def build_safety(
-    sc: Scenario, robot: RobotModel, follower: PathFollower, reach: HumanReach
-) -> Shield:
-    """The scenario's safety mode around the follower: ``ssm`` (:class:`Shield`), ``pfl``
-    (:class:`~sara_app.safety.pfl_shield.PflShield`) or ``jssa``
-    (:class:`~sara_app.safety.jssa_mode.JssaMode`); all share the :class:`Shield` interface."""
-    settings = shield_settings(sc)
-    mode = sc.shield.mode
-    if mode == "pfl":
-        from sara_app.safety.pfl_shield import PflShield
-
-        return PflShield(robot, follower, reach, settings, sc.shield.pfl, environment_boxes(sc))
-    if mode == "jssa":
-        from sara_app.safety.jssa_mode import JssaMode
-
-        return JssaMode(robot, follower, reach, settings, sc.shield.jssa, environment_boxes(sc))
-    ssm = sc.shield.ssm
-    scaling = SsmScaling(cut=ssm.cut, max_replans=ssm.max_replans,
-                         min_speed_scale=ssm.min_speed_scale)  # fmt: skip
-    return Shield(robot, follower, reach, settings, scaling)
 
 
 @dataclass
@@ -99,7 +67,7 @@ class Cell:
     params: ReachParams
     shield: Shield
     checksum: str
-    """The configuration checksum (:func:`~sara_app.checksum.config_checksum`): reported in the
+    """The configuration checksum (:func:`~sara_app.cell.checksum.config_checksum`): reported in the
     worker's status, printed in the evidence report."""
 
     def next_pass(self, index: int, loop: bool) -> int | None:
@@ -123,5 +91,5 @@ def build_cell(sc: Scenario) -> Cell:
     follower = PathFollower(passes[0], lim, blend_distance=sc.task.blend_distance_rad)
     ps = sc.param_set()
     params = to_reach_params(ps, "full")
-    shield = build_safety(sc, robot, follower, HumanReach(params))
+    shield = build_safety(sc.shield, robot, follower, HumanReach(params), environment_boxes(sc))
     return Cell(sc, robot, lim, passes, ps, params, shield, config_checksum(sc))

@@ -19,10 +19,11 @@ from pathlib import Path
 from typing import Any
 
 from sara_app import __version__
+from sara_app.safety.thresholds import load_thresholds
 from sara_app.scenario import Scenario
-from sara_app.threshold_edit import source_set
 
-PACKAGE_DIR = Path(__file__).resolve().parent
+PACKAGE_DIR = Path(__file__).resolve().parents[1]
+"""The package root (``sara_app/``): every file under it is code the checksum covers."""
 SKIPPED_SUFFIXES = (".pyc", ".nbi", ".nbc")
 """Caches (bytecode, numba's compiled kernels) are not code: they differ between machines."""
 
@@ -50,7 +51,7 @@ def configuration(sc: Scenario) -> dict[str, Any]:
     return {
         "scenario": sc.model_dump(mode="json"),
         "human_params": sc.param_set().model_dump(mode="json"),
-        "thresholds": source_set(sc).model_dump(mode="json"),
+        "thresholds": load_thresholds(sc.shield.pfl.thresholds).model_dump(mode="json"),
         "code": {"version": __version__, "sha256": code_digest()},
     }
 

@@ -6,9 +6,9 @@ import argparse
 
 
 def _compare(args: argparse.Namespace) -> int:
-    from sara_app.compare import MODES, compare, format_table
     from sara_app.errors import UnknownNameError
     from sara_app.scenario import scenario_names
+    from sara_app.sim.compare import MODES, compare, format_table
 
     names = args.scenarios or list(scenario_names())
     valid = scenario_names()

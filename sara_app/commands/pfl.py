@@ -9,7 +9,7 @@ import argparse
 
 
 def _episodes(args: argparse.Namespace) -> int:
-    from sara_app.sim_episodes import run_episodes
+    from sara_app.sim.episodes import run_episodes
 
     summary = run_episodes(
         args.n, seed=args.seed, duration_s=args.duration, progress=not args.quiet, mode="pfl"
@@ -19,9 +19,9 @@ def _episodes(args: argparse.Namespace) -> int:
 
 
 def _throughput(args: argparse.Namespace) -> int:
-    from sara_app.compare import compare, format_table
     from sara_app.errors import UnknownNameError
     from sara_app.scenario import scenario_names
+    from sara_app.sim.compare import compare, format_table
 
     valid = scenario_names()
     for n in args.scenarios:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 
 def _report(args: argparse.Namespace) -> int:
-    from sara_app.audit import default_audit_path
+    from sara_app.ops.audit import default_audit_path
     from sara_app.report.evidence import MODES, Settings, gather
     from sara_app.report.html import render
     from sara_app.report.pdf import print_pdf

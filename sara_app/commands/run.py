@@ -10,7 +10,7 @@ from pathlib import Path
 
 def _run(args: argparse.Namespace) -> int:
     from sara_app.scenario import load_scenario, scenario_names
-    from sara_app.sim import Simulation
+    from sara_app.sim.simulator import Simulation
 
     names = scenario_names() if args.scenario == "all" else [args.scenario]
     worst = 0
@@ -52,7 +52,7 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _adversarial(args: argparse.Namespace) -> int:
-    from sara_app.sim_episodes import run_episodes
+    from sara_app.sim.episodes import run_episodes
 
     summary = run_episodes(
         args.episodes, seed=args.seed, duration_s=args.duration, progress=not args.quiet

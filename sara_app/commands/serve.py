@@ -8,7 +8,7 @@ import argparse
 
 
 def _serve(args: argparse.Namespace) -> int:
-    from sara_app.serve import main_for_cli
+    from sara_app.processes.serve import main_for_cli
 
     return main_for_cli(
         args.scenario, args.cell, args.zenoh_port, args.viewer_port, args.api_port, args.duration,
@@ -19,8 +19,8 @@ def _serve(args: argparse.Namespace) -> int:
 def _observe(args: argparse.Namespace) -> int:
     import signal
 
-    from sara_app.observe import observe
-    from sara_app.serve import _interrupt
+    from sara_app.processes.observe import observe
+    from sara_app.processes.serve import _interrupt
 
     signal.signal(signal.SIGINT, _interrupt)
     signal.signal(signal.SIGTERM, _interrupt)
@@ -32,13 +32,13 @@ def _observe(args: argparse.Namespace) -> int:
 
 
 def _worker(args: argparse.Namespace) -> int:
-    from sara_app.worker import main
+    from sara_app.runtime.worker import main
 
     return main(_process_argv(args))
 
 
 def _controller(args: argparse.Namespace) -> int:
-    from sara_app.controller import main
+    from sara_app.peers.controller import main
 
     return main(_process_argv(args))
 
@@ -54,7 +54,7 @@ def _process_argv(args: argparse.Namespace) -> list[str]:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from sara_app.serve import DEFAULT_SCENARIO
+    from sara_app.processes.serve import DEFAULT_SCENARIO
 
     s = sub.add_parser("serve", help="run the dashboard on the built-in demo cell (127.0.0.1)")
     s.add_argument("--scenario", default=DEFAULT_SCENARIO, help="a name in scenarios/ or a file")

@@ -32,8 +32,8 @@ from typing import Any, TypeVar
 
 import viser
 
-from sara_app.audit import AuditLog
 from sara_app.errors import AccessError, SaraError
+from sara_app.ops.audit import AuditLog
 
 log = logging.getLogger("sara_app.dashboard")
 T = TypeVar("T")

@@ -28,7 +28,6 @@ from typing import Any
 
 import numpy as np
 
-from sara_app.audit import AuditLog, default_audit_path
 from sara_app.bus import keys
 from sara_app.bus.codec import Decoder
 from sara_app.bus.messages import (
@@ -41,17 +40,18 @@ from sara_app.bus.messages import (
     VerdictMsg,
 )
 from sara_app.bus.session import Bus
-from sara_app.cell import base_pose
+from sara_app.cell.build import base_pose
 from sara_app.dashboard.frame import DisplayFrame
 from sara_app.dashboard.from_messages import boxes_of, occupancy_into, verdict_status
 from sara_app.dashboard.gizmos import GizmoEditing
 from sara_app.dashboard.viewer import Dashboard
 from sara_app.dashboard.whatif_panel import WhatIfHooks, WhatIfPanels
 from sara_app.errors import SaraError, ScenarioError, UnknownNameError, WorkerTimeoutError
-from sara_app.jobs import JobRunner
+from sara_app.ops.audit import AuditLog, default_audit_path
+from sara_app.ops.jobs import JobRunner
 from sara_app.robot.model import RobotModel
+from sara_app.safety.settings import SAFETY_MODES
 from sara_app.scenario import (
-    SAFETY_MODES,
     Scenario,
     check_against_robot,
     load_scenario,

@@ -24,7 +24,7 @@ import viser
 import viser.transforms
 
 from sara_app.errors import InputError
-from sara_app.geometry import quat_rotate, quat_z_to
+from sara_app.geometry.shapes import quat_rotate, quat_z_to
 
 __all__ = ["quat_rotate", "quat_z_to"]
 

@@ -13,7 +13,7 @@ import numpy as np
 
 EFFECTIVE = "effective"
 """Each person's effective set: per body part the least of the models' capsules for it (the
-worker's :func:`~sara_app.worker_display.effective_set`)."""
+worker's :func:`~sara_app.runtime.display.effective_set`)."""
 MODEL_NAMES: tuple[str, ...] = (EFFECTIVE, "pos", "vel", "acc", "iso13855", "arm", "combined")
 """Human sets the dashboard knows: the effective set and the reachability models (one capsule
 group and one toggle each)."""

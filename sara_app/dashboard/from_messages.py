@@ -16,7 +16,7 @@ from sara_app.bus.messages import (
     OccupancyMsg,
     VerdictMsg,
 )
-from sara_app.cell import base_pose
+from sara_app.cell.build import base_pose
 from sara_app.dashboard.frame import (
     CONTACT_CODES,
     ContactParts,

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from sara_app.cell import base_pose
+from sara_app.cell.build import base_pose
 from sara_app.dashboard.access import acting
 from sara_app.dashboard.capsules import rotation_to_wxyz
 from sara_app.dashboard.viewer import Dashboard

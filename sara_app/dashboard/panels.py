@@ -42,7 +42,7 @@ from sara_app.dashboard.scene import (
     VERIFIED_RGB,
 )
 from sara_app.errors import SaraError
-from sara_app.scenario import SAFETY_MODES
+from sara_app.safety.settings import SAFETY_MODES
 
 NO_SCENARIO = "(no scenarios)"
 SMALL_MARGIN = 0.1

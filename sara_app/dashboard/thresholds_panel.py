@@ -8,7 +8,7 @@ value (and the ISO/TS 15066 reference), a number input, a user field, an "Apply"
 a message line and the latest audit rows of the cell.
 
 Validation, sending and recording are those of the REST service
-(:func:`sara_app.threshold_edit.apply_edit`): ``send(new scenario data)`` is the caller's
+(:func:`sara_app.ops.threshold_edit.apply_edit`): ``send(new scenario data)`` is the caller's
 path to the worker (e.g. ``CellView.send``: it raises when the worker refuses or does not
 answer, and returns the accepted scenario); ``get_scenario()`` returns the scenario the cell runs.
 """
@@ -21,18 +21,18 @@ from typing import Any
 
 import viser
 
-from sara_app.audit import AuditEntry, AuditLog
 from sara_app.dashboard.access import on_event
 from sara_app.errors import SaraError
-from sara_app.safety.thresholds import CONTACTS, REGIONS, SHAPES
-from sara_app.scenario import Scenario
-from sara_app.threshold_edit import (
+from sara_app.ops.audit import AuditEntry, AuditLog
+from sara_app.ops.threshold_edit import (
     ConfirmationRequired,
     apply_edit,
     effective_energy,
     source_set,
     threshold_view,
 )
+from sara_app.safety.thresholds import CONTACTS, REGIONS, SHAPES
+from sara_app.scenario import Scenario
 
 log = logging.getLogger("sara_app.dashboard")
 AUDIT_ROWS = 8

@@ -2,7 +2,7 @@
 
 Each browser gets a "What-if and evidence report" folder of its own: the safety engineer edits
 parameters in the Scenario tab (and may pick another safety mode here), runs them offline
-beside the settings in force (a background job, :mod:`sara_app.jobs`: never in the worker, at
+beside the settings in force (a background job, :mod:`sara_app.ops.jobs`: never in the worker, at
 the lowest CPU priority), follows a progress bar, reads both runs side by side, scrubs through
 the edited run as a translucent ghost robot and skeletons drawn in this browser only, and
 applies the edit with one more click (through the same validated, audited path as "Apply
@@ -27,9 +27,9 @@ from sara_app.dashboard.access import on_event
 from sara_app.dashboard.from_messages import BONES
 from sara_app.dashboard.view import ORDER
 from sara_app.errors import SaraError
-from sara_app.jobs import Job, JobRunner
+from sara_app.ops.jobs import Job, JobRunner
 from sara_app.robot.model import urdf_path
-from sara_app.whatif import table_markdown
+from sara_app.sim.whatif import table_markdown
 
 log = logging.getLogger("sara_app.dashboard")
 MODES = ("as edited", "SSM", "PFL", "JSSA")

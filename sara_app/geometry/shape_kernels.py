@@ -1,11 +1,11 @@
 """Compiled (numba) capsule kernels of the verification hot paths.
 
-Same mathematics as :func:`sara_app.geometry.segment_segment_closest` (and tested against it,
+Same mathematics as :func:`sara_app.geometry.shapes.segment_segment_closest` (and tested against it,
 ``tests/test_geometry_kernels.py``), written as loops: at the sizes of one control cycle (a few
 hundred to a few thousand capsule pairs) numpy spends most of its time in per-call overhead
 (about 1-3 us per array operation here), a loop over the pairs does not.
 
-Conventions (as in :mod:`sara_app.geometry`): capsule sets are ``ends (..., 2, 3)`` (m) and
+Conventions (as in :mod:`sara_app.geometry.shapes`): capsule sets are ``ends (..., 2, 3)`` (m) and
 ``radius (...)`` (m). NaN never makes a pair look separated: every predicate is written as
 ``not (d > 0)`` for "may touch", so a NaN distance counts as contact.
 
@@ -44,7 +44,7 @@ __all__ = [
     "sphere_slack_m",
 ]
 
-_PARALLEL_SIN2 = 1e-24  # as in sara_app.geometry
+_PARALLEL_SIN2 = 1e-24  # as in sara_app.geometry.shapes
 sphere_slack_m = 1e-9
 """A bounding-sphere lower bound must exceed this (m) before a pair is skipped: covers the
 round-off of the bound itself, so a skipped pair is separated by more than its rounding."""
@@ -56,7 +56,8 @@ def segment_closest(
     p2x: float, p2y: float, p2z: float, q2x: float, q2y: float, q2z: float,
 ) -> tuple[float, float, float]:  # fmt: skip
     """Closest points of segments ``[p1, q1]`` and ``[p2, q2]``: ``(distance, s, t)``, the
-    branches of :func:`sara_app.geometry.segment_segment_closest` (points, parallel pairs)."""
+    branches of :func:`sara_app.geometry.shapes.segment_segment_closest` (points, parallel
+    pairs)."""
     d1x, d1y, d1z = q1x - p1x, q1y - p1y, q1z - p1z
     d2x, d2y, d2z = q2x - p2x, q2y - p2y, q2z - p2z
     rx, ry, rz = p1x - p2x, p1y - p2y, p1z - p2z
@@ -217,7 +218,7 @@ def pair_distances(
 ) -> bool:
     """Surface distances ``out (K, A, B)`` of every pair of capsules ``a (Ka, A, 2, 3), (Ka,
     A)`` and ``b (Kb, B, 2, 3), (Kb, B)`` per interval, ``Ka, Kb`` in ``{1, K}`` (1: the same
-    capsules on every interval); as :func:`sara_app.geometry.capsule_distances`. Returns
+    capsules on every interval); as :func:`sara_app.geometry.shapes.capsule_distances`. Returns
     whether any pair may touch (a distance <= 0 or NaN)."""
     return _pairs(a_ends, a_radius, b_ends, b_radius, out, False)
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from sara_app.geometry import effective_volume_mc, point_segment_distance, union_volume_mc
+from sara_app.geometry.shapes import effective_volume_mc, point_segment_distance, union_volume_mc
 from sara_app.human.arm import (
     arm_coordinates,
     arm_occupancy,
@@ -258,7 +258,7 @@ def mean_volume(
     """Mean Monte-Carlo volume (m^3) of each model's set over [0, horizon] on ``n_frames``
     evenly spaced frames; with several models also ``"effective"``: the per-body-part
     intersection of their sets, what the per-part verdict uses
-    (:func:`~sara_app.geometry.effective_volume_mc`)."""
+    (:func:`~sara_app.geometry.shapes.effective_volume_mc`)."""
     rng = np.random.default_rng(seed)
     frames = np.linspace(1, y.shape[0] - 1, min(n_frames, y.shape[0] - 1)).astype(int)
     t = np.array([horizon_s])

@@ -28,14 +28,24 @@ frame is taken from the measurement (its error is part of the base-rotation allo
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
+from sara_app.human.occupancy import Occupancy
 from sara_app.human.params import ArmModelParams, ReachParams
+from sara_app.human.skeleton import Skeleton
 
-if TYPE_CHECKING:
-    from sara_app.human.reach import HumanReach, Occupancy
+
+class _Reach(Protocol):
+    """What the arm model takes from :class:`sara_app.human.reach.HumanReach`: its parameters,
+    skeleton and ISO 13855 capsules (for the body parts other than the arms)."""
+
+    params: ReachParams
+    skeleton: Skeleton
+
+    def iso13855(self, y: np.ndarray, t_end_s: np.ndarray) -> Occupancy: ...
+
 
 ARMS = ("l_arm", "r_arm")
 _TINY = 1e-9
@@ -163,7 +173,7 @@ def joint_intervals(
 
 
 def arm_occupancy(
-    reach: HumanReach,
+    reach: _Reach,
     y: np.ndarray,
     t_start_s: np.ndarray,
     t_end_s: np.ndarray,
@@ -171,8 +181,6 @@ def arm_occupancy(
     dq_dot: np.ndarray | None = None,
 ) -> Occupancy:
     """Arm capsules from the 3-DOF model plus ISO 13855 capsules for the other body parts."""
-    from sara_app.human.reach import Occupancy
-
     p: ReachParams = reach.params
     sk = reach.skeleton
     idx = {j: i for i, j in enumerate(sk.joints)}

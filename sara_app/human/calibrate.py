@@ -39,7 +39,7 @@ from sara_app.human.analysis import containment
 from sara_app.human.intake import screen
 from sara_app.human.params import ParamSet, to_reach_params
 from sara_app.human.reach import HumanReach
-from sara_app.human.recordings import Recording
+from sara_app.human.recording import Recording
 from sara_app.human.skeleton import skeleton
 from sara_app.human.velocity import estimate_recording
 

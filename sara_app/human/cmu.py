@@ -61,7 +61,7 @@ from pathlib import Path
 import numpy as np
 
 from sara_app.errors import InputError, RecordingError
-from sara_app.human.recordings import Recording
+from sara_app.human.recording import Recording
 from sara_app.human.skeleton import FULL_JOINTS
 
 __all__ = ["CMU_FPS", "CMU_TO_WORLD", "INCH_M", "cmu_rest_bones", "load_cmu", "load_cmu_bones"]

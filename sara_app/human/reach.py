@@ -16,33 +16,19 @@ Soundness conditions of each model (what the parameters must bound) are stated p
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from sara_app.errors import InputError, ParameterError, UnknownNameError
+from sara_app.human.arm import arm_occupancy
+from sara_app.human.occupancy import Occupancy
 from sara_app.human.params import ReachParams
 from sara_app.human.reach_kernels import acc_sets, combined_sets, pos_sets, static_sets
 from sara_app.human.skeleton import skeleton
 
 MODELS: tuple[str, ...] = ("pos", "vel", "acc", "iso13855", "arm", "combined")
 SARA_MODELS: tuple[str, ...] = ("pos", "vel", "acc")
-
-
-@dataclass
-class Occupancy:
-    """Capsules of one model: ``ends (H, K, C, 2, 3)``, ``radius (H, K, C)``, names ``(C,)``.
-
-    From the buffered model methods, axes of length 1 broadcast (a model whose capsule ends do
-    not move has ``ends (H, 1, C, 2, 3)``; one whose radius is the same for every human has
-    ``radius (1, K, C)``).
-    """
-
-    model: str
-    ends: np.ndarray
-    radius: np.ndarray
-    names: tuple[str, ...]
 
 
 def check_intervals(t_start_s: np.ndarray, t_end_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -371,8 +357,6 @@ class HumanReach:
             v, dv = self.check_velocities(y, v, dv)
             o = self.combined(y, v, dv, t_start_s, t_end_s)
         elif name == "arm":
-            from sara_app.human.arm import arm_occupancy
-
             o = arm_occupancy(self, y, t_start_s, t_end_s)
         else:
             raise UnknownNameError("reachability model", name, MODELS)

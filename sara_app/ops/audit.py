@@ -33,12 +33,9 @@ from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from sara_app.errors import ParameterError, SaraError
-
-if TYPE_CHECKING:
-    from sara_app.threshold_edit import EditPlan
 
 SCHEMA_VERSION = 3
 """1: threshold_changes; 2: + person_actions; 3: + api_requests. Every statement of the schema
@@ -280,34 +277,6 @@ class AuditLog:
                 f"SELECT {_COLUMNS} FROM threshold_changes WHERE id = ?", (rowid,)
             ).fetchone()
         return _entry(got)
-
-    def record_plan(
-        self,
-        plan: EditPlan,
-        *,
-        cell: str,
-        outcome: str,
-        reason: str = "",
-        confirmed: bool = False,
-        user: object = "unknown",
-        via: str = "api",
-    ) -> AuditEntry:
-        """Record a validated (or confirmation-pending) edit plan and its outcome."""
-        return self.record(
-            cell=cell,
-            scenario=plan.scenario,
-            entry=plan.entry,
-            requested=plan.new_energy_J,
-            outcome=outcome,
-            reason=reason,
-            old_energy_J=plan.old_energy_J,
-            source_energy_J=plan.source_energy_J,
-            source_key=plan.source_key,
-            exceeds_source=plan.exceeds_source,
-            confirmed=confirmed,
-            user=user,
-            via=via,
-        )
 
     # -- reading -------------------------------------------------------------------------------
     def record_person_action(

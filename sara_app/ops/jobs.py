@@ -1,7 +1,7 @@
 """Background jobs of the dashboard and the API: what-if runs and evidence reports.
 
-A job is a separate Python process (:mod:`sara_app.job_main`) at the lowest CPU priority, so a
-long simulation never runs in the worker, never blocks the dashboard or the API, and yields the
+A job is a separate Python process (:mod:`sara_app.processes.job_main`) at the lowest CPU priority,
+so a long simulation never runs in the worker, never blocks the dashboard or the API, and yields the
 CPU to the live cell. :class:`JobRunner` starts at most one job at a time (this is a small
 machine beside a 250 Hz worker: a second request is refused, not queued), follows its progress
 lines and keeps the results of the last jobs.
@@ -76,7 +76,7 @@ class JobRunner:
 
     def start(self, kind: str, data: dict[str, Any], label: str = "") -> Job:
         """Start job ``kind`` (``whatif`` or ``report``) on ``data`` (see
-        :mod:`sara_app.job_main`); :class:`JobBusyError` while another one runs."""
+        :mod:`sara_app.processes.job_main`); :class:`JobBusyError` while another one runs."""
         if kind not in ("whatif", "report"):
             raise UnknownNameError("job kind", kind, ("whatif", "report"))
         with self._lock:
@@ -94,7 +94,7 @@ class JobRunner:
         inp = job.folder / "in.json"
         inp.write_text(json.dumps(data))
         proc = subprocess.Popen(
-            [sys.executable, "-m", "sara_app.job_main", kind, str(inp), str(job.output)],
+            [sys.executable, "-m", "sara_app.processes.job_main", kind, str(inp), str(job.output)],
             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
             text=True,
         )  # fmt: skip

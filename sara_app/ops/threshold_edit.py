@@ -24,9 +24,11 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from sara_app.errors import ParameterError, SaraError, UnknownNameError
+from sara_app.ops.audit import AuditEntry, AuditLog
+from sara_app.safety.settings import MAX_THRESHOLD_J
 from sara_app.safety.thresholds import (
     CONTACTS,
     REGIONS,
@@ -34,10 +36,7 @@ from sara_app.safety.thresholds import (
     ThresholdSet,
     load_thresholds,
 )
-from sara_app.scenario import MAX_THRESHOLD_J, Scenario, parse_scenario
-
-if TYPE_CHECKING:
-    from sara_app.audit import AuditEntry, AuditLog
+from sara_app.scenario import Scenario, parse_scenario
 
 ENERGY_RANGE = f"a finite number > 0 J and <= {MAX_THRESHOLD_J:g} J (the physical ceiling)"
 
@@ -294,7 +293,7 @@ def apply_edit(
     try:
         plan = plan_edit(sc, region, contact, shape, energy_J, confirm)
     except ConfirmationRequired as e:
-        e.audit_entry = audit.record_plan(e.plan, outcome="refused", reason=str(e), **common)
+        e.audit_entry = _record(audit, e.plan, outcome="refused", reason=str(e), **common)
         raise
     except SaraError as e:
         audit.record(
@@ -310,9 +309,38 @@ def apply_edit(
     try:
         send(plan.data)
     except no_answer as e:
-        audit.record_plan(plan, outcome="no_answer", reason=str(e), **common)
+        _record(audit, plan, outcome="no_answer", reason=str(e), **common)
         raise
     except Exception as e:
-        audit.record_plan(plan, outcome="refused", reason=str(e), **common)
+        _record(audit, plan, outcome="refused", reason=str(e), **common)
         raise
-    return plan, audit.record_plan(plan, outcome="applied", **common)
+    return plan, _record(audit, plan, outcome="applied", **common)
+
+
+def _record(
+    audit: AuditLog,
+    plan: EditPlan,
+    *,
+    cell: str,
+    outcome: str,
+    reason: str = "",
+    confirmed: bool = False,
+    user: object = "unknown",
+    via: str = "api",
+) -> AuditEntry:
+    """Record a validated (or confirmation-pending) edit plan and its outcome."""
+    return audit.record(
+        cell=cell,
+        scenario=plan.scenario,
+        entry=plan.entry,
+        requested=plan.new_energy_J,
+        outcome=outcome,
+        reason=reason,
+        old_energy_J=plan.old_energy_J,
+        source_energy_J=plan.source_energy_J,
+        source_key=plan.source_key,
+        exceeds_source=plan.exceeds_source,
+        confirmed=confirmed,
+        user=user,
+        via=via,
+    )

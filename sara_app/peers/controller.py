@@ -39,13 +39,13 @@ import numpy as np
 from sara_app.bus import keys
 from sara_app.bus.codec import Decoder
 from sara_app.bus.messages import (
-    FUTURE_TOLERANCE_S,
     ControllerStatusMsg,
     RobotCommandMsg,
     RobotStateMsg,
 )
 from sara_app.bus.process import process_main
 from sara_app.bus.session import Bus
+from sara_app.safety.settings import FUTURE_TOLERANCE_S
 from sara_app.scenario import Scenario
 
 log = logging.getLogger("sara_app.controller")

@@ -30,13 +30,13 @@ from sara_app.bus.messages import (
 )
 from sara_app.bus.process import process_main
 from sara_app.bus.session import Bus, Publisher
-from sara_app.cell import base_pose
+from sara_app.cell.build import base_pose
 from sara_app.errors import SaraError
 from sara_app.human.glitches import Glitches
-from sara_app.human.motions import HumanMotion, make_motion, measured
 from sara_app.human.params import to_reach_params
 from sara_app.robot.model import RobotModel
 from sara_app.scenario import Scenario, parse_scenario
+from sara_app.sim.motions import HumanMotion, make_motion, measured
 
 log = logging.getLogger("sara_app.replayer")
 FRAME_HZ = 50.0

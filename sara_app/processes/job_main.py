@@ -1,8 +1,8 @@
-"""Entry point of a background job (``python -m sara_app.job_main KIND INPUT OUTPUT``), run by
-:mod:`sara_app.jobs`: ``whatif`` (:func:`sara_app.whatif.compare`, JSON out) or ``report`` (the
-evidence report, HTML out, its evidence as JSON beside it). It first drops to the lowest CPU
-priority, so that the live worker and controller always come first. Progress goes to stderr
-as JSON lines ``{"progress": f, "what": text}``; a failure as ``{"error": text}`` and exit 1.
+"""Entry point of a background job (``python -m sara_app.processes.job_main KIND INPUT OUTPUT``),
+run by :mod:`sara_app.ops.jobs`: ``whatif`` (:func:`sara_app.sim.whatif.compare`, JSON out) or
+``report`` (the evidence report, HTML out, its evidence as JSON beside it). It first drops to the
+lowest CPU priority, so that the live worker and controller always come first. Progress goes to
+stderr as JSON lines ``{"progress": f, "what": text}``; a failure as ``{"error": text}`` and exit 1.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ def _run(kind: str, data: dict, out: Path) -> None:
     from sara_app.scenario import parse_scenario
 
     if kind == "whatif":
-        from sara_app.whatif import compare
+        from sara_app.sim.whatif import compare
 
         res = compare(parse_scenario(data["current"], "the scenario in force"),
                       parse_scenario(data["edited"], "the edited scenario"),

@@ -15,14 +15,14 @@ from pathlib import Path
 from typing import Any
 
 from sara_app.api.guard import load_tokens
-from sara_app.audit import default_data_dir
 from sara_app.bus import keys
 from sara_app.bus.access import Credentials, client_auth
 from sara_app.bus.codec import Decoder
 from sara_app.bus.messages import ScenarioStateMsg
 from sara_app.bus.session import Bus
-from sara_app.cell import base_pose
+from sara_app.cell.build import base_pose
 from sara_app.errors import ParameterError, SaraError
+from sara_app.ops.audit import default_data_dir
 from sara_app.scenario import Scenario, parse_scenario, scenarios_dir
 
 ANNOUNCE_WAIT_S = 30.0
@@ -68,8 +68,8 @@ def observe(
     from sara_app.dashboard.access import DashboardAccess
     from sara_app.dashboard.bridge import CellView
     from sara_app.dashboard.viewer import Dashboard
-    from sara_app.jobs import JobRunner
-    from sara_app.serve import _is_loopback, frame_loop
+    from sara_app.ops.jobs import JobRunner
+    from sara_app.processes.serve import _is_loopback, frame_loop
 
     if not cells:
         raise ParameterError("no cell given; expected --cell NAME (repeatable)")

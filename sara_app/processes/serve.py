@@ -2,10 +2,10 @@
 
 Processes: this one (the viser dashboard and the FastAPI service), the Zenoh router on 127.0.0.1
 (``sara_app.bus.router``, with the cell's access control: no dashboard or API load can delay the
-messages it carries), the reference robot controller (``sara_app.controller``: a simulated
+messages it carries), the reference robot controller (``sara_app.peers.controller``: a simulated
 robot that follows the commands and brakes along their verified stop when they stop), a cell
 worker and a replayer (the scenario's people, published over Zenoh as a tracker would), all
-supervised (``sara_app.supervisor``).
+supervised (``sara_app.ops.supervisor``).
 The safety loop runs in the worker process and never waits for the view. Ctrl-C stops all.
 
 CPU priority: the safety worker comes first. Every child runs in a session of its own (a terminal's
@@ -37,13 +37,13 @@ from pathlib import Path
 from typing import Any
 
 from sara_app.api.guard import load_tokens
-from sara_app.audit import default_data_dir
 from sara_app.bus.access import Credentials, client_auth
 from sara_app.bus.session import Bus
-from sara_app.cell import base_pose
+from sara_app.cell.build import base_pose
 from sara_app.errors import ParameterError, SaraError
+from sara_app.ops.audit import default_data_dir
+from sara_app.ops.supervisor import Child, Supervisor
 from sara_app.scenario import load_scenario, scenarios_dir
-from sara_app.supervisor import Child, Supervisor
 
 log = logging.getLogger("sara_app.serve")
 DEFAULT_SCENARIO = "punches"
@@ -141,7 +141,7 @@ def serve(
     from sara_app.dashboard.bridge import CellView
     from sara_app.dashboard.viewer import Dashboard
     from sara_app.dashboard.whatif_panel import WhatIfPanels
-    from sara_app.jobs import JobRunner
+    from sara_app.ops.jobs import JobRunner
 
     folder = scenarios_dir()
     sc = load_scenario(scenario, folder)
@@ -319,10 +319,10 @@ def _print_urls(
 MAX_CELLS = 8
 """Cells one ``serve`` runs at most (each a worker at real-time priority: see
 docs/measurements/2026-11-26-many-cells.md for what this machine carries)."""
-CONTROLLER, REPLAYER = "sara_app.controller", "sara_app.replayer"
+CONTROLLER, REPLAYER = "sara_app.peers.controller", "sara_app.peers.replayer"
 ROS2_BRIDGE = "sara_app.ros2.bridge"
 """Started instead of the reference controller when the scenario enables ``ros2``."""
-WORKER = "sara_app.worker_start"
+WORKER = "sara_app.processes.worker_start"
 """The worker as serve starts it: it says ``starting`` while its modules load."""
 ROUTER = "sara_app.bus.router"
 

@@ -1,11 +1,11 @@
-"""The cell worker's entry point as ``serve`` starts it (``python -m sara_app.worker_start``,
-the same arguments as ``python -m sara_app.worker``).
+"""The cell worker's entry point as ``serve`` starts it (``python -m
+sara_app.processes.worker_start``, the same arguments as ``python -m sara_app.runtime.worker``).
 
 Importing the worker loads (and on a fresh install compiles) the safety kernels: up to a
 minute before the worker could say anything. This module imports only the bus, opens a session
 with the worker's credentials and publishes ``starting`` statuses (:mod:`sara_app.bus.starting`)
-while the worker's modules load; then it hands over to :func:`sara_app.worker.main`, which says
-``starting`` again while it builds its cell. Without a router it just starts the worker.
+while the worker's modules load; then it hands over to :func:`sara_app.runtime.worker.main`, which
+says ``starting`` again while it builds its cell. Without a router it just starts the worker.
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
             stack.enter_context(Starting(pub, cell, Path(a.scenario).stem, LOADING))
         except (SaraError, OSError):
             pass  # no early word: the worker reports its own errors
-        from sara_app import worker  # the heavy import this module exists for
+        from sara_app.runtime import worker  # the heavy import this module exists for
 
     return worker.main(argv)
 

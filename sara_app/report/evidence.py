@@ -3,17 +3,17 @@
 Sections (each a plain, JSON-ready structure in :class:`Evidence`):
 
 - configuration: the scenario, its human parameter set (bounds and sources, what it claims to be
-  sound for) and the configuration checksum (:mod:`sara_app.checksum`);
+  sound for) and the configuration checksum (:mod:`sara_app.cell.checksum`);
 - containment: per recording, model and horizon, the share of future joint positions inside
   the model's set (:func:`~sara_app.human.analysis.containment`), and what the tracking gate and
   the conformance monitor say about the recording under this set
   (:func:`~sara_app.human.intake.screen`);
 - thresholds: the energies in force beside their sources and the ISO/TS 15066 Annex A values
-  (:func:`~sara_app.threshold_edit.threshold_view`) and the threshold audit log of the cell;
+  (:func:`~sara_app.ops.threshold_edit.threshold_view`) and the threshold audit log of the cell;
 - stops: the robot's stopping times and distances beside ISO 13855 (:mod:`.stopping`);
 - closed loop: the scenario simulated in each safety mode (time to goal, interventions,
   separation, collisions, harmful contacts; a separation series for the plot) and randomised
-  adversarial episodes per mode (:func:`~sara_app.sim_episodes.run_episodes`).
+  adversarial episodes per mode (:func:`~sara_app.sim.episodes.run_episodes`).
 """
 
 from __future__ import annotations
@@ -28,19 +28,19 @@ from typing import Any
 import numpy as np
 
 from sara_app import __version__
-from sara_app.audit import AuditLog
-from sara_app.cell import build_cell
-from sara_app.checksum import code_digest
-from sara_app.closed_loop import run_closed_loop
+from sara_app.cell.build import build_cell
+from sara_app.cell.checksum import code_digest
 from sara_app.human.analysis import containment
 from sara_app.human.intake import screen
 from sara_app.human.params import ReachParams
 from sara_app.human.reach import HumanReach
 from sara_app.human.recordings import load_recording
+from sara_app.ops.audit import AuditLog
+from sara_app.ops.threshold_edit import threshold_view
 from sara_app.report.stopping import stop_rows
 from sara_app.scenario import Scenario, parse_scenario
-from sara_app.sim_episodes import run_episodes
-from sara_app.threshold_edit import threshold_view
+from sara_app.sim.closed_loop import run_closed_loop
+from sara_app.sim.episodes import run_episodes
 
 HORIZONS_S = (0.1, 0.3, 0.5)
 SHIPPED_RECORDINGS = ("02_01",)

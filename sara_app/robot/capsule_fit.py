@@ -21,7 +21,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from sara_app.errors import InputError
-from sara_app.geometry import point_segment_distance
+from sara_app.geometry.shapes import point_segment_distance
 from sara_app.robot.urdf import link_supports
 
 __all__ = ["ENCLOSURE_SLACK_M", "enclosing_radius", "fit_capsule", "fitted_capsules"]

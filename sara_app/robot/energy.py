@@ -7,7 +7,7 @@ contact with it can transfer is (eq. 46)::
     T_i(q, q_dot) = 1/2 q_dot^T E_i B(q) E_i q_dot,
 
 ``B`` the joint-space inertia matrix (``pin.crba``; here the compiled CRBA of
-:mod:`sara_app.robot.crba_kernel`) and ``E_i`` the diagonal 0/1 matrix that keeps
+:mod:`sara_app.robot.crba_kernels`) and ``E_i`` the diagonal 0/1 matrix that keeps
 the joints supporting joint ``m`` (for a serial chain the joints ``1..m``). The base link has
 ``T = 0``; the last link's ``T`` is the robot's whole kinetic energy ``1/2 q_dot^T B q_dot``.
 Eq. 47-48 take the larger energy at the two ends of each interval (:func:`interval_energy_J`);
@@ -52,7 +52,7 @@ from sara_app.kernel_types import ROB1 as _ROB1
 from sara_app.kernel_types import ROI1 as _ROI1
 from sara_app.kernel_types import W2 as _W2
 from sara_app.kernel_types import W3 as _W3
-from sara_app.robot.crba_kernel import CompiledCrba
+from sara_app.robot.crba_kernels import CompiledCrba
 from sara_app.robot.model import RobotModel
 from sara_app.robot.occupancy import RobotOccupancy
 
@@ -328,7 +328,7 @@ class LinkMotion:
 
     @property
     def compiled_crba(self) -> CompiledCrba:
-        """The compiled CRBA (:mod:`sara_app.robot.crba_kernel`) that fills the inertia
+        """The compiled CRBA (:mod:`sara_app.robot.crba_kernels`) that fills the inertia
         matrices."""
         return self._compiled_crba
 

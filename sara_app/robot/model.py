@@ -8,7 +8,7 @@ included) carries one capsule enclosing its true collision primitives
 points are transformed.
 
 Frames and conventions: capsule ends ``(L, 2, 3)`` and radii ``(L,)`` as in
-:mod:`sara_app.geometry`; world frame = ``T_world_base @`` pinocchio's frame placements (the
+:mod:`sara_app.geometry.shapes`; world frame = ``T_world_base @`` pinocchio's frame placements (the
 pinocchio "universe" is the URDF root link's frame). Angles in rad, lengths in m.
 
 Not thread-safe: a model owns one ``pinocchio.Data``; use one model per thread.

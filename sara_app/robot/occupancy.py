@@ -40,10 +40,10 @@ second has norm ``<= r``. Hence::
 contains the link over the whole interval.
 
 The conservative shortcut (the usual construction; NOT what is returned): enclose the link
-capsules at ``t_k`` and ``t_k+1`` (:func:`sara_app.geometry.capsule_enclosing_capsules`: the same
-mid axis, radius ``r + h`` with ``h`` half the larger end displacement), then grow the radius by
-``P / 2`` (every ``t`` is within ``dt / 2`` of a sample, and a point is within ``(t - t_k) P / dt``
-of its position at ``t_k`` and within ``(t_k+1 - t) P / dt`` of its position at ``t_k+1``):
+capsules at ``t_k`` and ``t_k+1`` (:func:`sara_app.geometry.shapes.capsule_enclosing_capsules`: the
+same mid axis, radius ``r + h`` with ``h`` half the larger end displacement), then grow the radius
+by ``P / 2`` (every ``t`` is within ``dt / 2`` of a sample, and a point is within ``(t - t_k) P /
+dt`` of its position at ``t_k`` and within ``(t_k+1 - t) P / dt`` of its position at ``t_k+1``):
 radius ``r + h + P / 2``. Sound, but the displacement is counted twice: an end moves by at most
 ``P``, so ``h <= P / 2``, and the ellipsoid argument above needs no ``h``. The returned capsule
 has the same axis and a radius smaller by ``h``. :meth:`RobotOccupancy.added_radius` returns

@@ -1,8 +1,8 @@
 """Compiled (numba) planning of one path-follower step: the intended motion with its brakes
 before slower pieces and the path's end, the joint-limit check of the step and the failsafe stop
-from its end (``failsafe.plan_stop_unchecked`` with its candidate checks, entry bounds and piece
-room), in one call from :meth:`PathFollower.peek <sara_app.robot.trajectory.PathFollower.peek>`:
-the only planning the library runs.
+from its end (``plan_stop_unchecked`` of ``tests/stop_reference.py`` with its candidate checks,
+entry bounds and piece room), in one call from :meth:`PathFollower.peek
+<sara_app.robot.trajectory.PathFollower.peek>`: the only planning the library runs.
 
 ``tests/planning_reference.py`` is its reference in Python, in the same formulas and operation
 order (``tests/test_planning_kernels.py`` checks the two equal bit for bit on random paths and
@@ -390,7 +390,7 @@ def _piece_ok(
 def _entry_bounds(
     s: float, v: float, a: float, ph: tuple, b: float, t_pk: float, vp: float
 ) -> tuple:
-    """``failsafe._entry_bounds`` of the stop ``ph`` from ``(s, v, a)``."""
+    """``stop_reference._entry_bounds`` (tests) of the stop ``ph`` from ``(s, v, a)``."""
     a_start = a
     t0 = 0.0
     j = 0.0
@@ -457,7 +457,7 @@ def _check_candidate(
     geo: np.ndarray,
     consts: np.ndarray,
 ) -> tuple:
-    """``failsafe._check_candidate``: ``(valid, A2, J2, phases)``."""
+    """``stop_reference._check_candidate`` (tests): ``(valid, A2, J2, phases)``."""
     if A_ <= 0.0 or J_ <= 0.0:
         return False, -1.0, -1.0, _EMPTY
     if a0 < 0.0 and v0 < a0 * a0 / (2.0 * J_) * (1.0 - 1e-9) - 1e-15:
@@ -522,9 +522,9 @@ def _plan_stop(
     geo: np.ndarray,
     consts: np.ndarray,
 ) -> tuple:
-    """``failsafe._plan_stop`` with the hint ``(A_h, J_h)``: ``(status, phases, A, J, s, s')``
-    with status STEP (a stop), STEP_REST (already at rest: ``rest_stop`` at ``s``) or
-    FALLBACK (no stop: ``_plan_stop`` raises)."""
+    """``stop_reference.plan_stop_unchecked`` (tests) with the hint ``(A_h, J_h)``: ``(status,
+    phases, A, J, s, s')`` with status STEP (a stop), STEP_REST (already at rest: ``rest_stop`` at
+    ``s``) or FALLBACK (no stop: the reference raises)."""
     s_tol = consts[C_STOL]
     if s < -s_tol or s > S + s_tol:
         return FALLBACK, _EMPTY, 0.0, 0.0, s, v0

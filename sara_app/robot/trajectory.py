@@ -5,10 +5,11 @@ that covers any stopping distance), and starts braking, at the exact instant ins
 time-optimal brake from the end of the step would no longer reach the lower admissible speed of an
 upcoming piece before that piece, or standstill at the end of the path. A step is committed only
 when the joint limits provably hold over it and a path-consistent failsafe stop
-(:func:`sara_app.robot.failsafe.plan_stop`) exists from its end; otherwise the follower executes the
-failsafe it already holds (recursive feasibility: the tail of a valid stop is a valid stop). A
-``speed_cap`` (path speed, default inf; set by the PFL shield for speed scaling) lowers every
-admissible speed the follower aims for to at most the cap: the same planning, slower targets.
+(the compiled planner, :mod:`sara_app.robot.planning_kernels`) exists from its end; otherwise the
+follower executes the failsafe it already holds (recursive feasibility: the tail of a valid stop is
+a valid stop). A ``speed_cap`` (path speed, default inf; set by the PFL shield for speed scaling)
+lowers every admissible speed the follower aims for to at most the cap: the same planning, slower
+targets.
 
 Fallback steps (counted in ``fallback_steps``) do not happen on a path followed from rest to
 rest; after a replan they can (for instance when the new goal forces the robot to stop where the

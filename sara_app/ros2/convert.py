@@ -21,7 +21,7 @@ import numpy as np
 
 from sara_app.bus.messages import OccupancyMsg, RobotCommandMsg
 from sara_app.errors import InputError
-from sara_app.geometry import quat_z_to
+from sara_app.geometry.shapes import quat_z_to
 from sara_app.ros2.interfaces import MARKER_ADD, MARKER_CYLINDER, MARKER_DELETEALL, MARKER_SPHERE
 
 VERIFIED_RGBA = (0.12, 0.75, 0.24, 0.35)

@@ -3,7 +3,7 @@ accepted edit, so that a restarted worker (or ``serve``) runs what the audit log
 applied.
 
 One JSON file per cell in a state folder (``serve`` uses ``<data dir>/cells``, see
-:func:`sara_app.audit.default_data_dir`): ``{"origin": <the scenario the cell
+:func:`sara_app.ops.audit.default_data_dir`): ``{"origin": <the scenario the cell
 was started with>, "revision": <accepted edits>, "saved_utc": ..., "scenario": {...}}``,
 replaced atomically (written to a temporary file, flushed to disk, renamed) before the worker
 acknowledges the edit: an acknowledged edit is on disk. A worker restored when started again

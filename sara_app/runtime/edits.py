@@ -15,7 +15,7 @@ import queue
 import threading
 from typing import NamedTuple
 
-from sara_app.cell import Cell, build_cell
+from sara_app.cell.build import Cell, build_cell
 from sara_app.errors import SaraError
 from sara_app.scenario import Scenario, check_against_robot, parse_scenario
 

@@ -141,7 +141,7 @@ class CycleMessages:
 
 
 class People(Protocol):
-    """What a verdict reports of the people (``sara_app.presence.Presence``)."""
+    """What a verdict reports of the people (``sara_app.runtime.presence.Presence``)."""
 
     def tracking(self) -> dict[str, dict[str, int]]: ...
 

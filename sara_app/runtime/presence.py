@@ -31,32 +31,15 @@ import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
-import numpy as np
-
-from sara_app.bus.messages import FUTURE_TOLERANCE_S
+from sara_app.cell.intake import Track
 from sara_app.human.conformance import Violation
-from sara_app.human.intake import Intake, IntakeSettings
+from sara_app.safety.settings import FUTURE_TOLERANCE_S
 from sara_app.safety.shield import HumanState
 
 FORGET_AFTER_S = 0.05
 """How much later than a person's newest evidence a frame that omits them must be stamped."""
 MAX_OVERFLOW = 256
 """Ids of people beyond ``max_people`` remembered (each is a fault until forgotten)."""
-
-
-@dataclass
-class Track:
-    """One person: the shield's view (``state``), their intake (gate, velocity estimator and
-    conformance monitor) and ``evidence_s``,
-    the wall-clock time of the newest evidence of them (skeleton stamp, refusal time or the
-    stamp of a frame that listed them)."""
-
-    state: HumanState
-    intake: Intake
-    evidence_s: float = -math.inf
-    widen_key: tuple[float | None, bool, float] | None = None
-    widen_m: np.ndarray | None = None
-    """The widening for ``widen_key = (stated uncertainty m, legs measured, extra m)``."""
 
 
 @dataclass
@@ -204,17 +187,3 @@ class Presence:
 
     def humans(self) -> list[HumanState]:
         return [t.state for t in self.tracks.values()]
-
-
-def unmeasured_track(
-    human_id: str,
-    delta_y_m: float,
-    v_max: np.ndarray,
-    a_max: np.ndarray,
-    settings: IntakeSettings | None = None,
-) -> Track:
-    """A known person without a measurement yet (a fault until one arrives)."""
-    return Track(
-        HumanState.unmeasured(human_id, len(v_max)),
-        Intake(delta_y_m, v_max, a_max, settings or IntakeSettings()),
-    )

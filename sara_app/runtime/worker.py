@@ -42,20 +42,14 @@ from sara_app.bus.ownership import claim_cell
 from sara_app.bus.process import process_main
 from sara_app.bus.session import Bus
 from sara_app.bus.starting import Starting, last_status_seq
-from sara_app.cell import Cell, build_cell
-from sara_app.cell_state import CellState
+from sara_app.cell.build import Cell, build_cell
+from sara_app.cell.intake import Track, rewiden, track_for
 from sara_app.errors import SaraError
 from sara_app.human.reach import MODELS, part_capsules
 from sara_app.human.widening import per_capsule
-from sara_app.ingest import ingest_skeleton, rewiden
-from sara_app.presence import Presence, Track, unmeasured_track
 from sara_app.robot.trajectory import JointState
-from sara_app.safety.jssa_mode import JssaMode
-from sara_app.safety.pfl_shield import PflShield
-from sara_app.safety.shield import CycleResult, Shield
-from sara_app.safety.thresholds import link_shapes
-from sara_app.scenario import Scenario, check_against_robot, parse_scenario
-from sara_app.worker_display import (
+from sara_app.runtime.cell_state import CellState
+from sara_app.runtime.display import (
     EFFECTIVE,
     effective_set,
     jssa_state,
@@ -63,9 +57,17 @@ from sara_app.worker_display import (
     pfl_contacts,
     pfl_links,
 )
-from sara_app.worker_edits import MAX_PENDING_EDITS, Built, CellBuilder, build
-from sara_app.worker_messages import CycleMessages
-from sara_app.worker_robot import MeasuredRobot
+from sara_app.runtime.edits import MAX_PENDING_EDITS, Built, CellBuilder, build
+from sara_app.runtime.ingest import ingest_skeleton
+from sara_app.runtime.messages import CycleMessages
+from sara_app.runtime.presence import Presence
+from sara_app.runtime.robot_link import MeasuredRobot
+from sara_app.safety.jssa_mode import JssaMode
+from sara_app.safety.pfl_shield import PflShield
+from sara_app.safety.settings import FUTURE_TOLERANCE_S
+from sara_app.safety.shield import CycleResult, Shield
+from sara_app.safety.thresholds import link_shapes
+from sara_app.scenario import Scenario, check_against_robot, parse_scenario
 
 log = logging.getLogger("sara_app.worker")
 BUILDING = "building the cell: loading the robot model and compiling the safety kernels"
@@ -131,8 +133,8 @@ class CellWorker:
         self.last: CycleResult | None = None
         self.stop_event = threading.Event()
         self.errors = _Throttle()
-        future_s = self.shield.settings.future_tolerance_s
-        self.decoder = Decoder(max_future_s=future_s)  # one set of drop counters for every input
+        # one set of drop counters for every input
+        self.decoder = Decoder(max_future_s=FUTURE_TOLERANCE_S)
         self.sub_skel = bus.subscribe(
             keys.skeleton_keys(self.name), self.decoder, capacity=SKELETON_QUEUE
         )
@@ -187,9 +189,7 @@ class CellWorker:
         return self.presence.tracks
 
     def _new_track(self, human_id: str) -> Track:
-        p = self.cell.params
-        gate = self.cell.scenario.inputs.gate.intake()
-        return unmeasured_track(human_id, p.delta_y_m, p.v_max_mps, p.a_max_mps2, gate)
+        return track_for(self.cell, human_id)
 
     # -- inputs --------------------------------------------------------------------------------
 

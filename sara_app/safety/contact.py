@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sara_app.errors import InputError, ParameterError
-from sara_app.geometry_kernels import pair_gaps
+from sara_app.geometry.shape_kernels import pair_gaps
 from sara_app.safety.contact_kernels import classify_set
 from sara_app.safety.velocity_error import VelocityErrorBound
 
@@ -80,7 +80,7 @@ class ContactResult:
     ``stack_diameter_m (K, P)``; ``distance_m``: link-to-part surface distance (m), exact
     where the capsules may touch or nearly do; for a pair whose bounding spheres are apart the
     compiled path (:meth:`ContactClassifier.classify`) gives the spheres' gap instead, a
-    positive lower bound (:func:`~sara_app.geometry_kernels.pair_gaps`).
+    positive lower bound (:func:`~sara_app.geometry.shape_kernels.pair_gaps`).
     """
 
     contact: np.ndarray

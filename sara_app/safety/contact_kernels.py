@@ -1,9 +1,9 @@
 """Closest-point kernels of the PFL hot path in structure-of-arrays layout.
 
-Same mathematics as :func:`sara_app.geometry.segment_segment_closest` and
-:func:`sara_app.geometry.segment_box_distance` (and tested against them), but with coordinates
-as the LEADING axis (``(3, ...)``): numpy's reductions over a trailing axis of length 3 cost
-more than the arithmetic, so every dot and cross product here is written out per component.
+Same mathematics as :func:`sara_app.geometry.shapes.segment_segment_closest` and
+:func:`sara_app.geometry.shapes.segment_box_distance` (and tested against them), but with
+coordinates as the LEADING axis (``(3, ...)``): numpy's reductions over a trailing axis of length 3
+cost more than the arithmetic, so every dot and cross product here is written out per component.
 This is what brings a PFL cycle (a few thousand capsule pairs) near the 1 ms budget.
 """
 
@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 from numba import njit, types
 
-from sara_app import geometry_kernels
-from sara_app.geometry_kernels import (
+from sara_app.geometry import shape_kernels
+from sara_app.geometry.shape_kernels import (
     box_axis_gaps,
     box_entry,
     set_pair_entry,
@@ -36,7 +36,7 @@ from sara_app.kernel_types import W4 as _WF4
 from sara_app.kernel_types import WB3 as _WB3
 from sara_app.kernel_types import WI8_3 as _WI3
 
-_PARALLEL_SIN2 = 1e-24  # as in sara_app.geometry
+_PARALLEL_SIN2 = 1e-24  # as in sara_app.geometry.shapes
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -53,7 +53,7 @@ def segment_pairs_soa(
     """Closest points of segments ``[p1, q1]`` and ``[p2, q2]``, each ``(3, ...)``.
 
     Returns ``(distance, s, t)`` ``(...)``: parameters in [0, 1] on the first and second segment.
-    Degenerate (point) and parallel segments are handled as in :mod:`sara_app.geometry`.
+    Degenerate (point) and parallel segments are handled as in :mod:`sara_app.geometry.shapes`.
     """
     d1, d2, r = q1 - p1, q2 - p2, p1 - p2
     a, e = _dot(d1, d1), _dot(d2, d2)
@@ -101,7 +101,7 @@ def segment_box_soa(
     Returns ``(distance (M,), point_on_segment (3, M), point_on_box (3, M))``, world frame.
     In the box frame ``f(s) = sum_i max(|x_i(s)| - h_i, 0)^2`` is convex and quadratic between
     the breakpoints ``x_i(s) = +-h_i``; each piece is minimised in closed form, and the best
-    piece minimiser is exact (as in :func:`sara_app.geometry.segment_box_distance`).
+    piece minimiser is exact (as in :func:`sara_app.geometry.shapes.segment_box_distance`).
     """
     R, c0 = T_world_box[:3, :3], T_world_box[:3, 3:4]
     a = R.T @ (p - c0)  # (3, M) box frame
@@ -283,11 +283,11 @@ def source_digest(module: ModuleType) -> str:
 
 def _make_classify_kernels() -> tuple[Any, Any]:
     """Build :func:`classify_kernel` and :func:`classify_set`. They call the kernels of
-    :mod:`sara_app.geometry_kernels`, and numba's cache checks only the calling kernel's own
+    :mod:`sara_app.geometry.shape_kernels`, and numba's cache checks only the calling kernel's own
     file: the digest of that module's source is a closure variable, which numba hashes into the
     cache key, so a change there recompiles them instead of loading them with the old
     geometry."""
-    geometry_source = source_digest(geometry_kernels)
+    geometry_source = source_digest(shape_kernels)
 
     @njit(
         _b1(
@@ -339,8 +339,8 @@ def _make_classify_kernels() -> tuple[Any, Any]:
         P, P)``, robot capsules ``r_ends (K, L, 2, 3)``, ``r_radius (K, L)``, boxes ``T_world_box
         (B, 4, 4)``, ``half_extents_m (B, 3)``, human axis-to-box ``hb_axis (Kh, P, B)``
         and the human radii ``h_radius (Kr, P)`` (``Kh, Kr`` in ``{1, K}``; the surface distance is
-        their difference, as :func:`~sara_app.geometry_kernels.box_distances` computes it). Link
-        samples: ``s_ends (K+1, L, 2, 3)``, ``s_radius (L,)``, ``p1_dot, omega (K+1, L, 3)``,
+        their difference, as :func:`~sara_app.geometry.shape_kernels.box_distances` computes it).
+        Link samples: ``s_ends (K+1, L, 2, 3)``, ``s_radius (L,)``, ``p1_dot, omega (K+1, L, 3)``,
         ``eps_v (K, L)``. Outputs ``(K, L, P)``: ``contact_s``, ``env``, ``self_``
         (both restricted to the stack contact), ``contact``, ``cls``; ``stack (K, P, P)``, ``diam
         (K, P)``. Without any possible contact the outputs are the reference's early result.
@@ -349,14 +349,14 @@ def _make_classify_kernels() -> tuple[Any, Any]:
         benchmark's braking state 4-15 % of the link pairs and 15-55 % of the link-box entries):
         robot-robot ``d_rr (K, L, L)`` with closest-point parameters ``s_rr`` (on link ``i`` towards
         ``l``), robot-box ``d_rb (K, L, B)`` with box-to-link vectors ``n_rb (K, L, B, 3)``, the
-        numbers of :func:`~sara_app.geometry_kernels.set_pair_distances` and
-        :func:`~sara_app.geometry_kernels.box_distances`. ``can_b (K, L, B)``, ``can_l (K, L, L)``
-        (int8): -2 distance not computed yet, -1 distance known but the robot-only clamping
+        numbers of :func:`~sara_app.geometry.shape_kernels.set_pair_distances` and
+        :func:`~sara_app.geometry.shape_kernels.box_distances`. ``can_b (K, L, B)``, ``can_l (K, L,
+        L)`` (int8): -2 distance not computed yet, -1 distance known but the robot-only clamping
         predicate (:func:`_env_can`, :func:`_self_can`) not evaluated yet, 0 no, 1 yes; they
         depend on the robot inputs and the classifier's switches only, so these caches serve every
         human set checked against the same robot inputs.
         """
-        if len(geometry_source) == 0:  # never: ties the cache to geometry_kernels.py
+        if len(geometry_source) == 0:  # never: ties the cache to shape_kernels.py
             return False
         K, L, P = d_rh.shape
         B = d_rb.shape[2]
@@ -551,13 +551,13 @@ def _make_classify_kernels() -> tuple[Any, Any]:
         computed here or in :func:`classify_kernel`: the robot-only ones (``d_rr, s_rr, d_rb,
         n_rb`` over every ``K``, the caches ``can_b, can_l`` say which are known: -2 not yet)
         where a clamping rule first needs them, the human-human ones only where the
-        parts may stack (:func:`~sara_app.geometry_kernels.set_pair_gaps` over the pairs that
+        parts may stack (:func:`~sara_app.geometry.shape_kernels.set_pair_gaps` over the pairs that
         are not safe) and the human axis-to-box ones only where the touch test needs them
-        (:func:`~sara_app.geometry_kernels.box_axis_gaps`): same signs, same result.
-        ``d_rh (k, L, P)`` (``k = hi - lo``) as :func:`~sara_app.geometry_kernels.pair_gaps`
+        (:func:`~sara_app.geometry.shape_kernels.box_axis_gaps`): same signs, same result.
+        ``d_rh (k, L, P)`` (``k = hi - lo``) as :func:`~sara_app.geometry.shape_kernels.pair_gaps`
         gives it; human sets ``(1|k, P, ...)``; outputs ``(k, ...)`` as in
         :func:`classify_kernel`."""
-        if len(geometry_source) == 0:  # never: ties the cache to geometry_kernels.py
+        if len(geometry_source) == 0:  # never: ties the cache to shape_kernels.py
             return False
         P, B = h_radius.shape[1], T_world_box.shape[0]
         d_hh = np.empty((hi - lo, P, P))

@@ -44,7 +44,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from sara_app.errors import ParameterError
-from sara_app.geometry_kernels import pair_distances, segment_closest
+from sara_app.geometry.shape_kernels import pair_distances, segment_closest
 from sara_app.robot.model import JointLimits, RobotModel
 from sara_app.safety.jssa_kernels import constraint_terms, project_halfspace_box, sliding_terms
 from sara_app.safety.jssa_kinematics import PointKinematics
@@ -122,7 +122,7 @@ class Pairs:
     """Critical pairs of one cycle, ``K`` of them (world frame): robot axis points ``p_r`` with
     velocity, acceleration, drift jerk ``(K, 3)`` and Jacobian ``J_r (K, 3, n)``; other axis
     points ``p_o`` with velocity ``v_o`` ``(K, 3)``; radius sums ``r_sum (K,)``; ``slide (K,)``
-    the sliding correction of ``d''`` (:func:`~sara_app.safety.jssa_index.sliding_correction`)."""
+    the sliding correction of ``d''`` (:mod:`sara_app.safety.jssa_index`)."""
 
     p_r: np.ndarray
     v_r: np.ndarray
@@ -179,7 +179,7 @@ def _moving_links(robot: RobotModel, kin: PointKinematics) -> np.ndarray:
 
 def _closest_params(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Closest-point parameters ``(K, 1)`` on segments ``a`` and ``b`` ``(K, 2, 3)`` (compiled
-    :func:`sara_app.geometry_kernels.segment_closest`, one call per pair)."""
+    :func:`sara_app.geometry.shape_kernels.segment_closest`, one call per pair)."""
     K = a.shape[0]
     s, t = np.empty((K, 1)), np.empty((K, 1))
     for k in range(K):

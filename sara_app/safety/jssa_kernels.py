@@ -129,7 +129,7 @@ def constraint_terms(
     """Per pair ``k``: the current ``d, d', d'', phi`` and the linearised next index
     ``phi_{k+1}(u) ~ phi0 + g . u`` (``g (K, n)``); the arithmetic of
     :func:`sara_app.safety.jssa_index.index_terms`, :func:`~.safety_index` and
-    :func:`~.linear_constraints` (tested equal)."""
+    the linearisation of eq. 13 (tested equal to ``tests/jssa_reference.py``)."""
     K, n = p_r.shape[0], J_r.shape[2]
     t2, t3 = tau * tau / 2.0, tau * tau * tau / 6.0
     dm2 = d_min * d_min
@@ -180,9 +180,10 @@ def project_halfspace_box(
     feas_tol: float,
     u: np.ndarray,
 ) -> float:
-    """:func:`sara_app.safety.jssa_qp.project_halfspace_box` compiled (same algorithm: the root
-    of the monotone piecewise-linear ``f(mu) = g . clip(u0 - mu g / w, lo, hi)``). Writes ``u``
-    and returns ``mu`` (``inf``: infeasible, ``u`` the least violating box point)."""
+    """The one-constraint projection of :mod:`sara_app.safety.jssa_qp` (reference in tests; same
+    algorithm: the root of the monotone piecewise-linear ``f(mu) = g . clip(u0 - mu g / w, lo,
+    hi)``). Writes ``u`` and returns ``mu`` (``inf``: infeasible, ``u`` the least violating box
+    point)."""
     n = u0.shape[0]
     f0 = 0.0
     for i in range(n):
@@ -242,8 +243,9 @@ def sliding_terms(
     t: np.ndarray,
     out: np.ndarray,
 ) -> None:
-    """:func:`sara_app.safety.jssa_index.sliding_correction` compiled, with the robot axis rate
-    ``omega_r x axis_r`` (rigid link, angular velocity ``omega_r (K, 3)``). Writes ``out (K,)``."""
+    """The sliding correction of :mod:`sara_app.safety.jssa_index` compiled, with the robot axis
+    rate ``omega_r x axis_r`` (rigid link, angular velocity ``omega_r (K, 3)``). Writes ``out
+    (K,)``."""
     for k in range(dp.shape[0]):
         ar, ao, ad = axis_r[k], axis_o[k], axis_o_dot[k]
         w = omega_r[k]

@@ -66,8 +66,8 @@ from sara_app.human.reach import MODELS, HumanReach
 from sara_app.robot.model import RobotModel
 from sara_app.robot.trajectory import JointState, PathFollower
 from sara_app.safety.jssa import JssaController, JssaParams, JssaResult, integrate
-from sara_app.safety.shield import CycleResult, HumanState, Shield, ShieldSettings
-from sara_app.scenario import JssaSpec
+from sara_app.safety.settings import JssaSettings, ShieldSettings
+from sara_app.safety.shield import CycleResult, HumanState, Shield
 
 TRACK_OMEGA_PER_S = 20.0
 """Pole (rad/s, triple) of the jerk tracking law."""
@@ -113,7 +113,7 @@ def reference_cap(err_rad: float, follower: PathFollower) -> float:
     return top * max(0.0, (HOLD_ERROR_RAD - err_rad) / (HOLD_ERROR_RAD - RESUME_ERROR_RAD))
 
 
-def jssa_params(spec: JssaSpec) -> JssaParams:
+def jssa_params(spec: JssaSettings) -> JssaParams:
     """The controller's parameters from the scenario's JSSA section, with the sliding-point
     correction of ``d''`` on (see :mod:`sara_app.safety.jssa_index`)."""
     return JssaParams(
@@ -141,11 +141,11 @@ class JssaMode(Shield):
         follower: PathFollower,
         reach: HumanReach,
         settings: ShieldSettings | None = None,
-        spec: JssaSpec | None = None,
+        spec: JssaSettings | None = None,
         boxes: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> None:
         super().__init__(robot, follower, reach, settings)
-        self.spec = spec or JssaSpec()
+        self.spec = spec or JssaSettings()
         self.controller = JssaController(robot, jssa_params(self.spec), follower.limits)
         self.boxes = boxes
         self._delay_s = float(reach.params.delay_s)

@@ -2,7 +2,8 @@
 
 ``min_u sum_i w_i (u_i - u0_i)^2  s.t.  G u <= b,  lo <= u <= hi``  (``w > 0``: diagonal ``V``).
 
-One constraint (:func:`project_halfspace_box`), solved exactly. The problem is a separable convex
+One constraint (compiled: :func:`sara_app.safety.jssa_kernels.project_halfspace_box`; reference in
+``tests/jssa_reference.py``), solved exactly. The problem is a separable convex
 quadratic with one linear constraint over a box. Its Lagrangian with multiplier ``mu >= 0`` for
 ``g . u <= b`` separates per coordinate, and for fixed ``mu`` the box-constrained minimiser is
 ``u(mu) = clip(u0 - mu g / w, lo, hi)``. ``f(mu) = g . u(mu)`` is continuous, piecewise linear and
@@ -28,41 +29,6 @@ import numpy as np
 
 FEAS_TOL = 1e-9
 """Slack accepted on ``G u <= b`` (relative to the scale of ``b``) before a QP is infeasible."""
-
-
-def project_halfspace_box(
-    u0: np.ndarray,
-    w: np.ndarray,
-    g: np.ndarray,
-    b: float,
-    lo: np.ndarray,
-    hi: np.ndarray,
-) -> tuple[np.ndarray, float, bool]:
-    """Exact solution of the one-constraint projection: ``(u (n,), mu, feasible)``.
-
-    ``mu`` is the multiplier of ``g . u <= b``. When infeasible, ``u`` is the box point that
-    minimises ``g . u`` (the least violating one) and ``mu = inf``."""
-    u_box = np.clip(u0, lo, hi)
-    if float(g @ u_box) <= b:
-        return u_box, 0.0, True
-    u_min = np.where(g > 0.0, lo, hi)
-    if float(g @ u_min) > b + FEAS_TOL * max(1.0, abs(b)):
-        return u_min, float("inf"), False
-    nz = g != 0.0
-    ratio = w[nz] / g[nz]
-    bp = np.concatenate([(u0[nz] - hi[nz]) * ratio, (u0[nz] - lo[nz]) * ratio])
-    bp = np.unique(bp[bp > 0.0])  # sorted
-    # f at every breakpoint: (B, n) -> (B,)
-    U = np.clip(u0[None, :] - bp[:, None] * (g / w)[None, :], lo, hi)
-    f = U @ g
-    k = int(np.searchsorted(-f, -b, side="left"))  # first breakpoint with f <= b
-    if k >= len(bp):  # only round-off can get here (u_min was feasible)
-        return u_min, float(bp[-1]) if len(bp) else 0.0, True
-    mu_lo, f_lo = (0.0, float(g @ u_box)) if k == 0 else (float(bp[k - 1]), float(f[k - 1]))
-    mu_hi, f_hi = float(bp[k]), float(f[k])
-    mu = mu_hi if f_lo == f_hi else mu_lo + (f_lo - b) * (mu_hi - mu_lo) / (f_lo - f_hi)
-    u = np.clip(u0 - mu * g / w, lo, hi)
-    return u, mu, True
 
 
 def project_polytope_box(

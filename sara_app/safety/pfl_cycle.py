@@ -1,8 +1,8 @@
 """A PFL shield cycle's checks and replans, for any number of people, in one compiled call.
 
 ``PflShield._plan_and_verify`` plans the trajectory at the held cap; everything after that is
-:func:`~sara_app.safety.pfl_cycle_kernel.cycle_kernel`: the check of that trajectory against
-every person (:func:`~sara_app.safety.pfl_fused_kernel.fused_kernel`: per model the people's
+:func:`~sara_app.safety.pfl_cycle_kernels.cycle_kernel`: the check of that trajectory against
+every person (:func:`~sara_app.safety.pfl_fused_kernels.fused_kernel`: per model the people's
 capsules over the intervals still unproved, the classification with the link states obtained on
 the first possible contact, the per-entry merge), and while a check fails and a slower plan can
 fix it, the plan at the candidate cap and its check (at most ``1 + max_replans`` checks and
@@ -34,7 +34,7 @@ from sara_app.robot.shielded import ShieldedTrajectory, from_samples
 from sara_app.robot.trajectory import PathFollower
 from sara_app.safety.contact import ContactResult
 from sara_app.safety.pfl import PflCheck, PflResult
-from sara_app.safety.pfl_cycle_kernel import DONE, cycle_kernel, plan_views
+from sara_app.safety.pfl_cycle_kernels import DONE, cycle_kernel, plan_views
 from sara_app.safety.pfl_link_states import PathLinkStates
 from sara_app.safety.shield import Humans
 
@@ -156,7 +156,7 @@ class CompiledCycle:
 
     def constants_for(self, H: int) -> tuple[Any, ...]:
         """The check's constants for ``H`` people
-        (:data:`~sara_app.safety.pfl_fused_kernel.MODELS`), built on first use (tens of us)."""
+        (:data:`~sara_app.safety.pfl_fused_kernels.MODELS`), built on first use (tens of us)."""
         c = self._models.get(H)
         if c is None:
             c = self._models[H] = (rules_for(self._rules_1, H), *self._rest)
@@ -252,7 +252,7 @@ def _codes(order: list[str]) -> np.ndarray:
 
 def result_of(slabs: tuple[np.ndarray, ...], state: np.ndarray) -> PflResult:
     """The :class:`PflResult` of a check's result arrays and state (the layout of
-    :func:`~sara_app.safety.pfl_fused_kernel.check_results`)."""
+    :func:`~sara_app.safety.pfl_fused_kernels.check_results`)."""
     b5, f3, i2, stack, diam, safe_k, f2, part = slabs
     contact, contact_s, env, self_, safe = b5
     thr, margin, d_rh = f3

@@ -1,7 +1,7 @@
 """The compiled checks and replans of a PFL shield cycle (:mod:`sara_app.safety.pfl_cycle`).
 
 From the trajectory the shield planned at the held cap: its check
-(:func:`~sara_app.safety.pfl_fused_kernel.fused_kernel`), and while a check fails and a replan
+(:func:`~sara_app.safety.pfl_fused_kernels.fused_kernel`), and while a check fails and a replan
 can fix it, the plan at the lower cap (:func:`~sara_app.robot.planning_kernels.peek_kernel`,
 :func:`~sara_app.robot.trajectory_kernels.shielded_samples_kernel`,
 :func:`~sara_app.robot.occupancy_kernels.intervals_kernel`: the kernels of
@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 from numba import njit, types
 
-from sara_app import geometry_kernels
+from sara_app.geometry import shape_kernels
 from sara_app.human import reach_kernels
 from sara_app.kernel_types import F8 as _f8
 from sara_app.kernel_types import I8 as _i8
@@ -33,7 +33,7 @@ from sara_app.kernel_types import ROI1 as _ROI1
 from sara_app.kernel_types import W1 as _W1
 from sara_app.kernel_types import WI2 as _WI2
 from sara_app.robot import (
-    crba_kernel,
+    crba_kernels,
     energy,
     occupancy_kernels,
     planning_kernels,
@@ -51,9 +51,9 @@ from sara_app.robot.planning_kernels import (
     peek_kernel,
 )
 from sara_app.robot.trajectory_kernels import shielded_samples_kernel
-from sara_app.safety import contact_kernels, pfl_fused_kernel, pfl_kernels, pfl_link_states
+from sara_app.safety import contact_kernels, pfl_fused_kernels, pfl_kernels, pfl_link_states
 from sara_app.safety.contact_kernels import source_digest
-from sara_app.safety.pfl_fused_kernel import (
+from sara_app.safety.pfl_fused_kernels import (
     HUMAN,
     LINK_CONSTANTS,
     MODELS,
@@ -210,9 +210,9 @@ def _make_kernel() -> Any:
     sources = "".join(
         source_digest(m)
         for m in (
-            geometry_kernels, reach_kernels, crba_kernel, energy, occupancy_kernels,
+            shape_kernels, reach_kernels, crba_kernels, energy, occupancy_kernels,
             planning_kernels, trajectory_kernels, contact_kernels, pfl_kernels,
-            pfl_link_states, pfl_fused_kernel,
+            pfl_link_states, pfl_fused_kernels,
         )
     )  # fmt: skip
 
@@ -247,10 +247,10 @@ def _make_kernel() -> Any:
         checked trajectory's cap, the cap for the next cycle (NaN: none set), checks, models
         of the last check, eq. 6 (0/1), the allowed speed of a verified last check, the last
         replan's ``peek_kernel`` status, whether the orders changed (0/1), the model evaluations
-        of the cycle. ``models``: the check's constants (:data:`pfl_fused_kernel.MODELS`).
+        of the cycle. ``models``: the check's constants (:data:`pfl_fused_kernels.MODELS`).
         Returns ``(code, plan, check)``: the last replan's slab (:func:`plan_views`; empty when
         there was none) and the last check's ``(slabs, state)`` (see
-        :func:`~sara_app.safety.pfl_fused_kernel.check_results`)."""
+        :func:`~sara_app.safety.pfl_fused_kernels.check_results`)."""
         cap, c_min, cut = control
         max_replans, max_models = limits
         M = orders.shape[1]

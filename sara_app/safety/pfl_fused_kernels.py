@@ -3,7 +3,7 @@ entry (Thumm et al. 2024 eq. 6-7), model after model, in one call: per model the
 capsules over the intervals still unproved (each person's sets from that person's measurement
 time), the contact classification (eq. 8-13, 39-43) with the link states obtained on the first
 possible contact, then the per-entry merge; the speed scaling's path speeds from the verdict.
-Run by :func:`~sara_app.safety.pfl_cycle_kernel.cycle_kernel`; compared with the Python
+Run by :func:`~sara_app.safety.pfl_cycle_kernels.cycle_kernel`; compared with the Python
 composition of the same kernels in ``tests/pfl_reference.py`` (the same bits). Numba's cache
 checks only this file, so the source digests of every file whose kernels it calls are a closure
 variable (as in :mod:`sara_app.safety.contact_kernels`).
@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 from numba import njit, types
 
-from sara_app import geometry_kernels
-from sara_app.geometry_kernels import pair_gaps
+from sara_app.geometry import shape_kernels
+from sara_app.geometry.shape_kernels import pair_gaps
 from sara_app.human import reach_kernels
 from sara_app.human.reach_kernels import (
     ACC,
@@ -47,7 +47,7 @@ from sara_app.kernel_types import WI1 as _WI1
 from sara_app.kernel_types import WI2 as _WI2
 from sara_app.kernel_types import WI8_3 as _WI83
 from sara_app.kernel_types import W as _W
-from sara_app.robot import crba_kernel, energy, occupancy_kernels
+from sara_app.robot import crba_kernels, energy, occupancy_kernels
 from sara_app.safety import contact_kernels, pfl_kernels, pfl_link_states
 from sara_app.safety.contact_kernels import classify_set, source_digest
 from sara_app.safety.pfl_kernels import (
@@ -310,7 +310,7 @@ def _make_kernel() -> Any:
     sources = "".join(
         source_digest(m)
         for m in (
-            geometry_kernels, reach_kernels, crba_kernel, energy, occupancy_kernels,
+            shape_kernels, reach_kernels, crba_kernels, energy, occupancy_kernels,
             contact_kernels, pfl_kernels, pfl_link_states,
         )
     )  # fmt: skip

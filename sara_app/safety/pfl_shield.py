@@ -58,7 +58,7 @@ import math
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import replace
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -72,12 +72,9 @@ from sara_app.safety.pfl import PflCheck, PflResult
 from sara_app.safety.pfl_cycle import CompiledCycle
 from sara_app.safety.pfl_link_states import PathLinkStates
 from sara_app.safety.pfl_scaling import PflCycle, SpeedScaling
-from sara_app.safety.shield import CycleResult, Humans, Shield, ShieldSettings
+from sara_app.safety.settings import PflSettings, ShieldSettings
+from sara_app.safety.shield import CycleResult, Humans, Shield
 from sara_app.safety.thresholds import ThresholdSet, load_thresholds
-
-if TYPE_CHECKING:
-    from sara_app.scenario import PflSpec
-
 
 __all__ = ["G_MARGIN", "PflCycle", "PflShield", "SpeedScaling", "part_capsules"]
 
@@ -85,10 +82,11 @@ __all__ = ["G_MARGIN", "PflCycle", "PflShield", "SpeedScaling", "part_capsules"]
 class PflShield(Shield):
     """PFL shield with speed scaling around a :class:`PathFollower` (which it owns).
 
-    ``spec``: a :class:`sara_app.scenario.PflSpec` (thresholds set name, threshold edits,
-    contact shape per link, ``min_speed_scale``); ``boxes``: the environment as ``T_world_box
-    (B, 4, 4)``, ``half_extents_m (B, 3)``. Raises :class:`ParameterError` for models or a robot
-    the compiled check cannot compute (:class:`~sara_app.safety.pfl_cycle.CompiledCycle`).
+    ``spec``: the mode's :class:`~sara_app.safety.settings.PflSettings` (thresholds set name,
+    threshold edits, contact shape per link, ``min_speed_scale``); ``boxes``: the environment as
+    ``T_world_box (B, 4, 4)``, ``half_extents_m (B, 3)``. Raises :class:`ParameterError` for models
+    or a robot the compiled check cannot compute
+    (:class:`~sara_app.safety.pfl_cycle.CompiledCycle`).
     """
 
     safety_mode = "pfl"
@@ -99,16 +97,12 @@ class PflShield(Shield):
         follower: PathFollower,
         reach: HumanReach,
         settings: ShieldSettings | None = None,
-        spec: PflSpec | None = None,
+        spec: PflSettings | None = None,
         boxes: tuple[np.ndarray, np.ndarray] | None = None,
         scaling: SpeedScaling | None = None,
     ) -> None:
         super().__init__(robot, follower, reach, settings)
-        if spec is None:
-            from sara_app.scenario import PflSpec
-
-            spec = PflSpec()
-        self.spec = spec
+        self.spec = spec = spec or PflSettings()
         self.scaling = scaling or SpeedScaling()
         ts = load_thresholds(spec.thresholds)
         self.above_source: list[str] = []

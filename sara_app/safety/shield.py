@@ -31,13 +31,13 @@ from typing import Any
 
 import numpy as np
 
-from sara_app.bus.messages import FUTURE_TOLERANCE_S
 from sara_app.errors import ParameterError, SaraError
 from sara_app.human.reach import MODELS, HumanReach
 from sara_app.robot.model import RobotModel
 from sara_app.robot.occupancy import RobotOccupancy
 from sara_app.robot.shielded import ShieldedTrajectory, shielded_trajectory
 from sara_app.robot.trajectory import JointState, PathFollower
+from sara_app.safety.settings import FUTURE_TOLERANCE_S, ShieldSettings
 from sara_app.safety.ssm import SsmResult, SsmVerifier, body_distance
 
 MODES = ("intended", "failsafe", "rest", "fault")
@@ -66,48 +66,6 @@ class HumanState:
         """A person announced but not measured yet (a fault until the first measurement)."""
         J = n_joints
         return cls(human_id, np.zeros((J, 3)), np.zeros((J, 3)), np.full(J, np.inf), None)
-
-
-@dataclass
-class ShieldSettings:
-    dt_s: float = 0.004
-    max_interval_s: float = 0.02
-    models: tuple[str, ...] = ("pos", "vel", "acc")
-    tracking_tol_rad: float = 0.005
-    skeleton_timeout_s: float = 0.2
-    future_tolerance_s: float = FUTURE_TOLERANCE_S
-    """How far a skeleton's stamp may lie ahead of the cell clock before it is a fault."""
-
-    def check(self) -> None:
-        for name in ("dt_s", "max_interval_s", "tracking_tol_rad", "skeleton_timeout_s"):
-            val = getattr(self, name)
-            if not (isinstance(val, int | float) and math.isfinite(val) and val > 0):
-                raise ParameterError(f"shield setting {name} = {val!r}; expected a value > 0")
-
-
-@dataclass(frozen=True)
-class SsmScaling:
-    """SSM's speed scaling. Each cycle first checks the trajectory at full path speed; when that
-    check fails it plans again at ``cut * min(cap, the failed plan's largest path speed)`` (a
-    shorter stop, smaller sets), at most ``max_replans`` times, never below ``min_speed_scale``
-    times the admissible speed at the robot (there it brakes on the held failsafe, as without
-    scaling). Measured in closed loop (``docs/measurements/2026-11-25-combined-model.md``):
-    close_worker 5.67 -> 4.64 s with these values, the other scenarios unchanged; a slower
-    return to full speed (x1.5 per verified cycle) or a deeper cut (0.5) made them slower than
-    braking."""
-
-    cut: float = 0.9
-    max_replans: int = 2
-    min_speed_scale: float = 0.05
-
-    def __post_init__(self) -> None:
-        if not (0.0 < self.cut < 1.0 and self.max_replans >= 0
-                and 0.0 <= self.min_speed_scale <= 1.0):  # fmt: skip
-            raise ParameterError(
-                f"SSM scaling cut = {self.cut}, max_replans = {self.max_replans}, "
-                f"min_speed_scale = {self.min_speed_scale}; expected 0 < cut < 1, max_replans "
-                ">= 0, 0 <= min_speed_scale <= 1"
-            )
 
 
 @dataclass
@@ -157,10 +115,8 @@ class Shield:
         follower: PathFollower,
         reach: HumanReach,
         settings: ShieldSettings | None = None,
-        ssm_scaling: SsmScaling | None = None,
     ) -> None:
         self.settings = s = settings or ShieldSettings()
-        s.check()
         self.robot = robot
         self.follower = follower
         self.reach = reach
@@ -175,7 +131,6 @@ class Shield:
         self.cycles = 0
         self.fault_cycles = 0
         self.failsafe_cycles = 0
-        self.ssm_scaling = ssm_scaling or SsmScaling()
         self._scale = 1.0
 
     @property
@@ -297,7 +252,7 @@ class Shield:
                 faults.append(f"human {h.id!r}: velocity error bound invalid")
             elif age > s.skeleton_timeout_s:
                 faults.append(f"human {h.id!r}: skeleton {age:.3f} s old > {s.skeleton_timeout_s}")
-            elif age < -s.future_tolerance_s:
+            elif age < -FUTURE_TOLERANCE_S:
                 faults.append(f"human {h.id!r}: skeleton stamped {-age:.4f} s in the future")
             else:
                 ok.append(i)
@@ -413,14 +368,14 @@ class Shield:
         self, hum: Humans | None
     ) -> tuple[ShieldedTrajectory, np.ndarray, np.ndarray, bool]:
         """Plan and verify one shielded trajectory (SSM) with speed scaling
-        (:class:`SsmScaling`): a check that fails at full path speed is planned again at a lower
-        path-speed cap and checked again. Only a verified trajectory is committed, as without
-        scaling. ``self._res`` keeps the last check's details."""
+        (:class:`~sara_app.safety.settings.SsmSettings`): a check that fails at full path speed is
+        planned again at a lower path-speed cap and checked again. Only a verified trajectory is
+        committed, as without scaling. ``self._res`` keeps the last check's details."""
         self._scale = 1.0
         traj, ends, radius = self._shielded()
         if hum is None:  # nobody in the cell
             return traj, ends, radius, True
-        sc = self.ssm_scaling
+        sc = self.settings.ssm
         y, v, dv, age, widen = hum
         res = self.verifier.verify(y, v, dv, age, traj.times, ends, radius, widen)
         if not res.safe and sc.max_replans:

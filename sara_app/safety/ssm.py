@@ -8,7 +8,7 @@ trajectory is safe when every interval is safe for every human. This is sound ex
 enabled model is sound for the human's motion (its parameters bound it): with "any model
 free", one unsound model makes the verdict unsound.
 
-Hot path: one compiled call for every person (:func:`~sara_app.safety.ssm_kernel.ssm_kernel`):
+Hot path: one compiled call for every person (:func:`~sara_app.safety.ssm_kernels.ssm_kernel`):
 per person and model, the model's capsules from the person's measurement time against every
 link capsule of the intervals still to clear (bounding spheres prune, exact segment distances
 decide). Models are tried in the given order and only for intervals that no earlier model has
@@ -22,10 +22,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from sara_app.errors import InputError, UnknownNameError
-from sara_app.geometry_kernels import pair_distances
+from sara_app.geometry.shape_kernels import pair_distances
 from sara_app.human.reach import MODELS, HumanReach, part_capsules
 from sara_app.human.reach_kernels import KINDS
-from sara_app.safety.ssm_kernel import KIND_ARM, ssm_kernel
+from sara_app.safety.ssm_kernels import KIND_ARM, ssm_kernel
 
 _CODES = {**KINDS, "arm": KIND_ARM}
 

@@ -1,7 +1,7 @@
 """The compiled SSM check of one shielded trajectory against every person: for each person, the
 models in order over the intervals not cleared yet, each model's capsules (:func:`person_sets`,
 from that person's measurement time) against the robot's capsules per interval
-(:func:`~sara_app.geometry_kernels.capsule_sets_check`).
+(:func:`~sara_app.geometry.shape_kernels.capsule_sets_check`).
 
 The verdict is per body part: part ``p`` is clear on interval ``k`` when some model's capsule
 for THAT part (``part_maps[m, p]``) is free of the robot there; the interval is clear when every
@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 from numba import njit, types
 
-from sara_app import geometry_kernels
-from sara_app.geometry_kernels import capsule_sets_check, segment_closest
+from sara_app.geometry import shape_kernels
+from sara_app.geometry.shape_kernels import capsule_sets_check, segment_closest
 from sara_app.human import reach_kernels
 from sara_app.human.reach_kernels import ACC, POS, STATIC, person_sets
 from sara_app.kernel_types import B1, F8, I8, RO, ROI1, ROI2, WB3, W
@@ -62,7 +62,7 @@ def _touching(
 
 def _make_kernel() -> Any:
     """Build :func:`ssm_kernel` with its callees' source digests in the closure."""
-    sources = "".join(source_digest(m) for m in (geometry_kernels, reach_kernels))
+    sources = "".join(source_digest(m) for m in (shape_kernels, reach_kernels))
 
     @njit(
         B1(HUMAN, CONSTANTS, ROI1, ROI2, ARM, RO[1], RO[4], RO[2], WB3, WB3, W[2], WB3),

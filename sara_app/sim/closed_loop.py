@@ -1,7 +1,7 @@
 """One closed-loop run of a scenario, summarised for people: the evidence report's per-mode
 runs and the dashboard's what-if runs.
 
-A run steps :class:`~sara_app.sim.Simulation` (the real shield, sensor delay and noise,
+A run steps :class:`~sara_app.sim.simulator.Simulation` (the real shield, sensor delay and noise,
 ground-truth collision and contact checks) and returns the metrics a safety engineer compares:
 time to goal, share of cycles the shield intervened or held the failsafe, the smallest true
 separation, collisions while moving and harmful contacts; plus a series (separation, verdict)
@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from sara_app.scenario import Scenario
-from sara_app.sim import Simulation
+from sara_app.sim.simulator import Simulation
 
 SERIES_STEP = 5
 """Every this many cycles a point of the series (50 Hz at the shipped 250 Hz cycle)."""

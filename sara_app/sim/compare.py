@@ -1,7 +1,7 @@
 """The safety modes side by side: every scenario run in closed loop under SSM, PFL and JSSA.
 
-Each run is a :class:`~sara_app.sim.Simulation` of the scenario with ``shield.mode`` replaced,
-until the task's goal or the duration. Per run (:class:`ModeRow`):
+Each run is a :class:`~sara_app.sim.simulator.Simulation` of the scenario with ``shield.mode``
+replaced, until the task's goal or the duration. Per run (:class:`ModeRow`):
 
 - minimum true separation while the robot moves (truth robot, true body parts; m);
 - time to goal (s; ``None``: not reached);
@@ -33,7 +33,7 @@ from sara_app.safety.ssm import body_distance
 from sara_app.scenario import Scenario, load_scenario, parse_scenario, scenario_names
 
 if TYPE_CHECKING:
-    from sara_app.sim import SimMetrics
+    from sara_app.sim.simulator import SimMetrics
 
 MODES = ("ssm", "pfl", "jssa")
 ACC_TOL_MPS2 = 0.5
@@ -115,7 +115,7 @@ def run_mode(
     jssa_constraints: str | None = None,
 ) -> ModeRow:
     """One closed-loop run of ``sc`` under ``mode`` (until the goal or the duration)."""
-    from sara_app.sim import Simulation
+    from sara_app.sim.simulator import Simulation
 
     row = ModeRow(sc.name, mode)
     try:

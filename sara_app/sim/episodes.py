@@ -6,7 +6,7 @@ strategy respects: a 'limbs' adversary stretches its limbs, so R_POS and the arm
 ``mode="pfl"`` runs the same draws with the PFL shield and a table in front of the robot (so
 clamping against the environment is possible); contacts are then allowed and the count that
 must stay zero is ``harmful`` (energy at or above the threshold of the contact's actual class,
-:class:`sara_app.sim.ContactTruth`).
+:class:`sara_app.sim.simulator.ContactTruth`).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import numpy as np
 
 from sara_app.robot.model import load_robot
 from sara_app.scenario import Scenario, parse_scenario
-from sara_app.sim import SimMetrics, Simulation
+from sara_app.sim.simulator import SimMetrics, Simulation
 
 TABLE = {"name": "table", "center_m": [0.65, 0.0, 0.1], "size_m": [0.5, 1.6, 0.2]}
 

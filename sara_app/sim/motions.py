@@ -12,7 +12,7 @@ from typing import Protocol
 import numpy as np
 
 from sara_app.errors import ParameterError
-from sara_app.geometry import segment_segment_closest
+from sara_app.geometry.shapes import segment_segment_closest
 from sara_app.human.params import ReachParams
 from sara_app.human.recordings import Recording, load_recording
 from sara_app.human.scripted import ScriptedMotion, build_motion, joints, standing

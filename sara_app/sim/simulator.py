@@ -31,19 +31,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sara_app.cell import build_cell, environment_boxes
-from sara_app.geometry import capsule_box_distances, segment_pair_distances
+from sara_app.cell.build import build_cell, environment_boxes
+from sara_app.cell.intake import Track, take_measurement, track_for
+from sara_app.geometry.shapes import capsule_box_distances, segment_pair_distances
 from sara_app.human.glitches import Glitches
-from sara_app.human.intake import Intake
-from sara_app.human.motions import HumanMotion, make_motion, measured
-from sara_app.human.widening import widening
 from sara_app.robot.energy import LinkMotion
 from sara_app.robot.model import RobotModel
-from sara_app.safety.shield import CycleResult, HumanState
+from sara_app.safety.settings import PflSettings
+from sara_app.safety.shield import CycleResult
 from sara_app.safety.ssm import body_distance
 from sara_app.safety.thresholds import ThresholdSet, load_thresholds, threshold_arrays
 from sara_app.safety.topology import human_safe_matrix, unclampable_matrix
-from sara_app.scenario import PflSpec, Scenario
+from sara_app.scenario import Scenario
+from sara_app.sim.motions import HumanMotion, make_motion, measured
 
 _MOVING_RAD_S = 1e-6
 
@@ -53,9 +53,8 @@ class _Sensor:
     rate_hz: float
     noise_m: float
     next_s: float
-    intake: Intake
     glitches: Glitches
-    state: HumanState
+    track: Track
 
 
 @dataclass
@@ -114,7 +113,7 @@ class SimMetrics:
         ]
 
 
-def pfl_thresholds(spec: PflSpec) -> ThresholdSet:
+def pfl_thresholds(spec: PflSettings) -> ThresholdSet:
     """The threshold set of a scenario's PFL settings, its edits applied."""
     ts = load_thresholds(spec.thresholds)
     for o in spec.overrides:
@@ -137,7 +136,7 @@ class ContactTruth:
     """Ground truth of PFL contacts for ``n_humans`` people (see the module notes).
 
     ``part_joints (P, 2)``, ``half_th (P,)`` m, ``part_names (P,)`` of the skeleton; thresholds
-    from ``spec`` (a scenario's :class:`PflSpec`); ``boxes`` the environment
+    from ``spec`` (a scenario's :class:`PflSettings`); ``boxes`` the environment
     ``(T_world_box (B, 4, 4), half_extents_m (B, 3))``.
     """
 
@@ -148,7 +147,7 @@ class ContactTruth:
         half_th: np.ndarray,
         part_names: tuple[str, ...],
         n_humans: int,
-        spec: PflSpec,
+        spec: PflSettings,
         boxes: tuple[np.ndarray, np.ndarray],
     ) -> None:
         H, P = n_humans, len(part_names)
@@ -228,7 +227,6 @@ class Simulation:
         )
         self.cell = cell
         self.pass_index = 0
-        ps = cell.param_set
         self.params = cell.params
         reach = cell.shield.reach
         self.shield = cell.shield
@@ -236,16 +234,13 @@ class Simulation:
         self.dt = s.dt_s
         self.rng = np.random.default_rng(sc.sim.seed)
         self.motions: list[HumanMotion] = [make_motion(h, self.params) for h in sc.humans]
-        J = reach.skeleton.n_joints
-        p, gate = self.params, sc.inputs.gate.intake()
         self.sensors = [
             _Sensor(
                 h.sensor.rate_hz,
                 h.sensor.noise_m,
                 0.0,
-                Intake(ps.delta_y_m, p.v_max_mps, p.a_max_mps2, gate),
                 Glitches(h.sensor.glitches),
-                HumanState.unmeasured(h.id, J),
+                track_for(cell, h.id),
             )
             for h in sc.humans
         ]
@@ -300,15 +295,9 @@ class Simulation:
         y = self._hist_y[i][k]
         y = sen.glitches.apply(t_m, measured(y, sen.noise_m, self.rng))
         stamp = t_m + self.params.delay_s
-        if sen.state.stamp_s is not None and stamp <= sen.state.stamp_s:
+        if sen.track.state.stamp_s is not None and stamp <= sen.track.state.stamp_s:
             return
-        taken = sen.intake.take(stamp, y, self.params.delta_y_m, len(y))
-        if taken is None:  # a joint distrusted too long: the skeleton is refused, the person ages
-            return
-        g, v, dv = taken
-        sen.state.y, sen.state.v, sen.state.dv = g.y.copy(), v.copy(), dv.copy()
-        sen.state.widen_m = widening(self.shield.reach, g.extra_m, True) if g.held else None
-        sen.state.stamp_s = stamp
+        take_measurement(self.cell, sen.track, stamp, y)  # refused: the person ages
 
     def _collide(self, q: np.ndarray, v: np.ndarray, poses: list[np.ndarray], moving: bool) -> None:
         if not poses:
@@ -360,9 +349,9 @@ class Simulation:
         moving = bool(np.max(np.abs(v), initial=0.0) > _MOVING_RAD_S)
         self.separation_m = math.inf
         self._collide(q, v, poses, moving)
-        faults = [f for f in (s.intake.fault(s.state.id) for s in self.sensors) if f]
+        faults = [f for f in (s.track.intake.fault(s.track.state.id) for s in self.sensors) if f]
         res = self.shield.cycle(
-            t, [s.state for s in self.sensors], None, input_faults=faults, want_distance=False
+            t, [s.track.state for s in self.sensors], None, input_faults=faults, want_distance=False
         )
         self.last = res
         self._scale_sum += res.speed_scale
@@ -429,6 +418,6 @@ class Simulation:
     def tracking_counts(self) -> dict[str, int]:
         out: dict[str, int] = {}
         for s in self.sensors:
-            for k, v in s.intake.counts().items():
+            for k, v in s.track.intake.counts().items():
                 out[k] = out.get(k, 0) + v
         return out

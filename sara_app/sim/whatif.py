@@ -2,9 +2,9 @@
 run offline beside the scenario in force, so the safety engineer sees what the edit does to
 safety and throughput before applying it.
 
-Both runs are the same closed loop (:func:`~sara_app.closed_loop.run_closed_loop`, same seed,
+Both runs are the same closed loop (:func:`~sara_app.sim.closed_loop.run_closed_loop`, same seed,
 same duration); the edited one keeps frames to scrub through in the dashboard. Runs happen in a
-background process at the lowest CPU priority (:mod:`sara_app.jobs`), never in the worker.
+background process at the lowest CPU priority (:mod:`sara_app.ops.jobs`), never in the worker.
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from sara_app.closed_loop import run_closed_loop
 from sara_app.scenario import Scenario
+from sara_app.sim.closed_loop import run_closed_loop
 
 COMPARED: tuple[tuple[str, str], ...] = (
     ("time_to_goal_s", "time to goal (s)"),

@@ -20,7 +20,8 @@ import numpy as np
 
 from sara_app.robot.model import RobotModel
 from sara_app.safety.jssa import JssaController, JssaParams
-from sara_app.safety.jssa_index import index_terms, linear_constraints, predict_delta, safety_index
+from sara_app.safety.jssa_index import index_terms, predict_delta, safety_index
+from sara_app.safety.jssa_kernels import constraint_terms
 
 HUMAN_RADIUS_M = 0.05
 """Radius of the sampled human capsule (an arm, Schepp et al. 2022 Table I thickness 0.1 m)."""
@@ -119,11 +120,16 @@ def _min_rate(
     hi: np.ndarray,
 ) -> float:
     """``(phi_{k+1}(u*) - phi_k) / tau`` with ``u*`` the vertex minimising the linearisation."""
-    d, d1, d2 = index_terms(p_r - p_o, v_r - v_o, a_r, r_sum)
-    phi_k = float(safety_index(d, d1, d2, p.d_min_m, p.lambda_1, p.lambda_2)[0])
-    _, g = linear_constraints(
-        p_r, v_r, a_r, c_r, J_r, p_o, v_o, r_sum, tau, p.d_min_m, p.lambda_1, p.lambda_2
+    K, n = J_r.shape[0], J_r.shape[2]
+    d, d1, d2, phi, phi0 = (np.empty(K) for _ in range(5))
+    g = np.empty((K, n))
+    # the live filter's own linearisation (sara_app.safety.jssa.JssaController), material points
+    p_r, v_r, a_r, c_r, J_r, p_o, v_o, r_sum = (
+        np.ascontiguousarray(x, dtype=float) for x in (p_r, v_r, a_r, c_r, J_r, p_o, v_o, r_sum)
     )
+    constraint_terms(p_r, v_r, a_r, c_r, J_r, p_o, v_o, r_sum, np.zeros(K), float(tau),
+                     p.d_min_m, p.lambda_1, p.lambda_2, d, d1, d2, phi, phi0, g)  # fmt: skip
+    phi_k = float(phi[0])
     u = np.where(g[0] > 0.0, lo, hi)
     jerk = c_r + np.einsum("kin,n->ki", J_r, u)
     dp, dv, da = predict_delta(p_r, v_r, a_r, jerk, p_o, v_o, tau)

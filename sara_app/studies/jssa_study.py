@@ -26,7 +26,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from sara_app.geometry import capsule_distances
+from sara_app.geometry.shapes import capsule_distances
 from sara_app.human.scripted import PELVIS_Z_M
 from sara_app.robot.model import RobotModel, load_robot
 from sara_app.safety.jssa import JssaController, JssaParams, integrate
