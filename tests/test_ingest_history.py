@@ -4,7 +4,7 @@ another person, whole-skeleton freezes with fresh stamps, gaps, clock skew withi
 tolerance, one-frame spikes), the verdict for that person is at least as conservative as for a
 fresh person measured at P over the same time, in SSM and PFL with the default models.
 
-Both people go through :func:`sara_app.runtime.ingest.ingest_skeleton`, the worker's own path; the
+Both people go through :func:`sara_app.runtime.people.ingest_skeleton`, the worker's own path; the
 verdicts are the shield's, on the same robot states (several points of the task, moving).
 Failed on the code before the fix: a joint the gate blamed for a bone after a jump was held at
 its old place (the measurement discarded), and the velocity measured across a whole-skeleton
@@ -28,7 +28,7 @@ from sara_app.bus.messages import SkeletonMsg
 from sara_app.cell.build import Cell, build_cell
 from sara_app.cell.intake import Track
 from sara_app.human.intake import SETTLE_S
-from sara_app.runtime.ingest import ingest_skeleton
+from sara_app.runtime.people import ingest_skeleton
 from sara_app.safety.shield import Shield
 from sara_app.scenario import load_scenario, parse_scenario
 

@@ -61,8 +61,8 @@ def live():
     with Bus.router(port), Bus.client(port) as wb, Bus.client(port) as tb:
         worker = CellWorker(CELL, load_scenario("standing_beside_path"), wb, loop_task=False)
         sent: list[tuple[str, Any]] = []
-        for name in ("pub_verdict", "pub_cmd"):  # record what the worker hands to zenoh
-            pub = getattr(worker, name)
+        for name in ("verdict", "command"):  # record what the worker hands to zenoh
+            pub = getattr(worker.io, name)
             real = pub.put
 
             def put(msg: Any, real: Any = real, name: str = name) -> bool:
@@ -88,7 +88,7 @@ def test_every_cycle_one_verdict_then_one_command(live, batch, frame) -> None:
             worker.presence.frame("main", now, [])
         sent.clear()
         res = worker.step(now)
-        assert [n for n, _ in sent] == ["pub_verdict", "pub_cmd"]
+        assert [n for n, _ in sent] == ["verdict", "command"]
         verdict, command = sent[0][1], sent[1][1]
         assert isinstance(verdict, VerdictMsg) and isinstance(command, RobotCommandMsg)
         assert verdict.mode == command.mode == res.mode

@@ -1,5 +1,5 @@
 """One person's measurement into the shield's view of them: the live worker
-(:mod:`sara_app.runtime.ingest`, from a skeleton message) and the simulator's sensors
+(:mod:`sara_app.runtime.people`, from a skeleton message) and the simulator's sensors
 (:mod:`sara_app.sim.simulator`) take measurements through this one path.
 
 A measurement is range-checked, taken by the person's intake (the tracking gate, the velocity

@@ -1,5 +1,7 @@
-"""What the worker publishes for display about a PFL or JSSA cycle (Thumm et al. 2024 contact
-classes and link energies; Liu et al. 2022 safety index and critical pair), as bus messages.
+"""What the worker publishes for display: the people's sets and the robot's swept capsules
+(:func:`occupancy_msg`), the contact classes and link energies of a PFL cycle (Thumm et al.
+2024) or the safety index and critical pair of a JSSA cycle (Liu et al. 2022), the scenario in
+force and the cell's status, as bus messages.
 
 PFL results are ``(K, L, P)`` over intervals, robot links and body parts; ``P`` is the usable
 humans' body parts, human-major (``part_labels`` gives each one's human id and part name).
@@ -7,13 +9,30 @@ humans' body parts, human-major (``part_labels`` gives each one's human id and p
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any, cast
 
 import numpy as np
 
-from sara_app.bus.messages import ContactMsg, JssaMsg, LinkEnergyMsg
+from sara_app.bus.messages import (
+    CapsulesMsg,
+    ContactMsg,
+    HumanOccupancyMsg,
+    JssaMsg,
+    LinkEnergyMsg,
+    OccupancyMsg,
+    RobotOccupancyMsg,
+    ScenarioStateMsg,
+    StatusMsg,
+)
+from sara_app.cell.build import Cell
+from sara_app.cell.intake import Track
 from sara_app.dashboard.frame import EFFECTIVE
+from sara_app.errors import SaraError
+from sara_app.human.reach import MODELS, part_capsules
+from sara_app.human.widening import per_capsule
+from sara_app.safety.shield import CycleResult
+from sara_app.safety.thresholds import link_shapes
 
 __all__ = ["EFFECTIVE", "effective_set", "jssa_state", "part_labels", "pfl_contacts", "pfl_links"]
 
@@ -145,4 +164,123 @@ def jssa_state(jssa: Any, link_names: Sequence[str], d_min_m: float) -> JssaMsg:
         other_point_m=_point(jssa.other_point),
         distance_m=_finite_or_none(float(jssa.distance_m)),
         d_min_m=d_min_m,
+    )
+
+
+def occupancy_msg(
+    cell: Cell,
+    tracks: Iterable[Track],
+    res: CycleResult,
+    now: float,
+    next_seq: Callable[[], int],
+    errors: Callable[..., None],
+) -> OccupancyMsg:
+    """Human sets over the whole shielded trajectory (one interval from the measurement to
+    its end) for every enabled model, widened per body part as verified, their effective set,
+    and the robot's interval capsules; with the mode's details (:func:`mode_details`)."""
+    humans = []
+    shield = cell.shield
+    reach = shield.reach
+    horizon = 0.0 if res.trajectory is None else res.trajectory.duration_s
+    for t in tracks:
+        st = t.state
+        if st.stamp_s is None:
+            continue
+        age = max(now - st.stamp_s, 0.0)
+        models = {}
+        per_part = []  # (ends, radius, part map) of the models that map body parts
+        for name in shield.verifier.models:
+            try:
+                o = reach.model(
+                    name, st.y[None], st.v[None], st.dv[None],
+                    np.array([age]), np.array([age + horizon]),
+                )  # fmt: skip
+                part_map = part_capsules(reach, name)
+            except SaraError:
+                continue
+            radius = o.radius[0, 0]
+            if st.widen_m is not None:  # as verified: widened per body part
+                row = st.widen_m[MODELS.index(name)]
+                radius = radius + per_capsule(row, part_map, len(radius))
+            if np.all(np.isfinite(radius)):
+                models[name] = CapsulesMsg.from_arrays(o.ends[0, 0], radius)
+                per_part.append((o.ends[0, 0], radius, part_map))
+        eff = effective_set(per_part)
+        if eff is not None:
+            models[EFFECTIVE] = CapsulesMsg.from_arrays(*eff)
+        humans.append(
+            HumanOccupancyMsg(id=st.id, kind="full", joints_m=st.y.ravel().tolist(), models=models)
+        )
+    robot = None
+    if res.robot_ends is not None and res.robot_radius is not None:
+        robot = RobotOccupancyMsg(
+            link_names=list(cell.robot.link_names),
+            n_intervals=res.robot_ends.shape[0],
+            capsules=CapsulesMsg.from_arrays(res.robot_ends, res.robot_radius),
+            verified=res.verified,
+        )
+    msg = OccupancyMsg(seq=next_seq(), stamp_s=now, humans=humans, robot=robot)
+    return mode_details(cell, msg, res, errors)
+
+
+def mode_details(
+    cell: Cell, msg: OccupancyMsg, res: CycleResult, errors: Callable[..., None]
+) -> OccupancyMsg:
+    """``msg`` with the PFL contacts and link energies, or the JSSA state, of the cycle (what
+    the cycle's result carries; display only: a detail that cannot be built is left out)."""
+    links = cell.robot.link_names
+    sc = cell.scenario
+    extra: dict[str, Any] = {}
+    try:
+        if res.pfl is not None:
+            pfl = res.pfl
+            if res.trajectory is not None:
+                pfl = cell.shield.with_energies(pfl, res.trajectory)  # skipped when clear
+            labels = part_labels(res.human_ids, cell.shield.reach.skeleton.parts)
+            shapes = link_shapes(links, sc.shield.pfl.link_shapes)
+            extra["contacts"] = pfl_contacts(pfl, links, labels)
+            extra["links"] = pfl_links(pfl, links, labels, shapes)
+        if res.jssa is not None:
+            extra["jssa"] = jssa_state(res.jssa, links, sc.shield.jssa.d_min_m)
+    except (SaraError, ValueError, IndexError) as e:  # display only: never stop the loop
+        errors("display details dropped", str(e))
+        return msg
+    return msg.model_copy(update=extra) if extra else msg
+
+
+def scenario_msg(name: str, cell: Cell, revision: int, now: float, seq: int) -> ScenarioStateMsg:
+    """The scenario in force of cell ``name`` at edit ``revision``."""
+    return ScenarioStateMsg(
+        seq=seq,
+        stamp_s=now,
+        cell=name,
+        revision=revision,
+        scenario=cell.scenario.model_dump(mode="json"),
+    )
+
+
+def status_msg(
+    name: str,
+    cell: Cell,
+    state: str,
+    now: float,
+    seq: int,
+    *,
+    uptime_s: float,
+    humans: Iterable[str],
+    cycle_us: Sequence[float],
+) -> StatusMsg:
+    """The status of cell ``name``: its state, scenario, people, cycle times and checksum."""
+    cu = np.array(cycle_us) if len(cycle_us) else None
+    return StatusMsg(
+        seq=seq,
+        stamp_s=now,
+        cell=name,
+        state=state,  # type: ignore[arg-type]
+        scenario=cell.scenario.name,
+        uptime_s=max(uptime_s, 0.0),
+        humans=sorted(humans),
+        cycle_time_p50_us=None if cu is None else float(np.median(cu)),
+        cycle_time_p99_us=None if cu is None else float(np.percentile(cu, 99)),
+        config_sha256=cell.checksum,
     )

@@ -1,4 +1,5 @@
-"""Scenario edits of a live cell worker, built off the control loop.
+"""Scenario edits of a live cell worker: built off the control loop, swapped in between two
+cycles (never half-applied), kept on disk and announced.
 
 Building a cell can take seconds (a safety mode's compiled kernels are loaded, or compiled on a
 fresh checkout): done in the control loop it would stop the commands for that long. A
@@ -6,6 +7,9 @@ fresh checkout): done in the control loop it would stop the commands for that lo
 in the order they arrived; the loop takes finished builds each cycle and swaps them in (the
 robot's follower and failsafe carry over there, in the loop's thread). At most
 ``MAX_PENDING_EDITS`` wait; more are refused at once (the editor is told, nothing is dropped).
+:class:`LiveEdits` holds the builds, the edit revision and the cell's state on disk
+(:class:`~sara_app.runtime.cell_state.CellState`: the edits survive a restart);
+:func:`carry_over` moves the robot's follower and failsafe into a new cell.
 """
 
 from __future__ import annotations
@@ -13,10 +17,15 @@ from __future__ import annotations
 import logging
 import queue
 import threading
+from collections.abc import Callable
+from pathlib import Path
 from typing import NamedTuple
 
+from sara_app.bus.messages import ParamsMsg
 from sara_app.cell.build import Cell, build_cell
 from sara_app.errors import SaraError
+from sara_app.runtime.bus_io import CellBus
+from sara_app.runtime.cell_state import CellState
 from sara_app.scenario import Scenario, check_against_robot, parse_scenario
 
 log = logging.getLogger("sara_app.worker")
@@ -82,3 +91,88 @@ class CellBuilder:
                 self._todo.put_nowait(None)
             except queue.Full:
                 pass  # a daemon thread: it ends with the process
+
+
+def carry_over(old: Cell, new: Cell) -> str | None:
+    """Prepare ``new`` to run from now on with the robot's follower and the failsafe it holds
+    carried over from ``old`` (verified under the old parameters: the new parameters and safety
+    mode take effect from the next verified step); None, or why ``new`` cannot run now."""
+    sc = new.scenario
+    same_robot = sc.robot == old.scenario.robot and sc.limits == old.scenario.limits
+    if not same_robot and not old.shield.at_rest:
+        return "robot, base pose or limits can change only while the robot is at rest"
+    if same_robot:
+        try:
+            new.shield.adopt(old.shield)
+            if sc.task != old.scenario.task:
+                new.shield.follower.replan(new.passes[0])
+        except SaraError as e:
+            return str(e)
+    return None
+
+
+class LiveEdits:
+    """The edits of cell ``cell_name`` started from ``origin`` (a scenario name or file): builds
+    in flight and finished, the edit ``revision`` and, with ``state_dir``, the state in force on
+    disk. ``errors`` logs a failure, rate-limited."""
+
+    def __init__(
+        self,
+        cell_name: str,
+        origin: str,
+        state_dir: str | Path | None,
+        errors: Callable[..., None],
+    ) -> None:
+        self.origin = origin
+        self.state = None if state_dir is None else CellState(state_dir, cell_name)
+        self.revision = 0
+        self.errors = errors
+        self.builder = CellBuilder()
+        self._waiting: list[Built] = []  # finished builds, in order, to swap in
+
+    def restored(self, scenario: Scenario) -> Scenario:
+        """The saved state in force of this cell when there is one for the same origin (the
+        edits survive a restart, ``revision`` with them), else ``scenario``."""
+        saved = None if self.state is None else self.state.load(self.origin)
+        if saved is None:
+            return scenario
+        try:
+            sc = parse_scenario(saved[0], str(self.state.path if self.state else ""))
+            check_against_robot(sc)
+        except SaraError as e:
+            log.error("saved cell state refused (%s): starting from the scenario", e)
+            return scenario
+        log.warning("restored the cell's edits (revision %d) from %s", saved[1],
+                    self.state.path if self.state else "")  # fmt: skip
+        self.revision = saved[1]
+        return sc
+
+    def persist(self, scenario: Scenario) -> str:
+        """Save the state in force; '' or why it could not be saved."""
+        if self.state is None:
+            return ""
+        try:
+            self.state.save(self.origin, scenario.model_dump(mode="json"), self.revision)
+        except OSError as e:
+            self.errors("saving the cell state failed", repr(e))
+            return f"applied, but NOT saved to {self.state.path}: {e}"
+        return ""
+
+    def drain(self, io: CellBus) -> None:
+        """Requested edits off the bus into the builder (refused at once when it is full),
+        finished builds into the queue of those to swap in."""
+        for d in io.params.drain().messages:
+            if isinstance(d.msg, ParamsMsg) and not self.builder.submit(
+                d.msg.request_id, d.msg.scenario
+            ):
+                io.ack(d.msg.request_id, False, f"busy: {MAX_PENDING_EDITS} edits pending")
+        self._waiting.extend(self.builder.done())  # built off the loop: swapped in by the loop
+
+    def take(self, swap: Callable[[Built], bool]) -> None:
+        """Hand the finished builds to ``swap`` in order; one that must wait (``swap`` returns
+        False) keeps its place and the ones behind it."""
+        while self._waiting and swap(self._waiting[0]):
+            self._waiting.pop(0)
+
+    def close(self) -> None:
+        self.builder.close()

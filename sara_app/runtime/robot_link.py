@@ -13,10 +13,12 @@ from __future__ import annotations
 
 import bisect
 from collections import deque
+from collections.abc import Callable
 
 import numpy as np
 
-from sara_app.bus.messages import RobotCommandMsg
+from sara_app.bus.messages import RobotCommandMsg, RobotStateMsg
+from sara_app.bus.session import Subscription
 from sara_app.robot.trajectory import JointState
 
 HISTORY = 256
@@ -34,6 +36,25 @@ class MeasuredRobot:
         self.problem: str | None = None
         self.commanded: deque[tuple[float, np.ndarray, RobotCommandMsg]] = deque(maxlen=HISTORY)
         """The commands sent: ``(set point time, set point, command)``, oldest first."""
+
+    def drain(self, sub: Subscription, n_dof: int, drop: Callable[[str], None]) -> None:
+        """The newest ``robot/state`` off ``sub``; a state of another number of joints is
+        dropped (``wrong_dof``) and is this robot's problem until a valid one arrives."""
+        got = sub.drain_latest()
+        for d in got.messages:
+            if not isinstance(d.msg, RobotStateMsg):
+                continue
+            if len(d.msg.q) != n_dof:
+                drop("wrong_dof")
+                self.problem = f"{len(d.msg.q)} joints received, robot has {n_dof}"
+                continue
+            self.state = JointState(
+                q=np.asarray(d.msg.q), v=np.asarray(d.msg.q_dot), a=np.zeros(n_dof)
+            )
+            self.stamp_s = d.msg.stamp_s
+            self.problem = None
+        if got.refused_keys and not got.messages:
+            self.problem = "the last message was refused (see dropped)"
 
     def sent(self, t_point_s: float, command: RobotCommandMsg) -> None:
         """The worker sent ``command``, whose set point is for time ``t_point_s``."""

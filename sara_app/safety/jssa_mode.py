@@ -134,6 +134,7 @@ class JssaMode(Shield):
     constraint was met under its own assumptions; it is not a verification."""
 
     safety_mode = "jssa"
+    holds_failsafe = False
 
     def __init__(
         self,

@@ -108,6 +108,12 @@ class Shield:
     trajectory, verify it; the commit/brake logic and the fault handling stay here)."""
 
     safety_mode = "ssm"
+    holds_failsafe = True
+    """Whether the mode holds a verified failsafe every cycle (JSSA does not: a switch from it to
+    another mode waits for the robot at rest, braking meanwhile: :attr:`halt_reason`)."""
+    halt_reason: str | None = None
+    """Set on a mode without a verified failsafe while a switch waits for rest (every cycle
+    brakes); the modes that hold a failsafe never need it."""
 
     def __init__(
         self,
@@ -151,6 +157,11 @@ class Shield:
         """One cycle along the held verified failsafe, outside :meth:`cycle` (the worker's last
         line of defence when a cycle raised)."""
         return self.follower.brake(self.settings.dt_s)
+
+    def with_energies(self, result: Any, traj: ShieldedTrajectory) -> Any:
+        """A contact check's ``result`` with the link energies over ``traj`` for display (PFL
+        fills them in where its check skipped them; the other modes have none to add)."""
+        return result
 
     def adopt(self, previous: Shield) -> None:
         """Take the robot over from the safety layer that ran it until now (same robot).

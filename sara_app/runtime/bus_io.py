@@ -1,0 +1,66 @@
+"""The cell worker's side of the bus: its subscriptions (skeletons, tracker frames, the robot's
+state, scenario edits, retirements), its publishers (command, verdict, occupancy, acks, the
+scenario in force, status) and one set of drop counters for every input (the contract's reasons,
+``dropped`` in the verdicts)."""
+
+from __future__ import annotations
+
+import time
+
+from sara_app.bus import keys
+from sara_app.bus.codec import Decoder
+from sara_app.bus.messages import ParamsAckMsg
+from sara_app.bus.session import Bus, Publisher
+from sara_app.errors import SaraError
+from sara_app.safety.settings import FUTURE_TOLERANCE_S
+
+SKELETON_QUEUE = 4096
+"""Skeleton samples queued between two drains (all people); each drain decodes only the newest
+of each key, so a flood on one key cannot crowd out another person's newest message."""
+
+
+class CellBus:
+    """The keys of cell ``cell`` on ``bus``. ``status`` is opened by the worker before it builds
+    its cell (it says ``starting`` meanwhile); the rest is declared here, after the build."""
+
+    def __init__(self, bus: Bus, cell: str, status: Publisher) -> None:
+        self.decoder = d = Decoder(max_future_s=FUTURE_TOLERANCE_S)
+        self.skeletons = bus.subscribe(keys.skeleton_keys(cell), d, capacity=SKELETON_QUEUE)
+        self.frames = bus.subscribe(keys.tracker_frame_keys(cell), d)
+        self.robot_state = bus.subscribe(keys.robot_state_key(cell), d)
+        self.params = bus.subscribe(keys.params_key(cell), d, fifo=True)
+        self.retire = bus.subscribe(keys.retire_key(cell), d, fifo=True)
+        self.command = bus.publisher(keys.robot_command_key(cell))
+        self.verdict = bus.publisher(keys.verdict_key(cell))
+        self.occupancy = bus.publisher(keys.occupancy_key(cell), express=False)
+        self.acks = bus.publisher(keys.params_ack_key(cell))
+        self.scenario = bus.publisher(keys.scenario_key(cell))
+        self.status = status
+
+    def drop(self, reason: str) -> None:
+        """Count one input refused for ``reason`` (a contract reason)."""
+        self.decoder.count(reason)
+
+    def dropped(self) -> dict[str, int]:
+        return dict(self.decoder.counts)
+
+    def ack(self, request_id: str, ok: bool, reason: str) -> None:
+        """Answer a scenario edit or a retirement."""
+        self.acks.put(
+            ParamsAckMsg(
+                seq=self.acks.next_seq(),
+                stamp_s=time.time(),
+                request_id=request_id,
+                accepted=ok,
+                reason=reason,
+            )
+        )
+
+
+def id_in(key_expr: str, kind: str) -> str | None:
+    """The id in a key of ``kind`` (a refused message's key), or None when it is not one."""
+    try:
+        k = keys.parse_key(key_expr)
+    except SaraError:
+        return None
+    return k.human_id if k.kind == kind else None

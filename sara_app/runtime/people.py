@@ -1,0 +1,115 @@
+"""The people's side of the worker's inputs: skeleton messages, tracker frames and retirements,
+taken off the bus each cycle into who is in the cell (:mod:`~sara_app.runtime.presence`) and
+each person's state.
+
+A skeleton message is decoded (joints mapped to the full skeleton, missing and low-confidence
+joints, stated uncertainties) and taken through the one path every measurement takes
+(:func:`sara_app.cell.intake.take_measurement`, the simulator's sensors take it too). The history
+property test drives :func:`ingest_skeleton` (``tests/test_ingest_history.py``), so what is
+tested is what runs. A message that cannot be taken makes its person unseen, never an exception
+out of the loop.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+
+import numpy as np
+
+from sara_app.bus.messages import RetireMsg, SkeletonMsg, TrackerFrameMsg
+from sara_app.cell.build import Cell
+from sara_app.cell.intake import Track, rewiden, take_measurement, track_for
+from sara_app.human.skeleton import full_body
+from sara_app.runtime.bus_io import CellBus, id_in
+from sara_app.runtime.presence import Presence
+
+log = logging.getLogger("sara_app.worker")
+
+
+def ingest_skeleton(cell: Cell, track: Track, msg: SkeletonMsg) -> str | None:
+    """Take ``msg`` into ``track``; None when taken, else the contract's reason for refusing
+    it (``out_of_range``, ``stamp_not_advancing``, ``tracking_inconsistent``, ``repeated``)."""
+    y, v = full_body(*msg.to_arrays())
+    missing, low = (np.pad(a, (0, len(y) - len(a))) for a in msg.joint_states())
+    return take_measurement(
+        cell, track, msg.stamp_s, y, v=v, missing=missing, low=low,
+        unc_m=msg.position_uncertainty_m, unc_v_mps=msg.velocity_uncertainty_mps,
+        legs_measured=msg.kind == "full",
+    )  # fmt: skip
+
+
+class People:
+    """Who is in the cell under ``cell`` (``presence``) and the inputs that say so. ``errors``
+    logs a failure, rate-limited."""
+
+    def __init__(self, cell: Cell, io: CellBus, errors: Callable[..., None]) -> None:
+        self.cell = cell
+        self.io = io
+        self.errors = errors
+        inp = cell.scenario.inputs
+        self.presence = Presence(
+            tuple(inp.trackers), inp.tracker_timeout_s, inp.max_people, self._new_track
+        )
+
+    def _new_track(self, human_id: str) -> Track:
+        return track_for(self.cell, human_id)
+
+    def take_skeleton(self, human_id: str, msg: SkeletonMsg) -> None:
+        track = self.presence.known(human_id, msg.stamp_s)
+        if track is None:
+            self.io.drop("too_many_people")
+            return
+        reason = ingest_skeleton(self.cell, track, msg)
+        if reason is not None:
+            self.io.drop(reason)
+
+    def drain(self, now: float) -> None:
+        """The newest skeleton of every person and the newest frame of every tracker."""
+        skel = self.io.skeletons.drain_latest()
+        for d in skel.messages:
+            if isinstance(d.msg, SkeletonMsg) and d.key.human_id:
+                try:
+                    self.take_skeleton(d.key.human_id, d.msg)
+                except Exception as e:  # noqa: BLE001 - this message only: the person is unseen
+                    self.errors("skeleton ingest failed", repr(e), e)
+                    self.io.drop("internal")
+                    self.presence.refused(d.key.human_id, now)
+        for key in skel.refused_keys:
+            hid = id_in(key, "skeleton")
+            if hid is not None:  # a refused message on a person's key: that person is unseen
+                self.presence.refused(hid, now)
+        frames = self.io.frames.drain_latest()
+        for d in frames.messages:
+            if isinstance(d.msg, TrackerFrameMsg) and d.key.human_id:
+                reason = self.presence.frame(d.key.human_id, d.msg.stamp_s, d.msg.people)
+                if reason is not None:
+                    self.io.drop(reason)
+
+    def drain_retirements(self) -> None:
+        """An operator's retirement of a person (positive evidence), answered."""
+        for d in self.io.retire.drain().messages:
+            if isinstance(d.msg, RetireMsg):
+                found = self.presence.retire(d.msg.human_id)
+                if found:
+                    log.warning("human %r retired by %r: %s", d.msg.human_id, d.msg.user,
+                                d.msg.reason)  # fmt: skip
+                else:  # rate-limited: anyone may send these
+                    self.errors("retire of an unknown person", repr(d.msg.human_id))
+                reason = "" if found else f"human {d.msg.human_id!r} is not known"
+                self.io.ack(d.msg.request_id, found, reason)
+
+    def adopt(self, new: Cell) -> None:
+        """Everyone stays known under a new cell, with their measurement and faults; their
+        velocity error bounds are re-derived under the new parameters from the next skeleton on
+        (until then the acceleration model is unusable for them: infinite bound)."""
+        self.cell = new
+        inp = new.scenario.inputs
+        self.presence.configure(
+            inp.trackers, inp.tracker_timeout_s, inp.max_people, self._new_track
+        )
+        p, gate = new.params, inp.gate.intake()
+        for t in self.presence.tracks.values():
+            t.intake.retune(p.delta_y_m, p.v_max_mps, p.a_max_mps2, gate)
+            t.state.dv = np.full(len(p.v_max_mps), np.inf)
+            rewiden(new, t)  # the same message under the new delta_y
