@@ -49,6 +49,7 @@ from sara_app.robot.model import JointLimits, RobotModel
 from sara_app.safety.jssa_kernels import constraint_terms, project_halfspace_box, sliding_terms
 from sara_app.safety.jssa_kinematics import PointKinematics
 from sara_app.safety.jssa_qp import FEAS_TOL, brake_jerk, project_polytope_box
+from sara_app.safety.settings import check_index_roots
 
 
 class JssaParams(BaseModel):
@@ -73,12 +74,7 @@ class JssaParams(BaseModel):
 
     @model_validator(mode="after")
     def _real_negative_roots(self) -> JssaParams:
-        # 1 + l1 s + l2 s^2 = 0 must have negative real roots (Liu et al. 2022 Sec. 3.1).
-        if self.lambda_1**2 < 4.0 * self.lambda_2:
-            raise ValueError(
-                f"lambda_1 = {self.lambda_1}, lambda_2 = {self.lambda_2}: 1 + l1 s + l2 s^2 has "
-                "complex roots; expected lambda_1^2 >= 4 lambda_2"
-            )
+        check_index_roots(self.lambda_1, self.lambda_2)
         if self.weights is not None and not all(np.isfinite(w) and w > 0 for w in self.weights):
             raise ValueError(f"weights = {self.weights}; expected positive finite values")
         return self

@@ -28,6 +28,16 @@ MAX_THRESHOLD_J = 10.0
 003 Table I (2 J). No body part's threshold can be set above it, confirmed or not."""
 
 
+def check_index_roots(lambda_1: float, lambda_2: float) -> None:
+    """Raise ValueError unless ``1 + lambda_1 s + lambda_2 s^2 = 0`` has negative real roots
+    (Liu et al. 2022 Sec. 3.1: the safety index's gains)."""
+    if lambda_1**2 < 4.0 * lambda_2:
+        raise ValueError(
+            f"lambda_1 = {lambda_1}, lambda_2 = {lambda_2}: 1 + l1 s + l2 s^2 has complex roots; "
+            "expected lambda_1^2 >= 4 lambda_2 (Liu et al. 2022 Sec. 3.1: negative real roots)"
+        )
+
+
 class ThresholdOverride(StrictFinite):
     """One edited entry of the threshold table (Thumm et al. 2024 Table I cell), in J."""
 
@@ -83,11 +93,7 @@ class JssaSettings(StrictFinite):
 
     @model_validator(mode="after")
     def _real_negative_roots(self) -> JssaSettings:
-        if self.lambda_1**2 < 4.0 * self.lambda_2:
-            raise ValueError(
-                f"lambda_1 = {self.lambda_1}, lambda_2 = {self.lambda_2}: expected "
-                "lambda_1^2 >= 4 lambda_2 (Liu et al. 2022 Sec. 3.1: negative real roots)"
-            )
+        check_index_roots(self.lambda_1, self.lambda_2)
         return self
 
 
