@@ -38,5 +38,5 @@ def test_a_person_faster_than_the_set_is_a_fault_and_no_collision() -> None:
     assert m.tracking["speed"] > 0
     assert m.collisions_moving == 0
     assert m.fault_cycles > 0
-    faults = sim.sensors[0].intake.monitor.last
+    faults = sim.sensors[0].track.intake.monitor.last
     assert faults and all(v.value > v.bound for v in faults)

@@ -4,6 +4,12 @@ Conventions: a capsule set is ``ends`` of shape ``(..., 2, 3)`` (segment end poi
 ``radius_m`` of shape ``(...)``; a ball is a capsule whose two ends coincide. Boxes are oriented:
 ``T_world_box`` of shape ``(..., 4, 4)`` and ``half_extents_m`` of shape ``(..., 3)``.
 All functions broadcast over leading axes and never loop in Python over capsules.
+
+Where each runs: these numpy functions serve everything outside the control cycle (fitting link
+capsules, containment and volume analysis, the dashboard, the simulator's ground truth, the JSSA
+study) and are the oracle of the compiled kernels. The control cycle runs
+:mod:`sara_app.geometry.shape_kernels` instead: the same mathematics written as loops, because
+at one cycle's sizes numpy spends most of its time in per-call overhead.
 """
 
 from __future__ import annotations
