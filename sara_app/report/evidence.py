@@ -38,6 +38,7 @@ from sara_app.human.recordings import load_recording
 from sara_app.ops.audit import AuditLog
 from sara_app.ops.threshold_edit import threshold_view
 from sara_app.report.stopping import stop_rows
+from sara_app.safety.settings import models_of_mode
 from sara_app.scenario import Scenario, parse_scenario
 from sara_app.sim.closed_loop import run_closed_loop
 from sara_app.sim.episodes import run_episodes
@@ -87,7 +88,7 @@ class Evidence:
 def _in_mode(sc: Scenario, mode: str) -> Scenario:
     """``sc`` in safety ``mode`` (PFL cannot use Pereira's arm model: dropped there)."""
     data = sc.model_dump(mode="json")
-    models = [m for m in data["shield"]["models"] if mode != "pfl" or m != "arm"]
+    models = models_of_mode(mode, data["shield"]["models"])
     data["shield"] = {**data["shield"], "mode": mode, "models": models or ["vel"]}
     return parse_scenario(data, f"{sc.name} in {mode}")
 

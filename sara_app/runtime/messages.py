@@ -40,9 +40,10 @@ class CycleMessages:
         """The held stop: absolute sample times ``(K+1,)`` s and positions ``(K+1, n)``."""
         self.last: JointState | None = None
 
-    def observe(self, now: float, res: CycleResult) -> None:
-        """Track the stop the follower holds after this cycle."""
-        if res.safety_mode == "jssa":
+    def observe(self, now: float, res: CycleResult, holds_failsafe: bool = True) -> None:
+        """Track the stop the follower holds after this cycle (none in a mode that holds no
+        verified failsafe: :attr:`Shield.holds_failsafe <sara_app.safety.shield.Shield>`)."""
+        if not holds_failsafe:
             self.held = None
         elif res.verified and res.trajectory is not None:
             traj = res.trajectory

@@ -250,7 +250,7 @@ class CellWorker:
         dt = self.shield.settings.dt_s
         seqs = (self.io.verdict.next_seq(), self.io.command.next_seq())
         try:
-            self.messages.observe(now, res)
+            self.messages.observe(now, res, self.shield.holds_failsafe)
             verdict, command = self.messages.verdict_and_command(
                 now, dt, res, self.io.dropped(), seqs, self.presence
             )

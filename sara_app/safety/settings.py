@@ -5,6 +5,7 @@ nothing converts or mirrors them.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Annotated, Literal
 
 from pydantic import Field, field_validator, model_validator
@@ -26,6 +27,12 @@ Shape = Literal["blunt", "wedge", "edge", "sheet"]
 MAX_THRESHOLD_J = 10.0
 """The physical ceiling of an admissible contact energy: five times the largest value of seed
 003 Table I (2 J). No body part's threshold can be set above it, confirmed or not."""
+
+
+def models_of_mode(mode: str, models: Sequence[str]) -> list[str]:
+    """Those of ``models`` that safety ``mode`` can verify with: PFL's compiled check has no
+    Pereira arm model (its capsules are not per body part)."""
+    return [m for m in models if not (mode == "pfl" and m == "arm")]
 
 
 def check_index_roots(lambda_1: float, lambda_2: float) -> None:
@@ -144,8 +151,8 @@ class ShieldSettings(StrictFinite):
 
     @model_validator(mode="after")
     def _models_of_the_mode(self) -> ShieldSettings:
-        if self.mode == "pfl" and "arm" in self.models:
-            valid = ", ".join(m for m in MODELS if m != "arm")
+        if models_of_mode(self.mode, self.models) != list(self.models):
+            valid = ", ".join(models_of_mode(self.mode, MODELS))
             raise ValueError(
                 f"model 'arm' (Pereira's arm model) is not available in PFL mode; valid: {valid}"
             )
