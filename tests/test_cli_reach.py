@@ -66,3 +66,30 @@ def test_volumes_report_the_effective_set(tmp_path, capsys) -> None:
     for k in range(2):
         smallest = min(table[m][k] for m in ("vel", "acc", "combined", "pos"))
         assert 0.0 < table["effective"][k] <= 1.05 * smallest
+
+
+def _upper_csv(tmp_path):
+    """A 9-joint (upper body) recording: the skeleton of an upper-body tracker or the TUM
+    table-side recordings."""
+    from sara_app.human.skeleton import UPPER_JOINTS
+
+    t = np.arange(0, 0.5, 1 / 60)
+    base = np.linspace([0, 0, 0.9], [0.3, 0.2, 1.7], len(UPPER_JOINTS))
+    y = base[None] + 0.3 * np.sin(2 * np.pi * t)[:, None, None] * np.array([1.0, 0, 0])
+    path = tmp_path / "u.csv"
+    save_csv(Recording("u", "upper", t, y, "test"), path)
+    return path
+
+
+def test_every_offline_command_takes_an_upper_body_recording(tmp_path, capsys) -> None:
+    """An upper-body recording went through the tracking gate's leg bones (an IndexError in
+    reach, volumes and calibrate); each command now runs on it end to end."""
+    up = str(_upper_csv(tmp_path))
+    out = tmp_path / "caps.jsonl"
+    assert main(["reach", up, "--horizon", "0.1", "--out", str(out)]) == 0
+    assert "containment on u" in capsys.readouterr().out
+    assert main(["volumes", up, "--horizons", "0.1,0.2"]) == 0
+    assert "effective" in capsys.readouterr().out
+    cal = tmp_path / "cal.json"
+    assert main(["calibrate", up, "--horizon", "0.1", "--out", str(cal)]) == 0
+    assert json.loads(cal.read_text())["delta_y_m"] > 0

@@ -171,6 +171,8 @@ class Gate:
     def __post_init__(self) -> None:
         self.v_max_mps = np.asarray(self.v_max_mps, dtype=float)
         J = len(self.v_max_mps)
+        # an upper-body person (J = 9, the full skeleton's first joints) has no leg bones
+        self.bones = self.bones[(self.bones < J).all(axis=1)]
         self.length_m = self._known(self.settings)
         """``(B,)`` the bone lengths checked (nan: not known yet, being learned)."""
         self.y_trusted = np.zeros((J, 3))

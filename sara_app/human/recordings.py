@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from sara_app.errors import InputError, RecordingError
+from sara_app.human.bvh import load_bvh
 from sara_app.human.cmu import load_cmu
 from sara_app.human.recording import Recording, validate
 from sara_app.human.skeleton import FULL_JOINTS, UPPER_JOINTS, skeleton
@@ -184,7 +185,7 @@ def load_csv(path: str | os.PathLike[str]) -> Recording:
 
 # --- dispatch ------------------------------------------------------------------------------
 
-_SUFFIXES = (".amc", ".csv")
+_SUFFIXES = (".amc", ".bvh", ".csv")
 
 
 def _asf_beside(amc: Path) -> Path:
@@ -205,12 +206,18 @@ def load_recording(path_or_name: str | os.PathLike[str]) -> Recording:
     """Load a recording by file path or by name.
 
     ``.amc``: a CMU motion, its skeleton the ``<subject>.asf`` beside it (``02_01.amc`` ->
-    ``02.asf``), 120 Hz. ``.csv``: the project's CSV format. A bare name such as ``'02_01'``
-    (or a file name that is not found) is looked up in :func:`shared_data_dir`.
+    ``02.asf``), 120 Hz. ``.bvh``: a BVH file of a known skeleton (:mod:`sara_app.human.bvh`:
+    units and up axis from the data). ``.csv``: the project's CSV format. A name such as
+    ``'02_01'``, ``'62_03'`` or ``'CollaborativeHammering/0'`` (or a file name that is not found)
+    is looked up in the data folders (:func:`find_recording`).
     """
     p = find_recording(path_or_name)
-    if p.suffix.lower() == ".csv":
+    suffix = p.suffix.lower()
+    if suffix == ".csv":
         return load_csv(p)
+    if suffix == ".bvh":
+        # numbered takes of a collection (CollaborativeHammering/0.bvh) keep their folder's name
+        return load_bvh(p, name=f"{p.parent.name}_{p.stem}" if p.stem.isdigit() else p.stem)
     return load_cmu(_asf_beside(p), p)
 
 
@@ -218,15 +225,25 @@ def find_recording(path_or_name: str | os.PathLike[str]) -> Path:
     """The file :func:`load_recording` would read (without reading it); raises
     :class:`RecordingError` naming the name when there is none."""
     p = Path(path_or_name)
-    if not p.is_file() and not p.is_absolute() and len(p.parts) == 1:
+    if not p.is_file() and not p.is_absolute():
         cand = (
             [p] if p.suffix.lower() in _SUFFIXES else [p.with_name(p.name + s) for s in _SUFFIXES]
         )
         try:
-            bases = [shared_data_dir(), PACKAGED_DATA_DIR]
+            shared = shared_data_dir()
+            bases = [shared, shared.parent, PACKAGED_DATA_DIR.parent]
         except RecordingError:
-            bases = [PACKAGED_DATA_DIR]
-        found = [b / c for b in bases for c in cand if (b / c).is_file()]
+            bases = [PACKAGED_DATA_DIR.parent]
+        # a name is a file in a data folder or one of its subfolders (each folder a collection)
+        found = list(dict.fromkeys(
+            f.resolve() for b in bases for c in cand
+            for f in (b / c, *b.glob(f"*/{c}"), *b.glob(f"*/*/{c}")) if f.is_file()
+        ))  # fmt: skip
+        if len(found) > 1 and len({f.read_bytes() for f in found}) > 1:
+            raise RecordingError(
+                f"recording name {str(path_or_name)!r} is ambiguous: {[str(f) for f in found]}; "
+                "give its folder too (for example 'CollaborativeHammering/0')"
+            )
         if found:
             p = found[0]
     suffix = p.suffix.lower()
