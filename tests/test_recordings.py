@@ -307,10 +307,14 @@ def test_csv_errors(tmp_path: Path) -> None:
 
 
 def test_load_recording_rejects_unknown_type(tmp_path: Path) -> None:
-    p = tmp_path / "x.bvh"
+    p = tmp_path / "x.c3d"
     p.write_text("HIERARCHY\n")
-    with pytest.raises(RecordingError, match=r"'\.bvh'.*\.amc, \.csv"):
+    with pytest.raises(RecordingError, match=r"'\.c3d'.*\.amc, \.bvh, \.csv"):
         load_recording(p)
+    bad = tmp_path / "x.bvh"
+    bad.write_text("HIERARCHY\n")  # a known type that is malformed: said, never a traceback
+    with pytest.raises(RecordingError, match="cannot read BVH file"):
+        load_recording(bad)
 
 
 # --- Recording and validate ----------------------------------------------------------------
