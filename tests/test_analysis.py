@@ -59,3 +59,33 @@ def test_a_model_without_a_velocity_estimate_is_unavailable() -> None:
     assert res["acc"].checked + res["acc"].unavailable == sum(
         15 * int(((t > ti) & (t <= ti + 0.3 + 1e-12)).sum()) for ti in t
     )
+
+
+def test_the_effective_set_contains_a_position_only_when_every_model_in_use_does() -> None:
+    """A brute-force check of the effective set's misses from each model's: a position missed
+    by any model in use is missed by the effective set (the verdict clears a body part when ANY
+    model's set for it is free), the models not in use do not count, and the misses at frames
+    the monitor had faulted the person for are not unflagged."""
+    t, y = _jittered(1)
+    exact = replace(to_reach_params(load_param_set("schepp2022_table1"), "full"), delta_y_m=0.0)
+    v = np.full(15, 2.0)
+    v[7] = 1.85  # only the vel model's l_wrist bound is too slow (1.9 m/s motion)
+    reach = HumanReach(replace(exact, v_max_mps=v))
+    models = ("pos", "vel", "acc")
+    res = containment(reach, t, y, 0.3, models)
+    eff = res["effective"]
+    assert all(res[m].contained == res[m].checked for m in ("pos", "acc"))  # these hold
+    vel_misses = res["vel"].checked - res["vel"].contained
+    assert vel_misses > 0 and eff.checked - eff.contained == vel_misses  # vel's misses only
+    assert eff.misses_per_joint == res["vel"].misses_per_joint == {"l_wrist": vel_misses}
+    assert eff.unflagged is None  # not screened
+    without_vel = containment(reach, t, y, 0.3, models, effective_of=("pos", "acc"))
+    assert without_vel["effective"].contained == without_vel["effective"].checked
+    misses = eff.checked - eff.contained
+    none = containment(reach, t, y, 0.3, models, faulted=np.zeros(len(t), bool))["effective"]
+    every = containment(reach, t, y, 0.3, models, faulted=np.ones(len(t), bool))["effective"]
+    assert (none.unflagged, every.unflagged) == (misses, 0)
+    first = np.zeros(len(t), bool)
+    first[: len(t) // 2] = True  # faulted in the first half only
+    half = containment(reach, t, y, 0.3, models, faulted=first)["effective"]
+    assert 0 < half.unflagged < misses  # the uniform motion misses in both halves

@@ -45,6 +45,9 @@ class Containment:
     unavailable: int = 0
     """Future joint positions not checked: the model had no set for them (no velocity
     estimate at the measurement)."""
+    unflagged: int | None = None
+    """Of the misses, those at a measurement the conformance monitor had not faulted the person
+    for (the residual risk: a live cell would have moved on them); None: not screened."""
 
     @property
     def share(self) -> float:
@@ -167,8 +170,18 @@ def containment(
     horizon_s: float,
     models: tuple[str, ...] = MODELS,
     n_worst: int = 5,
+    faulted: np.ndarray | None = None,
+    effective_of: tuple[str, ...] | None = None,
 ) -> dict[str, Containment]:
-    """Share of future joint positions inside each model's set, per model (see module doc).
+    """Share of future joint positions inside each model's set, per model (see module doc), and
+    inside the effective set (key :data:`EFFECTIVE`): what the verdict relies on. A body part
+    is cleared when ANY model's set for it is free, so a future position is inside the
+    effective set only when it is inside EVERY model in use that has a set for it (a model
+    without one, unavailable there, clears nothing). ``faulted (T,)``: the frames at which the
+    conformance monitor faulted the person (:attr:`Screening.faulted
+    <sara_app.human.intake.Screening.faulted>`); the effective set's misses at the others are
+    counted as ``unflagged``. ``effective_of``: the models in use in the cell (default
+    ``models``).
 
     Every frame pair is evaluated at its own time difference, so jittered time stamps (a 60 Hz
     tracker stamped in milliseconds) are analysed as they are. A (frame, joint) the model is
@@ -185,12 +198,14 @@ def containment(
     frame = np.minimum(np.arange(T)[:, None] + np.arange(1, K + 1)[None, :], T - 1)
     fut = y[frame]  # (T, K, J, 3)
     results: dict[str, Containment] = {}
+    J = len(names)
+    eff_inside = np.ones((T, K, J), dtype=bool)
+    eff_worst = np.full((T, K, J), -np.inf)
     for m in models:
         o = occ[m]
         cap, joint, margin = reach.coverage[m]
         d = point_segment_distance(fut[:, :, joint], o.ends[:, :, cap])  # (T, K, M)
         excess = d + margin - o.radius[:, :, cap]
-        J = len(names)
         # A joint is contained when every capsule that must hold it does.
         inside = np.ones((T, K, J), dtype=bool)
         np.logical_and.at(inside, (slice(None), slice(None), joint), excess <= 1e-12)  # type: ignore[arg-type]
@@ -200,21 +215,44 @@ def containment(
         np.logical_and.at(known, (slice(None), slice(None), joint),  # type: ignore[arg-type]
                           np.isfinite(o.radius[:, :, cap]))  # fmt: skip
         v3 = valid[:, :, None] & known
-        res = Containment(m, int(v3.sum()), int((inside & v3).sum()))
-        res.unavailable = int((valid[:, :, None] & ~known).sum())
-        miss = ~inside & v3
-        for j in np.unique(np.nonzero(miss)[2]):
-            res.misses_per_joint[names[j]] = int(miss[:, :, j].sum())
-        flat = np.where(miss, worst_excess, -np.inf)
-        for f in np.argsort(flat, axis=None)[::-1][:n_worst]:
-            i, k, j = np.unravel_index(f, flat.shape)
-            if not np.isfinite(flat[i, k, j]):
-                break
-            res.worst.append(
-                Miss(names[j], int(i), float(times_s[i]), float(tau[i, k]), float(flat[i, k, j]))
-            )
-        results[m] = res
+        results[m] = _tally(m, inside, worst_excess, v3, names, times_s, tau, n_worst)
+        results[m].unavailable = int((valid[:, :, None] & ~known).sum())
+        if effective_of is None or m in effective_of:
+            eff_inside &= inside | ~known
+            eff_worst = np.maximum(eff_worst, np.where(known, worst_excess, -np.inf))
+    v3 = np.broadcast_to(valid[:, :, None], (T, K, J))
+    eff = _tally(EFFECTIVE, eff_inside, eff_worst, v3, names, times_s, tau, n_worst)
+    if faulted is not None:
+        eff.unflagged = int((~eff_inside & v3 & ~np.asarray(faulted, bool)[:, None, None]).sum())
+    results[EFFECTIVE] = eff
     return results
+
+
+def _tally(
+    model: str,
+    inside: np.ndarray,
+    worst_excess: np.ndarray,
+    v3: np.ndarray,
+    names: tuple[str, ...],
+    times_s: np.ndarray,
+    tau: np.ndarray,
+    n_worst: int,
+) -> Containment:
+    """A :class:`Containment` from ``inside``, ``worst_excess`` and the checked ``v3`` (all
+    ``(T, K, J)``): counts, misses per joint and the ``n_worst`` escapes."""
+    res = Containment(model, int(v3.sum()), int((inside & v3).sum()))
+    miss = ~inside & v3
+    for j in np.unique(np.nonzero(miss)[2]):
+        res.misses_per_joint[names[j]] = int(miss[:, :, j].sum())
+    flat = np.where(miss, worst_excess, -np.inf)
+    for f in np.argsort(flat, axis=None)[::-1][:n_worst]:
+        i, k, j = np.unravel_index(f, flat.shape)
+        if not np.isfinite(flat[i, k, j]):
+            break
+        res.worst.append(
+            Miss(names[j], int(i), float(times_s[i]), float(tau[i, k]), float(flat[i, k, j]))
+        )
+    return res
 
 
 def _occupancies_at(

@@ -165,6 +165,9 @@ class Screening:
     peak_speed_mps: np.ndarray
     """``(J,)`` the largest speed / acceleration the trusted motion needed (the monitor's)."""
     peak_acc_mps2: np.ndarray
+    faulted: np.ndarray
+    """``(T,)`` frames after which the person was a fault (:meth:`Intake.fault`: the monitor or
+    a stale tracker): a live cell would not have moved on them."""
 
     @property
     def glitched(self) -> np.ndarray:
@@ -207,6 +210,7 @@ def screen(
     held = np.zeros((T, J), bool)
     flags = np.zeros((T, J, len(FLAGS)), bool)
     refused = np.zeros(T, bool)
+    faulted = np.zeros(T, bool)
     violations: list[Violation] = []
     m = intake.monitor
     for i in range(T):
@@ -214,7 +218,8 @@ def screen(
         intake.take(t, y[i], delta_y_m, J)
         g = intake.gate.out  # this frame's gate result, refused or not
         held[i], flags[i], refused[i] = ~g.trusted, g.flags, g.refused
+        faulted[i] = intake.fault("") is not None
         if m.last_violation_s == t:  # the monitor found violations in this frame
             violations += m.last
     return Screening(held, flags, refused, violations, intake.counts(), m.peak_speed_mps,
-                     m.peak_acc_mps2)  # fmt: skip
+                     m.peak_acc_mps2, faulted)  # fmt: skip

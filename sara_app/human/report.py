@@ -74,10 +74,31 @@ def write_jsonl(
     return n
 
 
+def _faulted(reach: HumanReach, rec: Recording) -> np.ndarray:
+    """``(T,)`` the frames a live cell's conformance monitor faults ``rec``'s person at."""
+    p, J = reach.params, rec.positions_m.shape[1]
+    return screen(rec.times_s, rec.positions_m, p.delta_y_m, p.v_max_mps[:J],
+                  p.a_max_mps2[:J]).faulted  # fmt: skip
+
+
+def in_use(models: Sequence[str]) -> tuple[str, ...]:
+    """Of ``models``, those a cell verifies with by default (``shield.models``): the effective
+    set is theirs; all of ``models`` when none of them is."""
+    from sara_app.safety.settings import ShieldSettings
+
+    used = tuple(m for m in ShieldSettings().models if m in models)
+    return used or tuple(models)
+
+
 def format_containment(name: str, res: dict[str, Containment]) -> str:
-    lines = [f"containment on {name} (share of future joint positions inside the set):"]
+    lines = [f"containment on {name} (share of future joint positions inside the set; "
+             "effective: inside every model a cell uses, what the verdict relies on):"]  # fmt: skip
     for m, c in res.items():
         na = f"; unavailable for {c.unavailable} (no velocity estimate)" if c.unavailable else ""
+        if c.unflagged is not None:
+            misses = c.checked - c.contained
+            na += (f"; {c.unflagged} unflagged (the monitor had not faulted the person), "
+                   f"{misses - c.unflagged} at a fault")  # fmt: skip
         lines.append(f"  {m:9s} {100 * c.share:8.3f} %  ({c.checked - c.contained} misses{na})")
         if c.misses_per_joint:
             worst = ", ".join(
@@ -99,15 +120,16 @@ def reach_command(
     ps = load_param_set(params)
     reach = HumanReach(to_reach_params(ps, rec.kind))
     # every input error comes before anything is written
-    res = containment(reach, rec.times_s, rec.positions_m, horizon_s, tuple(models))
+    p = reach.params
+    J = rec.positions_m.shape[1]
+    s = screen(rec.times_s, rec.positions_m, p.delta_y_m, p.v_max_mps[:J], p.a_max_mps2[:J])
+    res = containment(reach, rec.times_s, rec.positions_m, horizon_s, tuple(models),
+                      faulted=s.faulted, effective_of=in_use(models))  # fmt: skip
     if out is not None:
         with open(out, "w") as f:
             n = write_jsonl(reach, rec, horizon_s, f, models)
         print(f"wrote {n} lines to {out}")
     print(f"{rec.name}: {rec.n_frames} frames, parameters {ps.name!r}, horizon {horizon_s} s")
-    p = reach.params
-    s = screen(rec.times_s, rec.positions_m, p.delta_y_m, p.v_max_mps[: rec.positions_m.shape[1]],
-               p.a_max_mps2[: rec.positions_m.shape[1]])  # fmt: skip
     flagged = s.summary(rec.joints)
     print("tracking gate and conformance monitor (as a live cell would see it): "
           + ("nothing flagged" if not flagged else ""))  # fmt: skip
@@ -206,12 +228,17 @@ def calibrate_command(
     for rec in recs:
         for label, pset in (("base", load_param_set(base)), ("calibrated", ps)):
             reach = HumanReach(to_reach_params(pset, rec.kind))
-            res = containment(reach, rec.times_s, rec.positions_m, horizon_s)
+            fault = _faulted(reach, rec)
+            res = containment(reach, rec.times_s, rec.positions_m, horizon_s,
+                              faulted=fault, effective_of=in_use(MODELS))  # fmt: skip
             misses = {m: c.checked - c.contained for m, c in res.items()}
             print(
                 f"  {rec.name} with {label} set: "
                 + ", ".join(
-                    f"{m} {100 * c.share:.4f}% ({misses[m]} misses)" for m, c in res.items()
+                    f"{m} {100 * c.share:.4f}% ({misses[m]} misses"
+                    + ("" if c.unflagged is None else f", {c.unflagged} unflagged")
+                    + ")"
+                    for m, c in res.items()
                 )
             )
             if label == "calibrated":

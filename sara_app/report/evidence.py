@@ -101,13 +101,15 @@ def _containment_rows(
     for name in names:
         rec = load_recording(name)
         p = reach.params
-        scr = screen(rec.times_s, rec.positions_m, p.delta_y_m, p.v_max_mps, p.a_max_mps2)
+        J = rec.positions_m.shape[1]
+        scr = screen(rec.times_s, rec.positions_m, p.delta_y_m, p.v_max_mps[:J],
+                     p.a_max_mps2[:J])  # fmt: skip
         for h in HORIZONS_S:
-            res = containment(reach, rec.times_s, rec.positions_m, h, models)
+            res = containment(reach, rec.times_s, rec.positions_m, h, models, faulted=scr.faulted)
             for m, c in res.items():
                 rows.append({
                     "recording": rec.name, "model": m, "horizon_s": h, "checked": c.checked,
-                    "contained": c.contained, "share": c.share,
+                    "contained": c.contained, "share": c.share, "unflagged": c.unflagged,
                     "misses_per_joint": dict(c.misses_per_joint),
                     "worst_m": max((w.excess_m for w in c.worst), default=0.0),
                     "monitor_violations": len(scr.violations),

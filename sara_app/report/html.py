@@ -132,15 +132,20 @@ def _containment(ev: Evidence) -> str:
             f'<span class="{"ok" if ok else "bad"}">{share}</span>',
             str(r["checked"]), _e(misses), _num(r["worst_m"], ".3f", " m"),
             str(r["monitor_violations"]),
+            "" if r.get("unflagged") is None else str(r["unflagged"]),
         ))  # fmt: skip
     table = _table(("recording", "model", "horizon", "contained", "checked", "misses per joint",
-                    "worst excess", "monitor violations"), rows)  # fmt: skip
+                    "worst excess", "monitor violations", "unflagged misses"), rows)  # fmt: skip
     return (
         "<h2>2. Containment on recordings</h2><p>Each future joint position of the recording "
         "(every frame pair up to the horizon, at its real time difference) against the model's "
         "set from the measurement: 100 % means the set parameters hold for that motion. The "
         "conformance monitor's violations say whether the motion keeps to the set's bounds "
-        "(0: the live cell would not fault this person).</p>"
+        "(0: the live cell would not fault this person). The <b>effective</b> row is what the "
+        "verdict relies on: a body part is cleared when any model's set for it is free, so a "
+        "position counts as contained only when every model in use contains it. Its "
+        "<b>unflagged misses</b> are the positions outside it at a measurement the monitor had "
+        "not faulted the person for: the residual risk.</p>"
         f"{_containment_plot(ev)}{table}"
     )
 
