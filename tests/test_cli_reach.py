@@ -93,3 +93,21 @@ def test_every_offline_command_takes_an_upper_body_recording(tmp_path, capsys) -
     cal = tmp_path / "cal.json"
     assert main(["calibrate", up, "--horizon", "0.1", "--out", str(cal)]) == 0
     assert json.loads(cal.read_text())["delta_y_m"] > 0
+
+
+def test_calibrate_validates_leaving_each_recording_out(tmp_path, capsys) -> None:
+    a, b = tmp_path / "a", tmp_path / "b"
+    a.mkdir()
+    b.mkdir()
+    cal = tmp_path / "cal.json"
+    files = [str(_csv(a)), str(_upper_csv(b))]
+    assert (
+        main(["calibrate", *files, "--horizon", "0.1", "--leave-one-out", "--out", str(cal)]) == 0
+    )
+    text = capsys.readouterr().out
+    assert "leave-one-recording-out validation" in text and "margin the shipped set needs" in text
+    sound = json.loads(cal.read_text())["sound_for"]
+    assert set(json.loads(sound["leave_one_out"])) == {"h", "u"}
+    assert all(float(m) >= 1.0 for m in sound["margin_v_a_arm"].split(", "))
+    assert main(["calibrate", files[0], "--leave-one-out", "--out", str(cal)]) == 2
+    assert "at least two recordings" in capsys.readouterr().err

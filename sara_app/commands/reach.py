@@ -32,7 +32,8 @@ def _volumes(args: argparse.Namespace) -> None:
 def _calibrate(args: argparse.Namespace) -> None:
     from sara_app.human.report import calibrate_command
 
-    calibrate_command(args.recordings, args.horizon, args.base, args.name, args.out, args.delta_y)
+    calibrate_command(args.recordings, args.horizon, args.base, args.name, args.out, args.delta_y,
+                      args.leave_one_out)  # fmt: skip
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -66,6 +67,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="the tracker's noise bound in m (default: the base set's); fitted apart from the "
         "bounds: the report shows each joint's one-frame chord deviation to choose it",
+    )
+    c.add_argument(
+        "--leave-one-out",
+        action="store_true",
+        help="validate: check each recording against the set fitted on the others, and widen "
+        "the written set by the margin that derives",
     )
     c.add_argument("--out", type=Path, required=True)
     c.set_defaults(run=_calibrate)

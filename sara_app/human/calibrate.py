@@ -115,9 +115,10 @@ def fit_velocity(
         i, j, tau = _pairs(rec, horizon_s)
         disp = np.linalg.norm(rec.positions_m[j] - rec.positions_m[i], axis=-1)  # (N, J)
         need = np.where(ok[i] & ok[j], (disp - delta_y_m) / tau[:, None], -np.inf)
-        for q in range(len(joints)):
+        J = need.shape[1]  # an upper-body recording fits the upper joints only
+        for q in range(J):
             drivers[q] += _top(need[:, q], rec, i, tau, n_drivers)
-        best = np.maximum(best, need.max(axis=0))
+        best[:J] = np.maximum(best[:J], need.max(axis=0))
     for q in range(len(joints)):
         drivers[q] = sorted(drivers[q], key=lambda d: -d.value)[:n_drivers]
     return best, drivers
@@ -136,16 +137,17 @@ def _acc_need(
     need_all = np.full(J, -np.inf)
     drivers: list[list[Driver]] = [[] for _ in range(J)]
     for rec, ok_t in zip(recs, _trusted(recs, trusted)):
-        v, dv = estimate_recording(rec.times_s, rec.positions_m, delta_y_m, a, trusted=ok_t)
+        Jr = rec.positions_m.shape[1]  # an upper-body recording: its joints only
+        v, dv = estimate_recording(rec.times_s, rec.positions_m, delta_y_m, a[:Jr], trusted=ok_t)
         i, j, tau = _pairs(rec, horizon_s)
         use = ok_t[i] & ok_t[j] & np.isfinite(dv[i])  # (N, J)
         resid = rec.positions_m[j] - rec.positions_m[i] - v[i] * tau[:, None, None]
         dv_i = np.where(use, dv[i], 0.0)
         slack = np.linalg.norm(resid, axis=-1) - delta_y_m - dv_i * tau[:, None]
         need = np.where(use, 2.0 * slack / tau[:, None] ** 2, -np.inf)
-        for q in range(J):
+        for q in range(Jr):
             drivers[q] += _top(need[:, q], rec, i, tau, n_drivers)
-        need_all = np.maximum(need_all, need.max(axis=0))
+        need_all[:Jr] = np.maximum(need_all[:Jr], need.max(axis=0))
     return need_all, [sorted(d, key=lambda x: -x.value)[:n_drivers] for d in drivers]
 
 
@@ -216,7 +218,7 @@ def _screened(
                                   if not line.startswith(("jump", "beyond"))]  # fmt: skip
         y = rec.positions_m
         chord = np.linalg.norm(y[1:-1] - 0.5 * (y[:-2] + y[2:]), axis=-1).max(axis=0, initial=0)
-        for q, jn in enumerate(joints):
+        for q, jn in enumerate(joints[:J]):
             rep.noise_m[jn] = max(rep.noise_m.get(jn, 0.0), float(chord[q]))
     return trusted
 
@@ -255,7 +257,8 @@ def calibrate(
     every joint) and the bounds raised until they cover them.
     """
     kinds = {r.kind for r in recs}
-    joints = skeleton("full" if kinds == {"full"} else "upper").joints
+    # with any full-body recording the legs are fitted too (from the full-body ones only)
+    joints = skeleton("full" if "full" in kinds else "upper").joints
     dy = base.delta_y_m if delta_y_m is None else float(delta_y_m)
     rep = CalibrationReport(horizon_s, delta_y_m=dy)
     trusted = _screened(base, recs, dy, joints, rep)

@@ -26,6 +26,7 @@ from sara_app.human.intake import screen
 from sara_app.human.params import ParamSet, load_param_set, save_param_set, to_reach_params
 from sara_app.human.reach import MODELS, HumanReach
 from sara_app.human.recordings import Recording, load_recording
+from sara_app.human.validation import format_validation, leave_one_out, widened
 
 
 def write_jsonl(
@@ -220,10 +221,21 @@ def calibrate_command(
     name: str,
     out: Path,
     delta_y_m: float | None = None,
+    validate: bool = False,
 ) -> tuple[ParamSet, CalibrationReport]:
+    """Calibrate ``base`` on ``recordings`` and write the set to ``out``; with ``validate``,
+    first leave each recording out in turn (:mod:`sara_app.human.validation`) and widen the
+    written set by the margin that derives."""
     recs = [load_recording(r) for r in recordings]
+    if validate and len(recs) < 2:
+        raise InputError("leave-one-out validation needs at least two recordings")
     ps, rep = calibrate(load_param_set(base), recs, horizon_s, name, delta_y_m)
     print(format_calibration(rep))
+    val = None
+    if validate:
+        val, _ = leave_one_out(load_param_set(base), recs, horizon_s, in_use(MODELS), delta_y_m)
+        print(format_validation(val))
+        ps = widened(ps, val.margin, name)
     summary = {}
     for rec in recs:
         for label, pset in (("base", load_param_set(base)), ("calibrated", ps)):
@@ -263,6 +275,23 @@ def calibrate_command(
                 "models": ", ".join(sound),
                 "misses_per_recording": json.dumps(summary),
                 "horizon_s": str(horizon_s),
+                **(
+                    {}
+                    if val is None
+                    else {
+                        "leave_one_out": json.dumps(
+                            {
+                                r.recording: {
+                                    "share": round(r.share, 6),
+                                    "misses": r.checked - r.contained,
+                                    "unflagged": r.unflagged,
+                                }
+                                for r in val.rows
+                            }
+                        ),
+                        "margin_v_a_arm": ", ".join(f"{m:.3f}" for m in val.margin),
+                    }
+                ),
             },
         }
     )
