@@ -15,10 +15,11 @@ from pathlib import Path
 from typing import Annotated
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import Field, ValidationError, field_validator
 
 from sara_app.errors import ParameterError, UnknownNameError
 from sara_app.human.skeleton import FULL_BODY_PARTS, FULL_JOINTS, skeleton
+from sara_app.settings import Strict
 
 PARAM_DIR = Path(__file__).resolve().parent.parent / "params"
 RENAMED = {"seed001_table1": "schepp2022_table1"}
@@ -29,18 +30,14 @@ Pos = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
 NonNeg = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-class JointBound(_Strict):
+class JointBound(Strict):
     """Bounds of one joint's Cartesian motion."""
 
     v_max_mps: Pos
     a_max_mps2: Pos
 
 
-class BodyPartGeometry(_Strict):
+class BodyPartGeometry(Strict):
     """Size of one body part: thickness is a diameter (Schepp et al. 2022); iso radius per Pereira &
     Althoff 2016."""
 
@@ -48,7 +45,7 @@ class BodyPartGeometry(_Strict):
     iso_radius_m: Pos
 
 
-class ArmModelParams(_Strict):
+class ArmModelParams(Strict):
     """Pereira's 3-DOF arm model (Pereira & Althoff 2016 Sec. III-B), the same for both arms.
 
     Coordinates of the mid-forearm point relative to the shoulder, in the torso frame:
@@ -66,7 +63,7 @@ class ArmModelParams(_Strict):
     shoulder_v_max_mps: Pos = 2.0
 
 
-class ParamSet(_Strict):
+class ParamSet(Strict):
     """A named, complete human parameter set (the JSON file format)."""
 
     name: str

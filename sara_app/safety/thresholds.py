@@ -22,10 +22,11 @@ from pathlib import Path
 from typing import Annotated
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import Field, ValidationError, model_validator
 
 from sara_app.errors import ParameterError, UnknownNameError
 from sara_app.human.skeleton import FULL_BODY_PARTS
+from sara_app.settings import Strict
 
 PARAM_DIR = Path(__file__).resolve().parent.parent / "params"
 DEFAULT_SET = "thresholds_thumm2024"
@@ -61,25 +62,21 @@ if _missing:  # pragma: no cover - a development error, caught by any import
 Pos = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-class EnergyLimit(_Strict):
+class EnergyLimit(Strict):
     """One admissible energy (J) and the key of its source in ``ThresholdSet.sources``."""
 
     energy_J: Pos
     source: str
 
 
-class Diameters(_Strict):
+class Diameters(Strict):
     """Body-part diameters (m) for the human-diameter relaxation, keyed by body-part name."""
 
     source: str
     diameters_m: dict[str, Pos]
 
 
-class IsoRegion(_Strict):
+class IsoRegion(Strict):
     """ISO/TS 15066 Annex A values of one body region (reference only)."""
 
     force_quasi_static_N: Pos
@@ -97,7 +94,7 @@ class IsoRegion(_Strict):
         return 4.0 * self.energy_J
 
 
-class IsoReference(_Strict):
+class IsoReference(Strict):
     source: str
     regions: dict[str, IsoRegion]
 
@@ -114,7 +111,7 @@ def _check_keys(got: Sequence[str], valid: Sequence[str], kind: str) -> None:
         raise ValueError(f"missing {kind} {', '.join(missing)}")
 
 
-class ThresholdSet(_Strict):
+class ThresholdSet(Strict):
     """A named, complete threshold set (the JSON file format)."""
 
     name: str
