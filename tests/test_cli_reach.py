@@ -111,3 +111,8 @@ def test_calibrate_validates_leaving_each_recording_out(tmp_path, capsys) -> Non
     assert all(float(m) >= 1.0 for m in sound["margin_v_a_arm"].split(", "))
     assert main(["calibrate", files[0], "--leave-one-out", "--out", str(cal)]) == 2
     assert "at least two recordings" in capsys.readouterr().err
+
+
+def test_a_bvh_unit_and_up_axis_are_options_of_bvh_files_only(tmp_path, capsys) -> None:
+    assert main(["reach", str(_csv(tmp_path)), "--unit", "mm"]) == 2
+    assert "only for BVH files" in capsys.readouterr().err

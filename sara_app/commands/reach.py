@@ -16,30 +16,49 @@ def _models(text: str) -> list[str]:
     return names
 
 
+def _load(args: argparse.Namespace):  # type: ignore[no-untyped-def]
+    """The recording reader with the user's BVH unit and up axis."""
+    from functools import partial
+
+    from sara_app.human.recordings import load_recording
+
+    return partial(load_recording, unit=args.unit, up=args.up)
+
+
 def _reach(args: argparse.Namespace) -> None:
     from sara_app.human.report import reach_command
 
-    reach_command(args.recording, args.horizon, args.params, args.out, args.models)
+    reach_command(args.recording, args.horizon, args.params, args.out, args.models, _load(args))
 
 
 def _volumes(args: argparse.Namespace) -> None:
     from sara_app.human.report import volume_table
 
     hs = [float(h) for h in args.horizons.split(",")]
-    volume_table(args.recording, args.params, hs, args.png)
+    volume_table(args.recording, args.params, hs, args.png, load=_load(args))
 
 
 def _calibrate(args: argparse.Namespace) -> None:
     from sara_app.human.report import calibrate_command
 
     calibrate_command(args.recordings, args.horizon, args.base, args.name, args.out, args.delta_y,
-                      args.leave_one_out)  # fmt: skip
+                      args.leave_one_out, _load(args))  # fmt: skip
+
+
+def _recording_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--unit", default=None,
+                   help="a BVH file's length unit: m, cm, mm, inch or cmu (default: from the "
+                   "upper arm's length)")  # fmt: skip
+    p.add_argument("--up", default=None,
+                   help="a BVH file's up axis: +x, -x, +y, -y, +z or -z (default: from the "
+                   "rest pose)")  # fmt: skip
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     r = sub.add_parser("reach", help="reachable capsules per frame of a recording (JSONL) + report")
     r.add_argument(
-        "recording", help="a .amc (with its .asf beside it), a .csv, or a CMU trial name like 02_01"
+        "recording",
+        help="a .amc (with its .asf beside it), a .bvh, a .csv, or a name like 02_01 or 62_03",
     )
     r.add_argument(
         "--horizon", type=float, default=0.3, help="seconds after each frame (default 0.3)"
@@ -47,6 +66,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--params", default="schepp2022_table1", help="parameter set name or JSON path")
     r.add_argument("--models", type=_models, default=list(MODELS), help="comma-separated")
     r.add_argument("--out", type=Path, default=None, help="JSONL file of capsules")
+    _recording_options(r)
     r.set_defaults(run=_reach)
 
     v = sub.add_parser("volumes", help="set volume per model vs horizon (table + PNG)")
@@ -54,6 +74,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     v.add_argument("--params", default="schepp2022_table1")
     v.add_argument("--horizons", default="0.05,0.1,0.15,0.2,0.3,0.4,0.5")
     v.add_argument("--png", type=Path, default=None)
+    _recording_options(v)
     v.set_defaults(run=_volumes)
 
     c = sub.add_parser("calibrate", help="fit per-joint bounds so the models contain recordings")
@@ -75,4 +96,5 @@ def register(sub: argparse._SubParsersAction) -> None:
         "the written set by the margin that derives",
     )
     c.add_argument("--out", type=Path, required=True)
+    _recording_options(c)
     c.set_defaults(run=_calibrate)

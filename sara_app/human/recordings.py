@@ -202,22 +202,28 @@ def _asf_beside(amc: Path) -> Path:
     )
 
 
-def load_recording(path_or_name: str | os.PathLike[str]) -> Recording:
+def load_recording(
+    path_or_name: str | os.PathLike[str], *, unit: str | None = None, up: str | None = None
+) -> Recording:
     """Load a recording by file path or by name.
 
     ``.amc``: a CMU motion, its skeleton the ``<subject>.asf`` beside it (``02_01.amc`` ->
     ``02.asf``), 120 Hz. ``.bvh``: a BVH file of a known skeleton (:mod:`sara_app.human.bvh`:
     units and up axis from the data). ``.csv``: the project's CSV format. A name such as
     ``'02_01'``, ``'62_03'`` or ``'CollaborativeHammering/0'`` (or a file name that is not found)
-    is looked up in the data folders (:func:`find_recording`).
+    is looked up in the data folders (:func:`find_recording`). ``unit`` and ``up`` override what
+    a BVH file's data establish (an error for the other formats, which state theirs).
     """
     p = find_recording(path_or_name)
     suffix = p.suffix.lower()
+    if (unit is not None or up is not None) and suffix != ".bvh":
+        raise InputError(f"recording {p.name!r}: a unit or up axis is given only for BVH files")
     if suffix == ".csv":
         return load_csv(p)
     if suffix == ".bvh":
         # numbered takes of a collection (CollaborativeHammering/0.bvh) keep their folder's name
-        return load_bvh(p, name=f"{p.parent.name}_{p.stem}" if p.stem.isdigit() else p.stem)
+        name = f"{p.parent.name}_{p.stem}" if p.stem.isdigit() else p.stem
+        return load_bvh(p, unit=unit, up=up, name=name)
     return load_cmu(_asf_beside(p), p)
 
 

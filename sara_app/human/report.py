@@ -7,7 +7,7 @@ Printing and file formats live here; the measurements are in ``analysis.py`` and
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TextIO
 
@@ -112,12 +112,22 @@ def format_containment(name: str, res: dict[str, Containment]) -> str:
     return "\n".join(lines)
 
 
+Load = Callable[[str], Recording]
+"""How a command reads a recording by path or name (:func:`load_recording` with the user's
+options)."""
+
+
 def reach_command(
-    recording: str, horizon_s: float, params: str, out: Path | None, models: Sequence[str]
+    recording: str,
+    horizon_s: float,
+    params: str,
+    out: Path | None,
+    models: Sequence[str],
+    load: Load = load_recording,
 ) -> dict[str, Containment]:
     if not (np.isfinite(horizon_s) and horizon_s > 0):
         raise InputError(f"horizon {horizon_s} s; expected a finite value > 0")
-    rec = load_recording(recording)
+    rec = load(recording)
     ps = load_param_set(params)
     reach = HumanReach(to_reach_params(ps, rec.kind))
     # every input error comes before anything is written
@@ -150,10 +160,11 @@ def volume_table(
     horizons: Sequence[float],
     png: Path | None,
     models: Sequence[str] = MODELS,
+    load: Load = load_recording,
 ) -> dict[str, list[float]]:
     """Mean set volume per model and horizon (the trend of Schepp et al. 2022 Fig. 7), optional
     PNG."""
-    rec = load_recording(recording)
+    rec = load(recording)
     ps = load_param_set(params)
     reach = HumanReach(to_reach_params(ps, rec.kind))
     columns = [*models, EFFECTIVE] if len(models) > 1 else list(models)
@@ -222,11 +233,12 @@ def calibrate_command(
     out: Path,
     delta_y_m: float | None = None,
     validate: bool = False,
+    load: Load = load_recording,
 ) -> tuple[ParamSet, CalibrationReport]:
     """Calibrate ``base`` on ``recordings`` and write the set to ``out``; with ``validate``,
     first leave each recording out in turn (:mod:`sara_app.human.validation`) and widen the
     written set by the margin that derives."""
-    recs = [load_recording(r) for r in recordings]
+    recs = [load(r) for r in recordings]
     if validate and len(recs) < 2:
         raise InputError("leave-one-out validation needs at least two recordings")
     ps, rep = calibrate(load_param_set(base), recs, horizon_s, name, delta_y_m)
