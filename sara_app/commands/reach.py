@@ -42,7 +42,7 @@ def _calibrate(args: argparse.Namespace) -> None:
     from sara_app.human.report import calibrate_command
 
     calibrate_command(args.recordings, args.horizon, args.base, args.name, args.out, args.delta_y,
-                      args.leave_one_out, _load(args))  # fmt: skip
+                      args.leave_one_out, _load(args), args.max_speed)  # fmt: skip
 
 
 def _recording_options(p: argparse.ArgumentParser) -> None:
@@ -94,6 +94,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="validate: check each recording against the set fitted on the others, and widen "
         "the written set by the margin that derives",
+    )
+    c.add_argument(
+        "--max-speed",
+        type=float,
+        default=None,
+        help="plausibility ceiling in m/s: joint-frames reached or left faster are left out of "
+        "the fit and listed (reconstruction failures); a live cell's monitor faults on them",
     )
     c.add_argument("--out", type=Path, required=True)
     _recording_options(c)

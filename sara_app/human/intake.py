@@ -202,9 +202,11 @@ def screen(
     v_max_mps: np.ndarray,
     a_max_mps2: np.ndarray,
     settings: IntakeSettings | None = None,
+    missing: np.ndarray | None = None,
 ) -> Screening:
     """Every frame ``y (T, J, 3)`` through a fresh intake (:meth:`Intake.take`, as a live cell
-    takes it: a refused frame does not feed the estimator)."""
+    takes it: a refused frame does not feed the estimator); ``missing (T, J)``: joint-frames the
+    tracker did not measure."""
     intake = Intake(delta_y_m, v_max_mps, a_max_mps2, settings or IntakeSettings())
     T, J = y.shape[:2]
     held = np.zeros((T, J), bool)
@@ -215,7 +217,7 @@ def screen(
     m = intake.monitor
     for i in range(T):
         t = float(times_s[i])
-        intake.take(t, y[i], delta_y_m, J)
+        intake.take(t, y[i], delta_y_m, J, None if missing is None else missing[i])
         g = intake.gate.out  # this frame's gate result, refused or not
         held[i], flags[i], refused[i] = ~g.trusted, g.flags, g.refused
         faulted[i] = intake.fault("") is not None

@@ -234,6 +234,7 @@ def calibrate_command(
     delta_y_m: float | None = None,
     validate: bool = False,
     load: Load = load_recording,
+    max_speed_mps: float | None = None,
 ) -> tuple[ParamSet, CalibrationReport]:
     """Calibrate ``base`` on ``recordings`` and write the set to ``out``; with ``validate``,
     first leave each recording out in turn (:mod:`sara_app.human.validation`) and widen the
@@ -241,11 +242,12 @@ def calibrate_command(
     recs = [load(r) for r in recordings]
     if validate and len(recs) < 2:
         raise InputError("leave-one-out validation needs at least two recordings")
-    ps, rep = calibrate(load_param_set(base), recs, horizon_s, name, delta_y_m)
+    ps, rep = calibrate(load_param_set(base), recs, horizon_s, name, delta_y_m, max_speed_mps)
     print(format_calibration(rep))
     val = None
     if validate:
-        val, _ = leave_one_out(load_param_set(base), recs, horizon_s, in_use(MODELS), delta_y_m)
+        val, _ = leave_one_out(load_param_set(base), recs, horizon_s, in_use(MODELS), delta_y_m,
+                               max_speed_mps)  # fmt: skip
         print(format_validation(val))
         ps = widened(ps, val.margin, name)
     summary = {}

@@ -143,10 +143,13 @@ def leave_one_out(
     horizon_s: float,
     models: tuple[str, ...],
     delta_y_m: float | None = None,
+    max_speed_mps: float | None = None,
 ) -> tuple[Validation, list[ParamSet]]:
     """Every recording of ``recs`` (at least two) checked against the set fitted on the others
-    (the effective set of ``models``); also returns each recording's own fit."""
-    own = [calibrate(base, [r], horizon_s, f"fit_{r.name}", delta_y_m)[0] for r in recs]
+    (the effective set of ``models``); also returns each recording's own fit (``delta_y_m`` and
+    ``max_speed_mps`` as :func:`~sara_app.human.calibrate.calibrate`'s)."""
+    own = [calibrate(base, [r], horizon_s, f"fit_{r.name}", delta_y_m, max_speed_mps)[0]
+           for r in recs]  # fmt: skip
     rows = []
     for i, rec in enumerate(recs):
         others = combine([p for k, p in enumerate(own) if k != i], "others")
