@@ -33,6 +33,8 @@ PLAN: dict[str, tuple[float | None, bool]] = {
     "close_worker": (None, True),
     "tracking_glitches": (None, True),
     "ur10e_close_worker": (None, True),
+    "bench_worker": (None, True),
+    "bench_walk_past": (None, True),
 }
 FAULTS_BY_DESIGN = {"tracking_glitches"}
 """Its spike is a fault until the person has kept within the bounds for recover_s
