@@ -209,3 +209,30 @@ def test_the_given_recordings_load_with_rigid_bones_upright_and_in_metres() -> N
         assert np.median(up) > 0.1, path  # upright (z up) on the whole
         assert rec.kind == ("full" if "cmu62" in str(path) else "upper")
         assert set(UNITS) >= {rec.source.split("unit ")[1].split()[0]}
+
+
+@pytest.mark.parametrize("left_x", [180.0, -180.0])
+def test_left_handed_axes_are_mirrored_so_that_left_stays_left(
+    tmp_path: Path, left_x: float
+) -> None:
+    """Head 0.1 m in front of the neck in the rest pose (+z): in right-handed y-up axes the left
+    shoulder is at +x; at -x the file's axes are left-handed and the recording is mirrored."""
+    vicon = {
+        "hip": (None, (0, 0, 0)), "torso": ("hip", (0, 0, 0)), "neck": ("torso", (0, 450, 0)),
+        "head": ("neck", (0, 300, 100)), "left_collar": ("torso", (0, 450, 0)),
+        "left_upper_arm": ("left_collar", (left_x, 0, 0)),
+        "left_forearm": ("left_upper_arm", (0, -300, 0)),
+        "left_hand": ("left_forearm", (0, -250, 0)), "right_collar": ("torso", (0, 450, 0)),
+        "right_upper_arm": ("right_collar", (-left_x, 0, 0)),
+        "right_forearm": ("right_upper_arm", (0, -300, 0)),
+        "right_hand": ("right_forearm", (0, -250, 0)),
+    }  # fmt: skip
+    n = len(vicon)
+    rec = load_bvh(_write_bvh(tmp_path / "h.bvh", vicon, {}, [_frame((0, 900, 0), 0, n)] * 3, 0.01))
+    y = rec.positions_m[0]
+    i = {j: k for k, j in enumerate(UPPER_JOINTS)}
+    forward = y[i["head"]] - y[i["neck"]]
+    forward[2] = 0.0
+    left = y[i["l_shoulder"]] - y[i["r_shoulder"]]
+    assert np.cross([0, 0, 1], forward) @ left > 0  # left of (up, forward), either way
+    assert ("mirrored" in rec.source) == (left_x < 0)

@@ -36,6 +36,14 @@ rotation (lengths and handedness kept: left stays left); for y up that is the CM
 ``(x, y, z)_world = (x, -z, y)_file``. The height of the floor is not in an upper-body file:
 where the recording stands is the scenario's (a recording's offset).
 
+**Handedness**, established from the rest pose where it can be: a person's head sits in front of
+the neck's base, so with the head's horizontal offset from the neck in the rest pose as
+"forward", the left shoulder must lie on the left of (up, forward). Where it lies on the right
+the file's axes are left-handed (the TUM recordings: head 0.10-0.12 m forward, left shoulder on
+the right) and the recording is mirrored (world x negated) so that left stays left. Where the
+offset is under 2 cm (a T-pose with the head upright: CMU) the file is taken as right-handed,
+the BVH convention, and the source says so.
+
 **A T-pose first frame** (the CMU conversions start with one) is no motion: a first frame whose
 forearms both lie within 20 degrees of horizontal while the next frame's do not is dropped (and
 said in the recording's source).
@@ -178,6 +186,25 @@ def to_z_up(axis: str) -> np.ndarray:
     return np.stack([x, np.cross(up, x), up])  # rows: world x, y = z cross x, z
 
 
+HEAD_FORWARD_MIN_M = 0.02
+HANDEDNESS = {
+    "right": "right-handed axes (from the rest pose)",
+    "left": "left-handed axes, mirrored (from the rest pose)",
+    "assumed": "right-handed axes (assumed: the rest pose's head is upright)",
+}
+
+
+def _handedness(rest: list[np.ndarray]) -> str:
+    """``right``, ``left`` or ``assumed`` from the rest pose's neck, head and shoulders (z up,
+    metres; see the module notes)."""
+    neck, head, left, right = rest
+    forward = head - neck
+    forward[2] = 0.0
+    if np.linalg.norm(forward) < HEAD_FORWARD_MIN_M:
+        return "assumed"
+    return "right" if np.cross([0.0, 0.0, 1.0], forward) @ (left - right) > 0 else "left"
+
+
 def _is_t_pose(pos: np.ndarray, idx: dict[str, int], R: np.ndarray) -> bool:
     """Both forearms within ``T_POSE_DEG`` of horizontal in frame 0, not in frame 1."""
 
@@ -224,6 +251,10 @@ def load_bvh(
     R = to_z_up(up)
     dropped = _is_t_pose(pos, idx, R)
     pos = pos[1:] if dropped else pos
+    hand = _handedness([(at(rest, j) @ R.T) * UNITS[unit] for j in ("neck", "head",
+                        "l_shoulder", "r_shoulder")])  # fmt: skip
+    if hand == "left":
+        R = np.diag([-1.0, 1.0, 1.0]) @ R  # mirrored: left stays left
     world = (pos @ R.T) * UNITS[unit]
     return Recording(
         name=name if name is not None else p.stem,
@@ -232,6 +263,7 @@ def load_bvh(
         positions_m=world,
         source=(
             f"BVH {p.name} ({key} skeleton), {1.0 / dt:g} Hz, unit {unit} "
-            f"({UNITS[unit]:g} m), up {up}{', T-pose frame 0 dropped' if dropped else ''}"
+            f"({UNITS[unit]:g} m), up {up}, {HANDEDNESS[hand]}"
+            f"{', T-pose frame 0 dropped' if dropped else ''}"
         ),
     )

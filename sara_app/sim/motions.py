@@ -16,10 +16,38 @@ from sara_app.geometry.shapes import segment_segment_closest
 from sara_app.human.params import ReachParams
 from sara_app.human.recordings import Recording, load_recording
 from sara_app.human.scripted import ScriptedMotion, build_motion, joints, standing
+from sara_app.human.skeleton import UPPER_JOINTS
 
 
 class HumanMotion(Protocol):
     def pose(self, t: float, robot_ends: np.ndarray, robot_radius: np.ndarray) -> np.ndarray: ...
+
+
+def measures_legs(motion: HumanMotion) -> bool:
+    """Whether a sensor measures this person's legs (an upper-body recording's are not)."""
+    return bool(getattr(motion, "legs_measured", True))
+
+
+HIP_HALF_WIDTH_M, THIGH_M, SHIN_M = 0.1, 0.45, 0.42
+"""The standing legs put under an upper-body recording's pelvis (a person of median build)."""
+
+
+def standing_legs(upper: np.ndarray) -> np.ndarray:
+    """``(T, 15, 3)`` from an upper-body recording's ``(T, 9, 3)``: the legs standing straight
+    under the pelvis, hips across the shoulders' direction. The assumption of every simulation
+    of an upper-body recording: the person stands (the recording has no legs to replay)."""
+    pelvis = upper[:, UPPER_JOINTS.index("pelvis")]
+    across = upper[:, UPPER_JOINTS.index("l_shoulder")] - upper[:, UPPER_JOINTS.index("r_shoulder")]
+    across[:, 2] = 0.0
+    across /= np.maximum(np.linalg.norm(across, axis=1, keepdims=True), 1e-9)
+    down = np.array([0.0, 0.0, 1.0])
+    legs = []
+    for side in (1.0, -1.0):
+        hip = pelvis + side * HIP_HALF_WIDTH_M * across - 0.05 * down
+        legs.append((hip, hip - THIGH_M * down, hip - (THIGH_M + SHIN_M) * down))
+    (lh, lk, la), (rh, rk, ra) = legs
+    # FULL_JOINTS order after the upper body: l_hip, r_hip, l_knee, r_knee, l_ankle, r_ankle
+    return np.concatenate([upper, np.stack([lh, rh, lk, rk, la, ra], axis=1)], axis=1)
 
 
 class Scripted:
@@ -37,7 +65,8 @@ RAMP_S = 1.0
 class Playback:
     """A recording replayed from ``clip_start_s`` at scenario time ``start_s``, turned by
     ``yaw_rad`` about the vertical through its first pelvis position and moved by ``offset_m``;
-    linear interpolation between frames.
+    linear interpolation between frames. An upper-body recording stands on
+    :func:`standing_legs` (``legs_measured`` False: its sensor measures the upper body only).
 
     A clip starts and ends mid-motion (a walk at 1.3 m/s); held still before and after it, the
     person would change speed in no time, which no parameter set allows (the conformance monitor
@@ -54,8 +83,8 @@ class Playback:
         offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
         yaw_rad: float = 0.0,
     ) -> None:
-        if rec.kind != "full":
-            raise ParameterError(f"recording {rec.name!r} is {rec.kind!r}; simulation needs 'full'")
+        self.legs_measured = rec.kind == "full"
+        y = rec.positions_m if self.legs_measured else standing_legs(rec.positions_m)
         self.t = rec.times_s - rec.times_s[0]
         self.start_s, self.clip_start_s = start_s, min(clip_start_s, float(self.t[-1]))
         self.clip_s = float(self.t[-1]) - self.clip_start_s
@@ -64,7 +93,7 @@ class Playback:
         pivot = np.array([pelvis[0], pelvis[1], 0.0])
         c, s = np.cos(yaw_rad), np.sin(yaw_rad)
         R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        self.y = (rec.positions_m - pivot) @ R.T + pivot + np.asarray(offset_m)
+        self.y = (y - pivot) @ R.T + pivot + np.asarray(offset_m)
 
     @property
     def duration_s(self) -> float:

@@ -35,6 +35,7 @@ from sara_app.cell.build import build_cell, environment_boxes
 from sara_app.cell.intake import Track, take_measurement, track_for
 from sara_app.geometry.shapes import capsule_box_distances, segment_pair_distances
 from sara_app.human.glitches import Glitches
+from sara_app.human.skeleton import UPPER_JOINTS, full_body
 from sara_app.robot.energy import LinkMotion
 from sara_app.robot.model import RobotModel
 from sara_app.safety.settings import PflSettings
@@ -43,7 +44,7 @@ from sara_app.safety.ssm import body_distance
 from sara_app.safety.thresholds import ThresholdSet, load_thresholds, threshold_arrays
 from sara_app.safety.topology import human_safe_matrix, unclampable_matrix
 from sara_app.scenario import Scenario
-from sara_app.sim.motions import HumanMotion, make_motion, measured
+from sara_app.sim.motions import HumanMotion, make_motion, measured, measures_legs
 
 _MOVING_RAD_S = 1e-6
 
@@ -55,6 +56,7 @@ class _Sensor:
     next_s: float
     glitches: Glitches
     track: Track
+    legs_measured: bool = True
 
 
 @dataclass
@@ -241,8 +243,9 @@ class Simulation:
                 0.0,
                 Glitches(h.sensor.glitches),
                 track_for(cell, h.id),
+                measures_legs(m),
             )
-            for h in sc.humans
+            for h, m in zip(sc.humans, self.motions)
         ]
         self._hist_t: list[float] = []
         self._hist_y: list[list[np.ndarray]] = [[] for _ in sc.humans]
@@ -297,7 +300,9 @@ class Simulation:
         stamp = t_m + self.params.delay_s
         if sen.track.state.stamp_s is not None and stamp <= sen.track.state.stamp_s:
             return
-        take_measurement(self.cell, sen.track, stamp, y)  # refused: the person ages
+        if not sen.legs_measured:  # an upper-body source: its legs at the pelvis, unmeasured
+            y = full_body(y[: len(UPPER_JOINTS)], None)[0]
+        take_measurement(self.cell, sen.track, stamp, y, legs_measured=sen.legs_measured)
 
     def _collide(self, q: np.ndarray, v: np.ndarray, poses: list[np.ndarray], moving: bool) -> None:
         if not poses:
