@@ -4,7 +4,7 @@
 checked with :func:`~sara_app.geometry.shape_kernels.capsule_sets_check` (the whole model) and by
 brute force per capsule (:func:`~sara_app.geometry.shapes.capsule_distances`: which body parts the
 model clears): the reference of the compiled :func:`~sara_app.safety.ssm_kernels.ssm_kernel`
-(tests/test_ssm_kernel.py)."""
+(tests/test_ssm_kernels.py)."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """The compiled PFL cycle (sara_app.safety.pfl_cycle): its plan slab layout, a follower with
 nothing ahead, a kernel failure, what it refuses, its constants for several people and its
 cache key. Its equality with the Python reference, cycle by cycle, is in
-tests/test_pfl_fused_kernel.py."""
+tests/test_pfl_fused_kernels.py."""
 
 from __future__ import annotations
 

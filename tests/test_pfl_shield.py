@@ -44,7 +44,7 @@ def make_shield(
 
 def reference_shield(models: tuple[str, ...] = ("acc", "vel", "pos")) -> ReferencePflShield:
     """The shield composed in Python (tests/pfl_reference.py): its checks are reachable one by
-    one, and the production shield equals it cycle by cycle (tests/test_pfl_fused_kernel.py)."""
+    one, and the production shield equals it cycle by cycle (tests/test_pfl_fused_kernels.py)."""
     return as_reference(make_shield(models))
 
 

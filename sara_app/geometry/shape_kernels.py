@@ -1,7 +1,7 @@
 """Compiled (numba) capsule kernels of the verification hot paths.
 
 Same mathematics as :func:`sara_app.geometry.shapes.segment_segment_closest` (and tested against it,
-``tests/test_geometry_kernels.py``), written as loops: at the sizes of one control cycle (a few
+``tests/test_shape_kernels.py``), written as loops: at the sizes of one control cycle (a few
 hundred to a few thousand capsule pairs) numpy spends most of its time in per-call overhead
 (about 1-3 us per array operation here), a loop over the pairs does not.
 
