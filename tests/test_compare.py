@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from sara_app.cli import main
-from sara_app.scenario import load_scenario
+from sara_app.scenario import load_scenario, parse_scenario
 from sara_app.sim.compare import _Recorder, compare, format_table, run_mode, with_mode
 
 
@@ -106,3 +106,13 @@ def test_pfl_throughput_is_the_comparison_of_ssm_and_pfl(capsys) -> None:
     assert "harm" in lines[0]
     assert [ln.split()[:2] for ln in lines[2:4]] == [["empty_cell", "ssm"], ["empty_cell", "pfl"]]
     assert main(["pfl", "throughput", "nowhere", "--quiet"]) == 2
+
+
+def test_with_mode_drops_the_models_the_mode_cannot_verify_with() -> None:
+    data = load_scenario("punches").model_dump(mode="json")
+    data["shield"]["models"] = ["arm", "vel"]
+    sc = parse_scenario(data)
+    assert with_mode(sc, "pfl").shield.models == ["vel"]  # PFL has no arm model
+    assert with_mode(sc, "ssm").shield.models == ["arm", "vel"]
+    data["shield"]["models"] = ["arm"]
+    assert with_mode(parse_scenario(data), "pfl").shield.models == ["vel"]

@@ -38,9 +38,9 @@ from sara_app.human.recordings import load_recording
 from sara_app.ops.audit import AuditLog
 from sara_app.ops.threshold_edit import threshold_view
 from sara_app.report.stopping import stop_rows
-from sara_app.safety.settings import models_of_mode
-from sara_app.scenario import Scenario, parse_scenario
+from sara_app.scenario import Scenario
 from sara_app.sim.closed_loop import run_closed_loop
+from sara_app.sim.compare import with_mode
 from sara_app.sim.episodes import run_episodes
 
 HORIZONS_S = (0.1, 0.3, 0.5)
@@ -83,14 +83,6 @@ class Evidence:
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
-
-
-def _in_mode(sc: Scenario, mode: str) -> Scenario:
-    """``sc`` in safety ``mode`` (PFL cannot use Pereira's arm model: dropped there)."""
-    data = sc.model_dump(mode="json")
-    models = models_of_mode(mode, data["shield"]["models"])
-    data["shield"] = {**data["shield"], "mode": mode, "models": models or ["vel"]}
-    return parse_scenario(data, f"{sc.name} in {mode}")
 
 
 def _containment_rows(
@@ -156,7 +148,7 @@ def gather(sc: Scenario, settings: Settings, progress: Progress | None = None) -
     ev.stops = [asdict(r) for r in rows]
     for mode in modes:
         step(f"closed loop in {mode.upper()}")
-        ev.closed_loop.append(run_closed_loop(_in_mode(sc, mode), settings.duration_s))
+        ev.closed_loop.append(run_closed_loop(with_mode(sc, mode), settings.duration_s))
     if settings.episodes:
         for mode in modes:
             step(f"{settings.episodes} adversarial episodes in {mode.upper()}")

@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from sara_app.errors import SaraError
+from sara_app.safety.settings import models_of_mode
 from sara_app.safety.ssm import body_distance
 from sara_app.scenario import Scenario, load_scenario, parse_scenario, scenario_names
 
@@ -97,9 +98,11 @@ class _Recorder:
 
 def with_mode(sc: Scenario, mode: str, jssa_constraints: str | None = None) -> Scenario:
     """The scenario with its safety mode (and optionally JSSA's constraint mode, ``single`` or
-    ``multi``) replaced, validated again."""
+    ``multi``) replaced, validated again; models the mode cannot verify with are dropped
+    (:func:`~sara_app.safety.settings.models_of_mode`; none left: ``vel``)."""
     data = sc.model_dump(mode="json")
     data["shield"]["mode"] = mode
+    data["shield"]["models"] = models_of_mode(mode, data["shield"]["models"]) or ["vel"]
     if jssa_constraints is not None:
         data["shield"]["jssa"]["constraints"] = jssa_constraints
     return parse_scenario(data, f"{sc.name} ({mode})")
