@@ -19,7 +19,6 @@ from pathlib import Path
 from typing import Any
 
 from sara_app import __version__
-from sara_app.safety.thresholds import load_thresholds
 from sara_app.scenario import Scenario
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]
@@ -51,7 +50,7 @@ def configuration(sc: Scenario) -> dict[str, Any]:
     return {
         "scenario": sc.model_dump(mode="json"),
         "human_params": sc.param_set().model_dump(mode="json"),
-        "thresholds": load_thresholds(sc.shield.pfl.thresholds).model_dump(mode="json"),
+        "thresholds": sc.shield.pfl.source_set().model_dump(mode="json"),
         "code": {"version": __version__, "sha256": code_digest()},
     }
 

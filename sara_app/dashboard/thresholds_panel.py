@@ -28,7 +28,6 @@ from sara_app.ops.threshold_edit import (
     ConfirmationRequired,
     apply_edit,
     effective_energy,
-    source_set,
     threshold_view,
 )
 from sara_app.safety.thresholds import CONTACTS, REGIONS, SHAPES
@@ -103,7 +102,7 @@ class ThresholdsPanel:
     def source_value(self) -> tuple[float, float]:
         """``(value in force, source value)`` of the selected entry, J."""
         sc = self.get_scenario()
-        base = source_set(sc)
+        base = sc.shield.pfl.source_set()
         value, _ = effective_energy(sc, base, self.entry())
         return value, float(base.energy_J(*self.entry()))
 

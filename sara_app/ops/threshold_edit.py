@@ -34,7 +34,6 @@ from sara_app.safety.thresholds import (
     REGIONS,
     SHAPES,
     ThresholdSet,
-    load_thresholds,
 )
 from sara_app.scenario import Scenario, parse_scenario
 
@@ -77,11 +76,6 @@ def check_energy(energy_J: object) -> float:
             f"threshold energy {value!r} J is out of range; expected {ENERGY_RANGE}"
         )
     return value
-
-
-def source_set(sc: Scenario) -> ThresholdSet:
-    """The scenario's named threshold set (the sources of every entry)."""
-    return load_thresholds(sc.shield.pfl.thresholds)
 
 
 def effective_energy(sc: Scenario, base: ThresholdSet, entry: Entry) -> tuple[float, bool]:
@@ -168,7 +162,7 @@ def plan_edit(
     > 0) or ConfirmationRequired (value above the source's value without ``confirm``)."""
     entry = check_entry(region, contact, shape)
     value = check_energy(energy_J)
-    base = source_set(sc)
+    base = sc.shield.pfl.source_set()
     src = base.limit(*entry)
     old, _ = effective_energy(sc, base, entry)
     remove = math.isclose(value, src.energy_J, rel_tol=1e-12, abs_tol=0.0)
@@ -223,7 +217,7 @@ def threshold_view(sc: Scenario) -> dict[str, Any]:
     """The effective table of ``sc``: one row per Table I entry (region, contact, shape) with
     ``energy_J`` (in force), ``source_energy_J``, ``source_key``, ``source_text``,
     ``overridden`` and ``iso_reference`` (ISO/TS 15066 Annex A, for display only)."""
-    base = source_set(sc)
+    base = sc.shield.pfl.source_set()
     rows = []
     for region in REGIONS:
         for contact in CONTACTS:
@@ -260,7 +254,7 @@ def _known_values(sc: Scenario, region: str, contact: str, shape: str) -> dict[s
     entry itself is invalid)."""
     try:
         entry = check_entry(region, contact, shape)
-        base = source_set(sc)
+        base = sc.shield.pfl.source_set()
     except SaraError:
         return {}
     src = base.limit(*entry)

@@ -74,7 +74,7 @@ from sara_app.safety.pfl_link_states import PathLinkStates
 from sara_app.safety.pfl_scaling import PflCycle, SpeedScaling
 from sara_app.safety.settings import PflSettings, ShieldSettings
 from sara_app.safety.shield import CycleResult, Humans, Shield
-from sara_app.safety.thresholds import ThresholdSet, load_thresholds
+from sara_app.safety.thresholds import ThresholdSet
 
 __all__ = ["G_MARGIN", "PflCycle", "PflShield", "SpeedScaling", "part_capsules"]
 
@@ -104,13 +104,8 @@ class PflShield(Shield):
         super().__init__(robot, follower, reach, settings)
         self.spec = spec = spec or PflSettings()
         self.scaling = scaling or SpeedScaling()
-        ts = load_thresholds(spec.thresholds)
-        self.above_source: list[str] = []
-        """Threshold edits above the shipped value (confirmed by the safety engineer)."""
-        for o in spec.overrides:
-            ts, above = ts.with_energy(o.region, o.contact, o.shape, o.energy_J)
-            if above:
-                self.above_source.append(f"{o.region}/{o.contact}/{o.shape} = {o.energy_J} J")
+        # above_source: the threshold edits above the shipped value (confirmed by the engineer)
+        ts, self.above_source = spec.edited_set()
         self.thresholds: ThresholdSet = ts
         self.boxes = _boxes(boxes)
         self._orders = (list(self.settings.models), list(self.settings.models))

@@ -12,6 +12,7 @@ from pydantic import Field, field_validator, model_validator
 
 from sara_app.human.reach import MODELS
 from sara_app.safety.thresholds import RENAMED as THRESHOLDS_RENAMED
+from sara_app.safety.thresholds import ThresholdSet, load_thresholds
 from sara_app.settings import Name, NonNeg, StrictFinite
 
 FUTURE_TOLERANCE_S = 0.002
@@ -69,6 +70,20 @@ class PflSettings(StrictFinite):
     a design declaration for the safety engineer to confirm; None: the shipped robot's
     declaration (``sara_app.safety.topology``), none for any other robot (every pair may
     clamp: conservative)."""
+
+    def source_set(self) -> ThresholdSet:
+        """The named threshold set as shipped: the source of every entry."""
+        return load_thresholds(self.thresholds)
+
+    def edited_set(self) -> tuple[ThresholdSet, list[str]]:
+        """The set in force (the named set with ``overrides`` applied) and the edits above the
+        shipped value (confirmed by the safety engineer)."""
+        ts, above = self.source_set(), []
+        for o in self.overrides:
+            ts, up = ts.with_energy(o.region, o.contact, o.shape, o.energy_J)
+            if up:
+                above.append(f"{o.region}/{o.contact}/{o.shape} = {o.energy_J} J")
+        return ts, above
 
     @field_validator("thresholds")
     @classmethod

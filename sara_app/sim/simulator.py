@@ -41,7 +41,7 @@ from sara_app.robot.model import RobotModel
 from sara_app.safety.settings import PflSettings
 from sara_app.safety.shield import CycleResult
 from sara_app.safety.ssm import body_distance
-from sara_app.safety.thresholds import ThresholdSet, load_thresholds, threshold_arrays
+from sara_app.safety.thresholds import threshold_arrays
 from sara_app.safety.topology import human_safe_matrix, unclampable_matrix
 from sara_app.scenario import Scenario
 from sara_app.sim.motions import HumanMotion, make_motion, measured, measures_legs
@@ -115,14 +115,6 @@ class SimMetrics:
         ]
 
 
-def pfl_thresholds(spec: PflSettings) -> ThresholdSet:
-    """The threshold set of a scenario's PFL settings, its edits applied."""
-    ts = load_thresholds(spec.thresholds)
-    for o in spec.overrides:
-        ts = ts.with_energy(o.region, o.contact, o.shape, o.energy_J)[0]
-    return ts
-
-
 @dataclass
 class ContactVerdict:
     """Per person: ``touching`` a link with energy, ``clamped`` (actual class), ``harmful``
@@ -156,7 +148,7 @@ class ContactTruth:
         self.robot, self.n_humans, self.n_parts = robot, H, P
         self.motion = LinkMotion(robot)
         T_free, T_clamp = threshold_arrays(
-            pfl_thresholds(spec), robot.link_names, part_names, spec.link_shapes
+            spec.edited_set()[0], robot.link_names, part_names, spec.link_shapes
         )
         self.T_free, self.T_clamp = np.tile(T_free, (1, H)), np.tile(T_clamp, (1, H))
         L = robot.n_links
