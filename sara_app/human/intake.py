@@ -18,6 +18,8 @@ import numpy as np
 from sara_app.errors import InputError
 from sara_app.human.conformance import Monitor, Violation
 from sara_app.human.gate import FLAGS, FROZEN_EPS_M, Gate, GateResult, GateSettings
+from sara_app.human.params import ReachParams
+from sara_app.human.recording import Recording
 from sara_app.human.skeleton import FULL_JOINTS
 from sara_app.human.velocity import VelocityEstimator
 
@@ -225,3 +227,11 @@ def screen(
             violations += m.last
     return Screening(held, flags, refused, violations, intake.counts(), m.peak_speed_mps,
                      m.peak_acc_mps2, faulted)  # fmt: skip
+
+
+def screen_recording(params: ReachParams, rec: Recording) -> Screening:
+    """``rec`` through a fresh intake under ``params`` (its noise bound and the bounds of the
+    recording's joints): what a live cell's gate and monitor make of that person."""
+    J = rec.positions_m.shape[1]
+    return screen(rec.times_s, rec.positions_m, params.delta_y_m, params.v_max_mps[:J],
+                  params.a_max_mps2[:J])  # fmt: skip

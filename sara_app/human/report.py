@@ -22,7 +22,7 @@ from sara_app.human.analysis import (
     occupancies,
 )
 from sara_app.human.calibrate import CalibrationReport, calibrate
-from sara_app.human.intake import screen
+from sara_app.human.intake import screen_recording
 from sara_app.human.params import ParamSet, load_param_set, save_param_set, to_reach_params
 from sara_app.human.reach import MODELS, HumanReach
 from sara_app.human.recordings import Recording, load_recording
@@ -75,13 +75,6 @@ def write_jsonl(
     return n
 
 
-def _faulted(reach: HumanReach, rec: Recording) -> np.ndarray:
-    """``(T,)`` the frames a live cell's conformance monitor faults ``rec``'s person at."""
-    p, J = reach.params, rec.positions_m.shape[1]
-    return screen(rec.times_s, rec.positions_m, p.delta_y_m, p.v_max_mps[:J],
-                  p.a_max_mps2[:J]).faulted  # fmt: skip
-
-
 def in_use(models: Sequence[str]) -> tuple[str, ...]:
     """Of ``models``, those a cell verifies with by default (``shield.models``): the effective
     set is theirs; all of ``models`` when none of them is."""
@@ -131,9 +124,7 @@ def reach_command(
     ps = load_param_set(params)
     reach = HumanReach(to_reach_params(ps, rec.kind))
     # every input error comes before anything is written
-    p = reach.params
-    J = rec.positions_m.shape[1]
-    s = screen(rec.times_s, rec.positions_m, p.delta_y_m, p.v_max_mps[:J], p.a_max_mps2[:J])
+    s = screen_recording(reach.params, rec)
     res = containment(reach, rec.times_s, rec.positions_m, horizon_s, tuple(models),
                       faulted=s.faulted, effective_of=in_use(models))  # fmt: skip
     if out is not None:
@@ -254,7 +245,7 @@ def calibrate_command(
     for rec in recs:
         for label, pset in (("base", load_param_set(base)), ("calibrated", ps)):
             reach = HumanReach(to_reach_params(pset, rec.kind))
-            fault = _faulted(reach, rec)
+            fault = screen_recording(reach.params, rec).faulted
             res = containment(reach, rec.times_s, rec.positions_m, horizon_s,
                               faulted=fault, effective_of=in_use(MODELS))  # fmt: skip
             misses = {m: c.checked - c.contained for m, c in res.items()}

@@ -31,7 +31,7 @@ import numpy as np
 
 from sara_app.human.analysis import EFFECTIVE, containment
 from sara_app.human.calibrate import calibrate
-from sara_app.human.intake import screen
+from sara_app.human.intake import screen_recording
 from sara_app.human.params import ParamSet, to_reach_params
 from sara_app.human.reach import HumanReach
 from sara_app.human.recording import Recording
@@ -154,9 +154,7 @@ def leave_one_out(
     for i, rec in enumerate(recs):
         others = combine([p for k, p in enumerate(own) if k != i], "others")
         reach = HumanReach(to_reach_params(others, rec.kind))
-        p, J = reach.params, rec.positions_m.shape[1]
-        fault = screen(rec.times_s, rec.positions_m, p.delta_y_m, p.v_max_mps[:J],
-                       p.a_max_mps2[:J]).faulted  # fmt: skip
+        fault = screen_recording(reach.params, rec).faulted
         eff = containment(reach, rec.times_s, rec.positions_m, horizon_s, models,
                           faulted=fault)[EFFECTIVE]  # fmt: skip
         (v_own, a_own), (v_oth, a_oth) = _bounds(own[i]), _bounds(others)

@@ -31,7 +31,7 @@ from sara_app import __version__
 from sara_app.cell.build import build_cell
 from sara_app.cell.checksum import code_digest
 from sara_app.human.analysis import containment
-from sara_app.human.intake import screen
+from sara_app.human.intake import screen_recording
 from sara_app.human.params import ReachParams
 from sara_app.human.reach import HumanReach
 from sara_app.human.recordings import load_recording
@@ -92,10 +92,7 @@ def _containment_rows(
     rows = []
     for name in names:
         rec = load_recording(name)
-        p = reach.params
-        J = rec.positions_m.shape[1]
-        scr = screen(rec.times_s, rec.positions_m, p.delta_y_m, p.v_max_mps[:J],
-                     p.a_max_mps2[:J])  # fmt: skip
+        scr = screen_recording(reach.params, rec)
         for h in HORIZONS_S:
             res = containment(reach, rec.times_s, rec.positions_m, h, models, faulted=scr.faulted)
             for m, c in res.items():
