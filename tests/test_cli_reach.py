@@ -8,15 +8,18 @@ import numpy as np
 
 from sara_app.cli import main
 from sara_app.human.recordings import Recording, save_csv
-from sara_app.human.skeleton import FULL_JOINTS
+from sara_app.human.skeleton import FULL_JOINTS, UPPER_JOINTS
 
 
-def _csv(tmp_path):
+def _csv(tmp_path, kind="full"):
+    """A small recording swaying along x; ``upper``: the 9 joints of an upper-body tracker
+    (or of the TUM table-side recordings), named ``u``, else ``h``."""
     t = np.arange(0, 0.5, 1 / 60)
-    base = np.linspace([0, 0, 0.1], [0.3, 0.2, 1.7], len(FULL_JOINTS))
+    n, low, name = (len(FULL_JOINTS), 0.1, "h") if kind == "full" else (len(UPPER_JOINTS), 0.9, "u")
+    base = np.linspace([0, 0, low], [0.3, 0.2, 1.7], n)
     y = base[None] + 0.3 * np.sin(2 * np.pi * t)[:, None, None] * np.array([1.0, 0, 0])
-    path = tmp_path / "h.csv"
-    save_csv(Recording("h", "full", t, y, "test"), path)
+    path = tmp_path / f"{name}.csv"
+    save_csv(Recording(name, kind, t, y, "test"), path)
     return path
 
 
@@ -68,23 +71,10 @@ def test_volumes_report_the_effective_set(tmp_path, capsys) -> None:
         assert 0.0 < table["effective"][k] <= 1.05 * smallest
 
 
-def _upper_csv(tmp_path):
-    """A 9-joint (upper body) recording: the skeleton of an upper-body tracker or the TUM
-    table-side recordings."""
-    from sara_app.human.skeleton import UPPER_JOINTS
-
-    t = np.arange(0, 0.5, 1 / 60)
-    base = np.linspace([0, 0, 0.9], [0.3, 0.2, 1.7], len(UPPER_JOINTS))
-    y = base[None] + 0.3 * np.sin(2 * np.pi * t)[:, None, None] * np.array([1.0, 0, 0])
-    path = tmp_path / "u.csv"
-    save_csv(Recording("u", "upper", t, y, "test"), path)
-    return path
-
-
 def test_every_offline_command_takes_an_upper_body_recording(tmp_path, capsys) -> None:
     """An upper-body recording went through the tracking gate's leg bones (an IndexError in
     reach, volumes and calibrate); each command now runs on it end to end."""
-    up = str(_upper_csv(tmp_path))
+    up = str(_csv(tmp_path, "upper"))
     out = tmp_path / "caps.jsonl"
     assert main(["reach", up, "--horizon", "0.1", "--out", str(out)]) == 0
     assert "containment on u" in capsys.readouterr().out
@@ -100,7 +90,7 @@ def test_calibrate_validates_leaving_each_recording_out(tmp_path, capsys) -> Non
     a.mkdir()
     b.mkdir()
     cal = tmp_path / "cal.json"
-    files = [str(_csv(a)), str(_upper_csv(b))]
+    files = [str(_csv(a)), str(_csv(b, "upper"))]
     assert (
         main(["calibrate", *files, "--horizon", "0.1", "--leave-one-out", "--out", str(cal)]) == 0
     )

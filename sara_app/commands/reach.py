@@ -3,9 +3,14 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from sara_app.human.reach import MODELS
+
+if TYPE_CHECKING:
+    from sara_app.human.recording import Recording
 
 
 def _models(text: str) -> list[str]:
@@ -16,7 +21,7 @@ def _models(text: str) -> list[str]:
     return names
 
 
-def _load(args: argparse.Namespace):  # type: ignore[no-untyped-def]
+def _load(args: argparse.Namespace) -> Callable[[str], Recording]:
     """The recording reader with the user's BVH unit and up axis."""
     from functools import partial
 
