@@ -6,9 +6,10 @@ from __future__ import annotations
 import numpy as np
 
 from sara_app.human.recording import Recording
+from sara_app.human.scripted import STANDING_LEGS_M
 from sara_app.human.skeleton import FULL_JOINTS, UPPER_JOINTS
 from sara_app.scenario import load_scenario
-from sara_app.sim.motions import SHIN_M, THIGH_M, Playback, measures_legs, standing_legs
+from sara_app.sim.motions import Playback, measures_legs, standing_legs
 from sara_app.sim.simulator import Simulation
 
 
@@ -32,8 +33,10 @@ def test_an_upper_body_recording_stands_on_straight_legs_under_its_pelvis() -> N
     for s, sign in (("l", 1.0), ("r", -1.0)):  # the person faces +x: left is +y
         hip, knee, ankle = y[:, i[f"{s}_hip"]], y[:, i[f"{s}_knee"]], y[:, i[f"{s}_ankle"]]
         assert np.all(sign * (hip[:, 1] - pelvis[:, 1]) > 0.05)
-        np.testing.assert_allclose(hip[:, 2] - ankle[:, 2], THIGH_M + SHIN_M)
-        np.testing.assert_allclose(knee[:, :2], hip[:, :2])  # straight, vertical
+        for j in ("hip", "knee", "ankle"):  # the scripted people's standing legs, body frame
+            np.testing.assert_allclose(y[:, i[f"{s}_{j}"]] - pelvis, np.broadcast_to(
+                STANDING_LEGS_M[f"{s}_{j}"], pelvis.shape), atol=1e-12)  # fmt: skip
+        assert np.all(ankle[:, 2] < knee[:, 2]) and np.all(knee[:, 2] < hip[:, 2])
     play = Playback(rec)
     assert not measures_legs(play) and play.pose(0.5, np.zeros((0, 2, 3)), np.zeros(0)).shape == (
         15,

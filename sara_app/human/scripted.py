@@ -27,7 +27,7 @@ SHOULDER_Z_M = 0.50  # above the pelvis
 NECK_Z_M = 0.55
 HEAD_Z_M = 0.72
 # lower body in the body frame relative to the pelvis (standing, legs straight)
-_LOWER = {
+STANDING_LEGS_M = {
     "l_hip": (0.0, 0.10, -0.03),
     "r_hip": (0.0, -0.10, -0.03),
     "l_knee": (0.0, 0.11, -0.45),
@@ -35,6 +35,7 @@ _LOWER = {
     "l_ankle": (0.0, 0.11, -0.87),
     "r_ankle": (0.0, -0.11, -0.87),
 }
+"""A standing person's leg joints from the pelvis in the body frame (x forward, y left, z up)."""
 PELVIS_Z_M = 0.95
 _DOWN = np.array([0.0, 0.0, -1.0])
 
@@ -81,7 +82,7 @@ def joints(pose: Pose) -> np.ndarray:
     p = pose.pelvis
     out = np.empty((len(FULL_JOINTS), 3))
     out[_J["pelvis"]] = p
-    for name, off in _LOWER.items():
+    for name, off in STANDING_LEGS_M.items():
         out[_J[name]] = p + R_body @ np.array(off)
     out[_J["neck"]] = p + R_up @ np.array([0.0, 0.0, NECK_Z_M])
     out[_J["head"]] = p + R_up @ np.array([0.0, 0.0, HEAD_Z_M])

@@ -15,8 +15,14 @@ from sara_app.errors import ParameterError
 from sara_app.geometry.shapes import segment_segment_closest
 from sara_app.human.params import ReachParams
 from sara_app.human.recordings import Recording, load_recording
-from sara_app.human.scripted import ScriptedMotion, build_motion, joints, standing
-from sara_app.human.skeleton import UPPER_JOINTS
+from sara_app.human.scripted import (
+    STANDING_LEGS_M,
+    ScriptedMotion,
+    build_motion,
+    joints,
+    standing,
+)
+from sara_app.human.skeleton import FULL_JOINTS, UPPER_JOINTS
 
 
 class HumanMotion(Protocol):
@@ -28,26 +34,22 @@ def measures_legs(motion: HumanMotion) -> bool:
     return bool(getattr(motion, "legs_measured", True))
 
 
-HIP_HALF_WIDTH_M, THIGH_M, SHIN_M = 0.1, 0.45, 0.42
-"""The standing legs put under an upper-body recording's pelvis (a person of median build)."""
-
-
 def standing_legs(upper: np.ndarray) -> np.ndarray:
-    """``(T, 15, 3)`` from an upper-body recording's ``(T, 9, 3)``: the legs standing straight
-    under the pelvis, hips across the shoulders' direction. The assumption of every simulation
-    of an upper-body recording: the person stands (the recording has no legs to replay)."""
+    """``(T, 15, 3)`` from an upper-body recording's ``(T, 9, 3)``: the legs of a standing
+    person (:data:`~sara_app.human.scripted.STANDING_LEGS_M`, as the scripted people stand)
+    under the pelvis, turned with the shoulders. The assumption of every simulation of an
+    upper-body recording: the person stands (the recording has no legs to replay)."""
     pelvis = upper[:, UPPER_JOINTS.index("pelvis")]
-    across = upper[:, UPPER_JOINTS.index("l_shoulder")] - upper[:, UPPER_JOINTS.index("r_shoulder")]
-    across[:, 2] = 0.0
-    across /= np.maximum(np.linalg.norm(across, axis=1, keepdims=True), 1e-9)
-    down = np.array([0.0, 0.0, 1.0])
-    legs = []
-    for side in (1.0, -1.0):
-        hip = pelvis + side * HIP_HALF_WIDTH_M * across - 0.05 * down
-        legs.append((hip, hip - THIGH_M * down, hip - (THIGH_M + SHIN_M) * down))
-    (lh, lk, la), (rh, rk, ra) = legs
-    # FULL_JOINTS order after the upper body: l_hip, r_hip, l_knee, r_knee, l_ankle, r_ankle
-    return np.concatenate([upper, np.stack([lh, rh, lk, rk, la, ra], axis=1)], axis=1)
+    left = upper[:, UPPER_JOINTS.index("l_shoulder")] - upper[:, UPPER_JOINTS.index("r_shoulder")]
+    left[:, 2] = 0.0
+    left /= np.maximum(np.linalg.norm(left, axis=1, keepdims=True), 1e-9)
+    up = np.array([0.0, 0.0, 1.0])
+    forward = np.cross(left, up)
+    legs = [pelvis + x * forward + y * left + z * up for x, y, z in STANDING_LEGS_M.values()]
+    order = [FULL_JOINTS.index(j) for j in STANDING_LEGS_M]  # the full skeleton's leg order
+    out = np.concatenate([upper, np.zeros((len(upper), len(legs), 3))], axis=1)
+    out[:, order] = np.stack(legs, axis=1)
+    return out
 
 
 class Scripted:
