@@ -112,12 +112,33 @@ def layout_mismatches(root: Path, page: str) -> list[str]:
     ]
 
 
+def mode_switches(root: Path, modes: tuple[str, ...] = ("ssm", "pfl", "jssa")) -> list[str]:
+    """Comparisons with a safety mode's name outside safety/ (and the benchmarks, which pick the
+    mode to build): what a mode does or shows is asked of safety.settings.mode_facts instead."""
+    out = []
+    for mod, path in _modules(root).items():
+        if mod.split(".")[1:2] in (["safety"], ["bench"]):
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not isinstance(node, ast.Compare):
+                continue
+            for side in (node.left, *node.comparators):
+                values = side.elts if isinstance(side, (ast.Tuple, ast.List, ast.Set)) else [side]
+                if any(isinstance(v, ast.Constant) and v.value in modes for v in values):
+                    out.append(f"{mod}:{node.lineno}")
+    return out
+
+
 def test_the_package_has_no_import_cycles() -> None:
     assert import_cycles(PACKAGE) == []
 
 
 def test_the_core_imports_only_the_core_and_the_shared_vocabulary() -> None:
     assert layer_violations(PACKAGE) == []
+
+
+def test_no_switch_on_the_safety_mode_outside_safety() -> None:
+    assert mode_switches(PACKAGE) == []
 
 
 def test_the_layout_page_names_every_folder_and_root_module() -> None:
@@ -133,7 +154,9 @@ def _package(tmp_path: Path, files: dict[str, str]) -> Path:
     return root
 
 
-def test_the_rules_fail_on_a_cycle_an_io_import_and_an_undocumented_folder(tmp_path: Path) -> None:
+def test_the_rules_fail_on_a_cycle_an_io_import_a_mode_switch_and_an_undocumented_folder(
+    tmp_path: Path,
+) -> None:
     root = _package(
         tmp_path,
         {
@@ -146,10 +169,13 @@ def test_the_rules_fail_on_a_cycle_an_io_import_and_an_undocumented_folder(tmp_p
             "bus/__init__.py": "",
             "bus/messages.py": "X = 1\n",
             "newfolder/__init__.py": "",
+            "newfolder/show.py": "def f(m):\n    return m in ('ssm', 'pfl')\n",
+            "safety/modes.py": "def build(m):\n    return m == 'pfl'\n",
         },
     )
     assert import_cycles(root) == [["sara_app.safety.a", "sara_app.safety.b"]]
     assert layer_violations(root) == ["sara_app.safety.c -> sara_app.bus.messages"]
+    assert mode_switches(root) == ["sara_app.newfolder.show:2"]
     page = "sara_app/errors.py sara_app/safety/ sara_app/bus/ sara_app/gone.py"
     assert layout_mismatches(root, page) == [
         "not in the layout page: sara_app/newfolder/",

@@ -20,6 +20,7 @@ def _episodes(args: argparse.Namespace) -> int:
 
 def _throughput(args: argparse.Namespace) -> int:
     from sara_app.errors import UnknownNameError
+    from sara_app.safety.settings import mode_facts
     from sara_app.scenario import scenario_names
     from sara_app.sim.compare import compare, format_table
 
@@ -30,7 +31,7 @@ def _throughput(args: argparse.Namespace) -> int:
     rows = compare(args.scenarios or None, tuple(args.modes), args.duration, not args.quiet)
     print(format_table(rows))
     failed = [r for r in rows if r.error or r.harmful_contacts]
-    failed += [r for r in rows if r.mode == "ssm" and r.collisions_moving]
+    failed += [r for r in rows if mode_facts(r.mode).guarantees_separation and r.collisions_moving]
     return 1 if failed else 0
 
 

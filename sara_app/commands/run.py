@@ -9,6 +9,7 @@ from pathlib import Path
 
 
 def _run(args: argparse.Namespace) -> int:
+    from sara_app.safety.settings import mode_facts
     from sara_app.scenario import load_scenario, scenario_names
     from sara_app.sim.simulator import Simulation
 
@@ -46,7 +47,8 @@ def _run(args: argparse.Namespace) -> int:
         # what each mode must never do: SSM touch anybody while moving; PFL exceed the energy
         # threshold of a contact's actual class (contacts below it are allowed); JSSA has no
         # such guarantee, a collision is reported all the same
-        bad = m.harmful_contacts if sc.shield.mode == "pfl" else m.collisions_moving
+        allowed = mode_facts(sc.shield.mode).contact_allowed
+        bad = m.harmful_contacts if allowed else m.collisions_moving
         worst = max(worst, bad)
     return 1 if worst else 0
 

@@ -42,7 +42,7 @@ from sara_app.dashboard.scene import (
     VERIFIED_RGB,
 )
 from sara_app.errors import SaraError
-from sara_app.safety.settings import SAFETY_MODES
+from sara_app.safety.settings import MODE_FACTS, SAFETY_MODES
 
 NO_SCENARIO = "(no scenarios)"
 SMALL_MARGIN = 0.1
@@ -522,9 +522,11 @@ class DashboardPanels:
         if mode == self._shown_mode:
             return
         self._shown_mode = mode
-        self.plot_phi.visible = mode == "jssa"
-        self.plot_speed.visible = mode == "pfl"
-        self.links_folder.visible = mode == "pfl"
+        facts = MODE_FACTS.get(mode)  # none yet (or unknown): no mode's plots
+        self.plot_phi.visible = facts is not None and facts.safety_index
+        energies = facts is not None and facts.contact_allowed  # link speeds vs energy limits
+        self.plot_speed.visible = energies
+        self.links_folder.visible = energies
 
     def show_error(self, text: str | None) -> None:
         """Show (or clear, with None) a rendering error under the status table."""

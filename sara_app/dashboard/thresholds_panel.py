@@ -30,6 +30,7 @@ from sara_app.ops.threshold_edit import (
     effective_energy,
     threshold_view,
 )
+from sara_app.safety.settings import mode_facts
 from sara_app.safety.thresholds import CONTACTS, REGIONS, SHAPES
 from sara_app.scenario import Scenario
 
@@ -131,7 +132,7 @@ class ThresholdsPanel:
         self.table.content = table_markdown(view["entries"])
         iso = ", ".join(f"{x['iso_region']} {x['energy_J']:.3g} J" for x in row["iso_reference"])
         mode = view["safety_mode"]
-        note = "" if mode == "pfl" else " (thresholds act in PFL mode)"
+        note = "" if mode_facts(mode).contact_allowed else " (thresholds act in PFL mode)"
         self.header.content = (
             f"Scenario **{view['scenario']}**, set `{view['thresholds']}`, "
             f"safety mode **{mode}**{note}"

@@ -27,6 +27,7 @@ from sara_app.bus.messages import (
 from sara_app.errors import InputError
 from sara_app.human.conformance import Violation
 from sara_app.robot.trajectory import JointState
+from sara_app.safety.settings import mode_facts
 from sara_app.safety.shield import CycleResult
 
 
@@ -87,7 +88,7 @@ class CycleMessages:
             faults=[f[:300] for f in res.faults[:8]],
             dropped=dropped,
             intervened=res.intervened,
-            speed_scale=res.speed_scale if res.safety_mode in ("ssm", "pfl") else None,
+            speed_scale=res.speed_scale if mode_facts(res.safety_mode).scales_speed else None,
             tracking=cast(Any, {} if people is None else people.tracking()),
             violations=[] if people is None else violation_msgs(people.violations()),
         )

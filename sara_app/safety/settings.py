@@ -6,10 +6,12 @@ nothing converts or mirrors them.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Annotated, Literal
 
 from pydantic import Field, field_validator, model_validator
 
+from sara_app.errors import UnknownNameError
 from sara_app.human.reach import MODELS
 from sara_app.safety.thresholds import RENAMED as THRESHOLDS_RENAMED
 from sara_app.safety.thresholds import ThresholdSet, load_thresholds
@@ -30,10 +32,44 @@ MAX_THRESHOLD_J = 10.0
 003 Table I (2 J). No body part's threshold can be set above it, confirmed or not."""
 
 
+@dataclass(frozen=True)
+class ModeFacts:
+    """What a safety mode promises and what it produces, for whoever reports or shows it: the
+    one place outside the shields that knows the modes apart (metrics, tables, plots ask here).
+    """
+
+    scales_speed: bool
+    """The verdict carries a speed scale (SSM's and PFL's scaled intended step)."""
+    contact_allowed: bool
+    """A contact below its body part's energy threshold is allowed; the failure is a harmful
+    contact (PFL, Kirschner's SaRA-shield). Otherwise any contact while moving is one."""
+    guarantees_separation: bool
+    """Formally verified never to touch a person while moving (SSM); JSSA's safe set carries no
+    such guarantee (its collisions are reported all the same)."""
+    safety_index: bool
+    """The verdict carries a safety index phi (JSSA, Zhao et al.)."""
+    arm_model: bool
+    """Can verify with Pereira's arm model (PFL's compiled check has no per-body-part arm
+    capsules)."""
+
+
+MODE_FACTS = {
+    "ssm": ModeFacts(True, False, True, False, True),
+    "pfl": ModeFacts(True, True, False, False, False),
+    "jssa": ModeFacts(False, False, False, True, True),
+}
+
+
+def mode_facts(mode: str) -> ModeFacts:
+    """The facts of safety ``mode`` (one of :data:`SAFETY_MODES`)."""
+    if mode not in MODE_FACTS:
+        raise UnknownNameError("safety mode", mode, SAFETY_MODES)
+    return MODE_FACTS[mode]
+
+
 def models_of_mode(mode: str, models: Sequence[str]) -> list[str]:
-    """Those of ``models`` that safety ``mode`` can verify with: PFL's compiled check has no
-    Pereira arm model (its capsules are not per body part)."""
-    return [m for m in models if not (mode == "pfl" and m == "arm")]
+    """Those of ``models`` that safety ``mode`` can verify with (:attr:`ModeFacts.arm_model`)."""
+    return [m for m in models if m != "arm" or mode_facts(mode).arm_model]
 
 
 def check_index_roots(lambda_1: float, lambda_2: float) -> None:

@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from sara_app.errors import SaraError
-from sara_app.safety.settings import models_of_mode
+from sara_app.safety.settings import mode_facts, models_of_mode
 from sara_app.safety.ssm import body_distance
 from sara_app.scenario import Scenario, load_scenario, parse_scenario, scenario_names
 
@@ -128,7 +128,7 @@ def run_mode(
         return row
     rec = [_Recorder(m) for m in sim.motions]
     sim.motions = rec  # type: ignore[assignment]
-    d_min = sc.shield.jssa.d_min_m if mode == "jssa" else None
+    d_min = sc.shield.jssa.d_min_m if mode_facts(mode).safety_index else None
     below = {"broken": 0, "kept": 0}
     parts, half_th = sim.shield.reach.skeleton.part_joints, sim.params.half_thickness_m
     T = sc.sim.duration_s if duration_s is None else duration_s

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sara_app.robot.model import load_robot
+from sara_app.safety.settings import mode_facts
 from sara_app.scenario import Scenario, parse_scenario
 from sara_app.sim.simulator import SimMetrics, Simulation
 
@@ -51,7 +52,7 @@ def episode_scenario(
                     "sensor": {"rate_hz": float(rng.choice([60.0, 100.0, 120.0]))},
                 }
             ],
-            "environment": [TABLE] if mode == "pfl" else [],
+            "environment": [TABLE] if mode_facts(mode).contact_allowed else [],
             "shield": {"models": models, "mode": mode},
             "sim": {"duration_s": duration_s, "seed": int(rng.integers(1 << 30))},
         },
@@ -83,7 +84,7 @@ class EpisodeSummary:
             f"min separation moving    {self.min_separation_moving_m:.3f} m",
             f"mean failsafe share      {100 * self.failsafe_share:.1f} %",
         ]
-        if self.mode == "pfl":
+        if mode_facts(self.mode).contact_allowed:
             out[1] = f"contacts while moving    {self.contacts} ({self.clamped} clamped)"
             out += [
                 f"harmful contacts         {self.harmful}"
@@ -117,7 +118,8 @@ def run_episodes(
         shares.append(m.failsafe_share)
         intervened.append(m.intervened_share)
         if progress:
-            count = f"harmful {out.harmful}" if mode == "pfl" else f"collisions {out.collisions}"
+            allowed = mode_facts(mode).contact_allowed
+            count = f"harmful {out.harmful}" if allowed else f"collisions {out.collisions}"
             print(f"\repisode {i + 1}/{n}  {count}", end="", file=sys.stderr)
     if progress:
         print(file=sys.stderr)
