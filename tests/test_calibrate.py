@@ -100,26 +100,3 @@ def test_frames_the_gate_distrusts_are_left_out_and_listed() -> None:
     p = to_reach_params(ps, "full")
     s = screen(rec.times_s, y, p.delta_y_m, p.v_max_mps, p.a_max_mps2)
     assert s.counts["speed"] == s.counts["acceleration"] == 0
-
-
-def test_a_plausibility_ceiling_leaves_reconstruction_failures_to_the_monitor() -> None:
-    """A joint that teleports for two frames (a BVH joint angle flipping: the bones stay rigid,
-    so the tracking gate sees only a jump) drives the fit without a ceiling; with one, those
-    joint-frames are left out and listed, and the monitor still measures the rest."""
-    from sara_app.human.calibrate import implausible
-
-    rec = _synthetic(2.5)
-    y = rec.positions_m.copy()
-    j = FULL_JOINTS.index("l_wrist")
-    y[120:122, j] += np.array([0.0, 0.6, 0.0])  # 0.6 m away and back within 3 frames
-    bad = Recording("flip", "full", rec.times_s, y, "test")
-    gone = implausible(bad, 10.0)
-    assert gone[:, j].sum() == 4 and gone[[119, 120, 121, 122], j].all()
-    assert not np.delete(gone, j, axis=1).any()
-    base = load_param_set("schepp2022_table1")
-    wild, _ = calibrate(base, [bad], 0.2, "wild")
-    tame, rep = calibrate(base, [bad], 0.2, "tame", max_speed_mps=10.0)
-    assert wild.joints["l_wrist"].v_max_mps > 30.0  # the flip's 72 m/s
-    assert tame.joints["l_wrist"].v_max_mps < 3.0  # the recording's own motion (at rest)
-    assert tame.joints["r_wrist"].v_max_mps == pytest.approx(wild.joints["r_wrist"].v_max_mps)
-    assert any("beyond 10 m/s l_wrist: 4 frames" in line for line in rep.excluded["flip"])

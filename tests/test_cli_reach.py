@@ -106,3 +106,16 @@ def test_calibrate_validates_leaving_each_recording_out(tmp_path, capsys) -> Non
 def test_a_bvh_unit_and_up_axis_are_options_of_bvh_files_only(tmp_path, capsys) -> None:
     assert main(["reach", str(_csv(tmp_path)), "--unit", "mm"]) == 2
     assert "only for BVH files" in capsys.readouterr().err
+
+
+def test_calibrate_splits_off_reconstruction_failures_under_both_ceilings(tmp_path, capsys) -> None:
+    cal = tmp_path / "cal.json"
+    rec = str(_csv(tmp_path))
+    args = ["calibrate", rec, "--horizon", "0.1", "--out", str(cal)]
+    assert main([*args, "--max-speed", "8", "--max-acc", "400"]) == 0
+    assert "reconstruction failures left out (ceilings 8 m/s, 400 m/s^2)" in capsys.readouterr().out
+    sound = json.loads(cal.read_text())["sound_for"]
+    assert sound["ceilings"].startswith("8 m/s, 400 m/s^2")
+    assert "reconstruction_failures_left_out" in sound
+    assert main([*args, "--max-speed", "8"]) == 2
+    assert "--max-speed and --max-acc go together" in capsys.readouterr().err

@@ -34,7 +34,7 @@ def test_the_maximum_of_single_fits_is_the_fit_on_all() -> None:
 def test_a_faster_recording_left_out_is_missed_and_the_margin_covers_it() -> None:
     base = load_param_set("schepp2022_table1")
     recs = [_synthetic(2.2), _synthetic(2.3), _synthetic(3.2)]  # the last is faster than the rest
-    val, own = leave_one_out(base, recs, 0.2, MODELS)
+    val, own = leave_one_out(base, [[r] for r in recs], [f"r{k}" for k in range(3)], 0.2, MODELS)
     fast = val.rows[2]
     assert fast.contained < fast.checked and fast.v_ratio > 1.0  # the others' set misses it
     assert all(r.contained == r.checked for r in val.rows[:2])  # each slow one: covered

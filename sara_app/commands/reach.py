@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 from sara_app.human.reach import MODELS
 
 if TYPE_CHECKING:
+    from sara_app.human.failures import Ceilings
     from sara_app.human.recording import Recording
 
 
@@ -47,7 +48,19 @@ def _calibrate(args: argparse.Namespace) -> None:
     from sara_app.human.report import calibrate_command
 
     calibrate_command(args.recordings, args.horizon, args.base, args.name, args.out, args.delta_y,
-                      args.leave_one_out, _load(args), args.max_speed)  # fmt: skip
+                      args.leave_one_out, _load(args), _ceilings(args))  # fmt: skip
+
+
+def _ceilings(args: argparse.Namespace) -> Ceilings | None:
+    from sara_app.errors import ParameterError
+    from sara_app.human.failures import Ceilings
+
+    given = (args.max_speed is not None, args.max_acc is not None)
+    if given == (False, False):
+        return None
+    if not all(given):
+        raise ParameterError("--max-speed and --max-acc go together: give both or neither")
+    return Ceilings(args.max_speed, args.max_acc)
 
 
 def _recording_options(p: argparse.ArgumentParser) -> None:
@@ -104,8 +117,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--max-speed",
         type=float,
         default=None,
-        help="plausibility ceiling in m/s: joint-frames reached or left faster are left out of "
-        "the fit and listed (reconstruction failures); a live cell's monitor faults on them",
+        help="ceiling of a person's joint speed in m/s (with --max-acc): reconstruction "
+        "failures beyond it are split off the recordings before fitting, and listed",
+    )
+    c.add_argument(
+        "--max-acc",
+        type=float,
+        default=None,
+        help="ceiling of a joint's one-frame acceleration in m/s^2 beyond the tracker noise "
+        "(with --max-speed)",
     )
     c.add_argument("--out", type=Path, required=True)
     _recording_options(c)

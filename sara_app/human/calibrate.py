@@ -223,33 +223,20 @@ def _screened(
     return trusted
 
 
-def implausible(rec: Recording, max_speed_mps: float) -> np.ndarray:
-    """``(T, J)`` joint-frames reached or left faster than ``max_speed_mps`` (one frame's chord:
-    a reconstruction failure the bones do not show, e.g. a BVH joint angle that flips)."""
-    y, t = rec.positions_m, rec.times_s
-    fast = np.linalg.norm(np.diff(y, axis=0), axis=-1) / np.diff(t)[:, None] > max_speed_mps
-    out = np.zeros(y.shape[:2], bool)
-    out[1:] |= fast
-    out[:-1] |= fast
-    return out
-
-
 def _monitor_needs(
     base: ParamSet,
     recs: list[Recording],
     dy: float,
     v: np.ndarray,
     a: np.ndarray,
-    left_out: list[np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(J,)`` the largest speed and acceleration the conformance monitor measures on ``recs``
     with the bounds ``v``, ``a`` ``(J,)`` in force (the full-skeleton order; what an upper-body
     recording measures is its joints')."""
     need_v, need_a = np.zeros(len(v)), np.zeros(len(v))
-    for k, rec in enumerate(recs):
+    for rec in recs:
         J = rec.positions_m.shape[1]
-        gone = None if left_out is None else left_out[k]  # not measured: not the monitor's
-        s = screen(rec.times_s, rec.positions_m, dy, v[:J], a[:J], missing=gone)
+        s = screen(rec.times_s, rec.positions_m, dy, v[:J], a[:J])
         need_v[:J] = np.maximum(need_v[:J], s.peak_speed_mps)
         need_a[:J] = np.maximum(need_a[:J], s.peak_acc_mps2)
     return need_v, need_a
@@ -265,12 +252,10 @@ def calibrate(
     horizon_s: float,
     name: str,
     delta_y_m: float | None = None,
-    max_speed_mps: float | None = None,
 ) -> tuple[ParamSet, CalibrationReport]:
     """A new parameter set whose bounds contain ``recs`` for the given horizon, with the
-    tracker noise bound ``delta_y_m`` (None: ``base``'s). ``max_speed_mps``: a plausibility
-    ceiling; joint-frames reached or left faster (:func:`implausible`) are left out of the fit
-    and listed, and the conformance monitor is left to fault on them in a live cell.
+    tracker noise bound ``delta_y_m`` (None: ``base``'s). Reconstruction failures are not
+    motion: split them off first (:func:`sara_app.human.failures.pieces`).
 
     Bounds are never lowered below ``base``'s: calibration only widens. The monitor's needs are
     measured with the fitted bounds in force (under them no joint jumps, so the monitor checks
@@ -282,15 +267,6 @@ def calibrate(
     dy = base.delta_y_m if delta_y_m is None else float(delta_y_m)
     rep = CalibrationReport(horizon_s, delta_y_m=dy)
     trusted = _screened(base, recs, dy, joints, rep)
-    left_out = None
-    if max_speed_mps is not None:
-        left_out = [implausible(r, max_speed_mps) for r in recs]
-        for rec, gone, ok in zip(recs, left_out, trusted):
-            ok &= ~gone
-            rep.excluded[rec.name] += [
-                f"beyond {max_speed_mps:g} m/s {rec.joints[j]}: {int(gone[:, j].sum())} frames "
-                "(left to the conformance monitor)" for j in np.flatnonzero(gone.any(axis=0))
-            ]  # fmt: skip
     v_fit, dvs = fit_velocity(recs, joints, dy, horizon_s, trusted=trusted)
     a_base = np.array([base.joints[j].a_max_mps2 for j in joints])
     v_base = np.array([base.joints[j].v_max_mps for j in joints])
@@ -298,7 +274,7 @@ def calibrate(
     v = np.maximum(v_base, _round_up(v_fit, 1.01, 0.01))
     a = np.maximum(a_base, _round_up(a_fit, 1.0, 1.0))
     for _ in range(8):  # raising a bound only lowers what the monitor finds beyond it
-        need_v, need_a = _monitor_needs(base, recs, dy, v, a, left_out)
+        need_v, need_a = _monitor_needs(base, recs, dy, v, a)
         if (need_v <= v).all() and (need_a <= a).all():
             break
         v = np.maximum(v, _round_up(need_v, 1.01, 0.01))

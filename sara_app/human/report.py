@@ -22,6 +22,7 @@ from sara_app.human.analysis import (
     occupancies,
 )
 from sara_app.human.calibrate import CalibrationReport, calibrate
+from sara_app.human.failures import Ceilings, describe, split
 from sara_app.human.intake import screen_recording
 from sara_app.human.params import ParamSet, load_param_set, save_param_set, to_reach_params
 from sara_app.human.reach import MODELS, HumanReach
@@ -216,6 +217,23 @@ def format_calibration(rep: CalibrationReport) -> str:
     return "\n".join(lines)
 
 
+def _containment_over(
+    ps: ParamSet, recs: Sequence[Recording], horizon_s: float
+) -> dict[str, tuple[int, int, int]]:
+    """Per model and the effective set: ``(checked, contained, unflagged)`` summed over ``recs``
+    (one recording's pieces), each screened by a fresh intake."""
+    out: dict[str, tuple[int, int, int]] = {}
+    for rec in recs:
+        reach = HumanReach(to_reach_params(ps, rec.kind))
+        fault = screen_recording(reach.params, rec).faulted
+        res = containment(reach, rec.times_s, rec.positions_m, horizon_s, faulted=fault,
+                          effective_of=in_use(MODELS))  # fmt: skip
+        for m, c in res.items():
+            k, n, u = out.get(m, (0, 0, 0))
+            out[m] = (k + c.checked, n + c.contained, u + (c.unflagged or 0))
+    return out
+
+
 def calibrate_command(
     recordings: Sequence[str],
     horizon_s: float,
@@ -225,35 +243,42 @@ def calibrate_command(
     delta_y_m: float | None = None,
     validate: bool = False,
     load: Load = load_recording,
-    max_speed_mps: float | None = None,
+    ceilings: Ceilings | None = None,
 ) -> tuple[ParamSet, CalibrationReport]:
-    """Calibrate ``base`` on ``recordings`` and write the set to ``out``; with ``validate``,
-    first leave each recording out in turn (:mod:`sara_app.human.validation`) and widen the
-    written set by the margin that derives."""
+    """Calibrate ``base`` on ``recordings`` and write the set to ``out``; with ``ceilings``,
+    reconstruction failures are split off first and listed (:mod:`sara_app.human.failures`);
+    with ``validate``, first leave each recording out in turn (:mod:`sara_app.human.validation`)
+    and widen the written set by the margin that derives."""
     recs = [load(r) for r in recordings]
     if validate and len(recs) < 2:
         raise InputError("leave-one-out validation needs at least two recordings")
-    ps, rep = calibrate(load_param_set(base), recs, horizon_s, name, delta_y_m, max_speed_mps)
+    b = load_param_set(base)
+    dy = b.delta_y_m if delta_y_m is None else delta_y_m
+    splits = [split(r, ceilings, dy) for r in recs]
+    kept = [p for p, _ in splits]
+    failed = [line for r, (_, f) in zip(recs, splits) for line in describe(r, f)]
+    ps, rep = calibrate(b, [p for ps_ in kept for p in ps_], horizon_s, name, delta_y_m)
     print(format_calibration(rep))
+    if ceilings is not None:
+        print(f"reconstruction failures left out (ceilings {ceilings.max_speed_mps:g} m/s, "
+              f"{ceilings.max_acc_mps2:g} m/s^2): {len(failed) or 'none'}")  # fmt: skip
+        print("\n".join(f"  {line}" for line in failed))
     val = None
     if validate:
-        val, _ = leave_one_out(load_param_set(base), recs, horizon_s, in_use(MODELS), delta_y_m,
-                               max_speed_mps)  # fmt: skip
+        val, _ = leave_one_out(b, kept, [r.name for r in recs], horizon_s, in_use(MODELS),
+                               delta_y_m)  # fmt: skip
         print(format_validation(val))
         ps = widened(ps, val.margin, name)
     summary = {}
-    for rec in recs:
-        for label, pset in (("base", load_param_set(base)), ("calibrated", ps)):
-            reach = HumanReach(to_reach_params(pset, rec.kind))
-            fault = screen_recording(reach.params, rec).faulted
-            res = containment(reach, rec.times_s, rec.positions_m, horizon_s,
-                              faulted=fault, effective_of=in_use(MODELS))  # fmt: skip
-            misses = {m: c.checked - c.contained for m, c in res.items()}
+    for rec, pieces in zip(recs, kept):
+        for label, pset in (("base", b), ("calibrated", ps)):
+            res = _containment_over(pset, pieces, horizon_s)
+            misses = {m: c[0] - c[1] for m, c in res.items()}
             print(
                 f"  {rec.name} with {label} set: "
                 + ", ".join(
-                    f"{m} {100 * c.share:.4f}% ({misses[m]} misses"
-                    + ("" if c.unflagged is None else f", {c.unflagged} unflagged")
+                    f"{m} {100 * c[1] / max(c[0], 1):.4f}% ({misses[m]} misses"
+                    + ("" if m != EFFECTIVE else f", {c[2]} unflagged")
                     + ")"
                     for m, c in res.items()
                 )
@@ -280,6 +305,15 @@ def calibrate_command(
                 "models": ", ".join(sound),
                 "misses_per_recording": json.dumps(summary),
                 "horizon_s": str(horizon_s),
+                **(
+                    {}
+                    if ceilings is None
+                    else {
+                        "ceilings": f"{ceilings.max_speed_mps:g} m/s, "
+                        f"{ceilings.max_acc_mps2:g} m/s^2 (one frame, beyond the noise)",
+                        "reconstruction_failures_left_out": "; ".join(failed) or "none",
+                    }
+                ),
                 **(
                     {}
                     if val is None

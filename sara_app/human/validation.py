@@ -137,30 +137,42 @@ def _ratio(own: np.ndarray, others: np.ndarray) -> float:
     return float(np.max(own / others))
 
 
-def leave_one_out(
-    base: ParamSet,
-    recs: list[Recording],
-    horizon_s: float,
-    models: tuple[str, ...],
-    delta_y_m: float | None = None,
-    max_speed_mps: float | None = None,
-) -> tuple[Validation, list[ParamSet]]:
-    """Every recording of ``recs`` (at least two) checked against the set fitted on the others
-    (the effective set of ``models``); also returns each recording's own fit (``delta_y_m`` and
-    ``max_speed_mps`` as :func:`~sara_app.human.calibrate.calibrate`'s)."""
-    own = [calibrate(base, [r], horizon_s, f"fit_{r.name}", delta_y_m, max_speed_mps)[0]
-           for r in recs]  # fmt: skip
-    rows = []
-    for i, rec in enumerate(recs):
-        others = combine([p for k, p in enumerate(own) if k != i], "others")
-        reach = HumanReach(to_reach_params(others, rec.kind))
+def effective_on(
+    ps: ParamSet, recs: Sequence[Recording], horizon_s: float, models: tuple[str, ...]
+) -> tuple[int, int, int]:
+    """``(checked, contained, unflagged)`` of the effective set of ``models`` under ``ps`` over
+    ``recs`` (each screened by a fresh intake: the monitor's faults clear its misses)."""
+    checked = contained = unflagged = 0
+    for rec in recs:
+        reach = HumanReach(to_reach_params(ps, rec.kind))
         fault = screen_recording(reach.params, rec).faulted
         eff = containment(reach, rec.times_s, rec.positions_m, horizon_s, models,
                           faulted=fault)[EFFECTIVE]  # fmt: skip
+        checked, contained = checked + eff.checked, contained + eff.contained
+        unflagged += eff.unflagged or 0
+    return checked, contained, unflagged
+
+
+def leave_one_out(
+    base: ParamSet,
+    recs: list[list[Recording]],
+    names: list[str],
+    horizon_s: float,
+    models: tuple[str, ...],
+    delta_y_m: float | None = None,
+) -> tuple[Validation, list[ParamSet]]:
+    """Every recording (at least two; each given as its pieces without reconstruction failures:
+    :func:`~sara_app.human.failures.split`, named by ``names``) checked against the set fitted
+    on the others (the effective set of ``models``); also returns each recording's own fit."""
+    own = [calibrate(base, r, horizon_s, f"fit_{n}", delta_y_m)[0] for r, n in zip(recs, names)]
+    rows = []
+    for i, (parts, name) in enumerate(zip(recs, names)):
+        others = combine([p for k, p in enumerate(own) if k != i], "others")
+        checked, contained, unflagged = effective_on(others, parts, horizon_s, models)
         (v_own, a_own), (v_oth, a_oth) = _bounds(own[i]), _bounds(others)
         arm_ratio = own[i].arm.r_v_max_mps / others.arm.r_v_max_mps
-        rows.append(HeldOut(rec.name, eff.checked, eff.contained, eff.unflagged or 0,
-                            _ratio(v_own, v_oth), _ratio(a_own, a_oth), arm_ratio))  # fmt: skip
+        rows.append(HeldOut(name, checked, contained, unflagged, _ratio(v_own, v_oth),
+                            _ratio(a_own, a_oth), arm_ratio))  # fmt: skip
     return Validation(horizon_s, models, rows), own
 
 
