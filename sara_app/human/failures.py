@@ -75,7 +75,7 @@ def _breaks(rec: Recording, c: Ceilings, delta_y_m: float) -> tuple[np.ndarray, 
     return broken, fast | broken
 
 
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+def runs(mask: np.ndarray) -> list[tuple[int, int]]:
     """``[(a, b)]``: the half-open runs of True in ``mask (T,)``."""
     edges = np.flatnonzero(np.diff(np.r_[0, mask.astype(np.int8), 0]))
     return list(zip(edges[::2].tolist(), edges[1::2].tolist()))
@@ -90,11 +90,11 @@ def find_failures(rec: Recording, c: Ceilings, delta_y_m: float) -> list[Failure
     pad = int(np.ceil(c.margin_s / dt - 1e-6))  # frames: 0.05 s at 120 Hz is 6, not 7
     failed = np.zeros(broken.shape, bool)  # (T, J): in a fast run of a joint that broke one
     for j in np.flatnonzero(broken.any(axis=0)):
-        for a, b in _runs(fast[:, j]):
+        for a, b in runs(fast[:, j]):
             if broken[a:b, j].any():
                 failed[max(a - pad, 0) : min(b + pad, T), j] = True
     out = []
-    for a, b in _runs(np.asarray(failed.any(axis=1))):
+    for a, b in runs(np.asarray(failed.any(axis=1))):
         joints = ", ".join(rec.joints[j] for j in np.flatnonzero(failed[a:b].any(axis=0)))
         out.append(Failure(a, b - 1, joints))
     return out
@@ -109,7 +109,7 @@ def pieces(rec: Recording, failures: list[Failure], min_frames: int = 2) -> list
     for f in failures:
         keep[f.first : f.last + 1] = False
     out = []
-    for a, b in _runs(keep):
+    for a, b in runs(keep):
         if b - a >= min_frames:
             t = rec.times_s
             out.append(Recording(f"{rec.name}@{t[a]:.2f}-{t[b - 1]:.2f}s", rec.kind, t[a:b],

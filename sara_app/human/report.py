@@ -209,6 +209,10 @@ def format_calibration(rep: CalibrationReport) -> str:
         if j in rep.monitor_v:
             line += f" | monitor needs {rep.monitor_v[j]:.2f} m/s, {rep.monitor_a[j]:.1f} m/s^2"
         lines.append(line)
+    if rep.combined_raised:
+        lines.append("  raised until the combined model contains them: " + ", ".join(
+            f"{j} v_max {v:.2f} m/s, a_max {rep.a_max[j]:.0f} m/s^2"
+            for j, v in rep.combined_raised.items()))  # fmt: skip
     lines.append(f"  ISO 13855 speed needed: {rep.iso_v_max:.2f} m/s")
     lines.append(
         f"  arm model: shoulder speed {rep.shoulder_v_max:.2f} m/s, "
