@@ -118,6 +118,10 @@ class SensorSpec(StrictFinite):
     Real trackers always have some; a noiseless sensor repeats the exact values of a joint at
     rest, which the tracking gate takes for a frozen marker while other joints move."""
     glitches: list[GlitchSpec] = Field(default=[], max_length=64)
+    tracks: Literal["auto", "full", "upper"] = "auto"
+    """What the cell's tracker measures: ``full`` every joint, ``upper`` the upper body (the legs
+    are unmeasured and widened), ``auto`` what the person's source has (an upper-body
+    recording's standing legs are then not measured)."""
 
 
 class _HumanBase(StrictFinite):

@@ -4,8 +4,10 @@ its simulated sensor measures the upper body only, as an upper-body tracker woul
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from sara_app.human.recording import Recording
+from sara_app.human.recordings import load_recording
 from sara_app.human.scripted import STANDING_LEGS_M
 from sara_app.human.skeleton import FULL_JOINTS, UPPER_JOINTS
 from sara_app.scenario import load_scenario
@@ -63,3 +65,28 @@ def test_the_simulated_sensor_of_an_upper_body_recording_does_not_measure_the_le
     legs = [FULL_JOINTS.index(j) for j in FULL_JOINTS[len(UPPER_JOINTS) :]]
     assert np.isinf(st.dv[legs]).all() and np.isfinite(st.dv[: len(UPPER_JOINTS)]).all()
     assert st.widen_m is not None and st.widen_m.max() >= 1.2  # the unmeasured legs' reach
+
+
+@pytest.mark.parametrize(
+    ("kind", "tracks", "legs"),
+    [("upper", "full", True), ("full", "upper", False), ("full", "auto", True)],
+)
+def test_the_sensor_measures_what_its_tracker_tracks(tmp_path, kind, tracks, legs) -> None:
+    """A full-body tracker measures the standing legs an upper-body recording stands on (they
+    are the simulated person's legs); an upper-body tracker leaves a full recording's legs
+    unmeasured, widened."""
+    from sara_app.human.recordings import save_csv
+    from sara_app.scenario import parse_scenario
+
+    path = tmp_path / "r.csv"
+    save_csv(_upper() if kind == "upper" else load_recording("02_01"), path)
+    data = load_scenario("bench_walk_past").model_dump(mode="json")
+    data["humans"] = [{"id": "p", "type": "recording", "recording": str(path),
+                       "sensor": {"tracks": tracks}}]  # fmt: skip
+    sim = Simulation(parse_scenario(data))
+    for _ in range(60):
+        sim.step()
+    st = sim.sensors[0].track.state
+    leg_joints = [FULL_JOINTS.index(j) for j in FULL_JOINTS[len(UPPER_JOINTS) :]]
+    assert sim.sensors[0].legs_measured == legs
+    assert np.isfinite(st.dv[leg_joints]).all() == legs

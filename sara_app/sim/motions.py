@@ -29,8 +29,11 @@ class HumanMotion(Protocol):
     def pose(self, t: float, robot_ends: np.ndarray, robot_radius: np.ndarray) -> np.ndarray: ...
 
 
-def measures_legs(motion: HumanMotion) -> bool:
-    """Whether a sensor measures this person's legs (an upper-body recording's are not)."""
+def measures_legs(motion: HumanMotion, tracks: str = "auto") -> bool:
+    """Whether a sensor that ``tracks`` (``SensorSpec.tracks``) measures this person's legs
+    (``auto``: what the source has; an upper-body recording's standing legs are not)."""
+    if tracks != "auto":
+        return tracks == "full"
     return bool(getattr(motion, "legs_measured", True))
 
 

@@ -235,7 +235,7 @@ class Simulation:
                 0.0,
                 Glitches(h.sensor.glitches),
                 track_for(cell, h.id),
-                measures_legs(m),
+                measures_legs(m, h.sensor.tracks),
             )
             for h, m in zip(sc.humans, self.motions)
         ]
