@@ -13,3 +13,9 @@ _DATA = tempfile.mkdtemp(prefix="sara_app_test_data_")
 os.environ["SARA_APP_DATA"] = _DATA
 # FastAPI's TestClient sends "Host: testserver"; the service answers only to loopback names
 guard.LOOPBACK_NAMES = (*guard.LOOPBACK_NAMES, "testserver")
+
+# The recordings beside the repository (../shared/data), for the tests that use recordings the
+# package does not ship; the package itself looks only at SARA_DATA_DIR.
+_SHARED = os.path.join(os.path.dirname(__file__), "..", "..", "shared")
+if "SARA_DATA_DIR" not in os.environ and os.path.isdir(os.path.join(_SHARED, "data", "cmu_mocap")):
+    os.environ["SARA_DATA_DIR"] = os.path.abspath(_SHARED)

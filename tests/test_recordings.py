@@ -360,3 +360,20 @@ def test_validate_rejects_bad_arrays() -> None:
             validate(SimpleNamespace(**fields))  # type: ignore[arg-type]
         with pytest.raises(InputError, match=msg):
             Recording(**fields)  # type: ignore[arg-type]
+
+
+def test_the_package_looks_for_no_data_folder_but_sara_data_dir(monkeypatch, tmp_path) -> None:
+    """Without SARA_DATA_DIR nothing beside the repository is searched (../shared may be there
+    on this machine); the recordings the shipped scenarios use load from the package."""
+    from sara_app.errors import RecordingError
+
+    monkeypatch.delenv("SARA_DATA_DIR", raising=False)
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(RecordingError, match="SARA_DATA_DIR"):
+        shared_data_dir()
+    from sara_app.human.recordings import find_recording
+
+    for name in ("02_01", "62_07", "HumanRobotHandover/0"):
+        path = find_recording(name)
+        assert "sara_app" in path.parts and "shared" not in path.parts, path
+        assert load_recording(name).n_frames > 100

@@ -34,21 +34,15 @@ _AXES = "xyz"
 
 # --- the data folder -----------------------------------------------------------------------
 
-_CMU_SUBDIR = Path("shared") / "data" / "cmu_mocap"
-
-
 # The CMU walk 02_01 ships with the package (see its README) for machines without shared/.
 PACKAGED_DATA_DIR = Path(__file__).resolve().parent.parent / "data" / "cmu"
 
 
 def shared_data_dir() -> Path:
-    """The folder with the CMU motion capture files.
-
-    ``SARA_DATA_DIR`` if set (the ``cmu_mocap`` folder itself, ``shared/data`` or ``shared``);
-    else the first ``<ancestor>/shared/data/cmu_mocap`` found walking up from this package (the
-    repository) and then from the working directory. A CI clone with
-    ``shared/`` beside it is found that way (``<clone>/../shared/data/cmu_mocap``).
-    Raises RecordingError when there is none.
+    """The folder with the CMU motion capture files: ``SARA_DATA_DIR`` (the ``cmu_mocap``
+    folder itself, its parent ``data`` folder or the folder above that). Nothing else is
+    searched: recordings that shipped scenarios use ship in the package
+    (:data:`PACKAGED_DATA_DIR` and its siblings). Raises RecordingError when it is not set.
     """
     env = os.environ.get("SARA_DATA_DIR")
     if env:
@@ -60,17 +54,9 @@ def shared_data_dir() -> Path:
             f"SARA_DATA_DIR={env!r} is not a folder; expected the cmu_mocap folder, "
             "shared/data or shared"
         )
-    starts = [Path(__file__).resolve().parent, Path.cwd().resolve()]
-    looked: list[str] = []
-    for start in starts:
-        for anc in (start, *start.parents):
-            cand = anc / _CMU_SUBDIR
-            if cand.is_dir():
-                return cand
-            looked.append(str(cand))
     raise RecordingError(
-        f"no CMU data folder found: set SARA_DATA_DIR or place {_CMU_SUBDIR} in an ancestor of "
-        f"the repository; looked at {looked[:3]} ... ({len(looked)} places)"
+        "no data folder given: set SARA_DATA_DIR to a folder of recordings (one holding "
+        "cmu_mocap, or data/cmu_mocap) to use recordings the package does not ship"
     )
 
 
