@@ -53,7 +53,7 @@ def test_the_simulated_sensor_of_an_upper_body_recording_does_not_measure_the_le
 
     path = tmp_path / "u.csv"
     save_csv(_upper(), path)
-    data = load_scenario("bench_walk_past").model_dump(mode="json")
+    data = load_scenario("cmu_walk").model_dump(mode="json")
     data["humans"] = [{"id": "u", "type": "recording", "recording": str(path)}]
     from sara_app.scenario import parse_scenario
 
@@ -80,7 +80,7 @@ def test_the_sensor_measures_what_its_tracker_tracks(tmp_path, kind, tracks, leg
 
     path = tmp_path / "r.csv"
     save_csv(_upper() if kind == "upper" else load_recording("02_01"), path)
-    data = load_scenario("bench_walk_past").model_dump(mode="json")
+    data = load_scenario("cmu_walk").model_dump(mode="json")
     data["humans"] = [{"id": "p", "type": "recording", "recording": str(path),
                        "sensor": {"tracks": tracks}}]  # fmt: skip
     sim = Simulation(parse_scenario(data))

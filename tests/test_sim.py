@@ -34,7 +34,7 @@ PLAN: dict[str, tuple[float | None, bool]] = {
     "tracking_glitches": (None, True),
     "ur10e_close_worker": (None, True),
     "bench_worker": (None, True),
-    "bench_walk_past": (None, True),
+    "bench_handover": (None, True),
 }
 FAULTS_BY_DESIGN = {"tracking_glitches"}
 """Its spike is a fault until the person has kept within the bounds for recover_s
@@ -68,23 +68,25 @@ def test_shipped_scenario_has_no_collision_while_moving(name: str) -> None:
     if must_finish:
         assert m.time_to_goal_s is not None, m.lines()
         assert m.time_to_goal_s <= sc.sim.duration_s
-    if name == "standing_beside_path":
-        # the paper's C++ shield has not arrived after 4 s; the person does slow the robot
-        assert m.time_to_goal_s is not None and m.time_to_goal_s < 4.0
-        assert m.intervened_share > 0.0 and m.speed_scale_mean < 1.0  # slowed, not stopped
+    if name == "standing_beside_path":  # the person does slow the robot, not stop it
+        assert m.intervened_share > 0.0 and m.speed_scale_mean < 1.0
     if name == "empty_cell":
         assert m.failsafe_share == 0.0
 
 
-def test_person_beside_path_costs_less_than_a_stop() -> None:
-    """Standing 0.3 m beside the path delays the goal by less than the whole person-free task
-    time (the robot creeps past rather than waiting for the person to leave)."""
+def test_person_beside_path_on_the_papers_set_costs_less_than_a_stop() -> None:
+    """On the paper's own set (Schepp et al. 2022 Table I, what its C++ shield ran), standing
+    0.3 m beside the path delays the goal by less than the whole person-free task time and
+    arrives before 4 s, where the paper's shield had not (the robot creeps past rather than
+    waiting). The shipped scenario runs the sound set `bench_work` instead: its hands at 7 m/s
+    cost 4.2x (docs/measurements/2026-11-27-bench-work-set.md)."""
     sc = load_scenario("standing_beside_path")
+    paper = parse_scenario({**sc.model_dump(mode="json"), "human_params": "schepp2022_table1"})
     free = parse_scenario({**sc.model_dump(mode="json"), "humans": []})
     t_free = run_until_goal(Simulation(free), sc.sim.duration_s).time_to_goal_s
-    t_person = run_until_goal(Simulation(sc), sc.sim.duration_s).time_to_goal_s
+    t_person = run_until_goal(Simulation(paper), sc.sim.duration_s).time_to_goal_s
     assert t_free is not None and t_person is not None
-    assert t_free <= t_person < 2.0 * t_free
+    assert t_free <= t_person < min(2.0 * t_free, 4.0)
 
 
 def test_randomised_adversarial_episodes_have_no_collision() -> None:
