@@ -260,8 +260,11 @@ class Scenario(StrictFinite):
     task: TaskSpec
     environment: list[BoxSpec] = []
     humans: list[HumanSpec] = []
-    human_params: str | dict[str, Any] = "schepp2022_table1"
-    """A parameter-set name (see ``sara_app/params``) or a full inline parameter set."""
+    human_params: str | dict[str, Any] = "bench_work"
+    """A parameter-set name (see ``sara_app/params``) or a full inline parameter set; by default
+    the set of the product's cell, standing work at a bench (fitted and validated on the bench
+    recordings). Schepp et al.'s Table I is selectable by name, the default of nothing: it is
+    sound on none of the given recordings."""
     shield: ShieldSettings = ShieldSettings()
     inputs: InputSpec = InputSpec()
     sim: SimSpec = SimSpec()

@@ -55,7 +55,7 @@ def test_calibrate_writes_a_loadable_set(tmp_path) -> None:
     out = tmp_path / "fit.json"
     assert main(["calibrate", str(_csv(tmp_path)), "--horizon", "0.1", "--out", str(out)]) == 0
     ps = load_param_set(out)
-    assert ps.name == "cmu_calibrated" and ps.sound_for["models"]
+    assert ps.name == "calibrated" and ps.sound_for["models"]
 
 
 def test_volumes_report_the_effective_set(tmp_path, capsys) -> None:

@@ -128,6 +128,7 @@ def bench_cell(
             ],
             "shield": {"mode": mode, "models": ["acc", "vel", "pos", "combined"]},
             "inputs": {"max_people": max(8, len(xys))},
+            "human_params": "schepp2022_table1",  # the published timings' set
         }
     )
     shield = build_cell(sc).shield

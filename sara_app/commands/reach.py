@@ -81,7 +81,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument(
         "--horizon", type=float, default=0.3, help="seconds after each frame (default 0.3)"
     )
-    r.add_argument("--params", default="schepp2022_table1", help="parameter set name or JSON path")
+    r.add_argument("--params", default="bench_work", help="parameter set name or JSON path")
     r.add_argument("--models", type=_models, default=list(MODELS), help="comma-separated")
     r.add_argument("--out", type=Path, default=None, help="JSONL file of capsules")
     _recording_options(r)
@@ -89,7 +89,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     v = sub.add_parser("volumes", help="set volume per model vs horizon (table + PNG)")
     v.add_argument("recording")
-    v.add_argument("--params", default="schepp2022_table1")
+    v.add_argument("--params", default="bench_work")
     v.add_argument("--horizons", default="0.05,0.1,0.15,0.2,0.3,0.4,0.5")
     v.add_argument("--png", type=Path, default=None)
     _recording_options(v)
@@ -99,7 +99,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.add_argument("recordings", nargs="+")
     c.add_argument("--horizon", type=float, default=0.5)
     c.add_argument("--base", default="schepp2022_table1")
-    c.add_argument("--name", default="cmu_calibrated")
+    c.add_argument("--name", default="calibrated")
     c.add_argument(
         "--delta-y",
         type=float,

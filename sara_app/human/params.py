@@ -150,7 +150,7 @@ def parse_param_set(data: object, origin: str = "<data>") -> ParamSet:
         raise ParameterError(f"invalid parameter set {origin}: {e}") from None
 
 
-def load_param_set(name_or_path: str | Path = "schepp2022_table1") -> ParamSet:
+def load_param_set(name_or_path: str | Path) -> ParamSet:
     """Load a shipped set by name (see ``available_param_sets``) or a JSON file by path."""
     name_or_path = RENAMED.get(str(name_or_path), name_or_path)
     path = Path(name_or_path)

@@ -54,6 +54,8 @@ def episode_scenario(
             ],
             "environment": [TABLE] if mode_facts(mode).contact_allowed else [],
             "shield": {"models": models, "mode": mode},
+            # the adversary moves at the set's bounds: the paper's, so episodes stay comparable
+            "human_params": "schepp2022_table1",
             "sim": {"duration_s": duration_s, "seed": int(rng.integers(1 << 30))},
         },
         f"episode {index}",
