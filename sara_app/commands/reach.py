@@ -7,7 +7,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from sara_app.human.reach import MODELS
+from sara_app.human.model_names import MODELS
 
 if TYPE_CHECKING:
     from sara_app.human.failures import Ceilings

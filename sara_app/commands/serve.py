@@ -54,17 +54,22 @@ def _process_argv(args: argparse.Namespace) -> list[str]:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from sara_app.processes.serve import DEFAULT_SCENARIO
+    from sara_app.processes.defaults import API_PORT, DEFAULT_SCENARIO, VIEWER_PORT, ZENOH_PORT
 
-    s = sub.add_parser("serve", help="run the dashboard on the built-in demo cell (127.0.0.1)")
+    fmt = argparse.ArgumentDefaultsHelpFormatter
+    s = sub.add_parser(
+        "serve", help="run the dashboard on the built-in demo cell (127.0.0.1)", formatter_class=fmt
+    )
     s.add_argument("--scenario", default=DEFAULT_SCENARIO, help="a name in scenarios/ or a file")
-    s.add_argument("--cell", default="cell1")
+    s.add_argument("--cell", default="cell1", help="the cell's name (its key on the bus, its URL)")
     s.add_argument(
         "--cells", type=int, default=1, help="run this many cells (cell1, cell2, ...) on one router"
     )
-    s.add_argument("--zenoh-port", type=int, default=7447)
-    s.add_argument("--viewer-port", type=int, default=8080)
-    s.add_argument("--api-port", type=int, default=8000)
+    s.add_argument("--zenoh-port", type=int, default=ZENOH_PORT,
+                   help="the zenoh router's port on 127.0.0.1 (the cell's bus)")  # fmt: skip
+    s.add_argument("--viewer-port", type=int, default=VIEWER_PORT, help="the 3D view's port")
+    s.add_argument("--api-port", type=int, default=API_PORT,
+                   help="the REST service's and landing page's port")  # fmt: skip
     s.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     s.add_argument(
         "--api-host",
@@ -79,16 +84,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.set_defaults(run=_serve)
 
     o = sub.add_parser(
-        "observe", help="dashboards and API for cells running on another router (no cell here)"
+        "observe",
+        help="dashboards and API for cells running on another router (no cell here)",
+        formatter_class=fmt,
     )
     o.add_argument("--cell", action="append", default=[], help="a cell to show (repeatable)")
     o.add_argument("--router-host", default="127.0.0.1", help="the zenoh router's address")
-    o.add_argument("--zenoh-port", type=int, default=7447)
+    o.add_argument("--zenoh-port", type=int, default=ZENOH_PORT, help="the router's port")
     o.add_argument("--credentials", default=None, help="the cells' zenoh credentials file")
-    o.add_argument("--viewer-port", type=int, default=8080)
-    o.add_argument("--api-port", type=int, default=8000)
-    o.add_argument("--api-host", default="127.0.0.1")
-    o.add_argument("--require-token", action="store_true")
+    o.add_argument("--viewer-port", type=int, default=VIEWER_PORT, help="the 3D view's port")
+    o.add_argument("--api-port", type=int, default=API_PORT, help="the REST service's port")
+    o.add_argument("--api-host", default="127.0.0.1", help="address of the REST service")
+    o.add_argument("--require-token", action="store_true", help="require an API token always")
     o.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     o.set_defaults(run=_observe)
 
@@ -96,12 +103,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         ("worker", _worker, "run one cell worker against a running zenoh router"),
         ("controller", _controller, "the reference robot controller of one cell (simulated)"),
     ):
-        w = sub.add_parser(name, help=text)
-        w.add_argument("--scenario", default=DEFAULT_SCENARIO)
-        w.add_argument("--cell", default="cell1")
-        w.add_argument("--zenoh-port", type=int, default=7447)
+        w = sub.add_parser(name, help=text, formatter_class=fmt)
+        w.add_argument("--scenario", default=DEFAULT_SCENARIO, help="a name in scenarios/, a file")
+        w.add_argument("--cell", default="cell1", help="the cell's name")
+        w.add_argument("--zenoh-port", type=int, default=ZENOH_PORT, help="the router's port")
         w.add_argument("--router-host", default="127.0.0.1", help="the zenoh router's address")
-        w.add_argument("--duration", type=float, default=None)
+        w.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
         w.add_argument("--credentials", default=None, help="serve's zenoh credentials file")
         w.add_argument("--user", default=name, help="the zenoh user (role) to log in as")
         w.set_defaults(run=run)

@@ -22,13 +22,11 @@ import numpy as np
 
 from sara_app.errors import InputError, ParameterError, UnknownNameError
 from sara_app.human.arm import arm_occupancy
+from sara_app.human.model_names import MODELS
 from sara_app.human.occupancy import Occupancy
 from sara_app.human.params import ReachParams
 from sara_app.human.reach_kernels import acc_sets, combined_sets, pos_sets, static_sets
 from sara_app.human.skeleton import skeleton
-
-MODELS: tuple[str, ...] = ("pos", "vel", "acc", "iso13855", "arm", "combined")
-SARA_MODELS: tuple[str, ...] = ("pos", "vel", "acc")
 
 
 def check_intervals(t_start_s: np.ndarray, t_end_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

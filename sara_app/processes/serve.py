@@ -43,10 +43,10 @@ from sara_app.cell.build import base_pose
 from sara_app.errors import ParameterError, SaraError
 from sara_app.ops.audit import default_data_dir
 from sara_app.ops.supervisor import Child, Supervisor
+from sara_app.processes.defaults import API_PORT, DEFAULT_SCENARIO, VIEWER_PORT, ZENOH_PORT
 from sara_app.scenario import load_scenario, scenarios_dir
 
 log = logging.getLogger("sara_app.serve")
-DEFAULT_SCENARIO = "punches"
 REPLAYER_NICE = 5
 """Nice increment of the replayer process (the worker keeps the normal priority)."""
 DISPLAY_NICE = 10
@@ -117,9 +117,9 @@ def serve(
     scenario: str = DEFAULT_SCENARIO,
     *,
     cell: str = "cell1",
-    zenoh_port: int = 7447,
-    viewer_port: int = 8080,
-    api_port: int = 8000,
+    zenoh_port: int = ZENOH_PORT,
+    viewer_port: int = VIEWER_PORT,
+    api_port: int = API_PORT,
     duration_s: float | None = None,
     frame_hz: float = 20.0,
     display_nice: int = DISPLAY_NICE,
