@@ -124,7 +124,9 @@ def test_put_outcomes_and_audit(api: tuple[StandInRegistry, TestClient, AuditLog
     assert r.status_code == 200, r.text
     body = r.json()
     assert body["accepted"] and body["edit"]["old_energy_J"] == src.energy_J
-    assert body["audit"]["outcome"] == "applied" and body["audit"]["user"] == "ana"
+    # one user per request: the request's (no token here: "local"), never the body's "ana"
+    assert body["audit"]["outcome"] == "applied" and body["audit"]["user"] == "local"
+    assert client.get("/api/requests/audit").json()[0]["user"] == "local"
     ov = reg.received[-1]["shield"]["pfl"]["overrides"]
     assert ov == [{**HAND, "energy_J": 0.1}]
     parse_scenario(reg.received[-1])  # a whole, valid scenario was sent
