@@ -308,9 +308,13 @@ def _format_validation(err: ValidationError, origin: str) -> str:
     return f"scenario {origin}: " + "; ".join(lines) + tail
 
 
-def parse_scenario(data: object, origin: str = "<data>") -> Scenario:
-    """Validate a decoded scenario; :class:`ScenarioError` names every bad field."""
+def parse_scenario(data: object, origin: str = "<data>", *, strict: bool = False) -> Scenario:
+    """Validate a decoded scenario; :class:`ScenarioError` names every bad field. ``strict``:
+    each value must have the JSON type the schema states (a request body: no ``"1"`` for 1, no
+    ``false`` for 0), as the API's OpenAPI document promises."""
     try:
+        if strict:
+            return Scenario.model_validate_json(json.dumps(data), strict=True)
         return Scenario.model_validate(data)
     except ValidationError as e:
         raise ScenarioError(_format_validation(e, origin)) from None

@@ -17,7 +17,9 @@ from typing import Any
 import httpx
 import numpy as np
 import pytest
+from api_stand_ins import InertJobs
 from browser import CHROMIUM, chromium_on
+from test_api_thresholds import StandInRegistry
 
 with warnings.catch_warnings():  # starlette prefers httpx2 for its test client; httpx works
     warnings.filterwarnings("ignore", message=".*httpx.*deprecated")
@@ -25,6 +27,7 @@ with warnings.catch_warnings():  # starlette prefers httpx2 for its test client;
 
 from sara_app.api import ApiServer, ApiServerError, CellRegistry, create_app
 from sara_app.api.app import merge_sections
+from sara_app.api.jobs import LABEL_CHARS, whatif_label
 from sara_app.api.registry import CYCLE_WINDOW
 from sara_app.bus import keys
 from sara_app.bus.codec import Decoded
@@ -293,6 +296,37 @@ def test_scenario_post_checks_before_sending(
         assert r.status_code == 422 and field in r.json()["detail"], (changes, r.text)
     r = client.patch("/api/cells/cell1/scenario?base=empty_cell", json={"shield": {"dt_s": 0.002}})
     assert r.status_code == 504  # valid: it would be sent
+
+
+def test_a_refused_change_names_the_scenario_the_cell_runs(folder: Path) -> None:
+    """A PATCH (or what-if) applied to the scenario the worker announced, with no ``base``:
+    the refusal names that scenario, not "None"."""
+    reg = StandInRegistry()
+    reg.status("c1", "empty_cell")
+    with TestClient(create_app(reg, folder)) as client:
+        for url in ("/api/cells/c1/scenario", "/api/cells/c1/whatif"):
+            r = client.request("PATCH" if url.endswith("scenario") else "POST", url,
+                               json={"shield": {"dt_s": 1.0}})  # fmt: skip
+            assert r.status_code == 422, r.text
+            detail = r.json()["detail"]
+            assert detail.startswith("scenario 'empty_cell' with the changes: shield.dt_s"), detail
+            assert "None" not in detail
+
+
+def test_a_whatif_job_is_labelled_with_its_changes(folder: Path) -> None:
+    """The job list reads "c1: what if shield.dt_s = 0.002, human_params = "fast"", not the
+    text of a Python list; long values and labels are shortened."""
+    changes = {"shield": {"dt_s": 0.002}, "human_params": "fast"}
+    want = 'c1: what if shield.dt_s = 0.002, human_params = "fast"'
+    assert whatif_label("c1", changes) == want
+    assert whatif_label("c1", {}) == "c1: what if (no changes)"
+    long = whatif_label("c1", {"description": "x" * 500, "sim": {"seed": 1}})
+    assert len(long) <= LABEL_CHARS and "..." in long
+    reg = StandInRegistry()
+    reg.status("c1", "empty_cell")
+    with TestClient(create_app(reg, folder, jobs=InertJobs())) as client:
+        assert client.post("/api/cells/c1/whatif", json=changes).status_code == 202
+        assert [j["label"] for j in client.get("/api/jobs").json()] == [want]
 
 
 def test_merge_sections() -> None:

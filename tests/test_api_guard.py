@@ -13,6 +13,8 @@ with warnings.catch_warnings():
     warnings.filterwarnings("ignore", message=".*httpx.*deprecated")
     from fastapi.testclient import TestClient
 
+from api_stand_ins import AnsweringRegistry
+
 from sara_app.api import CellRegistry, create_app
 from sara_app.api.guard import MAX_BODY_BYTES, load_tokens
 from sara_app.errors import ParameterError
@@ -21,8 +23,9 @@ from sara_app.ops.audit import AuditLog
 TOKEN = "t" * 24
 
 
-def _client(tmp_path: Path, **kw) -> TestClient:
-    app = create_app(CellRegistry(None), audit=AuditLog(tmp_path / "audit.sqlite"), **kw)
+def _client(tmp_path: Path, registry: CellRegistry | None = None, **kw) -> TestClient:
+    reg = registry if registry is not None else CellRegistry(None)
+    app = create_app(reg, audit=AuditLog(tmp_path / "audit.sqlite"), **kw)
     return TestClient(app)
 
 
@@ -58,6 +61,30 @@ def test_the_token_names_the_user_in_the_threshold_audit(tmp_path: Path) -> None
     r = c.put("/api/cells/c1/thresholds", json=body, headers={"authorization": f"Bearer {TOKEN}"})
     assert r.status_code == 404
     assert c.get("/api/requests/audit").json()[0]["user"] == "anna"
+
+
+@pytest.mark.parametrize("token", [TOKEN, None])
+def test_every_audit_row_of_a_request_names_the_same_user(
+    tmp_path: Path, token: str | None
+) -> None:
+    """A threshold edit and a retire naming "mallory" in the body: the threshold audit, the
+    people audit, the worker's retire request and the request log all name the request's user,
+    the token's ("anna"), or "local" without a token."""
+    reg = AnsweringRegistry()
+    reg.status("c1", "empty_cell")
+    c = _client(tmp_path, tokens={TOKEN: "anna"}, registry=reg)
+    headers = {"authorization": f"Bearer {token}"} if token else {}
+    want = "anna" if token else "local"
+    edit = {"region": "hand", "contact": "constrained", "shape": "blunt", "energy_J": 0.1,
+            "user": "mallory"}  # fmt: skip
+    assert c.put("/api/cells/c1/thresholds", json=edit, headers=headers).status_code == 200
+    retire = {"user": "mallory", "reason": "tracker replaced"}
+    r = c.post("/api/cells/c1/humans/h1/retire", json=retire, headers=headers)
+    assert r.status_code == 200, r.text
+    assert [x["user"] for x in c.get("/api/cells/c1/thresholds/audit").json()] == [want]
+    assert [x["user"] for x in c.get("/api/cells/c1/humans/audit").json()] == [want]
+    assert reg.retired_by == [want]
+    assert [x["user"] for x in c.get("/api/requests/audit").json()] == [want, want]
 
 
 def test_tokens_file(tmp_path: Path) -> None:

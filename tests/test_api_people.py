@@ -1,6 +1,7 @@
 """The retire route on a real worker (in a thread) over real zenoh: a person known only from a
-refused message is forgotten on an operator's request, every request is in the audit log, and
-a person the worker does not know is refused (and audited)."""
+refused message is forgotten on an operator's request, every request is in the audit log under
+the request's user (the token's, not a name in the body), and a person the worker does not know
+is refused (and audited)."""
 
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ from sara_app.ops.audit import AuditLog
 from sara_app.scenario import load_scenario, scenarios_dir
 
 CELL = "retire1"
+TOKEN = "t" * 24
 
 
 def _until(pred, seconds: float = 10.0) -> None:
@@ -40,12 +42,13 @@ def test_retire_forgets_a_ghost_and_every_request_is_audited(tmp_path: Path) -> 
             Bus.client(port) as other, \
             running_worker(CELL, sc, wbus, status_hz=10.0) as worker:  # fmt: skip
         audit = AuditLog(tmp_path / "audit.sqlite")
-        client = TestClient(create_app(reg, folder, audit=audit))
+        app = create_app(reg, folder, audit=audit, tokens={TOKEN: "anna"})
+        client = TestClient(app, headers={"authorization": f"Bearer {TOKEN}"})
         _until(lambda: client.get(f"/api/cells/{CELL}").is_success, 20.0)
         # garbage on a person's key: the person is known (unseen) from then on
         other.session.put(keys.skeleton_key(CELL, "ghost"), b"{broken")
         _until(lambda: "ghost" in worker.presence.tracks)
-        body = {"user": "anna", "reason": "tracker replaced; nobody there"}
+        body = {"user": "mallory", "reason": "tracker replaced; nobody there"}
         r = client.post(f"/api/cells/{CELL}/humans/ghost/retire", json=body)
         assert r.status_code == 200, r.text
         assert "ghost" not in worker.presence.tracks
@@ -59,3 +62,5 @@ def test_retire_forgets_a_ghost_and_every_request_is_audited(tmp_path: Path) -> 
             ("ghost", "applied", "anna"),
         ]
         assert rows[1]["reason"] == body["reason"]
+        requests = client.get("/api/requests/audit").json()
+        assert [x["user"] for x in requests] == ["anna"] * 3  # the same user in every row

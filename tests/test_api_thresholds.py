@@ -108,6 +108,10 @@ def test_effective_table(api: tuple[StandInRegistry, TestClient, AuditLog]) -> N
     assert r["energy_J"] == r["source_energy_J"] == SEED.energy_J("hand", "constrained", "blunt")
     assert r["source_key"] == "iso15066" and not r["overridden"]
     assert r["iso_reference"][0]["iso_region"] == "hand"
+    note = t["iso_reference_note"]  # cites the standard and the paper, no file outside the repo
+    assert "ISO/TS 15066:2016" in note and "Annex A" in note
+    assert "Thumm" in note and "A General Safety Framework" in note and "2024" in note
+    assert ".md" not in note and "shared/" not in note
     assert client.get("/api/cells/nope/thresholds").status_code == 404
     assert client.get("/api/cells/bad.name/thresholds").status_code == 422
 
@@ -120,7 +124,9 @@ def test_put_outcomes_and_audit(api: tuple[StandInRegistry, TestClient, AuditLog
     assert r.status_code == 200, r.text
     body = r.json()
     assert body["accepted"] and body["edit"]["old_energy_J"] == src.energy_J
-    assert body["audit"]["outcome"] == "applied" and body["audit"]["user"] == "ana"
+    # one user per request: the request's (no token here: "local"), never the body's "ana"
+    assert body["audit"]["outcome"] == "applied" and body["audit"]["user"] == "local"
+    assert client.get("/api/requests/audit").json()[0]["user"] == "local"
     ov = reg.received[-1]["shield"]["pfl"]["overrides"]
     assert ov == [{**HAND, "energy_J": 0.1}]
     parse_scenario(reg.received[-1])  # a whole, valid scenario was sent

@@ -169,7 +169,8 @@ def test_delay_edit_flips_the_verdict_for_a_fixed_person(live: Live) -> None:
         assert [o.model_dump() for o in sc.shield.pfl.overrides] == [body]
         assert live.worker.cell.params.delay_s == 0.3  # the earlier edit is not lost
         audit = live.client.get(f"/api/cells/{CELL}/thresholds/audit").json()
-        assert audit[0]["outcome"] == "applied" and audit[0]["user"] == "e2e"
+        # the request's user (no token here: "local"), never the name in the body
+        assert audit[0]["outcome"] == "applied" and audit[0]["user"] == "local"
         r = live.client.post(
             f"/api/cells/{CELL}/scenario",
             json=_scenario_with(live, human_params="schepp2022_table1"),

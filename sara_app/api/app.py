@@ -47,10 +47,24 @@ from fastapi.responses import HTMLResponse, StreamingResponse
 from fastapi.staticfiles import StaticFiles
 
 import sara_app
+from sara_app.api import openapi
 from sara_app.api.guard import Guard
 from sara_app.api.jobs import add_job_routes
+from sara_app.api.openapi import EVENT_STREAM, body_schema
 from sara_app.api.people import add_people_routes
 from sara_app.api.registry import EDIT_TIMEOUT_S, CellRegistry
+from sara_app.api.schema import (
+    BODY_RESPONSES,
+    GUARD_RESPONSES,
+    NAME_PATTERN,
+    NAME_RULE,
+    BaseScenario,
+    CellName,
+    ParamSetName,
+    ScenarioName,
+    ThresholdSetName,
+    responses,
+)
 from sara_app.api.thresholds import add_threshold_routes
 from sara_app.errors import ParameterError, SaraError, ScenarioError, WorkerTimeoutError
 from sara_app.human.params import available_param_sets, load_param_set
@@ -68,14 +82,14 @@ from sara_app.scenario import (
     scenarios_dir,
 )
 
-NAME_RE = re.compile(r"[A-Za-z0-9_-]{1,64}")
+NAME_RE = re.compile(NAME_PATTERN)
 STATIC_DIR = Path(sara_app.__file__).resolve().parent.parent / "static"
 
 
 def check_url_name(kind: str, name: str) -> str:
     """``name`` when it is a valid name; HTTP 422 naming the rule otherwise."""
     if not NAME_RE.fullmatch(name):
-        raise HTTPException(422, f"{kind} name {name[:80]!r} is invalid; use 1-64 of [A-Za-z0-9_-]")
+        raise HTTPException(422, f"{kind} name {name[:80]!r} is invalid; use {NAME_RULE}")
     return name
 
 
@@ -88,9 +102,10 @@ def check_known(kind: str, name: str, valid: list[str] | tuple[str, ...]) -> str
 
 
 def validate_scenario(data: dict[str, Any], origin: str) -> Scenario:
-    """A scenario checked as a whole (schema and robot); HTTP 422 with the field otherwise."""
+    """A scenario checked as a whole (schema, strictly as the OpenAPI document states it, and
+    robot); HTTP 422 with the field otherwise."""
     try:
-        sc = parse_scenario(data, origin)
+        sc = parse_scenario(data, origin, strict=True)
         check_against_robot(sc)
     except SaraError as e:
         raise HTTPException(422, str(e)) from None
@@ -121,11 +136,16 @@ async def _sse(
             await asyncio.sleep(interval_s)
 
 
+class EventStream(StreamingResponse):
+    """Server-Sent Events (the class tells the OpenAPI document the content type)."""
+
+    media_type = "text/event-stream"
+
+
 def _stream(request: Request, snapshot: Any, interval_s: float, limit: int | None) -> Any:
     stopping: threading.Event = request.app.state.stopping
-    return StreamingResponse(
+    return EventStream(
         _sse(request, snapshot, stopping, interval_s, limit),
-        media_type="text/event-stream",
         headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
     )
 
@@ -144,6 +164,26 @@ def known_cell_check(registry: CellRegistry) -> Callable[[str], dict[str, Any]]:
     return known_cell
 
 
+SEND_RESPONSES = {
+    **BODY_RESPONSES,
+    **responses(
+        404, 409, 422, 500, 504,
+        _404="the cell has not been seen on the bus, or the base scenario is unknown",
+        _409="the cell's worker refused the scenario (the detail gives its reason)",
+        _500="the base scenario file is invalid",
+    ),
+}  # fmt: skip
+"""What a route that sends a scenario to a cell's worker may answer besides 200."""
+
+
+def _example_scenario(folder: Path) -> dict[str, Any] | None:
+    """The scenario shown as the example body in ``/docs``: ``empty_cell`` where it is."""
+    try:
+        return load_scenario("empty_cell", folder).model_dump(mode="json")
+    except SaraError:
+        return None
+
+
 def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None:
     known_cell = known_cell_check(registry)
 
@@ -152,14 +192,17 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
         """Every cell seen on the bus, with its live status."""
         return registry.cells()
 
-    @app.get("/api/cells/{cell}", tags=["cells"])
-    def get_cell(cell: str) -> dict[str, Any]:
+    @app.get("/api/cells/{cell}", tags=["cells"], responses=responses(404, 422))
+    def get_cell(cell: CellName) -> dict[str, Any]:
         return known_cell(cell)
 
-    @app.get("/api/cells/{cell}/events", tags=["cells"])
+    @app.get(
+        "/api/cells/{cell}/events", tags=["cells"], response_model=None,
+        response_class=EventStream, responses={**EVENT_STREAM, **responses(422)},
+    )  # fmt: skip
     def cell_events(
         request: Request,
-        cell: str,
+        cell: CellName,
         interval_s: float = Query(0.5, ge=0.01, le=10.0),
         limit: int | None = Query(None, ge=1),
     ) -> Any:
@@ -171,7 +214,10 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
 
         return _stream(request, snapshot, interval_s, limit)
 
-    @app.get("/api/events", tags=["cells"])
+    @app.get(
+        "/api/events", tags=["cells"], response_model=None,
+        response_class=EventStream, responses={**EVENT_STREAM, **responses(422)},
+    )  # fmt: skip
     def all_events(
         request: Request,
         interval_s: float = Query(0.5, ge=0.01, le=10.0),
@@ -192,9 +238,12 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
             raise HTTPException(409, f"the worker of cell {cell!r} refused: {ans.reason}")
         return {"cell": cell, "scenario": sc.name, "accepted": True, "request_id": ans.request_id}
 
-    @app.post("/api/cells/{cell}/scenario", tags=["cells"])
+    @app.post(
+        "/api/cells/{cell}/scenario", tags=["cells"], openapi_extra=body_schema(openapi.SCENARIO),
+        responses=SEND_RESPONSES,
+    )  # fmt: skip
     def send_scenario(
-        cell: str,
+        cell: CellName,
         scenario: Annotated[dict[str, Any], Body()],
         timeout_s: float = Query(EDIT_TIMEOUT_S, gt=0.0, le=120.0),
     ) -> dict[str, Any]:
@@ -204,11 +253,14 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
         with registry.edit_lock(cell):  # in order with the other edits of this cell
             return send(cell, sc, timeout_s)
 
-    @app.patch("/api/cells/{cell}/scenario", tags=["cells"])
+    @app.patch(
+        "/api/cells/{cell}/scenario", tags=["cells"],
+        openapi_extra=body_schema(openapi.SCENARIO_CHANGES), responses=SEND_RESPONSES,
+    )  # fmt: skip
     def update_scenario(
-        cell: str,
+        cell: CellName,
         changes: Annotated[dict[str, Any], Body()],
-        base: str | None = Query(None, description="scenario file to start from"),
+        base: BaseScenario = None,
         timeout_s: float = Query(EDIT_TIMEOUT_S, gt=0.0, le=120.0),
     ) -> dict[str, Any]:
         """Parameter update: ``changes`` applied to the scenario the cell runs now (as its
@@ -242,7 +294,7 @@ def with_changes(
     else:
         base = base or str(known_cell_check(registry)(cell).get("scenario") or "")
         check_known("scenario", base, sorted(set(scenario_names(folder))))
-        data = load_scenario(base, folder).model_dump(mode="json")
+        data = _stored_scenario(base, folder)
     current = validate_scenario(data, f"the scenario of cell {cell!r}")
     hp = data["human_params"]
     if isinstance(hp, str) and isinstance(changes.get("human_params"), dict):
@@ -250,7 +302,16 @@ def with_changes(
         named = load_param_set(hp).model_dump(mode="json")
         data = {**data, "human_params": {**named, "name": f"{hp}_edited"}}
     merged = merge_sections(data, changes)
-    return current, validate_scenario(merged, f"{base!r} with the changes")
+    return current, validate_scenario(merged, f"{current.name!r} with the changes")
+
+
+def _stored_scenario(name: str, folder: Path) -> dict[str, Any]:
+    """The scenario file ``name`` as JSON data; HTTP 500 when the stored file is invalid (the
+    request is not at fault)."""
+    try:
+        return load_scenario(name, folder).model_dump(mode="json")
+    except SaraError as e:
+        raise HTTPException(500, f"stored scenario {name!r} is invalid: {e}") from None
 
 
 def merge_sections(data: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]:
@@ -271,18 +332,20 @@ def _add_scenario_routes(app: FastAPI, folder: Path) -> None:
     def list_scenarios() -> list[str]:
         return names()
 
-    @app.get("/api/scenarios/{name}", tags=["scenarios"])
-    def get_scenario(name: str) -> dict[str, Any]:
+    @app.get("/api/scenarios/{name}", tags=["scenarios"], responses=responses(404, 422, 500))
+    def get_scenario(name: ScenarioName) -> dict[str, Any]:
         """The validated scenario as JSON."""
         check_known("scenario", name, names())
-        try:
-            return load_scenario(name, folder).model_dump(mode="json")
-        except SaraError as e:
-            raise HTTPException(500, f"stored scenario {name!r} is invalid: {e}") from None
+        return _stored_scenario(name, folder)
 
-    @app.put("/api/scenarios/{name}", tags=["scenarios"])
+    @app.put(
+        "/api/scenarios/{name}", tags=["scenarios"],
+        openapi_extra=body_schema(openapi.SCENARIO_TO_SAVE),
+        responses={**BODY_RESPONSES, **responses(409, 422, _409="the name exists (or is "
+                                                   "stored in another file): not replaced")},
+    )  # fmt: skip
     def put_scenario(
-        name: str,
+        name: ScenarioName,
         scenario: Annotated[dict[str, Any], Body()],
         overwrite: bool = Query(False),
     ) -> dict[str, Any]:
@@ -320,8 +383,8 @@ def _add_param_routes(app: FastAPI) -> None:
         """Names of the shipped human-model parameter sets."""
         return _human_param_sets()
 
-    @app.get("/api/params/{name}", tags=["params"])
-    def get_params(name: str) -> dict[str, Any]:
+    @app.get("/api/params/{name}", tags=["params"], responses=responses(404, 422))
+    def get_params(name: ParamSetName) -> dict[str, Any]:
         check_known("parameter set", name, _human_param_sets())
         return load_param_set(name).model_dump(mode="json")
 
@@ -330,8 +393,8 @@ def _add_param_routes(app: FastAPI) -> None:
         """Names of the shipped contact-energy threshold sets (power and force limiting)."""
         return list(threshold_set_names())
 
-    @app.get("/api/thresholds/{name}", tags=["params"])
-    def get_thresholds(name: str) -> dict[str, Any]:
+    @app.get("/api/thresholds/{name}", tags=["params"], responses=responses(404, 422, 500))
+    def get_thresholds(name: ThresholdSetName) -> dict[str, Any]:
         check_known("threshold set", name, threshold_set_names())
         try:
             return load_thresholds(name).model_dump(mode="json")
@@ -406,8 +469,12 @@ def create_app(
         description="Live status of SaRA cells, scenarios and human-model parameter sets.",
         docs_url=None,  # served below from installed assets: the default loads them from a CDN
         redoc_url=None,
+        responses=GUARD_RESPONSES,
     )
     _add_docs(app)
+    openapi.install(
+        app, lambda: openapi.scenario_schemas(_human_param_sets(), _example_scenario(folder))
+    )
     app.state.registry = registry
     app.state.stopping = threading.Event()  # set by ApiServer.stop(): ends event streams
 
@@ -466,7 +533,7 @@ def create_app(
         hosts=hosts,
     )
 
-    @app.get("/api/requests/audit", tags=["service"])
+    @app.get("/api/requests/audit", tags=["service"], responses=responses(422, 503))
     def requests_audit(limit: int = Query(50, ge=1, le=10_000)) -> list[dict[str, Any]]:
         """Every request to a mutating route (refused ones too), newest first."""
         return list(app.state.threshold_audit().requests(limit))

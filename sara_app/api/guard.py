@@ -6,9 +6,10 @@
   full (a stated ``Content-Length`` at once, a streamed body as soon as it passes the limit).
 - **Credentials**: with ``require_token`` (always when the service listens on anything but
   loopback), a mutating request (POST, PUT, PATCH, DELETE) needs ``Authorization: Bearer
-  <token>`` with a token of the tokens file; the request's user is the token's user
-  (``request.state.user``; routes audit it instead of any name in the body). Read-only routes
-  stay open.
+  <token>`` with a token of the tokens file. Read-only routes stay open.
+- **One user per request**: the token's user, or ``local`` without a valid token
+  (:func:`request_user`); every audit row of the request (this request log, the threshold and
+  people audits) records that one name, never a name in the body.
 - **Audit**: every mutating request is recorded with its outcome (status), refused ones
   included (401, 413, 421, 422, ...).
 
@@ -33,6 +34,8 @@ log = logging.getLogger("sara_app.api")
 MAX_BODY_BYTES = 1024 * 1024
 MUTATING = frozenset({"POST", "PUT", "PATCH", "DELETE"})
 LOOPBACK_NAMES = ("127.0.0.1", "localhost", "[::1]")
+LOCAL_USER = "local"
+"""The user of a request without a valid token (a service without tokens on loopback)."""
 
 
 def load_tokens(path: str | Path, create: bool = False) -> dict[str, str]:
@@ -142,7 +145,7 @@ class Guard:
         client = scope.get("client") or ("", 0)
         try:
             self.audit().record_request(
-                method, scope.get("path", ""), status, str(client[0]), user or "local", size
+                method, scope.get("path", ""), status, str(client[0]), user or LOCAL_USER, size
             )
         except Exception:  # noqa: BLE001 - a failed audit row must not fail the answer
             log.exception("auditing a request failed")
@@ -178,3 +181,9 @@ def credential_user(request: Any) -> str | None:
     """The user of the request's valid token (None: no token, or not checked)."""
     state = request.scope.get("state") or {}
     return state.get("auth_user")
+
+
+def request_user(request: Any) -> str:
+    """Who makes the request, as every audit row of it records it: the token's user, else
+    :data:`LOCAL_USER` (the same name the request log gives it)."""
+    return credential_user(request) or LOCAL_USER

@@ -12,6 +12,7 @@ A second job while one runs is refused (409): one at a time beside the live cell
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any
@@ -19,7 +20,15 @@ from typing import Annotated, Any
 from fastapi import Body, FastAPI, HTTPException, Query
 from fastapi.responses import HTMLResponse
 
+from sara_app.api.openapi import SCENARIO_CHANGES, body_schema
 from sara_app.api.registry import CellRegistry
+from sara_app.api.schema import (
+    BODY_RESPONSES,
+    CHANGE_RESPONSES,
+    BaseScenario,
+    CellName,
+    responses,
+)
 from sara_app.errors import UnknownNameError
 from sara_app.ops.jobs import JobBusyError, JobRunner
 from sara_app.scenario import Scenario
@@ -27,6 +36,38 @@ from sara_app.sim.whatif import table_markdown
 
 MAX_DURATION_S = 60.0
 MAX_EPISODES = 50
+LABEL_VALUE_CHARS = 40
+LABEL_CHARS = 200
+
+START_RESPONSES = {
+    **CHANGE_RESPONSES,
+    **responses(
+        404, 409, 422, 500,
+        _404="the cell has not been seen on the bus, or the base scenario is unknown",
+        _409="another job is running: one at a time",
+        _500="the base scenario file is invalid",
+    ),
+}  # fmt: skip
+"""What starting a job may answer besides 202."""
+
+
+def whatif_label(cell: str, changes: dict[str, Any]) -> str:
+    """What a person reads in the job list: ``cell1: what if shield.dt_s = 0.002,
+    human_params = "fast"`` (one item per changed value, one level deep as the changes merge;
+    long values and labels shortened)."""
+    items = []
+    for key, value in changes.items():
+        if isinstance(value, dict) and value:
+            items += [f"{key}.{k} = {_value_text(v)}" for k, v in value.items()]
+        else:
+            items.append(f"{key} = {_value_text(value)}")
+    label = f"{cell}: what if " + ", ".join(items) if items else f"{cell}: what if (no changes)"
+    return label if len(label) <= LABEL_CHARS else label[: LABEL_CHARS - 3] + "..."
+
+
+def _value_text(value: Any) -> str:
+    text = json.dumps(value, allow_nan=True)
+    return text if len(text) <= LABEL_VALUE_CHARS else text[: LABEL_VALUE_CHARS - 3] + "..."
 
 
 def add_job_routes(
@@ -46,11 +87,15 @@ def add_job_routes(
             raise HTTPException(409, str(e)) from None
         return {**job.summary(), "url": f"/api/jobs/{job.id}"}
 
-    @app.post("/api/cells/{cell}/whatif", tags=["jobs"], status_code=202)
+    @app.post(
+        "/api/cells/{cell}/whatif", tags=["jobs"], status_code=202,
+        openapi_extra=body_schema(SCENARIO_CHANGES),
+        responses={**START_RESPONSES, **BODY_RESPONSES},
+    )  # fmt: skip
     def whatif(
-        cell: str,
+        cell: CellName,
         changes: Annotated[dict[str, Any], Body()],
-        base: str | None = Query(None, description="scenario file to start from"),
+        base: BaseScenario = None,
         duration_s: float | None = Query(None, gt=0.0, le=MAX_DURATION_S),
     ) -> dict[str, Any]:
         """Run the cell's scenario with ``changes`` beside the scenario in force, offline."""
@@ -58,11 +103,11 @@ def add_job_routes(
         current, edited = with_changes(cell, changes, base)
         data = {"current": current.model_dump(mode="json"),
                 "edited": edited.model_dump(mode="json"), "duration_s": duration_s}  # fmt: skip
-        return start("whatif", data, f"{cell}: {sorted(changes)}")
+        return start("whatif", data, whatif_label(cell, changes))
 
-    @app.post("/api/cells/{cell}/report", tags=["jobs"], status_code=202)
+    @app.post("/api/cells/{cell}/report", tags=["jobs"], status_code=202, responses=START_RESPONSES)
     def report(
-        cell: str,
+        cell: CellName,
         duration_s: float | None = Query(None, gt=0.0, le=MAX_DURATION_S),
         episodes: int = Query(5, ge=0, le=MAX_EPISODES),
     ) -> dict[str, Any]:
@@ -86,7 +131,7 @@ def add_job_routes(
     def list_jobs() -> list[dict[str, Any]]:
         return jobs.list()
 
-    @app.get("/api/jobs/{job_id}", tags=["jobs"])
+    @app.get("/api/jobs/{job_id}", tags=["jobs"], responses=responses(404))
     def get_job(job_id: str) -> dict[str, Any]:
         """Progress; when done the result (what-if: ``table`` and both runs; report: the
         checksum and ``report_url``)."""
@@ -101,7 +146,10 @@ def add_job_routes(
             out["report_url"] = f"/api/jobs/{job.id}/report"
         return out
 
-    @app.get("/api/jobs/{job_id}/report", tags=["jobs"], response_class=HTMLResponse)
+    @app.get(
+        "/api/jobs/{job_id}/report", tags=["jobs"], response_class=HTMLResponse,
+        responses=responses(404, 409, _409="not a report job, or not done yet"),
+    )  # fmt: skip
     def get_report(job_id: str) -> HTMLResponse:
         job = job_or_404(job_id)
         if job.kind != "report" or job.state != "done":

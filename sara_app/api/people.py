@@ -3,7 +3,8 @@ report (the contract's ``sara/<cell>/retire``), every request recorded in the au
 
 - ``POST /api/cells/{cell}/humans/{human_id}/retire`` (:class:`RetireBody`): the worker forgets
   the person (until a tracker lists them or a skeleton arrives again); 200 applied, 409 the
-  person was not known, 504 no answer (the worker may or may not have applied it), each audited.
+  person was not known, 504 no answer (the worker may or may not have applied it), each audited
+  under the request's user (:func:`~sara_app.api.guard.request_user`: the token's).
 - ``GET /api/cells/{cell}/humans/audit``: the cell's recorded actions, newest first.
 """
 
@@ -15,19 +16,30 @@ from typing import Annotated, Any
 from fastapi import FastAPI, HTTPException, Query, Request
 from pydantic import BaseModel, ConfigDict, Field
 
-from sara_app.api.guard import credential_user
+from sara_app.api.guard import request_user
 from sara_app.api.registry import CellRegistry
+from sara_app.api.schema import BODY_RESPONSES, CellName, HumanId, responses
 from sara_app.errors import WorkerTimeoutError
 from sara_app.ops.audit import AuditLog
 
 
 class RetireBody(BaseModel):
-    """Who retires the person, and why (both recorded)."""
+    """Why the person is retired (recorded with the request's user)."""
 
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(
+        extra="forbid", strict=True, json_schema_extra={"examples": [{"reason": "tracker "
+                                                        "replaced; nobody there"}]}
+    )  # fmt: skip
 
-    user: Annotated[str, Field(min_length=1, max_length=64)]
     reason: Annotated[str, Field(min_length=1, max_length=500)]
+    user: Annotated[
+        str | None,
+        Field(
+            min_length=1, max_length=64, deprecated=True,
+            description="ignored: the audit records the request's user (the token's user, or "
+            "'local' without a token)",
+        ),
+    ] = None  # fmt: skip
 
 
 def add_people_routes(
@@ -39,14 +51,20 @@ def add_people_routes(
 ) -> None:
     """Add the retire route and its audit listing (``audit()`` gives the open log)."""
 
-    @app.post("/api/cells/{cell}/humans/{human_id}/retire", tags=["people"])
-    def retire(cell: str, human_id: str, body: RetireBody, request: Request) -> dict[str, Any]:
+    @app.post(
+        "/api/cells/{cell}/humans/{human_id}/retire", tags=["people"],
+        responses={**BODY_RESPONSES, **responses(
+            404, 409, 422, 503, 504, _409="the worker does not know the person")},
+    )  # fmt: skip
+    def retire(
+        cell: CellName, human_id: HumanId, body: RetireBody, request: Request
+    ) -> dict[str, Any]:
         """Forget a person whom no tracker reports any more (the robot otherwise keeps
         braking for them); audited whatever the outcome."""
         known_cell(cell)
         check_name("human", human_id)
         log = audit()
-        user = credential_user(request) or body.user  # the token's user wins
+        user = request_user(request)  # one user per request, as the request log has it
         row = {"cell": cell, "human_id": human_id, "user": user, "reason": body.reason}
         try:
             ans = registry.request_retire(cell, human_id, user, body.reason)
@@ -59,8 +77,10 @@ def add_people_routes(
         entry = log.record_person_action(**row, outcome="applied")
         return {"cell": cell, "human_id": human_id, "retired": True, "audit": entry}
 
-    @app.get("/api/cells/{cell}/humans/audit", tags=["people"])
-    def people_audit(cell: str, limit: int = Query(50, ge=1, le=10_000)) -> list[dict[str, Any]]:
+    @app.get("/api/cells/{cell}/humans/audit", tags=["people"], responses=responses(422, 503))
+    def people_audit(
+        cell: CellName, limit: int = Query(50, ge=1, le=10_000)
+    ) -> list[dict[str, Any]]:
         """The cell's operator actions on people, newest first."""
         check_name("cell", cell)
         return audit().person_actions(cell, limit)

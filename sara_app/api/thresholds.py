@@ -10,11 +10,13 @@
 - ``GET /api/cells/{cell}/thresholds/audit?limit=``: the cell's audit rows, newest first.
 
 Every PUT outcome is recorded by :func:`sara_app.ops.threshold_edit.apply_edit` (the same
-function the dashboard's panel uses). The scenario shown and edited is the one the cell's
-worker runs (:meth:`CellRegistry.applied_scenario`: its announcement, or what it accepted from
-this service). Until the worker has announced it (a worker or ``serve`` that just started) the
-GET answers ``state: starting`` with no values and a PUT 409: never the scenario file's values,
-which a worker restarted with saved edits does not run. Edits of one cell are serialised.
+function the dashboard's panel uses), under the request's user
+(:func:`~sara_app.api.guard.request_user`: the token's, as in the request log). The scenario
+shown and edited is the one the cell's worker runs (:meth:`CellRegistry.applied_scenario`: its
+announcement, or what it accepted from this service). Until the worker has announced it (a
+worker or ``serve`` that just started) the GET answers ``state: starting`` with no values and a
+PUT 409: never the scenario file's values, which a worker restarted with saved edits does not
+run. Edits of one cell are serialised.
 """
 
 from __future__ import annotations
@@ -27,11 +29,13 @@ from typing import Any
 from fastapi import FastAPI, HTTPException, Query, Request
 from pydantic import BaseModel, ConfigDict, Field, StrictBool
 
-from sara_app.api.guard import credential_user
+from sara_app.api.guard import request_user
 from sara_app.api.registry import EDIT_TIMEOUT_S, CellRegistry
+from sara_app.api.schema import BODY_RESPONSES, CellName, responses
 from sara_app.errors import SaraError, WorkerTimeoutError
 from sara_app.ops.audit import MAX_LIMIT, AuditLog
 from sara_app.ops.threshold_edit import ConfirmationRequired, apply_edit, threshold_view
+from sara_app.safety.settings import MAX_THRESHOLD_J
 from sara_app.safety.thresholds import CONTACTS, REGIONS, SHAPES
 from sara_app.scenario import Scenario, parse_scenario
 
@@ -44,16 +48,49 @@ class ThresholdEditBody(BaseModel):
     """One threshold entry to change (names are checked by the service, which records every
     request in the audit log, valid or not)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={"examples": [{"region": "hand", "contact": "constrained",
+                                         "shape": "blunt", "energy_J": 0.1}]},
+    )  # fmt: skip
 
     region: str = Field(json_schema_extra={"enum": list(REGIONS)}, description="Table I region")
     contact: str = Field(json_schema_extra={"enum": list(CONTACTS)})
     shape: str = Field(json_schema_extra={"enum": list(SHAPES)})
-    energy_J: float = Field(description="admissible energy in J: a finite number > 0")
+    energy_J: float = Field(
+        description=f"admissible energy in J: a finite number > 0 and <= {MAX_THRESHOLD_J:g}",
+        json_schema_extra={"exclusiveMinimum": 0, "maximum": MAX_THRESHOLD_J},
+    )  # the range is the schema's; the service checks it so that a refusal is audited too
     confirm: StrictBool = Field(
         False, description="required when energy_J exceeds the source value (true or false)"
     )
-    user: str = Field("unknown", max_length=200, description="who asks (free text, audited)")
+    user: str = Field(
+        "unknown", max_length=200, deprecated=True,
+        description="ignored: the audit records the request's user (the token's user, or "
+        "'local' without a token)",
+    )  # fmt: skip
+
+
+class ConfirmationDetail(BaseModel):
+    """Why an edit needs ``confirm``: the value exceeds its source's (its refusal audited)."""
+
+    message: str
+    needs_confirmation: bool
+    region: str
+    contact: str
+    shape: str
+    requested_energy_J: float
+    source_energy_J: float
+    source_key: str
+    source_text: str
+    audit_id: int | None
+
+
+class ThresholdConflict(BaseModel):
+    """409: a value above its source's without ``confirm`` (the detail is the warning), or a
+    worker that has not announced its scenario yet (the detail is a message)."""
+
+    detail: ConfirmationDetail | str
 
 
 class ThresholdEditAnswer(BaseModel):
@@ -150,8 +187,12 @@ def add_threshold_routes(
     ed = _Editor(registry, folder, audit)
     app.state.threshold_audit = ed.audit
 
-    @app.get("/api/cells/{cell}/thresholds", tags=["thresholds"])
-    def get_cell_thresholds(cell: str) -> dict[str, Any]:
+    @app.get(
+        "/api/cells/{cell}/thresholds",
+        tags=["thresholds"],
+        responses=responses(404, 422, 500, _500="the scenario the cell runs is invalid"),
+    )
+    def get_cell_thresholds(cell: CellName) -> dict[str, Any]:
         """The cell's effective contact-energy table: per entry the value in force, its
         source's value and key, whether it is overridden, and the ISO/TS 15066 reference."""
         known_cell(cell)
@@ -165,14 +206,16 @@ def add_threshold_routes(
         tags=["thresholds"],
         response_model=ThresholdEditAnswer,
         responses={
-            409: {"description": "above the source value: repeat with confirm=true"},
-            422: {"description": "invalid value or name"},
-            502: {"description": "the worker refused the edited scenario"},
-            504: {"description": "the worker did not answer (it may still apply it)"},
+            **BODY_RESPONSES,
+            **responses(404, 422, 500, 502, 503, 504,
+                        _500="the scenario the cell runs is invalid",
+                        _502="the worker refused the edited scenario"),
+            409: {"model": ThresholdConflict, "description": "above the source value: repeat "
+                  "with confirm=true; or the worker has not announced its scenario yet"},
         },
-    )
+    )  # fmt: skip
     def put_cell_threshold(
-        cell: str,
+        cell: CellName,
         body: ThresholdEditBody,
         request: Request,
         timeout_s: float = Query(EDIT_TIMEOUT_S, gt=0.0, le=120.0),
@@ -197,7 +240,7 @@ def add_threshold_routes(
                     send=ed.send(cell, timeout_s),
                     audit=log,
                     cell=cell,
-                    user=credential_user(request) or body.user,  # the token's user wins
+                    user=request_user(request),  # one user per request, as the request log
                     via="api",
                     no_answer=(WorkerTimeoutError,),
                 )
@@ -213,9 +256,11 @@ def add_threshold_routes(
             cell=cell, scenario=sc.name, accepted=True, edit=plan.summary(), audit=row.to_dict()
         )
 
-    @app.get("/api/cells/{cell}/thresholds/audit", tags=["thresholds"])
+    @app.get(
+        "/api/cells/{cell}/thresholds/audit", tags=["thresholds"], responses=responses(422, 503)
+    )
     def get_cell_threshold_audit(
-        cell: str, limit: int = Query(50, ge=1, le=MAX_LIMIT)
+        cell: CellName, limit: int = Query(50, ge=1, le=MAX_LIMIT)
     ) -> list[dict[str, Any]]:
         """The cell's threshold changes and refusals, newest first (also for a cell that is
         not on the bus any more)."""

@@ -1,0 +1,188 @@
+"""The parts of ``/openapi.json`` FastAPI cannot derive from the routes' signatures, and the 405
+answers that go with them.
+
+- Scenario bodies: the routes read a scenario (or a partial one) as plain JSON and check it
+  themselves, so that a refusal names the field in the project's words (``task.waypoints_rad.0:
+  ...``); the document still describes them exactly: :data:`SCENARIO` (a whole scenario),
+  :data:`SCENARIO_TO_SAVE` (its name is the URL's) and :data:`SCENARIO_CHANGES` (any of its
+  sections, an object-valued one partially: merged one level deep), each with an example.
+  A route names its body with ``openapi_extra=body_schema(...)``; :func:`install` puts the
+  schemas in ``components``.
+- Event streams: :data:`EVENT_STREAM`, the ``responses=`` of a Server-Sent Events route.
+- 405: the landing page's files are mounted at ``/``, so a method a route does not take would be
+  answered by the file server ("Allow: GET, HEAD"); :func:`install` answers it with the methods
+  the API's routes at that path take instead.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable, MutableMapping
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exception_handlers import http_exception_handler
+from fastapi.responses import JSONResponse, Response
+from fastapi.routing import APIRoute
+from pydantic.json_schema import models_json_schema
+from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match
+
+from sara_app.errors import SaraError
+from sara_app.human.params import RENAMED, ParamSet
+from sara_app.scenario import Scenario
+
+REF = "#/components/schemas/{model}"
+SCENARIO, SCENARIO_TO_SAVE, SCENARIO_CHANGES = "Scenario", "ScenarioToSave", "ScenarioChanges"
+BODY_MARK = "x-sara-body"
+
+CHANGES_EXAMPLE = {"shield": {"skeleton_timeout_s": 0.1}, "human_params": {"delay_s": 0.05}}
+"""The PATCH / what-if example: one shield setting and one value of the named parameter set."""
+
+EVENT_STREAM: dict[int | str, dict[str, Any]] = {
+    200: {
+        "description": "Server-Sent Events: each event is `event: status` with the snapshot as "
+        "JSON in `data` (schema: one event)",
+        "content": {
+            "text/event-stream": {
+                "schema": {
+                    "type": "object",
+                    "required": ["event", "data"],
+                    "properties": {
+                        "event": {"const": "status"},
+                        "data": {"type": "string", "contentMediaType": "application/json"},
+                    },
+                }
+            }
+        },
+    }
+}
+
+
+def body_schema(name: str) -> dict[str, Any]:
+    """``openapi_extra`` of a route whose JSON body is the schema ``name`` (see the module)."""
+    return {BODY_MARK: name}
+
+
+def scenario_schemas(param_sets: list[str], example: dict[str, Any] | None) -> dict[str, Any]:
+    """The components of the scenario bodies (and the models they refer to), by name;
+    ``example``: a whole scenario, shown in ``/docs``."""
+    _, top = models_json_schema(
+        [(Scenario, "validation"), (ParamSet, "validation")], ref_template=REF
+    )
+    defs: dict[str, Any] = top["$defs"]
+    sc = defs[SCENARIO]
+    sc["properties"]["human_params"] = {
+        "anyOf": [
+            {"type": "string", "enum": sorted({*param_sets, *RENAMED})},
+            {"$ref": REF.format(model="ParamSet")},
+        ],
+        "default": sc["properties"]["human_params"].get("default"),
+        "description": "a shipped parameter set's name, or a whole parameter set",
+    }
+    if example is not None:
+        sc["examples"] = [example]
+    defs[SCENARIO_TO_SAVE] = to_save = copy.deepcopy(sc)
+    to_save.update(
+        title=SCENARIO_TO_SAVE,
+        required=[r for r in sc.get("required", []) if r != "name"],
+        description="A scenario to save: its name is the URL's (any `name` here is replaced).",
+    )
+    to_save["properties"]["name"] = {"description": "ignored: the URL's name is stored"}
+    defs[SCENARIO_CHANGES] = changes_schema(sc, defs)
+    return defs
+
+
+def changes_schema(sc: dict[str, Any], defs: dict[str, Any]) -> dict[str, Any]:
+    """Any of the scenario's fields; an object-valued one may be partial (its keys merged into
+    the current section, one level deep); lists (``humans``, ``environment``) replace whole."""
+    props = {k: _partial(v, defs) for k, v in sc["properties"].items()}
+    return {
+        "title": SCENARIO_CHANGES,
+        "type": "object",
+        "additionalProperties": False,
+        "properties": props,
+        "description": "Changes to a cell's scenario: each section given is merged into the "
+        "scenario in force (object sections key by key, other fields replaced); the result is "
+        "checked as a whole. A partial `human_params` object edits the named set's values.",
+        "examples": [CHANGES_EXAMPLE],
+    }
+
+
+def _partial(prop: dict[str, Any], defs: dict[str, Any]) -> dict[str, Any]:
+    """``prop`` with any object it refers to made partial (no required keys, no defaults: a
+    missing key keeps the current value)."""
+    if "anyOf" in prop:
+        return {"anyOf": [_partial(p, defs) for p in prop["anyOf"]]}
+    target = defs.get(prop.get("$ref", "").rsplit("/", 1)[-1])
+    if target is None or target.get("type") != "object" or "properties" not in target:
+        return {k: v for k, v in prop.items() if k != "default"}
+    out = {k: v for k, v in copy.deepcopy(target).items() if k != "required"}
+    out["properties"] = {
+        k: {kk: vv for kk, vv in v.items() if kk != "default"} for k, v in out["properties"].items()
+    }
+    return out
+
+
+def install(app: FastAPI, schemas: Callable[[], dict[str, Any]]) -> None:
+    """Complete ``app``'s OpenAPI document with the ``schemas()`` bodies (built on the first
+    request for it) and answer 405 with the API's methods at the path."""
+    derived = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        if app.openapi_schema is None:
+            doc = derived()
+            _add_bodies(doc, schemas())
+            _errors_as_json(doc)
+        return app.openapi_schema or {}
+
+    app.openapi = openapi  # type: ignore[method-assign]
+    app.add_exception_handler(StarletteHTTPException, _allow_handler)  # type: ignore[arg-type]
+
+
+def _add_bodies(doc: dict[str, Any], schemas: dict[str, Any]) -> None:
+    found = doc.setdefault("components", {}).setdefault("schemas", {})
+    clash = [k for k in schemas if k in found and found[k] != schemas[k]]
+    if clash:  # a route's model of the same name: two meanings under one name
+        raise SaraError(f"OpenAPI component names used twice: {', '.join(clash)}")
+    found.update(schemas)
+    for path in doc.get("paths", {}).values():
+        for op in path.values():
+            name = op.pop(BODY_MARK, None)
+            if name is None:
+                continue
+            media: dict[str, Any] = {"schema": {"$ref": REF.format(model=name)}}
+            if schemas[name].get("examples"):
+                media["example"] = schemas[name]["examples"][0]
+            op["requestBody"] = {"required": True, "content": {"application/json": media}}
+
+
+def _errors_as_json(doc: dict[str, Any]) -> None:
+    """Every error answer is JSON, also on a route whose success is HTML or an event stream
+    (FastAPI files a route's error bodies under its success's content type)."""
+    for path in doc.get("paths", {}).values():
+        for op in path.values():
+            for code, answer in op.get("responses", {}).items():
+                content = answer.get("content")
+                if code[0] in "45" and content and "application/json" not in content:
+                    answer["content"] = {"application/json": next(iter(content.values()))}
+
+
+def allowed_methods(app: Any, scope: MutableMapping[str, Any]) -> list[str]:
+    """The methods the API's routes take at the request's path (empty: none of them matches)."""
+    methods: set[str] = set()
+    for route in app.router.routes:
+        if isinstance(route, APIRoute) and route.matches(scope)[0] != Match.NONE:
+            methods |= route.methods or set()
+    return sorted(methods)
+
+
+async def _allow_handler(request: Request, exc: StarletteHTTPException) -> Response:
+    """405 with ``Allow`` naming the methods of the API's routes at the path (the file
+    server's "GET, HEAD" only where no route matches); other errors as FastAPI answers them."""
+    allowed = allowed_methods(request.app, request.scope) if exc.status_code == 405 else []
+    if not allowed:
+        return await http_exception_handler(request, exc)
+    method, path = request.method, request.url.path
+    detail = f"method {method} is not allowed on {path[:200]}; allowed: {', '.join(allowed)}"
+    return JSONResponse({"detail": detail}, 405, headers={"Allow": ", ".join(allowed)})
