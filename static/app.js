@@ -25,10 +25,12 @@ function ages(obj) {
   return parts.length ? parts.join(", ") : "–";
 }
 
+// "superseded": a newer message of the same key replaced it before the cycle read it, which is
+// normal operation (the newest is used), not a loss: shown apart, never as a drop
 function dropped(obj) {
-  const entries = Object.entries(obj || {}).filter(([, n]) => n > 0);
+  const entries = Object.entries(obj || {}).filter(([r, n]) => n > 0 && r !== "superseded");
   const total = entries.reduce((s, [, n]) => s + n, 0);
-  return total ? total + " (" + entries.map(([r, n]) => r + " " + n).join(", ") + ")" : "0";
+  return total ? total + " (" + entries.map(([r, n]) => r + " " + n).join(", ") + ")" : "none";
 }
 
 function card(c) {

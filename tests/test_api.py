@@ -347,6 +347,7 @@ class FakeWorker:
         self.cell, self.answer = cell, answer
         self.mode: str | None = None  # None: alternate intended / failsafe
         self.starting = False  # True: "starting" statuses and no verdicts (building the cell)
+        self.dropped: dict[str, int] = {"superseded": 133088}  # normal: the newest is used
         self.received: list[dict[str, Any]] = []
         self._stop = threading.Event()
         self._status = self.bus.publisher(keys.status_key(cell))
@@ -383,6 +384,7 @@ class FakeWorker:
                     mode=mode,
                     min_distance_m=0.5,
                     skeleton_age_s={"h1": 0.01},
+                    dropped=self.dropped,
                 )
             )
             i += 1
@@ -511,6 +513,8 @@ def test_landing_page_shows_live_status_in_chromium(folder: Path, tmp_path: Path
             assert page.eval(f"{card}.textContent").count("empty_cell") == 1
             assert page.eval("document.getElementById('viewer-link').href") == VIEWER
             assert page.eval(f"{card}.dataset.safetyMode") == "ssm"
+            text = str(page.eval(f"{card}.textContent"))  # superseded is normal, not a drop
+            assert "droppednone" in text and "133088" not in text, text
             assert page.eval(f"{card}.querySelector('h2 .tag').textContent") == "SSM"
             hrefs = page.eval(f"[...{card}.querySelectorAll('.more a')].map(a => a.href)")
             assert hrefs == [

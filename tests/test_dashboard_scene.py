@@ -232,9 +232,12 @@ def test_flatten_round_trip_and_status_table() -> None:
     for name in scenario_names():
         data = load_scenario(name).model_dump(mode="json")
         assert unflatten(flatten(data)) == data, name
-    status = {"mode": "failsafe", "min_distance_m": float("inf"), "dropped": {"bad": 3}}
+    status = {"mode": "failsafe", "min_distance_m": float("inf"),
+              "dropped": {"bad": 3, "superseded": 133088}}  # fmt: skip
     md = status_markdown(status)
     assert "failsafe" in md and "inf" in md and "bad: 3" in md and "n/a" in md
+    assert "superseded" not in md and "133088" not in md  # normal operation, not a drop
+    assert "| Dropped messages | none |" in status_markdown({"dropped": {"superseded": 5}})
 
 
 def test_rolling_series_keeps_window_and_skips_nonfinite() -> None:

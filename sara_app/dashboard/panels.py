@@ -92,6 +92,16 @@ def _fmt(value: Any, fmt: str, unit: str = "") -> str:
     return f"{x:{fmt}}{unit}" if np.isfinite(x) else ("inf" if x > 0 else "n/a")
 
 
+def drops_text(dropped: Any) -> str:
+    """Messages the cell refused or lost, by reason; ``superseded`` ones (a newer message of the
+    same key replaced them before the cycle read it: the newest is used) are normal operation,
+    not a drop, and are left out."""
+    if not isinstance(dropped, dict):
+        return _fmt(dropped, ".0f")
+    real = {k: v for k, v in dropped.items() if k != "superseded" and v}
+    return _fmt(real, ".0f") if real else "none"
+
+
 def status_markdown(status: dict[str, Any]) -> str:
     """Markdown table of a frame's status dict (keys documented on ``DisplayFrame``)."""
     rows = [
@@ -104,7 +114,7 @@ def status_markdown(status: dict[str, Any]) -> str:
             f"{_fmt(status.get('cycle_p99_us'), '.0f', ' us')}",
         ),
         ("Skeleton age", _fmt(status.get("skeleton_age_ms"), ".1f", " ms")),
-        ("Dropped messages", _fmt(status.get("dropped"), ".0f")),
+        ("Dropped messages", drops_text(status.get("dropped"))),
     ]
     if "intervened" in status:
         rows.append(("Intervening", "yes" if status["intervened"] else "no"))
