@@ -371,6 +371,10 @@ def test_the_package_looks_for_no_data_folder_but_sara_data_dir(monkeypatch, tmp
     monkeypatch.chdir(tmp_path)
     with pytest.raises(RecordingError, match="SARA_DATA_DIR"):
         shared_data_dir()
+    with pytest.raises(
+        RecordingError, match="no recording named '09_06'.*SARA_DATA_DIR is not set"
+    ):
+        load_recording("09_06")  # the run: not shipped
     from sara_app.human.recordings import find_recording
 
     for name in ("02_01", "62_07", "HumanRobotHandover/0"):

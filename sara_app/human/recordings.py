@@ -225,7 +225,7 @@ def find_recording(path_or_name: str | os.PathLike[str]) -> Path:
             shared = shared_data_dir()
             bases = [shared, shared.parent, PACKAGED_DATA_DIR.parent]
         except RecordingError:
-            bases = [PACKAGED_DATA_DIR.parent]
+            shared, bases = None, [PACKAGED_DATA_DIR.parent]
         # a name is a file in a data folder or one of its subfolders (each folder a collection)
         found = list(dict.fromkeys(
             f.resolve() for b in bases for c in cand
@@ -238,6 +238,12 @@ def find_recording(path_or_name: str | os.PathLike[str]) -> Path:
             )
         if found:
             p = found[0]
+        elif not p.suffix:
+            where = "SARA_DATA_DIR is not set" if shared is None else f"nor in {shared.parent}"
+            raise RecordingError(
+                f"no recording named {str(path_or_name)!r} among those the package ships "
+                f"({where}); give a file's path, or set SARA_DATA_DIR to a folder of recordings"
+            )
     suffix = p.suffix.lower()
     if suffix not in _SUFFIXES:
         raise RecordingError(
