@@ -31,3 +31,24 @@ def test_the_heap_built_before_the_loop_is_frozen() -> None:
     before, frozen, after = (int(x) for x in out.stdout.split())
     assert before > 50_000 and frozen >= 0.5 * before  # the rest was garbage, collected
     assert after < 0.01 * before
+
+
+def test_a_repeated_warning_is_summarised_not_a_line_each(caplog) -> None:
+    """Said once when it first happens, then one line a minute with the count: 2 048 expiries
+    a minute must not be 2 048 lines (issue: 175 re-anchor lines in 12 minutes)."""
+    import logging
+
+    from sara_app.bus.process import SummarisedWarning
+
+    now = [0.0]
+    warn = SummarisedWarning(logging.getLogger("sara_app.test"), "commands expired",
+                             clock=lambda: now[0])  # fmt: skip
+    with caplog.at_level(logging.WARNING, logger="sara_app.test"):
+        for _ in range(2048):  # 500 Hz for 4 s
+            warn("braking")
+            now[0] += 0.002
+        assert len(caplog.records) == 1 and "commands expired: braking" in caplog.text
+        now[0] = 60.0
+        warn("braking")
+        assert len(caplog.records) == 2
+        assert "commands expired 2048 times in the last 60 s (2049 in all)" in caplog.text

@@ -6,7 +6,6 @@ applies it through the edit hook, and the evidence report is made and sent to th
 from __future__ import annotations
 
 import os
-import time
 from collections.abc import Iterator
 from typing import Any
 
@@ -72,16 +71,23 @@ def test_a_whatif_from_the_browser(setup: tuple[Dashboard, WhatIfPanels, list]) 
         wait_for(lambda: page.eval(_FOLDER + " != null"), 60.0, "the what-if folder")
         page.click(_FOLDER)  # expand it
         run = _BUTTON.format("Run what-if")
-        wait_for(lambda: page.eval(f"(e => !!e && e.getBoundingClientRect().height > 0)({run})"),
-                 30.0, "the folder to open")  # fmt: skip
-        time.sleep(1.0)  # the folder's opening animation: the button still moves
+        # the folder opens with an animation: wait until the button is shown and stands still
+        # (the same place at two polls in a row), however long a loaded machine takes
+        where = f"(e => e ? JSON.stringify(e.getBoundingClientRect()) : null)({run})"
+        last: list[object] = [None]
+
+        def settled() -> bool:
+            prev, last[0] = last[0], page.eval(where)
+            return last[0] is not None and last[0] == prev and '"height":0' not in str(prev)
+
+        wait_for(settled, 120.0, "the folder to open and the button to stand still")
         b = next(iter(panels._browsers.values()))  # noqa: SLF001 - this browser's controls
         b.gui["duration"].value = 1.5
         b.gui["mode"].value = "SSM"
         page.click(run)
         wait_for(
             lambda: b.job is not None or "What-if done" in _text(page),
-            30.0,
+            120.0,
             f"a job ({b.gui['status'].content!r})",
         )
         wait_for(lambda: "What-if done" in _text(page), 300.0, "the what-if to finish")

@@ -11,6 +11,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable
 from typing import Protocol
 
@@ -120,7 +121,7 @@ def freeze_heap(name: str = "process") -> int:
     gc.collect()
     gc.freeze()
     n = gc.get_freeze_count()
-    logging.getLogger(f"sara_app.{name}").info("%d objects frozen before the loop", n)
+    logging.getLogger(f"sara_app.{name}").debug("%d objects frozen before the loop", n)
     return n
 
 
@@ -149,5 +150,39 @@ def set_realtime(priority: int, name: str = "process", what: str = "loop thread"
     except (AttributeError, OSError) as e:
         log.warning("real-time scheduling not permitted (%s): the loop runs at normal priority", e)
         return False
-    log.info("%s under SCHED_FIFO, priority %d", what, priority)
+    log.debug("%s under SCHED_FIFO, priority %d", what, priority)
     return True
+
+
+class SummarisedWarning:
+    """A warning that can repeat at the control rate, logged once when it first happens and
+    then as one line per ``interval_s`` with its count ("commands expired 2048 times in the last
+    60 s"), never a line each. ``clock``: seconds (monotonic by default)."""
+
+    def __init__(
+        self,
+        log: logging.Logger,
+        what: str,
+        interval_s: float = 60.0,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.log, self.what, self.interval_s, self.clock = log, what, interval_s, clock
+        self.total = 0
+        self._window_start: float | None = None
+        self._in_window = 0
+
+    def __call__(self, detail: str = "") -> None:
+        """One occurrence (``detail``: what this one was)."""
+        now = self.clock()
+        self.total += 1
+        if self._window_start is None:  # the first: said at once
+            self.log.warning("%s%s", self.what, f": {detail}" if detail else "")
+            self._window_start, self._in_window = now, 0
+            return
+        self._in_window += 1
+        if now - self._window_start >= self.interval_s:
+            self.log.warning(
+                "%s %d times in the last %.0f s (%d in all)%s", self.what, self._in_window,
+                now - self._window_start, self.total, f"; the last: {detail}" if detail else "",
+            )  # fmt: skip
+            self._window_start, self._in_window = now, 0

@@ -43,7 +43,7 @@ from sara_app.bus.messages import (
     RobotCommandMsg,
     RobotStateMsg,
 )
-from sara_app.bus.process import process_main
+from sara_app.bus.process import SummarisedWarning, process_main
 from sara_app.bus.session import Bus
 from sara_app.safety.settings import FUTURE_TOLERANCE_S
 from sara_app.scenario import Scenario
@@ -98,6 +98,7 @@ class Controller:
         """Where the robot is to be when: ``(t, q)``, the first where it stood, then the set
         points not yet reached."""
         self.delivery = Delivery()
+        self._expired_log = SummarisedWarning(log, "commands expired")
         self.published_s = -1.0
         self.status_s = -np.inf
         self.stop_event = threading.Event()
@@ -139,12 +140,7 @@ class Controller:
         else:  # past the set point without a newer command: on its verified stop, on schedule
             if now > self.command.valid_until_s and not self.braking:
                 self.delivery.braking_events += 1
-                n = self.delivery.braking_events
-                if n & (n - 1) == 0:  # logged 1st, 2nd, 4th, 8th ...: bounded log volume
-                    log.warning(
-                        "commands expired (#%d): braking along the last verified stop",
-                        n,
-                    )
+                self._expired_log("braking along the last verified stop")
                 self.braking = True
             self._apply(*self.command.stop_position(now))
         self.publish(now)

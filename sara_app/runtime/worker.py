@@ -30,7 +30,7 @@ import numpy as np
 from sara_app.bus import keys
 from sara_app.bus.messages import OccupancyMsg, ScenarioStateMsg, StatusMsg
 from sara_app.bus.ownership import claim_cell
-from sara_app.bus.process import process_main
+from sara_app.bus.process import SummarisedWarning, process_main
 from sara_app.bus.session import Bus
 from sara_app.bus.starting import Starting, last_status_seq
 from sara_app.cell.build import Cell, build_cell
@@ -86,6 +86,7 @@ class CellWorker:
         self.bus = bus
         self.token = claim_cell(bus, self.name)  # one worker per cell, or none
         self.errors = _Throttle()
+        self._reanchored_log = SummarisedWarning(log, "robot at rest elsewhere")
         self.edits = LiveEdits(self.name, origin or scenario.name, state_dir, self.errors)
         scenario = self.edits.restored(scenario)
         self.loop_task = loop_task
@@ -211,7 +212,7 @@ class CellWorker:
         if self.robot_in.at_rest_elsewhere(self.shield.robot_state.q, tol):
             self.shield.restart_from(q_meas)
             self.robot_in.commanded.clear()
-            log.warning("robot at rest elsewhere: follower re-anchored at the measured state")
+            self._reanchored_log("follower re-anchored at the measured state")
 
     def _fault_cycle(self, now: float, why: str) -> CycleResult:
         """A cycle that failed outside the shield's own fault handling: brake on the held
