@@ -75,6 +75,7 @@ def make_pair(models: tuple[str, ...], boxes: bool = True) -> tuple[PflShield, P
             "task": {"waypoints_rad": [[-1.2, *Q], [1.2, *Q]]},
             "environment": [TABLE] if boxes else [],
             "shield": {"mode": "pfl", "models": list(models)},
+            "human_params": "schepp2022_table1",  # the people of these tests walk for its sets
         }
     )
     cells = [build_cell(sc).shield for _ in range(2)]

@@ -38,7 +38,6 @@ from sara_app.bus.session import Bus, Subscription, free_port
 from sara_app.human.params import load_param_set
 from sara_app.human.skeleton import skeleton
 from sara_app.ops.audit import AuditLog
-from sara_app.robot.model import load_robot
 from sara_app.runtime.worker import CellWorker
 from sara_app.safety.thresholds import CONTACTS, REGIONS
 from sara_app.scenario import load_scenario, scenarios_dir
@@ -197,7 +196,7 @@ def _outside_m(occ: list[OccupancyMsg], lo: np.ndarray, hi: np.ndarray) -> float
 def test_waypoint_edit_moves_the_robot_occupancy(live: Live) -> None:
     new_wps = [[-0.1, 0.0, 0.0, -2.2, 0.0, 2.2, 0.8], [0.1, 0.0, 0.0, -2.2, 0.0, 2.2, 0.8]]
     path = np.linspace(new_wps[0], new_wps[1], 50)
-    ends_path = load_robot("panda").link_capsules_batch(path)  # (50, L, 2, 3)
+    ends_path = live.worker.cell.robot.link_capsules_batch(path)  # (50, L, 2, 3): on its base
     lo, hi = ends_path.min(axis=(0, 2)), ends_path.max(axis=(0, 2))  # (L, 3) per link
     before = live.collect(live.occ, OccupancyMsg, 1.0)
     assert _outside_m(before, lo, hi) > 0.2  # the shipped task sweeps elsewhere

@@ -35,6 +35,7 @@ def make_shield(
             "task": {"waypoints_rad": [[-0.8, *Q], [0.8, *Q]]},
             "environment": [TABLE] if env else [],
             "shield": {"mode": "pfl", "models": list(models), "pfl": pfl},
+            "human_params": "schepp2022_table1",  # the people below are placed for its sets
         }
     )
     shield = build_cell(sc).shield

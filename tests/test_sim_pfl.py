@@ -31,7 +31,12 @@ TS = load_thresholds("thresholds_thumm2024")
 
 def _truth(boxes: list[dict[str, object]]) -> ContactTruth:
     sc = parse_scenario(
-        {"name": "t", "task": {"waypoints_rad": [Q0.tolist()]}, "environment": boxes}
+        {
+            "name": "t",
+            "task": {"waypoints_rad": [Q0.tolist()]},
+            "environment": boxes,
+            "human_params": "schepp2022_table1",
+        }  # the hand ball of Table I (0.205 m)
     )
     cell = build_cell(sc)
     sk = cell.shield.reach.skeleton

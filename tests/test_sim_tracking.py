@@ -23,8 +23,10 @@ def test_scripted_glitches_are_flagged_and_harmless(mode: str) -> None:
     t = m.tracking
     assert t["bone"] >= 25  # the swap: 0.3 s at 100 Hz, the wrist blamed every frame
     assert t["frozen"] >= 35  # the freeze: 0.4 s
-    assert t["jump"] > 0 and t["speed"] > 0  # the spike: the monitor's fault
-    assert m.fault_cycles > 0
+    # the spike (15 cm in one frame, beyond even bench_work's 7.6 m/s elbow): the gate holds
+    # the joint as a jump, its set grows until history and measurement agree; the monitor's
+    # fault on a person faster than the set is the next test's (on Table I)
+    assert t["jump"] > 0
     assert m.time_to_goal_s is not None
 
 
