@@ -282,3 +282,38 @@ def test_the_report_checksum_is_the_running_workers_and_changes_with_any_edit(
     assert r.status_code == 200, r.text
     edited = _status_checksum(live, not_equal=running)
     assert edited == config_checksum(live.worker.cell.scenario) != st["checksum"]
+
+
+def test_the_cli_reports_the_running_cell_and_says_when_a_file_is_not_it(
+    live: Live, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """After a live threshold edit, `sara-app report --cell` (over the API, a real HTTP server)
+    prints the running cell's checksum and says so on the report's first line; a report of
+    the scenario file says on its first line that it is not the running cell, and that the
+    cell runs a different configuration."""
+    from sara_app.api.server import ApiServer
+    from sara_app.cli import main
+
+    running = _status_checksum(live)
+    body = {"region": "hand", "contact": "constrained", "shape": "blunt", "energy_J": 0.1}
+    assert live.client.put(f"/api/cells/{CELL}/thresholds", json=body).status_code == 200
+    edited = _status_checksum(live, not_equal=running)
+    server = ApiServer(live.client.app, port=0)
+    url = server.start()
+    try:
+        out = tmp_path / "cell.html"
+        args = ["--cell", CELL, "--api", url, "--duration", "0.3", "--episodes", "0", "--quiet"]
+        assert main(["report", *args, "--out", str(out)]) == 0
+        said = capsys.readouterr().out
+        assert f"checksum {edited}; the cell runs {edited}: equal" in said, said
+        first = out.read_text().split("<body>", 1)[1][:300]
+        assert "describes the running cell" in first and edited in out.read_text()
+        capsys.readouterr()
+        out = tmp_path / "file.html"
+        assert main(["report", "empty_cell", *args, "--modes", "ssm", "--out", str(out)]) == 0
+        said = capsys.readouterr().out
+        assert "NOT a running cell" in said.splitlines()[0]
+        assert f"runs checksum {edited}: a DIFFERENT configuration" in said, said
+        assert "NOT a running cell" in out.read_text().split("<body>", 1)[1][:300]
+    finally:
+        server.stop()

@@ -117,7 +117,9 @@ def add_job_routes(
         current, _ = with_changes(cell, {}, None)
         audit = audit_path()
         settings = {"duration_s": duration_s, "episodes": episodes, "cell": cell,
-                    "audit_path": None if audit is None else str(audit)}  # fmt: skip
+                    "audit_path": None if audit is None else str(audit),
+                    "source": f"the running cell {cell!r}: the scenario it ran when the report "
+                              "was requested, live edits included"}  # fmt: skip
         return start("report", {"scenario": current.model_dump(mode="json"),
                                 "settings": settings}, f"{cell}: evidence report")  # fmt: skip
 

@@ -38,7 +38,8 @@ def _run(kind: str, data: dict, out: Path) -> None:
     audit = s.get("audit_path")
     settings = Settings(s.get("recordings", ()), s.get("modes", ("ssm", "pfl", "jssa")),
                         s.get("duration_s"), int(s.get("episodes", 5)),
-                        Path(audit) if audit else None, s.get("cell"))  # fmt: skip
+                        Path(audit) if audit else None, s.get("cell"),
+                        s.get("source", "a scenario given to the report"))  # fmt: skip
     ev = gather(parse_scenario(data["scenario"], "the cell's scenario"), settings, _say)
     out.write_text(render(ev))
     out.with_suffix(".json").write_text(json.dumps(ev.to_dict()))

@@ -55,7 +55,9 @@ Progress = Callable[[float, str], None]
 class Settings:
     """What the report runs: ``recordings`` (names or paths, besides the shipped ones),
     ``modes``, ``duration_s`` of each closed loop (None: the scenario's), ``episodes`` per
-    mode (0: none), ``audit_path`` (None: no audit section), ``cell`` name for the audit."""
+    mode (0: none), ``audit_path`` (None: no audit section), ``cell`` name for the audit;
+    ``source``: what the scenario is, said on the report's first line (a running cell's, or a
+    file that is not a running cell)."""
 
     recordings: Sequence[str] = ()
     modes: Sequence[str] = MODES
@@ -63,6 +65,7 @@ class Settings:
     episodes: int = 5
     audit_path: Path | None = None
     cell: str | None = None
+    source: str = "a scenario given to the report, not a running cell"
 
 
 @dataclass
@@ -80,6 +83,7 @@ class Evidence:
     stops: list[dict[str, Any]] = field(default_factory=list)
     closed_loop: list[dict[str, Any]] = field(default_factory=list)
     adversarial: list[dict[str, Any]] = field(default_factory=list)
+    source: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -130,6 +134,7 @@ def gather(sc: Scenario, settings: Settings, progress: Progress | None = None) -
         checksum=cell.checksum,
         scenario=sc.model_dump(mode="json"),
         param_set=ps.model_dump(mode="json"),
+        source=settings.source,
     )
     step("containment on recordings")
     names = list(dict.fromkeys([*SHIPPED_RECORDINGS, *settings.recordings]))

@@ -245,6 +245,7 @@ def render(ev: Evidence) -> str:
     return (
         "<!DOCTYPE html><html><head><meta charset='utf-8'><title>SaRA cell evidence: "
         f"{_e(name)}</title><style>{STYLE}</style></head><body>"
+        f'<p class="source" id="source">This report describes {_e(ev.source)}.</p>'
         f"<h1>SaRA cell: evidence report for <code>{_e(name)}</code></h1>"
         f"<p>Configuration checksum (scenario, parameter and threshold sets, code): "
         f'<span class="checksum" id="checksum">{_e(ev.checksum)}</span></p>'
