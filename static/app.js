@@ -83,7 +83,14 @@ function card(c) {
     a.textContent = text;
     more.append(a);
   }
-  el.append(h, dl, more);
+  // the verdict in words (the API's sentence: sara_app/bus/verdict_words.py), coloured by state
+  const verdict = document.createElement("p");
+  verdict.className = "verdict";
+  verdict.dataset.state = c.verdict_state || "offline";
+  verdict.style.borderLeftColor = c.verdict_colour || "#6b7280";
+  verdict.textContent = starting ? "Starting: " + (c.detail || "building the cell")
+    : c.verdict_text || "No verdict yet";
+  el.append(h, verdict, dl, more);
   return el;
 }
 

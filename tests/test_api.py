@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import shutil
 import threading
 import time
@@ -348,6 +349,7 @@ class FakeWorker:
         self.mode: str | None = None  # None: alternate intended / failsafe
         self.starting = False  # True: "starting" statuses and no verdicts (building the cell)
         self.dropped: dict[str, int] = {"superseded": 133088}  # normal: the newest is used
+        self.extra: dict[str, Any] = {}  # further verdict fields (faults, intervened, ...)
         self.received: list[dict[str, Any]] = []
         self._stop = threading.Event()
         self._status = self.bus.publisher(keys.status_key(cell))
@@ -385,6 +387,7 @@ class FakeWorker:
                     min_distance_m=0.5,
                     skeleton_age_s={"h1": 0.01},
                     dropped=self.dropped,
+                    **self.extra,
                 )
             )
             i += 1
@@ -522,6 +525,31 @@ def test_landing_page_shows_live_status_in_chromium(folder: Path, tmp_path: Path
                 url + "api/cells/cell1/thresholds/audit",
             ]
             green = page.eval(f"getComputedStyle({card}).borderLeftColor")
+            # the verdict in words, one state after the other (the API's sentence)
+            words = f"{card}.querySelector('.verdict')"
+            states = [
+                ("intended", {}, "moving", "Moving on its verified path"),
+                ("intended", {"intervened": True, "speed_scale": 0.4, "blocking": ["h1 r_hand"]},
+                 "slowed", "slowed to 40 % of its speed by SSM: h1's right hand, 0.50 m"),
+                ("failsafe", {"blocking": ["h1 head"]}, "braking",
+                 "Braking along the verified stop (SSM): h1's head, 0.50 m"),
+                ("fault", {"faults": ["h1: no skeleton for 0.12 s"]}, "fault",
+                 "Fault for 0 s: h1: no skeleton for 0.12 s. The robot holds its verified stop"),
+            ]  # fmt: skip
+            for mode_, extra, state, text in states:
+                worker.mode, worker.extra = mode_, extra
+                assert _wait_until(lambda s=state: page.eval(f"{words}.dataset.state") == s, 10.0)
+                assert text in str(page.eval(f"{words}.textContent")), page.eval(
+                    words + ".textContent"
+                )
+                shots = os.environ.get("SARA_SCREENSHOT_DIR")
+                if shots:  # for looking at them by hand (docs/images)
+                    from PIL import Image
+
+                    Image.fromarray(page.screenshot().astype("uint8")).save(
+                        Path(shots) / f"landing-{state}.png"
+                    )
+            worker.extra = {}
             worker.mode = "fault"
             assert _wait_until(lambda: mode() == "fault", 10.0)
             red = page.eval(f"getComputedStyle({card}).borderLeftColor")

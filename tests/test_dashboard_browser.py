@@ -131,3 +131,53 @@ def test_page_connects_and_renders_the_verdict(
         for name, img in (("verified", green), ("failsafe", red), ("pfl", pfl), ("robot", robot)):
             path = os.path.join(os.environ["SARA_SCREENSHOT_DIR"], f"dashboard_{name}.png")
             Image.fromarray(img.astype(np.uint8)).save(path)
+
+
+def test_the_3d_view_says_the_verdict_in_words(
+    browser_on_dashboard: tuple[Dashboard, DevTools],
+) -> None:
+    """The banner above the tabs: moving, slowed (by whom), braking (which person and body
+    part, how close) and fault (which input, what to do), each in its colour, from the verdict
+    message as the live bridge turns it into the frame's status."""
+    from sara_app.bus.messages import VerdictMsg
+    from sara_app.dashboard.from_messages import verdict_status
+
+    dash, devtools = browser_on_dashboard
+    wait_for(lambda: dash.client_count() > 0, 60.0, "the browser to connect to viser")
+    banner = "document.querySelector('.sara-verdict')"
+    base = {"seq": 1, "stamp_s": 1.0, "cell": "c", "safety_mode": "ssm", "cycle_time_us": 80.0,
+            "min_distance_m": 0.42}  # fmt: skip
+    states = [
+        ({"mode": "intended"}, "moving", "Moving on its verified path (SSM), 0.42 m"),
+        ({"mode": "intended", "intervened": True, "speed_scale": 0.3, "blocking": ["p1 l_hand"]},
+         "slowed", "slowed to 30 % of its speed by SSM: p1's left hand, 0.42 m"),
+        ({"mode": "failsafe", "blocking": ["p1 head"]}, "braking",
+         "Braking along the verified stop (SSM): p1's head, 0.42 m"),
+        ({"mode": "fault", "faults": ["p1: no skeleton for 0.2 s"]}, "fault",
+         "Fault: p1: no skeleton for 0.2 s. The robot holds its verified stop; check that the "
+         "tracker runs"),
+    ]  # fmt: skip
+    for fields, state, text in states:
+        frame = demo_frame(1.0, verified=state != "braking")
+        status = verdict_status(VerdictMsg(**{**base, **fields}), np.array([80.0]))
+        frame.status = {**frame.status, **status}
+        dash.update(frame)
+
+        def shown(s: str = state) -> str | None:
+            got = devtools.call(
+                "Runtime.evaluate",
+                returnByValue=True,
+                expression=f"{banner} && [{banner}.dataset.state, "
+                f"{banner}.textContent, getComputedStyle({banner}).backgroundColor]",
+            )
+            value = got["result"].get("value")  # fmt: skip
+            return value if value and value[0] == s else None
+
+        got = wait_for(shown, 60.0, f"the {state} banner")
+        assert isinstance(got, list) and text in got[1], got
+        if os.environ.get("SARA_SCREENSHOT_DIR"):  # docs/images
+            from PIL import Image
+
+            path = os.path.join(os.environ["SARA_SCREENSHOT_DIR"], f"banner_{state}.png")
+            Image.fromarray(devtools.screenshot().astype(np.uint8)).save(path)
+    assert got[2] == "rgb(185, 28, 28)"  # the fault's red

@@ -55,6 +55,7 @@ from sara_app.bus.messages import (
     VerdictMsg,
 )
 from sara_app.bus.session import Bus, Publisher, Subscription
+from sara_app.bus.verdict_words import verdict_words
 from sara_app.errors import InputError, WorkerTimeoutError
 
 log = logging.getLogger("sara_app.api")
@@ -95,6 +96,8 @@ class _Cell:
     cycle_us: deque[float] = field(default_factory=lambda: deque(maxlen=CYCLE_WINDOW))
     controller: ControllerStatusMsg | None = None
     controller_recv_s: float | None = None
+    fault_since_s: float | None = None
+    """When the cell's verdicts began to report a fault (None: the newest reports none)."""
 
 
 def _age(now_s: float, then_s: float | None) -> float | None:
@@ -219,6 +222,11 @@ class CellRegistry:
                 cell.controller, cell.controller_recv_s = msg, d.recv_s
             else:
                 cell.verdict, cell.verdict_recv_s = msg, d.recv_s
+                faulted = bool(msg.faults) or msg.mode == "fault"
+                if not faulted:
+                    cell.fault_since_s = None
+                elif cell.fault_since_s is None:
+                    cell.fault_since_s = d.recv_s
                 cell.verdicts += 1
                 cell.cycle_us.append(msg.cycle_time_us)
 
@@ -285,7 +293,14 @@ class CellRegistry:
             "status_age_s": status_age,
             "verdict_age_s": verdict_age,
             "controller": self._controller(c, now_s),
+            **self._words(c, online, now_s),
         }
+
+    @staticmethod
+    def _words(c: _Cell, online: bool, now_s: float) -> dict[str, Any]:
+        """The verdict in words (:mod:`sara_app.bus.verdict_words`)."""
+        w = verdict_words(c.verdict, online, _age(now_s, c.fault_since_s))
+        return {"verdict_state": w.state, "verdict_text": w.sentence, "verdict_colour": w.colour}
 
     def _controller(self, c: _Cell, now_s: float) -> dict[str, Any] | None:
         """The robot controller's command delivery (None: no controller has reported);

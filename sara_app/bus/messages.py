@@ -318,6 +318,9 @@ class VerdictMsg(_Msg):
     no flag are left out)."""
     violations: list[ViolationMsg] = Field(default=[], max_length=64)
     """The newest violations of every person now on the failsafe for breaking the bounds."""
+    blocking: list[Annotated[str, Field(max_length=80)]] = Field(default=[], max_length=16)
+    """``"<person id> <body part>"``: the body parts the check could not clear this cycle (why
+    the robot brakes or slows; SSM: per body part; empty where the mode says nothing per part)."""
 
 
 class CapsulesMsg(BaseModel):

@@ -16,6 +16,7 @@ from sara_app.bus.messages import (
     OccupancyMsg,
     VerdictMsg,
 )
+from sara_app.bus.verdict_words import verdict_words
 from sara_app.cell.build import base_pose
 from sara_app.dashboard.frame import (
     CONTACT_CODES,
@@ -126,7 +127,13 @@ def verdict_status(v: VerdictMsg, cycle_us: np.ndarray) -> dict[str, Any]:
         "tracking": {h: dict(c) for h, c in v.tracking.items()},
         "violations": [x.model_dump() for x in v.violations],
         "jssa": None,
+        **_words(v),
     }
+
+
+def _words(v: VerdictMsg) -> dict[str, str]:
+    w = verdict_words(v)
+    return {"verdict_state": w.state, "verdict_text": w.sentence, "verdict_colour": w.colour}
 
 
 def occupancy_into(frame: DisplayFrame, occ: OccupancyMsg) -> None:

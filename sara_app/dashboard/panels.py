@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable
+from html import escape as html_escape
 from typing import Any
 
 import numpy as np
@@ -90,6 +91,19 @@ def _fmt(value: Any, fmt: str, unit: str = "") -> str:
     except (TypeError, ValueError):
         return "n/a"
     return f"{x:{fmt}}{unit}" if np.isfinite(x) else ("inf" if x > 0 else "n/a")
+
+
+def banner_html(status: dict[str, Any]) -> str:
+    """The verdict in words (``verdict_text``, ``verdict_state``, ``verdict_colour`` of the
+    status: :mod:`sara_app.bus.verdict_words`) as a coloured banner; no verdict yet: a grey
+    one saying so."""
+    state = html_escape(str(status.get("verdict_state", "offline")))
+    colour = str(status.get("verdict_colour", "#6b7280"))
+    if not (colour.startswith("#") and len(colour) == 7 and colour[1:].isalnum()):
+        colour = "#6b7280"
+    text = html_escape(str(status.get("verdict_text", "No verdict from the cell yet")))
+    style = f"background:{colour};color:#fff;padding:8px 10px;border-radius:6px;font-weight:600"
+    return f'<div class="sara-verdict" data-state="{state}" style="{style}">{text}</div>'
 
 
 def drops_text(dropped: Any) -> str:
@@ -342,6 +356,8 @@ class DashboardPanels:
         self._params: dict[str, Any] = {}
         self._param_inputs: dict[str, Any] = {}
         gui = server.gui
+        self._banner_html = ""
+        self.banner = gui.add_html(banner_html({}))  # the verdict in words, above the tabs
         self.tabs = tabs = gui.add_tab_group()
         with tabs.add_tab("Status"):
             self.safety_mode = gui.add_dropdown(
@@ -496,6 +512,9 @@ class DashboardPanels:
         """Refresh the status table and the link-energy table; append to the plots, sent at
         most every plot period; show the plots of the worker's safety mode."""
         self.status.content = status_markdown(status)
+        html = banner_html(status)
+        if html != self._banner_html:
+            self.banner.content = self._banner_html = html
         links_md = link_energy_markdown(links or [])
         if links_md != self._links_md:
             self.links.content = self._links_md = links_md

@@ -68,6 +68,7 @@ class CycleMessages:
         dropped: dict[str, int],
         seqs: tuple[int, int],
         people: People | None = None,
+        blocking: list[str] | None = None,
     ) -> tuple[VerdictMsg, RobotCommandMsg]:
         """The cycle's verdict and command, numbered ``seqs``; raises when a value cannot be
         sent (non-finite). ``people``: the tracking flags and violations to report."""
@@ -91,6 +92,7 @@ class CycleMessages:
             speed_scale=res.speed_scale if mode_facts(res.safety_mode).scales_speed else None,
             tracking=cast(Any, {} if people is None else people.tracking()),
             violations=[] if people is None else violation_msgs(people.violations()),
+            blocking=blocking or [],
         )
         return verdict, self._command(now, dt, c, res.mode, seqs[1])
 

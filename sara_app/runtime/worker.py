@@ -253,7 +253,7 @@ class CellWorker:
         try:
             self.messages.observe(now, res, self.shield.holds_failsafe)
             verdict, command = self.messages.verdict_and_command(
-                now, dt, res, self.io.dropped(), seqs, self.presence
+                now, dt, res, self.io.dropped(), seqs, self.presence, self.shield.blocking(res)
             )
         except Exception as e:  # noqa: BLE001 - a message that cannot be built: a fault cycle
             self.errors("building the cycle's messages failed", repr(e), e)

@@ -115,6 +115,17 @@ class Shield:
     """Set on a mode without a verified failsafe while a switch waits for rest (every cycle
     brakes); the modes that hold a failsafe never need it."""
 
+    def blocking(self, res: CycleResult, limit: int = 8) -> list[str]:
+        """``"<person> <body part>"`` for each body part the check could not clear on some
+        interval of the cycle's checked trajectory (why it brakes or slows), at most ``limit``;
+        empty where the mode's result says nothing per body part (PFL, JSSA) or all cleared."""
+        if res.ssm is None or not res.human_ids:
+            return []
+        blocked = ~np.asarray(res.ssm.parts_clear).all(axis=1)  # (H, P)
+        names = self.reach.skeleton.parts
+        return [f"{res.human_ids[h]} {names[p]}" for h, p in zip(*np.nonzero(blocked))
+                if h < len(res.human_ids)][:limit]  # fmt: skip
+
     def __init__(
         self,
         robot: RobotModel,
