@@ -38,7 +38,11 @@ def test_each_state_in_words() -> None:
     assert {verdict_words(_v(mode=m)).colour for m in ("intended", "failsafe", "fault")} <= set(
         COLOURS.values()
     )
+    w = verdict_words(_v(mode="failsafe", min_distance_m=-0.05))
+    assert w.sentence.endswith("a person, touching the robot's capsules (0.05 m deep)")
     assert part_words([]) == "a person" and part_words(["p1 l_shin"]) == "p1's left shin"
+    w = verdict_words(_v(intervened=True, speed_scale=0.1, skeleton_age_s={"p7": 0.01}))
+    assert "by SSM: p7 nearby" in w.sentence  # no part named: the one person in view
 
 
 def test_the_shield_names_the_parts_it_could_not_clear() -> None:

@@ -48,9 +48,24 @@ def part_words(blocking: list[str]) -> str:
     return f"{who}'s {side}{name.replace('_', ' ')}{more}"
 
 
+def _who(v: VerdictMsg) -> str:
+    """The body parts not cleared; else the one person in view; else 'a person'."""
+    if v.blocking or len(v.skeleton_age_s) != 1:
+        return part_words(v.blocking)
+    return f"{next(iter(v.skeleton_age_s))} nearby"
+
+
 def _distance(v: VerdictMsg) -> str:
+    """The measured body's surface distance to the robot's link capsules (negative: they
+    overlap: the capsules are larger than the links, so this is a touch at most)."""
     d = v.min_distance_m
-    return "" if d is None else f", {d:.2f} m from the robot"
+    if d is None:
+        return ""
+    return (
+        f", {d:.2f} m from the robot"
+        if d >= 0
+        else f", touching the robot's capsules ({-d:.2f} m deep)"
+    )
 
 
 def _advice(fault: str) -> str:
@@ -77,13 +92,13 @@ def verdict_words(
     mode = v.safety_mode.upper()
     if v.mode == "failsafe":
         return _w("braking", f"Braking along the verified stop ({mode}): "
-                  f"{part_words(v.blocking)}{_distance(v)}")  # fmt: skip
+                  f"{_who(v)}{_distance(v)}")  # fmt: skip
     if v.mode == "rest":
         return _w("rest", "At rest")
     scale = v.speed_scale
     if v.intervened or (scale is not None and scale < 0.999):
         how = "" if scale is None else f" to {100 * scale:.0f} % of its speed"
-        return _w("slowed", f"Moving, slowed{how} by {mode}: {part_words(v.blocking)}"
+        return _w("slowed", f"Moving, slowed{how} by {mode}: {_who(v)}"
                   f"{_distance(v)}")  # fmt: skip
     return _w("moving", f"Moving on its verified path ({mode}){_distance(v)}")
 
