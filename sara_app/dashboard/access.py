@@ -87,16 +87,16 @@ class DashboardAccess:
 
     # -- sign-in -------------------------------------------------------------------------------
     def attach(self, server: viser.ViserServer) -> None:
-        """Add the "Access" folder (per browser: token field, sign in / out, who is signed in)
-        at the current place of ``server``'s GUI."""
-        self.folder = server.gui.add_folder("Access", expand_by_default=self.required)
+        """Give every browser its own "Access" folder (token field, sign in / out, who is signed
+        in): a browser's own elements do not show inside a folder of the shared GUI (it stood
+        there as an empty, unlabelled box)."""
         server.on_client_connect(self._add_client_gui)
         server.on_client_disconnect(lambda client: self.sign_out(client.client_id))
         for client in server.get_clients().values():
             self._add_client_gui(client)
 
     def _add_client_gui(self, client: viser.ClientHandle) -> None:
-        with self.folder:
+        with client.gui.add_folder("Access", expand_by_default=self.required):
             state = client.gui.add_markdown(self._state_text(client.client_id))
             if not self.required:
                 return
