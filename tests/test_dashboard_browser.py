@@ -95,8 +95,15 @@ def test_page_connects_and_renders_the_verdict(
         returnByValue=True,
     )["result"]["value"]
     assert swatches == [1, False, True], swatches
-    # The tracking gate's and the monitor's flags, and who breaks the bounds, in the status.
+    # Tracking as it stands and who breaks the bounds in the status; the totals folded away.
+    now = {
+        "p1": {
+            "held": [{"joint": "l_wrist", "flag": "bone", "for_s": 0.25}],
+            "last_flag": {"joint": "l_wrist", "flag": "bone", "ago_s": 0.0},
+        }
+    }
     frame.status = {**frame.status, "tracking": {"p1": {"bone": 3, "speed": 2}},
+                    "tracking_now": now,
                     "violations": [{"human_id": "p1", "joint": "l_wrist", "quantity": "speed",
                                     "value": 3.25, "bound": 2.0}]}  # fmt: skip
     dash.update(frame)
@@ -107,7 +114,9 @@ def test_page_connects_and_renders_the_verdict(
         return text if "Beyond bounds" in text else None
 
     text = wait_for(tracking_text, 60.0, "the tracking rows in the status")
-    assert "p1: bone 3, speed 2" in str(text) and "l_wrist speed 3.25 > 2.00 m/s" in str(text)
+    assert "held: l_wrist (bone length off, 0.2 s)" in str(text), text
+    assert "l_wrist speed 3.25 > 2.00 m/s" in str(text) and "bone 3" not in str(text)
+    assert "Tracking flag totals" in str(text)
     # The URDF robot alone: everything else hidden, then the robot too; the images differ.
     scene = dash.scene
     assert scene is not None

@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from sara_app.bus.messages import VerdictMsg, ViolationMsg
+from sara_app.bus.messages import JointFlagMsg, TrackingNowMsg, VerdictMsg, ViolationMsg
 from sara_app.dashboard.frame import (
     CONTACT_ENV,
     CONTACT_SELF,
@@ -39,6 +39,7 @@ from sara_app.dashboard.scene import (
     demo_frame,
     occupancy_colors,
 )
+from sara_app.dashboard.tracking_text import totals_markdown
 from sara_app.dashboard.viewer import Dashboard
 from sara_app.errors import ScenarioError, UnknownNameError
 from sara_app.scenario import load_scenario, scenario_names
@@ -293,16 +294,31 @@ def test_status_rows_of_the_safety_modes() -> None:
 
 
 def test_status_rows_of_tracking_flags_and_violations() -> None:
-    """A verdict's tracking counts and violations, through the dashboard's conversion."""
+    """A verdict's tracking as it stands (held joints, why, for how long; the newest flag)
+    and violations in the status; the totals only in their own table (shown on demand)."""
+    held = TrackingNowMsg(
+        held=[JointFlagMsg(joint="l_wrist", flag="bone", stamp_s=0.75)],
+        last_flag=JointFlagMsg(joint="l_wrist", flag="bone", stamp_s=1.0),
+    )
     v = VerdictMsg(seq=1, stamp_s=1.0, cell="c", safety_mode="ssm", mode="fault",
                    cycle_time_us=1.0, tracking={"p1": {"bone": 3, "speed": 2}},
+                   tracking_now={"p1": held},
                    violations=[ViolationMsg(human_id="p1", joint="l_wrist", quantity="speed",
                                             value=3.25, bound=2.0, stamp_s=1.0)])  # fmt: skip
-    md = status_markdown(verdict_status(v, np.zeros(0)))
-    assert "Tracking flags | p1: bone 3, speed 2" in md
+    status = verdict_status(v, np.zeros(0))
+    md = status_markdown(status)
+    assert "Tracking p1 | **held**: l_wrist (bone length off, 0.2 s)" in md
+    assert "bone 3" not in md and "| p1 | bone 3, speed 2 |" in totals_markdown(status)
     assert "**p1** l_wrist speed 3.25 > 2.00 m/s: failsafe" in md
-    assert "Tracking flags | none" in status_markdown(verdict_status(
-        v.model_copy(update={"tracking": {}, "violations": []}), np.zeros(0)))  # fmt: skip
+    trusted = TrackingNowMsg(last_flag=JointFlagMsg(joint="r_knee", flag="jump", stamp_s=-2.0))
+    later = verdict_status(v.model_copy(update={"tracking_now": {"p1": trusted}}), np.zeros(0))
+    assert "Tracking p1 | all joints trusted; last flag jump at r_knee 3.0 s ago" in (
+        status_markdown(later)
+    )
+    clean = verdict_status(v.model_copy(update={"tracking": {}, "tracking_now": {},
+                                                "violations": []}), np.zeros(0))  # fmt: skip
+    assert "Tracking | every joint trusted, no flag" in status_markdown(clean)
+    assert totals_markdown(clean).startswith("No tracking flag")
 
 
 def test_contact_parts_layer_and_critical_colour(dash: Dashboard) -> None:

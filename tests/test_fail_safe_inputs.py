@@ -398,6 +398,9 @@ def test_tracking_glitches_and_a_too_fast_person_reach_the_verdict(cell: Cell) -
         vs, _ = cell.collect(0.2, every=swapped)
         assert vs[-1].tracking["p1"]["bone"] > 0
         assert vs[-1].violations == []
+        now = vs[-1].tracking_now["p1"]  # the present state: the wrist held for its bone
+        assert [(f.joint, f.flag) for f in now.held] == [("l_wrist", "bone")], now
+        assert vs[-1].stamp_s - now.held[0].stamp_s < 0.25
         hop = iter(range(10**6))
         vs, cs = cell.collect(
             0.6, every=lambda: cell.put_skeleton("p1", noisy() + [0, 1.0 * (next(hop) % 2), 0])

@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from sara_app.errors import ParameterError
 from sara_app.human.gate import FLAGS, Gate, GateSettings, enclose
 from sara_app.human.glitches import Glitches
+from sara_app.human.intake import Intake
 from sara_app.human.recordings import load_recording
 from sara_app.scenario import GateSpec, GlitchSpec
 
@@ -217,3 +218,26 @@ def test_bone_lengths_from_the_scenario_are_checked_from_the_first_frame() -> No
     assert g.flags[:, FLAGS.index("bone")].any()
     with pytest.raises(ValueError, match="unknown bone 'l_wrist-l_elbow'"):
         GateSpec(bone_lengths_m={"l_wrist-l_elbow": 0.25})
+
+
+def test_the_present_state_names_the_held_joint_why_and_since_when() -> None:
+    """What the operator sees of tracking (``Intake.now``): during a swap the wrist is held
+    for its bone since the glitch's first frame; after it every joint is trusted and the newest
+    flag is the glitch's last frame; a clean person was never flagged."""
+    t, y, meas, on = _glitched("swap", other="head", duration_s=0.3)
+    intake = Intake(DY, V_MAX, np.full(15, 1e3))
+    first, last = t[on][0], t[on][-1]
+    for k in range(len(t)):
+        intake.take(float(t[k]), meas[k], DY, 15)
+        now = intake.now()
+        if on[k]:
+            assert now is not None and now.held == (("l_wrist", "bone", first),), now
+        elif t[k] < first:
+            assert now is None
+        else:
+            assert now is not None and now.held == () and now.last_flag == ("l_wrist", "bone", last)
+    clean = Intake(DY, V_MAX, np.full(15, 1e3))
+    tc, yc = _walk(1)
+    for k in range(len(tc)):
+        clean.take(float(tc[k]), _noisy(yc, 1)[k], DY, 15)
+    assert clean.now() is None

@@ -292,6 +292,27 @@ class ViolationMsg(BaseModel):
     stamp_s: Finite
 
 
+class JointFlagMsg(BaseModel):
+    """A flag of one joint: ``flag`` (a ``TrackingFlag``) at ``stamp_s`` (for a held joint:
+    since when it is held)."""
+
+    model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
+
+    joint: Name
+    flag: TrackingFlag
+    stamp_s: Finite
+
+
+class TrackingNowMsg(BaseModel):
+    """A person's tracking as it stands: the joints the gate holds now (their last trusted
+    position, grown by the reach since) and the newest flag of the gate or the monitor."""
+
+    model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
+
+    held: list[JointFlagMsg] = Field(default=[], max_length=32)
+    last_flag: JointFlagMsg | None = None
+
+
 class VerdictMsg(_Msg):
     """The outcome of one control cycle (key ``sara/<cell>/verdict``).
 
@@ -316,6 +337,8 @@ class VerdictMsg(_Msg):
     tracking: dict[Name, dict[TrackingFlag, Annotated[int, Field(ge=0)]]] = {}
     """human id -> flag -> joint-frames flagged since the person became known (people with
     no flag are left out)."""
+    tracking_now: dict[Name, TrackingNowMsg] = Field(default={}, max_length=64)
+    """human id -> the person's tracking now (people never flagged are left out)."""
     violations: list[ViolationMsg] = Field(default=[], max_length=64)
     """The newest violations of every person now on the failsafe for breaking the bounds."""
     blocking: list[Annotated[str, Field(max_length=80)]] = Field(default=[], max_length=16)

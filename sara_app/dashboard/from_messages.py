@@ -26,6 +26,7 @@ from sara_app.dashboard.frame import (
     HumanDisplay,
     LinkEnergy,
 )
+from sara_app.dashboard.tracking_text import tracking_now_status
 from sara_app.human.skeleton import skeleton
 from sara_app.scenario import Scenario
 
@@ -125,6 +126,7 @@ def verdict_status(v: VerdictMsg, cycle_us: np.ndarray) -> dict[str, Any]:
         "intervened": v.intervened,
         "speed_scale": v.speed_scale,
         "tracking": {h: dict(c) for h, c in v.tracking.items()},
+        "tracking_now": tracking_now_status(v),
         "violations": [x.model_dump() for x in v.violations],
         "jssa": None,
         **_words(v),

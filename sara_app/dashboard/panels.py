@@ -42,6 +42,7 @@ from sara_app.dashboard.scene import (
     UNVERIFIED_RGB,
     VERIFIED_RGB,
 )
+from sara_app.dashboard.tracking_text import md_cell, totals_markdown, tracking_rows
 from sara_app.errors import SaraError
 from sara_app.safety.settings import MODE_FACTS, SAFETY_MODES
 
@@ -145,23 +146,15 @@ _UNIT = {"speed": "m/s", "acceleration": "m/s²"}
 
 
 def _people_rows(status: dict[str, Any]) -> list[tuple[str, str]]:
-    """The tracking gate's and the conformance monitor's flags, and who breaks the bounds."""
-    rows = []
-    tracking = status.get("tracking")
-    if isinstance(tracking, dict):
-        flags = "; ".join(
-            f"{_escape(str(h))}: " + ", ".join(f"{_escape(str(k))} {v}" for k, v in c.items())
-            for h, c in tracking.items()
-            if isinstance(c, dict)
-        )
-        rows.append(("Tracking flags", flags or "none"))
+    """The tracking now (held joints, the newest flag), and who breaks the bounds."""
+    rows = tracking_rows(status)
     for v in (status.get("violations") or [])[:4]:
         if isinstance(v, dict):
             unit = _UNIT.get(str(v.get("quantity")), "")
             rows.append((
                 "**Beyond bounds**",
-                f"**{_escape(str(v.get('human_id')))}** {_escape(str(v.get('joint')))} "
-                f"{_escape(str(v.get('quantity')))} {_fmt(v.get('value'), '.2f')} > "
+                f"**{md_cell(str(v.get('human_id')))}** {md_cell(str(v.get('joint')))} "
+                f"{md_cell(str(v.get('quantity')))} {_fmt(v.get('value'), '.2f')} > "
                 f"{_fmt(v.get('bound'), '.2f', ' ' + unit)}: failsafe",
             ))  # fmt: skip
     return rows
@@ -169,12 +162,12 @@ def _people_rows(status: dict[str, Any]) -> list[tuple[str, str]]:
 
 def _jssa_rows(jssa: dict[str, Any]) -> list[tuple[str, str]]:
     if jssa.get("fallback"):
-        state = f"**fallback (braking)**: {_escape(str(jssa.get('reason', '')))}"
+        state = f"**fallback (braking)**: {md_cell(str(jssa.get('reason', '')))}"
     else:
         state = "**active**" if jssa.get("active") else "inactive"
     rows = [("JSSA", state), ("JSSA phi", _fmt(jssa.get("phi_m2"), ".4f", " m²"))]
     if jssa.get("link") is not None:
-        rows.append(("JSSA critical link", _escape(str(jssa["link"]))))
+        rows.append(("JSSA critical link", md_cell(str(jssa["link"]))))
     rows.append(
         (
             "JSSA distance / d_min",
@@ -182,11 +175,6 @@ def _jssa_rows(jssa: dict[str, Any]) -> list[tuple[str, str]]:
         )
     )
     return rows
-
-
-def _escape(text: str) -> str:
-    """Plain text for a markdown table cell (no HTML, no column breaks)."""
-    return text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;").replace("|", "\\|")
 
 
 def margin_level(margin_j: float | None, limit_j: float | None) -> str | None:
@@ -216,12 +204,12 @@ def link_energy_markdown(links: list[LinkEnergy]) -> str:
             limit = _fmt(e.limit_j, ".3f")
             margin = f'<b style="color:rgb({r},{g},{b})">{_fmt(e.margin_j, "+.3f")}</b>'
             who = (
-                _escape(f"{e.body_part or '?'} ({e.human_id or '?'})")
+                md_cell(f"{e.body_part or '?'} ({e.human_id or '?'})")
                 + "<br/>"
-                + _escape(f"{e.contact or '?'}, {e.shape}")
+                + md_cell(f"{e.contact or '?'}, {e.shape}")
             )
         rows.append(
-            f"| {_escape(e.link)} | {_fmt(e.energy_j, '.3f')} | {limit} | {margin} | {who} |"
+            f"| {md_cell(e.link)} | {_fmt(e.energy_j, '.3f')} | {limit} | {margin} | {who} |"
         )
     return head + "\n".join(rows)
 
@@ -370,6 +358,8 @@ class DashboardPanels:
             self.links_folder = gui.add_folder("PFL: link energies and thresholds")
             with self.links_folder:
                 self.links = gui.add_markdown(link_energy_markdown([]))
+            with gui.add_folder("Tracking flag totals", expand_by_default=False):
+                self.totals = gui.add_markdown(totals_markdown({}))
             gui.add_markdown(LEGEND_MD)
             self.plot_sep = _uplot(gui, "Minimum separation", ("min dist [m]",), ("green",), "m")
             self.plot_cycle = _uplot(
@@ -456,7 +446,7 @@ class DashboardPanels:
 
     def show_message(self, text: str, error: bool = False) -> None:
         """Show ``text`` in the scenario tab (bold with a warning sign when ``error``)."""
-        self.message.content = f"**⚠ {_escape(text)}**" if error else _escape(text)
+        self.message.content = f"**⚠ {md_cell(text)}**" if error else md_cell(text)
         self._messages_shown += 1
 
     def set_scenarios(self, names: list[str], current: str | None = None) -> None:
@@ -512,6 +502,9 @@ class DashboardPanels:
         """Refresh the status table and the link-energy table; append to the plots, sent at
         most every plot period; show the plots of the worker's safety mode."""
         self.status.content = status_markdown(status)
+        totals = totals_markdown(status)
+        if totals != self.totals.content:
+            self.totals.content = totals
         html = banner_html(status)
         if html != self._banner_html:
             self.banner.content = self._banner_html = html

@@ -134,6 +134,12 @@ class GateResult:
         return not bool(self.trusted.all())
 
 
+def why(flags: np.ndarray) -> int:
+    """The index in ``FLAGS`` that says why a joint with ``flags (len(FLAGS),)`` is held: the
+    glitch (missing, frozen, bone) before a jump (a glitch usually jumps too)."""
+    return len(FLAGS) - 1 - int(np.argmax(flags[::-1]))
+
+
 def enclose(
     c1: np.ndarray, r1: np.ndarray, c2: np.ndarray, r2: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -181,6 +187,8 @@ class Gate:
         self.y_prev = np.full((J, 3), np.nan)
         self.first_seen_s = np.full(J, -np.inf)  # when each joint's current value first came
         self.since_s = np.full(J, np.nan)  # when the current hold began (nan: not held)
+        self.last_flag: tuple[int, int, float] | None = None
+        """``(joint, index in FLAGS, stamp)`` of the newest flagged joint (None: none yet)."""
         self._learn: list[np.ndarray] = []
         self._none = np.zeros(J, bool)  # no joint missing (a frame without confidences)
         self.out = GateResult(np.zeros((J, 3)), np.zeros(J), np.ones(J, bool),
@@ -249,6 +257,10 @@ class Gate:
         self.y_prev[:] = y
         if np.isnan(self.length_m).any() and not (bad | jump)[m].any():
             self._learn_bones(y)
+        flagged = np.flatnonzero(out.flags.any(axis=1))
+        if flagged.size:
+            j = int(flagged[0])
+            self.last_flag = (j, why(out.flags[j]), t_s)
         for k, name in enumerate(FLAGS):
             self.counts[name] += int(out.flags[:, k].sum())
         self.counts["refused"] += int(out.refused)

@@ -17,7 +17,7 @@ import numpy as np
 
 from sara_app.errors import InputError
 from sara_app.human.conformance import Monitor, Violation
-from sara_app.human.gate import FLAGS, FROZEN_EPS_M, Gate, GateResult, GateSettings
+from sara_app.human.gate import FLAGS, FROZEN_EPS_M, Gate, GateResult, GateSettings, why
 from sara_app.human.params import ReachParams
 from sara_app.human.recording import Recording
 from sara_app.human.skeleton import FULL_JOINTS
@@ -49,6 +49,17 @@ class IntakeSettings:
     gate: GateSettings = GateSettings()
     recover_s: float = 0.5
     stale_after_s: float | None = STALE_AFTER_S
+
+
+@dataclass(frozen=True)
+class TrackingNow:
+    """A person's tracking as it stands: ``held`` ``(joint, flag, since_s)`` for every joint
+    the gate holds now (its last trusted position, grown by the reach since ``since_s``;
+    ``flag`` why), ``last_flag`` ``(joint, flag, stamp_s)`` the newest flag of the gate or
+    the conformance monitor (None: never flagged)."""
+
+    held: tuple[tuple[str, str, float], ...]
+    last_flag: tuple[str, str, float] | None
 
 
 class Intake:
@@ -147,6 +158,21 @@ class Intake:
                 f"{self.stale_after_s} s (a stale tracker): aging as unseen"
             )
         return self.monitor.fault(human_id)
+
+    def now(self) -> TrackingNow | None:
+        """The person's tracking now; None when nothing was ever flagged."""
+        g, m = self.gate, self.monitor
+        held = tuple(
+            (m.joints[j], FLAGS[why(g.out.flags[j])], float(g.since_s[j]))
+            for j in np.flatnonzero(~g.out.trusted & np.isfinite(g.since_s))
+        )
+        last = None
+        if g.last_flag is not None:
+            j, k, t_s = g.last_flag
+            last = (m.joints[j], FLAGS[k], t_s)
+        if m.last and (last is None or m.last_violation_s >= last[2]):
+            last = (m.last[0].joint, m.last[0].quantity, m.last_violation_s)
+        return None if not held and last is None else TrackingNow(held, last)
 
     def counts(self) -> dict[str, int]:
         """Flags of the gate and the monitor since the intake was built, and frames repeated."""

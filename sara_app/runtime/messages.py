@@ -20,12 +20,15 @@ import numpy as np
 from sara_app.bus.messages import (
     COMMAND_VALID_MIN_S,
     COMMAND_VALID_PERIODS,
+    JointFlagMsg,
     RobotCommandMsg,
+    TrackingNowMsg,
     VerdictMsg,
     ViolationMsg,
 )
 from sara_app.errors import InputError
 from sara_app.human.conformance import Violation
+from sara_app.human.intake import TrackingNow
 from sara_app.robot.trajectory import JointState
 from sara_app.safety.settings import mode_facts
 from sara_app.safety.shield import CycleResult
@@ -91,6 +94,7 @@ class CycleMessages:
             intervened=res.intervened,
             speed_scale=res.speed_scale if mode_facts(res.safety_mode).scales_speed else None,
             tracking=cast(Any, {} if people is None else people.tracking()),
+            tracking_now={} if people is None else tracking_now_msgs(people.tracking_now()),
             violations=[] if people is None else violation_msgs(people.violations()),
             blocking=blocking or [],
         )
@@ -149,7 +153,20 @@ class People(Protocol):
 
     def tracking(self) -> dict[str, dict[str, int]]: ...
 
+    def tracking_now(self) -> dict[str, TrackingNow]: ...
+
     def violations(self) -> list[tuple[str, Violation]]: ...
+
+
+def tracking_now_msgs(found: dict[str, TrackingNow]) -> dict[str, TrackingNowMsg]:
+    def flag(f: tuple[str, str, float]) -> JointFlagMsg:
+        return JointFlagMsg(joint=f[0], flag=cast(Any, f[1]), stamp_s=f[2])
+
+    return {
+        h: TrackingNowMsg(held=[flag(f) for f in n.held[:32]],
+                          last_flag=None if n.last_flag is None else flag(n.last_flag))
+        for h, n in list(found.items())[:64]
+    }  # fmt: skip
 
 
 def violation_msgs(found: list[tuple[str, Violation]]) -> list[ViolationMsg]:

@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 
 from sara_app.cell.intake import Track
 from sara_app.human.conformance import Violation
+from sara_app.human.intake import TrackingNow
 from sara_app.safety.settings import FUTURE_TOLERANCE_S
 from sara_app.safety.shield import HumanState
 
@@ -174,6 +175,12 @@ class Presence:
             if any(c.values()):
                 out[hid] = {k: v for k, v in c.items() if v}
         return out
+
+    def tracking_now(self) -> dict[str, TrackingNow]:
+        """Per person ever flagged: which joints are held now, since when, and the newest
+        flag."""
+        found = ((hid, t.intake.now()) for hid, t in self.tracks.items())
+        return {hid: n for hid, n in found if n is not None}
 
     def violations(self) -> list[tuple[str, Violation]]:
         """``(human id, violation)`` of every person now faulted for breaking the bounds."""
