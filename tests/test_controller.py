@@ -198,6 +198,49 @@ def test_delivery_is_counted_and_a_restarted_workers_commands_are_followed() -> 
     assert (got.commands_received, got.commands_lost, got.commands_late) == (10, 1, 1)
     assert (got.commands_expired, got.commands_refused) == (0, 0)
     assert (got.braking_events, got.worker_runs, got.braking) == (1, 2, False)
+    assert got.braking_causes == {"controller": 1}  # its loop had not run for 1 s then
+
+
+def _cmd(seq: int, stamp: float, q: list[float], dt: float) -> RobotCommandMsg:
+    zero = [0.0] * len(q)
+    return RobotCommandMsg(seq=seq, stamp_s=stamp, q=q, q_dot=zero, q_ddot=zero,
+                           mode="intended", valid_until_s=stamp + max(2 * dt, 0.010),
+                           failsafe_t_s=[dt], failsafe_q=[q])  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("cause", "next_seq", "next_stamp_ms", "handed_ms", "poll_ms"),
+    [
+        ("worker", 1, 15.0, 15.5, 0.5),  # the next command was stamped after the expiry
+        ("lost", 2, 4.0, 4.5, 0.5),  # the one between never came
+        ("delivery", 1, 2.0, 14.0, 0.5),  # sent in time, handed over 12 ms later
+        ("controller", 1, 2.0, 14.0, 13.0),  # its own loop did not run for 13 ms
+        ("worker", 0, 30.0, 30.5, 0.5),  # numbering restarted: a new worker run
+    ],
+)
+def test_why_the_controller_braked_is_counted(
+    cause: str, next_seq: int, next_stamp_ms: float, handed_ms: float, poll_ms: float
+) -> None:
+    """Every braking on its own gets one cause, told by the next newer command: the loop's
+    own gap, a sequence gap, the next command's stamp against the expiry, else delivery."""
+    from sara_app.peers.controller import Controller
+
+    sc = load_scenario("standing_beside_path")
+    port = free_port()
+    with Bus.router(port), Bus.client(port) as cbus:
+        ctl = Controller(CELL, sc, cbus)
+        dt, q, t = ctl.dt_s, ctl.q.tolist(), time.time()
+        ctl.tick(t + 0.5e-3, [_cmd(0, t, q, dt)])
+        first = ctl.command
+        assert first is not None
+        tick = t + 0.5e-3
+        while not ctl.braking:  # polled every poll_ms until it brakes on its own
+            tick += 1e-3 * poll_ms
+            ctl.tick(tick)
+        assert ctl.delivery.causes == {}
+        nxt = _cmd(next_seq, t + 1e-3 * next_stamp_ms, ctl.q.tolist(), dt)
+        ctl.tick(max(tick, t + 1e-3 * handed_ms), [nxt])
+    assert ctl.delivery.causes == {cause: 1}, ctl.delivery.causes
 
 
 def test_a_command_taken_past_the_last_set_point_continues_from_the_stop() -> None:

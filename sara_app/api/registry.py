@@ -57,6 +57,7 @@ from sara_app.bus.messages import (
 from sara_app.bus.session import Bus, Publisher, Subscription
 from sara_app.bus.verdict_words import verdict_words
 from sara_app.errors import InputError, WorkerTimeoutError
+from sara_app.ops.health import VerdictCounters
 
 log = logging.getLogger("sara_app.api")
 
@@ -98,6 +99,8 @@ class _Cell:
     controller_recv_s: float | None = None
     fault_since_s: float | None = None
     """When the cell's verdicts began to report a fault (None: the newest reports none)."""
+    counters: VerdictCounters = field(default_factory=VerdictCounters)
+    """What the health line reports (:mod:`sara_app.ops.health`)."""
 
 
 def _age(now_s: float, then_s: float | None) -> float | None:
@@ -229,6 +232,7 @@ class CellRegistry:
                     cell.fault_since_s = d.recv_s
                 cell.verdicts += 1
                 cell.cycle_us.append(msg.cycle_time_us)
+                cell.counters.add(msg)
 
     def names(self) -> list[str]:
         with self._lock:
@@ -250,6 +254,12 @@ class CellRegistry:
         with self._lock:
             c = self._cells.get(name)
             return None if c is None else self._snapshot(c, now_s)
+
+    def counters(self, name: str) -> VerdictCounters | None:
+        """A copy of one cell's verdict counters, or None when it was never seen."""
+        with self._lock:
+            c = self._cells.get(name)
+            return None if c is None else c.counters.copy()
 
     def _snapshot(self, c: _Cell, now_s: float) -> dict[str, Any]:
         st, v = c.status, c.verdict

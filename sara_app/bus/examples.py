@@ -142,6 +142,7 @@ def example_messages() -> dict[str, tuple[str, Message]]:
             braking_events=1,
             worker_runs=1,
             braking=False,
+            braking_causes={"worker": 1},
         ),
         "retire": RetireMsg(
             seq=seq,

@@ -579,6 +579,14 @@ class RetireMsg(_Msg):
     reason: Annotated[str, Field(max_length=500)] = ""
 
 
+BrakingCause = Literal["controller", "worker", "lost", "delivery"]
+"""Why the newest command expired before a newer one came: ``controller``, the controller's own
+loop was held up past the command's validity (commands waited in its queue); ``worker``, the
+worker's next command was stamped too late (its cycle was held up, or it restarted); ``lost``,
+the next command sent never arrived (dropped on the bus); ``delivery``, the next command was
+sent in time and arrived too late (the bus or the router was held up)."""
+
+
 class ControllerStatusMsg(_Msg):
     """The robot controller's heartbeat, about 1 Hz (key ``sara/<cell>/controller/status``):
     command delivery as the controller saw it since it started. ``commands_lost``: sequence
@@ -598,6 +606,8 @@ class ControllerStatusMsg(_Msg):
     braking_events: Annotated[int, Field(ge=0)]
     worker_runs: Annotated[int, Field(ge=0)]
     braking: bool
+    braking_causes: dict[BrakingCause, Annotated[int, Field(ge=0)]] = {}
+    """Why it braked on its own, per braking event (:data:`BrakingCause`)."""
 
 
 Message = (

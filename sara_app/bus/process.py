@@ -27,6 +27,20 @@ class CellProcess(Protocol):
     def run(self, duration_s: float | None = None) -> None: ...
 
 
+LOG_LEVEL_ENV = "SARA_LOG_LEVEL"
+"""The log level of a cell's processes (``sara-app serve --log-level`` sets it for its
+children): ``info`` says what a user needs, ``debug`` adds implementation details."""
+
+
+def configure_logging(name: str) -> None:
+    """Log lines ``<time> <name> <message>`` at the level of ``SARA_LOG_LEVEL`` (info when unset
+    or unknown)."""
+    number = logging.getLevelName(os.environ.get(LOG_LEVEL_ENV, "info").upper())
+    if not isinstance(number, int):
+        number = logging.INFO
+    logging.basicConfig(level=number, format=f"%(asctime)s {name} %(message)s")
+
+
 def die_with_parent() -> None:
     """Have the kernel kill this process (SIGKILL) when its parent dies (Linux
     ``PR_SET_PDEATHSIG``), so a cell process never outlives ``serve``, even after ``kill -9``
@@ -82,7 +96,7 @@ def process_main(
     args = ap.parse_args(argv)
     if args.die_with_parent:
         die_with_parent()
-    logging.basicConfig(level=logging.INFO, format=f"%(asctime)s {name} %(message)s")
+    configure_logging(name)
     try:
         sc = load_scenario(args.scenario)
         auth = None

@@ -20,7 +20,7 @@ import sys
 import threading
 
 from sara_app.bus.access import Credentials, router_access
-from sara_app.bus.process import die_with_parent, set_realtime
+from sara_app.bus.process import configure_logging, die_with_parent, set_realtime
 from sara_app.bus.session import Bus, router_config_dict
 from sara_app.errors import SaraError
 
@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.die_with_parent:
         die_with_parent()
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s router %(message)s")
+    configure_logging("router")
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

@@ -76,6 +76,19 @@ def _advice(fault: str) -> str:
     return "the robot resumes on fresh, valid input"
 
 
+def verdict_state(v: VerdictMsg) -> str:
+    """The state of a fresh verdict (a key of :data:`COLOURS` but ``offline``), without the
+    sentence: cheap enough for every verdict."""
+    if v.faults or v.mode == "fault":
+        return "fault"
+    if v.mode == "failsafe":
+        return "braking"
+    if v.mode == "rest":
+        return "rest"
+    scale = v.speed_scale
+    return "slowed" if v.intervened or (scale is not None and scale < 0.999) else "moving"
+
+
 def verdict_words(
     v: VerdictMsg | None, online: bool = True, fault_for_s: float | None = None
 ) -> VerdictWords:
@@ -84,19 +97,20 @@ def verdict_words(
     if v is None or not online:
         return _w("offline", "No recent verdict from the cell: this view cannot say the robot "
                   "is verified (its controller brakes on its own without commands)")  # fmt: skip
-    if v.faults or v.mode == "fault":
+    state = verdict_state(v)
+    if state == "fault":
         what = v.faults[0] if v.faults else "the cell reported a fault"
         since = "" if fault_for_s is None else f" for {fault_for_s:.0f} s"
         return _w("fault", f"Fault{since}: {what}. The robot holds its verified stop; "
                   f"{_advice(what)}")  # fmt: skip
     mode = v.safety_mode.upper()
-    if v.mode == "failsafe":
+    if state == "braking":
         return _w("braking", f"Braking along the verified stop ({mode}): "
                   f"{_who(v)}{_distance(v)}")  # fmt: skip
-    if v.mode == "rest":
+    if state == "rest":
         return _w("rest", "At rest")
-    scale = v.speed_scale
-    if v.intervened or (scale is not None and scale < 0.999):
+    if state == "slowed":
+        scale = v.speed_scale
         how = "" if scale is None else f" to {100 * scale:.0f} % of its speed"
         return _w("slowed", f"Moving, slowed{how} by {mode}: {_who(v)}"
                   f"{_distance(v)}")  # fmt: skip

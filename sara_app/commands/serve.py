@@ -13,6 +13,7 @@ def _serve(args: argparse.Namespace) -> int:
     return main_for_cli(
         args.scenario, args.cell, args.zenoh_port, args.viewer_port, args.api_port, args.duration,
         api_host=args.api_host, require_token=args.require_token, cells=args.cells,
+        log_level=args.log_level,
     )  # fmt: skip
 
 
@@ -54,7 +55,13 @@ def _process_argv(args: argparse.Namespace) -> list[str]:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from sara_app.processes.defaults import API_PORT, DEFAULT_SCENARIO, VIEWER_PORT, ZENOH_PORT
+    from sara_app.processes.defaults import (
+        API_PORT,
+        DEFAULT_SCENARIO,
+        LOG_LEVELS,
+        VIEWER_PORT,
+        ZENOH_PORT,
+    )
 
     fmt = argparse.ArgumentDefaultsHelpFormatter
     s = sub.add_parser(
@@ -71,6 +78,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--api-port", type=int, default=API_PORT,
                    help="the REST service's and landing page's port")  # fmt: skip
     s.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    s.add_argument("--log-level", choices=LOG_LEVELS, default="info",
+                   help="info: URLs, state changes, faults and a health line a minute; debug: "
+                   "implementation details too")  # fmt: skip
     s.add_argument(
         "--api-host",
         default="127.0.0.1",

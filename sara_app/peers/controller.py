@@ -32,13 +32,14 @@ import logging
 import sys
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from sara_app.bus import keys
 from sara_app.bus.codec import Decoder
 from sara_app.bus.messages import (
+    BrakingCause,
     ControllerStatusMsg,
     RobotCommandMsg,
     RobotStateMsg,
@@ -71,6 +72,8 @@ class Delivery:
     braking_events: int = 0
     runs: int = 0
     last_seq: int = -1
+    causes: dict[BrakingCause, int] = field(default_factory=dict)
+    """Braking events per cause (:func:`brake_cause`)."""
 
     def count(self, cmd: RobotCommandMsg, now: float, dt_s: float) -> None:
         self.received += 1
@@ -81,6 +84,19 @@ class Delivery:
         self.last_seq = cmd.seq
         self.late += now > cmd.stamp_s + dt_s
         self.expired += now > cmd.valid_until_s
+
+
+def brake_cause(braked: RobotCommandMsg, nxt: RobotCommandMsg, tick_gap_s: float) -> BrakingCause:
+    """Why ``braked`` (the newest command followed) expired before a newer one came, judged
+    when the next newer command ``nxt`` arrives; ``tick_gap_s``: how long the controller's
+    loop had not run when it found the command expired (:data:`BrakingCause`)."""
+    if tick_gap_s > 0.5 * (braked.valid_until_s - braked.stamp_s):
+        return "controller"
+    if nxt.seq <= braked.seq:  # a new worker run: the worker restarted
+        return "worker"
+    if nxt.seq > braked.seq + 1:  # the commands between never came
+        return "lost"
+    return "worker" if nxt.stamp_s >= braked.valid_until_s else "delivery"
 
 
 class Controller:
@@ -99,6 +115,10 @@ class Controller:
         points not yet reached."""
         self.delivery = Delivery()
         self._expired_log = SummarisedWarning(log, "commands expired")
+        self._tick_s = -np.inf
+        self._braked: tuple[RobotCommandMsg, float] | None = None
+        """The command that expired and the controller's loop gap then, until the next newer
+        command tells why (:func:`brake_cause`)."""
         self.published_s = -1.0
         self.status_s = -np.inf
         self.stop_event = threading.Event()
@@ -117,7 +137,21 @@ class Controller:
         got = [m for m in given if len(m.q) == len(self.q)]
         for cmd in got:
             self.delivery.count(cmd, now, self.dt_s)
-        return sorted(got, key=lambda m: m.stamp_s)
+        got.sort(key=lambda m: m.stamp_s)
+        self._why_braked(got)
+        return got
+
+    def _why_braked(self, got: list[RobotCommandMsg]) -> None:
+        """Count the cause of the last braking once a newer command than the expired one is
+        among ``got`` (sorted by stamp)."""
+        if self._braked is None:
+            return
+        braked, gap_s = self._braked
+        nxt = next((m for m in got if m.stamp_s > braked.stamp_s), None)
+        if nxt is not None:
+            cause = brake_cause(braked, nxt, gap_s)
+            self.delivery.causes[cause] = self.delivery.causes.get(cause, 0) + 1
+            self._braked = None
 
     def tick(self, now: float, commands: list[RobotCommandMsg] | None = None) -> None:
         """One poll at time ``now``: the commands received (``commands``: these instead of the
@@ -125,8 +159,10 @@ class Controller:
         robot's set point and state."""
         if now - self.status_s >= STATUS_PERIOD_S:
             self.publish_status(now)
+        gap_s, self._tick_s = now - self._tick_s, now
         got = False
-        for cmd in self._received(now, commands):
+        received = self._received(now, commands)
+        for cmd in received:
             if self._acceptable(cmd, now):
                 self._follow(cmd, now)
                 got = True
@@ -142,6 +178,8 @@ class Controller:
                 self.delivery.braking_events += 1
                 self._expired_log("braking along the last verified stop")
                 self.braking = True
+                self._braked = (self.command, gap_s)
+                self._why_braked(received)  # newer ones that came expired this tick
             self._apply(*self.command.stop_position(now))
         self.publish(now)
 
@@ -217,6 +255,7 @@ class Controller:
                 braking_events=d.braking_events,
                 worker_runs=d.runs,
                 braking=self.braking,
+                braking_causes=dict(d.causes),
             )
         )
 

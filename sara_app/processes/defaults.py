@@ -8,3 +8,5 @@ DEFAULT_SCENARIO = "punches"
 ZENOH_PORT = 7447
 VIEWER_PORT = 8080
 API_PORT = 8000
+LOG_LEVELS = ("debug", "info", "warning")
+"""``serve --log-level``: info says what a user needs, debug adds implementation details."""

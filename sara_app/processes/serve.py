@@ -38,10 +38,12 @@ from typing import Any
 
 from sara_app.api.guard import load_tokens
 from sara_app.bus.access import Credentials, client_auth
+from sara_app.bus.process import LOG_LEVEL_ENV
 from sara_app.bus.session import Bus
 from sara_app.cell.build import base_pose
 from sara_app.errors import ParameterError, SaraError
 from sara_app.ops.audit import default_data_dir
+from sara_app.ops.health import HealthLog
 from sara_app.ops.supervisor import Child, Supervisor
 from sara_app.processes.defaults import API_PORT, DEFAULT_SCENARIO, VIEWER_PORT, ZENOH_PORT
 from sara_app.scenario import load_scenario, scenarios_dir
@@ -205,9 +207,12 @@ def serve(
         api_url = api.start().rstrip("/")
         _print_urls(names, scenario, urls, api_url, zenoh_port, creds.path, tokens_path, tokens)
 
+        health = HealthLog(registry, dict.fromkeys(names, 1.0 / sc.shield.dt_s))
+
         def supervise() -> None:
             ages = {w: _verdict_age(registry, c, sup, w) for c, w in workers.items()}
             sup.poll(time.monotonic(), ages)
+            health.poll()
 
         frame_loop([(views[c], dashes[c]) for c in names], frame_hz, duration_s, supervise)
         return 0
@@ -390,8 +395,12 @@ def main_for_cli(
     api_host: str = "127.0.0.1",
     require_token: bool = False,
     cells: int = 1,
+    log_level: str = "info",
 ) -> int:
-    logging.basicConfig(level=logging.WARNING)
+    os.environ[LOG_LEVEL_ENV] = log_level  # the children's level too
+    # the libraries' INFO (uvicorn, viser, websockets) is theirs, not the user's: WARNING
+    logging.basicConfig(level=logging.WARNING, format="%(asctime)s serve %(message)s")
+    logging.getLogger("sara_app").setLevel(log_level.upper())
     os.environ.setdefault("PYTHONUNBUFFERED", "1")
     signal.signal(signal.SIGINT, _interrupt)
     signal.signal(signal.SIGTERM, _interrupt)  # a service manager's stop: like Ctrl-C
