@@ -13,6 +13,11 @@ def _bench(args: argparse.Namespace) -> None:
 
         bench.print_rows(bench_sse_load(args.clients))
         return
+    if args.live:
+        from sara_app.bench.cost import bench_live, report
+
+        print(report(bench_live(args.scenario, tuple(args.people), args.seconds, args.runs)))
+        return
     if args.cells:
         from sara_app.bench.cells import bench_cells
 
@@ -45,9 +50,18 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="instead: many cells on one router, cells x people at --rate: latency and rate",
     )
+    b.add_argument(
+        "--live",
+        action="store_true",
+        help="instead: what the live cell (router, controller, worker, replayer) costs per "
+        "control cycle: CPU, context switches, messages and bytes per key, latency",
+    )
+    b.add_argument("--people", type=int, nargs="+", default=[1, 4], help="loads of --live")
+    b.add_argument("--seconds", type=float, default=10.0, help="seconds per --live phase")
+    b.add_argument("--runs", type=int, default=3, help="runs per --live load")
     b.add_argument("--rate", type=float, default=120.0, help="skeletons per second of --cells")
     b.add_argument("--clients", type=int, default=50, help="event streams of --sse")
-    b.add_argument("--scenario", default="punches", help="scenario of the --view benchmark")
+    b.add_argument("--scenario", default="punches", help="scenario of --view and --live")
     b.add_argument("--phase-s", type=float, default=6.0, help="seconds per --view phase")
     b.add_argument("--rounds", type=int, default=2, help="off/on rounds of --view")
     b.set_defaults(run=_bench)

@@ -233,5 +233,6 @@ def _controller_words(ctl: dict[str, Any] | None, before: dict[str, Any] | None)
         causes = {c: n - int(causes_before.get(c, 0))
                   for c, n in (ctl.get("braking_causes") or {}).items()}  # fmt: skip
         why = ", ".join(f"{CAUSE_WORDS.get(c, c)}: {n}" for c, n in causes.items() if n > 0)
-        text += f", braked on its own {braked} times" + (f" ({why})" if why else "")
+        times = "once" if braked == 1 else f"{braked} times"
+        text += f", braked on its own {times}" + (f" ({why})" if why else "")
     return text

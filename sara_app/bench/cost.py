@@ -1,0 +1,256 @@
+"""``sara-app bench --live``: what a live cell costs per control cycle, measured on the cell as
+``sara-app serve`` runs it (its router, reference controller, worker and replayer, each a
+process of its own at serve's priorities), with 1 and 4 replayed people at the scenario's rate.
+
+Per run and load, two phases of ``seconds`` each:
+
+1. **CPU**: for every cell process, the CPU time (user + system, all threads, from
+   ``/proc/<pid>/stat``) and the context switches (voluntary and not, all threads, from
+   ``/proc/<pid>/task/*/status``) over the phase, divided by the verdicts received: the cost of
+   one control cycle. This process listens to the verdicts only (as serve's registry does).
+   The skeleton -> verdict latency comes from the same verdicts: a verdict's ``stamp_s -
+   skeleton_age_s`` is the stamp of the skeleton it used, so the first verdict that used a
+   skeleton gives its publication -> reception time here (one clock: this machine's).
+2. **Messages**: every message on the cell's keys counted and sized per key kind, per cycle
+   (listening to all of them costs the router a copy of each: not done while measuring CPU).
+
+The rows are the median over ``runs`` runs (and the spread); ``docs/performance.md`` holds the
+numbers measured with it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import tempfile
+import threading
+import time
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sara_app.bus import keys
+from sara_app.bus.session import Bus, free_port
+
+PROCESSES = ("router", "controller", "worker", "replayer")
+PEOPLE = (1, 4)
+SPOTS_M = ((1.3, 0.1), (1.3, -0.6), (1.3, 0.75), (1.9, 0.1))
+"""Where the replayed people stand (x, y) in the default cell: in front of the bench."""
+
+
+@dataclass
+class ProcessCost:
+    cpu_us: float
+    switches: float
+
+
+@dataclass
+class LoadCost:
+    """One load (``people``) measured over runs: per process, CPU us and context switches per
+    cycle (one value per run); latency samples (us); messages and bytes per cycle per key kind
+    (from the last run); verdicts per second per run."""
+
+    people: int
+    scenario: str
+    rate_hz: float
+    per_process: dict[str, list[ProcessCost]] = field(default_factory=lambda: defaultdict(list))
+    latency_us: list[np.ndarray] = field(default_factory=list)
+    verdict_hz: list[float] = field(default_factory=list)
+    messages: dict[str, tuple[float, float]] = field(default_factory=dict)
+
+
+def _cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a process and all its threads."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _switches(pid: int) -> int:
+    """Context switches (voluntary and not) of every living thread of a process (a thread that
+    ended takes its counts along: the cell's threads live as long as their process)."""
+    n = 0
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            for line in (task / "status").read_text().splitlines():
+                if "ctxt_switches:" in line:
+                    n += int(line.split()[1])
+        except (FileNotFoundError, ProcessLookupError):
+            continue  # a thread that ended
+    return n
+
+
+def scenario_with_people(scenario: str, people: int, folder: Path) -> Path:
+    """The scenario's file with ``people`` copies of its first person at :data:`SPOTS_M`."""
+    from sara_app.scenario import load_scenario
+
+    data = load_scenario(scenario).model_dump(mode="json")
+    first = data["humans"][0]
+    data["humans"] = [
+        {**first, "id": f"p{i + 1}", "position_m": list(SPOTS_M[i % len(SPOTS_M)])}
+        for i in range(people)
+    ]
+    path = folder / f"{scenario}-{people}p.json"
+    path.write_text(json.dumps(data))
+    return path
+
+
+def _latencies(received: list[tuple[float, Any]]) -> np.ndarray:
+    """Skeleton publication -> verdict reception (us): per person and skeleton stamp, the
+    first verdict that used it."""
+    first: dict[tuple[str, float], float] = {}
+    for t_recv, v in received:
+        for h, age in v.skeleton_age_s.items():
+            t_skel = round(v.stamp_s - age, 6)
+            first.setdefault((h, t_skel), (t_recv - t_skel) * 1e6)
+    return np.array(list(first.values()))
+
+
+def _verdicts(hub: Bus, cell: str, seconds: float) -> list[tuple[float, Any]]:
+    from sara_app.bus.codec import Decoder
+    from sara_app.bus.messages import VerdictMsg
+
+    got: list[tuple[float, Any]] = []
+    sub = hub.subscribe(keys.verdict_key(cell), Decoder(), capacity=4096)
+    t_end = time.monotonic() + seconds
+    try:
+        while time.monotonic() < t_end:
+            for d in sub.drain().messages:
+                if isinstance(d.msg, VerdictMsg):
+                    got.append((d.recv_s, d.msg))
+            time.sleep(0.002)
+    finally:
+        sub.close()
+    return got
+
+
+def _messages(hub: Bus, cell: str, seconds: float) -> dict[str, tuple[int, int]]:
+    """Messages and bytes per key kind on the cell's keys over ``seconds``."""
+    counts: dict[str, list[int]] = defaultdict(lambda: [0, 0])
+    lock = threading.Lock()
+
+    def seen(sample: Any) -> None:
+        key = str(sample.key_expr)
+        try:
+            kind = keys.parse_key(key).kind
+        except Exception:  # noqa: BLE001 - count what is not ours under its key
+            kind = key
+        with lock:
+            c = counts[kind]
+            c[0] += 1
+            c[1] += len(sample.payload.to_bytes())
+
+    sub = hub.session.declare_subscriber(f"sara/{cell}/**", seen)
+    time.sleep(seconds)
+    sub.undeclare()
+    with lock:
+        return {k: (v[0], v[1]) for k, v in counts.items()}
+
+
+def _measure(hub: Bus, cell: str, pids: dict[str, int], seconds: float, out: LoadCost) -> None:
+    cpu0 = {n: _cpu_s(p) for n, p in pids.items()}
+    sw0 = {n: _switches(p) for n, p in pids.items()}
+    t0 = time.monotonic()
+    got = _verdicts(hub, cell, seconds)
+    span = time.monotonic() - t0
+    cycles = max(len(got), 1)
+    for n, p in pids.items():
+        out.per_process[n].append(ProcessCost(1e6 * (_cpu_s(p) - cpu0[n]) / cycles,
+                                              (_switches(p) - sw0[n]) / cycles))  # fmt: skip
+    out.verdict_hz.append(len(got) / span)
+    out.latency_us.append(_latencies(got))
+    msgs = _messages(hub, cell, seconds)
+    n_cycles = max(out.verdict_hz[-1] * seconds, 1.0)
+    out.messages = {k: (n / n_cycles, b / n_cycles) for k, (n, b) in sorted(msgs.items())}
+
+
+def bench_live(
+    scenario: str = "punches", people: tuple[int, ...] = PEOPLE, seconds: float = 10.0,
+    runs: int = 3,
+) -> list[LoadCost]:  # fmt: skip
+    """Each load measured ``runs`` times on a fresh cell (see the module notes)."""
+    from sara_app.ops.supervisor import stop_processes
+    from sara_app.processes.serve import (
+        CONTROLLER,
+        REPLAYER,
+        REPLAYER_NICE,
+        ROUTER,
+        WORKER,
+        WORKER_RT_PRIORITY,
+        connect_when_listening,
+        spawn_cell_process,
+        start_process,
+    )
+    from sara_app.scenario import load_scenario
+
+    rt = str(WORKER_RT_PRIORITY)
+    results = []
+    with tempfile.TemporaryDirectory(prefix="sara-bench-live-") as tmp:
+        for n in people:
+            path = str(scenario_with_people(scenario, n, Path(tmp)))
+            load = LoadCost(n, scenario, 1.0 / load_scenario(path).shield.dt_s)
+            for _ in range(runs):
+                port, cell = free_port(), "benchlive"
+                router = start_process([sys.executable, "-m", ROUTER, "--port", str(port),
+                                        "--rt-priority", rt])  # fmt: skip
+                procs = [router]
+                try:
+                    with connect_when_listening(port, router) as hub:
+                        procs += [
+                            spawn_cell_process(CONTROLLER, cell, path, port, 0, int(rt)),
+                            spawn_cell_process(WORKER, cell, path, port, 0, int(rt)),
+                            spawn_cell_process(REPLAYER, cell, path, port, REPLAYER_NICE, 0),
+                        ]
+                        _wait_running(hub, cell)
+                        time.sleep(2.0)  # the replayer's people in, the robot moving
+                        pids = dict(zip(PROCESSES, (p.pid for p in procs), strict=True))
+                        _measure(hub, cell, pids, seconds, load)
+                finally:
+                    stop_processes(procs[::-1])
+            results.append(load)
+    return results
+
+
+def _wait_running(hub: Bus, cell: str, wait_s: float = 120.0) -> None:
+    """Until the worker sends verdicts (its kernels load first)."""
+    t_end = time.monotonic() + wait_s
+    while time.monotonic() < t_end:
+        if _verdicts(hub, cell, 0.2):
+            return
+    raise RuntimeError(f"cell {cell!r} sent no verdict within {wait_s:g} s")
+
+
+def report(loads: list[LoadCost]) -> str:
+    """The measurements as text tables (CPU per cycle, latency, messages per cycle)."""
+    lines = []
+    for load in loads:
+        runs = len(load.verdict_hz)
+        hz = ", ".join(f"{x:.0f}" for x in load.verdict_hz)
+        lines.append(f"{load.scenario}, {load.people} people, {load.rate_hz:.0f} Hz control, "
+                     f"{runs} runs (verdicts/s: {hz})")  # fmt: skip
+        lines.append(f"  {'process':12s} {'CPU us/cycle':>14s} {'(runs)':>22s} "
+                     f"{'switches/cycle':>15s}")  # fmt: skip
+        total = np.zeros(runs)
+        for name in PROCESSES:
+            costs = load.per_process[name]
+            cpu = np.array([c.cpu_us for c in costs])
+            total += cpu
+            sw = np.median([c.switches for c in costs])
+            spread = " ".join(f"{x:.0f}" for x in cpu)
+            lines.append(f"  {name:12s} {np.median(cpu):14.0f} {spread:>22s} {sw:15.1f}")
+        spread = " ".join(f"{x:.0f}" for x in total)
+        lines.append(f"  {'all':12s} {np.median(total):14.0f} {spread:>22s}")
+        lat = [np.percentile(a, [50, 99]) for a in load.latency_us if a.size]
+        if lat:
+            p50 = np.median([x[0] for x in lat]) / 1e3
+            p99 = np.median([x[1] for x in lat]) / 1e3
+            lines.append(f"  skeleton published -> verdict received: p50 {p50:.2f} ms, "
+                         f"p99 {p99:.2f} ms (median of the runs)")  # fmt: skip
+        lines.append(f"  {'key':22s} {'messages/cycle':>15s} {'bytes/cycle':>12s}")
+        for kind, (m, b) in load.messages.items():
+            lines.append(f"  {kind:22s} {m:15.2f} {b:12.0f}")
+        lines.append("")
+    return "\n".join(lines)

@@ -1,0 +1,73 @@
+"""``sara-app bench --live`` (sara_app.bench.cost): its accounting, checked against what it
+measures, not timed (the numbers live in docs/performance.md)."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from sara_app.bench.cost import _cpu_s, _latencies, _switches, scenario_with_people
+from sara_app.bus.messages import VerdictMsg
+from sara_app.scenario import load_scenario
+
+
+def test_cpu_time_and_switches_count_every_thread_of_a_process() -> None:
+    """A busy thread's CPU shows in the process's total; a thread that sleeps 50 times
+    switches at least 50 times (counted while it lives: the cell's threads live as long as
+    their process)."""
+    pid = os.getpid()
+    cpu0, sw0 = _cpu_s(pid), _switches(pid)
+    napped, done = threading.Event(), threading.Event()
+
+    def spin() -> None:
+        t_end = time.process_time() + 0.3
+        while time.process_time() < t_end:
+            pass
+
+    def nap() -> None:
+        for _ in range(50):
+            time.sleep(0.001)
+        napped.set()
+        done.wait(10)
+
+    threads = [threading.Thread(target=spin), threading.Thread(target=nap)]
+    for t in threads:
+        t.start()
+    napped.wait(10)
+    switches = _switches(pid) - sw0
+    done.set()
+    for t in threads:
+        t.join()
+    assert _cpu_s(pid) - cpu0 >= 0.25
+    assert switches >= 50
+
+
+def _verdict(stamp: float, ages: dict[str, float]) -> VerdictMsg:
+    return VerdictMsg(seq=0, stamp_s=stamp, cell="c", safety_mode="ssm", mode="intended",
+                      cycle_time_us=1.0, skeleton_age_s=ages)  # fmt: skip
+
+
+def test_latency_is_publication_to_the_first_verdict_that_used_the_skeleton() -> None:
+    """Skeletons stamped 10.000 and 10.008 s; verdicts every 2 ms use the newest one: each
+    skeleton counts once, from the first verdict received that used it."""
+    got = []
+    for k in range(8):
+        stamp = 10.001 + 0.002 * k
+        skel = 10.000 if stamp < 10.008 else 10.008
+        got.append((stamp + 0.0005, _verdict(stamp, {"p1": stamp - skel})))
+    lat = np.sort(_latencies(got))
+    np.testing.assert_allclose(
+        lat, [1500.0, 1500.0], atol=1e-3
+    )  # 10.0015 - 10.000, 10.0095 - 10.008
+
+
+def test_the_loads_copy_the_first_person_to_their_own_spots(tmp_path: Path) -> None:
+    path = scenario_with_people("punches", 4, tmp_path)
+    sc = load_scenario(str(path))
+    assert [h.id for h in sc.humans] == ["p1", "p2", "p3", "p4"]
+    spots = {tuple(h.position_m) for h in sc.humans}  # type: ignore[union-attr]
+    assert len(spots) == 4
