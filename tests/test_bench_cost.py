@@ -58,7 +58,8 @@ def test_latency_is_publication_to_the_first_verdict_that_used_the_skeleton() ->
     for k in range(8):
         stamp = 10.001 + 0.002 * k
         skel = 10.000 if stamp < 10.008 else 10.008
-        got.append((stamp + 0.0005, _verdict(stamp, {"p1": stamp - skel})))
+        v = _verdict(stamp, {"p1": stamp - skel})
+        got.append((stamp + 0.0005, v.stamp_s, v.skeleton_age_s))
     lat = np.sort(_latencies(got))
     np.testing.assert_allclose(
         lat, [1500.0, 1500.0], atol=1e-3

@@ -8,6 +8,7 @@ import re
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -95,6 +96,40 @@ def test_ring_channel_keeps_the_newest_and_counts_gaps() -> None:
         assert first == [0, 1, 2, 3]
         assert later == list(range(24 - len(later), 24)) and len(later) <= 8
         assert sub.decoder.missed == 20 - len(later)
+
+
+def test_a_wakeup_subscription_sleeps_until_a_sample_and_keeps_the_newest() -> None:
+    """``wait`` returns when a sample comes (well before its timeout), False after the timeout
+    when none came; samples drain in order, none twice; a plain subscription refuses
+    ``wait``."""
+    with Bus.router(free_port()) as bus:
+        sub = bus.subscribe(keys.skeleton_keys(CELL), capacity=8, wakeup=True)
+        pub = bus.publisher(keys.skeleton_key(CELL, "h1"))
+        y = np.zeros((15, 3))
+        t0 = time.monotonic()
+        assert not sub.wait(0.05) and time.monotonic() - t0 >= 0.04
+        deadline = time.monotonic() + 10
+
+        def later() -> None:
+            time.sleep(0.2)
+            pub.put(SkeletonMsg.from_arrays("full", y, seq=pub.next_seq(), stamp_s=1.0))
+
+        while not pub.has_subscribers() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        threading.Thread(target=later).start()
+        t0 = time.monotonic()
+        assert sub.wait(5.0) and time.monotonic() - t0 < 4.0
+        assert [d.msg.seq for d in sub.drain().messages] == [0]
+        for _ in range(20):
+            pub.put(SkeletonMsg.from_arrays("full", y, seq=pub.next_seq(), stamp_s=1.0))
+        deadline = time.monotonic() + 5
+        seen: list[int] = []
+        while (not seen or seen[-1] < 20) and time.monotonic() < deadline:
+            sub.wait(0.1)
+            seen += [d.msg.seq for d in sub.drain().messages]
+        assert seen[-1] == 20 and seen == sorted(seen) and len(set(seen)) == len(seen)
+        with pytest.raises(BusError, match="wakeup=True"):
+            bus.subscribe(keys.skeleton_keys(CELL)).wait(0.01)
 
 
 INDEPENDENT = """

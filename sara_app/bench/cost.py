@@ -20,6 +20,7 @@ numbers measured with it.
 
 from __future__ import annotations
 
+import gc
 import json
 import os
 import sys
@@ -98,31 +99,36 @@ def scenario_with_people(scenario: str, people: int, folder: Path) -> Path:
     return path
 
 
-def _latencies(received: list[tuple[float, Any]]) -> np.ndarray:
-    """Skeleton publication -> verdict reception (us): per person and skeleton stamp, the
-    first verdict that used it."""
+def _latencies(received: list[tuple[float, float, dict[str, float]]]) -> np.ndarray:
+    """Skeleton publication -> verdict reception (us) from ``(received, verdict stamp,
+    skeleton ages)``: per person and skeleton stamp, the first verdict that used it."""
     first: dict[tuple[str, float], float] = {}
-    for t_recv, v in received:
-        for h, age in v.skeleton_age_s.items():
-            t_skel = round(v.stamp_s - age, 6)
+    for t_recv, stamp_s, ages in received:
+        for h, age in ages.items():
+            t_skel = round(stamp_s - age, 6)
             first.setdefault((h, t_skel), (t_recv - t_skel) * 1e6)
     return np.array(list(first.values()))
 
 
-def _verdicts(hub: Bus, cell: str, seconds: float) -> list[tuple[float, Any]]:
+def _verdicts(hub: Bus, cell: str, seconds: float) -> list[tuple[float, float, dict[str, float]]]:
+    """``(received, stamp, skeleton ages)`` of the cell's verdicts over ``seconds``, with this
+    process's garbage collector off (a collection pausing this listener would show as latency
+    of the cell)."""
     from sara_app.bus.codec import Decoder
     from sara_app.bus.messages import VerdictMsg
 
-    got: list[tuple[float, Any]] = []
+    got: list[tuple[float, float, dict[str, float]]] = []
     sub = hub.subscribe(keys.verdict_key(cell), Decoder(), capacity=4096)
     t_end = time.monotonic() + seconds
+    gc.disable()
     try:
         while time.monotonic() < t_end:
             for d in sub.drain().messages:
                 if isinstance(d.msg, VerdictMsg):
-                    got.append((d.recv_s, d.msg))
-            time.sleep(0.002)
+                    got.append((d.recv_s, d.msg.stamp_s, d.msg.skeleton_age_s))
+            time.sleep(0.001)
     finally:
+        gc.enable()
         sub.close()
     return got
 
