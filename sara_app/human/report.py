@@ -27,7 +27,7 @@ from sara_app.human.intake import screen_recording
 from sara_app.human.params import ParamSet, load_param_set, save_param_set, to_reach_params
 from sara_app.human.reach import MODELS, HumanReach
 from sara_app.human.recordings import Recording, load_recording
-from sara_app.human.validation import format_validation, leave_one_out, widened
+from sara_app.human.validation import containment_on, format_validation, leave_one_out, widened
 
 
 def write_jsonl(
@@ -221,23 +221,6 @@ def format_calibration(rep: CalibrationReport) -> str:
     return "\n".join(lines)
 
 
-def _containment_over(
-    ps: ParamSet, recs: Sequence[Recording], horizon_s: float
-) -> dict[str, tuple[int, int, int]]:
-    """Per model and the effective set: ``(checked, contained, unflagged)`` summed over ``recs``
-    (one recording's pieces), each screened by a fresh intake."""
-    out: dict[str, tuple[int, int, int]] = {}
-    for rec in recs:
-        reach = HumanReach(to_reach_params(ps, rec.kind))
-        fault = screen_recording(reach.params, rec).faulted
-        res = containment(reach, rec.times_s, rec.positions_m, horizon_s, faulted=fault,
-                          effective_of=in_use(MODELS))  # fmt: skip
-        for m, c in res.items():
-            k, n, u = out.get(m, (0, 0, 0))
-            out[m] = (k + c.checked, n + c.contained, u + (c.unflagged or 0))
-    return out
-
-
 def calibrate_command(
     recordings: Sequence[str],
     horizon_s: float,
@@ -276,7 +259,7 @@ def calibrate_command(
     summary = {}
     for rec, pieces in zip(recs, kept):
         for label, pset in (("base", b), ("calibrated", ps)):
-            res = _containment_over(pset, pieces, horizon_s)
+            res = containment_on(pset, pieces, horizon_s, MODELS, in_use(MODELS))
             misses = {m: c[0] - c[1] for m, c in res.items()}
             print(
                 f"  {rec.name} with {label} set: "

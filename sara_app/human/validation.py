@@ -137,20 +137,23 @@ def _ratio(own: np.ndarray, others: np.ndarray) -> float:
     return float(np.max(own / others))
 
 
-def effective_on(
-    ps: ParamSet, recs: Sequence[Recording], horizon_s: float, models: tuple[str, ...]
-) -> tuple[int, int, int]:
-    """``(checked, contained, unflagged)`` of the effective set of ``models`` under ``ps`` over
-    ``recs`` (each screened by a fresh intake: the monitor's faults clear its misses)."""
-    checked = contained = unflagged = 0
+def containment_on(
+    ps: ParamSet, recs: Sequence[Recording], horizon_s: float, models: tuple[str, ...],
+    effective_of: tuple[str, ...] | None = None,
+) -> dict[str, tuple[int, int, int]]:  # fmt: skip
+    """Per model of ``models`` and the effective set of ``effective_of`` (default ``models``;
+    key :data:`EFFECTIVE`): ``(checked, contained, unflagged)`` under ``ps`` summed over
+    ``recs``, each screened by a fresh intake (the monitor's faults clear its misses)."""
+    out: dict[str, tuple[int, int, int]] = {}
     for rec in recs:
         reach = HumanReach(to_reach_params(ps, rec.kind))
         fault = screen_recording(reach.params, rec).faulted
-        eff = containment(reach, rec.times_s, rec.positions_m, horizon_s, models,
-                          faulted=fault)[EFFECTIVE]  # fmt: skip
-        checked, contained = checked + eff.checked, contained + eff.contained
-        unflagged += eff.unflagged or 0
-    return checked, contained, unflagged
+        res = containment(reach, rec.times_s, rec.positions_m, horizon_s, models,
+                          faulted=fault, effective_of=effective_of)  # fmt: skip
+        for m, c in res.items():
+            k, n, u = out.get(m, (0, 0, 0))
+            out[m] = (k + c.checked, n + c.contained, u + (c.unflagged or 0))
+    return out
 
 
 def leave_one_out(
@@ -168,7 +171,7 @@ def leave_one_out(
     rows = []
     for i, (parts, name) in enumerate(zip(recs, names)):
         others = combine([p for k, p in enumerate(own) if k != i], "others")
-        checked, contained, unflagged = effective_on(others, parts, horizon_s, models)
+        checked, contained, unflagged = containment_on(others, parts, horizon_s, models)[EFFECTIVE]
         (v_own, a_own), (v_oth, a_oth) = _bounds(own[i]), _bounds(others)
         arm_ratio = own[i].arm.r_v_max_mps / others.arm.r_v_max_mps
         rows.append(HeldOut(name, checked, contained, unflagged, _ratio(v_own, v_oth),
