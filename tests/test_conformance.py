@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from sara_app.errors import ParameterError
 from sara_app.human.conformance import Monitor
@@ -88,3 +90,31 @@ def test_accelerating_beyond_a_max_is_an_acceleration_violation() -> None:
 def test_recover_s_is_checked() -> None:
     with pytest.raises(ParameterError, match="recover_s"):
         Monitor(("a",), np.ones(1), np.ones(1), recover_s=0.0)
+
+
+@given(st.integers(0, 2**31 - 1))
+@settings(max_examples=40, deadline=None)
+def test_the_compiled_frame_step_equals_the_numpy_reference(seed: int) -> None:
+    """Random frames (jittered stamps, joints distrusted at random, jumps): the kernel's rings,
+    speeds and accelerations equal the plain numpy oracle's at every frame."""
+    from conformance_reference import observe_frame_reference
+
+    from sara_app.human.conformance_kernels import observe_frame
+
+    rng = np.random.default_rng(seed)
+    J, N = 15, 17
+    rings = [(np.full(N, -np.inf), np.zeros((N, J, 3)), np.zeros((N, J), bool)) for _ in range(2)]
+    speed, acc = np.zeros(J), np.zeros(J)
+    t, y = 0.0, rng.normal(size=(J, 3))
+    for _ in range(40):
+        t += rng.uniform(0.005, 0.02)
+        y = y + rng.normal(scale=rng.choice([0.001, 0.05]), size=(J, 3))
+        trusted = rng.random(J) > 0.2
+        jump = np.where(rng.random(J) > 0.9, rng.uniform(0, 5, J), 0.0)
+        dy = float(rng.uniform(0, 0.01))
+        observe_frame(*rings[0], t, y, trusted, dy, jump, speed, acc)
+        s_ref, a_ref = observe_frame_reference(*rings[1], t, y, trusted, dy, jump)
+        np.testing.assert_allclose(speed, s_ref, rtol=1e-12, atol=1e-9)
+        np.testing.assert_allclose(acc, a_ref, rtol=1e-12, atol=1e-6)
+        for a, b in zip(rings[0], rings[1], strict=True):
+            np.testing.assert_array_equal(a, b)

@@ -254,21 +254,34 @@ class RobotCommandMsg(_Msg):
             raise _fail("invalid", "valid_until_s is before stamp_s")
         return self
 
+    def stop_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """The verified stop as arrays: absolute sample times ``(F,)`` and positions ``(F, n)``;
+        without one, the set point at the command's stamp (the robot holds it)."""
+        if not self.failsafe_t_s:
+            return np.array([self.stamp_s]), np.asarray([self.q], dtype=float)
+        return np.asarray(self.failsafe_t_s) + self.stamp_s, np.asarray(self.failsafe_q, float)
+
     def stop_position(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
         """Joint positions and velocities ``(n,)`` at time ``t_s`` along the verified stop, as
-        the contract has a controller follow it: linear in joint space between the samples on
-        schedule, the set point before the first sample and the last one (at rest) after it."""
-        if not self.failsafe_t_s:
-            return np.asarray(self.q, dtype=float), np.zeros(len(self.q))
-        t = np.asarray(self.failsafe_t_s) + self.stamp_s
-        q = np.asarray(self.failsafe_q, dtype=float)
-        if t_s <= t[0]:
-            return q[0].copy(), np.zeros(q.shape[1])
-        if t_s >= t[-1]:
-            return q[-1].copy(), np.zeros(q.shape[1])
-        k = int(np.searchsorted(t, t_s, side="right")) - 1
-        slope = (q[k + 1] - q[k]) / (t[k + 1] - t[k])
-        return q[k] + slope * (t_s - t[k]), slope
+        the contract has a controller follow it (:func:`position_on_stop`)."""
+        return position_on_stop(*self.stop_arrays(), t_s)
+
+
+def position_on_stop(
+    t_abs_s: np.ndarray, q_stop: np.ndarray, t_s: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Joint positions and velocities ``(n,)`` at ``t_s`` along a stop sampled at ``t_abs_s
+    (F,)`` with positions ``q_stop (F, n)``: linear in joint space between the samples on
+    schedule, the first sample before it and the last one (at rest) after it (for a command:
+    :meth:`RobotCommandMsg.stop_arrays`; kept by who follows it many times)."""
+    t, q = t_abs_s, q_stop
+    if t_s <= t[0]:
+        return q[0].copy(), np.zeros(q.shape[1])
+    if t_s >= t[-1]:
+        return q[-1].copy(), np.zeros(q.shape[1])
+    k = int(np.searchsorted(t, t_s, side="right")) - 1
+    slope = (q[k + 1] - q[k]) / (t[k + 1] - t[k])
+    return q[k] + slope * (t_s - t[k]), slope
 
 
 TrackingFlag = Literal[

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sara_app.errors import ParameterError
+from sara_app.human.conformance_kernels import observe_frame
 
 QUANTITIES = ("speed", "acceleration")
 
@@ -75,6 +76,8 @@ class Monitor:
         self._t = np.full(N, -np.inf)  # newest first
         self._y = np.zeros((N, J, 3))
         self._ok = np.zeros((N, J), bool)
+        self._speed = np.zeros(J)  # the newest frame's, per joint (owned, reused)
+        self._acc = np.zeros(J)
         self.peak_speed_mps = np.zeros(J)
         """The largest speed and acceleration any frame needed, per joint (whatever the
         bounds: what a parameter set must allow for this motion to conform)."""
@@ -96,27 +99,10 @@ class Monitor:
         """One gated frame ``y (J, 3)`` with the gate's ``trusted (J,)`` and, for joints that
         only jumped (held by the gate, bones consistent), the speed they needed
         ``jump_speed_mps (J,)`` (0 elsewhere)."""
-        for arr, new in ((self._t, t_s), (self._y, y), (self._ok, trusted)):
-            arr[1:] = arr[:-1]
-            arr[0] = new
-        speed = np.array(jump_speed_mps, dtype=float)  # the gate's: joints that only jumped
-        acc = np.zeros(len(self.joints))
-        for e in range(SPANS):
-            k = 2**e
-            if not np.isfinite(self._t[k]):
-                break
-            dt = t_s - self._t[k]
-            ok = self._ok[0] & self._ok[k]
-            d = np.linalg.norm(y - self._y[k], axis=1) - 2.0 * delta_y_m
-            speed = np.maximum(speed, np.where(ok, d / dt, 0.0))
-            if k >= 2:
-                h = k // 2
-                t1 = self._t[h]
-                w = (t1 - self._t[k]) / dt
-                chord = self._y[k] + w * (y - self._y[k])
-                dev = np.linalg.norm(self._y[h] - chord, axis=1) - 2.0 * delta_y_m
-                span2 = (t1 - self._t[k]) * (t_s - t1)
-                acc = np.maximum(acc, np.where(ok & self._ok[h], 2.0 * dev / span2, 0.0))
+        speed, acc = self._speed, self._acc
+        observe_frame(self._t, self._y, self._ok, float(t_s), np.asarray(y, float),
+                      np.asarray(trusted, bool), float(delta_y_m),
+                      np.asarray(jump_speed_mps, float), speed, acc)  # fmt: skip
         np.maximum(self.peak_speed_mps, speed, out=self.peak_speed_mps)
         np.maximum(self.peak_acc_mps2, acc, out=self.peak_acc_mps2)
         found = [Violation(self.joints[j], "speed", float(speed[j]), float(self.v_max_mps[j]), t_s)

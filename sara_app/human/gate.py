@@ -257,9 +257,8 @@ class Gate:
         self.y_prev[:] = y
         if np.isnan(self.length_m).any() and not (bad | jump)[m].any():
             self._learn_bones(y)
-        flagged = np.flatnonzero(out.flags.any(axis=1))
-        if flagged.size:
-            j = int(flagged[0])
+        if out.flags.any():
+            j = int(np.flatnonzero(out.flags.any(axis=1))[0])
             self.last_flag = (j, why(out.flags[j]), t_s)
         for k, name in enumerate(FLAGS):
             self.counts[name] += int(out.flags[:, k].sum())
@@ -273,6 +272,10 @@ class Gate:
         """``out.y`` and ``out.extra_m``: a trusted joint as measured; a held one as the ball
         enclosing its history and its measurement (see the module notes)."""
         out = self.out
+        if good.all():  # the common frame: nothing held, nothing to enclose
+            out.y[:] = y
+            out.extra_m[:] = 0.0
+            return
         age = np.maximum(t_s - self.t_trusted, 0.0)
         r_hist = self.dy_trusted + self.v_max_mps * age
         # A frozen value is a measurement from when it first came; a missing joint has none.

@@ -43,6 +43,7 @@ from sara_app.bus.messages import (
     ControllerStatusMsg,
     RobotCommandMsg,
     RobotStateMsg,
+    position_on_stop,
 )
 from sara_app.bus.process import SummarisedWarning, process_main
 from sara_app.bus.session import Bus
@@ -109,6 +110,8 @@ class Controller:
         self.q = np.asarray(scenario.task.waypoints_rad[0], dtype=float)
         self.v = np.zeros_like(self.q)
         self.command: RobotCommandMsg | None = None
+        self._stop = (np.zeros(0), np.zeros((0, len(self.q))))
+        """The followed command's verified stop as arrays (:meth:`RobotCommandMsg.stop_arrays`)."""
         self.braking = False  # on its own, along the expired command's stop
         self.points: list[tuple[float, np.ndarray]] = []
         """Where the robot is to be when: ``(t, q)``, the first where it stood, then the set
@@ -182,7 +185,7 @@ class Controller:
                 self.braking = True
                 self._braked = (self.command, gap_s)
                 self._why_braked(received)  # newer ones that came expired this tick
-            self._apply(*self.command.stop_position(now))
+            self._apply(*position_on_stop(*self._stop, now))
         self.publish(now)
 
     def _follow(self, cmd: RobotCommandMsg, now: float) -> None:
@@ -194,7 +197,7 @@ class Controller:
             # past the last set point the robot is on that command's stop, not at the set
             # point (taking the set point made it jump back by speed x delay: a tracking fault
             # whenever a command took more than about 2 ms to arrive)
-            self.points = [(now, self.command.stop_position(now)[0])]
+            self.points = [(now, position_on_stop(*self._stop, now)[0])]
         else:
             q_now, _ = self._on_points(now)
             ahead = [p for p in self.points if p[0] > now]
@@ -202,6 +205,7 @@ class Controller:
         t_to = max(cmd.stamp_s + self.dt_s, self.points[-1][0] + 1e-6)
         self.points.append((t_to, np.asarray(cmd.q, dtype=float)))
         self.command, self.braking = cmd, False
+        self._stop = cmd.stop_arrays()  # followed many times: its arrays once
 
     def _acceptable(self, cmd: RobotCommandMsg, now: float) -> bool:
         """A command is followed while valid; before the first one and once the robot brakes on

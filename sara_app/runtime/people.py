@@ -31,7 +31,8 @@ def ingest_skeleton(cell: Cell, track: Track, msg: SkeletonMsg) -> str | None:
     """Take ``msg`` into ``track``; None when taken, else the contract's reason for refusing
     it (``out_of_range``, ``stamp_not_advancing``, ``tracking_inconsistent``, ``repeated``)."""
     y, v = full_body(*msg.to_arrays())
-    missing, low = (np.pad(a, (0, len(y) - len(a))) for a in msg.joint_states())
+    missing, low = (a if len(a) == len(y) else np.pad(a, (0, len(y) - len(a)))
+                    for a in msg.joint_states())  # fmt: skip
     return take_measurement(
         cell, track, msg.stamp_s, y, v=v, missing=missing, low=low,
         unc_m=msg.position_uncertainty_m, unc_v_mps=msg.velocity_uncertainty_mps,

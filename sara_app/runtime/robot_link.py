@@ -17,7 +17,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from sara_app.bus.messages import RobotCommandMsg, RobotStateMsg
+from sara_app.bus.messages import RobotCommandMsg, RobotStateMsg, position_on_stop
 from sara_app.bus.session import Subscription
 from sara_app.robot.trajectory import JointState
 
@@ -34,8 +34,11 @@ class MeasuredRobot:
         self.state: JointState | None = None
         self.stamp_s: float | None = None
         self.problem: str | None = None
-        self.commanded: deque[tuple[float, np.ndarray, RobotCommandMsg]] = deque(maxlen=HISTORY)
-        """The commands sent: ``(set point time, set point, command)``, oldest first."""
+        self.commanded: deque[tuple[float, np.ndarray, tuple[np.ndarray, np.ndarray]]] = deque(
+            maxlen=HISTORY
+        )
+        """The commands sent: ``(set point time, set point, its verified stop's arrays)``
+        (:meth:`RobotCommandMsg.stop_arrays`), oldest first."""
 
     def drain(self, sub: Subscription, n_dof: int, drop: Callable[[str], None]) -> None:
         """The newest ``robot/state`` off ``sub``; a state of another number of joints is
@@ -60,7 +63,9 @@ class MeasuredRobot:
         """The worker sent ``command``, whose set point is for time ``t_point_s``."""
         if self.commanded and t_point_s <= self.commanded[-1][0]:
             self.commanded.clear()  # time went back (a restarted clock): start afresh
-        self.commanded.append((t_point_s, np.asarray(command.q, dtype=float), command))
+        self.commanded.append(
+            (t_point_s, np.asarray(command.q, dtype=float), command.stop_arrays())
+        )
 
     def expected(self, t_s: float) -> tuple[np.ndarray, float] | None:
         """The commanded position at ``t_s`` and the slack the contract allows there (None:
@@ -72,11 +77,11 @@ class MeasuredRobot:
         if not c or t_s < c[0][0]:
             return None
         if t_s >= c[-1][0]:  # past the newest set point: on its command's verified stop
-            return c[-1][2].stop_position(t_s)[0], 0.0
+            return position_on_stop(*c[-1][2], t_s)[0], 0.0
         k = bisect.bisect_right(c, t_s, key=lambda e: e[0]) - 1  # c[k].t <= t_s < c[k+1].t
         (ta, qa, older), (tb, qb, _) = c[k], c[k + 1]
         q = qa + (qb - qa) * ((t_s - ta) / (tb - ta))
-        slack = float(np.max(np.abs(older.stop_position(t_s)[0] - q)))
+        slack = float(np.max(np.abs(position_on_stop(*older, t_s)[0] - q)))
         return q, slack
 
     def faults(self, now_s: float, timeout_s: float, tol_rad: float) -> list[str]:
