@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -16,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from sara_app.bus.session import free_port
+from sara_app.processes.affinity import cpu_plan
 from sara_app.processes.serve import REPLAYER_NICE, lower_thread_priority, start_process
 
 
@@ -85,6 +87,12 @@ def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(sig: signal.Signals) ->
             policy = os.sched_getscheduler(pid)  # of the main thread: the loop
             rt = "sara_app.peers.replayer" not in text and _rt_permitted()
             assert policy == (os.SCHED_FIFO if rt else os.SCHED_OTHER), (text, policy)
+        plan = cpu_plan(1) if shutil.which("taskset") else None
+        if plan is not None:  # the worker on a CPU of its own, every thread of everyone else off it
+            for pid, text in kids.items():
+                want = plan.worker(0) if "worker_start" in text else plan.rest
+                for task in Path(f"/proc/{pid}/task").iterdir():
+                    assert os.sched_getaffinity(int(task.name)) == want, (text, task.name)
     finally:
         proc.send_signal(sig)
         out = _communicate_or_dump(proc, zp, timeout_s=30)

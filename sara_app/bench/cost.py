@@ -175,9 +175,36 @@ def _measure(hub: Bus, cell: str, pids: dict[str, int], seconds: float, out: Loa
 
 def bench_live(
     scenario: str = "punches", people: tuple[int, ...] = PEOPLE, seconds: float = 10.0,
-    runs: int = 3,
+    runs: int = 3, pin_cpus: bool = True,
 ) -> list[LoadCost]:  # fmt: skip
-    """Each load measured ``runs`` times on a fresh cell (see the module notes)."""
+    """Each load measured ``runs`` times on a fresh cell (see the module notes); ``pin_cpus``:
+    the worker on a CPU of its own and the rest (this process too) on the others, as serve
+    does where the machine has a CPU to spare."""
+    from sara_app.processes.affinity import cpu_plan, pin_threads
+    from sara_app.scenario import load_scenario
+
+    plan = cpu_plan(1) if pin_cpus else None
+    before = frozenset(os.sched_getaffinity(0))
+    if plan is not None:
+        pin_threads(os.getpid(), plan.rest)
+    results = []
+    try:
+        with tempfile.TemporaryDirectory(prefix="sara-bench-live-") as tmp:
+            for n in people:
+                path = str(scenario_with_people(scenario, n, Path(tmp)))
+                load = LoadCost(n, scenario, 1.0 / load_scenario(path).shield.dt_s)
+                for _ in range(runs):
+                    _run(path, plan, seconds, load)
+                results.append(load)
+    finally:
+        if plan is not None:
+            pin_threads(os.getpid(), before)
+    return results
+
+
+def _run(path: str, plan: Any, seconds: float, load: LoadCost) -> None:
+    """One fresh cell on ``path`` as serve starts it (CPUs per ``plan``), measured into
+    ``load``."""
     from sara_app.ops.supervisor import stop_processes
     from sara_app.processes.serve import (
         CONTROLLER,
@@ -190,34 +217,26 @@ def bench_live(
         spawn_cell_process,
         start_process,
     )
-    from sara_app.scenario import load_scenario
 
-    rt = str(WORKER_RT_PRIORITY)
-    results = []
-    with tempfile.TemporaryDirectory(prefix="sara-bench-live-") as tmp:
-        for n in people:
-            path = str(scenario_with_people(scenario, n, Path(tmp)))
-            load = LoadCost(n, scenario, 1.0 / load_scenario(path).shield.dt_s)
-            for _ in range(runs):
-                port, cell = free_port(), "benchlive"
-                router = start_process([sys.executable, "-m", ROUTER, "--port", str(port),
-                                        "--rt-priority", rt])  # fmt: skip
-                procs = [router]
-                try:
-                    with connect_when_listening(port, router) as hub:
-                        procs += [
-                            spawn_cell_process(CONTROLLER, cell, path, port, 0, int(rt)),
-                            spawn_cell_process(WORKER, cell, path, port, 0, int(rt)),
-                            spawn_cell_process(REPLAYER, cell, path, port, REPLAYER_NICE, 0),
-                        ]
-                        _wait_running(hub, cell)
-                        time.sleep(2.0)  # the replayer's people in, the robot moving
-                        pids = dict(zip(PROCESSES, (p.pid for p in procs), strict=True))
-                        _measure(hub, cell, pids, seconds, load)
-                finally:
-                    stop_processes(procs[::-1])
-            results.append(load)
-    return results
+    rt = WORKER_RT_PRIORITY
+    mine, rest = (None, None) if plan is None else (plan.worker(0), plan.rest)
+    port, cell = free_port(), "benchlive"
+    router = start_process([sys.executable, "-m", ROUTER, "--port", str(port),
+                            "--rt-priority", str(rt)], cpus=rest)  # fmt: skip
+    procs = [router]
+    try:
+        with connect_when_listening(port, router) as hub:
+            procs += [
+                spawn_cell_process(CONTROLLER, cell, path, port, 0, rt, (), rest),
+                spawn_cell_process(WORKER, cell, path, port, 0, rt, (), mine),
+                spawn_cell_process(REPLAYER, cell, path, port, REPLAYER_NICE, 0, (), rest),
+            ]
+            _wait_running(hub, cell)
+            time.sleep(2.0)  # the replayer's people in, the robot moving
+            pids = dict(zip(PROCESSES, (p.pid for p in procs), strict=True))
+            _measure(hub, cell, pids, seconds, load)
+    finally:
+        stop_processes(procs[::-1])
 
 
 def _wait_running(hub: Bus, cell: str, wait_s: float = 120.0) -> None:

@@ -16,7 +16,9 @@ def _bench(args: argparse.Namespace) -> None:
     if args.live:
         from sara_app.bench.cost import bench_live, report
 
-        print(report(bench_live(args.scenario, tuple(args.people), args.seconds, args.runs)))
+        loads = bench_live(args.scenario, tuple(args.people), args.seconds, args.runs,
+                           args.pin_cpus)  # fmt: skip
+        print(report(loads))
         return
     if args.cells:
         from sara_app.bench.cells import bench_cells
@@ -59,6 +61,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--people", type=int, nargs="+", default=[1, 4], help="loads of --live")
     b.add_argument("--seconds", type=float, default=10.0, help="seconds per --live phase")
     b.add_argument("--runs", type=int, default=3, help="runs per --live load")
+    b.add_argument("--pin-cpus", action=argparse.BooleanOptionalAction, default=True,
+                   help="--live: the worker on a CPU of its own, as serve does")  # fmt: skip
     b.add_argument("--rate", type=float, default=120.0, help="skeletons per second of --cells")
     b.add_argument("--clients", type=int, default=50, help="event streams of --sse")
     b.add_argument("--scenario", default="punches", help="scenario of --view and --live")

@@ -13,7 +13,7 @@ def _serve(args: argparse.Namespace) -> int:
     return main_for_cli(
         args.scenario, args.cell, args.zenoh_port, args.viewer_port, args.api_port, args.duration,
         api_host=args.api_host, require_token=args.require_token, cells=args.cells,
-        log_level=args.log_level,
+        log_level=args.log_level, pin_cpus=args.pin_cpus,
     )  # fmt: skip
 
 
@@ -78,6 +78,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--api-port", type=int, default=API_PORT,
                    help="the REST service's and landing page's port")  # fmt: skip
     s.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    s.add_argument("--pin-cpus", action=argparse.BooleanOptionalAction, default=True,
+                   help="each worker on a CPU of its own where there are more CPUs than cells, "
+                   "the rest on the others")  # fmt: skip
     s.add_argument("--log-level", choices=LOG_LEVELS, default="info",
                    help="info: URLs, state changes, faults and a health line a minute; debug: "
                    "implementation details too")  # fmt: skip

@@ -45,6 +45,7 @@ from sara_app.errors import ParameterError, SaraError
 from sara_app.ops.audit import default_data_dir
 from sara_app.ops.health import HealthLog
 from sara_app.ops.supervisor import Child, Supervisor
+from sara_app.processes.affinity import cpu_plan, pin_threads, pinned
 from sara_app.processes.defaults import API_PORT, DEFAULT_SCENARIO, VIEWER_PORT, ZENOH_PORT
 from sara_app.scenario import load_scenario, scenarios_dir
 
@@ -66,10 +67,13 @@ def niced(cmd: list[str], nice: int) -> list[str]:
     return [tool, "-n", str(int(nice)), *cmd] if tool else cmd
 
 
-def start_process(cmd: list[str], nice: int = 0, **popen: Any) -> subprocess.Popen[bytes]:
+def start_process(
+    cmd: list[str], nice: int = 0, cpus: frozenset[int] | None = None, **popen: Any
+) -> subprocess.Popen[bytes]:
     """Start ``cmd`` in a session of its own, ``nice`` lower in priority than the caller, its
-    session's autogroup (where the kernel has them) lowered by ``nice`` as well."""
-    proc = subprocess.Popen(niced(cmd, nice), start_new_session=True, **popen)
+    session's autogroup (where the kernel has them) lowered by ``nice`` as well, on ``cpus``
+    only when given (:mod:`~sara_app.processes.affinity`)."""
+    proc = subprocess.Popen(niced(pinned(cmd, cpus), nice), start_new_session=True, **popen)
     if nice > 0:  # Popen returns after exec: the child's setsid() has made its autogroup
         try:
             Path(f"/proc/{proc.pid}/autogroup").write_text(str(int(nice)))
@@ -96,6 +100,7 @@ def spawn_cell_process(
     nice: int = 0,
     rt_priority: int = 0,
     extra: tuple[str, ...] = (),
+    cpus: frozenset[int] | None = None,
 ) -> subprocess.Popen[bytes]:
     cmd = [
         sys.executable,
@@ -112,7 +117,7 @@ def spawn_cell_process(
         "--die-with-parent",
         *extra,
     ]
-    return start_process(cmd, nice)
+    return start_process(cmd, nice, cpus)
 
 
 def serve(
@@ -128,10 +133,13 @@ def serve(
     api_host: str = "127.0.0.1",
     require_token: bool = False,
     cells: int = 1,
+    pin_cpus: bool = True,
 ) -> int:
     """Run everything until Ctrl-C (or ``duration_s``); returns the exit code. ``cells``: run
     that many cells of the scenario on the one router (:func:`cell_names`), each with its
-    processes and its 3D view (ports from ``viewer_port`` on).
+    processes and its 3D view (ports from ``viewer_port`` on). ``pin_cpus``: each worker on a
+    CPU of its own where the machine has more CPUs than cells, everything else on the others
+    (:mod:`~sara_app.processes.affinity`).
 
     Lowers the calling thread's CPU priority by ``display_nice`` once the worker and the
     replayer are started (the dashboard and the API run on it and on threads it starts): call
@@ -170,16 +178,23 @@ def serve(
     whatifs: list[WhatIfPanels] = []
     hub: Bus | None = None
     sup: Supervisor | None = None
+    plan = cpu_plan(len(names)) if pin_cpus else None
+    rest = None if plan is None else plan.rest
     try:
-        children = [Child("router", lambda: start_process(router_cmd))]
-        for c in names:
+        children = [Child("router", lambda: start_process(router_cmd, cpus=rest))]
+        for i, c in enumerate(names):
+            cpus = (None, None) if plan is None else (plan.worker(i), plan.rest)
             children += _cell_children(c, scenario, sc.ros2.enabled, zenoh_port, creds,
-                                       len(names) > 1)  # fmt: skip
+                                       len(names) > 1, cpus)  # fmt: skip
         workers = {c: _child_name("worker", c, len(names) > 1) for c in names}
         sup = Supervisor(children, tuple(workers.values()))
         sup.start(("router",))
         hub = _connect(zenoh_port, client_auth("editor", creds), sup)
         sup.start()
+        if plan is not None:  # the display side off the workers' CPUs (threads so far: later
+            pin_threads(os.getpid(), plan.rest)  # ones inherit their creator's set)
+            log.debug("workers on CPUs %s, everything else on %s", list(map(sorted, plan.workers)),
+                      sorted(plan.rest))  # fmt: skip
         lower_thread_priority(display_nice)  # after the spawns: children inherit the caller's
         jobs = JobRunner()  # what-if runs and reports, for the dashboards and the API
         views, urls = {}, {}
@@ -251,10 +266,13 @@ def _child_name(role: str, cell: str, several: bool) -> str:
 
 
 def _cell_children(
-    cell: str, scenario: str, ros2: bool, zenoh_port: int, creds: Credentials, several: bool
-) -> list[Child]:
+    cell: str, scenario: str, ros2: bool, zenoh_port: int, creds: Credentials, several: bool,
+    cpus: tuple[frozenset[int] | None, frozenset[int] | None] = (None, None),
+) -> list[Child]:  # fmt: skip
     """One cell's supervised processes: the robot (the reference controller, or the ROS 2
-    system through the bridge), the worker and the replayer."""
+    system through the bridge), the worker and the replayer; ``cpus``: the worker's CPUs and
+    the others' (None: any)."""
+    mine, rest = cpus
     rt = WORKER_RT_PRIORITY
     keep = ("--state-dir", str(default_data_dir() / "cells"))  # edits survive restarts
 
@@ -266,16 +284,16 @@ def _cell_children(
 
     if ros2:
         robot = Child(name("ros2"), lambda: spawn_cell_process(
-            ROS2_BRIDGE, cell, scenario, zenoh_port, 0, 0, login("controller")))  # fmt: skip
+            ROS2_BRIDGE, cell, scenario, zenoh_port, 0, 0, login("controller"), rest))  # fmt: skip
     else:
         robot = Child(name("controller"), lambda: spawn_cell_process(
-            CONTROLLER, cell, scenario, zenoh_port, 0, rt, login("controller")))  # fmt: skip
+            CONTROLLER, cell, scenario, zenoh_port, 0, rt, login("controller"), rest))  # fmt: skip
     return [  # the robot first: the worker tracks it
         robot,
         Child(name("worker"), lambda: spawn_cell_process(
-            WORKER, cell, scenario, zenoh_port, 0, rt, keep + login("worker"))),
+            WORKER, cell, scenario, zenoh_port, 0, rt, keep + login("worker"), mine)),
         Child(name("replayer"), lambda: spawn_cell_process(
-            REPLAYER, cell, scenario, zenoh_port, REPLAYER_NICE, 0, login("tracker"))),
+            REPLAYER, cell, scenario, zenoh_port, REPLAYER_NICE, 0, login("tracker"), rest)),
     ]  # fmt: skip
 
 
@@ -396,6 +414,7 @@ def main_for_cli(
     require_token: bool = False,
     cells: int = 1,
     log_level: str = "info",
+    pin_cpus: bool = True,
 ) -> int:
     os.environ[LOG_LEVEL_ENV] = log_level  # the children's level too
     # the libraries' INFO (uvicorn, viser, websockets) is theirs, not the user's: WARNING
@@ -418,6 +437,7 @@ def main_for_cli(
             api_host=api_host,
             require_token=require_token,
             cells=cells,
+            pin_cpus=pin_cpus,
         )
     except SaraError as e:
         print(f"error: {e}", file=sys.stderr)
