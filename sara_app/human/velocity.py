@@ -6,13 +6,18 @@ within delta_y (Euclidean) and a joint acceleration bounded by a_max, is off by 
     |v_hat(t) - v(t)| <= 2 delta_y / h + a_max h / 2
 
 (noise at both ends, plus the Taylor remainder of a motion whose acceleration is bounded). The
-bound is smallest at h* = 2 sqrt(delta_y / a_max); each joint uses the available lag closest to
+bound is smallest at h* = 2 sqrt(delta_y / a_max); each joint uses the lag in reach closest to
 its optimum. The bound assumes a_max holds: it is exactly the assumption of the ACC model that
 consumes it, so the model stays sound under its own assumptions.
 
 Frames the tracking quality gate distrusts for a joint (:mod:`sara_app.human.gate`) are never
-used for that joint: a glitch at either end would break the bound. A joint without a trusted
-frame in reach has no estimate (infinite bound).
+used for that joint: a glitch at either end would break the bound. When the frame at the best
+lag (or the current one) is distrusted, the joint has no estimate for this frame (infinite
+bound), never one from another lag: the estimate then depends only on the frames' stamps and
+those two frames, so a history that differs only in what the gate distrusted gives the same
+estimate or none, never a differently centred one (a fallback lag once let a person whose gate
+had learned another body's bones be cleared where a fresh person at the same place was not:
+``tests/test_ingest_history.py``).
 """
 
 from __future__ import annotations
@@ -28,13 +33,10 @@ def velocity_error_bound(lag_s: np.ndarray, delta_y_m: float, a_max_mps2: np.nda
 
 
 def _best_lags(
-    dts: np.ndarray, delta_y_m: float, a_max: np.ndarray, usable: np.ndarray | None = None
-) -> tuple[np.ndarray, ...]:
-    """For candidate lags ``(L,)`` and joints ``(J,)``: index of the best lag and its bound;
-    ``usable`` ``(L, J)``: which past frames may serve each joint (None: all)."""
+    dts: np.ndarray, delta_y_m: float, a_max: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """For candidate lags ``(L,)`` and joints ``(J,)``: index of the best lag and its bound."""
     bounds = velocity_error_bound(dts[:, None], delta_y_m, a_max[None, :])  # (L, J)
-    if usable is not None:
-        bounds = np.where(usable, bounds, np.inf)
     best = np.argmin(bounds, axis=0)
     return best, bounds[best, np.arange(a_max.shape[0])]
 
@@ -60,10 +62,10 @@ def estimate_recording(
     for i in range(1, T):
         lags = np.arange(1, min(max_lag_frames, i) + 1)
         dts = times_s[i] - times_s[i - lags]
-        best, bound = _best_lags(dts, delta_y_m, a_max_mps2, ok[i - lags])
+        best, bound = _best_lags(dts, delta_y_m, a_max_mps2)
         past = positions_m[i - lags[best], np.arange(J)]
         v[i] = (positions_m[i] - past) / dts[best][:, None]
-        dv[i] = np.where(ok[i], bound, np.inf)
+        dv[i] = np.where(ok[i] & ok[i - lags[best], np.arange(J)], bound, np.inf)
     v[~np.isfinite(dv)] = 0.0
     return v, dv
 
@@ -122,9 +124,10 @@ class VelocityEstimator:
             self.dv[:] = np.inf
             return self.v, self.dv
         dts = t_s - self.times[1 : n + 1]
-        best, bound = _best_lags(dts, self.delta_y_m, self.a_max, self.trusted[1 : n + 1])
-        past = self.frames[1 + best, np.arange(self.a_max.shape[0])]
+        best, bound = _best_lags(dts, self.delta_y_m, self.a_max)
+        joints = np.arange(self.a_max.shape[0])
+        past = self.frames[1 + best, joints]
         self.v[:] = (y - past) / dts[best][:, None]
-        self.dv[:] = np.where(self.trusted[0], bound, np.inf)
+        self.dv[:] = np.where(self.trusted[0] & self.trusted[1 + best, joints], bound, np.inf)
         self.v[~np.isfinite(self.dv)] = 0.0
         return self.v, self.dv

@@ -81,7 +81,7 @@ class Replayer:
                 self.frame_pubs[tid] = self.bus.publisher(keys.tracker_frame_key(self.cell, tid))
 
     def _inputs(self) -> None:
-        for d in self.sub_cmd.drain().messages:
+        for d in self.sub_cmd.drain_latest().messages:  # where the robot is now: the newest
             if isinstance(d.msg, RobotCommandMsg) and len(d.msg.q) == self.robot.n_dof:
                 self.q = np.asarray(d.msg.q)
         for d in self.sub_params.drain().messages:
@@ -103,12 +103,14 @@ class Replayer:
         if t_scn > self.scenario.sim.duration_s:
             self._restart(now)
             t_scn = -self.params.delay_s
-        ends, rad = self.robot.link_capsules(self.q)
+        capsules: tuple[np.ndarray, np.ndarray] | None = None  # the robot's, when one is due
         sent = 0
         for i, (h, m) in enumerate(zip(self.scenario.humans, self.motions)):
-            y = m.pose(max(t_scn, 0.0), ends, rad)
             if now < self.next_s[i]:
                 continue
+            if capsules is None:
+                capsules = self.robot.link_capsules(self.q)
+            y = m.pose(max(t_scn, 0.0), *capsules)
             self.next_s[i] = max(self.next_s[i] + 1.0 / h.sensor.rate_hz, now - 0.5)
             y = self.glitches[i].apply(t_scn, measured(y, h.sensor.noise_m, self.rng))
             pub = self.pubs[h.id]
