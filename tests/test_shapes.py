@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 
 from sara_app.geometry import shapes as geo
@@ -674,6 +674,11 @@ def ball_pairs(draw) -> tuple[np.ndarray, float, np.ndarray, float]:
 
 @MANY
 @given(ball_pairs(), seeds)
+@example(  # centres 3e-161 m apart (subnormal): the test's own direction along them came out
+    # 1.0016 long, a point 0.16 % off ball 1's surface, not a miss of the enclosing ball
+    balls=(np.zeros(3), 0.01, np.array([0.0, 1.6054590e-161, 2.4081885e-161]), 0.0),
+    seed=0,
+)
 def test_ball_enclosing_balls_contains_and_minimal(balls, seed):
     c1, r1, c2, r2 = balls
     eps = tol(c1, c2)
@@ -682,8 +687,9 @@ def test_ball_enclosing_balls_contains_and_minimal(balls, seed):
     rng = np.random.default_rng(seed)
     dirs = random_unit(rng, 300)
     d = float(np.linalg.norm(c2 - c1))
-    if d > 0.0:  # the extreme points along the centre line
-        u = (c2 - c1) / d
+    if d > 0.0:  # the extreme points along the centre line (a unit vector even when the
+        u = (c2 - c1) / d  # centres are subnormally close: dividing by d alone is off there)
+        u = u / np.linalg.norm(u)
         dirs = np.concatenate([dirs, u[None], -u[None]])
     for c, r in ((c1, r1), (c2, r2)):
         surface = c + r * dirs
