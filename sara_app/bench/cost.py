@@ -23,7 +23,6 @@ from __future__ import annotations
 import gc
 import json
 import os
-import sys
 import tempfile
 import threading
 import time
@@ -206,31 +205,14 @@ def _run(path: str, plan: Any, seconds: float, load: LoadCost) -> None:
     """One fresh cell on ``path`` as serve starts it (CPUs per ``plan``), measured into
     ``load``."""
     from sara_app.ops.supervisor import stop_processes
-    from sara_app.processes.serve import (
-        CONTROLLER,
-        REPLAYER,
-        REPLAYER_NICE,
-        ROUTER,
-        WORKER,
-        WORKER_RT_PRIORITY,
-        connect_when_listening,
-        spawn_cell_process,
-        start_process,
-    )
+    from sara_app.processes.serve import connect_when_listening, start_cell, start_router
 
-    rt = WORKER_RT_PRIORITY
-    mine, rest = (None, None) if plan is None else (plan.worker(0), plan.rest)
     port, cell = free_port(), "benchlive"
-    router = start_process([sys.executable, "-m", ROUTER, "--port", str(port),
-                            "--rt-priority", str(rt)], cpus=rest)  # fmt: skip
+    router = start_router(port, None if plan is None else plan.rest)
     procs = [router]
     try:
         with connect_when_listening(port, router) as hub:
-            procs += [
-                spawn_cell_process(CONTROLLER, cell, path, port, 0, rt, (), rest),
-                spawn_cell_process(WORKER, cell, path, port, 0, rt, (), mine),
-                spawn_cell_process(REPLAYER, cell, path, port, REPLAYER_NICE, 0, (), rest),
-            ]
+            procs += start_cell(cell, path, port, plan)
             _wait_running(hub, cell)
             time.sleep(2.0)  # the replayer's people in, the robot moving
             pids = dict(zip(PROCESSES, (p.pid for p in procs), strict=True))

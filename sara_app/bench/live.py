@@ -21,7 +21,6 @@ import contextlib
 import os
 import shutil
 import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -210,12 +209,9 @@ def bench_view_load(
     from sara_app.ops.supervisor import stop_processes
     from sara_app.processes.serve import (
         DISPLAY_NICE,
-        REPLAYER_NICE,
-        ROUTER,
-        WORKER_RT_PRIORITY,
         connect_when_listening,
-        spawn_cell_process,
-        start_process,
+        start_cell,
+        start_router,
     )
     from sara_app.scenario import load_scenario
 
@@ -225,21 +221,10 @@ def bench_view_load(
     phases: dict[object, list[np.ndarray]] = {"off": [], DISPLAY_NICE: [], 0: []}
     delivered: dict[object, list[np.ndarray | None]] = {k: [] for k in phases}
     order: list[object] = ["off", DISPLAY_NICE, 0]
-    router = start_process(  # as serve runs it: a process of its own, real-time
-        [sys.executable, "-m", ROUTER, "--port", str(port), "--rt-priority",
-         str(WORKER_RT_PRIORITY)]
-    )  # fmt: skip
+    router = start_router(port)  # as serve runs it: a process of its own, real-time
     with connect_when_listening(port, router) as hub:
-        procs = [  # as serve runs them: the controller follows the worker's commands
-            router,
-            spawn_cell_process(
-                "sara_app.peers.controller", cell, scenario, port, rt_priority=WORKER_RT_PRIORITY
-            ),
-            spawn_cell_process(
-                "sara_app.runtime.worker", cell, scenario, port, rt_priority=WORKER_RT_PRIORITY
-            ),
-            spawn_cell_process("sara_app.peers.replayer", cell, scenario, port, nice=REPLAYER_NICE),
-        ]
+        # as serve runs them: the controller follows the worker's commands
+        procs = [router, *start_cell(cell, scenario, port)]
         try:
             _collect(hub, cell, 3.0)  # start-up
             for r in range(rounds):

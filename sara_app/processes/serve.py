@@ -45,7 +45,7 @@ from sara_app.errors import ParameterError, SaraError
 from sara_app.ops.audit import default_data_dir
 from sara_app.ops.health import HealthLog
 from sara_app.ops.supervisor import Child, Supervisor
-from sara_app.processes.affinity import cpu_plan, pin_threads, pinned
+from sara_app.processes.affinity import CpuPlan, cpu_plan, pin_threads, pinned
 from sara_app.processes.defaults import API_PORT, DEFAULT_SCENARIO, VIEWER_PORT, ZENOH_PORT
 from sara_app.scenario import load_scenario, scenarios_dir
 
@@ -118,6 +118,29 @@ def spawn_cell_process(
         *extra,
     ]
     return start_process(cmd, nice, cpus)
+
+
+def start_router(port: int, cpus: frozenset[int] | None = None) -> subprocess.Popen[bytes]:
+    """A router on ``port`` as serve runs it (a process of its own, real-time where permitted),
+    without access control: the benchmarks' bus."""
+    cmd = [sys.executable, "-m", ROUTER, "--port", str(port), "--rt-priority",
+           str(WORKER_RT_PRIORITY)]  # fmt: skip
+    return start_process(cmd, cpus=cpus)
+
+
+def start_cell(
+    cell: str, scenario: str, port: int, plan: CpuPlan | None = None
+) -> list[subprocess.Popen[bytes]]:
+    """The reference controller, the worker and the replayer of one cell as serve runs them
+    (their priorities; their CPUs per ``plan``, the first worker's), unsupervised and without
+    bus logins: the benchmarks' cell. In that order."""
+    rt = WORKER_RT_PRIORITY
+    mine, rest = (None, None) if plan is None else (plan.worker(0), plan.rest)
+    return [
+        spawn_cell_process(CONTROLLER, cell, scenario, port, 0, rt, (), rest),
+        spawn_cell_process(WORKER, cell, scenario, port, 0, rt, (), mine),
+        spawn_cell_process(REPLAYER, cell, scenario, port, REPLAYER_NICE, 0, (), rest),
+    ]
 
 
 def serve(
