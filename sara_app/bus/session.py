@@ -144,13 +144,13 @@ class Subscription:
         self.key_expr = key_expr
         self.decoder = decoder
         self._ring: deque[tuple[str, bytes]] | None = None
-        # a raw lock as a binary semaphore, held while nothing is queued: released by the
-        # callback, taken by wait() (cheaper than an Event's condition on both sides)
-        self._empty = threading.Lock()
-        self._empty.acquire()
+        self._empty: threading.Lock | None = None
         if wakeup:
             ring = self._ring = deque(maxlen=int(capacity))
-            empty = self._empty
+            # a raw lock as a binary semaphore, held while nothing is queued: released by the
+            # callback, taken by wait() (cheaper than an Event's condition on both sides)
+            empty = self._empty = threading.Lock()
+            empty.acquire()
 
             def queued(sample: Any) -> None:
                 ring.append((str(sample.key_expr), sample.payload.to_bytes()))
@@ -170,7 +170,7 @@ class Subscription:
     def wait(self, timeout_s: float) -> bool:
         """Sleep until a sample is queued (``wakeup`` subscriptions) or ``timeout_s`` passed;
         whether one is queued."""
-        if self._ring is None:
+        if self._ring is None or self._empty is None:
             raise BusError(f"subscription {self.key_expr} was not made with wakeup=True")
         if not self._ring:
             self._empty.acquire(timeout=max(timeout_s, 0.0))
