@@ -64,6 +64,8 @@ def test_two_browsers_keep_their_own_view_settings(dash: Dashboard) -> None:
     assert views is not None
     with chromium_on(str(dash.url)) as one, chromium_on(str(dash.url)) as two:
         wait_for(lambda: dash.client_count() == 2, 60.0, "both browsers to connect")
+        # each browser's view settings are made in viser's connect callback, after it counts
+        wait_for(lambda: len(views._browsers) == 2, 60.0, "both browsers' view settings")  # noqa: SLF001
         ids = sorted(views._browsers)  # noqa: SLF001 - which settings belong to whom is tested
         wait_for(lambda: one.eval(_CHECKBOX.format(LABEL["robot"]) + " !== null"), 60.0,
                  "the view folder in browser one")  # fmt: skip
