@@ -58,3 +58,29 @@ def test_no_cached_function_calls_kernels_of_other_files() -> None:
                 offenders.append(f"{path.relative_to(ROOT)}:{fn.name} calls {bad}")
     assert checked > 50  # the check reads the kernel modules
     assert not offenders, offenders
+
+
+def test_entry_is_the_one_signatures_compiled_code() -> None:
+    """kernel_types.entry: the same result as the dispatcher; refused without exactly one
+    explicit signature (the entry point would be ambiguous)."""
+    import numpy as np
+    import pytest
+    from numba import njit
+
+    from sara_app.kernel_types import RO1, W1, entry, types
+
+    @njit(types.void(RO1, W1))
+    def double(a, out):  # type: ignore[no-untyped-def]
+        for i in range(a.shape[0]):
+            out[i] = 2.0 * a[i]
+
+    a, out = np.arange(4.0), np.zeros(4)
+    entry(double)(a, out)
+    np.testing.assert_array_equal(out, 2.0 * a)
+
+    @njit
+    def lazy(x):  # type: ignore[no-untyped-def]
+        return x
+
+    with pytest.raises(TypeError, match="one explicit signature"):
+        entry(lazy)

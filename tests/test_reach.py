@@ -247,3 +247,50 @@ def test_parameter_sets_are_complete_by_name() -> None:
         parse_param_set(data)
     with pytest.raises(UnknownNameError, match="schepp2022_table1"):
         load_param_set("no_such_set")
+
+
+def test_models_give_the_same_sets_whatever_the_input_and_parameter_dtypes() -> None:
+    """The model methods call their compiled code without numba's dispatch (kernel_types.entry),
+    which would read an int64 or float32 array as if it were float64: every input dtype and
+    layout, and parameters given as integers, must give the float64 result."""
+    import dataclasses
+
+    reach = _reach("full")
+    rng = np.random.default_rng(3)
+    y = np.round(_pose(rng, "full", 2) * 10)  # integral values: exact in every dtype below
+    v = np.round(rng.normal(size=y.shape) * 2)
+    dv = np.full(y.shape[:2], 1.0)
+    ts, te = np.array([0.0, 1.0]), np.array([1.0, 2.0])
+
+    def sets(y, v, dv, ts, te):  # type: ignore[no-untyped-def]
+        """Every model's arrays, from the methods the hot paths call (no input checks)."""
+        out = [reach.pos(y, te), reach.vel(y, te), reach.iso13855(y, te)]
+        out += [reach.acc(y, v, dv, ts, te), reach.combined(y, v, dv, ts, te)]
+        return [(o.model, o.ends.copy(), o.radius.copy()) for o in out]
+
+    ref = sets(y, v, dv, ts, te)
+    variants = [
+        lambda a: a.astype(np.int64),
+        lambda a: a.astype(np.float32),
+        lambda a: a.astype(">f8"),
+        lambda a: np.asfortranarray(a),
+        lambda a: a.tolist(),
+    ]
+    for make in variants:
+        got = sets(*(make(a) for a in (y, v, dv, ts, te)))
+        for (m, ends, radius), (_, want_ends, want_radius) in zip(got, ref):
+            np.testing.assert_array_equal(ends, want_ends, err_msg=m)
+            np.testing.assert_array_equal(radius, want_radius, err_msg=m)
+    p = reach.params
+    as_int = dataclasses.replace(
+        p, v_max_mps=np.ceil(p.v_max_mps).astype(np.int64),
+        a_max_mps2=np.ceil(p.a_max_mps2).astype(np.int64),
+    )  # fmt: skip
+    as_float = dataclasses.replace(
+        p, v_max_mps=np.ceil(p.v_max_mps), a_max_mps2=np.ceil(p.a_max_mps2)
+    )
+    r_int, r_float = HumanReach(as_int), HumanReach(as_float)
+    for m in ("pos", "vel", "acc", "combined"):
+        a, b = r_int.model(m, y, v, dv, ts, te), r_float.model(m, y, v, dv, ts, te)
+        np.testing.assert_array_equal(a.radius, b.radius, err_msg=m)
+        np.testing.assert_array_equal(a.ends, b.ends, err_msg=m)

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 
-@dataclass
+@dataclass(frozen=True)
 class Occupancy:
     """Capsules of one model: ``ends (H, K, C, 2, 3)``, ``radius (H, K, C)``, names ``(C,)``.
 

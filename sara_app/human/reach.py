@@ -27,6 +27,20 @@ from sara_app.human.occupancy import Occupancy
 from sara_app.human.params import ReachParams
 from sara_app.human.reach_kernels import acc_sets, combined_sets, pos_sets, static_sets
 from sara_app.human.skeleton import skeleton
+from sara_app.kernel_types import entry
+
+_FLOAT64 = np.dtype(np.float64)
+# The model methods check their inputs' dtypes and shapes, then call the compiled code directly
+# (kernel_types.entry: no per-call dispatch).
+_STATIC_SETS, _ACC_SETS, _COMBINED_SETS, _POS_SETS = (
+    entry(k) for k in (static_sets, acc_sets, combined_sets, pos_sets)
+)
+
+
+def _float64(a: np.ndarray) -> np.ndarray:
+    """``a`` as a float64 array, the same object when it is one already (the models' per-call
+    cost is mostly such Python glue: Schepp et al.'s C++ computes all three sets in 3 us)."""
+    return a if type(a) is np.ndarray and a.dtype is _FLOAT64 else np.asarray(a, np.float64)
 
 
 def check_intervals(t_start_s: np.ndarray, t_end_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -79,7 +93,8 @@ class HumanReach:
         self.part_names = sk.parts
         self.coverage = {m: self._coverage(m) for m in MODELS}
         self._tables()
-        self._buffers: dict[tuple[str, tuple[int, ...]], np.ndarray] = {}
+        # (model, H, K) -> the Occupancy a buffered model method returns and its two buffers
+        self._outputs: dict[tuple[str, int, int], tuple[Occupancy, np.ndarray, np.ndarray]] = {}
 
     def _tables(self) -> None:
         """Per-capsule coefficients and int64 index tables of the compiled model kernels
@@ -118,23 +133,44 @@ class HumanReach:
         self.pos_rbase = np.concatenate([self.pos_base, self.vel_base[self.limb_pos_parts]])
         self.pos_rspeed = np.concatenate([self.pos_speed, self.vel_speed[self.limb_pos_parts]])
         self.n_limbs = len(sk.limb_chains)
+        self.half_th = p.half_thickness_m
+        # The kernels are called without dispatch (kernel_types.entry): their constants must be
+        # exactly the signatures' dtypes, whatever types the parameters came in.
+        for name in ("vel_base", "vel_speed", "iso_base", "iso_speed", "a_half", "a_max",
+                     "v_max", "pos_rspeed", "pos_rbase", "half_th"):  # fmt: skip
+            setattr(self, name, np.ascontiguousarray(getattr(self, name), dtype=np.float64))
 
-    def _buf(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
-        """A per-instance buffer, allocated once per shape (the hot path allocates nothing)."""
-        key = (name, shape)
-        b = self._buffers.get(key)
-        if b is None:
-            b = self._buffers[key] = np.empty(shape)
-        return b
+    def _output(self, name: str, H: int, K: int) -> tuple[Occupancy, np.ndarray, np.ndarray]:
+        """``(occupancy, ends, radius)``: model ``name``'s buffers for ``H`` people and ``K``
+        intervals, allocated once per shape (the hot path allocates nothing), and the
+        Occupancy of views into them that the model method returns (the same object every call:
+        its arrays are rewritten in place)."""
+        key = (name, H, K)
+        out = self._outputs.get(key)
+        if out is None:
+            out = self._outputs[key] = self._new_output(name, H, K)
+        return out
+
+    def _new_output(self, name: str, H: int, K: int) -> tuple[Occupancy, np.ndarray, np.ndarray]:
+        P = self.skeleton.n_parts
+        if name in ("vel", "iso13855"):  # ends at the measured pose, radius the same per human
+            ends, radius = np.empty((H, P, 2, 3)), np.empty((K, P))
+            return Occupancy(name, ends[:, None], radius[None], self.part_names), ends, radius
+        if name == "pos":  # limb balls at the root joints
+            C = self.pos_ends.shape[0]
+            ends, radius = np.empty((H, C, 2, 3)), np.empty((H, K, C))
+            return Occupancy(name, ends[:, None], radius, self.pos_names), ends, radius
+        ends, radius = np.empty((H, K, P, 2, 3)), np.empty((H, K, P))  # acc, combined
+        return Occupancy(name, ends, radius, self.part_names), ends, radius
 
     def _arrays(self, y: np.ndarray, t_end_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``y (H, J, 3)`` and ``t_end_s (K,)`` as float64; a shape the compiled kernels cannot
         index raises :class:`InputError` (values are the callers' to check, see ``model``)."""
-        y = np.asarray(y, dtype=np.float64)
-        t_end_s = np.asarray(t_end_s, dtype=np.float64)
-        if y.ndim != 3 or y.shape[1:] != (self.skeleton.n_joints, 3) or t_end_s.ndim != 1:
+        y, t_end_s = _float64(y), _float64(t_end_s)
+        ys = y.shape
+        if len(ys) != 3 or ys[1] != self.skeleton.n_joints or ys[2] != 3 or t_end_s.ndim != 1:
             raise InputError(
-                f"joint positions {y.shape} and interval ends {t_end_s.shape}; expected (H, "
+                f"joint positions {ys} and interval ends {t_end_s.shape}; expected (H, "
                 f"{self.skeleton.n_joints}, 3) and (K,)"
             )
         return y, t_end_s
@@ -203,8 +239,15 @@ class HumanReach:
         """The inputs of the velocity-based models as float64, shapes checked (see
         :meth:`_arrays`)."""
         y, t_end_s = self._arrays(y, t_end_s)
-        v, dv, t_start_s = (np.asarray(a, dtype=np.float64) for a in (v, dv, t_start_s))
-        if v.shape != y.shape or dv.shape != y.shape[:2] or t_start_s.shape != t_end_s.shape:
+        v, dv, t_start_s = _float64(v), _float64(dv), _float64(t_start_s)
+        ys, ds = y.shape, dv.shape
+        if (
+            v.shape != ys
+            or len(ds) != 2
+            or ds[0] != ys[0]
+            or ds[1] != ys[1]
+            or (t_start_s.shape != t_end_s.shape)
+        ):
             raise InputError(
                 f"v {v.shape}, dv {dv.shape}, t_start_s {t_start_s.shape}; expected {y.shape}, "
                 f"{y.shape[:2]} and {t_end_s.shape}"
@@ -249,11 +292,9 @@ class HumanReach:
         """Capsules at the measured pose whose radius grows linearly: base + speed * tau, tau =
         t_end + delay."""
         y, t_end_s = self._arrays(y, t_end_s)
-        H, K, P = y.shape[0], t_end_s.shape[0], self.skeleton.n_parts
-        ends = self._buf(name + "e", (H, P, 2, 3))
-        radius = self._buf(name + "r", (K, P))
-        static_sets(y, self.part_joints, t_end_s, self.params.delay_s, base, speed, ends, radius)
-        return Occupancy(name, ends[:, None], radius[None], self.part_names)
+        occ, ends, radius = self._output(name, y.shape[0], t_end_s.shape[0])
+        _STATIC_SETS(y, self.part_joints, t_end_s, self.params.delay_s, base, speed, ends, radius)
+        return occ
 
     def acc(
         self,
@@ -275,14 +316,12 @@ class HumanReach:
         """
         p = self.params
         y, v, dv, t_start_s, t_end_s = self._moving(y, v, dv, t_start_s, t_end_s)
-        H, K, P = y.shape[0], t_end_s.shape[0], self.skeleton.n_parts
-        ends = self._buf("acc_e", (H, K, P, 2, 3))
-        radius = self._buf("acc_r", (H, K, P))
-        acc_sets(
+        occ, ends, radius = self._output("acc", y.shape[0], t_end_s.shape[0])
+        _ACC_SETS(
             y, v, dv, t_start_s, t_end_s, p.delay_s, self.a_half, p.delta_y_m,
-            p.half_thickness_m, self.acc_ia, self.acc_ib, self.acc_ends, ends, radius,
+            self.half_th, self.acc_ia, self.acc_ib, self.acc_ends, ends, radius,
         )  # fmt: skip
-        return Occupancy("acc", ends, radius, self.part_names)
+        return occ
 
     def combined(
         self,
@@ -301,14 +340,12 @@ class HumanReach:
         a_max and its speed below v_max, and ``dv`` bounds the velocity error."""
         p = self.params
         y, v, dv, t_start_s, t_end_s = self._moving(y, v, dv, t_start_s, t_end_s)
-        H, K, P = y.shape[0], t_end_s.shape[0], self.skeleton.n_parts
-        ends = self._buf("combined_e", (H, K, P, 2, 3))
-        radius = self._buf("combined_r", (H, K, P))
-        combined_sets(
+        occ, ends, radius = self._output("combined", y.shape[0], t_end_s.shape[0])
+        _COMBINED_SETS(
             y, v, dv, t_start_s, t_end_s, p.delay_s, self.a_max, self.v_max, p.delta_y_m,
-            p.half_thickness_m, self.acc_ia, self.acc_ib, self.acc_ends, ends, radius,
+            self.half_th, self.acc_ia, self.acc_ib, self.acc_ends, ends, radius,
         )  # fmt: skip
-        return Occupancy("combined", ends, radius, self.part_names)
+        return occ
 
     def pos(self, y: np.ndarray, t_end_s: np.ndarray) -> Occupancy:
         """R_POS: per limb a ball at its root joint (shoulder or hip) of radius
@@ -320,15 +357,13 @@ class HumanReach:
         lengths are rigid.
         """
         y, t_end_s = self._arrays(y, t_end_s)
-        H, K, C = y.shape[0], t_end_s.shape[0], self.pos_ends.shape[0]
-        radius = self._buf("pos_r", (H, K, C))
-        ends = self._buf("pos_e", (H, C, 2, 3))
-        pos_sets(
+        occ, ends, radius = self._output("pos", y.shape[0], t_end_s.shape[0])
+        _POS_SETS(
             y, self.pos_seg_a, self.pos_seg_b, self.pos_seg_limb, self.pos_ends, t_end_s,
             self.params.delay_s,
             self.pos_rspeed, self.pos_rbase, self.n_limbs, ends, radius,
         )  # fmt: skip
-        return Occupancy("pos", ends[:, None], radius, self.pos_names)
+        return occ
 
     def model(
         self,
