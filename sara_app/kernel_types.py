@@ -21,6 +21,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 from numba import types
 
 F8, I8, I1, B1, IP = types.float64, types.int64, types.int8, types.boolean, types.intp
@@ -53,3 +54,12 @@ def entry(kernel: Any) -> Callable[..., Any]:
     if len(kernel.signatures) != 1:
         raise TypeError(f"{kernel!r} must have exactly one explicit signature")
     return kernel.overloads[kernel.signatures[0]].entry_point  # type: ignore[no-any-return]
+
+
+_FLOAT64 = np.dtype(np.float64)
+
+
+def as_f8(a: Any) -> np.ndarray:
+    """``a`` as a float64 array: the same object when it is one already (``np.asarray`` with a
+    dtype costs a few hundred ns even then; the compiled kernels' wrappers call this per input)."""
+    return a if type(a) is np.ndarray and a.dtype is _FLOAT64 else np.asarray(a, np.float64)

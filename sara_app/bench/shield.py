@@ -7,7 +7,8 @@ person standing 1.1 m from the base facing it, measured 10 ms ago, velocity 0 wi
 error bound; default :class:`ShieldSettings` (dt 4 ms, intervals at most 20 ms, models POS, VEL,
 ACC). The interval count ``K`` is one intended step plus ``ceil(stop duration / 20 ms)`` failsafe
 intervals; the note of the first row reports ``K`` and the stop duration. Every timed call
-restarts from the same follower state (a shallow copy), so the robot does not drift.
+restarts from the same follower state (a shallow copy), so the robot does not drift; the measured
+robot state passed in is computed once, outside the timed call (the cell receives it).
 """
 
 from __future__ import annotations
@@ -55,9 +56,11 @@ def bench_rows(n: int = 2000) -> list[Row]:
     s = shield.settings
     h = humans[0]
 
+    measured = base.state  # the robot state as the cell receives it (not part of the cycle)
+
     def cycle(want: bool = False) -> CycleResult:
         shield.follower = base.copy()
-        return shield.cycle(t, humans, shield.follower.state, want_distance=want)
+        return shield.cycle(t, humans, measured, want_distance=want)
 
     res = cycle()
     traj = shielded_trajectory(base, s.dt_s, max_interval_s=s.max_interval_s)

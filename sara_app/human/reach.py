@@ -27,20 +27,14 @@ from sara_app.human.occupancy import Occupancy
 from sara_app.human.params import ReachParams
 from sara_app.human.reach_kernels import acc_sets, combined_sets, pos_sets, static_sets
 from sara_app.human.skeleton import skeleton
-from sara_app.kernel_types import entry
+from sara_app.kernel_types import as_f8, entry
 
-_FLOAT64 = np.dtype(np.float64)
 # The model methods check their inputs' dtypes and shapes, then call the compiled code directly
-# (kernel_types.entry: no per-call dispatch).
+# (kernel_types.entry: no per-call dispatch; a one-person set costs mostly such Python glue:
+# Schepp et al.'s C++ computes all three sets in 3 us).
 _STATIC_SETS, _ACC_SETS, _COMBINED_SETS, _POS_SETS = (
     entry(k) for k in (static_sets, acc_sets, combined_sets, pos_sets)
 )
-
-
-def _float64(a: np.ndarray) -> np.ndarray:
-    """``a`` as a float64 array, the same object when it is one already (the models' per-call
-    cost is mostly such Python glue: Schepp et al.'s C++ computes all three sets in 3 us)."""
-    return a if type(a) is np.ndarray and a.dtype is _FLOAT64 else np.asarray(a, np.float64)
 
 
 def check_intervals(t_start_s: np.ndarray, t_end_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -166,7 +160,7 @@ class HumanReach:
     def _arrays(self, y: np.ndarray, t_end_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``y (H, J, 3)`` and ``t_end_s (K,)`` as float64; a shape the compiled kernels cannot
         index raises :class:`InputError` (values are the callers' to check, see ``model``)."""
-        y, t_end_s = _float64(y), _float64(t_end_s)
+        y, t_end_s = as_f8(y), as_f8(t_end_s)
         ys = y.shape
         if len(ys) != 3 or ys[1] != self.skeleton.n_joints or ys[2] != 3 or t_end_s.ndim != 1:
             raise InputError(
@@ -239,7 +233,7 @@ class HumanReach:
         """The inputs of the velocity-based models as float64, shapes checked (see
         :meth:`_arrays`)."""
         y, t_end_s = self._arrays(y, t_end_s)
-        v, dv, t_start_s = _float64(v), _float64(dv), _float64(t_start_s)
+        v, dv, t_start_s = as_f8(v), as_f8(dv), as_f8(t_start_s)
         ys, ds = y.shape, dv.shape
         if (
             v.shape != ys

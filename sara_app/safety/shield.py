@@ -422,9 +422,12 @@ class Shield:
         out.ssm = res
         out.speed_scale = self._scale
         out.intervened = out.intervened or self._scale < 1.0
-        for m, name in enumerate(self.verifier.models):
-            if res.evaluated[:, m].all():
-                out.model_free[name] = bool(res.free[:, m].all())
+        # per model, over people and intervals
+        evaluated = np.logical_and.reduce(res.evaluated, axis=(0, 2)).tolist()
+        free = np.logical_and.reduce(res.free, axis=(0, 2)).tolist()
+        for name, ev, fr in zip(self.verifier.models, evaluated, free):
+            if ev:
+                out.model_free[name] = fr
 
     def min_distance(self, q: np.ndarray, ys: list[np.ndarray]) -> float:
         """Smallest surface distance between the robot's link capsules at ``q`` and the measured

@@ -25,6 +25,7 @@ from sara_app.errors import InputError, UnknownNameError
 from sara_app.geometry.shape_kernels import pair_distances
 from sara_app.human.reach import MODELS, HumanReach, part_capsules
 from sara_app.human.reach_kernels import KINDS
+from sara_app.kernel_types import as_f8
 from sara_app.safety.ssm_kernels import KIND_ARM, ssm_kernel
 
 _CODES = {**KINDS, "arm": KIND_ARM}
@@ -126,9 +127,9 @@ class SsmVerifier:
         a capsule grows by the largest of the parts it contains); other shapes raise
         :class:`InputError`."""
         y, v, dv, age_s, times_s, robot_ends, robot_radius = (
-            np.asarray(a, dtype=np.float64)
-            for a in (y, v, dv, age_s, times_s, robot_ends, robot_radius)
-        )
+            as_f8(y), as_f8(v), as_f8(dv), as_f8(age_s), as_f8(times_s), as_f8(robot_ends),
+            as_f8(robot_radius),
+        )  # fmt: skip
         H, M, K = y.shape[0], len(self.models), robot_ends.shape[0]
         P = self.reach.skeleton.n_parts
         L = robot_ends.shape[1] if robot_ends.ndim == 4 else -1
