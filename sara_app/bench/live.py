@@ -33,6 +33,7 @@ import numpy as np
 from sara_app.bus import keys
 from sara_app.bus.messages import ControllerStatusMsg, VerdictMsg
 from sara_app.bus.session import Bus, free_port
+from sara_app.processes.affinity import CpuPlan, cpu_plan, pin_threads
 
 CHROMIUM_FLAGS = (
     "--headless",
@@ -171,8 +172,12 @@ class _Display(threading.Thread):
 
 
 @contextmanager
-def _view(hub: Bus, cell: str, scenario: str, browser: str | None, nice: int) -> Iterator[str]:
-    """The dashboard (at ``nice``) and a headless browser on it (at ``nice`` too)."""
+def _view(
+    hub: Bus, cell: str, scenario: str, browser: str | None, nice: int,
+    browser_cpus: frozenset[int] | None = None,
+) -> Iterator[str]:  # fmt: skip
+    """The dashboard (at ``nice``) and a headless browser on it (at ``nice`` too, on
+    ``browser_cpus`` when given: a user's browser is not confined to the display side's CPUs)."""
     from sara_app.processes.serve import start_process
 
     display = _Display(hub, cell, scenario, nice)
@@ -185,7 +190,9 @@ def _view(hub: Bus, cell: str, scenario: str, browser: str | None, nice: int) ->
             raise RuntimeError("the dashboard did not start")
         if browser:
             cmd = [browser, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", display.url]
-            proc = start_process(cmd, nice, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            proc = start_process(
+                cmd, nice, browser_cpus, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+            )
         time.sleep(3.0)  # page load and first render before measuring
         yield display.url
     finally:
@@ -202,10 +209,26 @@ def _stats(a: np.ndarray) -> tuple[float, float]:
 
 
 def bench_view_load(
-    scenario: str = "punches", phase_s: float = 6.0, rounds: int = 2
+    scenario: str = "punches", phase_s: float = 6.0, rounds: int = 2, pin_cpus: bool = True
 ) -> list[tuple[str, float, float, str]]:
     """Rows: worker cycle time without a view, with the dashboard + browser at lowered priority
-    (as ``serve`` runs them) and at the worker's own priority, and the ratios to no view."""
+    (as ``serve`` runs them) and at the worker's own priority, and the ratios to no view.
+    ``pin_cpus``: the cell's processes and the display side on serve's CPUs (the worker on one
+    of its own), the browser on every CPU."""
+    plan = cpu_plan(1) if pin_cpus else None
+    every_cpu = frozenset(os.sched_getaffinity(0))
+    if plan is not None:  # this process is the display side
+        pin_threads(os.getpid(), plan.rest)
+    try:
+        return _view_rows(scenario, phase_s, rounds, plan, every_cpu)
+    finally:
+        if plan is not None:
+            pin_threads(os.getpid(), every_cpu)
+
+
+def _view_rows(
+    scenario: str, phase_s: float, rounds: int, plan: CpuPlan | None, every_cpu: frozenset[int]
+) -> list[tuple[str, float, float, str]]:
     from sara_app.ops.supervisor import stop_processes
     from sara_app.processes.serve import (
         DISPLAY_NICE,
@@ -221,18 +244,20 @@ def bench_view_load(
     phases: dict[object, list[np.ndarray]] = {"off": [], DISPLAY_NICE: [], 0: []}
     delivered: dict[object, list[np.ndarray | None]] = {k: [] for k in phases}
     order: list[object] = ["off", DISPLAY_NICE, 0]
-    router = start_router(port)  # as serve runs it: a process of its own, real-time
+    # as serve runs them: the router a process of its own, real-time; the controller follows
+    # the worker's commands
+    router = start_router(port, None if plan is None else plan.rest)
     with connect_when_listening(port, router) as hub:
-        # as serve runs them: the controller follows the worker's commands
-        procs = [router, *start_cell(cell, scenario, port)]
+        procs = [router, *start_cell(cell, scenario, port, plan)]
         try:
             _collect(hub, cell, 3.0)  # start-up
             for r in range(rounds):
                 for kind in order[r % 3 :] + order[: r % 3]:  # rotate: no phase always first
                     with contextlib.ExitStack() as stack:
                         if kind != "off":
+                            nice = int(cast(int, kind))
                             stack.enter_context(
-                                _view(hub, cell, scenario, browser, int(cast(int, kind)))
+                                _view(hub, cell, scenario, browser, nice, every_cpu)
                             )
                         before = _controller_status(hub, cell)
                         phases[kind].append(_collect(hub, cell, phase_s))

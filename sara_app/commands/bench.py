@@ -28,7 +28,7 @@ def _bench(args: argparse.Namespace) -> None:
     if args.view:
         from sara_app.bench.live import bench_view_load
 
-        bench.print_rows(bench_view_load(args.scenario, args.phase_s, args.rounds))
+        bench.print_rows(bench_view_load(args.scenario, args.phase_s, args.rounds, args.pin_cpus))
         return
     bench.run(args.n)
 
@@ -62,7 +62,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--seconds", type=float, default=10.0, help="seconds per --live phase")
     b.add_argument("--runs", type=int, default=3, help="runs per --live load")
     b.add_argument("--pin-cpus", action=argparse.BooleanOptionalAction, default=True,
-                   help="--live: the worker on a CPU of its own, as serve does")  # fmt: skip
+                   help="--live, --view: CPUs as serve places them")  # fmt: skip
     b.add_argument("--rate", type=float, default=120.0, help="skeletons per second of --cells")
     b.add_argument("--clients", type=int, default=50, help="event streams of --sse")
     b.add_argument("--scenario", default="punches", help="scenario of --view and --live")
