@@ -208,3 +208,29 @@ def test_ssm_speed_scaling_finishes_close_worker_sooner_than_braking() -> None:
     assert scaled.time_to_goal_s < 0.9 * braking.time_to_goal_s
     assert scaled.collisions_moving == 0 and braking.collisions_moving == 0
     assert scaled.speed_scale_mean < 1.0 == braking.speed_scale_mean
+
+
+def test_pfl_is_at_least_as_productive_as_ssm_at_the_bench_edge() -> None:
+    """Whatever SSM verifies (no possible contact) PFL verifies too, so PFL's speed scaling must
+    not leave the robot slower than SSM's where SSM gets through: tracking_glitches (a box pick
+    at the bench edge beside a person, glitching tracker). With the cap held below the margins'
+    speed (hysteresis 1.25) PFL crept at 5-10 % of its speed and took 11.1 s (SSM 7.9 s)."""
+    sc = load_scenario("tracking_glitches")
+    ssm, pfl = run_mode(sc, "ssm").metrics, run_mode(sc, "pfl").metrics
+    assert ssm is not None and pfl is not None and ssm.time_to_goal_s is not None
+    assert pfl.time_to_goal_s is not None and pfl.time_to_goal_s <= ssm.time_to_goal_s
+    assert pfl.harmful_contacts == 0 and ssm.collisions_moving == 0
+
+
+def test_a_verified_cap_rises_to_the_speed_its_margins_allow() -> None:
+    """After a verified cycle whose contacts allow 1.1x the cap, the next cycle's cap is that
+    speed (not held: a cap held below what the margins allow never rises while they bind)."""
+    sim = Simulation(with_mode(load_scenario("close_worker"), "pfl"))
+    shield = sim.shield
+    shield.cap, shield._calm = 0.5, 0  # type: ignore[attr-defined]
+    shield._after_success(0.5, math.inf, 0.55)  # type: ignore[attr-defined]
+    assert shield.cap == pytest.approx(0.55)  # type: ignore[attr-defined]
+    shield._after_success(0.55, math.inf, 0.5)  # type: ignore[attr-defined]
+    assert shield.cap == pytest.approx(0.55)  # type: ignore[attr-defined]  # never lowered here
+    shield._after_success(0.55, 0.6, 0.9)  # type: ignore[attr-defined]
+    assert shield.cap == math.inf  # type: ignore[attr-defined]  # above the path's top: no cap

@@ -12,20 +12,28 @@ none verifies, the robot brakes along the held failsafe (base class) and the can
 as the cap for the next cycle. Interval 0 starts at the current state: an entry already too
 fast there cannot be fixed by a slower plan, so no replan is tried. After a verified cycle the
 cap rises again: at once when no contact was possible at all, else to the speed the margins
-allow (``s' sqrt(T / E)`` over the possible contacts, divided by ``hysteresis``) when that is at
-least ``hysteresis`` times the cap (so a cap that just verified near its limit stays put), by at
-most ``raise_factor`` per cycle and only ``hold_cycles`` verified cycles after a failure. The
-cap never goes below ``min_speed_scale`` times the admissible speed at the robot's position:
-there the shield brakes instead. Nobody in the cell: no cap. A robot at rest has no energy and
-always verifies (Thumm et al. 2024: a robot at rest cannot hurt), consistent with the SSM shield.
+allow (``s' sqrt(T / E)`` over the possible contacts, divided by ``hysteresis``) when that is
+at least ``hysteresis`` times the cap, by at most ``raise_factor`` per cycle and only
+``hold_cycles`` verified cycles after a failure. The cap never goes below ``min_speed_scale``
+times the admissible speed at the robot's position: there the shield brakes instead. Nobody in
+the cell: no cap. A robot at rest has no energy and always verifies (Thumm et al. 2024: a robot
+at rest cannot hurt), consistent with the SSM shield.
 
 Defaults, measured in closed loop (``sara-app pfl throughput``): a quick rise (no hold, no rate
 limit) keeps PFL at least as fast as SSM, because whatever SSM verifies (no possible contact) PFL
 verifies too; a slow rise (x1.25 per cycle after 10 quiet cycles) left the robot creeping after
 the person had moved out of reach (standing_beside_path: 3.67 s, against 3.19 s for SSM and for
-these defaults). The price is about 0.4 replans per cycle while a person is near (at most
-``1 + max_replans`` = 2 checks per cycle, and at most ``max_models`` = 4 model evaluations over
-them: the worst cycle is bounded, a cycle that runs out brakes as after a failed check).
+these defaults). A hysteresis above 1 (1.25 until 2026-11-28) keeps a cap that verified near its
+limit where it is, and so for good in ``[allowed / 1.25, allowed)`` where clamping classes bind:
+in the bench cells the robot crept at 5-10 % of its speed. Times to goal in PFL, hysteresis
+1.25 -> 1.0 (2026-11-28, at most 2.5x each scenario's duration): punches never -> 16.31 s (SSM
+16.32 s), bench_worker 27.56 -> 18.06 s, tracking_glitches 11.14 -> 6.39 s (SSM 7.92 s),
+box_pick_place 25.82 -> 20.00 s, ur10e_close_worker 18.06 -> 16.24 s, close_worker 5.64 ->
+5.55 s, standing_beside_path 11.72 -> 11.51 s, headbutt and bench_handover unchanged; no
+harmful contact in any. The price is more replans (punches: 1 091 -> 3 608 in 8 000 cycles; at
+most ``1 + max_replans`` = 2 checks per cycle and ``max_models`` model evaluations over them:
+the worst cycle is bounded, a cycle that runs out brakes as after a failed check). A replan cut
+of 0.95 or two replans per cycle moved these times by -1.5 to +0.8 s: not taken.
 """
 
 from __future__ import annotations
@@ -64,8 +72,12 @@ class SpeedScaling:
 
     cut: float = 0.9
     """A replan's cap is this fraction of the candidate (and of the current speed at most)."""
-    hysteresis: float = 1.25
-    """Raise only when the margins allow this many times the cap, to the allowed speed over it."""
+    hysteresis: float = 1.0
+    """Raise only when the margins allow this many times the cap, to the allowed speed over it.
+    1.25 (the earlier default) left the cap for good in ``[allowed / 1.25, allowed)``, where
+    clamping classes bind: the robot crept at 5-10 % of its speed (punches never reached its
+    goal in 50 s, SSM 16.3 s); 1.0 goes straight to the margins' speed and lets the replan
+    correct an overshoot (measured in the module notes)."""
     raise_factor: float = math.inf
     """Largest raise per cycle (inf: straight to what the margins allow)."""
     hold_cycles: int = 0
