@@ -227,7 +227,7 @@ class ReferencePflShield(PflShield):
             left -= used
             checks += 1
             if not res.safe_all:
-                cand, fixable = self._next_cap(res, traj, E0, cap)
+                cand, fixable = self._next_cap(res, traj, E0, cap, checks <= max_replans)
                 if lazy and used == 1 and len(self._model_order) > 1:
                     self._model_order.append(self._model_order.pop(0))
             if res.safe_all:
@@ -253,11 +253,19 @@ class ReferencePflShield(PflShield):
         return traj, ends, radius, res.safe_all
 
     def _next_cap(
-        self, res: PflResult, traj: ShieldedTrajectory, E0: np.ndarray, cap: float
+        self,
+        res: PflResult,
+        traj: ShieldedTrajectory,
+        E0: np.ndarray,
+        cap: float,
+        replanning: bool,
     ) -> tuple[float, bool]:
+        """A replan's cap (``replanning``: cut x the current speed) or the cap held for the next
+        cycle (cut x the energies' candidate, at most that), and whether a replan can help."""
         cand, fixable = candidate(res, traj, E0)
         cut = self.scaling.cut
-        return min(cut * cand, cut * min(cap, float(traj.sd.max()))), fixable
+        top = cut * min(cap, float(traj.sd.max()))
+        return (top if replanning else min(cut * cand, top)), fixable
 
     def _verify(
         self,
@@ -311,7 +319,7 @@ class ReferencePflShield(PflShield):
                 break
             if replan is not None and check.models == 1:
                 E0 = check.samples.energy_J[0] if check.samples is not None else self._no_energy
-                cand, fixable = self._next_cap(check.result(), traj, E0, replan[0])
+                cand, fixable = self._next_cap(check.result(), traj, E0, replan[0], True)
                 if fixable and cand >= replan[1]:
                     break
         E0 = check.samples.energy_J[0] if check.samples is not None else self._no_energy

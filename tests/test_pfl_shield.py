@@ -197,7 +197,7 @@ def test_a_check_that_a_replan_can_follow_stops_only_for_the_replan() -> None:
         order = [first] + [m for m in ("acc", "vel", "pos") if m != first]
         shield._model_order = list(order)
         lazy, _, E0 = shield._verify(traj, ends, radius, hum, first_only=True)
-        cand, fixable = shield._next_cap(lazy, traj, E0.copy(), math.inf)
+        cand, fixable = shield._next_cap(lazy, traj, E0.copy(), math.inf, True)
         lazy_safe, lazy_thr = lazy.safe.copy(), lazy.threshold_J.copy()  # finishing merges in
         full, _, _ = shield._finish_check()
         for c_min in (0.0, 0.5 * cand, cand, 2.0 * cand, math.inf):

@@ -210,15 +210,18 @@ def test_ssm_speed_scaling_finishes_close_worker_sooner_than_braking() -> None:
     assert scaled.speed_scale_mean < 1.0 == braking.speed_scale_mean
 
 
-def test_pfl_is_at_least_as_productive_as_ssm_at_the_bench_edge() -> None:
+@pytest.mark.parametrize("name", ["tracking_glitches", "close_worker"])
+def test_pfl_is_at_least_as_productive_as_ssm_at_the_bench_edge(name: str) -> None:
     """Whatever SSM verifies (no possible contact) PFL verifies too, so PFL's speed scaling must
-    not leave the robot slower than SSM's where SSM gets through: tracking_glitches (a box pick
-    at the bench edge beside a person, glitching tracker). With the cap held below the margins'
-    speed (hysteresis 1.25) PFL crept at 5-10 % of its speed and took 11.1 s (SSM 7.9 s)."""
-    sc = load_scenario("tracking_glitches")
+    not leave the robot slower than SSM's where SSM gets through (5 % slack: the two scale in
+    different steps). tracking_glitches: a box pick at the bench edge beside a person with a
+    glitching tracker; with the cap held below the margins' speed (hysteresis 1.25) PFL crept at
+    5-10 % of its speed and took 11.1 s (SSM 7.9 s). close_worker: with its replans at the
+    energies' candidate PFL took 5.55 s (SSM 4.87 s)."""
+    sc = load_scenario(name)
     ssm, pfl = run_mode(sc, "ssm").metrics, run_mode(sc, "pfl").metrics
     assert ssm is not None and pfl is not None and ssm.time_to_goal_s is not None
-    assert pfl.time_to_goal_s is not None and pfl.time_to_goal_s <= ssm.time_to_goal_s
+    assert pfl.time_to_goal_s is not None and pfl.time_to_goal_s <= 1.05 * ssm.time_to_goal_s
     assert pfl.harmful_contacts == 0 and ssm.collisions_moving == 0
 
 

@@ -292,7 +292,10 @@ def _make_kernel() -> Any:
             checks += 1
             if state[5] == 1:
                 break
-            cand = replan_cap(verdict[9][0], (True, cap, c_min, cut), trajectory[2])
+            # a replan within the cycle: cut x the current speed; the cap held after the
+            # cycle's last check: the energies' candidate (pfl_scaling's notes)
+            guess = verdict[9][0] if checks > max_replans else math.inf
+            cand = replan_cap(guess, (True, cap, c_min, cut), trajectory[2])
             if lazy and used == 1 and M > 1:  # stopped for the replan: next time another first
                 _to_back(row)
                 info[7] = 1

@@ -229,7 +229,7 @@ def _py_min(a: float, b: float) -> float:
 @njit(cache=True)
 def replan_cap(candidate: float, replan: Any, sd: np.ndarray) -> float:
     """The shield's ``_next_cap``: ``min(cut * candidate, cut * min(cap, sd.max()))`` with
-    numpy's max (NaN if any sample is NaN)."""
+    numpy's max (NaN if any sample is NaN); ``candidate`` inf for a replan within the cycle."""
     top = sd[0]
     for x in sd:
         if x != x:
@@ -344,8 +344,8 @@ def _make_kernel() -> Any:
         """Add the models ``order[state[0]:stop]`` (codes ``KIND_*``; their constants in
         ``models``, see :data:`MODELS`) to an open check until every entry is
         proved or, with ``first_only``, after one, or with ``replan = (on, cap, c_min, cut)``
-        after a failing first model that a replan will follow (not stuck and ``min(cut *
-        candidate, cut * min(cap, max sd)) >= c_min``, as the shield's ``_next_cap``). Writes
+        after a failing first model that a replan will follow (not stuck and ``cut * min(cap,
+        max sd) >= c_min``: a replan's cap, as the shield's ``_next_cap``). Writes
         the first model's classification
         into ``first``, the merged verdict into ``verdict``, the progress into ``state``.
         Returns the index in ``order`` of the model that completed the check (-1: none; -2:
@@ -416,7 +416,7 @@ def _make_kernel() -> Any:
                 break
             if replan[0] and state[0] == 1:
                 _speeds(trajectory[2], link_buffers[9], first[4], verdict, state)
-                if state[6] == 0 and replan_cap(speeds[0], replan, trajectory[2]) >= replan[2]:
+                if state[6] == 0 and replan_cap(math.inf, replan, trajectory[2]) >= replan[2]:
                     break
             i += 1
         if state[4] == 1:

@@ -6,10 +6,12 @@ speeds a verdict suggests are computed in the compiled check
 Speed scaling. Link energies along the path scale with the square of the path speed (``v = q'
 s'``), so a violated entry with energy ``E`` and threshold ``T`` at path speed ``s'`` suggests
 the cap ``s' sqrt(T / E)``. That is a CANDIDATE only (a slower robot may lose the velocity
-relaxation and meet a more severe class; its stop covers other space): the trajectory replanned
-at the candidate (times ``cut``) is checked again, at most ``max_replans`` times per cycle. If
-none verifies, the robot brakes along the held failsafe (base class) and the candidate is kept
-as the cap for the next cycle. Interval 0 starts at the current state: an entry already too
+relaxation and meet a more severe class; its stop covers other space). A failed check is
+planned again at ``cut`` times the current path speed (as SSM's scaling does: a little slower
+often removes the contact altogether, the stop being shorter) and checked again, at most
+``max_replans`` times per cycle. If none verifies, the robot brakes along the held failsafe
+(base class) and the last check's candidate (times ``cut``, at most that speed) is kept as the
+cap for the next cycle. Interval 0 starts at the current state: an entry already too
 fast there cannot be fixed by a slower plan, so no replan is tried. After a verified cycle the
 cap rises again: at once when no contact was possible at all, else to the speed the margins
 allow (``s' sqrt(T / E)`` over the possible contacts, divided by ``hysteresis``) when that is
@@ -30,10 +32,19 @@ in the bench cells the robot crept at 5-10 % of its speed. Times to goal in PFL,
 16.32 s), bench_worker 27.56 -> 18.06 s, tracking_glitches 11.14 -> 6.39 s (SSM 7.92 s),
 box_pick_place 25.82 -> 20.00 s, ur10e_close_worker 18.06 -> 16.24 s, close_worker 5.64 ->
 5.55 s, standing_beside_path 11.72 -> 11.51 s, headbutt and bench_handover unchanged; no
-harmful contact in any. The price is more replans (punches: 1 091 -> 3 608 in 8 000 cycles; at
+harmful contact in any. Then the replan within a cycle at ``cut`` times the current speed
+instead of at the energies' candidate (which, where a clamping class binds, jumped to a speed
+at which the contact stays possible): close_worker 5.55 -> 4.90 s (SSM 4.87 s),
+standing_beside_path 11.51 -> 10.96 s, bench_worker 18.06 -> 17.74 s, tracking_glitches 6.39
+-> 6.27 s, ur10e_close_worker 16.24 -> 9.96 s (SSM 18.28 s), box_pick_place 20.00 -> 19.96 s,
+bench_handover 9.32 -> 9.28 s, punches 16.31 s and headbutt 21.00 -> 21.04 s; a replan at
+``cut`` times the current speed for the held cap as well lost 1.8 s in punches. The price of
+both is more replans (punches: 1 091 -> 3 592 in 8 000 cycles; at
 most ``1 + max_replans`` = 2 checks per cycle and ``max_models`` model evaluations over them:
 the worst cycle is bounded, a cycle that runs out brakes as after a failed check). A replan cut
-of 0.95 or two replans per cycle moved these times by -1.5 to +0.8 s: not taken.
+of 0.95 or two replans per cycle moved these times by -1.5 to +0.8 s, and a second replan at
+the energies' candidate after the one at the current speed lost 1.2 s in close_worker: not
+taken.
 """
 
 from __future__ import annotations
