@@ -218,7 +218,7 @@ class ReferencePflShield(PflShield):
         cap = max(self.cap, c_min)
         traj, ends, radius = self._plan(cap)
         checks = 0
-        left = sc.max_models
+        budget = left = sc.model_budget(hum[0].shape[0])
         while True:
             self._model_order = self._orders[checks > 0]
             lazy = checks < max_replans and left > 1
@@ -249,7 +249,7 @@ class ReferencePflShield(PflShield):
                 break
             cap = cand
             traj, ends, radius = planned
-        self._record(res, cap, V_here, checks, used, sc.max_models - left)
+        self._record(res, cap, V_here, checks, used, budget - left)
         return traj, ends, radius, res.safe_all
 
     def _next_cap(

@@ -277,6 +277,31 @@ def test_speed_scaling_is_validated() -> None:
         SpeedScaling(max_models=0)
     with pytest.raises(ParameterError, match="max_replans = -1"):
         SpeedScaling(max_replans=-1)
+    with pytest.raises(ParameterError, match="max_person_models = 0"):
+        SpeedScaling(max_person_models=0)
+    budget = SpeedScaling(max_models=6, max_person_models=16).model_budget
+    assert [budget(h) for h in (0, 1, 2, 3, 4, 8, 16, 17, 100)] == [6, 6, 6, 5, 4, 2, 1, 1, 1]
+
+
+@pytest.mark.parametrize("path", ["reference", "compiled"])
+def test_with_four_people_a_cycle_evaluates_at_most_four_models(path: str) -> None:
+    """The braking bench state with 4 people (the first one where the braking case puts them,
+    three behind the robot whose sets reach it): the default budget lets a cycle evaluate 16 //
+    4 = 4 models (6 for one person: the state needs 6), and a cycle that runs out brakes."""
+    from sara_app.bench.people import others
+    from sara_app.bench.pfl import BENCH_CASES, bench_cell
+    from sara_app.safety.pfl_shield import PflCycle
+
+    shield, template, people, t = bench_cell("pfl", [BENCH_CASES["braking"], *others(3)])
+    if path == "reference":
+        shield = as_reference(shield)
+    for _ in range(3):
+        shield.follower = template.copy()
+        shield.cap, shield._calm = math.inf, 0
+        out = shield.cycle(t, people, want_distance=False)
+        info = shield._res
+        assert isinstance(info, PflCycle) and info.evaluations == 4
+        assert not out.verified and out.mode == "failsafe"
 
 
 def test_classification_is_monotone_in_the_human_sets() -> None:

@@ -217,7 +217,7 @@ def shield_rows(n: int = 2000) -> list[Row]:
     def checks() -> object:
         orders = (list(shield._orders[0]), list(shield._orders[1]))
         return shield.compiled.run(shield.follower, traj, ends, radius, hum,
-                                   (math.inf, 0.0, sc.cut), (sc.max_replans, sc.max_models),
+                                   (math.inf, 0.0, sc.cut), (sc.max_replans, sc.model_budget(1)),
                                    orders)  # fmt: skip
 
     stages: list[tuple[str, Any]] = [

@@ -40,7 +40,8 @@ standing_beside_path 11.51 -> 10.96 s, bench_worker 18.06 -> 17.74 s, tracking_g
 bench_handover 9.32 -> 9.28 s, punches 16.31 s and headbutt 21.00 -> 21.04 s; a replan at
 ``cut`` times the current speed for the held cap as well lost 1.8 s in punches. The price of
 both is more replans (punches: 1 091 -> 3 592 in 8 000 cycles; at
-most ``1 + max_replans`` = 2 checks per cycle and ``max_models`` model evaluations over them:
+most ``1 + max_replans`` = 2 checks per cycle and ``model_budget(people)`` model evaluations
+over them (``max_models``, fewer with more than two people: ``max_person_models``):
 the worst cycle is bounded, a cycle that runs out brakes as after a failed check). A replan cut
 of 0.95 or two replans per cycle moved these times by -1.5 to +0.8 s, and a second replan at
 the energies' candidate after the one at the current speed lost 1.2 s in close_worker: not
@@ -107,9 +108,24 @@ class SpeedScaling:
     (docs/measurements/2026-11-26-sound-sets.md); with three models 4 and 6 gave the same
     times to goal."""
 
+    max_person_models: int = 16
+    """Model evaluations times people per cycle: with more than ``max_person_models //
+    max_models`` people the cycle evaluates fewer models (at least one), because a
+    classification's cost grows with the people it classifies (about 50-100 µs per evaluation
+    with 4 people, the pairs between people included). 16 keeps 6 evaluations for up to 2
+    people, 5 for 3 and 4 for 4: PFL braking with 4 people took 1.11 ms median, 1.34 ms p99
+    with 6 and takes 0.77 / 0.91 ms with 4 (2026-11-28, ``sara-app bench``), within a 1 kHz
+    loop. Fewer evaluations are conservative (fewer entries proved: the robot slows or brakes
+    sooner); a single person keeps 6, as the shipped scenarios measured above."""
+
     def __post_init__(self) -> None:
-        if self.max_models < 1 or self.max_replans < 0:
+        if self.max_models < 1 or self.max_replans < 0 or self.max_person_models < 1:
             raise ParameterError(
-                f"max_models = {self.max_models}, max_replans = {self.max_replans}; expected "
-                "max_models >= 1 and max_replans >= 0"
+                f"max_models = {self.max_models}, max_replans = {self.max_replans}, "
+                f"max_person_models = {self.max_person_models}; expected max_models >= 1, "
+                "max_replans >= 0 and max_person_models >= 1"
             )
+
+    def model_budget(self, people: int) -> int:
+        """Model evaluations a cycle with ``people`` people may make (>= 1)."""
+        return max(1, min(self.max_models, self.max_person_models // max(people, 1)))

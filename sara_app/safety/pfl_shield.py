@@ -141,7 +141,7 @@ class PflShield(Shield):
         try:
             traj, ends, radius = self._plan(math.inf)
             self.compiled.run(self.follower, traj, ends, radius, hum, (math.inf, 0.0, sc.cut),
-                              (sc.max_replans, sc.max_models), work)  # fmt: skip
+                              (sc.max_replans, sc.model_budget(1)), work)  # fmt: skip
         except SaraError:  # a follower that cannot plan here: the first cycle resolves them
             pass
 
@@ -173,7 +173,7 @@ class PflShield(Shield):
         with _inputs_checked():
             out = self.compiled.run(
                 self.follower, traj, ends, radius, hum, (cap, c_min, sc.cut),
-                (sc.max_replans, sc.max_models), self._orders,
+                (sc.max_replans, sc.model_budget(hum[0].shape[0])), self._orders,
             )  # fmt: skip
         res = out.result
         if out.checks > 1 or not res.safe_all:  # a check failed
