@@ -64,7 +64,13 @@ def _publish(pubs: list[Any], ys: list[np.ndarray], rate_hz: float, seconds: flo
         t_next += period
 
 
-def _load(hub: Any, cells: list[str], people: int, rate_hz: float, seconds: float) -> Row:
+def _load(
+    hub: Any, cells: list[str], people: int, rate_hz: float, seconds: float,
+    publishers: dict[str, Any],
+) -> Row:  # fmt: skip
+    """One load; ``publishers``: the skeleton publishers by key, kept between the loads of one
+    router so that each person's ``seq`` keeps rising (a new publisher would start again at 1,
+    and the worker would refuse its first messages as out of order)."""
     received: dict[str, list[tuple[float, bytes]]] = {c: [] for c in cells}
     subs = [hub.session.declare_subscriber(
         keys.verdict_key(c), lambda s, c=c: received[c].append((time.time(), s.payload.to_bytes())))
@@ -75,7 +81,12 @@ def _load(hub: Any, cells: list[str], people: int, rate_hz: float, seconds: floa
     ys = _people(people)
     threads = []
     for c in cells:
-        pubs = [hub.publisher(keys.skeleton_key(c, f"p{k}")) for k in range(people)]
+        pubs = []
+        for k in range(people):
+            key = keys.skeleton_key(c, f"p{k}")
+            if key not in publishers:
+                publishers[key] = hub.publisher(key)
+            pubs.append(publishers[key])
         threads.append(threading.Thread(target=_publish, daemon=True,
                                         args=(pubs, ys, rate_hz, seconds, sent[c])))  # fmt: skip
     t0 = time.monotonic()
@@ -116,6 +127,7 @@ def bench_cells(
     for n in sorted({n for n, _ in loads}):
         port = free_port()
         cells = [f"load{i + 1}" for i in range(n)]
+        publishers: dict[str, Any] = {}
         with Bus.router(port) as hub:
             rt = WORKER_RT_PRIORITY
             workers = [spawn_cell_process("sara_app.runtime.worker", c, LATENCY_SCENARIO, port,
@@ -137,7 +149,7 @@ def bench_cells(
                     for b in beats:
                         b.people = {f"p{k}" for k in range(people)}
                     time.sleep(0.5)
-                    rows.append(_load(hub, cells, people, rate_hz, seconds))
+                    rows.append(_load(hub, cells, people, rate_hz, seconds, publishers))
                     measured.append((n, people))
             finally:
                 for b in beats:
