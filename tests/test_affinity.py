@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from sara_app.processes.affinity import cpu_plan, pin_threads, pinned
+from sara_app.processes.affinity import cpu_plan, pin_threads, pinned, placed_as_serve
 
 
 def test_each_worker_gets_a_cpu_of_its_own_only_when_one_is_left_for_the_rest() -> None:
@@ -64,3 +64,21 @@ def test_a_running_process_s_threads_move_and_come_back() -> None:
         stop.set()
         t.join()
     assert os.sched_getaffinity(0) == before
+
+
+def test_a_benchmark_placed_as_serve_runs_on_the_rest_and_comes_back() -> None:
+    """placed_as_serve: inside, this process's threads run on the plan's rest (where there is a
+    CPU to spare), and on leaving, even by an exception, on the CPUs they had; without pinning
+    nothing moves."""
+    before = frozenset(os.sched_getaffinity(0))
+    with pytest.raises(RuntimeError):
+        with placed_as_serve(True) as plan:
+            if plan is None:
+                assert len(before) < 2
+            else:
+                assert os.sched_getaffinity(0) == plan.rest
+                assert not plan.rest & plan.worker(0)
+            raise RuntimeError("the benchmark failed")
+    assert os.sched_getaffinity(0) == before
+    with placed_as_serve(False) as plan:
+        assert plan is None and os.sched_getaffinity(0) == before

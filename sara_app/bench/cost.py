@@ -179,15 +179,11 @@ def bench_live(
     """Each load measured ``runs`` times on a fresh cell (see the module notes); ``pin_cpus``:
     the worker on a CPU of its own and the rest (this process too) on the others, as serve
     does where the machine has a CPU to spare."""
-    from sara_app.processes.affinity import cpu_plan, pin_threads
+    from sara_app.processes.affinity import placed_as_serve
     from sara_app.scenario import load_scenario
 
-    plan = cpu_plan(1) if pin_cpus else None
-    before = frozenset(os.sched_getaffinity(0))
-    if plan is not None:
-        pin_threads(os.getpid(), plan.rest)
     results = []
-    try:
+    with placed_as_serve(pin_cpus) as plan:
         with tempfile.TemporaryDirectory(prefix="sara-bench-live-") as tmp:
             for n in people:
                 path = str(scenario_with_people(scenario, n, Path(tmp)))
@@ -195,9 +191,6 @@ def bench_live(
                 for _ in range(runs):
                     _run(path, plan, seconds, load)
                 results.append(load)
-    finally:
-        if plan is not None:
-            pin_threads(os.getpid(), before)
     return results
 
 

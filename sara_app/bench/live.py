@@ -33,7 +33,7 @@ import numpy as np
 from sara_app.bus import keys
 from sara_app.bus.messages import ControllerStatusMsg, VerdictMsg
 from sara_app.bus.session import Bus, free_port
-from sara_app.processes.affinity import CpuPlan, cpu_plan, pin_threads
+from sara_app.processes.affinity import CpuPlan, placed_as_serve
 
 CHROMIUM_FLAGS = (
     "--headless",
@@ -215,15 +215,9 @@ def bench_view_load(
     (as ``serve`` runs them) and at the worker's own priority, and the ratios to no view.
     ``pin_cpus``: the cell's processes and the display side on serve's CPUs (the worker on one
     of its own), the browser on every CPU."""
-    plan = cpu_plan(1) if pin_cpus else None
-    every_cpu = frozenset(os.sched_getaffinity(0))
-    if plan is not None:  # this process is the display side
-        pin_threads(os.getpid(), plan.rest)
-    try:
+    every_cpu = frozenset(os.sched_getaffinity(0))  # the browser's
+    with placed_as_serve(pin_cpus) as plan:  # this process is the display side
         return _view_rows(scenario, phase_s, rounds, plan, every_cpu)
-    finally:
-        if plan is not None:
-            pin_threads(os.getpid(), every_cpu)
 
 
 def _view_rows(

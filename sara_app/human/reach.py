@@ -254,7 +254,7 @@ class HumanReach:
         p = self.params
         static = (self.part_joints, np.stack([self.vel_base, self.iso_base]),
                   np.stack([self.vel_speed, self.iso_speed]))  # fmt: skip
-        acc = (self.a_half, np.asarray(p.half_thickness_m, float), self.acc_ia, self.acc_ib,
+        acc = (self.a_half, self.half_th, self.acc_ia, self.acc_ib,
                self.acc_ends, self.a_max, self.v_max)  # fmt: skip
         pos = (self.pos_seg_a, self.pos_seg_b, self.pos_seg_limb, self.pos_ends,
                self.pos_rspeed, self.pos_rbase)  # fmt: skip

@@ -18,6 +18,8 @@ from __future__ import annotations
 import logging
 import os
 import shutil
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -69,3 +71,19 @@ def pin_threads(pid: int, cpus: frozenset[int]) -> int:
         except (OSError, ValueError):
             continue
     return moved
+
+
+@contextmanager
+def placed_as_serve(pin: bool = True) -> Iterator[CpuPlan | None]:
+    """For a benchmark that starts one cell itself: the plan of one cell's CPUs (None without
+    ``pin`` or a CPU to spare), this process's threads (the display side, the listener) on the
+    plan's rest while inside, and back on the CPUs they had on leaving."""
+    plan = cpu_plan(1) if pin else None
+    before = frozenset(os.sched_getaffinity(0))
+    if plan is not None:
+        pin_threads(os.getpid(), plan.rest)
+    try:
+        yield plan
+    finally:
+        if plan is not None:
+            pin_threads(os.getpid(), before)
