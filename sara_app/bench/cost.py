@@ -174,11 +174,11 @@ def _measure(hub: Bus, cell: str, pids: dict[str, int], seconds: float, out: Loa
 
 def bench_live(
     scenario: str = "punches", people: tuple[int, ...] = PEOPLE, seconds: float = 10.0,
-    runs: int = 3, pin_cpus: bool = True,
+    runs: int = 3, pin_cpus: bool = True, robot_encoding: str = "compact",
 ) -> list[LoadCost]:  # fmt: skip
     """Each load measured ``runs`` times on a fresh cell (see the module notes); ``pin_cpus``:
     the worker on a CPU of its own and the rest (this process too) on the others, as serve
-    does where the machine has a CPU to spare."""
+    does where the machine has a CPU to spare; ``robot_encoding``: of states and commands."""
     from sara_app.processes.affinity import placed_as_serve
     from sara_app.scenario import load_scenario
 
@@ -189,12 +189,12 @@ def bench_live(
                 path = str(scenario_with_people(scenario, n, Path(tmp)))
                 load = LoadCost(n, scenario, 1.0 / load_scenario(path).shield.dt_s)
                 for _ in range(runs):
-                    _run(path, plan, seconds, load)
+                    _run(path, plan, seconds, load, robot_encoding)
                 results.append(load)
     return results
 
 
-def _run(path: str, plan: Any, seconds: float, load: LoadCost) -> None:
+def _run(path: str, plan: Any, seconds: float, load: LoadCost, robot_encoding: str) -> None:
     """One fresh cell on ``path`` as serve starts it (CPUs per ``plan``), measured into
     ``load``."""
     from sara_app.ops.supervisor import stop_processes
@@ -205,7 +205,7 @@ def _run(path: str, plan: Any, seconds: float, load: LoadCost) -> None:
     procs = [router]
     try:
         with connect_when_listening(port, router) as hub:
-            procs += start_cell(cell, path, port, plan)
+            procs += start_cell(cell, path, port, plan, robot_encoding)
             _wait_running(hub, cell)
             time.sleep(2.0)  # the replayer's people in, the robot moving
             pids = dict(zip(PROCESSES, (p.pid for p in procs), strict=True))

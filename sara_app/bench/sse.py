@@ -29,7 +29,8 @@ lat, seqs = [], []
 def on_v(s):
     lat.append(time.time() - json.loads(s.payload.to_bytes())["stamp_s"])
 def on_c(s):
-    seqs.append(json.loads(s.payload.to_bytes())["seq"])
+    p = s.payload.to_bytes()  # a compact record (seq at byte 16) or JSON
+    seqs.append(int.from_bytes(p[16:24], "little") if p[:1] == b"\\x00" else json.loads(p)["seq"])
 with zenoh.open(zenoh.Config.from_json5(json.dumps(conf))) as z:
     a = z.declare_subscriber(f"sara/{cell}/verdict", on_v)
     b = z.declare_subscriber(f"sara/{cell}/robot/command", on_c)

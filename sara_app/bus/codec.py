@@ -11,11 +11,11 @@
   of accepted messages add up in ``missed`` (lost in transport or dropped by a full channel).
 
 Reasons (``REASONS``, the contract's list; a test holds the two equal): too_large, bad_key,
-malformed_json, non_finite, schema_version, missing_field, unknown_field, unknown_source,
-unknown_joint, missing_joint, unknown_frame, inconsistent_length, invalid, key_mismatch,
-out_of_order, internal; and, counted by the worker through ``Decoder.count``: superseded,
-out_of_range, stamp_not_advancing, tracking_inconsistent, repeated, unknown_tracker,
-too_many_people, wrong_dof.
+malformed_json, malformed_compact (:mod:`sara_app.bus.compact`), non_finite, schema_version,
+missing_field, unknown_field, unknown_source, unknown_joint, missing_joint, unknown_frame,
+inconsistent_length, invalid, key_mismatch, out_of_order, internal; and, counted by the worker
+through ``Decoder.count``: superseded, out_of_range, stamp_not_advancing, tracking_inconsistent,
+repeated, unknown_tracker, too_many_people, wrong_dof.
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ from typing import Any, NamedTuple
 
 from pydantic import ValidationError
 
+from sara_app.bus.compact import CompactError, decode_compact, is_compact
 from sara_app.bus.keys import ParsedKey, parse_key
 from sara_app.bus.messages import MODELS_BY_KIND, Message
 from sara_app.errors import InputError
@@ -38,6 +39,7 @@ REASONS: tuple[str, ...] = (
     "too_large",
     "bad_key",
     "malformed_json",
+    "malformed_compact",
     "non_finite",
     "schema_version",
     "missing_field",
@@ -120,6 +122,11 @@ def decode(key_expr: str, payload: bytes) -> Decoded:
         key = parse_key(key_expr)
     except InputError as e:
         raise MessageError("bad_key", str(e)) from None
+    if is_compact(payload):  # the robot channel's binary records (sara_app.bus.compact)
+        try:
+            return Decoded(key, decode_compact(key.kind, payload), recv_s)
+        except CompactError as e:
+            raise MessageError(e.reason, e.detail) from None
     try:  # pydantic's JSON parser: strict types, NaN/Infinity/overflow refused as non-finite
         msg = MODELS_BY_KIND[key.kind].model_validate_json(payload)
     except ValidationError as e:

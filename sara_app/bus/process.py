@@ -16,7 +16,7 @@ from collections.abc import Callable
 from typing import Protocol
 
 from sara_app.bus.access import Credentials, client_auth
-from sara_app.bus.session import Bus
+from sara_app.bus.session import ROBOT_ENCODINGS, Bus
 from sara_app.errors import SaraError
 from sara_app.scenario import load_scenario
 
@@ -87,6 +87,13 @@ def process_main(
         action="store_true",
         help="end when the parent process ends (how serve starts its children)",
     )
+    ap.add_argument(
+        "--robot-encoding",
+        choices=ROBOT_ENCODINGS,
+        default="compact",
+        help="how it publishes robot states and commands (compact: the binary records of the "
+        "contract; json: for a peer that reads JSON only); it reads both",
+    )
     ap.add_argument("--zenoh-user", default=None, help="this process's role on the bus")
     ap.add_argument(
         "--zenoh-credentials", default=None, help="the credentials file (user:password lines)"
@@ -107,7 +114,9 @@ def process_main(
         # the session's I/O threads start with it and inherit the real-time class: received
         # and sent messages then do not wait behind a browser or other normal jobs
         rt = bool(args.rt_priority) and set_realtime(args.rt_priority, name, "session threads")
-        with Bus.client(args.port, args.router_host, auth=auth) as bus:
+        with Bus.client(
+            args.port, args.router_host, auth=auth, robot_encoding=args.robot_encoding
+        ) as bus:
             if rt:
                 set_normal()  # building the cell (seconds of kernel loading) at normal priority
             kw = {"state_dir": args.state_dir, "origin": args.scenario} if state else {}

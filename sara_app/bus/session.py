@@ -31,7 +31,9 @@ from typing import Any, NamedTuple
 
 import zenoh
 
+from sara_app.bus import keys
 from sara_app.bus.codec import Decoded, Decoder
+from sara_app.bus.compact import KIND_CODES, encode_compact
 from sara_app.bus.messages import encode
 from sara_app.errors import ParameterError, SaraError
 
@@ -238,11 +240,20 @@ class Subscription:
             self._sub = None
 
 
-class Publisher:
-    """Publishes validated messages on one key; numbers them with ``next_seq()``."""
+ROBOT_ENCODINGS = ("json", "compact")
+"""How a session publishes on the robot keys (``robot/state``, ``robot/command``): JSON, or the
+compact records of :mod:`sara_app.bus.compact`. Decoders accept both."""
 
-    def __init__(self, session: zenoh.Session, key_expr: str, express: bool) -> None:
+
+class Publisher:
+    """Publishes validated messages on one key; numbers them with ``next_seq()``; ``compact``:
+    as compact records (robot keys only)."""
+
+    def __init__(
+        self, session: zenoh.Session, key_expr: str, express: bool, compact: bool = False
+    ) -> None:
         self.key_expr = key_expr
+        self._encode = encode_compact if compact else encode
         self.failed = 0
         self._seq = -1
         self._pub: Any = session.declare_publisher(
@@ -270,7 +281,7 @@ class Publisher:
         try:
             if self._pub is None:
                 raise BusError("publisher is closed")
-            self._pub.put(encode(msg))
+            self._pub.put(self._encode(msg))
             return True
         except Exception as e:  # noqa: BLE001 - publishing must never end the caller's loop
             self.failed += 1
@@ -287,10 +298,23 @@ class Publisher:
             self._pub = None
 
 
+def _kind(key_expr: str) -> str | None:
+    try:
+        return keys.parse_key(key_expr).kind
+    except SaraError:
+        return None
+
+
 class Bus:
     """One zenoh session and what was declared on it; close it to let the process exit."""
 
-    def __init__(self, config: zenoh.Config) -> None:
+    def __init__(self, config: zenoh.Config, robot_encoding: str = "json") -> None:
+        if robot_encoding not in ROBOT_ENCODINGS:
+            raise ParameterError(
+                f"robot encoding {robot_encoding!r}; valid: {', '.join(ROBOT_ENCODINGS)}"
+            )
+        self.robot_encoding = robot_encoding
+        """How :meth:`publisher` encodes robot states and commands (:data:`ROBOT_ENCODINGS`)."""
         try:
             self.session = zenoh.open(config)
         except zenoh.ZError as e:
@@ -310,8 +334,9 @@ class Bus:
         host: str = LOOPBACK,
         timeout_ms: int = 5000,
         auth: dict[str, Any] | None = None,
+        robot_encoding: str = "json",
     ) -> Bus:
-        return cls(client_config(port, host, timeout_ms, auth))
+        return cls(client_config(port, host, timeout_ms, auth), robot_encoding)
 
     def subscribe(
         self,
@@ -328,8 +353,10 @@ class Bus:
         return sub
 
     def publisher(self, key_expr: str, express: bool = True) -> Publisher:
-        """A publisher on one concrete key (``express``: send at once, no batching)."""
-        pub = Publisher(self.session, key_expr, express)
+        """A publisher on one concrete key (``express``: send at once, no batching); on a robot
+        key, in the session's :attr:`robot_encoding`."""
+        compact = self.robot_encoding == "compact" and _kind(key_expr) in KIND_CODES
+        pub = Publisher(self.session, key_expr, express, compact)
         self._owned.append(pub)
         return pub
 

@@ -129,16 +129,19 @@ def start_router(port: int, cpus: frozenset[int] | None = None) -> subprocess.Po
 
 
 def start_cell(
-    cell: str, scenario: str, port: int, plan: CpuPlan | None = None
-) -> list[subprocess.Popen[bytes]]:
+    cell: str, scenario: str, port: int, plan: CpuPlan | None = None,
+    robot_encoding: str = "compact",
+) -> list[subprocess.Popen[bytes]]:  # fmt: skip
     """The reference controller, the worker and the replayer of one cell as serve runs them
     (their priorities; their CPUs per ``plan``, the first worker's), unsupervised and without
-    bus logins: the benchmarks' cell. In that order."""
+    bus logins: the benchmarks' cell. In that order. ``robot_encoding``: how the controller
+    and the worker publish states and commands (:data:`~sara_app.bus.session.ROBOT_ENCODINGS`)."""
     rt = WORKER_RT_PRIORITY
     mine, rest = (None, None) if plan is None else (plan.worker(0), plan.rest)
+    enc = ("--robot-encoding", robot_encoding)
     return [
-        spawn_cell_process(CONTROLLER, cell, scenario, port, 0, rt, (), rest),
-        spawn_cell_process(WORKER, cell, scenario, port, 0, rt, (), mine),
+        spawn_cell_process(CONTROLLER, cell, scenario, port, 0, rt, enc, rest),
+        spawn_cell_process(WORKER, cell, scenario, port, 0, rt, enc, mine),
         spawn_cell_process(REPLAYER, cell, scenario, port, REPLAYER_NICE, 0, (), rest),
     ]
 
