@@ -98,38 +98,44 @@ def test_ring_channel_keeps_the_newest_and_counts_gaps() -> None:
         assert sub.decoder.missed == 20 - len(later)
 
 
-def test_a_wakeup_subscription_sleeps_until_a_sample_and_keeps_the_newest() -> None:
-    """``wait`` returns when a sample comes (well before its timeout), False after the timeout
-    when none came; samples drain in order, none twice; a plain subscription refuses
-    ``wait``."""
+def test_receive_sleeps_until_a_sample_and_ends_when_the_subscription_closes() -> None:
+    """``receive`` returns when a sample comes (not before), with every sample queued by then,
+    in order and none twice; closing the subscription from another thread ends a ``receive``
+    that sleeps (None), and later ones return None at once."""
     with Bus.router(free_port()) as bus:
-        sub = bus.subscribe(keys.skeleton_keys(CELL), capacity=8, wakeup=True)
+        sub = bus.subscribe(keys.skeleton_keys(CELL), capacity=64)
         pub = bus.publisher(keys.skeleton_key(CELL, "h1"))
         y = np.zeros((15, 3))
-        t0 = time.monotonic()
-        assert not sub.wait(0.05) and time.monotonic() - t0 >= 0.04
         deadline = time.monotonic() + 10
-
-        def later() -> None:
-            time.sleep(0.2)
-            pub.put(SkeletonMsg.from_arrays("full", y, seq=pub.next_seq(), stamp_s=1.0))
-
         while not pub.has_subscribers() and time.monotonic() < deadline:
             time.sleep(0.01)
-        threading.Thread(target=later).start()
+        got: list[tuple[float, list[int]]] = []
+
+        def receiver() -> None:
+            while (d := sub.receive()) is not None:
+                got.append((time.monotonic(), [m.msg.seq for m in d.messages]))
+            got.append((time.monotonic(), [-1]))
+
+        t = threading.Thread(target=receiver)
         t0 = time.monotonic()
-        assert sub.wait(5.0) and time.monotonic() - t0 < 4.0
-        assert [d.msg.seq for d in sub.drain().messages] == [0]
+        t.start()
+        time.sleep(0.2)
+        assert got == []  # asleep: nothing came
+        pub.put(SkeletonMsg.from_arrays("full", y, seq=pub.next_seq(), stamp_s=1.0))
+        while not got and time.monotonic() < deadline:
+            time.sleep(0.005)
+        assert got[0][1] == [0] and got[0][0] - t0 >= 0.2
         for _ in range(20):
             pub.put(SkeletonMsg.from_arrays("full", y, seq=pub.next_seq(), stamp_s=1.0))
-        deadline = time.monotonic() + 5
-        seen: list[int] = []
-        while (not seen or seen[-1] < 20) and time.monotonic() < deadline:
-            sub.wait(0.1)
-            seen += [d.msg.seq for d in sub.drain().messages]
-        assert seen[-1] == 20 and seen == sorted(seen) and len(set(seen)) == len(seen)
-        with pytest.raises(BusError, match="wakeup=True"):
-            bus.subscribe(keys.skeleton_keys(CELL)).wait(0.01)
+        while sum(len(g[1]) for g in got) < 21 and time.monotonic() < deadline:
+            time.sleep(0.005)
+        seen = [s for g in got for s in g[1]]
+        assert seen == list(range(21))
+        n = len(got)
+        sub.close()
+        t.join(5.0)
+        assert not t.is_alive() and got[n:] == [(got[-1][0], [-1])]
+        assert sub.receive() is None and sub.drain().messages == []
 
 
 INDEPENDENT = """

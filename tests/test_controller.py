@@ -302,3 +302,45 @@ def test_a_started_controller_follows_no_command_from_elsewhere() -> None:
         assert ctl.delivery.refused == 1
         ctl.tick(t + 1.5 * dt, [cmd(1, q0)])  # the worker re-anchored where the robot stands
         assert ctl.command is not None and ctl.command.seq == 1
+
+
+def test_run_states_every_period_without_commands_and_one_per_command_taken() -> None:
+    """``Controller.run`` over a real bus: with no command it publishes a state every control
+    period (no gap over three periods); with commands at the control rate, a state per command
+    taken and at most one of its own per period; it stops within two seconds of
+    ``stop_event``."""
+    import threading
+
+    from sara_app.peers.controller import Controller
+
+    sc = load_scenario("standing_beside_path")
+    port = free_port()
+    with Bus.router(port), Bus.client(port) as cbus, Bus.client(port) as wbus:
+        ctl = Controller(CELL, sc, cbus)
+        states = wbus.subscribe(keys.robot_state_key(CELL), fifo=True, capacity=10_000)
+        pub = wbus.publisher(keys.robot_command_key(CELL))
+        runner = threading.Thread(target=ctl.run)
+        runner.start()
+        dt, q0 = ctl.dt_s, ctl.q.tolist()
+        time.sleep(0.5)
+        idle = _drain(states, RobotStateMsg)
+        gaps = np.diff([s.stamp_s for s in idle])
+        assert len(idle) >= 0.4 / dt * 0.8 and gaps.max() < 3 * dt, (len(idle), gaps.max())
+        t0 = time.time()
+        sent: list[float] = []
+        while time.time() - t0 < 0.5:
+            t = time.time()
+            pub.put(_cmd(len(sent), t, q0, dt))
+            sent.append(t)
+            time.sleep(max(t + dt - time.time(), 0.0))
+        time.sleep(0.05)
+        ctl.stop_event.set()
+        runner.join(2.0)
+        assert not runner.is_alive()
+        during = [s for s in _drain(states, RobotStateMsg) if t0 + dt < s.stamp_s < t0 + 0.5]
+    taken = ctl.delivery.received
+    assert taken >= 0.9 * len(sent)  # (braking now: the commands stopped 50 ms ago)
+    # on each command taken, and of its own only when a period passed without one: at most
+    # one of its own per period, never a gap of several periods
+    gaps = np.diff([s.stamp_s for s in during])
+    assert taken <= len(during) <= taken + 0.5 / dt and gaps.max() < 3 * dt, (len(during), taken)

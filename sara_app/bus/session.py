@@ -25,8 +25,6 @@ import ipaddress
 import json
 import logging
 import socket
-import threading
-from collections import deque
 from typing import Any, NamedTuple
 
 import zenoh
@@ -133,66 +131,43 @@ def client_config(
 
 
 class Subscription:
-    """Samples of one key expression, queued by zenoh and decoded by ``drain()``.
-
-    ``wakeup=True``: queued by a callback (a ring of ``capacity``, the oldest dropped when
-    full) so that :meth:`wait` can sleep until a sample comes; the callback takes the GIL on a
-    zenoh thread for each sample (for a loop that mostly waits, such as a robot controller)."""
+    """Samples of one key expression, queued by zenoh and decoded by ``drain()`` (never blocks)
+    or :meth:`receive` (sleeps in zenoh's channel until a sample comes: for a loop that mostly
+    waits, such as a robot controller; the waiting thread is woken by zenoh's receiving thread
+    directly, with no Python thread in between)."""
 
     def __init__(
-        self, session: zenoh.Session, key_expr: str, decoder: Decoder, capacity: int, fifo: bool,
-        wakeup: bool = False,
-    ) -> None:  # fmt: skip
+        self, session: zenoh.Session, key_expr: str, decoder: Decoder, capacity: int, fifo: bool
+    ) -> None:
         self.key_expr = key_expr
         self.decoder = decoder
-        self._ring: deque[tuple[str, bytes]] | None = None
-        self._empty: threading.Lock | None = None
-        if wakeup:
-            ring = self._ring = deque(maxlen=int(capacity))
-            # a raw lock as a binary semaphore, held while nothing is queued: released by the
-            # callback, taken by wait() (cheaper than an Event's condition on both sides)
-            empty = self._empty = threading.Lock()
-            empty.acquire()
+        channel = zenoh.handlers.FifoChannel if fifo else zenoh.handlers.RingChannel
+        self._sub: Any = session.declare_subscriber(key_expr, channel(int(capacity)))
+        # the handler apart from the subscriber: a thread blocked in its recv() does not hold
+        # the subscriber, which close() can then undeclare (the recv then ends with an error)
+        self._handler: Any = self._sub.handler
 
-            def queued(sample: Any) -> None:
-                ring.append((str(sample.key_expr), sample.payload.to_bytes()))
-                try:
-                    empty.release()
-                except RuntimeError:  # released already, not yet taken
-                    pass
-
-            # zenoh's default: the callback runs on a Python thread of its own (measured
-            # cheaper here than running it on zenoh's receiving threads: 470 vs 550 us of the
-            # controller's CPU per 2 ms cycle)
-            self._sub: Any = session.declare_subscriber(key_expr, queued)
-        else:
-            channel = zenoh.handlers.FifoChannel if fifo else zenoh.handlers.RingChannel
-            self._sub = session.declare_subscriber(key_expr, channel(int(capacity)))
-
-    def wait(self, timeout_s: float) -> bool:
-        """Sleep until a sample is queued (``wakeup`` subscriptions) or ``timeout_s`` passed;
-        whether one is queued."""
-        if self._ring is None or self._empty is None:
-            raise BusError(f"subscription {self.key_expr} was not made with wakeup=True")
-        if not self._ring:
-            self._empty.acquire(timeout=max(timeout_s, 0.0))
-        else:
-            self._empty.acquire(blocking=False)  # a release for what is queued: taken
-        return bool(self._ring)
+    def receive(self) -> Drained | None:
+        """Sleep until a sample is queued, then decode it and every other one queued; None once
+        the subscription is closed (also while it sleeps). One thread at a time."""
+        handler = self._handler
+        if handler is None:
+            return None
+        try:
+            first = handler.recv()
+        except zenoh.ZError:  # closed
+            return None
+        return self._decode([(str(first.key_expr), first.payload.to_bytes()), *self._samples(None)])
 
     def _samples(self, max_n: int | None) -> list[tuple[str, bytes]]:
         """Up to ``max_n`` queued samples as ``(key, payload)``, without blocking."""
         out: list[tuple[str, bytes]] = []
-        if self._sub is None:
-            return out
-        ring = self._ring
-        if ring is not None:
-            while ring and (max_n is None or len(out) < max_n):
-                out.append(ring.popleft())
+        handler = self._handler
+        if handler is None:
             return out
         while max_n is None or len(out) < max_n:
             try:
-                sample = self._sub.try_recv()
+                sample = handler.try_recv()
             except zenoh.ZError as e:  # closed underneath us: nothing more to read
                 log.warning("bus: subscription %s: %s", self.key_expr, e)
                 break
@@ -233,6 +208,7 @@ class Subscription:
 
     def close(self) -> None:
         if self._sub is not None:
+            self._handler = None
             try:
                 self._sub.undeclare()
             except zenoh.ZError:
@@ -344,11 +320,9 @@ class Bus:
         decoder: Decoder | None = None,
         capacity: int = 256,
         fifo: bool = False,
-        wakeup: bool = False,
     ) -> Subscription:
-        """Subscribe to ``key_expr`` (wildcards allowed); share ``decoder`` to pool counters;
-        ``wakeup``: a subscription whose :meth:`Subscription.wait` sleeps until a sample."""
-        sub = Subscription(self.session, key_expr, decoder or Decoder(), capacity, fifo, wakeup)
+        """Subscribe to ``key_expr`` (wildcards allowed); share ``decoder`` to pool counters."""
+        sub = Subscription(self.session, key_expr, decoder or Decoder(), capacity, fifo)
         self._owned.append(sub)
         return sub
 

@@ -20,7 +20,7 @@ plain Python, simulating a robot that tracks its set points exactly.
   worker run, late, expired, refused) and published about once a second on
   ``sara/<cell>/controller/status``.
 - It wakes when a command arrives and publishes ``robot/state`` on each command taken and at
-  least every control period, stamped with the time of the state.
+  least every control period, stamped with the time of the state (:meth:`Controller.run`).
 
 Against a real robot, replace ``_apply`` with the driver's set-point call and publish the
 driver's measured state; keep the expiry and braking rules.
@@ -47,14 +47,16 @@ from sara_app.bus.messages import (
 )
 from sara_app.bus.process import SummarisedWarning, process_main
 from sara_app.bus.session import Bus
+from sara_app.peers.deadline import Deadline
 from sara_app.safety.settings import FUTURE_TOLERANCE_S
 from sara_app.scenario import Scenario
 
 log = logging.getLogger("sara_app.controller")
 MIN_WAIT_S = 20e-6
-"""The least it sleeps between two ticks. It ticks when a command arrives (the subscription
-wakes it: a command is taken up at once) and when a state is due, never on a polling clock
-(polling every 0.5 ms cost 45 us of CPU per wake-up on a VM: 40 % of its CPU)."""
+"""The least time to the next state-due tick. It ticks when a command arrives (taken up at
+once) and when a state is due, never on a polling clock (polling every 0.5 ms cost 45 us of CPU
+per wake-up on a VM: 40 % of its CPU; a wake-up per period to find that a command had come cost
+the next most, and the deadline is now pushed back without one)."""
 
 
 STATUS_PERIOD_S = 1.0
@@ -127,9 +129,7 @@ class Controller:
         self.stop_event = threading.Event()
         # a stamp from the future would hold back every later command: refused (out_of_range)
         self.decoder = Decoder(max_future_s=FUTURE_TOLERANCE_S)
-        self.sub = bus.subscribe(
-            keys.robot_command_key(self.cell), self.decoder, capacity=64, wakeup=True
-        )
+        self.sub = bus.subscribe(keys.robot_command_key(self.cell), self.decoder, capacity=64)
         self.pub = bus.publisher(keys.robot_state_key(self.cell))
         self.pub_status = bus.publisher(keys.controller_status_key(self.cell))
 
@@ -266,18 +266,48 @@ class Controller:
         )
 
     def run(self, duration_s: float | None = None) -> None:
-        """Tick when a command arrives and when a state is due (a control period without one),
-        sleeping in between."""
-        t_end = None if duration_s is None else time.monotonic() + duration_s
-        while not self.stop_event.is_set():
-            if t_end is not None and time.monotonic() >= t_end:
-                break
+        """Take each command the moment it arrives (a receiving thread that sleeps in zenoh's
+        channel) and publish a state when a control period passed without one (a thread that
+        sleeps on a :class:`~sara_app.peers.deadline.Deadline` pushed back at every state);
+        this thread waits for the stop (``stop_event``, or ``duration_s``)."""
+        self._lock = threading.Lock()
+        self._due = Deadline()
+        self._locked_tick(time.time(), [])
+        threads = [threading.Thread(target=f, name=f"controller-{f.__name__.strip('_')}",
+                                    daemon=True) for f in (self._receive, self._watch)]  # fmt: skip
+        for t in threads:
+            t.start()
+        try:
+            self.stop_event.wait(duration_s)
+        finally:
+            self.stop_event.set()
+            self.sub.close()  # ends the receiving thread's wait
+            self._due.close()
+            for t in threads:
+                t.join(5.0)
+            self._due.release()
+
+    def _locked_tick(self, now: float, commands: list[RobotCommandMsg]) -> None:
+        """:meth:`tick` under the lock, then the deadline moved to a period after the last
+        state; an error is logged and the robot keeps braking (never the end of the loop)."""
+        with self._lock:
             try:
-                self.tick(time.time())
+                self.tick(now, commands)
             except Exception:  # noqa: BLE001 - keep braking rather than die
                 log.exception("controller tick failed")
-            due_s = self.published_s + self.dt_s - time.time()
-            self.sub.wait(min(max(due_s, MIN_WAIT_S), self.dt_s))
+            self._due.arm(max(self.published_s + self.dt_s - time.time(), MIN_WAIT_S))
+
+    def _receive(self) -> None:
+        while not self.stop_event.is_set():
+            got = self.sub.receive()
+            if got is None:  # closed
+                return
+            cmds = [d.msg for d in got.messages if isinstance(d.msg, RobotCommandMsg)]
+            self._locked_tick(time.time(), cmds)
+
+    def _watch(self) -> None:
+        while self._due.wait() and not self.stop_event.is_set():
+            self._locked_tick(time.time(), [])
 
 
 def main(argv: list[str] | None = None) -> int:
