@@ -131,6 +131,7 @@ def test_collision_counter_fires_without_a_real_shield(strategy: str) -> None:
     blind.shield.verifier.verify = (  # type: ignore[method-assign]
         lambda *a: _always_safe(*a, models=n_models)
     )
+    blind.shield._compiled = None  # the Python composition: the check it calls is the fake
     m = blind.run(2.0)
     assert m.collisions_moving > 0
     assert m.first_collision_s is not None and m.min_separation_moving_m <= 0.0

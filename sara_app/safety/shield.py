@@ -33,12 +33,16 @@ import numpy as np
 
 from sara_app.errors import ParameterError, SaraError
 from sara_app.human.reach import MODELS, HumanReach
+from sara_app.kernel_types import entry
+from sara_app.robot.failsafe import BOUND_PAD
 from sara_app.robot.model import RobotModel
 from sara_app.robot.occupancy import RobotOccupancy
-from sara_app.robot.shielded import ShieldedTrajectory, shielded_trajectory
+from sara_app.robot.shielded import ShieldedTrajectory, from_samples, shielded_trajectory
 from sara_app.robot.trajectory import JointState, PathFollower
+from sara_app.safety.pfl_cycle_kernels import plan_views
 from sara_app.safety.settings import FUTURE_TOLERANCE_S, ShieldSettings
 from sara_app.safety.ssm import SsmResult, SsmVerifier, body_distance
+from sara_app.safety.ssm_cycle_kernels import DONE, ssm_cycle_kernel
 
 MODES = ("intended", "failsafe", "rest", "fault")
 
@@ -141,6 +145,9 @@ class Shield:
         self.occupancy = RobotOccupancy(robot)
         # Tracking error up to tol per joint moves a link point by at most sum_j L[i, j] tol.
         self.tracking_margin_m = self.occupancy.lipschitz @ np.full(robot.n_dof, s.tracking_tol_rad)
+        self._compiled = _compiled_inputs(self.verifier, self.occupancy, self.tracking_margin_m,
+                                          s.max_interval_s)  # fmt: skip
+        self._info = np.empty(4)
         self._half_th = reach.params.half_thickness_m
         self._parts = reach.skeleton.part_joints
         self._no_widening = np.zeros((1, len(MODELS), reach.skeleton.n_parts))
@@ -392,7 +399,40 @@ class Shield:
         """Plan and verify one shielded trajectory (SSM) with speed scaling
         (:class:`~sara_app.safety.settings.SsmSettings`): a check that fails at full path speed is
         planned again at a lower path-speed cap and checked again. Only a verified trajectory is
-        committed, as without scaling. ``self._res`` keeps the last check's details."""
+        committed, as without scaling. ``self._res`` keeps the last check's details. One
+        compiled call (:mod:`~sara_app.safety.ssm_cycle_kernels`) where it can; the Python
+        composition of the same kernels (:meth:`_composed`) where it declines, where nobody is
+        in the cell, the follower has nothing ahead or the check uses the arm model."""
+        state = None if hum is None or self._compiled is None else (
+            self.follower.kernel_state(self.settings.dt_s)
+        )  # fmt: skip
+        if state is None or hum is None or self._compiled is None:
+            return self._composed(hum)
+        sc, f = self.settings.ssm, self.follower
+        V_here = f.admissible_here()[0]
+        human = self.verifier.human(*hum[:4], hum[4])
+        sampling, occupancy, (constants, codes, maps, arm) = self._compiled
+        info = self._info
+        code, slab, free, evaluated, closest, parts = _SSM_CYCLE(
+            *state, sampling, occupancy, human, constants, codes, maps, arm,
+            (f.speed_cap, sc.min_speed_scale * V_here, sc.cut), sc.max_replans, info,
+        )  # fmt: skip
+        if code != DONE:
+            return self._composed(hum)
+        K, L, n = parts.shape[1], occupancy[5].shape[0], occupancy[0].shape[0]
+        out, pts, joint, bounds, ends, radius = plan_views(slab, K, L, n)
+        step = f.step_from_record(out, int(info[3]), self.settings.dt_s)
+        samples = (pts[0], (pts[1], pts[2], pts[3]), joint[0], joint[1], joint[3], joint[4],
+                   bounds[0], bounds[1], pts[4, :K])  # fmt: skip
+        traj = from_samples(step, samples)
+        self._scale = min(1.0, info[1] / V_here) if V_here > 0 else 1.0
+        self._res = res = SsmResult(bool(info[0]), free, evaluated, closest, parts)
+        return traj, ends, radius, res.safe
+
+    def _composed(
+        self, hum: Humans | None
+    ) -> tuple[ShieldedTrajectory, np.ndarray, np.ndarray, bool]:
+        """:meth:`_plan_and_verify` by the Python composition of the kernels."""
         self._scale = 1.0
         traj, ends, radius = self._shielded()
         if hum is None:  # nobody in the cell
@@ -441,3 +481,24 @@ class Shield:
             (body_distance(y, self._parts, self._half_th, r_ends, r_rad) for y in ys),
             default=math.inf,
         )
+
+
+_SSM_CYCLE = entry(ssm_cycle_kernel)
+"""The kernel without numba's dispatcher (typing its nested tuples took about 5 us per call):
+its inputs are the verifier's checked arrays and the shield's own (see :func:`entry`)."""
+
+
+def _compiled_inputs(
+    verifier: SsmVerifier, occupancy: RobotOccupancy, margin_m: np.ndarray, max_interval_s: float
+) -> tuple[tuple[float, float], tuple[np.ndarray, ...], tuple[Any, ...]] | None:
+    """What :func:`~sara_app.safety.ssm_cycle_kernels.ssm_cycle_kernel` needs besides the
+    follower and the people: ``(sampling, occupancy, check)``; None where it cannot run (the
+    arm model)."""
+    check = verifier.kernel_inputs()
+    if check is None:
+        return None
+    q_index, N, parents, link_joint, ends_joint, _axes, T0 = occupancy.kernel_arrays()
+    lipschitz, radius0 = occupancy.interval_arrays()
+    occ = (q_index, N, parents, link_joint, ends_joint, lipschitz, radius0,
+           np.asarray(T0, dtype=np.float64), np.asarray(margin_m, dtype=np.float64))  # fmt: skip
+    return (float(BOUND_PAD), float(max_interval_s)), occ, check

@@ -18,6 +18,7 @@ cleared. Pereira's arm model (numpy) is computed before the call when it is enab
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -126,44 +127,69 @@ class SsmVerifier:
         ``(H, len(MODELS), P)``: extra radius per body part (:mod:`sara_app.human.widening`;
         a capsule grows by the largest of the parts it contains); other shapes raise
         :class:`InputError`."""
-        y, v, dv, age_s, times_s, robot_ends, robot_radius = (
-            as_f8(y), as_f8(v), as_f8(dv), as_f8(age_s), as_f8(times_s), as_f8(robot_ends),
-            as_f8(robot_radius),
-        )  # fmt: skip
-        H, M, K = y.shape[0], len(self.models), robot_ends.shape[0]
-        P = self.reach.skeleton.n_parts
+        times_s, robot_ends, robot_radius = as_f8(times_s), as_f8(robot_ends), as_f8(robot_radius)
+        K = robot_ends.shape[0]
         L = robot_ends.shape[1] if robot_ends.ndim == 4 else -1
-        J = self.reach.skeleton.n_joints
-        shapes = (y.shape, v.shape, dv.shape, age_s.shape, times_s.shape)
+        human = self.human(y, v, dv, age_s, widen_m)
         if (
-            shapes != ((H, J, 3), (H, J, 3), (H, J), (H,), (K + 1,))
+            times_s.shape != (K + 1,)
             or robot_ends.shape != (K, L, 2, 3)
             or robot_radius.shape != (K, L)
         ):
             raise InputError(
-                f"y, v, dv, age_s, times_s have shapes {shapes} and the robot {robot_ends.shape}, "
-                f"{robot_radius.shape}; expected ({H}, {J}, 3) twice, ({H}, {J}), ({H},), (K+1,), "
-                "(K, L, 2, 3) and (K, L)"
+                f"times_s {times_s.shape} and the robot {robot_ends.shape}, "
+                f"{robot_radius.shape}; expected (K+1,), (K, L, 2, 3) and (K, L)"
             )
-        if widen_m is None:
-            widen = np.zeros((H, M, P))
-        else:
-            widen = np.asarray(widen_m, dtype=np.float64)
-            if widen.shape != (H, len(MODELS), P):
-                raise InputError(
-                    f"widen_m has shape {widen.shape}; expected ({H}, {len(MODELS)}, {P})"
-                )
-            widen = widen[:, self._model_rows]  # rows in the check's model order
+        H, M, P = human[0].shape[0], len(self.models), self.reach.skeleton.n_parts
         free = np.empty((H, M, K), dtype=bool)
         evaluated = np.empty((H, M, K), dtype=bool)
         closest = np.empty((H, M))
         parts = np.empty((H, K, P), dtype=bool)
         safe = ssm_kernel(
-            (y, v, dv, widen, age_s), self._constants, self._codes, self._maps,
-            self._arm_sets(y, age_s, times_s), times_s, robot_ends, robot_radius, free,
-            evaluated, closest, parts,
+            human, self._constants, self._codes, self._maps,
+            self._arm_sets(human[0], human[4], times_s), times_s, robot_ends, robot_radius,
+            free, evaluated, closest, parts,
         )  # fmt: skip
         return SsmResult(bool(safe), free, evaluated, closest, parts)
+
+    def human(
+        self,
+        y: np.ndarray,
+        v: np.ndarray,
+        dv: np.ndarray,
+        age_s: np.ndarray,
+        widen_m: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The people as the kernels take them (:data:`~sara_app.safety.ssm_kernels.HUMAN`):
+        ``(y, v, dv, widen (H, M, P) in the check's model order, age_s)`` as float64; raises
+        :class:`InputError` on shapes other than :meth:`verify`'s."""
+        y, v, dv, age_s = as_f8(y), as_f8(v), as_f8(dv), as_f8(age_s)
+        H, M = y.shape[0], len(self.models)
+        P, J = self.reach.skeleton.n_parts, self.reach.skeleton.n_joints
+        shapes = (y.shape, v.shape, dv.shape, age_s.shape)
+        if shapes != ((H, J, 3), (H, J, 3), (H, J), (H,)):
+            raise InputError(
+                f"y, v, dv, age_s have shapes {shapes}; expected ({H}, {J}, 3) twice, "
+                f"({H}, {J}) and ({H},)"
+            )
+        if widen_m is None:
+            widen = np.zeros((H, M, P))
+        else:
+            widen = as_f8(widen_m)
+            if widen.shape != (H, len(MODELS), P):
+                raise InputError(
+                    f"widen_m has shape {widen.shape}; expected ({H}, {len(MODELS)}, {P})"
+                )
+            widen = widen[:, self._model_rows]  # rows in the check's model order
+        return y, v, dv, widen, age_s
+
+    def kernel_inputs(self) -> tuple[Any, np.ndarray, np.ndarray, Any] | None:
+        """``(constants, codes (M,), part maps (M, P), arm sets)`` of the check for a compiled
+        caller (:mod:`~sara_app.safety.ssm_cycle_kernels`); None when the check uses Pereira's
+        arm model (its capsules depend on the trajectory's times: computed in numpy)."""
+        if "arm" in self.models:
+            return None
+        return self._constants, self._codes, self._maps, self._no_arm
 
     def _arm_sets(
         self, y: np.ndarray, age_s: np.ndarray, times_s: np.ndarray

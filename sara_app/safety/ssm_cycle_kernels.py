@@ -1,0 +1,119 @@
+"""An SSM shield cycle's plans and checks in one compiled call (``Shield._plan_and_verify``).
+
+The shielded trajectory at the follower's cap and its robot capsules
+(:func:`~sara_app.safety.pfl_cycle_kernels._plan`: the kernels of ``PathFollower.peek``,
+``shielded_trajectory`` and ``RobotOccupancy.intervals`` with the tracking margin), its check
+against every person (:func:`~sara_app.safety.ssm_kernels.ssm_kernel`), and while the check
+fails, the speed scaling's replans (``cut`` x the lower of the last cap and the trajectory's
+largest path speed, down to ``c_min``; at most ``max_replans``): the decisions of
+``Shield._plan_and_verify``, whose Python composition of the same kernels
+(``Shield._composed``) runs where this one declines and is its oracle in the tests (the same
+bits). It declines (``PYTHON``) a plan it cannot sample: a step that falls back on the held
+failsafe, a non-finite stop, a trajectory the occupancy kernel rejects. Numba's cache checks
+only this file: the source digests of the files whose kernels it calls are a closure variable.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numba import njit, types
+
+from sara_app.geometry import shape_kernels
+from sara_app.human import reach_kernels
+from sara_app.kernel_types import F8, I8, ROI1, ROI2, W1
+from sara_app.robot import occupancy_kernels, planning_kernels, trajectory_kernels
+from sara_app.robot.planning_kernels import OUT_LEN
+from sara_app.safety import pfl_cycle_kernels, pfl_fused_kernels, ssm_kernels
+from sara_app.safety.contact_kernels import source_digest
+from sara_app.safety.pfl_cycle_kernels import FOLLOWER, OCCUPANCY, PATH, PLANNER, _plan
+from sara_app.safety.ssm_kernels import ARM, CONSTANTS, HUMAN, ssm_kernel
+
+__all__ = ["DONE", "PYTHON", "ssm_cycle_kernel"]
+
+DONE, PYTHON = 0, 1
+"""Return codes: the cycle's last check is in the outputs / a plan the kernel cannot sample
+(the caller runs the Python composition instead)."""
+
+
+def _make_kernel() -> Any:
+    """Build :func:`ssm_cycle_kernel` with its callees' source digests in the closure."""
+    sources = "".join(
+        source_digest(m)
+        for m in (
+            shape_kernels, reach_kernels, occupancy_kernels, planning_kernels,
+            trajectory_kernels, pfl_fused_kernels, pfl_cycle_kernels, ssm_kernels,
+        )
+    )  # fmt: skip
+    B3 = types.Array(types.boolean, 3, "C")
+    result = types.Tuple((I8, types.Array(F8, 1, "C"), B3, B3, types.Array(F8, 2, "C"), B3))
+
+    @njit(
+        result(FOLLOWER, PLANNER, PATH, types.UniTuple(F8, 2), OCCUPANCY, HUMAN, CONSTANTS, ROI1,
+               ROI2, ARM, types.UniTuple(F8, 3), I8, W1),
+        cache=True,
+    )  # fmt: skip
+    def ssm_cycle_kernel(
+        follower: Any,
+        planner: Any,
+        path: Any,
+        sampling: Any,
+        occupancy: Any,
+        human: Any,
+        constants: Any,
+        codes: np.ndarray,
+        part_maps: np.ndarray,
+        arm: Any,
+        control: Any,
+        max_replans: int,
+        info: np.ndarray,
+    ) -> Any:
+        """From the plan at ``control = (cap0, c_min, cut)``'s ``cap0``: check, and replan
+        while the check fails (see the module notes). Returns ``(code, slab, free, evaluated,
+        closest, parts)``: the last plan's slab
+        (:func:`~sara_app.safety.pfl_cycle_kernels.plan_views`) and its check's arrays (as
+        :class:`~sara_app.safety.ssm.SsmResult`); ``info (4,)``: the last check's verdict
+        (0/1), the cap of the replans (inf: none), checks, the last plan's ``peek_kernel``
+        status."""
+        cap0, c_min, cut = control
+        H, M = human[0].shape[0], codes.shape[0]
+        P = part_maps.shape[1]
+        out = np.zeros(OUT_LEN)
+        empty = np.zeros((0, 0, 0), np.bool_)
+        code = PYTHON if len(sources) == 0 else DONE  # the digests tie the cache to the callees
+        ok, status, robot, trajectory, slab = _plan(
+            cap0, follower, planner, path, sampling, occupancy, out
+        )
+        if not ok:
+            return PYTHON, slab, empty, empty, np.zeros((0, 0)), empty
+        cap, checks = np.inf, 0
+        while True:
+            K = robot[1].shape[0]
+            free = np.empty((H, M, K), np.bool_)
+            evaluated = np.empty((H, M, K), np.bool_)
+            closest = np.empty((H, M))
+            parts = np.empty((H, K, P), np.bool_)
+            safe = ssm_kernel(human, constants, codes, part_maps, arm, trajectory[4], robot[0],
+                              robot[1], free, evaluated, closest, parts)  # fmt: skip
+            checks += 1
+            if safe or checks > max_replans:
+                break
+            top = trajectory[2].max()
+            cand = cut * min(cap, top)
+            if not cand >= c_min:  # NaN too
+                break
+            cap = cand
+            ok, status, robot, trajectory, slab = _plan(
+                cap, follower, planner, path, sampling, occupancy, out
+            )
+            if not ok:
+                code = PYTHON
+                break
+        info[0], info[1], info[2], info[3] = 1.0 if safe else 0.0, cap, checks, status
+        return code, slab, free, evaluated, closest, parts
+
+    return ssm_cycle_kernel
+
+
+ssm_cycle_kernel = _make_kernel()
