@@ -30,3 +30,18 @@ def test_serve_help_shows_its_defaults() -> None:
     for text in ("default: 7447", "default: 8080", "default: 8000", "default: punches",
                  "default: cell1"):  # fmt: skip
         assert text in out, out
+
+
+def test_worker_and_controller_pass_the_robot_encoding_on() -> None:
+    """``sara-app worker`` / ``controller`` hand ``--robot-encoding`` to the process (default
+    compact); an unknown encoding is refused by the parser."""
+    from sara_app.cli import build_parser
+    from sara_app.commands.serve import _process_argv
+
+    ap = build_parser()
+    for name in ("worker", "controller"):
+        argv = _process_argv(ap.parse_args([name, "--robot-encoding", "json"]))
+        assert argv[-2:] == ["--robot-encoding", "json"]
+        assert _process_argv(ap.parse_args([name]))[-2:] == ["--robot-encoding", "compact"]
+        with pytest.raises(SystemExit):
+            ap.parse_args([name, "--robot-encoding", "msgpack"])

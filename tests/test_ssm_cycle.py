@@ -83,6 +83,7 @@ def test_the_compiled_cycle_equals_the_python_composition() -> None:
         _same(got[1], want[1], "ends")
         _same(got[2], want[2], "radius")
         assert got[3] == want[3] and got_scale == want_scale
+        assert type(got[3]) is type(want[3]) is bool and type(got_scale) is float  # a verdict's
         if hum is None:
             assert got_res is None and want_res is None
         else:

@@ -51,7 +51,7 @@ def _process_argv(args: argparse.Namespace) -> list[str]:
         argv += ["--duration", str(args.duration)]
     if args.credentials is not None:
         argv += ["--zenoh-user", args.user, "--zenoh-credentials", args.credentials]
-    return argv
+    return [*argv, "--robot-encoding", args.robot_encoding]
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -124,4 +124,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         w.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
         w.add_argument("--credentials", default=None, help="serve's zenoh credentials file")
         w.add_argument("--user", default=name, help="the zenoh user (role) to log in as")
+        w.add_argument("--robot-encoding", choices=("compact", "json"), default="compact",
+                       help="how it publishes robot commands/states (json: for a peer that "
+                       "reads JSON only; it reads both)")  # fmt: skip
         w.set_defaults(run=run)

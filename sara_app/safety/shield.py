@@ -425,7 +425,7 @@ class Shield:
         samples = (pts[0], (pts[1], pts[2], pts[3]), joint[0], joint[1], joint[3], joint[4],
                    bounds[0], bounds[1], pts[4, :K])  # fmt: skip
         traj = from_samples(step, samples)
-        self._scale = min(1.0, info[1] / V_here) if V_here > 0 else 1.0
+        self._scale = min(1.0, float(info[1]) / V_here) if V_here > 0 else 1.0
         self._res = res = SsmResult(bool(info[0]), free, evaluated, closest, parts)
         return traj, ends, radius, res.safe
 
