@@ -43,6 +43,9 @@ class CycleMessages:
         self.held: tuple[np.ndarray, np.ndarray] | None = None
         """The held stop: absolute sample times ``(K+1,)`` s and positions ``(K+1, n)``."""
         self.last: JointState | None = None
+        self.sent_stop: tuple[np.ndarray, np.ndarray] | None = None
+        """The verified stop of the command built last, as arrays: what
+        :meth:`RobotCommandMsg.stop_arrays` gives for it, without converting its lists back."""
 
     def observe(self, now: float, res: CycleResult, holds_failsafe: bool = True) -> None:
         """Track the stop the follower holds after this cycle (none in a mode that holds no
@@ -55,13 +58,16 @@ class CycleMessages:
 
     def failsafe(self, now: float, dt: float, q: np.ndarray) -> tuple[list[float], list[Any]]:
         """The stop after the set point ``q`` (reached at ``now + dt``): offsets from ``now``
-        (s) and positions; empty without a held stop."""
+        (s) and positions; empty without a held stop. Keeps its arrays in :attr:`sent_stop`."""
         if self.held is None:
+            self.sent_stop = (np.array([now]), np.array([q], dtype=float))
             return [], []
         times, qs = self.held
         later = times > now + dt + 1e-9
-        t = [dt, *(times[later] - now).tolist()]
-        return t, [q.tolist(), *qs[later].tolist()]
+        t = np.concatenate(([dt], times[later] - now))
+        q_stop = np.vstack((q, qs[later]))
+        self.sent_stop = (t + now, q_stop)
+        return t.tolist(), q_stop.tolist()
 
     def verdict_and_command(
         self,

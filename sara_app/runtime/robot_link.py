@@ -17,7 +17,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from sara_app.bus.messages import RobotCommandMsg, RobotStateMsg, position_on_stop
+from sara_app.bus.messages import RobotStateMsg, position_on_stop
 from sara_app.bus.session import Subscription
 from sara_app.robot.trajectory import JointState
 
@@ -59,13 +59,12 @@ class MeasuredRobot:
         if got.refused_keys and not got.messages:
             self.problem = "the last message was refused (see dropped)"
 
-    def sent(self, t_point_s: float, command: RobotCommandMsg) -> None:
-        """The worker sent ``command``, whose set point is for time ``t_point_s``."""
+    def sent(self, t_point_s: float, q: np.ndarray, stop: tuple[np.ndarray, np.ndarray]) -> None:
+        """The worker sent a command whose set point ``q (n,)`` is for time ``t_point_s`` and
+        whose verified stop is ``stop`` (:meth:`RobotCommandMsg.stop_arrays`)."""
         if self.commanded and t_point_s <= self.commanded[-1][0]:
             self.commanded.clear()  # time went back (a restarted clock): start afresh
-        self.commanded.append(
-            (t_point_s, np.asarray(command.q, dtype=float), command.stop_arrays())
-        )
+        self.commanded.append((t_point_s, q, stop))
 
     def expected(self, t_s: float) -> tuple[np.ndarray, float] | None:
         """The commanded position at ``t_s`` and the slack the contract allows there (None:

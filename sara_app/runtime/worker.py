@@ -264,7 +264,9 @@ class CellWorker:
         self.io.command.put(command)
         q = np.asarray(command.q)
         self.messages.last = JointState(q, np.asarray(command.q_dot), np.asarray(command.q_ddot))
-        self.robot_in.sent(command.stamp_s + dt, command)
+        stop = self.messages.sent_stop
+        self.robot_in.sent(command.stamp_s + dt, q, stop if stop is not None else
+                           command.stop_arrays())  # fmt: skip
         try:
             if now >= self._next_display:
                 self._next_display = now + self.display_period
