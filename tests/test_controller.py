@@ -307,8 +307,8 @@ def test_a_started_controller_follows_no_command_from_elsewhere() -> None:
 def test_run_states_every_period_without_commands_and_one_per_command_taken() -> None:
     """``Controller.run`` over a real bus: with no command it publishes a state every control
     period (no gap over three periods); with commands at the control rate, a state per command
-    taken and at most one of its own per period; it stops within two seconds of
-    ``stop_event``."""
+    taken and at most one of its own per period, all in time order; it stops within two
+    seconds of ``stop_event``."""
     import threading
 
     from sara_app.peers.controller import Controller
@@ -337,7 +337,10 @@ def test_run_states_every_period_without_commands_and_one_per_command_taken() ->
         ctl.stop_event.set()
         runner.join(2.0)
         assert not runner.is_alive()
-        during = [s for s in _drain(states, RobotStateMsg) if t0 + dt < s.stamp_s < t0 + 0.5]
+        later = _drain(states, RobotStateMsg)
+        during = [s for s in later if t0 + dt < s.stamp_s < t0 + 0.5]
+    # its two threads' states in time order (each stamped under the lock)
+    assert (np.diff([s.stamp_s for s in idle + later]) > 0).all()
     taken = ctl.delivery.received
     assert taken >= 0.9 * len(sent)  # (braking now: the commands stopped 50 ms ago)
     # on each command taken, and of its own only when a period passed without one: at most

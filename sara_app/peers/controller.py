@@ -272,7 +272,7 @@ class Controller:
         this thread waits for the stop (``stop_event``, or ``duration_s``)."""
         self._lock = threading.Lock()
         self._due = Deadline()
-        self._locked_tick(time.time(), [])
+        self._locked_tick([])
         threads = [threading.Thread(target=f, name=f"controller-{f.__name__.strip('_')}",
                                     daemon=True) for f in (self._receive, self._watch)]  # fmt: skip
         for t in threads:
@@ -287,12 +287,13 @@ class Controller:
                 t.join(5.0)
             self._due.release()
 
-    def _locked_tick(self, now: float, commands: list[RobotCommandMsg]) -> None:
-        """:meth:`tick` under the lock, then the deadline moved to a period after the last
+    def _locked_tick(self, commands: list[RobotCommandMsg]) -> None:
+        """:meth:`tick` now, under the lock (the time read inside it: the two threads' ticks
+        and states stay in time order), then the deadline moved to a period after the last
         state; an error is logged and the robot keeps braking (never the end of the loop)."""
         with self._lock:
             try:
-                self.tick(now, commands)
+                self.tick(time.time(), commands)
             except Exception:  # noqa: BLE001 - keep braking rather than die
                 log.exception("controller tick failed")
             self._due.arm(max(self.published_s + self.dt_s - time.time(), MIN_WAIT_S))
@@ -303,11 +304,11 @@ class Controller:
             if got is None:  # closed
                 return
             cmds = [d.msg for d in got.messages if isinstance(d.msg, RobotCommandMsg)]
-            self._locked_tick(time.time(), cmds)
+            self._locked_tick(cmds)
 
     def _watch(self) -> None:
         while self._due.wait() and not self.stop_event.is_set():
-            self._locked_tick(time.time(), [])
+            self._locked_tick([])
 
 
 def main(argv: list[str] | None = None) -> int:
