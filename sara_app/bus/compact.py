@@ -35,11 +35,18 @@ size does not match n and F), ``invalid`` (ranges, order, reserved bits), ``key_
 from __future__ import annotations
 
 import struct
-from typing import Any
+from typing import Any, get_args
 
 import numpy as np
 
-from sara_app.bus.messages import MAX_FAILSAFE_SAMPLES, RobotCommandMsg, RobotStateMsg
+from sara_app.bus.messages import (
+    MAX_FAILSAFE_SAMPLES,
+    MAX_JOINTS,
+    SCHEMA_VERSIONS,
+    Mode,
+    RobotCommandMsg,
+    RobotStateMsg,
+)
 from sara_app.errors import InputError
 
 MAGIC = b"\x00SRB"
@@ -47,10 +54,12 @@ ENCODING_VERSION = 1
 HEADER = struct.Struct("<4sBBBBHBB4xqdd")
 KIND_CODES = {"robot_state": 1, "robot_command": 2}
 KINDS_BY_CODE = {v: k for k, v in KIND_CODES.items()}
-MODES = ("intended", "failsafe", "rest", "fault")
+MODES: tuple[str, ...] = get_args(Mode)
+"""The command's modes by their code (the order of the contract's table)."""
 _MODE_CODES = {m: i for i, m in enumerate(MODES)}
-_SCHEMA = {"robot_state": 1, "robot_command": 2}
-MAX_JOINTS = 64
+_SCHEMA = {kind: SCHEMA_VERSIONS[kind] for kind in KIND_CODES}
+_IDS = {kind: (KIND_CODES[kind], _SCHEMA[kind]) for kind in KIND_CODES}
+"""A record's kind code and schema version, per kind."""
 _F8 = np.dtype("<f8")
 
 
@@ -72,8 +81,9 @@ def encode_compact(msg: RobotStateMsg | RobotCommandMsg) -> bytes:
     other message)."""
     if isinstance(msg, RobotCommandMsg):
         n, F = len(msg.q), len(msg.failsafe_t_s)
-        head = HEADER.pack(MAGIC, ENCODING_VERSION, 2, 2, n, F, _MODE_CODES[msg.mode], 0,
-                           msg.seq, msg.stamp_s, msg.valid_until_s)  # fmt: skip
+        head = HEADER.pack(MAGIC, ENCODING_VERSION, *_IDS["robot_command"], n, F,
+                           _MODE_CODES[msg.mode], 0, msg.seq, msg.stamp_s,
+                           msg.valid_until_s)  # fmt: skip
         body = np.empty(3 * n + F + F * n, dtype=_F8)
         body[:n], body[n : 2 * n], body[2 * n : 3 * n] = msg.q, msg.q_dot, msg.q_ddot
         if F:
@@ -82,8 +92,8 @@ def encode_compact(msg: RobotStateMsg | RobotCommandMsg) -> bytes:
         return head + body.tobytes()
     if isinstance(msg, RobotStateMsg):
         n, acc = len(msg.q), msg.q_ddot is not None
-        head = HEADER.pack(MAGIC, ENCODING_VERSION, 1, 1, n, 0, 0, int(acc), msg.seq,
-                           msg.stamp_s, 0.0)  # fmt: skip
+        head = HEADER.pack(MAGIC, ENCODING_VERSION, *_IDS["robot_state"], n, 0, 0, int(acc),
+                           msg.seq, msg.stamp_s, 0.0)  # fmt: skip
         body = np.empty((3 if acc else 2) * n, dtype=_F8)
         body[:n], body[n : 2 * n] = msg.q, msg.q_dot
         if msg.q_ddot is not None:

@@ -36,7 +36,8 @@ NonNeg = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
 Pos = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
 Vec3 = Annotated[list[Finite], Field(min_length=3, max_length=3)]
 Name = Annotated[str, Field(pattern=f"^{NAME_PATTERN}$")]
-JointVector = Annotated[list[Finite], Field(min_length=1, max_length=64)]
+MAX_JOINTS = 64
+JointVector = Annotated[list[Finite], Field(min_length=1, max_length=MAX_JOINTS)]
 Mode = Literal["intended", "failsafe", "rest", "fault"]
 
 # Point names a source may send beyond those its mapping uses (accepted, not required).

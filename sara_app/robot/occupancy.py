@@ -231,6 +231,16 @@ class RobotOccupancy:
         radius per interval is ``dt / 2 * lipschitz @ v_bound + radius0``)."""
         return self.lipschitz, self._radius0
 
+    def plan_arrays(self, margin_m: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The occupancy per interval as the compiled shield cycles plan it
+        (:data:`~sara_app.safety.pfl_cycle_kernels.OCCUPANCY`): ``(q_index, N, parents,
+        link_joint, ends_joint, lipschitz, radius0, T_world_base (4, 4), margin_m (L,))``, the
+        tracking margin ``margin_m`` added to every capsule's radius."""
+        q_index, N, parents, link_joint, ends_joint, _axes, T0 = self.kernel_arrays()
+        margin = np.asarray(margin_m, dtype=np.float64)
+        return (q_index, N, parents, link_joint, ends_joint, self.lipschitz, self._radius0,
+                np.asarray(T0, dtype=np.float64), margin)  # fmt: skip
+
     def _fk(self, Q: np.ndarray) -> np.ndarray:
         """World poses ``(S, n+1, 4, 4)`` of the joint frames (index 0: the base), a view into
         the scratch buffer (valid until the next call)."""

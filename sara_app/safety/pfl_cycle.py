@@ -138,11 +138,7 @@ class CompiledCycle:
         self._s_radius = np.asarray(pfl.model.radius_m, dtype=np.float64)
         self._boxes = boxes
         self.link_states = link_states
-        q_index, N, parents, link_joint, ends_joint, _axes, T0 = occupancy.kernel_arrays()
-        lipschitz, radius0 = occupancy.interval_arrays()
-        margin = np.asarray(margin_m, dtype=np.float64)
-        self._occupancy = (q_index, N, parents, link_joint, ends_joint, lipschitz, radius0,
-                           np.asarray(T0, dtype=np.float64), margin)  # fmt: skip
+        self._occupancy = occupancy.plan_arrays(margin_m)
         self._sampling = (float(BOUND_PAD), float(max_interval_s))
         self._dt = float(dt_s)
         self._link_constants = link_states.kernel_constants()

@@ -403,14 +403,15 @@ class Shield:
         compiled call (:mod:`~sara_app.safety.ssm_cycle_kernels`) where it can; the Python
         composition of the same kernels (:meth:`_composed`) where it declines, where nobody is
         in the cell, the follower has nothing ahead or the check uses the arm model."""
-        state = None if hum is None or self._compiled is None else (
-            self.follower.kernel_state(self.settings.dt_s)
-        )  # fmt: skip
-        if state is None or hum is None or self._compiled is None:
+        f = self.follower
+        if hum is None or self._compiled is None:
             return self._composed(hum)
-        sc, f = self.settings.ssm, self.follower
+        state = f.kernel_state(self.settings.dt_s)
+        if state is None:
+            return self._composed(hum)
+        sc = self.settings.ssm
         V_here = f.admissible_here()[0]
-        human = self.verifier.human(*hum[:4], hum[4])
+        human = self.verifier.human(*hum)
         sampling, occupancy, (constants, codes, maps, arm) = self._compiled
         info = self._info
         code, slab, free, evaluated, closest, parts = _SSM_CYCLE(
@@ -497,8 +498,4 @@ def _compiled_inputs(
     check = verifier.kernel_inputs()
     if check is None:
         return None
-    q_index, N, parents, link_joint, ends_joint, _axes, T0 = occupancy.kernel_arrays()
-    lipschitz, radius0 = occupancy.interval_arrays()
-    occ = (q_index, N, parents, link_joint, ends_joint, lipschitz, radius0,
-           np.asarray(T0, dtype=np.float64), np.asarray(margin_m, dtype=np.float64))  # fmt: skip
-    return (float(BOUND_PAD), float(max_interval_s)), occ, check
+    return (float(BOUND_PAD), float(max_interval_s)), occupancy.plan_arrays(margin_m), check
