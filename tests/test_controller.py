@@ -106,8 +106,10 @@ def test_a_killed_worker_leaves_the_robot_on_its_verified_stop(cell) -> None:
     # reported a tracking error (allowed above), the fault command braking along the held stop
     last_faults = [f for v in vs if v.stamp_s == last.stamp_s for f in v.faults]
     assert last.mode == "intended" or (
-        last.mode == "fault" and last_faults and
-        all(f.startswith("tracking error") for f in last_faults)), (last.mode, last_faults)
+        last.mode == "fault"
+        and last_faults
+        and all(f.startswith("tracking error") for f in last_faults)
+    ), (last.mode, last_faults)
     assert np.abs(last.q_dot).max() > 0.1
     assert last.failsafe_t_s and last.failsafe_t_s[-1] < 1.0  # a stop within a second
     braking = [s for s in after if s.stamp_s > last.valid_until_s]
