@@ -217,6 +217,11 @@ class InputSpec(StrictFinite):
     be (``sara_app.human.trackers``): its sets grow by this. A named conservative choice, not
     a measured one: confirm it with the tracker at hand."""
     gate: GateSpec = GateSpec()
+    cycle_phase_lock: bool = True
+    """The live worker moves its cycles' phase (never their rate: at most 2 % of a period per
+    cycle) so that a cycle starts just after the skeletons arrive (``sara_app.runtime.cadence``):
+    a skeleton then waits about its transport delay for a cycle, not up to a period. Off: the
+    cycles keep the phase they started with."""
 
     @field_validator("trackers")
     @classmethod

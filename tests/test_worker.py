@@ -188,6 +188,53 @@ def test_control_period_changes_live(cell) -> None:
         time.sleep(0.02)
     assert ack is not None and ack.accepted, ack
     assert worker.shield.settings.dt_s == 0.002
+    assert worker.phase.dt_s == 0.002  # the cycle phase lock follows the new period
+
+
+def test_the_cycles_lock_onto_a_regular_tracker(cell) -> None:
+    """A tracker publishing on its own frame clock (five control periods): the worker's cycles
+    slide (never faster or slower than the slew bound allows) until each skeleton is taken
+    about the learned delay quantile after its stamp, not at a phase that chance or the
+    start left."""
+    from sara_app.bus.messages import SkeletonMsg
+
+    _, worker, verdicts, tb = cell
+    pub = tb.publisher(keys.skeleton_key("cell1", "p"))
+    rng = np.random.default_rng(0)
+    y0 = np.array([[2.5, 0.0, 1.0]]) + rng.normal(0, 0.2, (15, 3))
+    dt = worker.shield.settings.dt_s
+    got: list[VerdictMsg] = []
+    while not got:  # a cycle's start, to begin at the worst phase: just after one
+        got += [d.msg for d in verdicts.drain().messages if isinstance(d.msg, VerdictMsg)]
+        time.sleep(0.01)
+    t_next = got[-1].stamp_s + 5 * dt * (1 + int((time.time() - got[-1].stamp_s) / (5 * dt)))
+    t_next += 1e-4  # each skeleton a period after the cycle before its stamp, unlocked
+    t_end = time.monotonic() + 4.0
+    for seq in range(100000):
+        time.sleep(max(t_next - time.time(), 0.0))
+        y = y0 + rng.normal(0, 0.001, y0.shape)
+        pub.put(SkeletonMsg.from_arrays("full", y, seq=seq, stamp_s=time.time()))
+        t_next += 5 * dt
+        got += [d.msg for d in verdicts.drain().messages if isinstance(d.msg, VerdictMsg)]
+        if time.monotonic() > t_end:
+            break
+    lock = worker.phase
+    assert lock.reference == "p" and lock.hits > 10 * lock.misses, lock
+    first: dict[float, float] = {}
+    for v in got[len(got) // 2 :]:
+        if "p" in v.skeleton_age_s:
+            age = v.skeleton_age_s["p"]
+            first.setdefault(round(v.stamp_s - age, 6), age)
+    ages = np.array(list(first.values()))
+    assert len(ages) > 100
+    # locked: most skeletons are taken within a quarter period of tau, none before their stamp
+    assert np.mean(np.abs(ages - lock.tau_s) < dt / 4) > 0.8, (
+        lock.tau_s,
+        np.percentile(ages, [5, 50, 95]),
+    )
+    assert ages.min() >= 0.0
+    stamps = np.array([v.stamp_s for v in got])
+    assert np.median(np.diff(stamps)) == pytest.approx(dt, abs=1e-4)  # the control rate kept
 
 
 def test_an_overrunning_loop_still_sleeps_every_cycle(monkeypatch) -> None:

@@ -59,6 +59,8 @@ class LoadCost:
     rate_hz: float
     per_process: dict[str, list[ProcessCost]] = field(default_factory=lambda: defaultdict(list))
     latency_us: list[np.ndarray] = field(default_factory=list)
+    """Per run, ``(N, 2)``: each skeleton's wait for a cycle and the cycle + verdict delivery
+    (:func:`_latencies`)."""
     verdict_hz: list[float] = field(default_factory=list)
     messages: dict[str, tuple[float, float]] = field(default_factory=dict)
 
@@ -83,8 +85,9 @@ def _switches(pid: int) -> int:
     return n
 
 
-def scenario_with_people(scenario: str, people: int, folder: Path) -> Path:
-    """The scenario's file with ``people`` copies of its first person at :data:`SPOTS_M`."""
+def scenario_with_people(scenario: str, people: int, folder: Path, phase_lock: bool = True) -> Path:
+    """The scenario's file with ``people`` copies of its first person at :data:`SPOTS_M`, the
+    worker's cycle phase locked to the skeletons or not (``phase_lock``)."""
     from sara_app.scenario import load_scenario
 
     data = load_scenario(scenario).model_dump(mode="json")
@@ -93,6 +96,7 @@ def scenario_with_people(scenario: str, people: int, folder: Path) -> Path:
         {**first, "id": f"p{i + 1}", "position_m": list(SPOTS_M[i % len(SPOTS_M)])}
         for i in range(people)
     ]
+    data["inputs"]["cycle_phase_lock"] = phase_lock
     path = folder / f"{scenario}-{people}p.json"
     path.write_text(json.dumps(data))
     return path
@@ -100,34 +104,38 @@ def scenario_with_people(scenario: str, people: int, folder: Path) -> Path:
 
 def _latencies(received: list[tuple[float, float, dict[str, float]]]) -> np.ndarray:
     """Skeleton publication -> verdict reception (us) from ``(received, verdict stamp,
-    skeleton ages)``: per person and skeleton stamp, the first verdict that used it."""
-    first: dict[tuple[str, float], float] = {}
+    skeleton ages)``: per person and skeleton stamp, the first verdict that used it; shape
+    ``(N, 2)``: the wait for a cycle (the skeleton's age when the cycle started) and the
+    cycle and the verdict's delivery (cycle start -> received), whose sum is the latency."""
+    first: dict[tuple[str, float], tuple[float, float]] = {}
     for t_recv, stamp_s, ages in received:
         for h, age in ages.items():
             t_skel = round(stamp_s - age, 6)
-            first.setdefault((h, t_skel), (t_recv - t_skel) * 1e6)
-    return np.array(list(first.values()))
+            first.setdefault((h, t_skel), (age * 1e6, (t_recv - stamp_s) * 1e6))
+    return np.array(list(first.values())).reshape(-1, 2)
 
 
 def _verdicts(hub: Bus, cell: str, seconds: float) -> list[tuple[float, float, dict[str, float]]]:
     """``(received, stamp, skeleton ages)`` of the cell's verdicts over ``seconds``, with this
     process's garbage collector off (a collection pausing this listener would show as latency
-    of the cell)."""
+    of the cell). The listener sleeps in the subscription's channel, woken by each verdict: a
+    polling listener would add its own polling period to every latency."""
     from sara_app.bus.codec import Decoder
     from sara_app.bus.messages import VerdictMsg
 
     got: list[tuple[float, float, dict[str, float]]] = []
     sub = hub.subscribe(keys.verdict_key(cell), Decoder(), capacity=4096)
-    t_end = time.monotonic() + seconds
+    timer = threading.Timer(seconds, sub.close)  # ends receive() below
     gc.disable()
+    timer.start()
     try:
-        while time.monotonic() < t_end:
-            for d in sub.drain().messages:
+        while (drained := sub.receive()) is not None:
+            for d in drained.messages:
                 if isinstance(d.msg, VerdictMsg):
                     got.append((d.recv_s, d.msg.stamp_s, d.msg.skeleton_age_s))
-            time.sleep(0.001)
     finally:
         gc.enable()
+        timer.cancel()
         sub.close()
     return got
 
@@ -175,10 +183,12 @@ def _measure(hub: Bus, cell: str, pids: dict[str, int], seconds: float, out: Loa
 def bench_live(
     scenario: str = "punches", people: tuple[int, ...] = PEOPLE, seconds: float = 10.0,
     runs: int = 3, pin_cpus: bool = True, robot_encoding: str = "compact",
+    phase_lock: bool = True,
 ) -> list[LoadCost]:  # fmt: skip
     """Each load measured ``runs`` times on a fresh cell (see the module notes); ``pin_cpus``:
     the worker on a CPU of its own and the rest (this process too) on the others, as serve
-    does where the machine has a CPU to spare; ``robot_encoding``: of states and commands."""
+    does where the machine has a CPU to spare; ``robot_encoding``: of states and commands;
+    ``phase_lock``: the scenario's ``inputs.cycle_phase_lock``."""
     from sara_app.processes.affinity import placed_as_serve
     from sara_app.scenario import load_scenario
 
@@ -186,7 +196,7 @@ def bench_live(
     with placed_as_serve(pin_cpus) as plan:
         with tempfile.TemporaryDirectory(prefix="sara-bench-live-") as tmp:
             for n in people:
-                path = str(scenario_with_people(scenario, n, Path(tmp)))
+                path = str(scenario_with_people(scenario, n, Path(tmp), phase_lock))
                 load = LoadCost(n, scenario, 1.0 / load_scenario(path).shield.dt_s)
                 for _ in range(runs):
                     _run(path, plan, seconds, load, robot_encoding)
@@ -243,12 +253,18 @@ def report(loads: list[LoadCost]) -> str:
             lines.append(f"  {name:12s} {np.median(cpu):14.0f} {spread:>22s} {sw:15.1f}")
         spread = " ".join(f"{x:.0f}" for x in total)
         lines.append(f"  {'all':12s} {np.median(total):14.0f} {spread:>22s}")
-        lat = [np.percentile(a, [50, 99]) for a in load.latency_us if a.size]
-        if lat:
-            p50 = np.median([x[0] for x in lat]) / 1e3
-            p99 = np.median([x[1] for x in lat]) / 1e3
-            lines.append(f"  skeleton published -> verdict received: p50 {p50:.2f} ms, "
-                         f"p99 {p99:.2f} ms (median of the runs)")  # fmt: skip
+        parts = [a for a in load.latency_us if a.size]
+        for what, pick in (
+            ("skeleton published -> verdict received", lambda a: a.sum(1)),
+            ("  of which: waiting for a cycle", lambda a: a[:, 0]),
+            ("  the cycle and the verdict's delivery", lambda a: a[:, 1]),
+        ):
+            if parts:
+                p50, p99 = np.median([np.percentile(pick(a), [50, 99]) for a in parts], 0) / 1e3
+                lines.append(
+                    f"  {what}: p50 {p50:.2f} ms, p99 {p99:.2f} ms"
+                    f"{' (median of the runs)' if 'published' in what else ''}"
+                )
         lines.append(f"  {'key':22s} {'messages/cycle':>15s} {'bytes/cycle':>12s}")
         for kind, (m, b) in load.messages.items():
             lines.append(f"  {kind:22s} {m:15.2f} {b:12.0f}")

@@ -25,6 +25,7 @@ import ipaddress
 import json
 import logging
 import socket
+import threading
 from typing import Any, NamedTuple
 
 import zenoh
@@ -146,6 +147,7 @@ class Subscription:
         # the handler apart from the subscriber: a thread blocked in its recv() does not hold
         # the subscriber, which close() can then undeclare (the recv then ends with an error)
         self._handler: Any = self._sub.handler
+        self._closing = threading.Lock()
 
     def receive(self) -> Drained | None:
         """Sleep until a sample is queued, then decode it and every other one queued; None once
@@ -207,13 +209,15 @@ class Subscription:
         return self._decode(list(latest.items()))
 
     def close(self) -> None:
-        if self._sub is not None:
-            self._handler = None
+        """Undeclare (idempotent; safe from another thread: the subscriber is taken first, so a
+        second close while the first undeclares finds nothing to do)."""
+        with self._closing:
+            sub, self._sub, self._handler = self._sub, None, None
+        if sub is not None:
             try:
-                self._sub.undeclare()
+                sub.undeclare()
             except zenoh.ZError:
                 pass
-            self._sub = None
 
 
 ROBOT_ENCODINGS = ("json", "compact")

@@ -40,6 +40,10 @@ from sara_app.sim.motions import HumanMotion, make_motion, measured
 
 log = logging.getLogger("sara_app.replayer")
 FRAME_HZ = 50.0
+_MIN_SLEEP_S = 1e-4
+"""Never a busy loop (a skeleton already due: the next tick after this)."""
+_MAX_SLEEP_S = 0.02
+"""Commands and scenario edits are taken at least this often, skeletons or not."""
 
 
 class Replayer:
@@ -129,8 +133,9 @@ class Replayer:
             pub.put(TrackerFrameMsg(seq=pub.next_seq(), stamp_s=now, people=people))
 
     def run(self, duration_s: float | None = None) -> None:
-        rate = max((h.sensor.rate_hz for h in self.scenario.humans), default=100.0)
-        period = 1.0 / max(rate, 100.0)
+        """Tick whenever a skeleton or frame is due, as a tracker publishes: on its own frame
+        clock (a loop polling at half a frame period stamped its skeletons up to that late,
+        at a phase that wandered from frame to frame)."""
         t_end = None if duration_s is None else time.monotonic() + duration_s
         while not self.stop_event.is_set():
             if t_end is not None and time.monotonic() >= t_end:
@@ -139,7 +144,8 @@ class Replayer:
                 self.tick(time.time())
             except Exception:  # noqa: BLE001 - a replay glitch must not end the demo
                 log.exception("replayer tick failed")
-            time.sleep(period / 2)
+            due_s = min([self.next_frame_s, *self.next_s])
+            time.sleep(min(max(due_s - time.time(), _MIN_SLEEP_S), _MAX_SLEEP_S))
 
 
 def main(argv: list[str] | None = None) -> int:

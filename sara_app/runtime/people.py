@@ -52,6 +52,9 @@ class People:
         self.presence = Presence(
             tuple(inp.trackers), inp.tracker_timeout_s, inp.max_people, self._new_track
         )
+        self.fresh_stamps: dict[str, float] = {}
+        """The stamps of the skeletons taken by the last :meth:`drain`, per person (the cycle's
+        phase follows them: :mod:`~sara_app.runtime.cadence`)."""
 
     def _new_track(self, human_id: str) -> Track:
         return track_for(self.cell, human_id)
@@ -68,8 +71,10 @@ class People:
     def drain(self, now: float) -> None:
         """The newest skeleton of every person and the newest frame of every tracker."""
         skel = self.io.skeletons.drain_latest()
+        self.fresh_stamps.clear()
         for d in skel.messages:
             if isinstance(d.msg, SkeletonMsg) and d.key.human_id:
+                self.fresh_stamps[d.key.human_id] = d.msg.stamp_s
                 try:
                     self.take_skeleton(d.key.human_id, d.msg)
                 except Exception as e:  # noqa: BLE001 - this message only: the person is unseen

@@ -39,6 +39,7 @@ from sara_app.errors import SaraError
 from sara_app.robot.trajectory import JointState
 from sara_app.runtime import display
 from sara_app.runtime.bus_io import CellBus
+from sara_app.runtime.cadence import PhaseLock
 from sara_app.runtime.edits import Built, LiveEdits, build, carry_over
 from sara_app.runtime.messages import CycleMessages
 from sara_app.runtime.people import People
@@ -107,6 +108,7 @@ class CellWorker:
         self.last: CycleResult | None = None
         self.stop_event = threading.Event()
         self.messages = CycleMessages(self.name, self.cell.robot.n_dof)
+        self.phase = PhaseLock(self.shield.settings.dt_s)
 
     @property
     def shield(self) -> Shield:
@@ -124,6 +126,7 @@ class CellWorker:
 
     def _ingest(self, now: float) -> None:
         self.people.drain(now)
+        self.phase.observe(now, self.people.fresh_stamps)
         self.robot_in.drain(self.io.robot_state, self.cell.robot.n_dof, self.io.drop)
         self.people.drain_retirements()
         self.edits.drain(self.io)
@@ -163,6 +166,8 @@ class CellWorker:
         if why is not None:
             return False, why
         self.cell = new
+        if self.phase.dt_s != new.shield.settings.dt_s:  # another control rate
+            self.phase = PhaseLock(new.shield.settings.dt_s)
         self.pass_index = 0
         self.people.adopt(new)
         self.edits.revision += 1
@@ -304,6 +309,8 @@ class CellWorker:
                 break
             self.step(time.time())  # never raises (a failed cycle is a fault cycle)
             next_t += self.shield.settings.dt_s
+            if self.cell.scenario.inputs.cycle_phase_lock:
+                next_t += self.phase.slew_s()
             delay = next_t - time.monotonic()
             # never a busy loop: under SCHED_FIFO an overrunning worker would otherwise keep its
             # CPU from every normally scheduled thread (zenoh I/O included)
