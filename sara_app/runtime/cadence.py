@@ -54,11 +54,11 @@ class PhaseLock:
 
     dt_s: float
     max_slew: float = 0.02
-    quantile: float = 0.99
+    quantile: float = 0.998
     step_s: float = 1e-4
-    gain: float = 0.5
+    gain: float = 0.25
     """Share of a measured phase error corrected (the rest waits for the next skeleton: one
-    skeleton's jitter moves the grid by half of it)."""
+    skeleton's jitter moves the grid by a quarter of it)."""
     tau_s: float = 5e-4
     """The learned delay quantile (s); this value until the first skeletons."""
     pending_s: float = 0.0
