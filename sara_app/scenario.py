@@ -217,11 +217,13 @@ class InputSpec(StrictFinite):
     be (``sara_app.human.trackers``): its sets grow by this. A named conservative choice, not
     a measured one: confirm it with the tracker at hand."""
     gate: GateSpec = GateSpec()
-    cycle_phase_lock: bool = True
+    cycle_phase_lock: bool = False
     """The live worker moves its cycles' phase (never their rate: at most 2 % of a period per
     cycle) so that a cycle starts just after the skeletons arrive (``sara_app.runtime.cadence``):
-    a skeleton then waits about its transport delay for a cycle, not up to a period. Off: the
-    cycles keep the phase they started with."""
+    a skeleton then waits about its transport delay for a cycle, not up to a period. For a
+    worker with a CPU to itself and its tracker on another machine; off by default: cells that
+    share a machine and lock onto one tracker all cycle at the same instant (docs/performance.md,
+    "The skeleton's wait for a cycle")."""
 
     @field_validator("trackers")
     @classmethod

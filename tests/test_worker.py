@@ -10,6 +10,7 @@ import sys
 import threading
 import time
 from collections import Counter
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -58,9 +59,15 @@ with zenoh.open(zenoh.Config.from_json5(json.dumps(conf))) as s:
 
 @pytest.fixture()
 def cell():
+    with _cell(load_scenario("standing_beside_path")) as c:
+        yield c
+
+
+@contextmanager
+def _cell(scenario):
     port = free_port()
     with Bus.router(port) as hub, Bus.client(port) as wb, Bus.client(port) as tb:
-        worker = CellWorker("cell1", load_scenario("standing_beside_path"), wb)
+        worker = CellWorker("cell1", scenario, wb)
         verdicts = tb.subscribe(keys.verdict_key("cell1"), fifo=True, capacity=20000)
         thread = threading.Thread(target=worker.run, daemon=True)
         thread.start()
@@ -191,14 +198,20 @@ def test_control_period_changes_live(cell) -> None:
     assert worker.phase.dt_s == 0.002  # the cycle phase lock follows the new period
 
 
-def test_the_cycles_lock_onto_a_regular_tracker(cell) -> None:
-    """A tracker publishing on its own frame clock (five control periods): the worker's cycles
-    slide (never faster or slower than the slew bound allows) until each skeleton is taken
-    about the learned delay quantile after its stamp, not at a phase that chance or the
-    start left."""
+def test_the_cycles_lock_onto_a_regular_tracker() -> None:
+    """``inputs.cycle_phase_lock`` on, a tracker publishing on its own frame clock (five control
+    periods): the worker's cycles slide (never faster or slower than the slew bound allows)
+    until each skeleton is taken about the learned delay quantile after its stamp, not at a
+    phase that chance or the start left."""
+    sc = load_scenario("standing_beside_path")
+    sc = sc.model_copy(update={"inputs": sc.inputs.model_copy(update={"cycle_phase_lock": True})})
+    with _cell(sc) as (_, worker, verdicts, tb):
+        _locks_on(worker, verdicts, tb)
+
+
+def _locks_on(worker, verdicts, tb) -> None:
     from sara_app.bus.messages import SkeletonMsg
 
-    _, worker, verdicts, tb = cell
     pub = tb.publisher(keys.skeleton_key("cell1", "p"))
     rng = np.random.default_rng(0)
     y0 = np.array([[2.5, 0.0, 1.0]]) + rng.normal(0, 0.2, (15, 3))

@@ -85,7 +85,9 @@ def _switches(pid: int) -> int:
     return n
 
 
-def scenario_with_people(scenario: str, people: int, folder: Path, phase_lock: bool = True) -> Path:
+def scenario_with_people(
+    scenario: str, people: int, folder: Path, phase_lock: bool = False
+) -> Path:
     """The scenario's file with ``people`` copies of its first person at :data:`SPOTS_M`, the
     worker's cycle phase locked to the skeletons or not (``phase_lock``)."""
     from sara_app.scenario import load_scenario
@@ -183,7 +185,7 @@ def _measure(hub: Bus, cell: str, pids: dict[str, int], seconds: float, out: Loa
 def bench_live(
     scenario: str = "punches", people: tuple[int, ...] = PEOPLE, seconds: float = 10.0,
     runs: int = 3, pin_cpus: bool = True, robot_encoding: str = "compact",
-    phase_lock: bool = True,
+    phase_lock: bool = False,
 ) -> list[LoadCost]:  # fmt: skip
     """Each load measured ``runs`` times on a fresh cell (see the module notes); ``pin_cpus``:
     the worker on a CPU of its own and the rest (this process too) on the others, as serve

@@ -65,9 +65,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="--live, --view: CPUs as serve places them")  # fmt: skip
     b.add_argument("--robot-encoding", choices=("compact", "json"), default="compact",
                    help="--live: how the robot states and commands are sent")  # fmt: skip
-    b.add_argument("--phase-lock", action=argparse.BooleanOptionalAction, default=True,
+    b.add_argument("--phase-lock", action=argparse.BooleanOptionalAction, default=False,
                    help="--live: the worker's cycles locked to the skeletons' phase (the "
-                   "scenario's inputs.cycle_phase_lock)")  # fmt: skip
+                   "scenario's inputs.cycle_phase_lock, off by default)")  # fmt: skip
     b.add_argument("--rate", type=float, default=120.0, help="skeletons per second of --cells")
     b.add_argument("--clients", type=int, default=50, help="event streams of --sse")
     b.add_argument("--scenario", default="punches", help="scenario of --view and --live")
