@@ -3,11 +3,12 @@ time, at each person's sensor rate (the built-in demo's stand-in for a real trac
 
 A skeleton stamped ``t`` carries the pose of scenario time ``t - t0 - delay`` (the parameter
 set's sensor delay), with the scenario's sensor noise, so the cell sees exactly what its models
-assume. Adversaries chase the robot as commanded on ``sara/<cell>/robot/command``. The scenario
-restarts after ``sim.duration_s``; an accepted scenario update (``params/ack``) restarts it with
-the new people. Like a real tracker it sends a frame (``TrackerFrameMsg``) for every tracker the
-scenario declares, listing the people it publishes, at ``FRAME_HZ``: without them the cell
-would not move (silence is not an empty cell).
+assume. Adversaries chase the robot as commanded on ``sara/<cell>/robot/command``; only a
+scenario with such a person makes the replayer subscribe to the commands (500 a second, each a
+copy the router sends). The scenario restarts after ``sim.duration_s``; an accepted scenario
+update (``params/ack``) restarts it with the new people. Like a real tracker it sends a frame
+(``TrackerFrameMsg``) for every tracker the scenario declares, listing the people it publishes,
+at ``FRAME_HZ``: without them the cell would not move (silence is not an empty cell).
 """
 
 from __future__ import annotations
@@ -29,14 +30,14 @@ from sara_app.bus.messages import (
     TrackerFrameMsg,
 )
 from sara_app.bus.process import process_main
-from sara_app.bus.session import Bus, Publisher
+from sara_app.bus.session import Bus, Publisher, Subscription
 from sara_app.cell.build import base_pose
 from sara_app.errors import SaraError
 from sara_app.human.glitches import Glitches
 from sara_app.human.params import to_reach_params
 from sara_app.robot.model import RobotModel
 from sara_app.scenario import Scenario, parse_scenario
-from sara_app.sim.motions import HumanMotion, make_motion, measured
+from sara_app.sim.motions import HumanMotion, make_motion, measured, reacts_to_robot
 
 log = logging.getLogger("sara_app.replayer")
 FRAME_HZ = 50.0
@@ -53,7 +54,9 @@ class Replayer:
         self.rng = np.random.default_rng(seed)
         self.stop_event = threading.Event()
         dec = Decoder()
-        self.sub_cmd = bus.subscribe(keys.robot_command_key(self.cell), dec)
+        self._decoder = dec
+        self.sub_cmd: Subscription | None = None
+        """The robot's commands, while a person chases the robot (:func:`reacts_to_robot`)."""
         self.sub_params = bus.subscribe(keys.params_key(self.cell), dec, fifo=True)
         self.sub_ack = bus.subscribe(keys.params_ack_key(self.cell), dec, fifo=True)
         self._pending: dict[str, dict] = {}
@@ -77,6 +80,7 @@ class Replayer:
         ]
         self.next_s = [now for _ in self.scenario.humans]
         self.glitches = [Glitches(h.sensor.glitches) for h in self.scenario.humans]
+        self._follow_robot(any(reacts_to_robot(m) for m in self.motions))
         for h in self.scenario.humans:
             if h.id not in self.pubs:
                 self.pubs[h.id] = self.bus.publisher(keys.skeleton_key(self.cell, h.id))
@@ -84,10 +88,19 @@ class Replayer:
             if tid not in self.frame_pubs:
                 self.frame_pubs[tid] = self.bus.publisher(keys.tracker_frame_key(self.cell, tid))
 
+    def _follow_robot(self, follow: bool) -> None:
+        """Subscribe to the robot's commands, or stop, as the people need them."""
+        if follow and self.sub_cmd is None:
+            self.sub_cmd = self.bus.subscribe(keys.robot_command_key(self.cell), self._decoder)
+        elif not follow and self.sub_cmd is not None:
+            self.sub_cmd.close()
+            self.sub_cmd = None
+
     def _inputs(self) -> None:
-        for d in self.sub_cmd.drain_latest().messages:  # where the robot is now: the newest
-            if isinstance(d.msg, RobotCommandMsg) and len(d.msg.q) == self.robot.n_dof:
-                self.q = np.asarray(d.msg.q)
+        if self.sub_cmd is not None:  # where the robot is now: the newest command
+            for d in self.sub_cmd.drain_latest().messages:
+                if isinstance(d.msg, RobotCommandMsg) and len(d.msg.q) == self.robot.n_dof:
+                    self.q = np.asarray(d.msg.q)
         for d in self.sub_params.drain().messages:
             if isinstance(d.msg, ParamsMsg):
                 self._pending[d.msg.request_id] = d.msg.scenario

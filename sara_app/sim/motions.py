@@ -29,6 +29,12 @@ class HumanMotion(Protocol):
     def pose(self, t: float, robot_ends: np.ndarray, robot_radius: np.ndarray) -> np.ndarray: ...
 
 
+def reacts_to_robot(motion: HumanMotion) -> bool:
+    """Whether the motion's poses depend on where the robot is (an adversary chasing it); a
+    source that does not say is taken to (its replayer then follows the robot's commands)."""
+    return bool(getattr(motion, "reacts_to_robot", True))
+
+
 def measures_legs(motion: HumanMotion, tracks: str = "auto") -> bool:
     """Whether a sensor that ``tracks`` (``SensorSpec.tracks``) measures this person's legs
     (``auto``: what the source has; an upper-body recording's standing legs are not)."""
@@ -56,6 +62,8 @@ def standing_legs(upper: np.ndarray) -> np.ndarray:
 
 
 class Scripted:
+    reacts_to_robot = False
+
     def __init__(self, motion: ScriptedMotion) -> None:
         self.motion = motion
 
@@ -78,6 +86,8 @@ class Playback:
     rightly reports it). So the clip's time is eased in and out: its rate rises linearly from 0
     to 1 over ``RAMP_S`` (at most half the clip) and falls back to 0 before its end, adding at
     most (clip speed) / ``RAMP_S`` to the clip's accelerations."""
+
+    reacts_to_robot = False
 
     def __init__(
         self,

@@ -1,0 +1,71 @@
+"""The replayer (the demo's stand-in for a tracker) over real Zenoh on 127.0.0.1: it publishes on
+its own frame clock, and it listens to the robot's commands only while a person in its
+scenario chases the robot."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+
+from sara_app.bus import keys
+from sara_app.bus.messages import RobotCommandMsg, SkeletonMsg
+from sara_app.bus.session import Bus, free_port
+from sara_app.peers.replayer import Replayer
+from sara_app.scenario import load_scenario
+
+CELL = "rp"
+
+
+def _command(q: list[float], seq: int) -> RobotCommandMsg:
+    now = time.time()
+    return RobotCommandMsg(seq=seq, stamp_s=now, q=q, q_dot=[0.0] * 7, q_ddot=[0.0] * 7,
+                           mode="rest", valid_until_s=now + 0.01)  # fmt: skip
+
+
+def test_only_a_person_who_chases_the_robot_makes_it_follow_the_commands() -> None:
+    port = free_port()
+    with Bus.router(port), Bus.client(port) as rb, Bus.client(port) as tb:
+        scripted = Replayer(CELL, load_scenario("punches"), rb)
+        assert scripted.sub_cmd is None  # scripted people: no copy of 500 commands a second
+        adversarial = load_scenario("adversarial")
+        scripted.load(adversarial)  # an accepted edit that brings in an adversary
+        assert scripted.sub_cmd is not None
+        pub = tb.publisher(keys.robot_command_key(CELL))
+        q = [0.1, -0.2, 0.3, -1.5, 0.0, 1.8, 0.7]
+        t_end = time.monotonic() + 5.0
+        seq = 0
+        while not np.allclose(scripted.q, q) and time.monotonic() < t_end:
+            pub.put(_command(q, seq))
+            seq += 1
+            time.sleep(0.01)
+            scripted.tick(time.time())
+        np.testing.assert_allclose(scripted.q, q)  # the adversary chases where the robot is
+        scripted.load(load_scenario("punches"))
+        assert scripted.sub_cmd is None  # and stops listening when nobody chases it
+
+
+def test_skeletons_are_stamped_on_the_frame_clock() -> None:
+    """At the person's sensor rate, one skeleton per frame period: a frame clock, not a poll
+    (which stamped skeletons up to half a period late and sent two in one poll after a late
+    one)."""
+    sc = load_scenario("punches")
+    rate = sc.humans[0].sensor.rate_hz
+    port = free_port()
+    with Bus.router(port), Bus.client(port) as rb, Bus.client(port) as tb:
+        sub = tb.subscribe(keys.skeleton_key(CELL, sc.humans[0].id), fifo=True, capacity=10000)
+        rep = Replayer(CELL, sc, rb)
+        thread = threading.Thread(target=rep.run, kwargs={"duration_s": 2.0}, daemon=True)
+        thread.start()
+        thread.join(10)
+        time.sleep(0.1)
+        stamps = np.array([d.msg.stamp_s for d in sub.drain().messages
+                           if isinstance(d.msg, SkeletonMsg)])  # fmt: skip
+    assert len(stamps) >= 1.5 * rate
+    gaps = np.diff(stamps)
+    assert abs(np.median(gaps) - 1.0 / rate) < 0.1 / rate
+    # on the clock: each stamp a whole number of periods after the first, give or take the
+    # wake-up (a poll at half a period would scatter them over half a period)
+    phase = ((stamps - stamps[0]) * rate + 0.5) % 1.0 - 0.5
+    assert np.mean(np.abs(phase) < 0.1) > 0.9, np.percentile(np.abs(phase), [50, 90])
