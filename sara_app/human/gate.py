@@ -55,8 +55,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sara_app.errors import ParameterError
+from sara_app.errors import InputError, ParameterError
+from sara_app.human.gate_kernels import (
+    ALL_GOOD,
+    CLEAN,
+    FLAGGED,
+    REFUSED,
+    gate_advance,
+    gate_frame,
+)
 from sara_app.human.skeleton import FULL_JOINTS
+from sara_app.kernel_types import as_f8
 
 BONES: tuple[tuple[str, str], ...] = (
     ("head", "neck"),
@@ -76,9 +85,6 @@ BONES: tuple[tuple[str, str], ...] = (
 )
 """Joint pairs at a (nearly) constant distance on every supported source (the neck and pelvis
 are the midpoints of the shoulders and hips, or markers on the spine)."""
-
-FROZEN_EPS_M = 1e-9
-"""A coordinate change below this is a repeat (a frozen output, not motion or noise)."""
 
 FLAGS = ("jump", "bone", "frozen", "missing")
 """The gate's per-joint flags, in the order of :attr:`GateResult.flags`' columns (``missing``:
@@ -191,6 +197,7 @@ class Gate:
         """``(joint, index in FLAGS, stamp)`` of the newest flagged joint (None: none yet)."""
         self._learn: list[np.ndarray] = []
         self._none = np.zeros(J, bool)  # no joint missing (a frame without confidences)
+        self._same = np.zeros(J, bool)  # the kernel's: joints repeated exactly this frame
         self.out = GateResult(np.zeros((J, 3)), np.zeros(J), np.ones(J, bool),
                               np.zeros((J, len(FLAGS)), bool), np.zeros(J))  # fmt: skip
 
@@ -214,54 +221,34 @@ class Gate:
         out = self.out
         lost = self._none if missing is None else np.asarray(missing, bool)
         if lost.any():
-            y = np.where(lost[:, None], self.y_trusted, y)  # a held joint's value, never NaN
-        m = (np.arange(y.shape[0]) < n_measured) & ~lost
-        held = np.isfinite(self.since_s)
-        dist = np.linalg.norm(y - self.y_trusted, axis=1)
-        reach = 2.0 * delta_y_m + self.v_max_mps * (t_s - self.t_trusted)
-        jump = m & np.isfinite(self.t_trusted) & (dist > reach)
-        same = m & np.all(np.abs(y - self.y_prev) <= FROZEN_EPS_M, axis=1)
-        moved = m & ~same & np.isfinite(self.y_prev[:, 0])
-        frozen = same & (moved.any() | held)
-        bone = m & self._bone_blame(y, delta_y_m, jump | frozen | held, m)
-        out.flags[:, 0], out.flags[:, 1], out.flags[:, 2], out.flags[:, 3] = (
-            jump,
-            bone,
-            frozen,
-            lost,
-        )
-        glitch = bone | frozen | lost
-        only_jump = jump & ~glitch
-        with np.errstate(divide="ignore", invalid="ignore"):
-            out.jump_speed_mps[:] = np.where(
-                only_jump, (dist - 2.0 * delta_y_m) / (t_s - self.t_trusted), 0.0
+            y = np.where(lost[:, None], self.y_trusted, y)
+        y = as_f8(y)
+        if y.shape != self.y_trusted.shape or lost.shape != self.t_trusted.shape:
+            raise InputError(
+                f"gate: frame of shape {y.shape}, missing flags {lost.shape}; expected "
+                f"{self.y_trusted.shape} and {self.t_trusted.shape}"
             )
-        bad = glitch | jump
-        # A frozen joint's repeated value was a measurement when it first came: held from then.
-        restart = frozen & (self.t_trusted > self.first_seen_s)
-        self.t_trusted[restart] = self.first_seen_s[restart]
-        self.y_trusted[restart] = y[restart]
-        start = np.where(frozen, np.minimum(self.first_seen_s, t_s), t_s)
-        self.since_s = np.where(bad, np.where(held, self.since_s, start), np.nan)
-        good = ~bad
-        self.y_trusted[good] = y[good]
-        self.t_trusted[good] = t_s
-        self.dy_trusted[good] = delta_y_m
-        out.trusted[:] = good
-        self._enclose_held(t_s, y, delta_y_m, good, frozen, lost)
-        held_s = np.where(bad, t_s - self.since_s, 0.0)
-        out.refused = bool((held_s > self.settings.max_hold_s).any()) or bool(
-            (lost & ~np.isfinite(self.t_trusted)).any()
-        )
-        self.first_seen_s = np.where(same, self.first_seen_s, t_s)
-        self.y_prev[:] = y
-        if np.isnan(self.length_m).any() and not (bad | jump)[m].any():
+        s = self.settings
+        bits = gate_frame(
+            float(t_s), y, float(delta_y_m), int(n_measured), lost, self.v_max_mps, self.bones,
+            self.length_m, s.bone_tol_m, s.max_hold_s, self.y_trusted, self.t_trusted,
+            self.dy_trusted, self.y_prev, self.first_seen_s, self.since_s, out.flags,
+            out.jump_speed_mps, out.trusted, self._same,
+        )  # fmt: skip
+        if bits & ALL_GOOD:  # the common frame: nothing held, nothing to enclose
+            out.y[:] = y
+            out.extra_m[:] = 0.0
+        else:
+            self._enclose_held(t_s, y, delta_y_m, out.trusted, out.flags[:, 2], lost)
+        out.refused = bool(bits & REFUSED)
+        gate_advance(float(t_s), y, self._same, self.first_seen_s, self.y_prev)
+        if bits & CLEAN and np.isnan(self.length_m).any():
             self._learn_bones(y)
-        if out.flags.any():
+        if bits & FLAGGED:
             j = int(np.flatnonzero(out.flags.any(axis=1))[0])
             self.last_flag = (j, why(out.flags[j]), t_s)
-        for k, name in enumerate(FLAGS):
-            self.counts[name] += int(out.flags[:, k].sum())
+            for k, name in enumerate(FLAGS):
+                self.counts[name] += int(out.flags[:, k].sum())
         self.counts["refused"] += int(out.refused)
         return out
 
@@ -284,25 +271,6 @@ class Gate:
         centre, radius = enclose(self.y_trusted, r_hist, y, r_meas)
         out.y[:] = np.where(good[:, None], y, centre)
         out.extra_m[:] = np.where(good, 0.0, np.maximum(radius - delta_y_m, 0.0))
-
-    def _bone_blame(
-        self, y: np.ndarray, delta_y_m: float, suspect: np.ndarray, measured: np.ndarray
-    ) -> np.ndarray:
-        """``(J,)`` joints blamed for an inconsistent bone of two measured joints: its suspect
-        ends, else both."""
-        blame = np.zeros(y.shape[0], dtype=bool)
-        if not len(self.bones):
-            return blame
-        a, b = self.bones[:, 0], self.bones[:, 1]
-        length = np.linalg.norm(y[a] - y[b], axis=1)
-        with np.errstate(invalid="ignore"):  # nan: a bone not known yet is not checked
-            off = np.abs(length - self.length_m) > 2.0 * delta_y_m + self.settings.bone_tol_m
-        off &= measured[a] & measured[b]
-        sa, sb = suspect[a], suspect[b]
-        either = sa | sb
-        blame[a[off & (sa | ~either)]] = True
-        blame[b[off & (sb | ~either)]] = True
-        return blame
 
     def _learn_bones(self, y: np.ndarray) -> None:
         a, b = self.bones[:, 0], self.bones[:, 1]

@@ -17,7 +17,8 @@ import numpy as np
 
 from sara_app.errors import InputError
 from sara_app.human.conformance import Monitor, Violation
-from sara_app.human.gate import FLAGS, FROZEN_EPS_M, Gate, GateResult, GateSettings, why
+from sara_app.human.gate import FLAGS, Gate, GateResult, GateSettings, why
+from sara_app.human.gate_kernels import FROZEN_EPS_M
 from sara_app.human.params import ReachParams
 from sara_app.human.recording import Recording
 from sara_app.human.skeleton import FULL_JOINTS

@@ -1,0 +1,82 @@
+"""The gate's compiled frame check (``sara_app.human.gate_kernels``) against its numpy oracle
+(``tests/gate_reference.py``): random skeleton streams with every glitch the gate knows
+(spikes, swapped and frozen markers, missing joints, a whole repeated skeleton, too-fast
+joints, upper-body sources) give the same result and the same gate state at every frame."""
+
+from __future__ import annotations
+
+import numpy as np
+from gate_reference import ReferenceGate
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from sara_app.errors import InputError
+from sara_app.human.gate import Gate, GateSettings
+from sara_app.human.scripted import joints, standing
+
+
+def _same_gate(a: Gate, b: Gate, frame: int) -> None:
+    for name in ("y", "extra_m", "trusted", "flags", "jump_speed_mps"):
+        np.testing.assert_allclose(getattr(a.out, name), getattr(b.out, name), rtol=1e-12,
+                                   atol=1e-12, err_msg=f"out.{name}, frame {frame}")  # fmt: skip
+    assert a.out.refused == b.out.refused, frame
+    for name in ("y_trusted", "t_trusted", "dy_trusted", "y_prev", "first_seen_s", "since_s",
+                 "length_m"):  # fmt: skip
+        np.testing.assert_array_equal(
+            getattr(a, name), getattr(b, name), err_msg=f"{name}, {frame}"
+        )
+    assert a.counts == b.counts and a.last_flag == b.last_flag, frame
+
+
+@given(st.integers(0, 2**31 - 1), st.sampled_from([(15, 15), (15, 9), (9, 9)]))
+@settings(max_examples=60, deadline=None)
+def test_the_compiled_check_equals_the_numpy_reference(seed: int, shape: tuple[int, int]) -> None:
+    J, n_measured = shape
+    rng = np.random.default_rng(seed)
+    known = (("l_elbow", "l_wrist", 0.27),) if rng.random() < 0.5 else ()
+    gs = GateSettings(bone_tol_m=float(rng.uniform(0.0, 0.08)), learn_frames=5,
+                      max_hold_s=float(rng.uniform(0.05, 0.5)), known_bones_m=known)  # fmt: skip
+    v_max = rng.uniform(0.5, 3.0, J)
+    gates = (Gate(v_max.copy(), gs), ReferenceGate(v_max.copy(), gs))
+    y = joints(standing((1.0, 0.0), 0.0))[:J]
+    t = 100.0
+    prev = y.copy()
+    for frame in range(80):
+        t += float(rng.choice([0.01, 0.01, 0.0333, 0.002]))
+        y = y + rng.normal(scale=0.003, size=(J, 3))
+        meas = y + rng.normal(scale=0.002, size=(J, 3))
+        event = rng.random()
+        missing = None
+        if event < 0.1:  # a spike on one joint
+            meas[rng.integers(J)] += rng.normal(scale=0.5, size=3)
+        elif event < 0.2:  # frozen markers: repeat last frame's values
+            k = rng.integers(1, 4)
+            idx = rng.choice(J, k, replace=False)
+            meas[idx] = prev[idx]
+        elif event < 0.25:  # the whole skeleton repeated
+            meas = prev.copy()
+        elif event < 0.35:  # missing joints (NaN rows, as a tracker without them)
+            missing = rng.random(J) < 0.3
+            meas[missing] = np.nan
+        elif event < 0.4:  # two markers swapped
+            a, b = rng.choice(J, 2, replace=False)
+            meas[[a, b]] = meas[[b, a]]
+        elif event < 0.45:  # the whole person moves too fast
+            y = y + rng.normal(scale=0.3, size=3)
+            meas = y + rng.normal(scale=0.002, size=(J, 3))
+        dy = float(rng.choice([0.004, 0.012, 0.03]))
+        for g in gates:
+            g.check(t, meas.copy(), dy, n_measured, None if missing is None else missing.copy())
+        _same_gate(gates[0], gates[1], frame)
+        prev = meas
+
+
+def test_a_frame_of_the_wrong_shape_is_an_input_error() -> None:
+    """The kernel reads rows by index: a frame that does not fit the gate never reaches it."""
+    g = Gate(np.ones(15))
+    try:
+        g.check(0.0, np.zeros((9, 3)), 0.01, 9)
+    except InputError as e:
+        assert "(9, 3)" in str(e) and "(15, 3)" in str(e)
+    else:
+        raise AssertionError("a (9, 3) frame passed a 15-joint gate")
