@@ -25,6 +25,8 @@ from __future__ import annotations
 import numpy as np
 
 from sara_app.errors import InputError
+from sara_app.human.velocity_kernels import velocity_step
+from sara_app.kernel_types import as_f8
 
 
 def velocity_error_bound(lag_s: np.ndarray, delta_y_m: float, a_max_mps2: np.ndarray) -> np.ndarray:
@@ -84,6 +86,7 @@ class VelocityEstimator:
         self.count = 0
         self.v = np.zeros((n_joints, 3))
         self.dv = np.full(n_joints, np.inf)
+        self._all_trusted = np.ones(n_joints, bool)
 
     def reset(self) -> None:
         self.count = 0
@@ -111,23 +114,16 @@ class VelocityEstimator:
         A time stamp that does not advance raises InputError (the caller drops the frame).
         """
         self.check_stamp(t_s)
-        self.times[1:] = self.times[:-1]
-        self.frames[1:] = self.frames[:-1]
-        self.times[0] = t_s
-        self.frames[0] = y
-        self.trusted[1:] = self.trusted[:-1]
-        self.trusted[0] = True if trusted is None else trusted
-        self.count = min(self.count + 1, len(self.times))
-        n = self.count - 1
-        if n == 0:
-            self.v[:] = 0.0
-            self.dv[:] = np.inf
-            return self.v, self.dv
-        dts = t_s - self.times[1 : n + 1]
-        best, bound = _best_lags(dts, self.delta_y_m, self.a_max)
-        joints = np.arange(self.a_max.shape[0])
-        past = self.frames[1 + best, joints]
-        self.v[:] = (y - past) / dts[best][:, None]
-        self.dv[:] = np.where(self.trusted[0] & self.trusted[1 + best, joints], bound, np.inf)
-        self.v[~np.isfinite(self.dv)] = 0.0
+        y = as_f8(y)
+        ok = self._all_trusted if trusted is None else np.asarray(trusted, bool)
+        J = self.dv.shape
+        if y.shape != self.frames.shape[1:] or ok.shape != J or self.a_max.shape != J:
+            raise InputError(
+                f"velocity: frame of shape {y.shape}, trusted {ok.shape}, a_max "
+                f"{self.a_max.shape}; expected {self.frames.shape[1:]}, {self.dv.shape} twice"
+            )
+        self.count = velocity_step(
+            self.times, self.frames, self.trusted, self.count, float(t_s), y, ok,
+            float(self.delta_y_m), self.a_max, self.v, self.dv,
+        )  # fmt: skip
         return self.v, self.dv
