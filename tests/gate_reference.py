@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sara_app.human.gate import FLAGS, Gate, GateResult, why
+from sara_app.human.gate import Gate, GateResult
 from sara_app.human.gate_kernels import FROZEN_EPS_M
 
 
@@ -53,7 +53,7 @@ class ReferenceGate(Gate):
         self.t_trusted[good] = t_s
         self.dy_trusted[good] = delta_y_m
         out.trusted[:] = good
-        self._enclose_held(t_s, y, delta_y_m, good, frozen, lost)
+        self._enclose_held(t_s, y, delta_y_m, good, frozen, lost, all_good=bool(good.all()))
         held_s = np.where(bad, t_s - self.since_s, 0.0)
         out.refused = bool((held_s > self.settings.max_hold_s).any()) or bool(
             (lost & ~np.isfinite(self.t_trusted)).any()
@@ -62,12 +62,7 @@ class ReferenceGate(Gate):
         self.y_prev[:] = y
         if np.isnan(self.length_m).any() and not (bad | jump)[m].any():
             self._learn_bones(y)
-        if out.flags.any():
-            j = int(np.flatnonzero(out.flags.any(axis=1))[0])
-            self.last_flag = (j, why(out.flags[j]), t_s)
-        for k, name in enumerate(FLAGS):
-            self.counts[name] += int(out.flags[:, k].sum())
-        self.counts["refused"] += int(out.refused)
+        self._tally(t_s, flagged=bool(out.flags.any()))
         return out
 
     def _bone_blame(

@@ -256,17 +256,15 @@ def report(loads: list[LoadCost]) -> str:
         spread = " ".join(f"{x:.0f}" for x in total)
         lines.append(f"  {'all':12s} {np.median(total):14.0f} {spread:>22s}")
         parts = [a for a in load.latency_us if a.size]
-        for what, pick in (
-            ("skeleton published -> verdict received", lambda a: a.sum(1)),
-            ("  of which: waiting for a cycle", lambda a: a[:, 0]),
-            ("  the cycle and the verdict's delivery", lambda a: a[:, 1]),
-        ):
+        for what, pick, note in (
+            ("skeleton published -> verdict received", lambda a: a.sum(1),
+             " (median of the runs)"),
+            ("  of which: waiting for a cycle", lambda a: a[:, 0], ""),
+            ("  the cycle and the verdict's delivery", lambda a: a[:, 1], ""),
+        ):  # fmt: skip
             if parts:
                 p50, p99 = np.median([np.percentile(pick(a), [50, 99]) for a in parts], 0) / 1e3
-                lines.append(
-                    f"  {what}: p50 {p50:.2f} ms, p99 {p99:.2f} ms"
-                    f"{' (median of the runs)' if 'published' in what else ''}"
-                )
+                lines.append(f"  {what}: p50 {p50:.2f} ms, p99 {p99:.2f} ms{note}")
         lines.append(f"  {'key':22s} {'messages/cycle':>15s} {'bytes/cycle':>12s}")
         for kind, (m, b) in load.messages.items():
             lines.append(f"  {kind:22s} {m:15.2f} {b:12.0f}")

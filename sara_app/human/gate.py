@@ -235,31 +235,35 @@ class Gate:
             self.dy_trusted, self.y_prev, self.first_seen_s, self.since_s, out.flags,
             out.jump_speed_mps, out.trusted, self._same,
         )  # fmt: skip
-        if bits & ALL_GOOD:  # the common frame: nothing held, nothing to enclose
-            out.y[:] = y
-            out.extra_m[:] = 0.0
-        else:
-            self._enclose_held(t_s, y, delta_y_m, out.trusted, out.flags[:, 2], lost)
+        self._enclose_held(t_s, y, delta_y_m, out.trusted, out.flags[:, 2], lost,
+                           all_good=bool(bits & ALL_GOOD))  # fmt: skip
         out.refused = bool(bits & REFUSED)
         gate_advance(float(t_s), y, self._same, self.first_seen_s, self.y_prev)
         if bits & CLEAN and np.isnan(self.length_m).any():
             self._learn_bones(y)
-        if bits & FLAGGED:
+        self._tally(t_s, flagged=bool(bits & FLAGGED))
+        return out
+
+    def _tally(self, t_s: float, flagged: bool) -> None:
+        """The frame's flags into :attr:`last_flag` and :attr:`counts` (``flagged``: some joint
+        is; without, only a refusal can count)."""
+        out = self.out
+        if flagged:
             j = int(np.flatnonzero(out.flags.any(axis=1))[0])
             self.last_flag = (j, why(out.flags[j]), t_s)
             for k, name in enumerate(FLAGS):
                 self.counts[name] += int(out.flags[:, k].sum())
         self.counts["refused"] += int(out.refused)
-        return out
 
     def _enclose_held(
         self, t_s: float, y: np.ndarray, delta_y_m: float, good: np.ndarray,
-        frozen: np.ndarray, lost: np.ndarray,
+        frozen: np.ndarray, lost: np.ndarray, all_good: bool,
     ) -> None:  # fmt: skip
         """``out.y`` and ``out.extra_m``: a trusted joint as measured; a held one as the ball
-        enclosing its history and its measurement (see the module notes)."""
+        enclosing its history and its measurement (see the module notes). ``all_good``:
+        ``good`` is all true."""
         out = self.out
-        if good.all():  # the common frame: nothing held, nothing to enclose
+        if all_good:  # the common frame: nothing held, nothing to enclose
             out.y[:] = y
             out.extra_m[:] = 0.0
             return

@@ -116,8 +116,12 @@ class VelocityEstimator:
         self.check_stamp(t_s)
         y = as_f8(y)
         ok = self._all_trusted if trusted is None else np.asarray(trusted, bool)
-        J = self.dv.shape
-        if y.shape != self.frames.shape[1:] or ok.shape != J or self.a_max.shape != J:
+        per_joint = self.dv.shape
+        if (
+            y.shape != self.frames.shape[1:]
+            or per_joint != ok.shape
+            or per_joint != self.a_max.shape
+        ):
             raise InputError(
                 f"velocity: frame of shape {y.shape}, trusted {ok.shape}, a_max "
                 f"{self.a_max.shape}; expected {self.frames.shape[1:]}, {self.dv.shape} twice"

@@ -17,15 +17,15 @@ sound, and the next set point is met).
 Reading a skeleton's delay: when the grid is locked (cycles at ``stamp + tau + k dt``), a
 skeleton is first taken at ``lag = now - stamp = tau`` when it arrived within ``tau`` (a hit)
 and at ``tau + dt`` or later when it did not (a miss). ``tau`` follows the quantile by the
-Robbins-Monro rule ``tau += step * (miss - (1 - quantile))``: a miss raises it by almost a
-step, a hit lowers it by a hundredth of one (at ``quantile`` 0.99). The phase error is the lag
-minus ``tau``, modulo the period; while it is larger than a quarter period the grid is not
-locked and ``tau`` is left alone (a lag then says where the grid is, not how late the skeleton
-was). A frame period that is not a multiple of the control period brings frames at several
-phases of the grid (100 Hz on a 250 Hz grid: two); the lock then moves towards each in turn,
-within the slew bound: no gain, no harm. One person's skeletons are followed (the reference,
-kept until none came from them for :data:`REFERENCE_TIMEOUT_S`): people tracked by unrelated
-trackers arrive at unrelated phases.
+Robbins-Monro rule ``tau += step * (miss - (1 - quantile))``: a miss raises it by almost a step,
+a hit lowers it by ``1 - quantile`` of one (a five-hundredth at the default 0.998). The phase
+error is the lag minus ``tau``, modulo the period; while it is larger than a quarter period the
+grid is not locked and ``tau`` is left alone (a lag then says where the grid is, not how late
+the skeleton was). A frame period that is not a multiple of the control period brings frames at
+several phases of the grid (100 Hz on a 250 Hz grid: two); the lock then moves towards each in
+turn, within the slew bound: no gain, no harm. One person's skeletons are followed (the
+reference, kept until none came from them for :data:`REFERENCE_TIMEOUT_S`): people tracked by
+unrelated trackers arrive at unrelated phases.
 """
 
 from __future__ import annotations

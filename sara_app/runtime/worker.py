@@ -126,7 +126,8 @@ class CellWorker:
 
     def _ingest(self, now: float) -> None:
         self.people.drain(now)
-        self.phase.observe(now, self.people.fresh_stamps)
+        if self.cell.scenario.inputs.cycle_phase_lock:
+            self.phase.observe(now, self.people.fresh_stamps)
         self.robot_in.drain(self.io.robot_state, self.cell.robot.n_dof, self.io.drop)
         self.people.drain_retirements()
         self.edits.drain(self.io)
