@@ -420,21 +420,3 @@ def test_prismatic_joints_are_rejected(tmp_path) -> None:
     model = RobotModel(path)
     with pytest.raises(RobotModelError, match="revolute joints only"):
         RobotOccupancy(model)
-
-
-def test_sampled_ends_reuse_the_last_intervals_call(robot) -> None:
-    """The capsule ends at a sampled configuration equal the model's own; any other
-    configuration, or a later kinematics call that overwrote the buffers, gives None."""
-    model, occ = robot
-    rng = np.random.default_rng(31)
-    lo, hi = model.limits.q_min, model.limits.q_max
-    Q = lo + (hi - lo) * rng.uniform(0.1, 0.9, (6, model.n_dof))
-    occ.intervals(Q, np.full((5, model.n_dof), 0.5), np.linspace(0.0, 0.05, 6))
-    for k in (0, 1):
-        got = occ.sampled_ends(Q[k])
-        assert got is not None
-        np.testing.assert_allclose(got, model.link_capsules(Q[k])[0], atol=1e-12)
-    assert occ.sampled_ends(Q[2]) is None  # only the current state and the step's end
-    assert occ.sampled_ends(Q[1] + 1e-9) is None
-    occ.link_ends(Q[3:4])  # overwrites the scratch buffers
-    assert occ.sampled_ends(Q[1]) is None

@@ -290,9 +290,8 @@ def test_executed_motion_inside_verified_occupancy(
 
 
 def test_min_distance_is_the_distance_at_the_command() -> None:
-    """The verdict's minimum distance (reusing the occupancy's kinematics when the step was
-    verified) equals the distance computed from scratch at the commanded configuration, for
-    verified and braking cycles alike."""
+    """The verdict's minimum distance (one compiled call) equals pinocchio's link capsules and
+    ``body_distance`` at the commanded configuration, for verified and braking cycles alike."""
     from sara_app.safety.ssm import body_distance
 
     sh = make_shield()

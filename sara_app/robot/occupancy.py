@@ -212,8 +212,6 @@ class RobotOccupancy:
         self._H[:, :, 3, 3] = 1.0
         self._H[:, 0] = self._T0
         self._E = np.empty((S, self.n_links, 2, 3))
-        self._Q_sampled = np.empty((S, n))  # the configurations of the ends kept in _E
-        self._n_sampled = 0
 
     def kernel_arrays(self) -> tuple[np.ndarray, ...]:
         """The constants of the compiled kinematics, for kernels that call
@@ -246,7 +244,6 @@ class RobotOccupancy:
         the scratch buffer (valid until the next call)."""
         S = Q.shape[0]
         self._ensure_capacity(S)
-        self._n_sampled = 0
         H = self._H[:S]
         fk_kernel(Q if self._q_identity else Q[:, self._q_index], self._N, self._parents, H)
         return H
@@ -254,7 +251,6 @@ class RobotOccupancy:
     def _ends(self, H: np.ndarray) -> np.ndarray:
         """World capsule ends ``(S, L, 2, 3)`` from joint poses ``(S, n+1, 4, 4)`` (a scratch
         buffer, valid until the next call)."""
-        self._n_sampled = 0
         E = self._E[: H.shape[0]]
         ends_kernel(H, self._link_joint, self._ends_joint, E, H.shape[0])
         return E
@@ -415,34 +411,20 @@ class RobotOccupancy:
             self._check(Q, V, T)  # raises with the shape that is wrong
         if S > self._capacity:
             self._ensure_capacity(S)
-        self._n_sampled = 0
         ends = np.empty((S - 1, self.n_links, 2, 3))
         radius = np.empty((S - 1, self.n_links))
         Qj = Q if self._q_identity else Q[:, self._q_index]
         status = intervals_kernel(
             Qj, V, T, self._N, self._parents, self._link_joint, self._ends_joint,
-            self.lipschitz, self._radius0, self._H, self._E, ends, radius, self._Q_sampled,
+            self.lipschitz, self._radius0, self._H, self._E, ends, radius,
         )  # fmt: skip
         if status:
             self._check(Q, V, T)  # raises with the value that is wrong
             raise InputError(f"trajectory rejected by the occupancy kernel (code {status})")
-        if not self._q_identity:
-            self._Q_sampled[:S] = Q  # the kernel copied the joint-order columns
-        self._n_sampled = S
         if bound == "local":
             H, E = self._H[:S], self._E[:S]
             radius = self._half_path_local(H, E, V, T[1:] - T[:-1]) + self._radius0
         return ends, radius
-
-    def sampled_ends(self, q: np.ndarray) -> np.ndarray | None:
-        """World capsule ends ``(L, 2, 3)`` at ``q (n,)`` if the last :meth:`intervals` call
-        sampled exactly this configuration (at sample 1, the end of a shielded trajectory's
-        intended step, or sample 0), else None: that call's kinematics reused instead of
-        computed again. A view of a scratch buffer, valid until the next call."""
-        for k in (1, 0):
-            if k < self._n_sampled and np.array_equal(self._Q_sampled[k], q):
-                return self._E[k]
-        return None
 
     def intervals_of(
         self, trajectory: object, *, bound: Bound = "lipschitz"

@@ -72,7 +72,7 @@ def ends_kernel(
 
 
 @njit(
-    _i8(_RO2, _RO2, _RO1, _RO3, _ROI1, _ROI1, _RO3, _RO2, _RO1, _W4, _W4, _W4, _W2, _W2),
+    _i8(_RO2, _RO2, _RO1, _RO3, _ROI1, _ROI1, _RO3, _RO2, _RO1, _W4, _W4, _W4, _W2),
     cache=True,
 )
 def intervals_kernel(
@@ -89,14 +89,13 @@ def intervals_kernel(
     E: np.ndarray,
     ends: np.ndarray,
     radius: np.ndarray,
-    Q_copy: np.ndarray,
 ) -> int:
     """:meth:`RobotOccupancy.intervals` (Lipschitz bound) in one pass: checks the values (returns
     1 for a non-finite ``Q (K+1, n)``, 2 for non-finite or non-increasing times ``T (K+1,)``, 3
     for a non-finite or negative ``V (K, n)``, writing nothing else; 0 when valid), then fills
     ``H[:K+1]``, ``E[:K+1]`` (joint poses and capsule ends at the samples; buffers of at least
     ``K + 1`` samples), ``ends (K, L, 2, 3)`` (mid axes), ``radius (K, L) = dt / 2 * lipschitz
-    @ V + radius0`` and ``Q_copy[:K+1] = Q``."""
+    @ V + radius0``."""
     S, n = Q.shape
     for s in range(S):
         for j in range(n):
@@ -108,9 +107,6 @@ def intervals_kernel(
         for j in range(n):
             if not (math.isfinite(V[k, j]) and V[k, j] >= 0.0):
                 return 3
-    for s in range(S):
-        for j in range(n):
-            Q_copy[s, j] = Q[s, j]
     fk_kernel(Q, N, parents, H)
     ends_kernel(H, link_joint, ends_joint, E, S)
     L = link_joint.shape[0]

@@ -175,9 +175,9 @@ def _plan(
             for j in range(n):
                 Qj[r, j] = joint[0, r, q_index[j]]
         H = frames(K + 1, n, T0)
-        E, Q_copy = np.empty((K + 1, L, 2, 3)), np.empty((K + 1, n))
+        E = np.empty((K + 1, L, 2, 3))
         code = intervals_kernel(Qj, bounds[0], times, N, parents, link_joint, ends_joint,
-                                lipschitz, radius0, H, E, r_ends, r_radius, Q_copy)  # fmt: skip
+                                lipschitz, radius0, H, E, r_ends, r_radius)  # fmt: skip
         ok = code == 0
         for k in range(K):
             for i in range(L):

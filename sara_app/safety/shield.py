@@ -31,17 +31,18 @@ from typing import Any
 
 import numpy as np
 
-from sara_app.errors import ParameterError, SaraError
+from sara_app.errors import InputError, ParameterError, SaraError
 from sara_app.human.reach import MODELS, HumanReach
-from sara_app.kernel_types import entry
+from sara_app.kernel_types import as_f8, entry
 from sara_app.robot.failsafe import BOUND_PAD
 from sara_app.robot.model import RobotModel
 from sara_app.robot.occupancy import RobotOccupancy
 from sara_app.robot.shielded import ShieldedTrajectory, from_samples, shielded_trajectory
 from sara_app.robot.trajectory import JointState, PathFollower
+from sara_app.safety.distance_kernels import min_distance_kernel
 from sara_app.safety.pfl_cycle_kernels import plan_views
 from sara_app.safety.settings import FUTURE_TOLERANCE_S, ShieldSettings
-from sara_app.safety.ssm import SsmResult, SsmVerifier, body_distance
+from sara_app.safety.ssm import SsmResult, SsmVerifier
 from sara_app.safety.ssm_cycle_kernels import DONE, ssm_cycle_kernel
 
 MODES = ("intended", "failsafe", "rest", "fault")
@@ -149,7 +150,8 @@ class Shield:
                                           s.max_interval_s)  # fmt: skip
         self._info = np.empty(4)
         self._half_th = reach.params.half_thickness_m
-        self._parts = reach.skeleton.part_joints
+        self._parts = np.asarray(reach.skeleton.part_joints, dtype=np.int64)
+        self._distance_inputs = _distance_inputs(self.occupancy, robot.radius_m)
         self._no_widening = np.zeros((1, len(MODELS), reach.skeleton.n_parts))
         self._commanded: tuple[PathFollower, float, np.ndarray] | None = None
         self.cycles = 0
@@ -471,22 +473,47 @@ class Shield:
                 out.model_free[name] = fr
 
     def min_distance(self, q: np.ndarray, ys: list[np.ndarray]) -> float:
-        """Smallest surface distance between the robot's link capsules at ``q`` and the measured
-        body parts (half thickness) of the given humans (m)."""
-        r_ends = self.occupancy.sampled_ends(q)  # the verified step's end: kinematics done
-        if r_ends is None:
-            r_ends, r_rad = self.robot.link_capsules(q)
-        else:
-            r_rad = self.robot.radius_m
-        return min(
-            (body_distance(y, self._parts, self._half_th, r_ends, r_rad) for y in ys),
-            default=math.inf,
-        )
+        """Smallest surface distance (m) between the robot's link capsules at ``q (n,)`` and
+        the measured body parts (half thickness) of people with joints ``ys``, each ``(J,
+        3)`` (one compiled call, :mod:`~sara_app.safety.distance_kernels`); ``inf`` without
+        people, NaN when a distance is."""
+        if not ys:
+            return math.inf
+        J, n = self.reach.skeleton.n_joints, self.robot.n_dof
+        q = as_f8(q)
+        Y = as_f8(ys[0])[None] if len(ys) == 1 else np.stack([as_f8(y) for y in ys])
+        half = as_f8(self._half_th)
+        if q.shape != (n,) or Y.shape[1:] != (J, 3) or half.shape != (len(self._parts),):
+            raise InputError(
+                f"q {q.shape}, joints {Y.shape[1:]} and half thicknesses {half.shape}; "
+                f"expected ({n},), ({J}, 3) and ({len(self._parts)},)"
+            )
+        q_index, N, parents, link_joint, ends_joint, H, E, Q, radius = self._distance_inputs
+        return float(
+            _MIN_DISTANCE(q, q_index, N, parents, H, link_joint, ends_joint, E, Q, radius, Y,
+                          self._parts, half)
+        )  # fmt: skip
 
 
+_MIN_DISTANCE = entry(min_distance_kernel)
+"""Without numba's dispatcher: :meth:`Shield.min_distance` checks its arguments' shapes and
+dtypes (the kernel indexes the joints by ``part_joints`` without bounds checks)."""
 _SSM_CYCLE = entry(ssm_cycle_kernel)
 """The kernel without numba's dispatcher (typing its nested tuples took about 5 us per call):
 its inputs are the verifier's checked arrays and the shield's own (see :func:`entry`)."""
+
+
+def _distance_inputs(occupancy: RobotOccupancy, radius_m: np.ndarray) -> tuple[np.ndarray, ...]:
+    """:func:`~sara_app.safety.distance_kernels.min_distance_kernel`'s kinematics constants,
+    its scratch and the links' radii: ``(q_index, N, parents, link_joint, ends_joint, H, E, Q,
+    radius_m)``."""
+    q_index, N, parents, link_joint, ends_joint, _axes, T0 = occupancy.kernel_arrays()
+    n, L = len(q_index), len(link_joint)
+    H = np.zeros((1, n + 1, 4, 4))
+    H[:, :, 3, 3] = 1.0
+    H[0, 0] = T0
+    return (q_index, N, parents, link_joint, ends_joint, H, np.empty((1, L, 2, 3)),
+            np.empty((1, n)), np.array(radius_m, dtype=np.float64))  # fmt: skip
 
 
 def _compiled_inputs(
