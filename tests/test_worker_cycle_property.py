@@ -15,6 +15,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from sara_app.bus import keys
+from sara_app.bus.compact import CommandArrays
 from sara_app.bus.messages import RobotCommandMsg, VerdictMsg
 from sara_app.bus.session import Bus, free_port
 from sara_app.human.skeleton import skeleton
@@ -90,7 +91,8 @@ def test_every_cycle_one_verdict_then_one_command(live, batch, frame) -> None:
         res = worker.step(now)
         assert [n for n, _ in sent] == ["verdict", "command"]
         verdict, command = sent[0][1], sent[1][1]
-        assert isinstance(verdict, VerdictMsg) and isinstance(command, RobotCommandMsg)
+        assert isinstance(verdict, VerdictMsg) and isinstance(command, CommandArrays)
+        assert isinstance(command.message(), RobotCommandMsg)  # the schema's validation
         assert verdict.mode == command.mode == res.mode
         assert all(np.isfinite(command.q)) and all(np.isfinite(command.q_dot))
         if command.mode == "intended":

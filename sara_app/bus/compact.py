@@ -35,7 +35,7 @@ size does not match n and F), ``invalid`` (ranges, order, reserved bits), ``key_
 from __future__ import annotations
 
 import struct
-from typing import Any, get_args
+from typing import Any, NamedTuple, cast, get_args
 
 import numpy as np
 
@@ -76,20 +76,123 @@ def is_compact(payload: bytes) -> bool:
     return payload[:1] == b"\x00"
 
 
-def encode_compact(msg: RobotStateMsg | RobotCommandMsg) -> bytes:
-    """The record of a validated robot state or command (raises :class:`InputError` for any
-    other message)."""
+class CommandArrays(NamedTuple):
+    """A robot command as the cell worker builds it: :class:`RobotCommandMsg`'s fields with its
+    vectors in ``body``, the float64 body of its compact record (``q``, ``q_dot``, ``q_ddot``
+    of ``n`` joints, then ``failsafe_t_s (F,)``, offsets from ``stamp_s``, and ``failsafe_q (F,
+    n)``; the properties are views into it). Published as a compact record straight from the
+    body (:meth:`record`), or as JSON through the validated message (:meth:`message`). Make one
+    with :meth:`build` or check one with :meth:`checked`: both refuse what the message's schema
+    refuses."""
+
+    seq: int
+    stamp_s: float
+    mode: str
+    valid_until_s: float
+    n: int
+    body: np.ndarray
+
+    @property
+    def n_stop(self) -> int:
+        """``F``, the stop's samples."""
+        return (self.body.shape[0] - 3 * self.n) // (self.n + 1)
+
+    @property
+    def q(self) -> np.ndarray:
+        return self.body[: self.n]
+
+    @property
+    def q_dot(self) -> np.ndarray:
+        return self.body[self.n : 2 * self.n]
+
+    @property
+    def q_ddot(self) -> np.ndarray:
+        return self.body[2 * self.n : 3 * self.n]
+
+    @property
+    def failsafe_t_s(self) -> np.ndarray:
+        return self.body[3 * self.n : 3 * self.n + self.n_stop]
+
+    @property
+    def failsafe_q(self) -> np.ndarray:
+        return self.body[3 * self.n + self.n_stop :].reshape(-1, self.n)
+
+    @classmethod
+    def build(
+        cls, seq: int, stamp_s: float, mode: str, valid_until_s: float, q: Any, q_dot: Any,
+        q_ddot: Any, failsafe_t_s: Any, failsafe_q: Any,
+    ) -> CommandArrays:  # fmt: skip
+        """A checked command of these fields (raises :class:`CompactError`)."""
+        v = [np.asarray(a, _F8) for a in (q, q_dot, q_ddot, failsafe_t_s, failsafe_q)]
+        n, F = v[0].size, v[3].size
+        shapes = tuple(a.shape for a in v)
+        if shapes != ((n,), (n,), (n,), (F,), (F, n)) and not (F == 0 and v[4].size == 0):
+            raise CompactError(
+                "inconsistent_length",
+                f"q, q_dot, q_ddot, failsafe_t_s, failsafe_q have shapes {shapes}; expected "
+                "(n,), (n,), (n,), (F,) and (F, n)",
+            )
+        body = np.concatenate([a.ravel() for a in v])
+        return cls(seq, stamp_s, mode, valid_until_s, n, body).checked()
+
+    def checked(self) -> CommandArrays:
+        """This command, after the schema's rules (raises :class:`CompactError` with the
+        contract's reason: ``inconsistent_length``, ``non_finite``, ``invalid``)."""
+        n, size = self.n, self.body.shape[0]
+        if self.body.ndim != 1 or n < 1 or (size - 3 * n) % (n + 1) or size < 3 * n:
+            raise CompactError(
+                "inconsistent_length",
+                f"a body of {self.body.shape} for n = {n} joints; expected 3 n + F (n + 1)",
+            )
+        _check_finite(self.body)
+        _check_times(self.failsafe_t_s)
+        self.check_fields()
+        return self
+
+    def check_fields(self) -> None:
+        """The schema's rules on the fields besides the body (:class:`CompactError`)."""
+        if self.mode not in _MODE_CODES:
+            raise CompactError("invalid", f"mode {self.mode!r}; valid: {', '.join(MODES)}")
+        _check_header(True, self.n, self.n_stop, 0, 0, self.seq, self.stamp_s,
+                      self.valid_until_s)  # fmt: skip
+
+    def record(self) -> bytes:
+        """The compact record (of a checked command)."""
+        head = HEADER.pack(MAGIC, ENCODING_VERSION, *_IDS["robot_command"], self.n, self.n_stop,
+                           _MODE_CODES[self.mode], 0, self.seq, self.stamp_s,
+                           self.valid_until_s)  # fmt: skip
+        return head + self.body.astype(_F8, copy=False).tobytes()
+
+    def message(self) -> RobotCommandMsg:
+        """The validated message (pydantic's checks: the JSON path)."""
+        return RobotCommandMsg(
+            seq=self.seq, stamp_s=self.stamp_s, q=self.q.tolist(), q_dot=self.q_dot.tolist(),
+            q_ddot=self.q_ddot.tolist(), mode=cast(Any, self.mode),
+            valid_until_s=self.valid_until_s, failsafe_t_s=self.failsafe_t_s.tolist(),
+            failsafe_q=self.failsafe_q.tolist(),
+        )  # fmt: skip
+
+    def stop_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """As :meth:`RobotCommandMsg.stop_arrays`: absolute sample times ``(F,)`` and positions
+        ``(F, n)``; without a stop, the set point at the stamp."""
+        if self.n_stop == 0:
+            return np.array([self.stamp_s]), self.q[None].copy()
+        return self.failsafe_t_s + self.stamp_s, self.failsafe_q
+
+    @classmethod
+    def of(cls, msg: RobotCommandMsg) -> CommandArrays:
+        """The arrays of a validated message."""
+        return cls.build(msg.seq, msg.stamp_s, msg.mode, msg.valid_until_s, msg.q, msg.q_dot,
+                         msg.q_ddot, msg.failsafe_t_s, msg.failsafe_q)  # fmt: skip
+
+
+def encode_compact(msg: RobotStateMsg | RobotCommandMsg | CommandArrays) -> bytes:
+    """The record of a validated robot state or command, or of a checked
+    :class:`CommandArrays` (raises :class:`InputError` for any other message)."""
+    if isinstance(msg, CommandArrays):
+        return msg.record()
     if isinstance(msg, RobotCommandMsg):
-        n, F = len(msg.q), len(msg.failsafe_t_s)
-        head = HEADER.pack(MAGIC, ENCODING_VERSION, *_IDS["robot_command"], n, F,
-                           _MODE_CODES[msg.mode], 0, msg.seq, msg.stamp_s,
-                           msg.valid_until_s)  # fmt: skip
-        body = np.empty(3 * n + F + F * n, dtype=_F8)
-        body[:n], body[n : 2 * n], body[2 * n : 3 * n] = msg.q, msg.q_dot, msg.q_ddot
-        if F:
-            body[3 * n : 3 * n + F] = msg.failsafe_t_s
-            body[3 * n + F :] = np.asarray(msg.failsafe_q, dtype=_F8).ravel()
-        return head + body.tobytes()
+        return CommandArrays.of(msg).record()
     if isinstance(msg, RobotStateMsg):
         n, acc = len(msg.q), msg.q_ddot is not None
         head = HEADER.pack(MAGIC, ENCODING_VERSION, *_IDS["robot_state"], n, 0, 0, int(acc),
@@ -136,8 +239,7 @@ def decode_compact(kind: str, payload: bytes) -> RobotStateMsg | RobotCommandMsg
             f"{HEADER.size + 8 * count}",
         )
     body = np.frombuffer(payload, dtype=_F8, offset=HEADER.size)
-    if not np.isfinite(body).all():
-        raise CompactError("non_finite", "a joint value or failsafe sample is NaN or infinite")
+    _check_finite(body)
     _check_header(command, n, F, mode, flags, seq, stamp_s, valid_s)
     if code != KIND_CODES[kind]:
         raise CompactError("key_mismatch", f"a {KINDS_BY_CODE[code]} record on a {kind} key")
@@ -147,8 +249,7 @@ def decode_compact(kind: str, payload: bytes) -> RobotStateMsg | RobotCommandMsg
             q_dot=body[n : 2 * n].tolist(), q_ddot=body[2 * n :].tolist() if rows == 3 else None,
         )  # fmt: skip
     t = body[3 * n : 3 * n + F]
-    if F > 1 and not (np.diff(t) > 0.0).all():
-        raise CompactError("invalid", "failsafe_t_s must increase strictly")
+    _check_times(t)
     fields: dict[str, Any] = {
         "schema_version": 2, "seq": seq, "stamp_s": stamp_s, "q": body[:n].tolist(),
         "q_dot": body[n : 2 * n].tolist(), "q_ddot": body[2 * n : 3 * n].tolist(),
@@ -156,6 +257,16 @@ def decode_compact(kind: str, payload: bytes) -> RobotStateMsg | RobotCommandMsg
         "failsafe_q": body[3 * n + F :].reshape(F, n).tolist(),
     }  # fmt: skip
     return RobotCommandMsg.model_construct(**fields)
+
+
+def _check_finite(body: np.ndarray) -> None:
+    if not np.isfinite(body).all():
+        raise CompactError("non_finite", "a joint value or failsafe sample is NaN or infinite")
+
+
+def _check_times(t: np.ndarray) -> None:
+    if t.shape[0] > 1 and not (np.diff(t) > 0.0).all():
+        raise CompactError("invalid", "failsafe_t_s must increase strictly")
 
 
 def _check_header(

@@ -32,7 +32,7 @@ import zenoh
 
 from sara_app.bus import keys
 from sara_app.bus.codec import Decoded, Decoder
-from sara_app.bus.compact import KIND_CODES, encode_compact
+from sara_app.bus.compact import KIND_CODES, CommandArrays, encode_compact
 from sara_app.bus.messages import encode
 from sara_app.errors import ParameterError, SaraError
 
@@ -233,7 +233,7 @@ class Publisher:
         self, session: zenoh.Session, key_expr: str, express: bool, compact: bool = False
     ) -> None:
         self.key_expr = key_expr
-        self._encode = encode_compact if compact else encode
+        self._encode = encode_compact if compact else _encode_json
         self.failed = 0
         self._seq = -1
         self._pub: Any = session.declare_publisher(
@@ -276,6 +276,12 @@ class Publisher:
             except zenoh.ZError:
                 pass
             self._pub = None
+
+
+def _encode_json(msg: Any) -> bytes:
+    """A message's JSON; a worker's :class:`~sara_app.bus.compact.CommandArrays` through its
+    validated message."""
+    return encode(msg.message() if isinstance(msg, CommandArrays) else msg)
 
 
 def _kind(key_expr: str) -> str | None:

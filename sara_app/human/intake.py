@@ -163,9 +163,13 @@ class Intake:
     def now(self) -> TrackingNow | None:
         """The person's tracking now; None when nothing was ever flagged."""
         g, m = self.gate, self.monitor
-        held = tuple(
-            (m.joints[j], FLAGS[why(g.out.flags[j])], float(g.since_s[j]))
-            for j in np.flatnonzero(~g.out.trusted & np.isfinite(g.since_s))
+        held = (
+            ()
+            if g.out.trusted.all()
+            else tuple(  # all trusted: the common case, one call
+                (m.joints[j], FLAGS[why(g.out.flags[j])], float(g.since_s[j]))
+                for j in np.flatnonzero(~g.out.trusted & np.isfinite(g.since_s))
+            )
         )
         last = None
         if g.last_flag is not None:

@@ -17,21 +17,27 @@ from typing import Any, Protocol, cast
 
 import numpy as np
 
+from sara_app.bus.compact import CommandArrays, CompactError
 from sara_app.bus.messages import (
     COMMAND_VALID_MIN_S,
     COMMAND_VALID_PERIODS,
     JointFlagMsg,
-    RobotCommandMsg,
     TrackingNowMsg,
     VerdictMsg,
     ViolationMsg,
 )
-from sara_app.errors import InputError
 from sara_app.human.conformance import Violation
 from sara_app.human.intake import TrackingNow
+from sara_app.kernel_types import as_f8, entry
 from sara_app.robot.trajectory import JointState
+from sara_app.runtime.command_kernels import FINITE, command_body
 from sara_app.safety.settings import mode_facts
 from sara_app.safety.shield import CycleResult
+
+_NO_TIMES = np.empty(0)
+_NO_TIMES.flags.writeable = False
+_COMMAND_BODY = entry(command_body)
+"""Without numba's dispatcher: :meth:`CycleMessages._command` checks the shapes and dtypes."""
 
 
 class CycleMessages:
@@ -43,9 +49,7 @@ class CycleMessages:
         self.held: tuple[np.ndarray, np.ndarray] | None = None
         """The held stop: absolute sample times ``(K+1,)`` s and positions ``(K+1, n)``."""
         self.last: JointState | None = None
-        self.sent_stop: tuple[np.ndarray, np.ndarray] | None = None
-        """The verified stop of the command built last, as arrays: what
-        :meth:`RobotCommandMsg.stop_arrays` gives for it, without converting its lists back."""
+        self._no_stop = np.empty((0, n_dof))
 
     def observe(self, now: float, res: CycleResult, holds_failsafe: bool = True) -> None:
         """Track the stop the follower holds after this cycle (none in a mode that holds no
@@ -54,20 +58,7 @@ class CycleMessages:
             self.held = None
         elif res.verified and res.trajectory is not None:
             traj = res.trajectory
-            self.held = (now + traj.times, traj.q.copy())
-
-    def failsafe(self, now: float, dt: float, q: np.ndarray) -> tuple[list[float], list[Any]]:
-        """The stop after the set point ``q`` (reached at ``now + dt``): offsets from ``now``
-        (s) and positions; empty without a held stop. Keeps its arrays in :attr:`sent_stop`."""
-        if self.held is None:
-            self.sent_stop = (np.array([now]), np.array([q], dtype=float))
-            return [], []
-        times, qs = self.held
-        later = times > now + dt + 1e-9
-        t = np.concatenate(([dt], times[later] - now))
-        q_stop = np.vstack((q, qs[later]))
-        self.sent_stop = (t + now, q_stop)
-        return t.tolist(), q_stop.tolist()
+            self.held = (as_f8(now + traj.times), np.array(traj.q, dtype=np.float64))
 
     def verdict_and_command(
         self,
@@ -78,12 +69,10 @@ class CycleMessages:
         seqs: tuple[int, int],
         people: People | None = None,
         blocking: list[str] | None = None,
-    ) -> tuple[VerdictMsg, RobotCommandMsg]:
+    ) -> tuple[VerdictMsg, CommandArrays]:
         """The cycle's verdict and command, numbered ``seqs``; raises when a value cannot be
-        sent (non-finite). ``people``: the tracking flags and violations to report."""
-        c = res.command
-        if not all(np.isfinite(a).all() for a in (c.q, c.v, c.a)):
-            raise InputError(f"the command is not finite: q {c.q.tolist()}")
+        sent (non-finite: :class:`~sara_app.bus.compact.CompactError`). ``people``: the
+        tracking flags and violations to report."""
         dist = res.min_distance_m
         verdict = VerdictMsg(
             seq=seqs[0],
@@ -104,23 +93,30 @@ class CycleMessages:
             violations=[] if people is None else violation_msgs(people.violations()),
             blocking=blocking or [],
         )
-        return verdict, self._command(now, dt, c, res.mode, seqs[1])
+        return verdict, self._command(now, dt, res.command, res.mode, seqs[1])
 
-    def _command(
-        self, now: float, dt: float, c: JointState, mode: str, seq: int
-    ) -> RobotCommandMsg:
-        t, qs = self.failsafe(now, dt, c.q)
-        return RobotCommandMsg(
-            seq=seq,
-            stamp_s=now,
-            q=c.q.tolist(),
-            q_dot=c.v.tolist(),
-            q_ddot=c.a.tolist(),
-            mode=cast(Any, mode),
-            valid_until_s=now + max(COMMAND_VALID_PERIODS * dt, COMMAND_VALID_MIN_S),
-            failsafe_t_s=t,
-            failsafe_q=qs,
-        )
+    def _command(self, now: float, dt: float, c: JointState, mode: str, seq: int) -> CommandArrays:
+        """The command of set point ``c`` (reached at ``now + dt``) with the held stop's later
+        samples after it (none without a held stop), checked against the schema's rules
+        (raises :class:`~sara_app.bus.compact.CompactError`); its arrays are its own."""
+        n = self.n_dof
+        q, v, a = as_f8(c.q), as_f8(c.v), as_f8(c.a)
+        times, qs = self.held if self.held is not None else (_NO_TIMES, self._no_stop)
+        if (q.shape, v.shape, a.shape, qs.shape) != ((n,), (n,), (n,), (times.shape[0], n)):
+            raise CompactError(
+                "inconsistent_length",
+                f"set point {q.shape}, {v.shape}, {a.shape} and held stop {times.shape}, "
+                f"{qs.shape}; expected ({n},) each and (K,), (K, {n})",
+            )
+        status, body = _COMMAND_BODY(now, dt, q, v, a, self.held is not None, times, qs)
+        if status:
+            why = "a joint value or stop sample is not finite" if status == FINITE else (
+                "the held stop's times do not increase strictly")  # fmt: skip
+            raise CompactError("non_finite" if status == FINITE else "invalid", why)
+        valid_until_s = now + max(COMMAND_VALID_PERIODS * dt, COMMAND_VALID_MIN_S)
+        command = CommandArrays(seq, now, mode, valid_until_s, n, body)
+        command.check_fields()
+        return command
 
     def fault(
         self,
@@ -130,16 +126,17 @@ class CycleMessages:
         why: str,
         dropped: dict[str, int],
         seqs: tuple[int, int],
-    ) -> tuple[VerdictMsg, RobotCommandMsg]:
+    ) -> tuple[VerdictMsg, CommandArrays]:
         """A fault verdict that names ``why`` and the command of the held failsafe: the
-        cycle's command when it is finite (the shield moved the robot there), else the last
-        one sent, at rest (and then no stop: the robot holds)."""
-        c = res.command
-        if not all(np.isfinite(a).all() for a in (c.q, c.v, c.a)):
+        cycle's command when it and the held stop are finite (the shield moved the robot
+        there), else the last one sent, at rest (and then no stop: the robot holds)."""
+        try:
+            command = self._command(now, dt, res.command, "fault", seqs[1])
+        except CompactError:  # not finite (the command or the held stop): hold, at rest
             zero = np.zeros(self.n_dof)
             q = zero if self.last is None else self.last.q
-            c = JointState(q, zero, zero)
             self.held = None
+            command = self._command(now, dt, JointState(q, zero, zero), "fault", seqs[1])
         verdict = VerdictMsg(
             seq=seqs[0],
             stamp_s=now,
@@ -151,7 +148,7 @@ class CycleMessages:
             dropped=dropped,
             intervened=True,
         )
-        return verdict, self._command(now, dt, c, "fault", seqs[1])
+        return verdict, command
 
 
 class People(Protocol):

@@ -25,8 +25,6 @@ import time
 from collections import deque
 from pathlib import Path
 
-import numpy as np
-
 from sara_app.bus import keys
 from sara_app.bus.messages import OccupancyMsg, ScenarioStateMsg, StatusMsg
 from sara_app.bus.ownership import claim_cell
@@ -266,13 +264,10 @@ class CellWorker:
             why = f"messages failed: {e!r}"[:200]
             verdict, command = self.messages.fault(now, dt, res, why, self.io.dropped(), seqs)
         if not self.io.verdict.put(verdict) and command.mode == "intended":
-            command = command.model_copy(update={"mode": "fault"})
+            command = command._replace(mode="fault")
         self.io.command.put(command)
-        q = np.asarray(command.q)
-        self.messages.last = JointState(q, np.asarray(command.q_dot), np.asarray(command.q_ddot))
-        stop = self.messages.sent_stop
-        self.robot_in.sent(command.stamp_s + dt, q, stop if stop is not None else
-                           command.stop_arrays())  # fmt: skip
+        self.messages.last = JointState(command.q, command.q_dot, command.q_ddot)
+        self.robot_in.sent(command.stamp_s + dt, command.q, command.stop_arrays())
         try:
             if now >= self._next_display:
                 self._next_display = now + self.display_period

@@ -124,8 +124,8 @@ class Shield:
         """``"<person> <body part>"`` for each body part the check could not clear on some
         interval of the cycle's checked trajectory (why it brakes or slows), at most ``limit``;
         empty where the mode's result says nothing per body part (PFL, JSSA) or all cleared."""
-        if res.ssm is None or not res.human_ids:
-            return []
+        if res.ssm is None or res.ssm.safe or not res.human_ids:
+            return []  # safe: every part cleared on every interval (SsmResult)
         blocked = ~np.asarray(res.ssm.parts_clear).all(axis=1)  # (H, P)
         names = self.reach.skeleton.parts
         return [f"{res.human_ids[h]} {names[p]}" for h, p in zip(*np.nonzero(blocked))
