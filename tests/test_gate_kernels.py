@@ -6,12 +6,14 @@ joints, upper-body sources) give the same result and the same gate state at ever
 from __future__ import annotations
 
 import numpy as np
-from gate_reference import ReferenceGate
+import pytest
+from gate_reference import ReferenceGate, reference_repeated
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sara_app.errors import InputError
 from sara_app.human.gate import Gate, GateSettings
+from sara_app.human.gate_kernels import repeated_frame
 from sara_app.human.scripted import joints, standing
 
 
@@ -80,3 +82,34 @@ def test_a_frame_of_the_wrong_shape_is_an_input_error() -> None:
         assert "(9, 3)" in str(e) and "(15, 3)" in str(e)
     else:
         raise AssertionError("a (9, 3) frame passed a 15-joint gate")
+
+
+@pytest.mark.parametrize("J", [15, 9])
+def test_the_compiled_repeat_test_equals_the_numpy_reference(J: int) -> None:
+    """Streams of frames that repeat exactly, within the tolerance, just beyond it, with NaN,
+    missing joints and measured-joint counts from none to all: the same answers and the same
+    kept frame."""
+    rng = np.random.default_rng(J)
+    raw_k, raw_r = np.full((J, 3), np.nan), np.full((J, 3), np.nan)
+    y = rng.normal(size=(J, 3))
+    answers = set()
+    for _ in range(4000):
+        kind = rng.integers(6)
+        if kind == 1:
+            y = y + rng.normal(scale=1e-3, size=y.shape)
+        elif kind == 2:
+            y = y.copy()
+            y[rng.integers(J), rng.integers(3)] += rng.choice([0.5e-9, 2e-9, -2e-9])
+        elif kind == 3:
+            y = y.copy()
+            y[rng.integers(J), rng.integers(3)] = np.nan
+        elif kind == 4:
+            y = rng.normal(size=(J, 3))
+        missing = rng.random(J) < rng.choice([0.0, 0.2, 1.0])
+        n = int(rng.choice([0, 9, J, J + 3, -1]))
+        got = repeated_frame(y, raw_k, n, missing)
+        want = reference_repeated(y, raw_r, n, missing)
+        assert got == want
+        np.testing.assert_array_equal(raw_k, raw_r)
+        answers.add(got)
+    assert answers == {True, False}

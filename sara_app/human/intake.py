@@ -18,11 +18,15 @@ import numpy as np
 from sara_app.errors import InputError
 from sara_app.human.conformance import Monitor, Violation
 from sara_app.human.gate import FLAGS, Gate, GateResult, GateSettings, why
-from sara_app.human.gate_kernels import FROZEN_EPS_M
+from sara_app.human.gate_kernels import repeated_frame
 from sara_app.human.params import ReachParams
 from sara_app.human.recording import Recording
 from sara_app.human.skeleton import FULL_JOINTS
 from sara_app.human.velocity import VelocityEstimator
+from sara_app.kernel_types import as_f8, entry
+
+_REPEATED = entry(repeated_frame)
+"""Without numba's dispatcher: ``Intake._repeated`` checks the shapes and dtypes."""
 
 STALE_AFTER_S = 0.1
 """A whole skeleton repeated bit-exactly for longer than this, its stamps advancing, is a stale
@@ -82,6 +86,7 @@ class Intake:
         """Why the last frame :meth:`take` returned None for: ``tracking_inconsistent`` or
         ``repeated`` (the contract's reasons)."""
         self._raw = np.full((J, 3), np.nan)  # the last frame as measured
+        self._none_missing = np.zeros(J, dtype=np.bool_)
         self._raw_since_s = -np.inf  # stamp of the first frame with those values
         self.newest_s = -np.inf  # the newest stamp taken, repeated or not
         self.repeats = 0
@@ -135,14 +140,13 @@ class Intake:
     ) -> bool:
         """Whether ``y``'s measured joints repeat the last frame's exactly (rule on); keeps the
         last frame and when its values first came."""
-        m = np.arange(len(y)) < n_measured
-        if missing is not None:
-            m &= ~np.asarray(missing, bool)
-        same = bool(m.any()) and bool(
-            np.all(np.abs(y[m] - self._raw[m]) <= FROZEN_EPS_M)  # NaN (no last frame): False
-        )
+        J = self._raw.shape[0]
+        y = as_f8(y)
+        lost = self._none_missing if missing is None else np.asarray(missing, dtype=np.bool_)
+        if y.shape != (J, 3) or lost.shape != (J,):
+            raise InputError(f"frame {y.shape}, missing {lost.shape}; expected ({J}, 3), ({J},)")
+        same = bool(_REPEATED(y, self._raw, int(n_measured), lost))  # raw := y unless same
         if not same:
-            self._raw[:] = y
             self._raw_since_s = t_s
         return same and self.stale_after_s is not None
 
