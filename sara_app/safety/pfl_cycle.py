@@ -164,15 +164,17 @@ class CompiledCycle:
         """``(robot, trajectory, human)`` as the kernel takes them: the shielded trajectory
         ``traj`` with its robot capsules per interval ``r_ends (K, L, 2, 3)``, ``r_radius (K,
         L)`` and ``H >= 1`` people ``hum = (y, v (H, J, 3), dv (H, J), age (H,), widen (H, M,
-        P))`` (the widening's rows go to the kernel in its model-kind order), as float64;
-        raises :class:`InputError` on other shapes."""
+        P) or None: none)`` (the widening's rows go to the kernel in its model-kind order), as
+        float64; raises :class:`InputError` on other shapes."""
         trajectory = self.link_states.inputs(traj)
         K = trajectory[0].shape[0] - 1
         L, J, P = self._L, self._J, self._P
         r_ends = np.asarray(r_ends, dtype=np.float64)
         r_radius = np.asarray(r_radius, dtype=np.float64)
-        y, v, dv, age, widen = (np.asarray(a, dtype=np.float64) for a in hum)
+        y, v, dv, age = (np.asarray(a, dtype=np.float64) for a in hum[:4])
         H = y.shape[0] if y.ndim == 3 else 0
+        # None: no widening (Shield._human_arrays' common case)
+        widen = np.zeros((H, len(MODELS), P)) if hum[4] is None else np.asarray(hum[4], np.float64)
         if (
             H < 1 or r_ends.shape != (K, L, 2, 3) or r_radius.shape != (K, L)
             or y.shape != (H, J, 3) or v.shape != (H, J, 3) or dv.shape != (H, J)

@@ -40,6 +40,7 @@ from sara_app.robot.occupancy import RobotOccupancy
 from sara_app.robot.shielded import ShieldedTrajectory, from_samples, shielded_trajectory
 from sara_app.robot.trajectory import JointState, PathFollower
 from sara_app.safety.distance_kernels import min_distance_kernel
+from sara_app.safety.input_kernels import BAD_BOUND, NON_FINITE, human_values
 from sara_app.safety.pfl_cycle_kernels import plan_views
 from sara_app.safety.settings import FUTURE_TOLERANCE_S, ShieldSettings
 from sara_app.safety.ssm import SsmResult, SsmVerifier
@@ -47,7 +48,7 @@ from sara_app.safety.ssm_cycle_kernels import DONE, ssm_cycle_kernel
 
 MODES = ("intended", "failsafe", "rest", "fault")
 
-Humans = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+Humans = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]
 """The usable people of a cycle: ``y, v (H, J, 3)``, ``dv (H, J)``, ``age (H,)`` and the
 widening ``(H, len(MODELS), P)`` of :mod:`sara_app.human.widening` (zeros: none)."""
 
@@ -274,12 +275,14 @@ class Shield:
                 continue
             age = t_now - h.stamp_s
             ages[h.id] = age
-            shapes = (np.shape(h.y), np.shape(h.v), np.shape(h.dv))
-            if shapes != ((J, 3), (J, 3), (J,)):
+            y, v, dv = as_f8(h.y), as_f8(h.v), as_f8(h.dv)
+            shapes = (y.shape, v.shape, dv.shape)
+            code = _HUMAN_VALUES(y, v, dv) if shapes == ((J, 3), (J, 3), (J,)) else -1
+            if code == -1:
                 faults.append(f"human {h.id!r}: arrays {shapes}, expected ({J}, 3) and ({J},)")
-            elif not math.isfinite(float(h.y.sum()) + float(h.v.sum())):  # any NaN/inf shows
+            elif code == NON_FINITE:
                 faults.append(f"human {h.id!r}: non-finite joint positions or velocities")
-            elif not float(h.dv.min()) >= 0.0:  # NaN fails too
+            elif code == BAD_BOUND:  # negative or NaN
                 faults.append(f"human {h.id!r}: velocity error bound invalid")
             elif age > s.skeleton_timeout_s:
                 faults.append(f"human {h.id!r}: skeleton {age:.3f} s old > {s.skeleton_timeout_s}")
@@ -362,7 +365,7 @@ class Shield:
             return None
         if len(usable) == 1:  # the common case, without the copies of a stack
             h = humans[usable[0]]
-            w = self._no_widening if h.widen_m is None else h.widen_m[None]
+            w = None if h.widen_m is None else h.widen_m[None]  # None: no widening
             return h.y[None], h.v[None], h.dv[None], np.array([max(ages[h.id], 0.0)]), w
         y = np.stack([humans[i].y for i in usable])
         v = np.stack([humans[i].v for i in usable])
@@ -495,6 +498,9 @@ class Shield:
         )  # fmt: skip
 
 
+_HUMAN_VALUES = entry(human_values)
+"""Without numba's dispatcher: ``Shield._check_humans`` checks the shapes, ``as_f8`` the
+dtypes."""
 _MIN_DISTANCE = entry(min_distance_kernel)
 """Without numba's dispatcher: :meth:`Shield.min_distance` checks its arguments' shapes and
 dtypes (the kernel indexes the joints by ``part_joints`` without bounds checks)."""

@@ -93,6 +93,7 @@ class SsmVerifier:
         self.reach = reach
         self.models = tuple(models)
         self._model_rows = [MODELS.index(m) for m in self.models]  # rows of a widening
+        self._zeros: dict[tuple[int, int, int], np.ndarray] = {}
         self._maps = np.array([part_capsules(reach, m) for m in self.models], dtype=np.int64)
         self._codes = np.array([_CODES[m] for m in self.models], dtype=np.int64)
         self._constants = reach.kernel_constants()
@@ -173,7 +174,7 @@ class SsmVerifier:
                 f"({H}, {J}) and ({H},)"
             )
         if widen_m is None:
-            widen = np.zeros((H, M, P))
+            widen = self._zero_widening(H, M, P)
         else:
             widen = as_f8(widen_m)
             if widen.shape != (H, len(MODELS), P):
@@ -182,6 +183,14 @@ class SsmVerifier:
                 )
             widen = widen[:, self._model_rows]  # rows in the check's model order
         return y, v, dv, widen, age_s
+
+    def _zero_widening(self, H: int, M: int, P: int) -> np.ndarray:
+        """A read-only ``(H, M, P)`` of zeros, one per shape (no allocation per cycle)."""
+        zeros = self._zeros.get((H, M, P))
+        if zeros is None:
+            zeros = self._zeros[(H, M, P)] = np.zeros((H, M, P))
+            zeros.flags.writeable = False
+        return zeros
 
     def kernel_inputs(self) -> tuple[Any, np.ndarray, np.ndarray, Any] | None:
         """``(constants, codes (M,), part maps (M, P), arm sets)`` of the check for a compiled
