@@ -29,7 +29,7 @@ from sara_app.cell.build import Cell
 from sara_app.cell.intake import Track
 from sara_app.dashboard.frame import EFFECTIVE
 from sara_app.errors import SaraError
-from sara_app.human.reach import MODELS, part_capsules
+from sara_app.human.reach import MODELS
 from sara_app.human.widening import per_capsule
 from sara_app.safety.shield import CycleResult
 from sara_app.safety.thresholds import link_shapes
@@ -189,13 +189,12 @@ def occupancy_msg(
         age = max(now - st.stamp_s, 0.0)
         models = {}
         per_part = []  # (ends, radius, part map) of the models that map body parts
-        for name in shield.verifier.models:
+        for name, part_map in zip(shield.verifier.models, shield.verifier.part_maps):
             try:
                 o = reach.model(
                     name, st.y[None], st.v[None], st.dv[None],
                     np.array([age]), np.array([age + horizon]),
                 )  # fmt: skip
-                part_map = part_capsules(reach, name)
             except SaraError:
                 continue
             radius = o.radius[0, 0]

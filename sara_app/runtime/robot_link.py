@@ -11,7 +11,6 @@ than the oldest remembered set point cannot be checked and is a fault.
 
 from __future__ import annotations
 
-import bisect
 from collections import deque
 from collections.abc import Callable
 
@@ -77,7 +76,9 @@ class MeasuredRobot:
             return None
         if t_s >= c[-1][0]:  # past the newest set point: on its command's verified stop
             return position_on_stop(*c[-1][2], t_s)[0], 0.0
-        k = bisect.bisect_right(c, t_s, key=lambda e: e[0]) - 1  # c[k].t <= t_s < c[k+1].t
+        k = len(c) - 2  # c[k].t <= t_s < c[k+1].t; states come near the newest: from the end
+        while c[k][0] > t_s:
+            k -= 1
         (ta, qa, older), (tb, qb, _) = c[k], c[k + 1]
         q = qa + (qb - qa) * ((t_s - ta) / (tb - ta))
         slack = float(np.max(np.abs(position_on_stop(*older, t_s)[0] - q)))

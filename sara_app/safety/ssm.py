@@ -95,6 +95,7 @@ class SsmVerifier:
         self._model_rows = [MODELS.index(m) for m in self.models]  # rows of a widening
         self._zeros: dict[tuple[int, int, int], np.ndarray] = {}
         self._maps = np.array([part_capsules(reach, m) for m in self.models], dtype=np.int64)
+        self._maps.flags.writeable = False
         self._codes = np.array([_CODES[m] for m in self.models], dtype=np.int64)
         self._constants = reach.kernel_constants()
         self._no_arm = (np.zeros((0, 1, 1, 2, 3)), np.zeros((0, 1, 1)))
@@ -183,6 +184,12 @@ class SsmVerifier:
                 )
             widen = widen[:, self._model_rows]  # rows in the check's model order
         return y, v, dv, widen, age_s
+
+    @property
+    def part_maps(self) -> np.ndarray:
+        """``(M, P)`` read-only: per model of the check, the capsule that holds each body part
+        (:func:`~sara_app.human.reach.part_capsules`, computed once)."""
+        return self._maps
 
     def _zero_widening(self, H: int, M: int, P: int) -> np.ndarray:
         """A read-only ``(H, M, P)`` of zeros, one per shape (no allocation per cycle)."""

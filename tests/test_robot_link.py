@@ -1,0 +1,77 @@
+"""The measured robot of a live cell (``sara_app.runtime.robot_link``): the commanded position
+at a state's time and its slack against a brute-force reading of the commanded trajectory
+(straight segments through the set points, the newest command's stop after the last one, the
+older command's stop bounding the slack), the faults it reports, and a clock that goes back."""
+
+from __future__ import annotations
+
+import bisect
+
+import numpy as np
+
+from sara_app.bus.messages import position_on_stop
+from sara_app.robot.trajectory import JointState
+from sara_app.runtime.robot_link import MeasuredRobot
+
+N = 7
+
+
+def _history(rng: np.random.Generator, n_points: int) -> MeasuredRobot:
+    robot = MeasuredRobot()
+    t = 1000.0
+    q = rng.normal(size=N)
+    for _ in range(n_points):
+        t += rng.uniform(0.001, 0.004)
+        q = q + rng.normal(scale=0.01, size=N)
+        stop_t = t + np.cumsum(rng.uniform(0.005, 0.02, 4))
+        stop_q = q + np.cumsum(rng.normal(scale=0.005, size=(4, N)), axis=0)
+        robot.sent(t, q, (np.concatenate(([t], stop_t)), np.vstack((q, stop_q))))
+    return robot
+
+
+def _oracle(robot: MeasuredRobot, t_s: float) -> tuple[np.ndarray, float] | None:
+    c = list(robot.commanded)
+    if not c or t_s < c[0][0]:
+        return None
+    if t_s >= c[-1][0]:
+        return position_on_stop(*c[-1][2], t_s)[0], 0.0
+    k = bisect.bisect_right([e[0] for e in c], t_s) - 1
+    (ta, qa, older), (tb, qb, _) = c[k], c[k + 1]
+    q = qa + (qb - qa) * ((t_s - ta) / (tb - ta))
+    return q, float(np.max(np.abs(position_on_stop(*older, t_s)[0] - q)))
+
+
+def test_expected_is_the_commanded_trajectory() -> None:
+    rng = np.random.default_rng(4)
+    for n_points in (1, 2, 5, 300):  # 300: past the remembered history
+        robot = _history(rng, n_points)
+        c = robot.commanded
+        times = [c[0][0] - 0.01, c[0][0], c[-1][0], c[-1][0] + 0.05]
+        times += [e[0] for e in list(c)[::7]]
+        times += list(rng.uniform(c[0][0] - 0.005, c[-1][0] + 0.03, 200))
+        for t in times:
+            got, want = robot.expected(t), _oracle(robot, t)
+            if want is None:
+                assert got is None
+                continue
+            assert got is not None
+            np.testing.assert_array_equal(got[0], want[0])
+            assert got[1] == want[1]
+
+
+def test_faults_stale_tracking_and_a_clock_that_goes_back() -> None:
+    rng = np.random.default_rng(9)
+    robot = _history(rng, 20)
+    t_mid = 0.5 * (robot.commanded[5][0] + robot.commanded[6][0])
+    q_mid, slack = robot.expected(t_mid) or (np.zeros(N), 0.0)
+
+    def state(t: float, q: np.ndarray) -> None:
+        robot.state, robot.stamp_s, robot.problem = JointState(q, np.zeros(N), np.zeros(N)), t, None
+
+    state(t_mid, q_mid)
+    assert robot.faults(t_mid + 0.001, 0.05, 0.01) == []
+    assert "old" in robot.faults(t_mid + 0.2, 0.05, 0.01)[0]
+    state(t_mid, q_mid + 0.01 + slack + 1e-3)
+    assert "tracking error" in robot.faults(t_mid + 0.001, 0.05, 0.01)[0]
+    robot.sent(robot.commanded[0][0] - 1.0, q_mid, (np.array([0.0]), q_mid[None]))
+    assert len(robot.commanded) == 1  # time went back: the history starts afresh
