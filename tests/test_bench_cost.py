@@ -10,8 +10,15 @@ from pathlib import Path
 
 import numpy as np
 
-from sara_app.bench.cost import _cpu_s, _latencies, _switches, scenario_with_people
+from sara_app.bench.cost import (
+    _cpu_s,
+    _latencies,
+    _switches,
+    _zenoh_cpu_s,
+    scenario_with_people,
+)
 from sara_app.bus.messages import VerdictMsg
+from sara_app.bus.session import Bus, free_port
 from sara_app.scenario import load_scenario
 
 
@@ -44,6 +51,29 @@ def test_cpu_time_and_switches_count_every_thread_of_a_process() -> None:
         t.join()
     assert _cpu_s(pid) - cpu0 >= 0.25
     assert switches >= 50
+
+
+def test_zenoh_threads_are_told_from_python() -> None:
+    """Traffic through real zenoh sessions in this process makes its zenoh threads spend CPU;
+    a Python thread spinning on its own adds to the total, not to zenoh's share."""
+    pid = os.getpid()
+    port = free_port()
+    with Bus.router(port), Bus.client(port) as a, Bus.client(port) as b:
+        sub = b.subscribe("sara/zc/**")
+        pub = a.session.declare_publisher("sara/zc/x")
+        zenoh0 = _zenoh_cpu_s(pid)
+        for i in range(20000):
+            pub.put(b"%d" % i)
+        time.sleep(0.5)
+        busy = _zenoh_cpu_s(pid) - zenoh0
+        sub.close()
+        pub.undeclare()
+    zenoh0, cpu0 = _zenoh_cpu_s(pid), _cpu_s(pid)
+    t_end = time.process_time() + 0.3
+    while time.process_time() < t_end:
+        pass
+    assert busy > 0.0
+    assert _cpu_s(pid) - cpu0 >= 0.25 and _zenoh_cpu_s(pid) - zenoh0 < 0.1
 
 
 def _verdict(stamp: float, ages: dict[str, float]) -> VerdictMsg:

@@ -5,7 +5,8 @@ process of its own at serve's priorities), with 1 and 4 replayed people at the s
 Per run and load, two phases of ``seconds`` each:
 
 1. **CPU**: for every cell process, the CPU time (user + system, all threads, from
-   ``/proc/<pid>/stat``) and the context switches (voluntary and not, all threads, from
+   ``/proc/<pid>/stat``; of it, the threads of zenoh's runtimes, by their names) and the
+   context switches (voluntary and not, all threads, from
    ``/proc/<pid>/task/*/status``) over the phase, divided by the verdicts received: the cost of
    one control cycle. This process listens to the verdicts only (as serve's registry does).
    The skeleton -> verdict latency comes from the same verdicts: a verdict's ``stamp_s -
@@ -23,6 +24,7 @@ from __future__ import annotations
 import gc
 import json
 import os
+import re
 import tempfile
 import threading
 import time
@@ -46,6 +48,8 @@ SPOTS_M = ((1.3, 0.1), (1.3, -0.6), (1.3, 0.75), (1.9, 0.1))
 class ProcessCost:
     cpu_us: float
     switches: float
+    zenoh_us: float = 0.0
+    """Of ``cpu_us``, zenoh's threads (the rest: Python and what it calls)."""
 
 
 @dataclass
@@ -69,6 +73,24 @@ def _cpu_s(pid: int) -> float:
     """User + system CPU seconds of a process and all its threads."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+ZENOH_THREAD = re.compile(r"(rx|tx|app|net|acc)-\d+")
+"""The names of the threads of zenoh's runtimes (its I/O and its own work, no Python)."""
+
+
+def _zenoh_cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a process's living zenoh threads (:data:`ZENOH_THREAD`)."""
+    total = 0
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            text = (task / "stat").read_text()
+        except (FileNotFoundError, ProcessLookupError):
+            continue  # a thread that ended
+        name, fields = text[text.index("(") + 1 : text.rindex(")")], text.rsplit(")", 1)[1].split()
+        if ZENOH_THREAD.fullmatch(name):
+            total += int(fields[11]) + int(fields[12])
+    return total / os.sysconf("SC_CLK_TCK")
 
 
 def _switches(pid: int) -> int:
@@ -167,14 +189,17 @@ def _messages(hub: Bus, cell: str, seconds: float) -> dict[str, tuple[int, int]]
 
 def _measure(hub: Bus, cell: str, pids: dict[str, int], seconds: float, out: LoadCost) -> None:
     cpu0 = {n: _cpu_s(p) for n, p in pids.items()}
+    zenoh0 = {n: _zenoh_cpu_s(p) for n, p in pids.items()}
     sw0 = {n: _switches(p) for n, p in pids.items()}
     t0 = time.monotonic()
     got = _verdicts(hub, cell, seconds)
     span = time.monotonic() - t0
     cycles = max(len(got), 1)
     for n, p in pids.items():
-        out.per_process[n].append(ProcessCost(1e6 * (_cpu_s(p) - cpu0[n]) / cycles,
-                                              (_switches(p) - sw0[n]) / cycles))  # fmt: skip
+        cpu_us, zenoh_us = (
+            1e6 * (f(p) - s0[n]) / cycles for f, s0 in ((_cpu_s, cpu0), (_zenoh_cpu_s, zenoh0))
+        )
+        out.per_process[n].append(ProcessCost(cpu_us, (_switches(p) - sw0[n]) / cycles, zenoh_us))
     out.verdict_hz.append(len(got) / span)
     out.latency_us.append(_latencies(got))
     msgs = _messages(hub, cell, seconds)
@@ -244,17 +269,20 @@ def report(loads: list[LoadCost]) -> str:
         lines.append(f"{load.scenario}, {load.people} people, {load.rate_hz:.0f} Hz control, "
                      f"{runs} runs (verdicts/s: {hz})")  # fmt: skip
         lines.append(f"  {'process':12s} {'CPU us/cycle':>14s} {'(runs)':>22s} "
-                     f"{'switches/cycle':>15s}")  # fmt: skip
-        total = np.zeros(runs)
+                     f"{'switches/cycle':>15s} {'of which zenoh':>15s}")  # fmt: skip
+        total, total_zenoh = np.zeros(runs), np.zeros(runs)
         for name in PROCESSES:
             costs = load.per_process[name]
             cpu = np.array([c.cpu_us for c in costs])
-            total += cpu
+            zenoh = np.array([c.zenoh_us for c in costs])
+            total, total_zenoh = total + cpu, total_zenoh + zenoh
             sw = np.median([c.switches for c in costs])
             spread = " ".join(f"{x:.0f}" for x in cpu)
-            lines.append(f"  {name:12s} {np.median(cpu):14.0f} {spread:>22s} {sw:15.1f}")
+            lines.append(f"  {name:12s} {np.median(cpu):14.0f} {spread:>22s} {sw:15.1f} "
+                         f"{np.median(zenoh):15.0f}")  # fmt: skip
         spread = " ".join(f"{x:.0f}" for x in total)
-        lines.append(f"  {'all':12s} {np.median(total):14.0f} {spread:>22s}")
+        lines.append(f"  {'all':12s} {np.median(total):14.0f} {spread:>22s} {'':15s} "
+                     f"{np.median(total_zenoh):15.0f}")  # fmt: skip
         parts = [a for a in load.latency_us if a.size]
         for what, pick, note in (
             ("skeleton published -> verdict received", lambda a: a.sum(1),
