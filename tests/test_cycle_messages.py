@@ -114,6 +114,7 @@ def _fields(**change: object) -> dict:
         ({"seq": -1}, "invalid"),
         ({"q_dot": np.zeros(6)}, "inconsistent_length"),
         ({"failsafe_q": np.zeros((2, 7))}, "inconsistent_length"),
+        ({"failsafe_t_s": [], "failsafe_q": [], "q_ddot": np.zeros(5)}, "inconsistent_length"),
     ],
 )
 def test_checked_refuses_what_the_schema_refuses(change: dict, reason: str) -> None:
@@ -125,6 +126,8 @@ def test_checked_refuses_what_the_schema_refuses(change: dict, reason: str) -> N
     with pytest.raises((ValueError, MessageError)):
         decode(KEY, encode(RobotCommandMsg(**_lists(_fields(**change)))))
     assert CommandArrays.build(**_fields()).message() == RobotCommandMsg(**_lists(_fields()))
+    no_stop = _fields(failsafe_t_s=[], failsafe_q=[])
+    assert CommandArrays.build(**no_stop).message() == RobotCommandMsg(**_lists(no_stop))
 
 
 def _lists(fields: dict) -> dict:

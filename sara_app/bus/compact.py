@@ -125,8 +125,10 @@ class CommandArrays(NamedTuple):
         """A checked command of these fields (raises :class:`CompactError`)."""
         v = [np.asarray(a, _F8) for a in (q, q_dot, q_ddot, failsafe_t_s, failsafe_q)]
         n, F = v[0].size, v[3].size
+        if F == 0 and v[4].size == 0:  # no stop: [] as well as an empty (0, n)
+            v[4] = v[4].reshape(0, n)
         shapes = tuple(a.shape for a in v)
-        if shapes != ((n,), (n,), (n,), (F,), (F, n)) and not (F == 0 and v[4].size == 0):
+        if shapes != ((n,), (n,), (n,), (F,), (F, n)):
             raise CompactError(
                 "inconsistent_length",
                 f"q, q_dot, q_ddot, failsafe_t_s, failsafe_q have shapes {shapes}; expected "
