@@ -330,7 +330,7 @@ class ReferencePflShield(PflShield):
     ) -> tuple[np.ndarray, np.ndarray]:
         """Every person's capsule per body part for intervals ``lo:hi``: ``(k, H P, 2, 3)``,
         ``(k, H P)``; the sets grow from each measurement time (age) to the interval ends."""
-        y, v, dv, age, widen = hum
+        y, v, dv, age, widen = hum[:5]
         if widen is None:  # no widening
             widen = np.zeros((len(y), len(MODELS), len(self._part_names)))
         H, P, k = y.shape[0], len(self._part_names), hi - lo

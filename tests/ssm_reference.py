@@ -53,8 +53,11 @@ def verify_reference(
     robot_ends: np.ndarray,
     robot_radius: np.ndarray,
     widen_m: np.ndarray | None = None,
+    caps: np.ndarray | None = None,
 ) -> SsmResult:
-    """:meth:`SsmVerifier.verify` (same inputs, same result)."""
+    """:meth:`SsmVerifier.verify` (same inputs, same result). ``caps (H, P, 2)``: a part is
+    touched by a link when the model's capsule for it touches the link (brute force) and the
+    link's lowest point is not above the part's height bound at the interval's end."""
     H, M, K = y.shape[0], len(verifier.models), robot_ends.shape[0]
     P = verifier.reach.skeleton.n_parts
     rows = [MODELS.index(m) for m in verifier.models]
@@ -64,6 +67,9 @@ def verify_reference(
     closest = np.full((H, M), np.inf)
     parts = np.zeros((H, K, P), dtype=bool)
     hit = np.empty(K, dtype=bool)
+    if caps is None:
+        caps = np.stack([np.full((H, P), np.inf), np.zeros((H, P))], axis=2)
+    bottoms = robot_ends[..., 2].min(axis=2) - robot_radius  # (K, L)
     for h in range(H):
         tau = times_s + age_s[h]
         for m, name in enumerate(verifier.models):
@@ -83,8 +89,10 @@ def verify_reference(
             for k in np.flatnonzero(todo):
                 # brute force: every (capsule, link) pair's exact surface distance
                 d = capsule_distances(ends[k], radius[k], robot_ends[k], robot_radius[k])
-                touching = ~(d > 0.0).all(axis=1)  # (C,): NaN touches
-                parts[h, k] |= ~touching[maps[m]]
+                touching = ~(d > 0.0)  # (C, L): NaN touches
+                cap_z = caps[h, :, 0] + caps[h, :, 1] * tau[k + 1]  # (P,)
+                below = ~(bottoms[k][None, :] > cap_z[:, None])  # (P, L)
+                parts[h, k] |= ~(touching[maps[m]] & below).any(axis=1)
             if parts[h].all():
                 break
     return SsmResult(bool(parts.all()), free, evaluated, closest, parts)

@@ -44,7 +44,7 @@ def test_motion_within_the_bounds_is_never_a_violation(seed: int) -> None:
     intake = Intake(DY, np.full(J, v_max), np.full(J, a_max))
     for k in range(len(t)):
         intake.take(float(t[k]), y[k], DY, J)  # points: no bones to learn
-    assert intake.monitor.counts == {"speed": 0, "acceleration": 0}
+    assert intake.monitor.counts == {"speed": 0, "acceleration": 0, "rise": 0}
     assert intake.fault("p") is None
 
 
@@ -104,7 +104,7 @@ def test_the_compiled_frame_step_equals_the_numpy_reference(seed: int) -> None:
     rng = np.random.default_rng(seed)
     J, N = 15, 17
     rings = [(np.full(N, -np.inf), np.zeros((N, J, 3)), np.zeros((N, J), bool)) for _ in range(2)]
-    speed, acc = np.zeros(J), np.zeros(J)
+    speed, acc, rise = np.zeros(J), np.zeros(J), np.zeros(J)
     t, y = 0.0, rng.normal(size=(J, 3))
     for _ in range(40):
         t += rng.uniform(0.005, 0.02)
@@ -112,9 +112,10 @@ def test_the_compiled_frame_step_equals_the_numpy_reference(seed: int) -> None:
         trusted = rng.random(J) > 0.2
         jump = np.where(rng.random(J) > 0.9, rng.uniform(0, 5, J), 0.0)
         dy = float(rng.uniform(0, 0.01))
-        observe_frame(*rings[0], t, y, trusted, dy, jump, speed, acc)
-        s_ref, a_ref = observe_frame_reference(*rings[1], t, y, trusted, dy, jump)
+        observe_frame(*rings[0], t, y, trusted, dy, jump, speed, acc, rise)
+        s_ref, a_ref, r_ref = observe_frame_reference(*rings[1], t, y, trusted, dy, jump)
         np.testing.assert_allclose(speed, s_ref, rtol=1e-12, atol=1e-9)
+        np.testing.assert_allclose(rise, r_ref, rtol=1e-12, atol=1e-9)
         np.testing.assert_allclose(acc, a_ref, rtol=1e-12, atol=1e-6)
         for a, b in zip(rings[0], rings[1], strict=True):
             np.testing.assert_array_equal(a, b)

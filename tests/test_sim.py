@@ -107,6 +107,7 @@ def _always_safe(
     robot_ends: np.ndarray,
     robot_radius: np.ndarray,
     widen_m: np.ndarray | None = None,
+    caps: np.ndarray | None = None,
     *,
     models: int,
 ) -> SsmResult:

@@ -1,7 +1,8 @@
 """The compiled SSM check (sara_app.safety.ssm_kernels, run by SsmVerifier.verify) against the
 Python composition of the same kernels (tests/ssm_reference.py): the same verdict, free and
 evaluated intervals and closest distances, bit for bit, for 1-8 people with their own ages,
-every model order (the arm model included), widened people and non-finite inputs."""
+every model order (the arm model included), widened people, height-bounded legs and non-finite
+inputs."""
 
 from __future__ import annotations
 
@@ -24,6 +25,14 @@ def _assert_same(a: SsmResult, b: SsmResult) -> None:
     np.testing.assert_array_equal(a.free, b.free)
     np.testing.assert_array_equal(a.evaluated, b.evaluated)
     np.testing.assert_array_equal(a.closest_m, b.closest_m)
+    np.testing.assert_array_equal(a.parts_clear, b.parts_clear)
+
+
+def _caps(rng: np.random.Generator, H: int, P: int) -> np.ndarray:
+    """``(H, P, 2)`` height bounds of random parts of random people (no bound elsewhere)."""
+    caps = np.stack([rng.uniform(-0.5, 1.5, (H, P)), rng.uniform(0.0, 2.0, (H, P))], axis=2)
+    caps[..., 0][rng.random((H, P)) < 0.4] = np.inf
+    return caps
 
 
 @SETTINGS
@@ -35,8 +44,45 @@ def test_equals_the_python_composition(c: dict, seed: int) -> None:
     widen = None
     if rng.random() < 0.5:  # some people measured less precisely than the parameters assume
         widen = rng.uniform(0.0, 0.05, (H, len(MODELS), P)) * (rng.random((H, 1, 1)) < 0.6)
-    args = (c["y"], c["v"], c["dv"], c["age"], c["times"], c["ends"], c["radius"], widen)
+    caps = _caps(rng, H, P) if rng.random() < 0.5 else None
+    args = (c["y"], c["v"], c["dv"], c["age"], c["times"], c["ends"], c["radius"], widen, caps)
     _assert_same(vf.verify(*args), verify_reference(vf, *args))
+
+
+def test_a_height_bound_clears_a_part_of_the_links_above_it_only() -> None:
+    """A leg part's set reaches the robot: with a bound below every link it is clear; with the
+    bound between two links, clear exactly when the links under it are out of the set's reach
+    (the reference agrees); the bound grows with time (rate) and age."""
+    vf = SsmVerifier(REACH, ("vel",))
+    sk = REACH.skeleton
+    P, J = sk.n_parts, sk.n_joints
+    y = np.zeros((1, J, 3)) + [0.0, 0.0, 1.0]
+    v, dv = np.zeros((1, J, 3)), np.zeros((1, J))
+    times = np.array([0.0, 0.1])
+    # two horizontal links through the person: one at 1.3 m, one at 0.9 m
+    ends = np.array([[[[-0.5, 0, 1.3], [0.5, 0, 1.3]], [[-0.5, 0, 0.9], [0.5, 0, 0.9]]]])
+    radius = np.full((1, 2), 0.05)
+    legs = [sk.parts.index(p) for p in sk.parts if p.endswith(("thigh", "shin", "foot"))]
+
+    def parts(caps: np.ndarray | None, age_s: float = 0.0) -> np.ndarray:
+        a = (y, v, dv, np.array([age_s]), times, ends, radius, None, caps)
+        res = vf.verify(*a)
+        _assert_same(res, verify_reference(vf, *a))
+        return res.parts_clear[0, 0]
+
+    assert not parts(None)[legs].any()  # every leg set touches the robot
+    caps = np.stack([np.full(P, np.inf), np.zeros(P)], axis=1)
+    caps[legs, 0] = 0.5  # below both links
+    assert parts(caps[None])[legs].all()
+    caps[legs, 0] = 1.1  # between them: the 0.9 m link still touches
+    assert not parts(caps[None])[legs].any()
+    ends[0, 1, :, 2] = 1.3  # both links at 1.3 m
+    assert parts(caps[None])[legs].all()
+    caps[legs, 1] = 1.0  # rising 1 m/s: 1.2 at the interval's end, still below 1.3 - 0.05
+    assert parts(caps[None])[legs].all()
+    assert not parts(caps[None], age_s=0.2)[legs].any()  # 0.2 s older: 1.4 m
+    upper = [p for p in range(P) if p not in legs]
+    assert not parts(caps[None])[upper].any()  # parts without a bound are not cleared by it
 
 
 def test_several_people_and_non_finite_inputs_equal_the_reference() -> None:

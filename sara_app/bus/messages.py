@@ -286,10 +286,11 @@ def position_on_stop(
 
 
 TrackingFlag = Literal[
-    "jump", "bone", "frozen", "missing", "refused", "speed", "acceleration", "repeated"
+    "jump", "bone", "frozen", "missing", "refused", "speed", "acceleration", "rise", "repeated"
 ]
 """The tracking gate's flags (``jump``, ``bone``, ``frozen``; ``refused``: skeletons refused
-for a joint distrusted too long) and the conformance monitor's (``speed``, ``acceleration``)."""
+for a joint distrusted too long) and the conformance monitor's (``speed``, ``acceleration``,
+``rise``: the upward speed of a person whose legs are bounded below the pelvis)."""
 
 
 class ViolationMsg(BaseModel):
@@ -299,9 +300,10 @@ class ViolationMsg(BaseModel):
 
     human_id: Name
     joint: Name
-    quantity: Literal["speed", "acceleration"]
+    quantity: Literal["speed", "acceleration", "rise"]
     value: Finite
-    """m/s or m/s^2: the least speed or acceleration that explains the measured motion."""
+    """m/s or m/s^2: the least speed, acceleration or upward speed (``rise``) that explains the
+    measured motion."""
     bound: Finite
     stamp_s: Finite
 
@@ -328,13 +330,15 @@ class TrackingNowMsg(BaseModel):
 
 
 class VerdictMsg(_Msg):
-    """The outcome of one control cycle (key ``sara/<cell>/verdict``).
+    """The outcome of one control cycle (key ``sara/<cell>/verdict``), schema version 2 (the
+    monitor's ``rise`` among the tracking flags and violations' quantities).
 
     ``results``: model name -> True when that model's human set is free of the robot's set.
     ``skeleton_age_s``: human id -> age of the newest accepted skeleton at decision time.
     ``dropped``: reason -> count of rejected or dropped input messages since the worker started.
     """
 
+    schema_version: Literal[2] = 2  # type: ignore[assignment]
     cell: Name
     safety_mode: Literal["ssm", "pfl", "jssa"]
     mode: Mode

@@ -22,6 +22,7 @@ from sara_app.cell.build import Cell
 from sara_app.errors import SaraError
 from sara_app.human.gate import GateResult
 from sara_app.human.intake import Intake, IntakeSettings
+from sara_app.human.legs import leg_caps
 from sara_app.human.skeleton import UPPER_JOINTS
 from sara_app.human.widening import widening
 from sara_app.safety.shield import HumanState
@@ -48,11 +49,14 @@ def unmeasured_track(
     v_max: np.ndarray,
     a_max: np.ndarray,
     settings: IntakeSettings | None = None,
+    pelvis_rise_mps: float = np.inf,
 ) -> Track:
-    """A known person without a measurement yet (a fault until one arrives)."""
+    """A known person without a measurement yet (a fault until one arrives);
+    ``pelvis_rise_mps``: the monitor's bound on the pelvis's rise where the legs are not
+    measured (:mod:`sara_app.human.legs`)."""
     return Track(
         HumanState.unmeasured(human_id, len(v_max)),
-        Intake(delta_y_m, v_max, a_max, settings or IntakeSettings()),
+        Intake(delta_y_m, v_max, a_max, settings or IntakeSettings(), pelvis_rise_mps),
     )
 
 
@@ -60,7 +64,9 @@ def track_for(cell: Cell, human_id: str) -> Track:
     """A new, unmeasured track of ``human_id`` under the cell's parameters and intake settings."""
     p = cell.params
     gate = cell.scenario.inputs.gate.intake()
-    return unmeasured_track(human_id, p.delta_y_m, p.v_max_mps, p.a_max_mps2, gate)
+    return unmeasured_track(
+        human_id, p.delta_y_m, p.v_max_mps, p.a_max_mps2, gate, p.pelvis_rise_mps
+    )
 
 
 def take_measurement(
@@ -107,6 +113,7 @@ def take_measurement(
         None if low is None or not low.any() else np.where(low, inputs.low_confidence_extra_m, 0.0)
     )
     st.widen_m = _widening(cell, track, unc_m, legs_measured, g, low_m)
+    st.leg_cap = None if legs_measured else _leg_cap(cell, g, unc_m, low_m)
     if v is not None:
         st.v = np.where(seen[:, None], v, 0.0)
         st.dv = np.full(J, p.delta_v_mps if unc_v_mps is None else max(unc_v_mps, p.delta_v_mps))
@@ -147,9 +154,24 @@ def _widening(
     return track.widen_m
 
 
+def _leg_cap(
+    cell: Cell, gated: GateResult, unc_m: float | None, low_m: np.ndarray | None
+) -> np.ndarray | None:
+    """The height bounds of the unmeasured legs (:func:`~sara_app.human.legs.leg_caps`) from
+    the gated pelvis, its uncertainty beyond ``delta_y`` included; None when the parameter set
+    bounds no leg."""
+    p = cell.params
+    if not np.isfinite(p.leg_above_pelvis_m).any():
+        return None
+    stated = 0.0 if unc_m is None else max(unc_m - p.delta_y_m, 0.0)
+    return leg_caps(p, gated.y, stated + gated.extra_m + (0.0 if low_m is None else low_m))
+
+
 def rewiden(cell: Cell, track: Track) -> None:
     """After new parameters (a scenario edit): the widening of the person's newest message
-    under them, where it is cached (nothing held or low; otherwise the next message sets it)."""
+    under them, where it is cached (nothing held or low; otherwise the next message sets it).
+    The legs' height bound is dropped until the next message (no bound is the wider set)."""
+    track.state.leg_cap = None
     if track.widen_key is not None:
         unc_m, legs, _ = track.widen_key
         track.state.widen_m = _widening(cell, track, unc_m, legs, None)

@@ -51,6 +51,12 @@ def _calibrate(args: argparse.Namespace) -> None:
                       args.leave_one_out, _load(args), _ceilings(args))  # fmt: skip
 
 
+def _legs(args: argparse.Namespace) -> None:
+    from sara_app.human.report import legs_command
+
+    legs_command(args.recordings, args.params, args.out, load=_load(args))
+
+
 def _ceilings(args: argparse.Namespace) -> Ceilings | None:
     from sara_app.errors import ParameterError
     from sara_app.human.failures import Ceilings
@@ -130,3 +136,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--out", type=Path, required=True)
     _recording_options(c)
     c.set_defaults(run=_calibrate)
+
+    g = sub.add_parser(
+        "legs",
+        help="fit the height bound of legs an upper-body tracker does not measure (full-body "
+        "recordings of the activity; leave-one-out validated) into a parameter set",
+    )
+    g.add_argument("recordings", nargs="+", help="full-body recordings (names or files)")
+    g.add_argument("--params", default="bench_work", help="the parameter set to add it to")
+    g.add_argument("--out", type=Path, required=True, help="the parameter set written (JSON)")
+    _recording_options(g)
+    g.set_defaults(run=_legs)

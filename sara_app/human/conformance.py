@@ -14,7 +14,11 @@ hold right now:
   ``a_max (t_1 - t_0)(t_2 - t_1) / 2`` of the chord between its positions at ``t_0`` and ``t_2``
   (the linear interpolation error bound), so a measured midpoint lies within that plus
   ``2 delta_y`` of the measured chord; value reported: the least acceleration that explains the
-  measured distance, ``2 (d - 2 delta_y) / ((t_1 - t_0)(t_2 - t_1))``.
+  measured distance, ``2 (d - 2 delta_y) / ((t_1 - t_0)(t_2 - t_1))``;
+- **rise** (a person whose legs are not measured, where the parameter set bounds those legs
+  below the pelvis, :mod:`sara_app.human.legs`): ``z_2 - z_0 <= 2 delta_y + rise_max (t_2 -
+  t_0)`` for the joints it bounds (the pelvis); value reported: ``(z_2 - z_0 - 2 delta_y) /
+  (t_2 - t_0)``.
 
 The fallback is the failsafe: a person with a violation is a fault (the robot stays on its
 verified failsafe) until frames stamped ``recover_s`` after their last violation show them
@@ -33,7 +37,7 @@ import numpy as np
 from sara_app.errors import ParameterError
 from sara_app.human.conformance_kernels import observe_frame
 
-QUANTITIES = ("speed", "acceleration")
+QUANTITIES = ("speed", "acceleration", "rise")
 
 
 @dataclass(frozen=True)
@@ -54,12 +58,14 @@ SPANS = 5
 
 @dataclass
 class Monitor:
-    """The monitor of one person; ``joints`` names ``v_max_mps``/``a_max_mps2`` ``(J,)``."""
+    """The monitor of one person; ``joints`` names ``v_max_mps``/``a_max_mps2`` ``(J,)``;
+    ``rise_max_mps (J,)``: the upward speed bounds (None: none; ``inf``: a joint without)."""
 
     joints: tuple[str, ...]
     v_max_mps: np.ndarray
     a_max_mps2: np.ndarray
     recover_s: float = 0.5
+    rise_max_mps: np.ndarray | None = None
     counts: dict[str, int] = field(default_factory=lambda: dict.fromkeys(QUANTITIES, 0))
     """Frames x joints beyond a bound, per quantity, since the monitor was built."""
     last: list[Violation] = field(default_factory=list)
@@ -73,20 +79,27 @@ class Monitor:
         self.v_max_mps = np.asarray(self.v_max_mps, dtype=float)
         self.a_max_mps2 = np.asarray(self.a_max_mps2, dtype=float)
         J, N = len(self.joints), 2 ** (SPANS - 1) + 1
+        self._rise_max = _rise_bounds(self.rise_max_mps, J)
         self._t = np.full(N, -np.inf)  # newest first
         self._y = np.zeros((N, J, 3))
         self._ok = np.zeros((N, J), bool)
         self._speed = np.zeros(J)  # the newest frame's, per joint (owned, reused)
         self._acc = np.zeros(J)
+        self._rise = np.zeros(J)
         self.peak_speed_mps = np.zeros(J)
         """The largest speed and acceleration any frame needed, per joint (whatever the
         bounds: what a parameter set must allow for this motion to conform)."""
         self.peak_acc_mps2 = np.zeros(J)
 
-    def retune(self, v_max_mps: np.ndarray, a_max_mps2: np.ndarray, recover_s: float) -> None:
+    def retune(
+        self, v_max_mps: np.ndarray, a_max_mps2: np.ndarray, recover_s: float,
+        rise_max_mps: np.ndarray | None = None,
+    ) -> None:  # fmt: skip
         self.v_max_mps = np.asarray(v_max_mps, dtype=float)
         self.a_max_mps2 = np.asarray(a_max_mps2, dtype=float)
         self.recover_s = recover_s
+        self.rise_max_mps = rise_max_mps
+        self._rise_max = _rise_bounds(rise_max_mps, len(self.joints))
 
     def observe(
         self,
@@ -95,14 +108,16 @@ class Monitor:
         trusted: np.ndarray,
         delta_y_m: float,
         jump_speed_mps: np.ndarray,
+        rise: bool = False,
     ) -> list[Violation]:
         """One gated frame ``y (J, 3)`` with the gate's ``trusted (J,)`` and, for joints that
         only jumped (held by the gate, bones consistent), the speed they needed
-        ``jump_speed_mps (J,)`` (0 elsewhere)."""
+        ``jump_speed_mps (J,)`` (0 elsewhere); ``rise``: check the upward speed bounds too (a
+        person whose legs are not measured)."""
         speed, acc = self._speed, self._acc
         observe_frame(self._t, self._y, self._ok, float(t_s), np.asarray(y, float),
                       np.asarray(trusted, bool), float(delta_y_m),
-                      np.asarray(jump_speed_mps, float), speed, acc)  # fmt: skip
+                      np.asarray(jump_speed_mps, float), speed, acc, self._rise)  # fmt: skip
         np.maximum(self.peak_speed_mps, speed, out=self.peak_speed_mps)
         np.maximum(self.peak_acc_mps2, acc, out=self.peak_acc_mps2)
         found = [Violation(self.joints[j], "speed", float(speed[j]), float(self.v_max_mps[j]), t_s)
@@ -110,6 +125,10 @@ class Monitor:
         found += [Violation(self.joints[j], "acceleration", float(acc[j]),
                             float(self.a_max_mps2[j]), t_s)
                   for j in np.flatnonzero(acc > self.a_max_mps2)]  # fmt: skip
+        if rise:
+            bound = self._rise_max
+            found += [Violation(self.joints[j], "rise", float(self._rise[j]), float(bound[j]), t_s)
+                      for j in np.flatnonzero(self._rise > bound)]  # fmt: skip
         self.newest_s = max(self.newest_s, t_s)
         if found:
             self.last = found
@@ -133,3 +152,15 @@ class Monitor:
             f"human {human_id!r}: {v.joint} {v.quantity} {v.value:.2f} > bound {v.bound:.2f}"
             f"{more}; failsafe until {self.recover_s} s within bounds"
         )
+
+
+def _rise_bounds(rise_max_mps: np.ndarray | None, n_joints: int) -> np.ndarray:
+    """``(J,)`` upward speed bounds (``inf``: none); raises on another shape or a bound <= 0."""
+    if rise_max_mps is None:
+        return np.full(n_joints, np.inf)
+    bound = np.asarray(rise_max_mps, dtype=float)
+    if bound.shape != (n_joints,) or not (bound > 0).all():
+        raise ParameterError(
+            f"monitor rise_max_mps {rise_max_mps!r}; expected {n_joints} bounds > 0 (inf: none)"
+        )
+    return bound

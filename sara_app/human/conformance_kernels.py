@@ -1,10 +1,10 @@
 """The conformance monitor's per-frame computation, compiled (:mod:`sara_app.human.conformance`
-states the two conditions; ``tests/conformance_reference.py`` is the plain numpy oracle).
+states the conditions; ``tests/conformance_reference.py`` is the plain numpy oracle).
 
 One call per frame and person: the frame enters the monitor's rings (newest first) and, per
-joint, the least speed and acceleration that explain the trusted positions over spans of 1, 2,
-4, ... frames back come out. The numpy version cost about 130 us per frame (dozens of small
-array operations on ``(J, 3)`` arrays); this one a few microseconds.
+joint, the least speed, upward speed and acceleration that explain the trusted positions over
+spans of 1, 2, 4, ... frames back come out. The numpy version cost about 130 us per frame
+(dozens of small array operations on ``(J, 3)`` arrays); this one a few microseconds.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from numba import njit, types
 from sara_app.kernel_types import F8, RO1, RO2, ROB1, W1, W3, WB2
 
 
-@njit(types.void(W1, W3, WB2, F8, RO2, ROB1, F8, RO1, W1, W1), cache=True)
+@njit(types.void(W1, W3, WB2, F8, RO2, ROB1, F8, RO1, W1, W1, W1), cache=True)
 def observe_frame(
     t_ring: np.ndarray,
     y_ring: np.ndarray,
@@ -29,12 +29,14 @@ def observe_frame(
     jump_speed_mps: np.ndarray,
     speed_mps: np.ndarray,
     acc_mps2: np.ndarray,
+    rise_mps: np.ndarray,
 ) -> None:
     """Shift the frame ``(t_s, y (J, 3), trusted (J,))`` into the rings ``t_ring (N,)``,
     ``y_ring (N, J, 3)``, ``ok_ring (N, J)`` (newest first) and write per joint the speed
     ``speed_mps (J,)`` (at least ``jump_speed_mps (J,)``, the gate's speed of a joint that only
     jumped) and acceleration ``acc_mps2 (J,)`` the trusted positions need over spans of
-    ``k = 1, 2, 4, ...`` frames back (``k < N``), beyond ``2 delta_y`` of noise."""
+    ``k = 1, 2, 4, ...`` frames back (``k < N``), beyond ``2 delta_y`` of noise, and the
+    vertical speed upwards ``rise_mps (J,)`` they need over the same spans (``z`` up)."""
     N, J = y_ring.shape[0], y_ring.shape[1]
     for n in range(N - 1, 0, -1):
         t_ring[n] = t_ring[n - 1]
@@ -49,6 +51,7 @@ def observe_frame(
             y_ring[0, j, c] = y[j, c]
         speed_mps[j] = jump_speed_mps[j]
         acc_mps2[j] = 0.0
+        rise_mps[j] = 0.0
     noise = 2.0 * delta_y_m
     k = 1
     while k < N and math.isfinite(t_ring[k]):
@@ -62,6 +65,9 @@ def observe_frame(
             v = (math.sqrt(d) - noise) / dt if ok else 0.0
             if v > speed_mps[j]:
                 speed_mps[j] = v
+            up = (y[j, 2] - y_ring[k, j, 2] - noise) / dt if ok else 0.0
+            if up > rise_mps[j]:
+                rise_mps[j] = up
             if k >= 2:
                 t1 = t_ring[h]
                 w = (t1 - t_ring[k]) / dt

@@ -76,11 +76,13 @@ class Intake:
         v_max_mps: np.ndarray,
         a_max_mps2: np.ndarray,
         settings: IntakeSettings = IntakeSettings(),
+        pelvis_rise_mps: float = np.inf,
     ) -> None:
         J = len(v_max_mps)
         self.gate = Gate(np.asarray(v_max_mps, float), settings.gate)
         self.estimator = VelocityEstimator(J, delta_y_m, a_max_mps2)
-        self.monitor = Monitor(FULL_JOINTS[:J], v_max_mps, a_max_mps2, settings.recover_s)
+        self.monitor = Monitor(FULL_JOINTS[:J], v_max_mps, a_max_mps2, settings.recover_s,
+                               _rise_bounds(J, pelvis_rise_mps))  # fmt: skip
         self.stale_after_s = settings.stale_after_s
         self.refusal: str | None = None
         """Why the last frame :meth:`take` returned None for: ``tracking_inconsistent`` or
@@ -93,12 +95,14 @@ class Intake:
 
     def retune(
         self, delta_y_m: float, v_max_mps: np.ndarray, a_max_mps2: np.ndarray,
-        settings: IntakeSettings,
+        settings: IntakeSettings, pelvis_rise_mps: float = np.inf,
     ) -> None:  # fmt: skip
         """New parameters (a scenario edit): what was learned stays, velocity bounds restart."""
         self.gate.retune(v_max_mps, settings.gate)
         self.estimator.retune(delta_y_m, a_max_mps2)
-        self.monitor.retune(v_max_mps, a_max_mps2, settings.recover_s)
+        J = len(v_max_mps)
+        self.monitor.retune(v_max_mps, a_max_mps2, settings.recover_s,
+                            _rise_bounds(J, pelvis_rise_mps))  # fmt: skip
         self.stale_after_s = settings.stale_after_s
 
     def take(
@@ -128,7 +132,9 @@ class Intake:
         g = self.gate.check(t_s, y, delta_y_m, n_measured, missing)
         # The monitor sees refused frames too: a measurement that still disagrees with the
         # history keeps the person's fault alive (recover_s counts from the last one).
-        self.monitor.observe(t_s, g.y, g.trusted, delta_y_m, g.jump_speed_mps)
+        # the pelvis's rise bounds unmeasured legs (sara_app.human.legs): checked where they are
+        self.monitor.observe(t_s, g.y, g.trusted, delta_y_m, g.jump_speed_mps,
+                             rise=n_measured < len(y))  # fmt: skip
         if g.refused:
             self.refusal = "tracking_inconsistent"
             return None
@@ -270,3 +276,10 @@ def screen_recording(params: ReachParams, rec: Recording) -> Screening:
     J = rec.positions_m.shape[1]
     return screen(rec.times_s, rec.positions_m, params.delta_y_m, params.v_max_mps[:J],
                   params.a_max_mps2[:J])  # fmt: skip
+
+
+def _rise_bounds(n_joints: int, pelvis_rise_mps: float) -> np.ndarray:
+    """``(J,)`` the monitor's upward speed bounds: the pelvis's, none (``inf``) elsewhere."""
+    bound = np.full(n_joints, np.inf)
+    bound[FULL_JOINTS.index("pelvis")] = pelvis_rise_mps
+    return bound

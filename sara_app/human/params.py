@@ -18,7 +18,7 @@ import numpy as np
 from pydantic import Field, ValidationError, field_validator
 
 from sara_app.errors import ParameterError, UnknownNameError
-from sara_app.human.skeleton import FULL_BODY_PARTS, FULL_JOINTS, skeleton
+from sara_app.human.skeleton import FULL_BODY_PARTS, FULL_JOINTS, UPPER_JOINTS, skeleton
 from sara_app.settings import Strict
 
 PARAM_DIR = Path(__file__).resolve().parent.parent / "params"
@@ -63,6 +63,27 @@ class ArmModelParams(Strict):
     shoulder_v_max_mps: Pos = 2.0
 
 
+LEG_PARTS = tuple(p for p, (a, _) in FULL_BODY_PARTS.items() if a not in UPPER_JOINTS)
+"""The body parts an upper-body tracker does not measure (thighs, shins, feet)."""
+
+
+class LegHeights(Strict):
+    """The vertical bound of legs that a tracker does not measure (an upper-body tracker):
+    every joint of leg part ``p`` is at most ``above_pelvis_m[p]`` above the pelvis joint at the
+    same time (negative: below it), and the pelvis rises at most ``rise_max_mps`` (m/s, its
+    vertical speed). Fitted to full-body recordings of the activity (:mod:`sara_app.human.legs`),
+    which states what it assumes; the conformance monitor checks the measured pelvis's rise."""
+
+    above_pelvis_m: dict[str, Annotated[float, Field(ge=-2.0, le=2.0, allow_inf_nan=False)]]
+    rise_max_mps: Pos
+
+    @field_validator("above_pelvis_m")
+    @classmethod
+    def _parts_complete(cls, v: dict[str, float]) -> dict[str, float]:
+        _check_names("leg part", v, LEG_PARTS)
+        return v
+
+
 class ParamSet(Strict):
     """A named, complete human parameter set (the JSON file format)."""
 
@@ -78,6 +99,9 @@ class ParamSet(Strict):
     joints: dict[str, JointBound]
     body_parts: dict[str, BodyPartGeometry]
     arm: ArmModelParams
+    legs_unmeasured: LegHeights | None = None
+    """The vertical bound of unmeasured legs; None: the legs of an upper-body track are bounded
+    by their reach from the pelvis only."""
 
     @field_validator("joints")
     @classmethod
@@ -105,7 +129,9 @@ def _check_names(kind: str, given: Mapping[str, object], valid: tuple[str, ...])
 class ReachParams:
     """Arrays for one skeleton kind, in the skeleton's joint / part order.
 
-    ``v_max_mps``, ``a_max_mps2``: ``(J,)``; ``half_thickness_m``, ``iso_radius_m``: ``(P,)``.
+    ``v_max_mps``, ``a_max_mps2``: ``(J,)``; ``half_thickness_m``, ``iso_radius_m``: ``(P,)``;
+    ``leg_above_pelvis_m (P,)``, ``pelvis_rise_mps``: the vertical bound of unmeasured legs
+    (:class:`LegHeights`; ``inf`` for parts it does not bound and where the set has none).
     """
 
     kind: str
@@ -119,11 +145,15 @@ class ReachParams:
     delay_s: float
     iso_v_max_mps: float
     arm: ArmModelParams
+    leg_above_pelvis_m: np.ndarray
+    pelvis_rise_mps: float
 
 
 def to_reach_params(ps: ParamSet, kind: str) -> ReachParams:
     """The plain arrays of ``ps`` for skeleton ``kind``, looked up by name."""
     sk = skeleton(kind)
+    legs = ps.legs_unmeasured
+    above = {} if legs is None else legs.above_pelvis_m
     return ReachParams(
         kind=kind,
         name=ps.name,
@@ -136,6 +166,8 @@ def to_reach_params(ps: ParamSet, kind: str) -> ReachParams:
         delay_s=ps.delay_s,
         iso_v_max_mps=ps.iso_v_max_full_mps if kind == "full" else ps.iso_v_max_upper_mps,
         arm=ps.arm,
+        leg_above_pelvis_m=np.array([above.get(p, np.inf) for p in sk.parts]),
+        pelvis_rise_mps=np.inf if legs is None else legs.rise_max_mps,
     )
 
 

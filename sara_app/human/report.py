@@ -324,3 +324,44 @@ def calibrate_command(
     save_param_set(ps, out)
     print(f"wrote parameter set {name!r} to {out}; models sound on these recordings: {sound}")
     return ps, rep
+
+
+def legs_command(
+    recordings: Sequence[str], params: str, out: Path, load: Load = load_recording
+) -> ParamSet:
+    """``sara-app legs``: the height bound of unmeasured legs (:mod:`sara_app.human.legs`)
+    fitted to full-body ``recordings`` with the margin their leave-one-out validation needs,
+    added to the set ``params`` and written to ``out``; prints the validation."""
+    from sara_app.human.legs import containment, fit_validated, format_containment
+
+    recs = [load(r) for r in recordings]
+    bounded, rows, margin_m = fit_validated(recs)
+    print("legs below the pelvis, each recording left out (no margin):")
+    print(f"{format_containment(rows)}\nmargin from the worst excess: {margin_m:.2f} m")
+    fitted = [containment(r, bounded, h) for r in recs for h in (0.1, 0.2, 0.5)]
+    print(f"the bound with the margin, on every recording:\n{format_containment(fitted)}")
+    print(f"bound: {bounded.model_dump()}")
+    base = load_param_set(params)
+    held_out = {r.recording: r.misses for r in rows if r.horizon_s == 0.5}
+    ps = base.model_copy(
+        update={
+            "legs_unmeasured": bounded,
+            "sources": {
+                **base.sources,
+                "legs_unmeasured": (
+                    f"`sara-app legs` on {', '.join(r.name for r in recs)}: each leg part's "
+                    f"highest joint over the pelvis and the pelvis's fastest rise (0.5 s), plus "
+                    f"the margin {margin_m:.2f} m that leaving each recording out needs. ASSUMED "
+                    "for the activity: feet on the floor (no kneeling on the bench, climbing or "
+                    "kicking); the rise is monitored"
+                ),
+            },
+            "sound_for": {
+                **base.sound_for,
+                "legs_unmeasured_left_out_misses_0_5s": json.dumps(held_out),
+            },
+        }
+    )
+    save_param_set(ps, out)
+    print(f"wrote {out}")
+    return ps

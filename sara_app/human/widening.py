@@ -10,7 +10,7 @@ which are Minkowski sums with B(delta_y)). Exceptions, per model:
 
 - R_POS limbs (ball at the root, radius with the *measured* segment lengths): each of the ``n``
   segment lengths is off by ``2 e`` and the root by ``e``: ``(1 + 2 n) e``. An unmeasured leg
-  (all its joints placed at the pelvis) is a ball at the pelvis grown by
+  (all its joints placed at the pelvis) is a ball at the pelvis grown by the ankle's
   ``UNMEASURED_LEG_REACH_M`` (every leg point lies that close to the pelvis, and the leg's root
   then moves at most at the hip's v_max).
 - Pereira's arm model maps measured joints to joint angles: a larger position error changes the
@@ -20,10 +20,12 @@ which are Minkowski sums with B(delta_y)). Exceptions, per model:
   its leg capsules are infinite too.
 
 ``UNMEASURED_LEG_REACH_M``: the farthest a hip, knee or ankle joint can be from the pelvis joint
-(the midpoint of the hips, or SaRA's torso-base marker): a tall adult's thigh (about 0.5 m) and
-shank (about 0.5 m) plus the pelvis-to-hip offset (about 0.1-0.15 m) make about 1.15 m; 1.2 m
-is the named conservative round-up. The foot's own size is its body part's thickness, as for a
-measured foot.
+(the midpoint of the hips, or SaRA's torso-base marker): the pelvis-to-hip offset (about
+0.1-0.15 m) for a hip, plus a tall adult's thigh (about 0.5 m) for a knee, plus the shank
+(about 0.5 m) for an ankle; 0.2, 0.7 and 1.2 m are the named conservative round-ups (the CMU
+subjects of the walk, run, boxing and bench-work recordings: at most 0.16, 0.58 and 1.02 m). The
+foot's own size is its body part's thickness, as for a measured foot. How high the legs reach
+is bounded separately where the parameter set says so (:mod:`sara_app.human.legs`).
 """
 
 from __future__ import annotations
@@ -33,7 +35,14 @@ import numpy as np
 from sara_app.human.reach import MODELS, HumanReach, part_capsules
 from sara_app.human.skeleton import UPPER_JOINTS
 
-UNMEASURED_LEG_REACH_M = 1.2
+UNMEASURED_LEG_REACH_M = {"hip": 0.2, "knee": 0.7, "ankle": 1.2}
+"""The farthest each leg joint (either side) can be from the pelvis joint, m (module notes)."""
+
+
+def _leg_reach(joint: str) -> float:
+    """:data:`UNMEASURED_LEG_REACH_M` of a joint name (``l_knee``); 0 for joints of the upper
+    body."""
+    return UNMEASURED_LEG_REACH_M.get(joint.split("_", 1)[-1], 0.0)
 
 
 def widening(
@@ -58,7 +67,8 @@ def capsule_widening(
     sk = reach.skeleton
     extra = np.maximum(np.broadcast_to(np.asarray(extra_m, float), (sk.n_joints,)), 0.0)
     unmeasured = np.array([not legs_measured and j not in UPPER_JOINTS for j in sk.joints])
-    e = np.where(unmeasured, extra + UNMEASURED_LEG_REACH_M, extra)  # (J,)
+    reach_j = np.array([_leg_reach(j) for j in sk.joints])
+    e = np.where(unmeasured, extra + reach_j, extra)  # (J,)
     arm_joints = [sk.joints.index(f"{s}_{j}") for s in "lr" for j in ("shoulder", "elbow", "wrist")]
     out = {}
     for m in MODELS:
@@ -67,9 +77,10 @@ def capsule_widening(
         np.maximum.at(ext, cap, e[joint])
         if m == "pos":
             for i, chain in enumerate(sk.limb_chains):
-                leg = bool(unmeasured[list(chain)].any())
-                worst = float(extra[list(chain)].max())
-                ext[i] = (1 + 2 * (len(chain) - 1)) * worst + UNMEASURED_LEG_REACH_M * leg
+                legs = list(chain)
+                worst = float(extra[legs].max())
+                leg = float(np.where(unmeasured[legs], reach_j[legs], 0.0).max())
+                ext[i] = (1 + 2 * (len(chain) - 1)) * worst + leg
         elif m == "arm" and extra[arm_joints].max() > 0.0:
             ext[:2] = np.inf
         out[m] = ext

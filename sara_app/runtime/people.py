@@ -116,6 +116,6 @@ class People:
         )
         p, gate = new.params, inp.gate.intake()
         for t in self.presence.tracks.values():
-            t.intake.retune(p.delta_y_m, p.v_max_mps, p.a_max_mps2, gate)
+            t.intake.retune(p.delta_y_m, p.v_max_mps, p.a_max_mps2, gate, p.pelvis_rise_mps)
             t.state.dv = np.full(len(p.v_max_mps), np.inf)
             rewiden(new, t)  # the same message under the new delta_y

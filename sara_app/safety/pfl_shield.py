@@ -135,7 +135,7 @@ class PflShield(Shield):
         J = self.verifier.reach.skeleton.n_joints
         base = np.asarray(self.robot.T_world_base, dtype=float)[:3, 3]
         y = np.broadcast_to(base + [1.0, 0.0, 1.0], (1, J, 3)).copy()
-        hum = (y, np.zeros_like(y), np.zeros((1, J)), np.zeros(1), self._no_widening)
+        hum = (y, np.zeros_like(y), np.zeros((1, J)), np.zeros(1), self._no_widening, None)
         sc = self.scaling
         work = (list(self._orders[0]), list(self._orders[1]))
         try:

@@ -48,9 +48,10 @@ from sara_app.safety.ssm_cycle_kernels import DONE, ssm_cycle_kernel
 
 MODES = ("intended", "failsafe", "rest", "fault")
 
-Humans = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]
-"""The usable people of a cycle: ``y, v (H, J, 3)``, ``dv (H, J)``, ``age (H,)`` and the
-widening ``(H, len(MODELS), P)`` of :mod:`sara_app.human.widening` (zeros: none)."""
+Humans = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]
+"""The usable people of a cycle: ``y, v (H, J, 3)``, ``dv (H, J)``, ``age (H,)``, the
+widening ``(H, len(MODELS), P)`` of :mod:`sara_app.human.widening` (None: none) and the height
+bounds of unmeasured legs ``(H, P, 2)`` of :mod:`sara_app.human.legs` (None: none)."""
 
 
 @dataclass
@@ -58,7 +59,9 @@ class HumanState:
     """One person's latest measurement: joints ``y (J, 3)`` m, velocity ``v (J, 3)`` m/s with
     error bound ``dv (J,)`` m/s, sensor time stamp ``stamp_s`` (``None``: never measured);
     ``widen_m``: extra set radius per model and body part ``(len(MODELS), P)`` m
-    (:mod:`sara_app.human.widening`; None: none)."""
+    (:mod:`sara_app.human.widening`; None: none); ``leg_cap (P, 2)``: the height bound of
+    each body part, for legs the tracker does not measure (:func:`~sara_app.human.legs.leg_caps`;
+    None: none)."""
 
     id: str
     y: np.ndarray
@@ -66,6 +69,7 @@ class HumanState:
     dv: np.ndarray
     stamp_s: float | None
     widen_m: np.ndarray | None = None
+    leg_cap: np.ndarray | None = None
 
     @classmethod
     def unmeasured(cls, human_id: str, n_joints: int) -> HumanState:
@@ -360,23 +364,30 @@ class Shield:
         self, humans: list[HumanState], usable: list[int], ages: dict[str, float]
     ) -> Humans | None:
         """Usable humans stacked: ``y, v (H, J, 3)``, ``dv (H, J)``, ``age (H,)``, ``widen
-        (H, len(MODELS), P)``; None if none."""
+        (H, len(MODELS), P)``, ``caps (H, P, 2)``; None if none."""
         if not usable:
             return None
         if len(usable) == 1:  # the common case, without the copies of a stack
             h = humans[usable[0]]
             w = None if h.widen_m is None else h.widen_m[None]  # None: no widening
-            return h.y[None], h.v[None], h.dv[None], np.array([max(ages[h.id], 0.0)]), w
+            c = None if h.leg_cap is None else h.leg_cap[None]
+            return h.y[None], h.v[None], h.dv[None], np.array([max(ages[h.id], 0.0)]), w, c
         y = np.stack([humans[i].y for i in usable])
         v = np.stack([humans[i].v for i in usable])
         dv = np.stack([humans[i].dv for i in usable])
         age = np.array([max(ages[humans[i].id], 0.0) for i in usable])
         widen = np.zeros((len(usable),) + self._no_widening.shape[1:])
+        caps = None
         for k, i in enumerate(usable):
-            widen_i = humans[i].widen_m
+            widen_i, cap_i = humans[i].widen_m, humans[i].leg_cap
             if widen_i is not None:
                 widen[k] = widen_i
-        return y, v, dv, age, widen
+            if cap_i is not None:
+                if caps is None:
+                    caps = np.zeros((len(usable),) + cap_i.shape)
+                    caps[:, :, 0] = np.inf
+                caps[k] = cap_i
+        return y, v, dv, age, widen, caps
 
     def _shielded(self) -> tuple[ShieldedTrajectory, np.ndarray, np.ndarray]:
         """The follower's next shielded trajectory and its robot capsules per interval
@@ -444,8 +455,8 @@ class Shield:
         if hum is None:  # nobody in the cell
             return traj, ends, radius, True
         sc = self.settings.ssm
-        y, v, dv, age, widen = hum
-        res = self.verifier.verify(y, v, dv, age, traj.times, ends, radius, widen)
+        y, v, dv, age, widen, caps = hum
+        res = self.verifier.verify(y, v, dv, age, traj.times, ends, radius, widen, caps)
         if not res.safe and sc.max_replans:
             V_here = self.follower.admissible_here()[0]
             c_min = sc.min_speed_scale * V_here
@@ -456,7 +467,7 @@ class Shield:
                     break
                 cap = cand
                 traj, ends, radius = self._plan(cap)
-                res = self.verifier.verify(y, v, dv, age, traj.times, ends, radius, widen)
+                res = self.verifier.verify(y, v, dv, age, traj.times, ends, radius, widen, caps)
             self._scale = min(1.0, cap / V_here) if V_here > 0 else 1.0
         self._res = res
         return traj, ends, radius, res.safe

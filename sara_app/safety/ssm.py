@@ -123,16 +123,18 @@ class SsmVerifier:
         robot_ends: np.ndarray,
         robot_radius: np.ndarray,
         widen_m: np.ndarray | None = None,
+        caps: np.ndarray | None = None,
     ) -> SsmResult:
         """``y, v (H, J, 3)``, ``dv (H, J)``, ``age_s (H,)`` (command time minus measurement
         time), ``times_s (K+1,)`` from now, robot ``(K, L, 2, 3)``, ``(K, L)``; ``widen_m``
         ``(H, len(MODELS), P)``: extra radius per body part (:mod:`sara_app.human.widening`;
-        a capsule grows by the largest of the parts it contains); other shapes raise
-        :class:`InputError`."""
+        a capsule grows by the largest of the parts it contains); ``caps (H, P, 2)``: the
+        height bounds of unmeasured legs (:func:`~sara_app.human.legs.leg_caps`; None: none);
+        other shapes raise :class:`InputError`."""
         times_s, robot_ends, robot_radius = as_f8(times_s), as_f8(robot_ends), as_f8(robot_radius)
         K = robot_ends.shape[0]
         L = robot_ends.shape[1] if robot_ends.ndim == 4 else -1
-        human = self.human(y, v, dv, age_s, widen_m)
+        human = self.human(y, v, dv, age_s, widen_m, caps)
         if (
             times_s.shape != (K + 1,)
             or robot_ends.shape != (K, L, 2, 3)
@@ -161,10 +163,11 @@ class SsmVerifier:
         dv: np.ndarray,
         age_s: np.ndarray,
         widen_m: np.ndarray | None = None,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        caps: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The people as the kernels take them (:data:`~sara_app.safety.ssm_kernels.HUMAN`):
-        ``(y, v, dv, widen (H, M, P) in the check's model order, age_s)`` as float64; raises
-        :class:`InputError` on shapes other than :meth:`verify`'s."""
+        ``(y, v, dv, widen (H, M, P) in the check's model order, age_s, caps (H, P, 2))`` as
+        float64; raises :class:`InputError` on shapes other than :meth:`verify`'s."""
         y, v, dv, age_s = as_f8(y), as_f8(v), as_f8(dv), as_f8(age_s)
         H, M = y.shape[0], len(self.models)
         P, J = self.reach.skeleton.n_parts, self.reach.skeleton.n_joints
@@ -183,13 +186,28 @@ class SsmVerifier:
                     f"widen_m has shape {widen.shape}; expected ({H}, {len(MODELS)}, {P})"
                 )
             widen = widen[:, self._model_rows]  # rows in the check's model order
-        return y, v, dv, widen, age_s
+        if caps is None:
+            caps = self._no_caps(H, P)
+        else:
+            caps = as_f8(caps)
+            if caps.shape != (H, P, 2):
+                raise InputError(f"caps has shape {caps.shape}; expected ({H}, {P}, 2)")
+        return y, v, dv, widen, age_s, caps
 
     @property
     def part_maps(self) -> np.ndarray:
         """``(M, P)`` read-only: per model of the check, the capsule that holds each body part
         (:func:`~sara_app.human.reach.part_capsules`, computed once)."""
         return self._maps
+
+    def _no_caps(self, H: int, P: int) -> np.ndarray:
+        """A read-only ``(H, P, 2)`` of no height bounds (``inf``), one per shape."""
+        none = self._zeros.get((H, -1, P))
+        if none is None:
+            none = self._zeros[(H, -1, P)] = np.zeros((H, P, 2))
+            none[:, :, 0] = np.inf
+            none.flags.writeable = False
+        return none
 
     def _zero_widening(self, H: int, M: int, P: int) -> np.ndarray:
         """A read-only ``(H, M, P)`` of zeros, one per shape (no allocation per cycle)."""

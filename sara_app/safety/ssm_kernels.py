@@ -32,9 +32,11 @@ __all__ = ["KIND_ARM", "ssm_kernel"]
 KIND_ARM = 5
 """Pereira's arm model: its capsules are computed before the call (``arm``)."""
 
-HUMAN = types.Tuple((RO[3], RO[3], RO[2], RO[3], RO[1]))
-"""``(y, v (H, J, 3), dv (H, J), widen (H, M, P), age_s (H,))``: ``widen`` the extra radius
-per model (in the check's order) and body part."""
+HUMAN = types.Tuple((RO[3], RO[3], RO[2], RO[3], RO[1], RO[3]))
+"""``(y, v (H, J, 3), dv (H, J), widen (H, M, P), age_s (H,), caps (H, P, 2))``: ``widen`` the
+extra radius per model (in the check's order) and body part; ``caps`` each part's height bound
+``base + rate * tau`` (m, m/s; ``tau`` the time since the measurement; ``base = inf``: none) of
+legs the tracker does not measure (:mod:`sara_app.human.legs`)."""
 CONSTANTS = types.Tuple((STATIC, ACC, POS, types.UniTuple(F8, 2), I8))
 """``(static, acc, pos, (delay_s, delta_y_m), n_limbs)``: ``HumanReach.kernel_constants``."""
 ARM = types.Tuple((RO[5], RO[3]))
@@ -44,20 +46,27 @@ when the check does not use it)."""
 
 @njit  # calls kernels of other files: compiled into its callers (kernel_types, caching)
 def _touching(
-    ends: np.ndarray, radius: np.ndarray, r_ends: np.ndarray, r_radius: np.ndarray, out: np.ndarray
-) -> None:
-    """``out[c]``: capsule ``c`` of ``ends (C, 2, 3)``, ``radius (C,)`` may touch one of the
-    robot's ``(L, 2, 3)``, ``(L,)`` (surface distance <= 0 or NaN; exact segment distances)."""
+    ends: np.ndarray, radius: np.ndarray, r_ends: np.ndarray, r_radius: np.ndarray,
+    lowest: bool, out: np.ndarray,
+) -> None:  # fmt: skip
+    """``out[c]``: the lowest point of the robot's capsules ``(L, 2, 3)``, ``(L,)`` that
+    capsule ``c`` of ``ends (C, 2, 3)``, ``radius (C,)`` may touch (surface distance <= 0 or
+    NaN; exact segment distances); ``inf``: none. Without ``lowest``: ``-inf`` for the first
+    touching link found (whether it touches, not how low)."""
     for c in range(ends.shape[0]):
-        out[c] = False
+        out[c] = np.inf
         p, q = ends[c, 0], ends[c, 1]
         for i in range(r_ends.shape[0]):
             a, b = r_ends[i, 0], r_ends[i, 1]
             d = segment_closest(p[0], p[1], p[2], q[0], q[1], q[2], a[0], a[1], a[2], b[0], b[1],
                                 b[2])[0]  # fmt: skip
             if not d - radius[c] - r_radius[i] > 0.0:
-                out[c] = True
-                break
+                if not lowest:
+                    out[c] = -np.inf
+                    break
+                bottom = min(a[2], b[2]) - r_radius[i]
+                if not bottom >= out[c]:  # NaN: as low as can be
+                    out[c] = bottom if bottom == bottom else -np.inf
 
 
 def _make_kernel() -> Any:
@@ -89,10 +98,11 @@ def _make_kernel() -> Any:
         evaluated (H, M, K)`` (model ``m`` of person ``h`` was checked on interval ``k`` / none
         of its capsules touches the robot there), ``closest (H, M)`` (exact smallest surface
         distance over the intervals it checked, ``inf``: none) and ``parts (H, K, P)`` (body
-        part ``p`` proved clear on interval ``k``). Returns whether every part of every person
-        is clear on every interval."""
+        part ``p`` proved clear on interval ``k``; a part with a height bound, ``human[5]``, is
+        clear of the links above it at the interval's end). Returns whether every part of every
+        person is clear on every interval."""
         H, M, K = free.shape[0], codes.shape[0], times.shape[0] - 1
-        widen, age_s = human[3], human[4]
+        widen, age_s, caps = human[3], human[4], human[5]
         static, pos = constants[0], constants[2]
         P, C_pos = static[0].shape[0], pos[3].shape[0]
         C_max = max(P, C_pos, arm[1].shape[2])
@@ -102,9 +112,12 @@ def _make_kernel() -> Any:
         grown = np.empty((K, C_max))
         extra = np.empty(C_max)
         hit = np.empty(K, np.bool_)
-        touch = np.empty(C_max, np.bool_)
+        low = np.empty(C_max)
         safe = len(sources) > 0  # the digests tie the cache to the callees
         for h in range(H):
+            capped = False  # a part with a height bound: the links' heights matter
+            for p in range(P):
+                capped = capped or caps[h, p, 0] < np.inf
             for m in range(M):
                 closest[h, m] = np.inf
                 for k in range(K):
@@ -150,10 +163,15 @@ def _make_kernel() -> Any:
                     if hit[k]:  # which of the model's capsules touch the robot here
                         _touching(ends[k if ends.shape[0] == K else 0],
                                   radius[k if radius.shape[0] == K else 0], robot_ends[k],
-                                  robot_radius[k], touch)  # fmt: skip
+                                  robot_radius[k], capped, low)  # fmt: skip
+                    tau = age_s[h] + times[k + 1]  # a height bound at the interval's end
                     for p in range(P):
-                        if not hit[k] or not touch[part_maps[m, p]]:
-                            cleared[k, p] = True
+                        if hit[k]:  # touched: a link as low as the part's bound (NaN: no bound)
+                            z = low[part_maps[m, p]]
+                            if z < np.inf and not z > caps[h, p, 0] + caps[h, p, 1] * tau:
+                                continue
+                        cleared[k, p] = True
+                    for p in range(P):
                         done = done and cleared[k, p]
                 if done:
                     break

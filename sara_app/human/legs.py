@@ -1,0 +1,200 @@
+"""Legs that the tracker does not measure, bounded from above: the vertical bound of a person
+seen by an upper-body tracker at a bench.
+
+An upper-body tracker measures the head, neck, pelvis, shoulders, elbows and wrists; the legs'
+sets are then balls at the pelvis as large as a leg's reach (:mod:`sara_app.human.widening`).
+In a bench cell those balls reach over the bench top, where the robot works, although no
+standing person's knee or foot gets there. The argument that bounds them:
+
+1. *Legs below the pelvis* (assumed for the activity, fitted): at any time every joint of leg
+   part ``p`` (hip and knee for a thigh, knee and ankle for a shin, the ankle for a foot) is at
+   most ``above_pelvis_m[p]`` above the pelvis joint (negative: below it). Trackers put the
+   pelvis at the pelvis's centre (Azure Kinect) or at the hips' midpoint (BlazePose), which in
+   the recordings lies about 9 cm lower: the fit measures from the lower of the two, so the
+   bound holds for either. It holds for people
+   who stand, walk and work with their feet on the floor; it does not hold for kneeling on the
+   bench, climbing or kicking high. Fitted to the full-body recordings of the activity (maximum
+   over every frame) plus a margin; validated by leaving each recording out
+   (:func:`leave_one_out`).
+2. *The pelvis rises slowly* (fitted and monitored): over the horizon ``tau`` the pelvis rises at
+   most ``rise_max_mps * tau``. The pelvis is measured, so the conformance monitor checks it
+   (:mod:`sara_app.human.conformance`, quantity ``rise``); a person who rises faster is a fault
+   (the robot stays on its verified failsafe).
+3. *Noise*: the measured pelvis lies within ``delta_y`` (plus any widening of the pelvis joint)
+   of the true one.
+
+Together: every point of leg part ``p`` of a person measured at time ``t0`` lies at ``t0 + tau``
+at most ``z_cap(p, tau) = z_pelvis + delta_y + e + above_pelvis_m[p] + r_p + rise_max_mps *
+tau`` high (``r_p`` the part's half thickness), whatever the part's horizontal reach. The SSM
+check (:mod:`sara_app.safety.ssm_kernels`) intersects each model's set of a leg part with the
+half-space below ``z_cap``: a robot link whose lowest point is above it cannot touch the part.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from sara_app.errors import InputError
+from sara_app.human.params import LEG_PARTS, LegHeights, ReachParams
+from sara_app.human.recording import Recording
+from sara_app.human.skeleton import FULL_BODY_PARTS, FULL_JOINTS
+
+PELVIS = FULL_JOINTS.index("pelvis")
+_HIPS = [FULL_JOINTS.index("l_hip"), FULL_JOINTS.index("r_hip")]
+_PART_JOINTS = np.array(
+    [[FULL_JOINTS.index(j) for j in FULL_BODY_PARTS[p]] for p in LEG_PARTS], dtype=np.int64
+)  # (6, 2)
+
+
+def leg_caps(params: ReachParams, y: np.ndarray, extra_m: float | np.ndarray) -> np.ndarray | None:
+    """``(P, 2)`` per body part the height bound's base (m, world z) and its rise rate (m/s):
+    ``z_cap(tau) = base + rate * tau``, ``tau`` the time since the measurement ``y (J, 3)``
+    (see the module notes); ``base = inf`` for a part it does not bound. ``extra_m``: the
+    joints' uncertainty beyond ``delta_y`` (one value or ``(J,)``). None when the parameter set
+    bounds no leg."""
+    above = params.leg_above_pelvis_m
+    finite = np.isfinite(above)
+    if not finite.any():
+        return None
+    e = float(np.broadcast_to(np.asarray(extra_m, float), (y.shape[0],))[PELVIS])
+    z0 = float(y[PELVIS, 2]) + params.delta_y_m + max(e, 0.0)
+    caps = np.empty((above.shape[0], 2))
+    caps[:, 0] = np.where(finite, z0 + above + params.half_thickness_m, np.inf)
+    caps[:, 1] = np.where(finite, params.pelvis_rise_mps, 0.0)
+    return caps
+
+
+def _leg_tops(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
+    """``(top (T, 6), pelvis (T,))``: each leg part's highest joint and the pelvis, world z;
+    the pelvis is the lower of the pelvis joint and the hips' midpoint (trackers place it at
+    either: the bound then holds for both)."""
+    if rec.kind != "full":
+        raise InputError(
+            f"recording {rec.name!r} is {rec.kind!r}: the legs' heights need a full-body "
+            "recording (valid: kind 'full')"
+        )
+    z = rec.positions_m[:, :, 2]
+    mid_hips = z[:, _HIPS].mean(axis=1)
+    return z[:, _PART_JOINTS].max(axis=2), np.minimum(z[:, PELVIS], mid_hips)
+
+
+def _spans(rec: Recording, horizon_s: float) -> range:
+    """Frame spans ``1 .. n`` with ``n`` frames within ``horizon_s``."""
+    dt = float(np.median(np.diff(rec.times_s)))
+    return range(1, max(1, int(round(horizon_s / dt))) + 1)
+
+
+def fit_legs(
+    recs: Sequence[Recording], horizon_s: float = 0.5, margin_m: float = 0.0,
+    rise_margin: float = 1.0,
+) -> LegHeights:  # fmt: skip
+    """The tightest :class:`LegHeights` the recordings need (rounded up to 1 cm and 0.05 m/s):
+    ``above_pelvis_m`` the largest height of each leg part's joints over the pelvis (left and
+    right alike), plus ``margin_m``; ``rise_max_mps`` the pelvis's fastest rise over spans up
+    to ``horizon_s``, times ``rise_margin``."""
+    if not recs:
+        raise InputError("no recordings to fit the legs' heights to; expected at least one")
+    above = np.full(len(LEG_PARTS), -np.inf)
+    rise = 0.0
+    for rec in recs:
+        top, zp = _leg_tops(rec)
+        above = np.maximum(above, (top - zp[:, None]).max(axis=0))
+        t = rec.times_s
+        for k in _spans(rec, horizon_s):
+            if k < len(t):
+                rise = max(rise, float(((zp[k:] - zp[:-k]) / (t[k:] - t[:-k])).max()))
+    # a person's left and right are alike: each side takes the higher of the two
+    sides = {p: p.split("_", 1)[1] for p in LEG_PARTS}
+    for p, a in zip(LEG_PARTS, above.copy(), strict=True):
+        for i, q in enumerate(LEG_PARTS):
+            if sides[q] == sides[p]:
+                above[i] = max(above[i], a)
+    above_m = np.ceil((above + margin_m) * 100.0) / 100.0
+    rise_mps = max(math.ceil(rise * rise_margin * 20.0) / 20.0, 0.05)
+    return LegHeights(
+        above_pelvis_m={p: float(a) for p, a in zip(LEG_PARTS, above_m, strict=True)},
+        rise_max_mps=rise_mps,
+    )
+
+
+@dataclass(frozen=True)
+class LegContainment:
+    """One recording against a vertical bound over a horizon: ``checked`` (start frame, later
+    frame, leg part) triples, ``misses`` of them above the bound and the worst excess (m)."""
+
+    recording: str
+    horizon_s: float
+    checked: int
+    misses: int
+    worst_excess_m: float
+
+    @property
+    def contained_pct(self) -> float:
+        return 100.0 * (1.0 - self.misses / self.checked) if self.checked else 100.0
+
+
+def containment(rec: Recording, legs: LegHeights, horizon_s: float) -> LegContainment:
+    """Every frame ``t`` and every later frame within ``horizon_s``: is each leg part's highest
+    joint at ``t + tau`` at most ``above_pelvis_m + rise_max_mps * tau`` above the pelvis at
+    ``t`` (the bound the check uses, without the noise and thickness terms)?"""
+    top, zp = _leg_tops(rec)
+    above = np.array([legs.above_pelvis_m[p] for p in LEG_PARTS])
+    t = rec.times_s
+    checked = misses = 0
+    worst = -np.inf
+    for k in _spans(rec, horizon_s):
+        if k >= len(t):
+            break
+        tau = (t[k:] - t[:-k])[:, None]
+        excess = top[k:] - (zp[:-k, None] + above + legs.rise_max_mps * tau)
+        checked += excess.size
+        misses += int((excess > 0.0).sum())
+        worst = max(worst, float(excess.max()))
+    return LegContainment(rec.name, horizon_s, checked, misses, worst)
+
+
+def leave_one_out(
+    recs: Sequence[Recording], horizons_s: Sequence[float] = (0.1, 0.2, 0.5),
+    margin_m: float = 0.0,
+) -> list[LegContainment]:  # fmt: skip
+    """Fit on every recording but one (:func:`fit_legs`, ``margin_m``), check the one left
+    out at each horizon; one row per recording and horizon."""
+    if len(recs) < 2:
+        raise InputError(f"leave-one-out needs at least 2 recordings; got {len(recs)}")
+    rows = []
+    for i, rec in enumerate(recs):
+        legs = fit_legs([r for j, r in enumerate(recs) if j != i], max(horizons_s), margin_m)
+        rows += [containment(rec, legs, h) for h in horizons_s]
+    return rows
+
+
+def fit_validated(
+    recs: Sequence[Recording], horizons_s: Sequence[float] = (0.1, 0.2, 0.5)
+) -> tuple[LegHeights, list[LegContainment], float]:
+    """Leave each recording out (:func:`leave_one_out`, no margin), derive the margin from the
+    worst excess of a recording left out (rounded up to 1 cm) and fit on all recordings with
+    it: ``(legs, the left-out rows, margin_m)``."""
+    rows = leave_one_out(recs, horizons_s)
+    worst = max(r.worst_excess_m for r in rows)
+    margin_m = max(0.0, math.ceil(worst * 100.0) / 100.0)
+    return fit_legs(recs, max(horizons_s), margin_m), rows, margin_m
+
+
+def format_containment(rows: Sequence[LegContainment]) -> str:
+    """One line per recording: contained share, misses and worst excess per horizon."""
+    by: dict[str, list[LegContainment]] = {}
+    for r in rows:
+        by.setdefault(r.recording, []).append(r)
+    return "\n".join(
+        f"  {name}: "
+        + "; ".join(
+            f"{r.horizon_s:g} s {r.contained_pct:.3f} % ({r.misses} misses, worst "
+            f"{100 * r.worst_excess_m:+.1f} cm)"
+            for r in rs
+        )
+        for name, rs in by.items()
+    )

@@ -1,0 +1,151 @@
+"""The height bound of legs an upper-body tracker does not measure (sara_app.human.legs): the fit
+contains what it was fitted to, a recording that breaks it is reported, the shipped bench set's
+bound contains the shipped bench recording through the live intake's own bound, the monitor
+faults a pelvis that rises too fast only where the bound is used, and `sara-app legs` writes a
+set that loads."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sara_app.cell.build import build_cell
+from sara_app.cell.intake import rewiden, take_measurement, track_for
+from sara_app.errors import InputError
+from sara_app.human.intake import Intake
+from sara_app.human.legs import PELVIS, containment, fit_legs, leave_one_out, leg_caps
+from sara_app.human.params import LEG_PARTS, load_param_set, to_reach_params
+from sara_app.human.recording import Recording
+from sara_app.human.recordings import PACKAGED_DATA_DIR, load_recording
+from sara_app.human.skeleton import FULL_JOINTS, UPPER_JOINTS, skeleton
+from sara_app.scenario import load_scenario
+
+BENCH = PACKAGED_DATA_DIR.parent / "cmu62" / "62_07.bvh"
+WALK = PACKAGED_DATA_DIR / "02_01.amc"
+
+
+def _standing(T: int = 240, knee_lift_m: float = 0.0, rise_mps: float = 0.0) -> Recording:
+    """A person standing still at 120 Hz (pelvis 1.0 m); the right knee lifted by
+    ``knee_lift_m`` in the middle second, the whole body rising at ``rise_mps`` meanwhile."""
+    sk = skeleton("full")
+    base = {"head": 1.7, "neck": 1.5, "pelvis": 1.0, "shoulder": 1.45, "elbow": 1.2,
+            "wrist": 1.0, "hip": 0.92, "knee": 0.5, "ankle": 0.08}  # fmt: skip
+    y = np.zeros((T, sk.n_joints, 3))
+    for j, name in enumerate(sk.joints):
+        side = -0.1 if name.startswith("l_") else 0.1 if name.startswith("r_") else 0.0
+        y[:, j] = [side, 0.0, base[name.split("_")[-1]]]
+    t = np.arange(T) / 120.0
+    mid = (t > 0.5) & (t < 1.5)
+    y[mid, sk.joints.index("r_knee"), 2] += knee_lift_m
+    y[:, :, 2] += (rise_mps * np.clip(t - 0.5, 0.0, 1.0))[:, None]
+    return Recording("standing", "full", t, y)
+
+
+def test_a_fit_contains_its_recordings_and_takes_the_higher_side() -> None:
+    rec = _standing(knee_lift_m=0.3)
+    legs = fit_legs([rec])
+    # the knee 0.8 m high, the pelvis 1.0 m (the hips' midpoint 0.92 m is lower: measured from)
+    assert legs.above_pelvis_m["r_thigh"] == pytest.approx(0.0, abs=1e-9)
+    assert legs.above_pelvis_m["l_thigh"] == legs.above_pelvis_m["r_thigh"]  # either side
+    assert legs.above_pelvis_m["l_shin"] == legs.above_pelvis_m["r_shin"] == pytest.approx(-0.12)
+    assert legs.rise_max_mps == 0.05  # the floor of the rounding: it stands still
+    for h in (0.1, 0.5):
+        assert containment(rec, legs, h).misses == 0
+
+
+def test_a_knee_higher_than_fitted_or_a_faster_rise_is_a_miss() -> None:
+    legs = fit_legs([_standing()])
+    lifted = containment(_standing(knee_lift_m=0.2), legs, 0.2)
+    assert lifted.misses > 0 and lifted.worst_excess_m == pytest.approx(0.2, abs=0.011)
+    assert containment(_standing(rise_mps=0.5), legs, 0.2).misses > 0
+    rows = leave_one_out([_standing(), _standing(knee_lift_m=0.2)], (0.1, 0.2))
+    assert [r.misses > 0 for r in rows] == [False, False, True, True]
+
+
+def test_only_full_body_recordings_fit() -> None:
+    rec = _standing()
+    upper = Recording("upper", "upper", rec.times_s, rec.positions_m[:, : len(UPPER_JOINTS)])
+    with pytest.raises(InputError, match="full-body"):
+        fit_legs([upper])
+    with pytest.raises(InputError, match="at least one"):
+        fit_legs([])
+
+
+def test_the_bench_sets_bound_contains_the_bench_recording_through_the_live_bound() -> None:
+    """Every frame of the shipped bench recording, measured with noise within delta_y: the live
+    bound (leg_caps) at 0-0.5 s later lies above every point of each leg part (its joints'
+    heights plus its half thickness) then."""
+    p = to_reach_params(load_param_set("bench_work"), "full")
+    rec = load_recording(BENCH)
+    rng = np.random.default_rng(0)
+    sk = skeleton("full")
+    parts = [sk.parts.index(q) for q in LEG_PARTS]
+    joints = sk.part_joints[parts]  # (6, 2)
+    y, t = rec.positions_m, rec.times_s
+    worst = -np.inf
+    for i in rng.choice(len(t) - 60, 400, replace=False):
+        meas = y[i] + rng.uniform(-1, 1, y[i].shape) * p.delta_y_m / np.sqrt(3)
+        caps = leg_caps(p, meas, 0.0)
+        assert caps is not None and np.isinf(caps[[sk.parts.index("head")], 0]).all()
+        for k in (1, 12, 24, 60):
+            tau = t[i + k] - t[i]
+            top = y[i + k][joints, 2].max(axis=1) + p.half_thickness_m[parts]
+            worst = max(worst, float((top - (caps[parts, 0] + caps[parts, 1] * tau)).max()))
+    assert worst < 0.0
+
+
+def test_no_bound_without_one_in_the_set() -> None:
+    p = to_reach_params(load_param_set("work"), "full")
+    assert leg_caps(p, np.zeros((len(FULL_JOINTS), 3)), 0.0) is None
+    bench = to_reach_params(load_param_set("bench_work"), "full")
+    y = np.zeros((len(FULL_JOINTS), 3))
+    y[PELVIS, 2] = 1.0
+    caps = leg_caps(bench, y, np.where(np.arange(len(y)) == PELVIS, 0.05, 0.0))
+    assert caps is not None
+    wide = leg_caps(bench, y, 0.0)
+    assert wide is not None
+    thigh = skeleton("full").parts.index("l_thigh")
+    assert caps[thigh, 0] == pytest.approx(wide[thigh, 0] + 0.05)  # the pelvis's uncertainty
+
+
+def test_the_monitor_checks_the_rise_where_the_legs_are_unmeasured_only() -> None:
+    """A pelvis rising at 1 m/s (bound 0.6): a fault for an upper-body source, nothing for a
+    full-body one, whose legs are measured."""
+    p = to_reach_params(load_param_set("bench_work"), "full")
+    J = len(FULL_JOINTS)
+    rec = _standing(rise_mps=1.0)
+    for n_measured, faulted in ((len(UPPER_JOINTS), True), (J, False)):
+        intake = Intake(p.delta_y_m, p.v_max_mps, p.a_max_mps2, pelvis_rise_mps=p.pelvis_rise_mps)
+        for ti, yi in zip(rec.times_s, rec.positions_m, strict=True):
+            intake.take(float(ti), yi, p.delta_y_m, n_measured)
+        assert (intake.monitor.counts["rise"] > 0) == faulted
+        if faulted:
+            assert any(v.quantity == "rise" and v.joint == "pelvis" for v in intake.monitor.last)
+
+
+def test_the_intake_bounds_unmeasured_legs_and_forgets_the_bound_on_new_parameters() -> None:
+    cell = build_cell(load_scenario("bench_handover"))
+    track = track_for(cell, "p")
+    y = _standing().positions_m[0]
+    assert take_measurement(cell, track, 1.0, y, legs_measured=False) is None
+    caps = track.state.leg_cap
+    assert caps is not None and caps.shape == (cell.shield.reach.skeleton.n_parts, 2)
+    assert np.isfinite(caps[:, 0]).sum() == len(LEG_PARTS)
+    rewiden(cell, track)
+    assert track.state.leg_cap is None  # until the next skeleton: the wider set
+    assert take_measurement(cell, track, 1.01, y + 0.001, legs_measured=True) is None
+    assert track.state.leg_cap is None  # measured legs need no bound
+
+
+def test_the_legs_command_writes_a_set_that_loads(tmp_path, capsys) -> None:
+    from sara_app.human.report import legs_command
+
+    out = tmp_path / "bench_legs.json"
+    ps = legs_command([str(BENCH), str(WALK)], "bench_work", out)
+    text = capsys.readouterr().out
+    assert "left out" in text and "margin" in text
+    loaded = load_param_set(out)
+    assert loaded.legs_unmeasured == ps.legs_unmeasured is not None
+    assert "ASSUMED" in loaded.sources["legs_unmeasured"]
+    for rec in (load_recording(BENCH), load_recording(WALK)):
+        assert containment(rec, loaded.legs_unmeasured, 0.5).misses == 0
