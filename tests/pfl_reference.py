@@ -128,13 +128,17 @@ class MergedCheck:
         self.todo = (0, robot.K)
         """Interval range ``lo:hi`` with unproved entries (``(K, K)``: every entry proved)."""
 
-    def add(self, h_ends: np.ndarray, h_radius: np.ndarray) -> tuple[int, int]:
+    def add(
+        self, h_ends: np.ndarray, h_radius: np.ndarray, cap_z: np.ndarray | None = None
+    ) -> tuple[int, int]:
         """Classify and merge one model's human capsules for the intervals :attr:`todo` (shapes
-        as in :meth:`ContactClassifier.classify_humans`); returns the new :attr:`todo`."""
+        as in :meth:`ContactClassifier.classify_humans`; ``cap_z (K, P)`` the parts' height
+        bounds over every interval); returns the new :attr:`todo`."""
         lo, hi = self.todo
         if lo >= hi:
             return self.todo
-        c = self.pfl.classifier.classify_humans(self.robot, h_ends, h_radius, lo, hi)
+        caps = None if cap_z is None else cap_z[lo:hi]
+        c = self.pfl.classifier.classify_humans(self.robot, h_ends, h_radius, lo, hi, caps)
         self.models += 1
         first = self.first
         if first is None:
@@ -310,7 +314,7 @@ class ReferencePflShield(PflShield):
         for i in range(check.models, stop):
             lo, hi = check.todo
             h_ends, h_radius = self._human_sets(order[i], hum, times, lo, hi)
-            lo, hi = check.add(h_ends, h_radius)
+            lo, hi = check.add(h_ends, h_radius, _cap_heights(hum, times))
             if lo >= hi:
                 if i:
                     order.insert(0, order.pop(i))
@@ -350,6 +354,16 @@ class ReferencePflShield(PflShield):
             h_ends[:, h * P : (h + 1) * P] = e if pm is None else e[:, pm]
             h_radius[:, h * P : (h + 1) * P] = (r if pm is None else r[:, pm]) + widen[h, row]
         return h_ends, h_radius
+
+
+def _cap_heights(hum: Humans, times: np.ndarray) -> np.ndarray | None:
+    """``(K, H P)``: each person's parts' height bounds at each interval's end (None: none)."""
+    caps = hum[5]
+    if caps is None:
+        return None
+    tau = times[1:, None] + np.asarray(hum[3])[None, :]  # (K, H)
+    z = caps[None, :, :, 0] + caps[None, :, :, 1] * tau[:, :, None]  # (K, H, P)
+    return z.reshape(len(times) - 1, -1)
 
 
 def as_reference(shield: PflShield) -> ReferencePflShield:

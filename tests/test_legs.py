@@ -18,7 +18,8 @@ from sara_app.human.params import LEG_PARTS, load_param_set, to_reach_params
 from sara_app.human.recording import Recording
 from sara_app.human.recordings import PACKAGED_DATA_DIR, load_recording
 from sara_app.human.skeleton import FULL_JOINTS, UPPER_JOINTS, skeleton
-from sara_app.scenario import load_scenario
+from sara_app.scenario import Scenario, load_scenario
+from sara_app.sim.simulator import SimMetrics, Simulation
 
 BENCH = PACKAGED_DATA_DIR.parent / "cmu62" / "62_07.bvh"
 WALK = PACKAGED_DATA_DIR / "02_01.amc"
@@ -149,3 +150,34 @@ def test_the_legs_command_writes_a_set_that_loads(tmp_path, capsys) -> None:
     assert "ASSUMED" in loaded.sources["legs_unmeasured"]
     for rec in (load_recording(BENCH), load_recording(WALK)):
         assert containment(rec, loaded.legs_unmeasured, 0.5).misses == 0
+
+
+def _handover_upper(mode: str, bounded: bool) -> SimMetrics:
+    """The shipped upper-body handover in ``mode``, its set with or without the legs' bound,
+    run for the scenario's duration or until the goal."""
+    sc = load_scenario("bench_handover_upper")
+    d = sc.model_dump()
+    d["shield"]["mode"] = mode
+    if not bounded:
+        ps = load_param_set("bench_work").model_dump()
+        ps["legs_unmeasured"] = None
+        d["human_params"] = ps
+    sim = Simulation(Scenario.model_validate(d))
+    for _ in range(int(round(sc.sim.duration_s / sim.dt))):
+        sim.step()
+        if sim.time_to_goal_s is not None:
+            break
+    return sim.metrics()
+
+
+def test_the_bound_lets_the_robot_work_beside_an_upper_body_track_without_a_collision() -> None:
+    """The handover tracked upper-body: with the legs' bound SSM and PFL reach the goal with no
+    collision while moving and no harmful contact; without it the unmeasured legs' reach holds
+    SSM on its failsafe far more often and it does not reach the goal in the scenario's time."""
+    ssm, pfl = _handover_upper("ssm", True), _handover_upper("pfl", True)
+    for m in (ssm, pfl):
+        assert m.time_to_goal_s is not None, m.lines()
+        assert m.collisions_moving == 0 and m.harmful_contacts == 0 and m.fault_cycles == 0
+    unbounded = _handover_upper("ssm", False)
+    assert unbounded.collisions_moving == 0
+    assert unbounded.time_to_goal_s is None and unbounded.failsafe_share > 2 * ssm.failsafe_share

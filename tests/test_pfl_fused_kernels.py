@@ -185,3 +185,43 @@ def test_several_people_equal_the_python_composition(H: int) -> None:
                 assert ra.pfl.safe.shape[2] == H * a.reach.skeleton.n_parts
         t += a.settings.dt_s
     assert {"intended", "failsafe"} <= modes and 2 in checks, (modes, checks)
+
+
+@pytest.mark.parametrize("base_m", [0.0, 0.3])
+def test_height_bounded_legs_equal_the_python_composition(base_m: float) -> None:
+    """A person seen by an upper-body tracker (legs widened by their reach) whose legs are
+    bounded from above (``leg_cap``: the legs' parts below ``base_m`` + 0.5 m/s since the
+    measurement), walking into reach: every cycle equals the reference's, and the bound leaves
+    fewer possible contacts than the same person without it."""
+    from sara_app.human.params import LEG_PARTS
+
+    a, ref = make_pair(("acc", "vel", "pos"))
+    plain = make_pair(("acc", "vel", "pos"))[0]
+    widen = widening(a.reach, 0.0, legs_measured=False)
+    parts = a.reach.skeleton.parts
+    caps = np.zeros((len(parts), 2))
+    caps[:, 0] = np.inf
+    for q in LEG_PARTS:
+        caps[parts.index(q)] = (base_m, 0.5)
+    t = 0.0
+    for _ in range(30):
+        for s in (a, ref, plain):
+            s.cycle(t, [])
+        t += a.settings.dt_s
+    xy, goal = np.array([1.3, -0.5]), np.array([0.5, -0.3])
+    contacts = {"bounded": 0, "plain": 0}
+    for _ in range(200):
+        step = 0.006 * (goal - xy) / max(np.linalg.norm(goal - xy), 1e-9)
+        xy = xy + step
+        v = np.append(step / a.settings.dt_s, 0.0)
+        p = person_at(xy, v, 0.1, t - 0.01)
+        p.widen_m, p.leg_cap = widen, caps
+        ra, rr = a.cycle(t, [p]), ref.cycle(t, [p])
+        assert_same_cycle(a, ra, ref, rr)
+        q = person_at(xy, v, 0.1, t - 0.01)
+        q.widen_m = widen
+        rp = plain.cycle(t, [q])
+        for name, r in (("bounded", ra), ("plain", rp)):
+            contacts[name] += 0 if r.pfl is None else int(r.pfl.contact.contact.sum())
+        t += a.settings.dt_s
+    assert contacts["bounded"] < contacts["plain"], contacts

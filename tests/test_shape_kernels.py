@@ -294,3 +294,33 @@ def test_box_axis_gaps_give_the_exact_touch_test(seed: int, B: int, nan: bool) -
     bound = ~np.isnan(exact) & ~may_touch
     assert np.all(gaps[bound] - np.broadcast_to(r_max, gaps.shape)[bound] > 1e-9)
     assert np.all(gaps[bound] <= exact[bound] + 1e-12)
+
+
+def test_below_gaps_drops_exactly_the_pairs_above_a_bound() -> None:
+    """A pair's gap becomes inf exactly when every sampled point of the ``a`` capsule lies
+    above ``b``'s bound (brute force over its surface's lowest points); the others keep their
+    gap; a NaN end or radius never drops a pair; the result says whether any pair may touch."""
+    from sara_app.geometry.shape_kernels import below_gaps
+
+    rng = np.random.default_rng(5)
+    K, A, B = 3, 6, 4
+    ends = rng.uniform(0.0, 2.0, (K, A, 2, 3))
+    radius = rng.uniform(0.02, 0.2, (K, A))
+    ends[1, 2, 0, 2] = np.nan
+    radius[2, 3] = np.nan
+    cap_z = rng.uniform(0.0, 2.0, (K, B))
+    cap_z[0, 1] = np.inf
+    gaps = rng.uniform(-0.1, 0.1, (K, A, B))
+    out = gaps.copy()
+    touch = below_gaps(ends, radius, cap_z, out)
+    s = np.linspace(0.0, 1.0, 201)
+    for k in range(K):
+        for i in range(A):
+            axis_z = ends[k, i, 0, 2] + s * (ends[k, i, 1, 2] - ends[k, i, 0, 2])
+            lowest = (axis_z - radius[k, i]).min()  # the sphere sweep's lowest point
+            for j in range(B):
+                above = bool(lowest > cap_z[k, j])  # NaN: not above
+                assert (out[k, i, j] == np.inf) == above, (k, i, j)
+                if not above:
+                    assert out[k, i, j] == gaps[k, i, j]
+    assert touch == bool((~(out > 0.0)).any())

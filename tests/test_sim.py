@@ -35,6 +35,7 @@ PLAN: dict[str, tuple[float | None, bool]] = {
     "ur10e_close_worker": (None, True),
     "bench_worker": (None, True),
     "bench_handover": (None, True),
+    "bench_handover_upper": (None, True),
 }
 FAULTS_BY_DESIGN = {"tracking_glitches"}
 """Its spike is a fault until the person has kept within the bounds for recover_s

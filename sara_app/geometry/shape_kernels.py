@@ -241,6 +241,34 @@ def pair_gaps(
 
 
 @njit(cache=True)
+def lowest_z(z_a: float, z_b: float, radius: float) -> float:
+    """The lowest height of a capsule whose ends are at heights ``z_a``, ``z_b``; ``-inf``
+    when any is NaN (as low as can be)."""
+    low = (z_a if z_a < z_b else z_b) - radius
+    return low if low == low and z_a == z_a and z_b == z_b else -np.inf
+
+
+@njit(types.boolean(_RO4, _RO2, _RO2, _W3), cache=True)
+def below_gaps(
+    a_ends: np.ndarray, a_radius: np.ndarray, cap_z: np.ndarray, out: np.ndarray
+) -> bool:
+    """Gaps ``out (K, A, B)`` of capsules ``a`` ``(K, A, 2, 3)``, ``(K, A)`` to sets ``b``
+    bounded from above at heights ``cap_z (K, B)`` (world z; ``inf``: no bound): a pair whose
+    ``a`` capsule lies wholly above ``b``'s bound cannot touch, its gap becomes ``inf``.
+    Returns whether any pair may still touch (gap <= 0 or NaN)."""
+    touch = False
+    for k in range(out.shape[0]):
+        for i in range(out.shape[1]):
+            lo_z = lowest_z(a_ends[k, i, 0, 2], a_ends[k, i, 1, 2], a_radius[k, i])
+            for j in range(out.shape[2]):
+                if lo_z > cap_z[k, j]:  # NaN: no bound
+                    out[k, i, j] = np.inf
+                elif not out[k, i, j] > 0.0:
+                    touch = True
+    return touch
+
+
+@njit(cache=True)
 def _same_ends(ends: np.ndarray, k: int) -> bool:
     """``ends[k]`` equals ``ends[k - 1]`` exactly (``k >= 1``; NaN never equals)."""
     for i in range(ends.shape[1]):

@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sara_app.errors import InputError, ParameterError
-from sara_app.geometry.shape_kernels import pair_gaps
+from sara_app.geometry.shape_kernels import below_gaps, pair_gaps
 from sara_app.safety.contact_kernels import classify_set
 from sara_app.safety.velocity_error import VelocityErrorBound
 
@@ -319,12 +319,15 @@ class ContactClassifier:
         return robot
 
     def classify_humans(
-        self, robot: RobotSide, h_ends: np.ndarray, h_radius: np.ndarray, lo: int = 0, hi: int = -1
-    ) -> ContactResult:
+        self, robot: RobotSide, h_ends: np.ndarray, h_radius: np.ndarray, lo: int = 0,
+        hi: int = -1, cap_z: np.ndarray | None = None,
+    ) -> ContactResult:  # fmt: skip
         """:meth:`classify` of intervals ``lo:hi`` (``hi = -1``: to the end) of a
         :meth:`robot_side` against human capsules ``h_ends (1|k, P, 2, 3)``, ``h_radius (1|k,
         P)`` (``k = hi - lo``; 1: the same on every interval; a zero stride counts as 1). The
-        robot-only distances are computed once per ``robot``. Results are ``(k, ...)``."""
+        robot-only distances are computed once per ``robot``. Results are ``(k, ...)``.
+        ``cap_z (k, P)``: each part's height bound on each interval (legs a tracker does not
+        measure, :mod:`sara_app.human.legs`; ``inf``: none): a link above it cannot touch it."""
         hi = robot.K if hi < 0 else hi
         if robot.owner is not self:
             raise InputError("robot side made by another classifier; call robot_side() here")
@@ -344,7 +347,13 @@ class ContactClassifier:
                     f"or a leading 1 (P = {P} parts; intervals {lo}:{hi})"
                 )
         d_rh = np.empty((k, L, P))
-        if not pair_gaps(robot.r_ends[lo:hi], robot.r_radius[lo:hi], h_ends, h_radius, d_rh):
+        touch = pair_gaps(robot.r_ends[lo:hi], robot.r_radius[lo:hi], h_ends, h_radius, d_rh)
+        if touch and cap_z is not None:
+            cap_z = np.asarray(cap_z, dtype=np.float64)
+            if cap_z.shape != (k, P):
+                raise InputError(f"cap_z has shape {cap_z.shape}; expected ({k}, {P})")
+            touch = below_gaps(robot.r_ends[lo:hi], robot.r_radius[lo:hi], cap_z, d_rh)
+        if not touch:
             return self._no_contact(d_rh)  # (NaN is contact)
         robot.need_motion()
         contact_s, env, self_, contact = np.empty((4, k, L, P), dtype=bool)

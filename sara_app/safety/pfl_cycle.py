@@ -145,6 +145,7 @@ class CompiledCycle:
         self._T0_links = link_states.base_pose()
         self._info = np.empty(9)
         self._codes = np.empty((2, 0), dtype=np.int64)
+        self._none_caps: dict[int, np.ndarray] = {}
         self._synced: tuple[tuple[str, ...], ...] = ((), ())
         """The orders ``_codes`` holds (rebuilt when the lists differ)."""
         self.constants_for(1)
@@ -164,8 +165,8 @@ class CompiledCycle:
         """``(robot, trajectory, human)`` as the kernel takes them: the shielded trajectory
         ``traj`` with its robot capsules per interval ``r_ends (K, L, 2, 3)``, ``r_radius (K,
         L)`` and ``H >= 1`` people ``hum = (y, v (H, J, 3), dv (H, J), age (H,), widen (H, M,
-        P) or None: none)`` (the widening's rows go to the kernel in its model-kind order), as
-        float64; raises :class:`InputError` on other shapes."""
+        P) or None: none, caps (H, P, 2) or None: none)`` (the widening's rows go to the kernel
+        in its model-kind order), as float64; raises :class:`InputError` on other shapes."""
         trajectory = self.link_states.inputs(traj)
         K = trajectory[0].shape[0] - 1
         L, J, P = self._L, self._J, self._P
@@ -175,20 +176,31 @@ class CompiledCycle:
         H = y.shape[0] if y.ndim == 3 else 0
         # None: no widening (Shield._human_arrays' common case)
         widen = np.zeros((H, len(MODELS), P)) if hum[4] is None else np.asarray(hum[4], np.float64)
+        caps = self._no_caps(H) if hum[5] is None else np.asarray(hum[5], np.float64)
         if (
             H < 1 or r_ends.shape != (K, L, 2, 3) or r_radius.shape != (K, L)
             or y.shape != (H, J, 3) or v.shape != (H, J, 3) or dv.shape != (H, J)
             or age.shape != (H,) or widen.shape != (H, len(MODELS), P)
+            or caps.shape != (H, P, 2)
         ):  # fmt: skip
             raise InputError(
                 f"PFL check inputs r_ends {r_ends.shape}, r_radius {r_radius.shape}, y "
-                f"{y.shape}, v {v.shape}, dv {dv.shape}, age {age.shape}, widen {widen.shape}; "
-                f"expected ({K}, {L}, 2, 3), ({K}, {L}), (H, {J}, 3), (H, {J}, 3), (H, {J}), "
-                f"(H,), (H, {len(MODELS)}, {P}) for H >= 1 people"
+                f"{y.shape}, v {v.shape}, dv {dv.shape}, age {age.shape}, widen {widen.shape}, "
+                f"caps {caps.shape}; expected ({K}, {L}, 2, 3), ({K}, {L}), (H, {J}, 3), (H, "
+                f"{J}, 3), (H, {J}), (H,), (H, {len(MODELS)}, {P}), (H, {P}, 2) for H >= 1 people"
             )
         robot = (r_ends, r_radius, *self._boxes, self._s_radius)
         widen_kinds = np.ascontiguousarray(widen[:, self._kind_rows])  # rows in KIND order
-        return robot, trajectory, (y, v, dv, widen_kinds, age)
+        return robot, trajectory, (y, v, dv, widen_kinds, age, caps)
+
+    def _no_caps(self, H: int) -> np.ndarray:
+        """A read-only ``(H, P, 2)`` of no height bounds (``inf``), one per ``H``."""
+        none = self._none_caps.get(H)
+        if none is None:
+            none = self._none_caps[H] = np.zeros((H, self._P, 2))
+            none[:, :, 0] = np.inf
+            none.flags.writeable = False
+        return none
 
     def run(
         self,

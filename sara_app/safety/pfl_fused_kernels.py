@@ -18,7 +18,7 @@ import numpy as np
 from numba import njit, types
 
 from sara_app.geometry import shape_kernels
-from sara_app.geometry.shape_kernels import pair_gaps
+from sara_app.geometry.shape_kernels import below_gaps, pair_gaps
 from sara_app.human import reach_kernels
 from sara_app.human.reach_kernels import (
     ACC,
@@ -99,10 +99,12 @@ RULES = types.Tuple((_ROB2, _ROB2, _RO[1], _RO[2], _RO[2]))
 """``(no_pair (L, L), not_safe_h (P, P), diameters_m (P,), T_clamp, T_free (L, P))`` over the
 body parts of every person (``P`` here and in the groups below: ``H`` people's parts, person
 ``h``'s at ``h P_1 .. (h+1) P_1``; :func:`~sara_app.safety.pfl_cycle.rules_for`)."""
-HUMAN = types.Tuple((_RO[3], _RO[3], _RO[2], _RO[3], _RO[1]))
-"""``H`` people: ``(y (H, J, 3), v (H, J, 3), dv (H, J), widen (H, 4, P), age_s (H,))``,
-``widen`` the extra radius per model kind (``KIND_*`` rows) and body part
-(:mod:`sara_app.human.widening`), ``age_s`` the time since each one's measurement."""
+HUMAN = types.Tuple((_RO[3], _RO[3], _RO[2], _RO[3], _RO[1], _RO[3]))
+"""``H`` people: ``(y (H, J, 3), v (H, J, 3), dv (H, J), widen (H, 4, P), age_s (H,), caps
+(H, P, 2))``, ``widen`` the extra radius per model kind (``KIND_*`` rows) and body part
+(:mod:`sara_app.human.widening`), ``age_s`` the time since each one's measurement, ``caps``
+each part's height bound ``base + rate * tau`` (``base = inf``: none; legs a tracker does not
+measure, :mod:`sara_app.human.legs`)."""
 MODELS = types.Tuple(
     (RULES, types.UniTuple(_b1, 3), STATIC, ACC, POS, types.UniTuple(_f8, 2), _i8, _ROI2)
 )
@@ -110,11 +112,12 @@ MODELS = types.Tuple(
 static, acc, pos, (delay_s, delta_y_m), n_limbs, part_maps (4, P))``, ``part_maps`` gathering
 each kind's capsules per body part."""
 SET_BUFFERS = types.Tuple(
-    (_W[1], _W[1], _W[5], _W[3], _W[4], _W[2], _W[4], _W[3], _W[4], _W[2])
+    (_W[1], _W[1], _W[5], _W[3], _W[4], _W[2], _W[4], _W[3], _W[4], _W[2], _W[2])
 )  # fmt: skip
 """``(t_start, t_end (K,), acc ends (1, K, P, 2, 3), acc radius (1, K, P), static ends (1, P,
 2, 3), static radius (K, P), pos ends (1, C, 2, 3), pos radius (1, K, C), gathered h_ends (K,
-H P, 2, 3), h_radius (K, H P))``: one person's sets at a time, gathered for all ``H``."""
+H P, 2, 3), h_radius (K, H P), cap_z (K, H P))``: one person's sets at a time, gathered for
+all ``H``; ``cap_z`` the parts' height bounds per interval."""
 CLASSES = types.Tuple((_WB3, _WB3, _WB3, _WB3, _WI83, _WB3, _W[2], _W[3]))
 """A classification ``(contact, contact_single, env, self_, cls (k, L, P), stack (k, P, P),
 stack_diameter_m (k, P), distance_m (k, L, P))``."""
@@ -155,6 +158,26 @@ def _human_sets(
             for p in range(P):
                 h_radius[x, o + p] = r_src[x, part_map[p]] + widen[h, kind, p]
     return h_ends[:ke], h_radius[:k]
+
+
+@njit(cache=True)
+def _caps_at(human: Any, times: np.ndarray, lo: int, hi: int, cap_z: np.ndarray) -> bool:
+    """``cap_z[x, h P + p]``: person ``h``'s part ``p`` height bound at the end of interval
+    ``lo + x`` (``human[5]``, from that person's measurement time); whether any is finite."""
+    caps, age_s = human[5], human[4]
+    P = caps.shape[1]
+    capped = False
+    for h in range(caps.shape[0]):
+        for p in range(P):
+            if caps[h, p, 0] < np.inf:
+                capped = True
+    if capped:
+        for x in range(hi - lo):
+            for h in range(caps.shape[0]):
+                tau = age_s[h] + times[lo + x + 1]
+                for p in range(P):
+                    cap_z[x, h * P + p] = caps[h, p, 0] + caps[h, p, 1] * tau
+    return capped
 
 
 @njit(cache=True)
@@ -259,7 +282,7 @@ def check_buffers(
     sets = (np.empty(K), np.empty(K), np.empty((1, K, P, 2, 3)), np.empty((1, K, P)),
             np.empty((1, P, 2, 3)), np.empty((K, P)), np.empty((1, C, 2, 3)),
             np.empty((1, K, C)), np.empty((K, people * P, 2, 3)),
-            np.empty((K, people * P)))  # fmt: skip
+            np.empty((K, people * P)), np.empty((K, people * P)))  # fmt: skip
     return geometry, links, sets, classes(K, L, people * P)
 
 
@@ -371,7 +394,10 @@ def _make_kernel() -> Any:
             he, hr = _human_sets(order[i], lo, hi, times, human, models, sets)
             out = first if is_first else _view(scratch, k)
             contact, contact_s, env, self_, cls, stack, diam, d_rh = out
-            if not pair_gaps(r_ends[lo:hi], r_radius[lo:hi], he, hr, d_rh):
+            touch = pair_gaps(r_ends[lo:hi], r_radius[lo:hi], he, hr, d_rh)
+            if touch and _caps_at(human, times, lo, hi, sets[10]):  # links above a bound: apart
+                touch = below_gaps(r_ends[lo:hi], r_radius[lo:hi], sets[10][:k], d_rh)
+            if not touch:
                 _no_contact(out, diameters_m)
             else:
                 if state[3] == 0:  # the link states, once per check

@@ -21,7 +21,7 @@ import numpy as np
 from numba import njit, types
 
 from sara_app.geometry import shape_kernels
-from sara_app.geometry.shape_kernels import capsule_sets_check, segment_closest
+from sara_app.geometry.shape_kernels import capsule_sets_check, lowest_z, segment_closest
 from sara_app.human import reach_kernels
 from sara_app.human.reach_kernels import ACC, POS, STATIC, person_sets
 from sara_app.kernel_types import B1, F8, I8, RO, ROI1, ROI2, WB3, W
@@ -64,9 +64,9 @@ def _touching(
                 if not lowest:
                     out[c] = -np.inf
                     break
-                bottom = min(a[2], b[2]) - r_radius[i]
-                if not bottom >= out[c]:  # NaN: as low as can be
-                    out[c] = bottom if bottom == bottom else -np.inf
+                bottom = lowest_z(a[2], b[2], r_radius[i])
+                if bottom < out[c]:
+                    out[c] = bottom
 
 
 def _make_kernel() -> Any:
