@@ -56,9 +56,11 @@ def test_a_fit_contains_its_recordings_and_takes_the_higher_side() -> None:
 
 def test_a_knee_higher_than_fitted_or_a_faster_rise_is_a_miss() -> None:
     legs = fit_legs([_standing()])
-    lifted = containment(_standing(knee_lift_m=0.2), legs, 0.2)
+    lifted = containment(_standing(knee_lift_m=0.2), legs, 0.2, 0.004)
     assert lifted.misses > 0 and lifted.worst_excess_m == pytest.approx(0.2, abs=0.011)
-    assert containment(_standing(rise_mps=0.5), legs, 0.2).misses > 0
+    assert lifted.unflagged == lifted.misses  # a knee is not measured: nothing flags it
+    rising = containment(_standing(rise_mps=0.5), legs, 0.2, 0.004)
+    assert 0 < rising.unflagged < rising.misses  # the monitor flags the rise, after a while
     rows = leave_one_out([_standing(), _standing(knee_lift_m=0.2)], (0.1, 0.2))
     assert [r.misses > 0 for r in rows] == [False, False, True, True]
 

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sara_app.errors import InputError
+from sara_app.human.conformance import Monitor
 from sara_app.human.params import LEG_PARTS, LegHeights, ReachParams
 from sara_app.human.recording import Recording
 from sara_app.human.skeleton import FULL_BODY_PARTS, FULL_JOINTS
@@ -124,61 +125,90 @@ def fit_legs(
 @dataclass(frozen=True)
 class LegContainment:
     """One recording against a vertical bound over a horizon: ``checked`` (start frame, later
-    frame, leg part) triples, ``misses`` of them above the bound and the worst excess (m)."""
+    frame, leg part) triples, ``misses`` of them above the bound, the worst excess (m) and the
+    ``unflagged`` misses: from a start frame at which the monitor's rise check alone
+    (:func:`rise_flagged`) had not faulted the person."""
 
     recording: str
     horizon_s: float
     checked: int
     misses: int
     worst_excess_m: float
+    unflagged: int = 0
 
     @property
     def contained_pct(self) -> float:
         return 100.0 * (1.0 - self.misses / self.checked) if self.checked else 100.0
 
 
-def containment(rec: Recording, legs: LegHeights, horizon_s: float) -> LegContainment:
+def containment(
+    rec: Recording, legs: LegHeights, horizon_s: float, delta_y_m: float = 0.0
+) -> LegContainment:
     """Every frame ``t`` and every later frame within ``horizon_s``: is each leg part's highest
     joint at ``t + tau`` at most ``above_pelvis_m + rise_max_mps * tau`` above the pelvis at
-    ``t`` (the bound the check uses, without the noise and thickness terms)?"""
+    ``t`` (the bound the check uses, without the noise and thickness terms)? The misses from
+    frames the monitor had flagged (its rise check with noise bound ``delta_y_m``) are counted
+    apart."""
     top, zp = _leg_tops(rec)
     above = np.array([legs.above_pelvis_m[p] for p in LEG_PARTS])
     t = rec.times_s
-    checked = misses = 0
+    flagged = rise_flagged(rec, legs.rise_max_mps, delta_y_m)
+    checked = misses = unflagged = 0
     worst = -np.inf
     for k in _spans(rec, horizon_s):
         if k >= len(t):
             break
         tau = (t[k:] - t[:-k])[:, None]
         excess = top[k:] - (zp[:-k, None] + above + legs.rise_max_mps * tau)
-        checked += excess.size
-        misses += int((excess > 0.0).sum())
+        miss = excess > 0.0
+        checked += miss.size
+        misses += int(miss.sum())
+        unflagged += int(miss[~flagged[:-k]].sum())
         worst = max(worst, float(excess.max()))
-    return LegContainment(rec.name, horizon_s, checked, misses, worst)
+    return LegContainment(rec.name, horizon_s, checked, misses, worst, unflagged)
+
+
+def rise_flagged(rec: Recording, rise_max_mps: float, delta_y_m: float = 0.0) -> np.ndarray:
+    """``(T,)``: the conformance monitor faults the person at each frame for the pelvis's rise
+    alone (the recording as the measurement, every joint trusted; speed and acceleration
+    unbounded, so this flags no more than a live monitor would)."""
+    J = rec.positions_m.shape[1]
+    rise = np.full(J, np.inf)
+    rise[PELVIS] = rise_max_mps
+    inf = np.full(J, np.inf)
+    mon = Monitor(rec.joints, inf, inf, rise_max_mps=rise)
+    trusted, jump = np.ones(J, bool), np.zeros(J)
+    out = np.zeros(rec.n_frames, bool)
+    for i, (ti, yi) in enumerate(zip(rec.times_s, rec.positions_m, strict=True)):
+        mon.observe(float(ti), yi, trusted, delta_y_m, jump, rise=True)
+        out[i] = mon.violating and bool(mon.last)
+    return out
 
 
 def leave_one_out(
     recs: Sequence[Recording], horizons_s: Sequence[float] = (0.1, 0.2, 0.5),
-    margin_m: float = 0.0,
+    margin_m: float = 0.0, delta_y_m: float = 0.0,
 ) -> list[LegContainment]:  # fmt: skip
     """Fit on every recording but one (:func:`fit_legs`, ``margin_m``), check the one left
-    out at each horizon; one row per recording and horizon."""
+    out at each horizon (the monitor's noise bound ``delta_y_m``); one row per recording and
+    horizon."""
     if len(recs) < 2:
         raise InputError(f"leave-one-out needs at least 2 recordings; got {len(recs)}")
     rows = []
     for i, rec in enumerate(recs):
         legs = fit_legs([r for j, r in enumerate(recs) if j != i], max(horizons_s), margin_m)
-        rows += [containment(rec, legs, h) for h in horizons_s]
+        rows += [containment(rec, legs, h, delta_y_m) for h in horizons_s]
     return rows
 
 
 def fit_validated(
-    recs: Sequence[Recording], horizons_s: Sequence[float] = (0.1, 0.2, 0.5)
-) -> tuple[LegHeights, list[LegContainment], float]:
+    recs: Sequence[Recording], horizons_s: Sequence[float] = (0.1, 0.2, 0.5),
+    delta_y_m: float = 0.0,
+) -> tuple[LegHeights, list[LegContainment], float]:  # fmt: skip
     """Leave each recording out (:func:`leave_one_out`, no margin), derive the margin from the
     worst excess of a recording left out (rounded up to 1 cm) and fit on all recordings with
     it: ``(legs, the left-out rows, margin_m)``."""
-    rows = leave_one_out(recs, horizons_s)
+    rows = leave_one_out(recs, horizons_s, delta_y_m=delta_y_m)
     worst = max(r.worst_excess_m for r in rows)
     margin_m = max(0.0, math.ceil(worst * 100.0) / 100.0)
     return fit_legs(recs, max(horizons_s), margin_m), rows, margin_m
@@ -192,8 +222,8 @@ def format_containment(rows: Sequence[LegContainment]) -> str:
     return "\n".join(
         f"  {name}: "
         + "; ".join(
-            f"{r.horizon_s:g} s {r.contained_pct:.3f} % ({r.misses} misses, worst "
-            f"{100 * r.worst_excess_m:+.1f} cm)"
+            f"{r.horizon_s:g} s {r.contained_pct:.3f} % ({r.misses} misses, {r.unflagged} "
+            f"unflagged, worst {100 * r.worst_excess_m:+.1f} cm)"
             for r in rs
         )
         for name, rs in by.items()

@@ -335,14 +335,14 @@ def legs_command(
     from sara_app.human.legs import containment, fit_validated, format_containment
 
     recs = [load(r) for r in recordings]
-    bounded, rows, margin_m = fit_validated(recs)
+    base = load_param_set(params)
+    bounded, rows, margin_m = fit_validated(recs, delta_y_m=base.delta_y_m)
     print("legs below the pelvis, each recording left out (no margin):")
     print(f"{format_containment(rows)}\nmargin from the worst excess: {margin_m:.2f} m")
-    fitted = [containment(r, bounded, h) for r in recs for h in (0.1, 0.2, 0.5)]
+    fitted = [containment(r, bounded, h, base.delta_y_m) for r in recs for h in (0.1, 0.2, 0.5)]
     print(f"the bound with the margin, on every recording:\n{format_containment(fitted)}")
     print(f"bound: {bounded.model_dump()}")
-    base = load_param_set(params)
-    held_out = {r.recording: r.misses for r in rows if r.horizon_s == 0.5}
+    held_out = {r.recording: [r.misses, r.unflagged] for r in rows if r.horizon_s == 0.5}
     ps = base.model_copy(
         update={
             "legs_unmeasured": bounded,
@@ -358,7 +358,7 @@ def legs_command(
             },
             "sound_for": {
                 **base.sound_for,
-                "legs_unmeasured_left_out_misses_0_5s": json.dumps(held_out),
+                "legs_unmeasured_left_out_misses_unflagged_0_5s": json.dumps(held_out),
             },
         }
     )
