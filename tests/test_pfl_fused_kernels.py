@@ -5,6 +5,8 @@ bit for bit, cycle after cycle, for one person and for several."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import pytest
 from pfl_compare import (  # noqa: E402
@@ -23,6 +25,7 @@ from sara_app.safety import contact_kernels, pfl_kernels, pfl_link_states
 from sara_app.safety.contact_kernels import source_digest
 from sara_app.safety.pfl_fused_kernels import fused_kernel
 from sara_app.safety.pfl_shield import PflCycle
+from sara_app.safety.shield import HumanState
 
 
 @pytest.mark.parametrize(
@@ -113,36 +116,77 @@ def test_cache_key_carries_the_callees_sources() -> None:
         assert source_digest(module) in text, module.__name__
 
 
-@pytest.mark.parametrize(("extra_m", "legs"), [(0.03, True), (0.0, False), (0.02, False)])
-def test_widened_people_equal_the_python_composition(extra_m: float, legs: bool) -> None:
-    """A person measured less precisely (a stated uncertainty above the parameter set's) or
-    without legs (an upper-body source), walking into reach: the compiled check widens the sets
-    exactly as the reference does, cycle by cycle; and the wider sets reach the robot sooner
-    (more possible contacts over the episode than for the same person measured plainly)."""
+def _contacts_walking_in(
+    dress: Callable[[HumanState], None], dress_plain: Callable[[HumanState], None]
+) -> tuple[int, int]:
+    """A person walking into reach of the working robot, ``dress``-ed (a widening, a height
+    bound) for the compiled check and its reference, which must agree cycle by cycle, and
+    ``dress_plain``-ed for a third shield: the possible contacts ((interval, link, part)
+    triples) over the episode, ``(dressed, plain)``."""
     a, ref = make_pair(("acc", "vel", "pos"))
     plain = make_pair(("acc", "vel", "pos"))[0]
-    widen = widening(a.reach, extra_m, legs_measured=legs)
-    assert widen is not None
     t = 0.0
     for _ in range(30):
         for s in (a, ref, plain):
             s.cycle(t, [])
         t += a.settings.dt_s
     xy, goal = np.array([1.3, -0.5]), np.array([0.5, -0.3])
-    contacts = {"widened": 0, "plain": 0}  # (interval, link, part) triples that may touch
+    contacts = [0, 0]
     for _ in range(200):
         step = 0.006 * (goal - xy) / max(np.linalg.norm(goal - xy), 1e-9)
         xy = xy + step
         v = np.append(step / a.settings.dt_s, 0.0)
-        p = person_at(xy, v, 0.1, t - 0.01)
-        p.widen_m = widen
+        p, q = person_at(xy, v, 0.1, t - 0.01), person_at(xy, v, 0.1, t - 0.01)
+        dress(p)
+        dress_plain(q)
         ra, rr = a.cycle(t, [p]), ref.cycle(t, [p])
         assert_same_cycle(a, ra, ref, rr)
-        rp = plain.cycle(t, [person_at(xy, v, 0.1, t - 0.01)])
-        for name, r in (("widened", ra), ("plain", rp)):
-            contacts[name] += 0 if r.pfl is None else int(r.pfl.contact.contact.sum())
+        rp = plain.cycle(t, [q])
+        for i, r in enumerate((ra, rp)):
+            contacts[i] += 0 if r.pfl is None else int(r.pfl.contact.contact.sum())
         t += a.settings.dt_s
-    assert contacts["widened"] > contacts["plain"], contacts
+    return contacts[0], contacts[1]
+
+
+@pytest.mark.parametrize(("extra_m", "legs"), [(0.03, True), (0.0, False), (0.02, False)])
+def test_widened_people_equal_the_python_composition(extra_m: float, legs: bool) -> None:
+    """A person measured less precisely (a stated uncertainty above the parameter set's) or
+    without legs (an upper-body source), walking into reach: the compiled check widens the sets
+    exactly as the reference does, cycle by cycle; and the wider sets reach the robot sooner
+    (more possible contacts over the episode than for the same person measured plainly)."""
+    widen = widening(make_pair(("acc", "vel", "pos"))[0].reach, extra_m, legs_measured=legs)
+    assert widen is not None
+
+    def widened(p: HumanState) -> None:
+        p.widen_m = widen
+
+    dressed, plain = _contacts_walking_in(widened, lambda p: None)
+    assert dressed > plain, (dressed, plain)
+
+
+@pytest.mark.parametrize("base_m", [0.0, 0.3])
+def test_height_bounded_legs_equal_the_python_composition(base_m: float) -> None:
+    """A person seen by an upper-body tracker (legs widened by their reach) whose legs are
+    bounded from above (``leg_cap``: the legs' parts below ``base_m`` + 0.5 m/s since the
+    measurement), walking into reach: every cycle equals the reference's, and the bound leaves
+    fewer possible contacts than the same person without it."""
+    from sara_app.human.params import LEG_PARTS
+
+    reach = make_pair(("acc", "vel", "pos"))[0].reach
+    widen = widening(reach, 0.0, legs_measured=False)
+    caps = np.zeros((reach.skeleton.n_parts, 2))
+    caps[:, 0] = np.inf
+    for q in LEG_PARTS:
+        caps[reach.skeleton.parts.index(q)] = (base_m, 0.5)
+
+    def bounded(p: HumanState) -> None:
+        p.widen_m, p.leg_cap = widen, caps
+
+    def unbounded(p: HumanState) -> None:
+        p.widen_m = widen
+
+    dressed, plain = _contacts_walking_in(bounded, unbounded)
+    assert dressed < plain, (dressed, plain)
 
 
 @pytest.mark.parametrize("H", [2, 4, 8])
@@ -185,43 +229,3 @@ def test_several_people_equal_the_python_composition(H: int) -> None:
                 assert ra.pfl.safe.shape[2] == H * a.reach.skeleton.n_parts
         t += a.settings.dt_s
     assert {"intended", "failsafe"} <= modes and 2 in checks, (modes, checks)
-
-
-@pytest.mark.parametrize("base_m", [0.0, 0.3])
-def test_height_bounded_legs_equal_the_python_composition(base_m: float) -> None:
-    """A person seen by an upper-body tracker (legs widened by their reach) whose legs are
-    bounded from above (``leg_cap``: the legs' parts below ``base_m`` + 0.5 m/s since the
-    measurement), walking into reach: every cycle equals the reference's, and the bound leaves
-    fewer possible contacts than the same person without it."""
-    from sara_app.human.params import LEG_PARTS
-
-    a, ref = make_pair(("acc", "vel", "pos"))
-    plain = make_pair(("acc", "vel", "pos"))[0]
-    widen = widening(a.reach, 0.0, legs_measured=False)
-    parts = a.reach.skeleton.parts
-    caps = np.zeros((len(parts), 2))
-    caps[:, 0] = np.inf
-    for q in LEG_PARTS:
-        caps[parts.index(q)] = (base_m, 0.5)
-    t = 0.0
-    for _ in range(30):
-        for s in (a, ref, plain):
-            s.cycle(t, [])
-        t += a.settings.dt_s
-    xy, goal = np.array([1.3, -0.5]), np.array([0.5, -0.3])
-    contacts = {"bounded": 0, "plain": 0}
-    for _ in range(200):
-        step = 0.006 * (goal - xy) / max(np.linalg.norm(goal - xy), 1e-9)
-        xy = xy + step
-        v = np.append(step / a.settings.dt_s, 0.0)
-        p = person_at(xy, v, 0.1, t - 0.01)
-        p.widen_m, p.leg_cap = widen, caps
-        ra, rr = a.cycle(t, [p]), ref.cycle(t, [p])
-        assert_same_cycle(a, ra, ref, rr)
-        q = person_at(xy, v, 0.1, t - 0.01)
-        q.widen_m = widen
-        rp = plain.cycle(t, [q])
-        for name, r in (("bounded", ra), ("plain", rp)):
-            contacts[name] += 0 if r.pfl is None else int(r.pfl.contact.contact.sum())
-        t += a.settings.dt_s
-    assert contacts["bounded"] < contacts["plain"], contacts
