@@ -73,6 +73,8 @@ def test_report_command_writes_a_self_contained_page(tmp_path: Path) -> None:
     assert "<script" not in page
     assert page.count('src="data:image/png;base64,') == 2  # containment and closed-loop plots
     assert "02_01" in page and "SSM" in page and "PFL" in page and "JSSA" not in page
+    # close_worker's set bounds unmeasured legs: the report says how, and what it assumes
+    assert "l_shin -0.18 m" in page and "ASSUMED for the activity" in page
     if want_pdf:
         assert pdf.read_bytes().startswith(b"%PDF")
 

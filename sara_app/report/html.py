@@ -11,6 +11,7 @@ import math
 from collections.abc import Iterable, Sequence
 from typing import Any
 
+from sara_app.human.widening import UNMEASURED_LEG_REACH_M
 from sara_app.report.evidence import HORIZONS_S, Evidence
 from sara_app.report.stopping import C_M
 
@@ -109,15 +110,39 @@ def _configuration(ev: Evidence) -> str:
     sources = _table(("what", "source"), ((_e(k), _e(v)) for k, v in ps["sources"].items()))
     sound = _table(("claim", "value"), ((_e(k), _e(v)) for k, v in ps["sound_for"].items()))
     return (
+        _configuration_head(sc, ps, joints) + f"{_legs(ps)}<h4>Sources</h4>{sources}"
+        f"<h4>Sound for (as the set claims; the next section checks it)</h4>{sound}"
+        f"<details><summary>The scenario as validated (JSON)</summary><pre>"
+        f"{_e(json.dumps(sc, indent=1))}</pre></details>"
+    )
+
+
+def _legs(ps: dict) -> str:
+    """The height bound of unmeasured legs, where the set has one (ASSUMED: see its source)."""
+    reach = ", ".join(f"{j} {r:g}" for j, r in UNMEASURED_LEG_REACH_M.items())
+    head = (
+        "<p>Legs an upper-body tracker does not measure: within their reach of the pelvis "
+        f"({reach} m)"
+    )
+    legs = ps.get("legs_unmeasured")
+    if not legs:
+        return f"{head}, no bound on their height.</p>"
+    parts = ", ".join(f"{_e(p)} {v:+.2f} m" for p, v in legs["above_pelvis_m"].items())
+    return (
+        f"{head} and at most the fitted heights above the pelvis ({parts}; ASSUMED for the "
+        f"activity, not checked live); the pelvis rises at most {legs['rise_max_mps']:g} m/s "
+        "(checked by the monitor).</p>"
+    )
+
+
+def _configuration_head(sc: dict, ps: dict, joints: str) -> str:
+    return (
         f"<h2>1. Configuration</h2><p>Scenario <b>{_e(sc['name'])}</b>: {_e(sc['description'])}"
         f"</p><p>Robot {_e(sc['robot']['name'])}, safety mode "
         f"{_e(sc['shield']['mode']).upper()}, models {_e(', '.join(sc['shield']['models']))}."
         f"</p><h3>Human parameter set <code>{_e(ps['name'])}</code></h3><p>"
         f"{_e(ps['description'])}</p><p>delta_y {ps['delta_y_m']} m, delta_v "
-        f"{ps['delta_v_mps']} m/s, delay {ps['delay_s']} s.</p>{joints}<h4>Sources</h4>{sources}"
-        f"<h4>Sound for (as the set claims; the next section checks it)</h4>{sound}"
-        f"<details><summary>The scenario as validated (JSON)</summary><pre>"
-        f"{_e(json.dumps(sc, indent=1))}</pre></details>"
+        f"{ps['delta_v_mps']} m/s, delay {ps['delay_s']} s.</p>{joints}"
     )
 
 
