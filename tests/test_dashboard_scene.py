@@ -33,6 +33,7 @@ from sara_app.dashboard.scene import (
     CRITICAL_ACTIVE_RGB,
     CRITICAL_IDLE_RGB,
     DEFAULT_VISIBLE,
+    PELVIS,
     UNVERIFIED_RGB,
     VERIFIED_RGB,
     VIEW_NAMES,
@@ -347,3 +348,26 @@ def test_the_legend_names_every_human_model_in_its_colour() -> None:
     for m in MODEL_NAMES:
         r, g, b = MODEL_COLORS[m]
         assert f'<span style="color:rgb({r},{g},{b})">&#9632;</span> {m}' in LEGEND_MD
+
+
+def test_the_legs_bound_is_drawn_at_its_height_with_the_effective_set(dash: Dashboard) -> None:
+    """A person whose unmeasured legs are bounded gets one thin square at the bound's height
+    under their pelvis, shown and hidden with the effective set; a person without a bound (or
+    with a non-finite pelvis) gets none."""
+    scene = dash.scene
+    assert scene is not None
+    assert dash.update(demo_frame(4.0))
+    assert not scene.legs_bound.scales.any()  # no bound: nothing drawn
+    frame = demo_frame(4.05)
+    pelvis = frame.humans[0].joint_positions[PELVIS].copy()
+    frame.humans[0].legs_below_m = 1.1
+    frame.humans.append(replace(frame.humans[0], id="nan", joint_positions=np.full_like(
+        frame.humans[0].joint_positions, np.nan)))  # fmt: skip
+    assert dash.update(frame)
+    b = scene.legs_bound
+    np.testing.assert_allclose(b.positions[0], [*pelvis[:2], 1.1], atol=1e-6)
+    assert b.scales[0, 2] < 0.01 and b.scales[0, 0] >= 2.0 and not b.scales[1:].any()
+    scene.set_visible("effective", False)
+    assert not b.visible
+    scene.set_visible("effective", True)
+    assert b.visible

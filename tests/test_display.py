@@ -133,3 +133,33 @@ def test_the_effective_set_is_per_body_part_the_least_model_capsule_that_holds_i
         for s in np.linspace(0.0, 1.0, 5):  # the part's axis, grown by its half thickness
             x = (1 - s) * y[a] + s * y[b]
             assert float(point_segment_distance(x, ends[p])) + half[p] <= radius[p] + 1e-9
+
+
+def test_the_occupancy_carries_the_bound_of_unmeasured_legs() -> None:
+    """A person of an upper-body source under a set that bounds the legs: the worker's display
+    message says how high the legs reach at the end of the horizon shown (the thighs' bound,
+    the highest), the same as the bound the check uses; a full-body person's says nothing."""
+    from sara_app.cell.build import build_cell
+    from sara_app.cell.intake import take_measurement, track_for
+    from sara_app.human.scripted import joints, standing
+    from sara_app.runtime.display import legs_below, occupancy_msg
+    from sara_app.scenario import load_scenario
+
+    cell = build_cell(load_scenario("bench_handover_upper"))
+    y = joints(standing((1.2, 0.9), 3.0))
+    tracks = [track_for(cell, "upper"), track_for(cell, "full")]
+    for tr, legs in zip(tracks, (False, True), strict=True):
+        assert take_measurement(cell, tr, 10.0, y, legs_measured=legs) is None
+    res = cell.shield.cycle(10.01, [tr.state for tr in tracks])
+    seq = iter(range(10))
+    occ = occupancy_msg(cell, tracks, res, 10.01, lambda: next(seq), lambda *a: None)
+    upper, full = occ.humans
+    assert full.legs_below_m is None and upper.legs_below_m is not None
+    caps = tracks[0].state.leg_cap
+    assert caps is not None
+    horizon = 0.0 if res.trajectory is None else res.trajectory.duration_s
+    assert upper.legs_below_m == pytest.approx(legs_below(caps, 0.01 + horizon))
+    thigh = cell.shield.reach.skeleton.parts.index("l_thigh")
+    assert upper.legs_below_m == pytest.approx(caps[thigh, 0] + caps[thigh, 1] * (0.01 + horizon))
+    assert legs_below(None, 0.1) is None
+    assert decode("sara/cell1/occupancy", encode(occ)).msg == occ

@@ -403,6 +403,10 @@ class HumanOccupancyMsg(BaseModel):
     kind: Literal["full", "upper"]
     joints_m: list[Finite]
     models: dict[str, CapsulesMsg] = {}
+    legs_below_m: Finite | None = None
+    """World height (m) the legs of a person whose tracker does not measure them stay below
+    over the displayed horizon, where the parameter set bounds them (their models' capsules
+    are not cut by it); None: no bound."""
 
     @model_validator(mode="after")
     def _lengths(self) -> HumanOccupancyMsg:
@@ -493,8 +497,10 @@ class JssaMsg(BaseModel):
 
 
 class OccupancyMsg(_Msg):
-    """Display occupancies, about 10-20 Hz (key ``sara/<cell>/occupancy``)."""
+    """Display occupancies, about 10-20 Hz (key ``sara/<cell>/occupancy``), schema version 2
+    (a human's ``legs_below_m``)."""
 
+    schema_version: Literal[2] = 2  # type: ignore[assignment]
     humans: list[HumanOccupancyMsg] = []
     robot: RobotOccupancyMsg | None = None
     contacts: list[ContactMsg] = []

@@ -29,13 +29,15 @@ class HumanDisplay:
 
     ``joint_positions (J, 3)`` (NaN rows for missing joints are skipped), ``bone_pairs (B, 2)``
     int indices into the joints, ``models``: model name (one of :data:`MODEL_NAMES`) to
-    ``(ends (C, 2, 3), radius (C,))`` reachable capsules over the whole horizon.
+    ``(ends (C, 2, 3), radius (C,))`` reachable capsules over the whole horizon;
+    ``legs_below_m``: the height unmeasured legs stay below over it (None: no bound).
     """
 
     id: str
     joint_positions: np.ndarray
     bone_pairs: np.ndarray
     models: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    legs_below_m: float | None = None
 
 
 @dataclass

@@ -144,7 +144,7 @@ def occupancy_into(frame: DisplayFrame, occ: OccupancyMsg) -> None:
     for h in occ.humans:
         models = {name: caps.arrays() for name, caps in h.models.items()}
         y = np.asarray(h.joints_m).reshape(-1, 3)
-        frame.humans.append(HumanDisplay(h.id, y, BONES, models))
+        frame.humans.append(HumanDisplay(h.id, y, BONES, models, h.legs_below_m))
     if occ.robot is not None:
         r = occ.robot
         e, rad = r.capsules.arrays()

@@ -42,6 +42,8 @@ from sara_app.dashboard.frame import (
     LinkEnergy,
 )
 from sara_app.errors import InputError, UnknownNameError
+from sara_app.human.skeleton import FULL_JOINTS
+from sara_app.human.widening import UNMEASURED_LEG_REACH_M
 from sara_app.robot.model import urdf_path
 
 MODEL_COLORS: dict[str, tuple[int, int, int]] = {
@@ -97,6 +99,10 @@ ROBOT_OPACITY = 0.35
 """Light enough that the robot's mesh shows through its occupancy, dense enough that the verdict
 colour reads over a white background."""
 BOX_OPACITY = 0.5
+LEGS_BOUND_OPACITY = 0.3
+LEGS_REACH_M = UNMEASURED_LEG_REACH_M["ankle"]
+"""Half the width of the square drawn where unmeasured legs are bounded: a leg's reach."""
+PELVIS = FULL_JOINTS.index("pelvis")
 Q_EPS_RAD = 1e-4
 """Joint change below which the URDF pose is not redrawn (0.1 mm at 1 m; it costs ~3 ms)."""
 
@@ -150,6 +156,20 @@ def _contact_parts(parts: ContactParts | None) -> tuple[np.ndarray, np.ndarray, 
     for cls, color in CONTACT_RGB.items():
         rgb[cc == cls] = color
     return ends, radius, rgb
+
+
+def _legs_bounds(humans: list[HumanDisplay]) -> np.ndarray:
+    """``(n, 3)``: for each person with a finite bound on their unmeasured legs and a finite
+    pelvis, the pelvis's x, y and the bound's height."""
+    rows = [
+        (*h.joint_positions[PELVIS, :2], h.legs_below_m)
+        for h in humans
+        if h.legs_below_m is not None
+        and len(h.joint_positions) > PELVIS
+        and np.isfinite(h.joint_positions[PELVIS]).all()
+        and np.isfinite(h.legs_below_m)
+    ]
+    return np.array(rows, dtype=float).reshape(-1, 3)
 
 
 def _boxes(boxes: EnvBoxes | None) -> tuple[np.ndarray, np.ndarray]:
@@ -220,6 +240,10 @@ class CellScene:
             server, "/view/contacts/capsules", CONTACT_PART_OPACITY, 8, CONTACT_RGB[1]
         )
         self.boxes = InstanceBatch(server, "/view/boxes/batch", unit_box(), BOX_OPACITY, 4)
+        self.legs_bound = InstanceBatch(
+            server, f"{view_node(EFFECTIVE)}/legs_bound", unit_box(), LEGS_BOUND_OPACITY, 4,
+            color=MODEL_COLORS[EFFECTIVE],
+        )  # fmt: skip
         self._boxes_shown: tuple[np.ndarray, np.ndarray] | None = None
         self.critical = server.scene.add_line_segments(
             "/view/critical_pair/line", np.zeros((1, 2, 3)), (255, 0, 0), thickness=0.02,
@@ -239,6 +263,8 @@ class CellScene:
         layer (one of :data:`LAYERS`): a part no browser shows is hidden and not sent."""
         if name in self.models:
             self.models[name].visible = visible
+            if name == EFFECTIVE:
+                self.legs_bound.visible = visible
         elif name in LAYERS:
             self.layers[name] = bool(visible)
             if name == "robot":
@@ -266,6 +292,7 @@ class CellScene:
         q = self._checked_q(frame.q)
         seg, joints = _skeleton(frame.humans)
         models = self._model_capsules(frame.humans)
+        legs = _legs_bounds(frame.humans)
         occ = self._occupancy(frame)
         boxes = _boxes(frame.boxes)
         parts = _contact_parts(frame.contact_parts)
@@ -277,6 +304,7 @@ class CellScene:
             self._update_skeletons(seg, joints)
             for name, (ends, radius) in models.items():
                 self.models[name].set(ends, radius)
+            self._update_legs_bound(legs)
             self.occupancy.set(*occ[:2], occ[2])
             self.occupancy_contact.set(*occ[:2], occ[3])
             self.contact_parts.set(*parts)
@@ -369,6 +397,15 @@ class CellScene:
         b.colors[:m] = (150, 150, 160)
         b.push(m)
         self._boxes_shown = (T.copy(), half.copy())
+
+    def _update_legs_bound(self, centres: np.ndarray) -> None:
+        """One thin square per person at the height their unmeasured legs stay below,
+        ``centres (n, 3)`` (pelvis x, y; the bound's z), as wide as a leg reaches."""
+        b, n = self.legs_bound, centres.shape[0]
+        b.reserve(n)
+        b.positions[:n] = centres
+        b.scales[:n] = (2.0 * LEGS_REACH_M, 2.0 * LEGS_REACH_M, 0.004)
+        b.push(n)
 
     def _update_critical(self, p: np.ndarray | None, active: bool) -> None:
         if p is None:

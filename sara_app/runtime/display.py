@@ -167,6 +167,16 @@ def jssa_state(jssa: Any, link_names: Sequence[str], d_min_m: float) -> JssaMsg:
     )
 
 
+def legs_below(leg_cap: np.ndarray | None, tau_s: float) -> float | None:
+    """The highest height bound of a person's unmeasured legs ``leg_cap (P, 2)``
+    (:func:`~sara_app.human.legs.leg_caps`) ``tau_s`` after the measurement; None: none."""
+    if leg_cap is None:
+        return None
+    z = leg_cap[:, 0] + leg_cap[:, 1] * tau_s
+    z = z[np.isfinite(leg_cap[:, 0])]
+    return float(z.max()) if z.size and np.isfinite(z).all() else None
+
+
 def occupancy_msg(
     cell: Cell,
     tracks: Iterable[Track],
@@ -208,7 +218,13 @@ def occupancy_msg(
         if eff is not None:
             models[EFFECTIVE] = CapsulesMsg.from_arrays(*eff)
         humans.append(
-            HumanOccupancyMsg(id=st.id, kind="full", joints_m=st.y.ravel().tolist(), models=models)
+            HumanOccupancyMsg(
+                id=st.id,
+                kind="full",
+                joints_m=st.y.ravel().tolist(),
+                models=models,
+                legs_below_m=legs_below(st.leg_cap, age + horizon),
+            )  # fmt: skip
         )
     robot = None
     if res.robot_ends is not None and res.robot_radius is not None:
