@@ -83,6 +83,21 @@ def test_every_offline_command_takes_an_upper_body_recording(tmp_path, capsys) -
     cal = tmp_path / "cal.json"
     assert main(["calibrate", up, "--horizon", "0.1", "--out", str(cal)]) == 0
     assert json.loads(cal.read_text())["delta_y_m"] > 0
+    # the legs' height bound needs legs: an upper-body recording is refused, saying so
+    assert main(["legs", up, str(_csv(tmp_path)), "--out", str(tmp_path / "l.json")]) == 2
+    assert "need a full-body recording" in capsys.readouterr().err
+
+
+def test_the_legs_command_fits_full_body_recordings_and_refuses_one(tmp_path, capsys) -> None:
+    a, b = tmp_path / "a", tmp_path / "b"
+    a.mkdir()
+    b.mkdir()
+    out = tmp_path / "legs.json"
+    assert main(["legs", str(_csv(a)), str(_csv(b)), "--out", str(out)]) == 0
+    assert "each recording left out" in capsys.readouterr().out
+    assert json.loads(out.read_text())["legs_unmeasured"]["rise_max_mps"] > 0
+    assert main(["legs", str(_csv(a)), "--out", str(out)]) == 2
+    assert "at least 2 recordings" in capsys.readouterr().err
 
 
 def test_calibrate_validates_leaving_each_recording_out(tmp_path, capsys) -> None:
