@@ -58,10 +58,10 @@ def verify_reference(
     """:meth:`SsmVerifier.verify` (same inputs, same result). ``caps (H, P, 2)``: a part is
     touched by a link when the model's capsule for it touches the link (brute force) and the
     link's lowest point is not above the part's height bound at the interval's end."""
-    H, M, K = y.shape[0], len(verifier.models), robot_ends.shape[0]
+    H, M, K = y.shape[0], len(verifier.order), robot_ends.shape[0]
     P = verifier.reach.skeleton.n_parts
-    rows = [MODELS.index(m) for m in verifier.models]
-    maps = [part_capsules(verifier.reach, m) for m in verifier.models]
+    rows = [MODELS.index(m) for m in verifier.order]
+    maps = [part_capsules(verifier.reach, m) for m in verifier.order]
     free = np.zeros((H, M, K), dtype=bool)
     evaluated = np.zeros((H, M, K), dtype=bool)
     closest = np.full((H, M), np.inf)
@@ -72,7 +72,7 @@ def verify_reference(
     bottoms = robot_ends[..., 2].min(axis=2) - robot_radius  # (K, L)
     for h in range(H):
         tau = times_s + age_s[h]
-        for m, name in enumerate(verifier.models):
+        for m, name in enumerate(verifier.order):
             todo = ~parts[h].all(axis=1)
             evaluated[h, m] = todo
             yh, vh, dvh = y[h : h + 1], v[h : h + 1], dv[h : h + 1]
@@ -95,4 +95,4 @@ def verify_reference(
                 parts[h, k] |= ~(touching[maps[m]] & below).any(axis=1)
             if parts[h].all():
                 break
-    return SsmResult(bool(parts.all()), free, evaluated, closest, parts)
+    return SsmResult(bool(parts.all()), free, evaluated, closest, parts, verifier.order)

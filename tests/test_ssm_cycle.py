@@ -2,7 +2,8 @@
 of the same kernels (``Shield._composed``): from the same follower state and people, the same
 shielded trajectory, robot capsules, per-part verdicts and speed scale, bit for bit, over a
 closed loop whose people come and go near the robot's path (checks that verify at once, replans,
-and cycles that brake); the arm model keeps the Python composition."""
+and cycles that brake), and the same model put first for the next check; the arm model keeps
+the Python composition."""
 
 from __future__ import annotations
 
@@ -50,6 +51,7 @@ def test_the_compiled_cycle_equals_the_python_composition() -> None:
     sh = _shield()
     dt = sh.settings.dt_s
     checks, verdicts = [], []
+    firsts: set[str] = set()  # the models tried first
     composed = sh._composed
     fallbacks = []  # cycles where _plan_and_verify ran the Python composition
 
@@ -68,11 +70,15 @@ def test_the_compiled_cycle_equals_the_python_composition() -> None:
         start = sh.follower.copy()
         sh.follower, sh._res = start.copy(), None  # as Shield.cycle starts
         sh._composed = counted  # type: ignore[method-assign]
+        order = sh.verifier.order
         got = sh._plan_and_verify(hum)
         sh._composed = composed  # type: ignore[method-assign]
         got_res, got_scale, info = sh._res, sh._scale, sh._info.copy()
         sh.follower, sh._res = start.copy(), None
+        promoted, _ = sh.verifier.order, sh.verifier.set_order(order)
         want = sh._composed(hum)
+        assert sh.verifier.order == promoted  # both paths put the same model first
+        firsts.add(promoted[0])
         want_res, want_scale = sh._res, sh._scale
         for name in TRAJ_FIELDS:
             _same(getattr(got[0], name), getattr(want[0], name), name)
@@ -97,6 +103,7 @@ def test_the_compiled_cycle_equals_the_python_composition() -> None:
     assert all(fallbacks) and len(fallbacks) < 400  # only where nobody was in the cell
     assert max(checks) > 1 and 1 in checks  # replans and checks that verified at once
     assert any(verdicts) and not all(verdicts)  # cycles that moved and cycles that braked
+    assert len(firsts) > 1  # the model that completed a check went first
 
 
 def test_the_arm_model_keeps_the_python_composition() -> None:

@@ -153,7 +153,7 @@ class Shield:
         self.tracking_margin_m = self.occupancy.lipschitz @ np.full(robot.n_dof, s.tracking_tol_rad)
         self._compiled = _compiled_inputs(self.verifier, self.occupancy, self.tracking_margin_m,
                                           s.max_interval_s)  # fmt: skip
-        self._info = np.empty(4)
+        self._info = np.empty(5)
         self._half_th = reach.params.half_thickness_m
         self._parts = np.asarray(reach.skeleton.part_joints, dtype=np.int64)
         self._distance_inputs = _distance_inputs(self.occupancy, robot.radius_m)
@@ -428,7 +428,8 @@ class Shield:
         sc = self.settings.ssm
         V_here = f.admissible_here()[0]
         human = self.verifier.human(*hum)
-        sampling, occupancy, (constants, codes, maps, arm) = self._compiled
+        sampling, occupancy, _ = self._compiled
+        constants, codes, maps, arm = self.verifier.kernel_inputs() or self._compiled[2]
         info = self._info
         code, slab, free, evaluated, closest, parts = _SSM_CYCLE(
             *state, sampling, occupancy, human, constants, codes, maps, arm,
@@ -443,7 +444,10 @@ class Shield:
                    bounds[0], bounds[1], pts[4, :K])  # fmt: skip
         traj = from_samples(step, samples)
         self._scale = min(1.0, float(info[1]) / V_here) if V_here > 0 else 1.0
-        self._res = res = SsmResult(bool(info[0]), free, evaluated, closest, parts)
+        order = self.verifier.order
+        self._res = res = SsmResult(bool(info[0]), free, evaluated, closest, parts, order)
+        if res.safe and info[4] > 0:  # the model that completed the check goes first
+            self.verifier.promote(order[int(info[4])])
         return traj, ends, radius, res.safe
 
     def _composed(
@@ -470,6 +474,9 @@ class Shield:
                 res = self.verifier.verify(y, v, dv, age, traj.times, ends, radius, widen, caps)
             self._scale = min(1.0, cap / V_here) if V_here > 0 else 1.0
         self._res = res
+        done = np.flatnonzero(res.evaluated.any(axis=(0, 2)))
+        if res.safe and done.size and done[-1] > 0:  # the model that completed it goes first
+            self.verifier.promote(self.verifier.order[int(done[-1])])
         return traj, ends, radius, res.safe
 
     def _annotate(self, out: CycleResult, res: Any) -> None:
@@ -482,7 +489,8 @@ class Shield:
         # per model, over people and intervals
         evaluated = np.logical_and.reduce(res.evaluated, axis=(0, 2)).tolist()
         free = np.logical_and.reduce(res.free, axis=(0, 2)).tolist()
-        for name, ev, fr in zip(self.verifier.models, evaluated, free):
+        models = self.verifier.models if res.models is None else res.models
+        for name, ev, fr in zip(models, evaluated, free):
             if ev:
                 out.model_free[name] = fr
 

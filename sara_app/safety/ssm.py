@@ -47,6 +47,9 @@ class SsmResult:
     evaluated: np.ndarray
     closest_m: np.ndarray
     parts_clear: np.ndarray
+    models: tuple[str, ...] | None = None
+    """The models along the ``M`` axis, in the order the check tried them (None: the
+    verifier's own order)."""
 
 
 def boxes_of(ends: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -84,7 +87,14 @@ def body_distance(
 
 
 class SsmVerifier:
-    """Checks human sets from :class:`HumanReach` against robot interval capsules."""
+    """Checks human sets from :class:`HumanReach` against robot interval capsules.
+
+    The models are tried in :attr:`order`, which starts as given and changes only by
+    :meth:`promote` (the shield puts the model that completed its last successful check first).
+    The order does not change the verdict or which body parts are proved clear (a part is clear
+    when some model's capsule for it is free; a model is skipped only on intervals whose every
+    part an earlier one cleared); it changes how many models a check evaluates, and so which
+    ones ``free``, ``evaluated`` and ``closest_m`` report."""
 
     def __init__(self, reach: HumanReach, models: tuple[str, ...] | list[str]) -> None:
         bad = [m for m in models if m not in MODELS]
@@ -98,8 +108,36 @@ class SsmVerifier:
         self._maps.flags.writeable = False
         self._codes = np.array([_CODES[m] for m in self.models], dtype=np.int64)
         self._constants = reach.kernel_constants()
+        self._orders: dict[tuple[str, ...], tuple[np.ndarray, np.ndarray, list[int]]] = {}
+        self.order = self.models
+        """The models in the order the check tries them."""
+        self.set_order(self.models)
         self._no_arm = (np.zeros((0, 1, 1, 2, 3)), np.zeros((0, 1, 1)))
         self._warm_up()
+
+    def set_order(self, order: tuple[str, ...]) -> None:
+        """Try the models in ``order`` (a permutation of :attr:`models`): the kernel's codes,
+        part maps and widening rows in that order, built once per order."""
+        order = tuple(order)
+        if sorted(order) != sorted(self.models):
+            raise InputError(f"model order {order}; expected an order of {self.models}")
+        arrays = self._orders.get(order)
+        if arrays is None:
+            idx = [self.models.index(m) for m in order]
+            codes, maps = self._codes[idx], self._maps[idx]
+            codes.flags.writeable = maps.flags.writeable = False
+            arrays = self._orders[order] = (codes, maps, [self._model_rows[i] for i in idx])
+        self.order = order
+        self._check_codes: np.ndarray = arrays[0]
+        self._check_maps: np.ndarray = arrays[1]
+        self._check_rows: list[int] = arrays[2]
+
+    def promote(self, model: str) -> None:
+        """Try ``model`` first from now on (the others keep their order)."""
+        if model not in self.models:
+            raise UnknownNameError("model of this check", model, self.models)
+        if self.order[0] != model:
+            self.set_order((model, *(m for m in self.order if m != model)))
 
     def _warm_up(self) -> None:
         """One verification and one :func:`body_distance` at construction (every model, a robot
@@ -125,8 +163,9 @@ class SsmVerifier:
         widen_m: np.ndarray | None = None,
         caps: np.ndarray | None = None,
     ) -> SsmResult:
-        """``y, v (H, J, 3)``, ``dv (H, J)``, ``age_s (H,)`` (command time minus measurement
-        time), ``times_s (K+1,)`` from now, robot ``(K, L, 2, 3)``, ``(K, L)``; ``widen_m``
+        """The check in :attr:`order` (the result's ``M`` axis): ``y, v (H, J, 3)``, ``dv (H,
+        J)``, ``age_s (H,)`` (command time minus measurement time), ``times_s (K+1,)`` from now,
+        robot ``(K, L, 2, 3)``, ``(K, L)``; ``widen_m``
         ``(H, len(MODELS), P)``: extra radius per body part (:mod:`sara_app.human.widening`;
         a capsule grows by the largest of the parts it contains); ``caps (H, P, 2)``: the
         height bounds of unmeasured legs (:func:`~sara_app.human.legs.leg_caps`; None: none);
@@ -150,11 +189,11 @@ class SsmVerifier:
         closest = np.empty((H, M))
         parts = np.empty((H, K, P), dtype=bool)
         safe = ssm_kernel(
-            human, self._constants, self._codes, self._maps,
+            human, self._constants, self._check_codes, self._check_maps,
             self._arm_sets(human[0], human[4], times_s), times_s, robot_ends, robot_radius,
             free, evaluated, closest, parts,
         )  # fmt: skip
-        return SsmResult(bool(safe), free, evaluated, closest, parts)
+        return SsmResult(bool(safe), free, evaluated, closest, parts, self.order)
 
     def human(
         self,
@@ -185,7 +224,7 @@ class SsmVerifier:
                 raise InputError(
                     f"widen_m has shape {widen.shape}; expected ({H}, {len(MODELS)}, {P})"
                 )
-            widen = widen[:, self._model_rows]  # rows in the check's model order
+            widen = widen[:, self._check_rows]  # rows in the check's model order
         if caps is None:
             caps = self._no_caps(H, P)
         else:
@@ -218,12 +257,13 @@ class SsmVerifier:
         return zeros
 
     def kernel_inputs(self) -> tuple[Any, np.ndarray, np.ndarray, Any] | None:
-        """``(constants, codes (M,), part maps (M, P), arm sets)`` of the check for a compiled
-        caller (:mod:`~sara_app.safety.ssm_cycle_kernels`); None when the check uses Pereira's
-        arm model (its capsules depend on the trajectory's times: computed in numpy)."""
+        """``(constants, codes (M,), part maps (M, P), arm sets)`` of the check in
+        :attr:`order` for a compiled caller (:mod:`~sara_app.safety.ssm_cycle_kernels`); None
+        when the check uses Pereira's arm model (its capsules depend on the trajectory's times:
+        computed in numpy)."""
         if "arm" in self.models:
             return None
-        return self._constants, self._codes, self._maps, self._no_arm
+        return self._constants, self._check_codes, self._check_maps, self._no_arm
 
     def _arm_sets(
         self, y: np.ndarray, age_s: np.ndarray, times_s: np.ndarray

@@ -73,9 +73,9 @@ def _make_kernel() -> Any:
         while the check fails (see the module notes). Returns ``(code, slab, free, evaluated,
         closest, parts)``: the last plan's slab
         (:func:`~sara_app.safety.pfl_cycle_kernels.plan_views`) and its check's arrays (as
-        :class:`~sara_app.safety.ssm.SsmResult`); ``info (4,)``: the last check's verdict
+        :class:`~sara_app.safety.ssm.SsmResult`); ``info (5,)``: the last check's verdict
         (0/1), the cap of the replans (inf: none), checks, the last plan's ``peek_kernel``
-        status."""
+        status, the last model the last check evaluated (its index in ``codes``; -1: none)."""
         cap0, c_min, cut = control
         H, M = human[0].shape[0], codes.shape[0]
         P = part_maps.shape[1]
@@ -111,6 +111,12 @@ def _make_kernel() -> Any:
                 code = PYTHON
                 break
         info[0], info[1], info[2], info[3] = 1.0 if safe else 0.0, cap, checks, status
+        info[4] = -1.0
+        for m in range(M):
+            for h in range(H):
+                for k in range(evaluated.shape[2]):
+                    if evaluated[h, m, k]:
+                        info[4] = m
         return code, slab, free, evaluated, closest, parts
 
     return ssm_cycle_kernel
