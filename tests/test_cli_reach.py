@@ -88,24 +88,27 @@ def test_every_offline_command_takes_an_upper_body_recording(tmp_path, capsys) -
     assert "need a full-body recording" in capsys.readouterr().err
 
 
-def test_the_legs_command_fits_full_body_recordings_and_refuses_one(tmp_path, capsys) -> None:
+def _two(tmp_path, second: str = "full") -> list[str]:
+    """Two recordings in folders of their own (their names are the file's)."""
     a, b = tmp_path / "a", tmp_path / "b"
     a.mkdir()
     b.mkdir()
+    return [str(_csv(a)), str(_csv(b, second))]
+
+
+def test_the_legs_command_fits_full_body_recordings_and_refuses_one(tmp_path, capsys) -> None:
+    files = _two(tmp_path)
     out = tmp_path / "legs.json"
-    assert main(["legs", str(_csv(a)), str(_csv(b)), "--out", str(out)]) == 0
+    assert main(["legs", *files, "--out", str(out)]) == 0
     assert "each recording left out" in capsys.readouterr().out
     assert json.loads(out.read_text())["legs_unmeasured"]["rise_max_mps"] > 0
-    assert main(["legs", str(_csv(a)), "--out", str(out)]) == 2
+    assert main(["legs", files[0], "--out", str(out)]) == 2
     assert "at least 2 recordings" in capsys.readouterr().err
 
 
 def test_calibrate_validates_leaving_each_recording_out(tmp_path, capsys) -> None:
-    a, b = tmp_path / "a", tmp_path / "b"
-    a.mkdir()
-    b.mkdir()
     cal = tmp_path / "cal.json"
-    files = [str(_csv(a)), str(_csv(b, "upper"))]
+    files = _two(tmp_path, "upper")
     assert (
         main(["calibrate", *files, "--horizon", "0.1", "--leave-one-out", "--out", str(cal)]) == 0
     )

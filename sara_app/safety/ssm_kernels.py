@@ -70,6 +70,16 @@ def _apart(a: np.ndarray, b: np.ndarray) -> bool:
     return math.sqrt(dx * dx + dy * dy + dz * dz) - a[3] - b[3] > sphere_slack_m
 
 
+@njit  # compiled into its callers
+def _link_spheres(r_ends: np.ndarray, r_radius: np.ndarray, spheres: np.ndarray) -> np.ndarray:
+    """``spheres[:L]``: the robot capsules' bounding spheres; returns ``spheres[L]`` (a row
+    for one capsule of the person's)."""
+    L = r_ends.shape[0]
+    for i in range(L):
+        _sphere(r_ends[i], r_radius[i], spheres[i])
+    return spheres[L]
+
+
 @njit  # calls kernels of other files: compiled into its callers (kernel_types, caching)
 def _touching(
     ends: np.ndarray, radius: np.ndarray, r_ends: np.ndarray, r_radius: np.ndarray,
@@ -81,9 +91,7 @@ def _touching(
     :func:`_lowest_touching` for a set without height bounds). ``spheres (L + 1, 4)``:
     scratch."""
     L = r_ends.shape[0]
-    for i in range(L):
-        _sphere(r_ends[i], r_radius[i], spheres[i])
-    own = spheres[L]
+    own = _link_spheres(r_ends, r_radius, spheres)
     for c in range(ends.shape[0]):
         out[c] = np.inf
         p, q = ends[c, 0], ends[c, 1]
@@ -108,9 +116,7 @@ def _lowest_touching(
     :func:`_touching`); ``inf``: none. A separate function: a branch for it in
     :func:`_touching` cost 6 us per check without height bounds (the loop optimised worse)."""
     L = r_ends.shape[0]
-    for i in range(L):
-        _sphere(r_ends[i], r_radius[i], spheres[i])
-    own = spheres[L]
+    own = _link_spheres(r_ends, r_radius, spheres)
     for c in range(ends.shape[0]):
         out[c] = np.inf
         p, q = ends[c, 0], ends[c, 1]
