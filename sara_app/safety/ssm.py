@@ -11,8 +11,10 @@ free", one unsound model makes the verdict unsound.
 Hot path: one compiled call for every person (:func:`~sara_app.safety.ssm_kernels.ssm_kernel`):
 per person and model, the model's capsules from the person's measurement time against every
 link capsule of the intervals still to clear (bounding spheres prune, exact segment distances
-decide). Models are tried in the given order and only for intervals that no earlier model has
-cleared. Pereira's arm model (numpy) is computed before the call when it is enabled.
+decide). Models are tried in :attr:`SsmVerifier.order` (the given order at first; the shield
+puts the model that completed its last successful check first) and only for intervals that no
+earlier model has cleared. Pereira's arm model (numpy) is computed before the call when it is
+enabled.
 """
 
 from __future__ import annotations
