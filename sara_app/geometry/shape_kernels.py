@@ -34,13 +34,17 @@ from sara_app.kernel_types import W4 as _W4
 from sara_app.kernel_types import WB1 as _WB1
 
 __all__ = [
+    "below_gaps",
+    "bounding_spheres",
     "box_axis_gaps",
     "box_entry",
     "capsule_sets_check",
+    "lowest_z",
     "pair_gaps",
     "segment_closest",
     "set_pair_entry",
     "set_pair_gaps",
+    "sphere_gap",
     "sphere_slack_m",
 ]
 
@@ -90,7 +94,7 @@ def segment_closest(
 
 
 @njit(cache=True)
-def _spheres(ends: np.ndarray, radius: np.ndarray, out: np.ndarray) -> None:
+def bounding_spheres(ends: np.ndarray, radius: np.ndarray, out: np.ndarray) -> None:
     """Bounding spheres of capsules ``ends (N, 2, 3)``, ``radius (1, N)``, written to ``out (N,
     4)``: midpoint, then half length + radius."""
     for i in range(ends.shape[0]):
@@ -104,9 +108,10 @@ def _spheres(ends: np.ndarray, radius: np.ndarray, out: np.ndarray) -> None:
 
 
 @njit(cache=True)
-def _sphere_gap(sa: np.ndarray, i: int, sb: np.ndarray, j: int) -> float:
-    """Gap between bounding spheres ``sa[i]`` and ``sb[j]`` (rows of :func:`_spheres`): a lower
-    bound of the two capsules' surface distance (NaN stays NaN)."""
+def sphere_gap(sa: np.ndarray, i: int, sb: np.ndarray, j: int) -> float:
+    """Gap between bounding spheres ``sa[i]`` and ``sb[j]`` (rows of
+    :func:`bounding_spheres`): a lower bound of the two capsules' surface distance (NaN stays
+    NaN)."""
     dx, dy, dz = sa[i, 0] - sb[j, 0], sa[i, 1] - sb[j, 1], sa[i, 2] - sb[j, 2]
     return math.sqrt(dx * dx + dy * dy + dz * dz) - sa[i, 3] - sb[j, 3]
 
@@ -143,12 +148,12 @@ def capsule_sets_check(
         ka = k if a_ends.shape[0] == K else 0
         kr = k if a_radius.shape[0] == K else 0
         if ka != ka_prev or kr != kr_prev:
-            _spheres(a_ends[ka], a_radius[kr : kr + 1], sa)
+            bounding_spheres(a_ends[ka], a_radius[kr : kr + 1], sa)
             ka_prev, kr_prev = ka, kr
-        _spheres(b_ends[k], b_radius[k : k + 1], sb)
+        bounding_spheres(b_ends[k], b_radius[k : k + 1], sb)
         for c in range(C):
             for l in range(L):
-                lower = _sphere_gap(sa, c, sb, l)
+                lower = sphere_gap(sa, c, sb, l)
                 if lower >= best and (lower > sphere_slack_m or hit[k]):
                     continue
                 p, q = a_ends[ka, c], b_ends[k, l]
@@ -184,15 +189,15 @@ def _pairs(
         kra = k if a_radius.shape[0] == K else 0
         krb = k if b_radius.shape[0] == K else 0
         if prune and (ka, kra) != a_prev:
-            _spheres(a_ends[ka], a_radius[kra : kra + 1], sa)
+            bounding_spheres(a_ends[ka], a_radius[kra : kra + 1], sa)
             a_prev = (ka, kra)
         if prune and (kb, krb) != b_prev:
-            _spheres(b_ends[kb], b_radius[krb : krb + 1], sb)
+            bounding_spheres(b_ends[kb], b_radius[krb : krb + 1], sb)
             b_prev = (kb, krb)
         for i in range(A):
             for j in range(B):
                 if prune:
-                    lower = _sphere_gap(sa, i, sb, j)
+                    lower = sphere_gap(sa, i, sb, j)
                     if lower > sphere_slack_m:  # NaN goes on to the exact distance
                         out[k, i, j] = lower
                         continue
@@ -352,7 +357,7 @@ def set_pair_gaps(ends: np.ndarray, radius: np.ndarray, mask: np.ndarray, d: np.
         ke = k if ends.shape[0] == K else 0
         kr = k if radius.shape[0] == K else 0
         if (ke, kr) != prev:
-            _spheres(ends[ke], radius[kr : kr + 1], sph)
+            bounding_spheres(ends[ke], radius[kr : kr + 1], sph)
             if ke != prev[0] and not (ke > 0 and _same_ends(ends, ke)):
                 axis[:] = -1.0  # not computed for these axes (a NaN axis stays NaN)
             prev = (ke, kr)
@@ -361,7 +366,7 @@ def set_pair_gaps(ends: np.ndarray, radius: np.ndarray, mask: np.ndarray, d: np.
             for b in range(a + 1, N):
                 g = np.inf
                 if mask[a, b] or mask[b, a]:
-                    g = _sphere_gap(sph, a, sph, b)
+                    g = sphere_gap(sph, a, sph, b)
                     if not g > sphere_slack_m:  # NaN goes on to the exact distance
                         if axis[a, b] < 0.0:
                             p, q = ends[ke, a], ends[ke, b]

@@ -15,7 +15,6 @@ file: the source digests of the files whose kernels it calls are a closure varia
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -23,9 +22,11 @@ from numba import njit, types
 
 from sara_app.geometry import shape_kernels
 from sara_app.geometry.shape_kernels import (
+    bounding_spheres,
     capsule_sets_check,
     lowest_z,
     segment_closest,
+    sphere_gap,
     sphere_slack_m,
 )
 from sara_app.human import reach_kernels
@@ -50,59 +51,27 @@ ARM = types.Tuple((RO[5], RO[3]))
 when the check does not use it)."""
 
 
-@njit  # compiled into its callers
-def _sphere(ends: np.ndarray, radius: float, out: np.ndarray) -> None:
-    """``out (4,)``: the bounding sphere of the capsule ``ends (2, 3)``, ``radius``: its
-    midpoint and half length + radius (NaN stays NaN)."""
-    hx = 0.5 * (ends[1, 0] - ends[0, 0])
-    hy = 0.5 * (ends[1, 1] - ends[0, 1])
-    hz = 0.5 * (ends[1, 2] - ends[0, 2])
-    out[0], out[1], out[2] = ends[0, 0] + hx, ends[0, 1] + hy, ends[0, 2] + hz
-    out[3] = math.sqrt(hx * hx + hy * hy + hz * hz) + radius
-
-
-@njit  # compiled into its callers
-def _apart(a: np.ndarray, b: np.ndarray) -> bool:
-    """Bounding spheres ``a``, ``b`` (:func:`_sphere`) farther apart than
-    :data:`~sara_app.geometry.shape_kernels.sphere_slack_m`: their capsules cannot touch
-    (False for NaN)."""
-    dx, dy, dz = a[0] - b[0], a[1] - b[1], a[2] - b[2]
-    return math.sqrt(dx * dx + dy * dy + dz * dz) - a[3] - b[3] > sphere_slack_m
-
-
-@njit  # compiled into its callers
-def _link_spheres(r_ends: np.ndarray, r_radius: np.ndarray, spheres: np.ndarray) -> np.ndarray:
-    """``spheres[:L]``: the robot capsules' bounding spheres; returns ``spheres[L]`` (a row
-    for one capsule of the person's)."""
-    L = r_ends.shape[0]
-    for i in range(L):
-        _sphere(r_ends[i], r_radius[i], spheres[i])
-    return spheres[L]
-
-
 @njit  # calls kernels of other files: compiled into its callers (kernel_types, caching)
 def _touching(
     ends: np.ndarray, radius: np.ndarray, r_ends: np.ndarray, r_radius: np.ndarray,
-    spheres: np.ndarray, out: np.ndarray,
+    spheres: np.ndarray, r_spheres: np.ndarray, out: np.ndarray,
 ) -> None:  # fmt: skip
-    """``out[c]``: ``-inf`` when capsule ``c`` of ``ends (C, 2, 3)``, ``radius (C,)`` may touch
-    one of the robot's ``(L, 2, 3)``, ``(L,)`` (surface distance <= 0 or NaN; exact segment
-    distances where the bounding spheres do not tell them apart), else ``inf`` (as
-    :func:`_lowest_touching` for a set without height bounds). ``spheres (L + 1, 4)``:
-    scratch."""
-    L = r_ends.shape[0]
-    own = _link_spheres(r_ends, r_radius, spheres)
+    """``out[c]``: ``-inf`` when capsule ``c`` of ``ends (C, 2, 3)``, ``radius (1, C)`` may
+    touch one of the robot's ``r_ends (L, 2, 3)``, ``r_radius (1, L)`` (surface distance <= 0
+    or NaN; exact segment distances where their bounding spheres ``spheres (C, 4)``,
+    ``r_spheres (L, 4)`` (:func:`~sara_app.geometry.shape_kernels.bounding_spheres`) do not
+    tell them apart), else ``inf``: :func:`_lowest_touching` for a set without height bounds, which
+    needs only whether, not how low."""
     for c in range(ends.shape[0]):
         out[c] = np.inf
         p, q = ends[c, 0], ends[c, 1]
-        _sphere(ends[c], radius[c], own)
-        for i in range(L):
-            if _apart(own, spheres[i]):
+        for i in range(r_ends.shape[0]):
+            if sphere_gap(spheres, c, r_spheres, i) > sphere_slack_m:
                 continue
             a, b = r_ends[i, 0], r_ends[i, 1]
             d = segment_closest(p[0], p[1], p[2], q[0], q[1], q[2], a[0], a[1], a[2], b[0], b[1],
                                 b[2])[0]  # fmt: skip
-            if not d - radius[c] - r_radius[i] > 0.0:
+            if not d - radius[0, c] - r_radius[0, i] > 0.0:
                 out[c] = -np.inf
                 break
 
@@ -110,25 +79,23 @@ def _touching(
 @njit  # calls kernels of other files: compiled into its callers (kernel_types, caching)
 def _lowest_touching(
     ends: np.ndarray, radius: np.ndarray, r_ends: np.ndarray, r_radius: np.ndarray,
-    spheres: np.ndarray, out: np.ndarray,
+    spheres: np.ndarray, r_spheres: np.ndarray, out: np.ndarray,
 ) -> None:  # fmt: skip
     """``out[c]``: the lowest point of the robot's capsules that capsule ``c`` may touch (as
-    :func:`_touching`); ``inf``: none. A separate function: a branch for it in
-    :func:`_touching` cost 6 us per check without height bounds (the loop optimised worse)."""
-    L = r_ends.shape[0]
-    own = _link_spheres(r_ends, r_radius, spheres)
+    :func:`_touching`; ``-inf`` for a NaN link); ``inf``: none. Its own loop: one loop for
+    both (asking how low or stopping at the first touch) cost 4-6 us per check without height
+    bounds (it compiled worse)."""
     for c in range(ends.shape[0]):
         out[c] = np.inf
         p, q = ends[c, 0], ends[c, 1]
-        _sphere(ends[c], radius[c], own)
-        for i in range(L):
-            if _apart(own, spheres[i]):
+        for i in range(r_ends.shape[0]):
+            if sphere_gap(spheres, c, r_spheres, i) > sphere_slack_m:
                 continue
             a, b = r_ends[i, 0], r_ends[i, 1]
             d = segment_closest(p[0], p[1], p[2], q[0], q[1], q[2], a[0], a[1], a[2], b[0], b[1],
                                 b[2])[0]  # fmt: skip
-            if not d - radius[c] - r_radius[i] > 0.0:
-                bottom = lowest_z(a[2], b[2], r_radius[i])
+            if not d - radius[0, c] - r_radius[0, i] > 0.0:
+                bottom = lowest_z(a[2], b[2], r_radius[0, i])
                 if bottom < out[c]:
                     out[c] = bottom
 
@@ -177,7 +144,7 @@ def _make_kernel() -> Any:
         extra = np.empty(C_max)
         hit = np.empty(K, np.bool_)
         low = np.empty(C_max)
-        spheres = np.empty((robot_ends.shape[1] + 1, 4))
+        spheres, r_spheres = np.empty((C_max, 4)), np.empty((robot_ends.shape[1], 4))
         safe = len(sources) > 0  # the digests tie the cache to the callees
         for h in range(H):
             capped = False  # a part with a height bound: the links' heights matter
@@ -227,12 +194,16 @@ def _make_kernel() -> Any:
                     free[h, m, k] = not hit[k]
                     if hit[k]:  # which of the model's capsules touch the robot here
                         e_k = ends[k if ends.shape[0] == K else 0]
-                        r_k = radius[k if radius.shape[0] == K else 0]
+                        x = k if radius.shape[0] == K else 0
+                        r_k, r_ends_k = radius[x : x + 1], robot_ends[k]
+                        r_radius_k = robot_radius[k : k + 1]
+                        bounding_spheres(e_k, r_k, spheres)
+                        bounding_spheres(r_ends_k, r_radius_k, r_spheres)
                         if capped:  # how low: a part is clear of the links above its bound
-                            _lowest_touching(e_k, r_k, robot_ends[k], robot_radius[k], spheres,
+                            _lowest_touching(e_k, r_k, r_ends_k, r_radius_k, spheres, r_spheres,
                                              low)  # fmt: skip
                         else:
-                            _touching(e_k, r_k, robot_ends[k], robot_radius[k], spheres, low)
+                            _touching(e_k, r_k, r_ends_k, r_radius_k, spheres, r_spheres, low)
                     tau = age_s[h] + times[k + 1]  # a height bound at the interval's end
                     for p in range(P):
                         if hit[k]:  # touched: a link as low as the part's bound (NaN: no bound)
