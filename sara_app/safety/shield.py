@@ -420,7 +420,8 @@ class Shield:
         composition of the same kernels (:meth:`_composed`) where it declines, where nobody is
         in the cell, the follower has nothing ahead or the check uses the arm model."""
         f = self.follower
-        if hum is None or self._compiled is None:
+        check = self.verifier.kernel_inputs()  # in the verifier's current model order
+        if hum is None or self._compiled is None or check is None:
             return self._composed(hum)
         state = f.kernel_state(self.settings.dt_s)
         if state is None:
@@ -428,8 +429,8 @@ class Shield:
         sc = self.settings.ssm
         V_here = f.admissible_here()[0]
         human = self.verifier.human(*hum)
-        sampling, occupancy, _ = self._compiled
-        constants, codes, maps, arm = self.verifier.kernel_inputs() or self._compiled[2]
+        sampling, occupancy = self._compiled
+        constants, codes, maps, arm = check
         info = self._info
         code, slab, free, evaluated, closest, parts = _SSM_CYCLE(
             *state, sampling, occupancy, human, constants, codes, maps, arm,
@@ -444,10 +445,10 @@ class Shield:
                    bounds[0], bounds[1], pts[4, :K])  # fmt: skip
         traj = from_samples(step, samples)
         self._scale = min(1.0, float(info[1]) / V_here) if V_here > 0 else 1.0
-        order = self.verifier.order
-        self._res = res = SsmResult(bool(info[0]), free, evaluated, closest, parts, order)
-        if res.safe and info[4] > 0:  # the model that completed the check goes first
-            self.verifier.promote(order[int(info[4])])
+        self._res = res = SsmResult(
+            bool(info[0]), free, evaluated, closest, parts, self.verifier.order
+        )
+        self._promote(res, int(info[4]))
         return traj, ends, radius, res.safe
 
     def _composed(
@@ -475,9 +476,14 @@ class Shield:
             self._scale = min(1.0, cap / V_here) if V_here > 0 else 1.0
         self._res = res
         done = np.flatnonzero(res.evaluated.any(axis=(0, 2)))
-        if res.safe and done.size and done[-1] > 0:  # the model that completed it goes first
-            self.verifier.promote(self.verifier.order[int(done[-1])])
+        self._promote(res, int(done[-1]) if done.size else -1)
         return traj, ends, radius, res.safe
+
+    def _promote(self, res: SsmResult, last: int) -> None:
+        """After a successful check, the model that completed it (``last``: its index along
+        the result's model axis, the last one evaluated) goes first in the next check."""
+        if res.safe and last > 0 and res.models is not None:
+            self.verifier.promote(res.models[last])
 
     def _annotate(self, out: CycleResult, res: Any) -> None:
         """Mode-specific details of the cycle result (SSM: per-model verdicts)."""
@@ -543,11 +549,10 @@ def _distance_inputs(occupancy: RobotOccupancy, radius_m: np.ndarray) -> tuple[n
 
 def _compiled_inputs(
     verifier: SsmVerifier, occupancy: RobotOccupancy, margin_m: np.ndarray, max_interval_s: float
-) -> tuple[tuple[float, float], tuple[np.ndarray, ...], tuple[Any, ...]] | None:
+) -> tuple[tuple[float, float], tuple[np.ndarray, ...]] | None:
     """What :func:`~sara_app.safety.ssm_cycle_kernels.ssm_cycle_kernel` needs besides the
-    follower and the people: ``(sampling, occupancy, check)``; None where it cannot run (the
-    arm model)."""
-    check = verifier.kernel_inputs()
-    if check is None:
+    follower, the people and the check (``SsmVerifier.kernel_inputs``, in its current model
+    order): ``(sampling, occupancy)``; None where it cannot run (the arm model)."""
+    if verifier.kernel_inputs() is None:
         return None
-    return (float(BOUND_PAD), float(max_interval_s)), occupancy.plan_arrays(margin_m), check
+    return (float(BOUND_PAD), float(max_interval_s)), occupancy.plan_arrays(margin_m)
