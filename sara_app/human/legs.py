@@ -32,6 +32,7 @@ half-space below ``z_cap``: a robot link whose lowest point is above it cannot t
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -49,6 +50,16 @@ _HIPS = [FULL_JOINTS.index("l_hip"), FULL_JOINTS.index("r_hip")]
 _PART_JOINTS = np.array(
     [[FULL_JOINTS.index(j) for j in FULL_BODY_PARTS[p]] for p in LEG_PARTS], dtype=np.int64
 )  # (6, 2)
+
+
+@functools.lru_cache(maxsize=64)
+def no_bounds(H: int, P: int) -> np.ndarray:
+    """A read-only ``(H, P, 2)`` of no height bounds (``base = inf``, rate 0): the checks'
+    bounds for people without any, one array per shape (no allocation per cycle)."""
+    none = np.zeros((H, P, 2))
+    none[:, :, 0] = np.inf
+    none.flags.writeable = False
+    return none
 
 
 def leg_caps(params: ReachParams, y: np.ndarray, extra_m: float | np.ndarray) -> np.ndarray | None:

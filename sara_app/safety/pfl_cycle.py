@@ -26,6 +26,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from sara_app.errors import InputError, ParameterError
+from sara_app.human.legs import no_bounds
 from sara_app.human.reach import MODELS, HumanReach, part_capsules
 from sara_app.human.reach_kernels import KINDS  # Pereira's arm model is refused in PFL
 from sara_app.robot.failsafe import BOUND_PAD
@@ -145,7 +146,6 @@ class CompiledCycle:
         self._T0_links = link_states.base_pose()
         self._info = np.empty(9)
         self._codes = np.empty((2, 0), dtype=np.int64)
-        self._none_caps: dict[int, np.ndarray] = {}
         self._synced: tuple[tuple[str, ...], ...] = ((), ())
         """The orders ``_codes`` holds (rebuilt when the lists differ)."""
         self.constants_for(1)
@@ -176,7 +176,7 @@ class CompiledCycle:
         H = y.shape[0] if y.ndim == 3 else 0
         # None: no widening (Shield._human_arrays' common case)
         widen = np.zeros((H, len(MODELS), P)) if hum[4] is None else np.asarray(hum[4], np.float64)
-        caps = self._no_caps(H) if hum[5] is None else np.asarray(hum[5], np.float64)
+        caps = no_bounds(H, P) if hum[5] is None else np.asarray(hum[5], np.float64)
         if (
             H < 1 or r_ends.shape != (K, L, 2, 3) or r_radius.shape != (K, L)
             or y.shape != (H, J, 3) or v.shape != (H, J, 3) or dv.shape != (H, J)
@@ -192,15 +192,6 @@ class CompiledCycle:
         robot = (r_ends, r_radius, *self._boxes, self._s_radius)
         widen_kinds = np.ascontiguousarray(widen[:, self._kind_rows])  # rows in KIND order
         return robot, trajectory, (y, v, dv, widen_kinds, age, caps)
-
-    def _no_caps(self, H: int) -> np.ndarray:
-        """A read-only ``(H, P, 2)`` of no height bounds (``inf``), one per ``H``."""
-        none = self._none_caps.get(H)
-        if none is None:
-            none = self._none_caps[H] = np.zeros((H, self._P, 2))
-            none[:, :, 0] = np.inf
-            none.flags.writeable = False
-        return none
 
     def run(
         self,

@@ -26,6 +26,7 @@ import numpy as np
 
 from sara_app.errors import InputError, UnknownNameError
 from sara_app.geometry.shape_kernels import pair_distances
+from sara_app.human.legs import no_bounds
 from sara_app.human.reach import MODELS, HumanReach, part_capsules
 from sara_app.human.reach_kernels import KINDS
 from sara_app.kernel_types import as_f8
@@ -228,7 +229,7 @@ class SsmVerifier:
                 )
             widen = widen[:, self._check_rows]  # rows in the check's model order
         if caps is None:
-            caps = self._no_caps(H, P)
+            caps = no_bounds(H, P)
         else:
             caps = as_f8(caps)
             if caps.shape != (H, P, 2):
@@ -240,15 +241,6 @@ class SsmVerifier:
         """``(M, P)`` read-only: per model of the check, the capsule that holds each body part
         (:func:`~sara_app.human.reach.part_capsules`, computed once)."""
         return self._maps
-
-    def _no_caps(self, H: int, P: int) -> np.ndarray:
-        """A read-only ``(H, P, 2)`` of no height bounds (``inf``), one per shape."""
-        none = self._zeros.get((H, -1, P))
-        if none is None:
-            none = self._zeros[(H, -1, P)] = np.zeros((H, P, 2))
-            none[:, :, 0] = np.inf
-            none.flags.writeable = False
-        return none
 
     def _zero_widening(self, H: int, M: int, P: int) -> np.ndarray:
         """A read-only ``(H, M, P)`` of zeros, one per shape (no allocation per cycle)."""
