@@ -113,7 +113,9 @@ def take_measurement(
         None if low is None or not low.any() else np.where(low, inputs.low_confidence_extra_m, 0.0)
     )
     st.widen_m = _widening(cell, track, unc_m, legs_measured, g, low_m)
-    st.leg_cap = None if legs_measured else _leg_cap(cell, g, unc_m, low_m)
+    st.leg_cap = None  # unmeasured legs: below the gated pelvis, its uncertainty included
+    if not legs_measured:
+        st.leg_cap = leg_caps(p, g.y, _joint_extra(_stated_extra(cell, unc_m), g, low_m))
     if v is not None:
         st.v = np.where(seen[:, None], v, 0.0)
         st.dv = np.full(J, p.delta_v_mps if unc_v_mps is None else max(unc_v_mps, p.delta_v_mps))
@@ -141,12 +143,10 @@ def _widening(
     (cached on the track while nothing is held or low: recomputed when they or the parameters
     change)."""
     reach = cell.shield.reach
-    extra = 0.0 if unc_m is None else max(unc_m - cell.params.delta_y_m, 0.0)
+    extra = _stated_extra(cell, unc_m)
     if (gated is not None and gated.held) or low_m is not None:
         track.widen_key = None
-        per_joint = extra + (0.0 if gated is None else gated.extra_m)
-        per_joint = per_joint + (0.0 if low_m is None else low_m)
-        return widening(reach, per_joint, legs_measured=legs)
+        return widening(reach, _joint_extra(extra, gated, low_m), legs_measured=legs)
     key = (unc_m, legs, extra)
     if track.widen_key != key:
         track.widen_key = key
@@ -154,17 +154,17 @@ def _widening(
     return track.widen_m
 
 
-def _leg_cap(
-    cell: Cell, gated: GateResult, unc_m: float | None, low_m: np.ndarray | None
-) -> np.ndarray | None:
-    """The height bounds of the unmeasured legs (:func:`~sara_app.human.legs.leg_caps`) from
-    the gated pelvis, its uncertainty beyond ``delta_y`` included; None when the parameter set
-    bounds no leg."""
-    p = cell.params
-    if not np.isfinite(p.leg_above_pelvis_m).any():
-        return None
-    stated = 0.0 if unc_m is None else max(unc_m - p.delta_y_m, 0.0)
-    return leg_caps(p, gated.y, stated + gated.extra_m + (0.0 if low_m is None else low_m))
+def _stated_extra(cell: Cell, unc_m: float | None) -> float:
+    """A message's stated position uncertainty beyond the parameter set's ``delta_y`` (m)."""
+    return 0.0 if unc_m is None else max(unc_m - cell.params.delta_y_m, 0.0)
+
+
+def _joint_extra(
+    stated_m: float, gated: GateResult | None, low_m: np.ndarray | None
+) -> float | np.ndarray:
+    """Each joint's uncertainty beyond ``delta_y``: the stated one, plus the gate's for the
+    joints it holds and the tracker's low-confidence allowance ``low_m (J,)``."""
+    return stated_m + (0.0 if gated is None else gated.extra_m) + (0.0 if low_m is None else low_m)
 
 
 def rewiden(cell: Cell, track: Track) -> None:
