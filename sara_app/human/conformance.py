@@ -59,13 +59,13 @@ SPANS = 5
 @dataclass
 class Monitor:
     """The monitor of one person; ``joints`` names ``v_max_mps``/``a_max_mps2`` ``(J,)``;
-    ``rise_max_mps (J,)``: the upward speed bounds (None: none; ``inf``: a joint without)."""
+    ``rise_max_mps (J,)``: the upward speed bounds (``inf``: a joint without; empty: none)."""
 
     joints: tuple[str, ...]
     v_max_mps: np.ndarray
     a_max_mps2: np.ndarray
     recover_s: float = 0.5
-    rise_max_mps: np.ndarray | None = None
+    rise_max_mps: np.ndarray = field(default_factory=lambda: np.empty(0))
     counts: dict[str, int] = field(default_factory=lambda: dict.fromkeys(QUANTITIES, 0))
     """Frames x joints beyond a bound, per quantity, since the monitor was built."""
     last: list[Violation] = field(default_factory=list)
@@ -79,7 +79,7 @@ class Monitor:
         self.v_max_mps = np.asarray(self.v_max_mps, dtype=float)
         self.a_max_mps2 = np.asarray(self.a_max_mps2, dtype=float)
         J, N = len(self.joints), 2 ** (SPANS - 1) + 1
-        self._rise_max = _rise_bounds(self.rise_max_mps, J)
+        self.rise_max_mps = _rise_bounds(self.rise_max_mps, J)
         self._t = np.full(N, -np.inf)  # newest first
         self._y = np.zeros((N, J, 3))
         self._ok = np.zeros((N, J), bool)
@@ -98,8 +98,7 @@ class Monitor:
         self.v_max_mps = np.asarray(v_max_mps, dtype=float)
         self.a_max_mps2 = np.asarray(a_max_mps2, dtype=float)
         self.recover_s = recover_s
-        self.rise_max_mps = rise_max_mps
-        self._rise_max = _rise_bounds(rise_max_mps, len(self.joints))
+        self.rise_max_mps = _rise_bounds(rise_max_mps, len(self.joints))
 
     def observe(
         self,
@@ -126,7 +125,7 @@ class Monitor:
                             float(self.a_max_mps2[j]), t_s)
                   for j in np.flatnonzero(acc > self.a_max_mps2)]  # fmt: skip
         if rise:
-            bound = self._rise_max
+            bound = self.rise_max_mps
             found += [Violation(self.joints[j], "rise", float(self._rise[j]), float(bound[j]), t_s)
                       for j in np.flatnonzero(self._rise > bound)]  # fmt: skip
         self.newest_s = max(self.newest_s, t_s)
@@ -155,8 +154,9 @@ class Monitor:
 
 
 def _rise_bounds(rise_max_mps: np.ndarray | None, n_joints: int) -> np.ndarray:
-    """``(J,)`` upward speed bounds (``inf``: none); raises on another shape or a bound <= 0."""
-    if rise_max_mps is None:
+    """``(J,)`` upward speed bounds (``inf``: none; None or empty: none for any joint); raises
+    on another shape or a bound <= 0."""
+    if rise_max_mps is None or np.size(rise_max_mps) == 0:
         return np.full(n_joints, np.inf)
     bound = np.asarray(rise_max_mps, dtype=float)
     if bound.shape != (n_joints,) or not (bound > 0).all():

@@ -82,7 +82,7 @@ class Intake:
         self.gate = Gate(np.asarray(v_max_mps, float), settings.gate)
         self.estimator = VelocityEstimator(J, delta_y_m, a_max_mps2)
         self.monitor = Monitor(FULL_JOINTS[:J], v_max_mps, a_max_mps2, settings.recover_s,
-                               _rise_bounds(J, pelvis_rise_mps))  # fmt: skip
+                               _pelvis_rise(J, pelvis_rise_mps))  # fmt: skip
         self.stale_after_s = settings.stale_after_s
         self.refusal: str | None = None
         """Why the last frame :meth:`take` returned None for: ``tracking_inconsistent`` or
@@ -102,7 +102,7 @@ class Intake:
         self.estimator.retune(delta_y_m, a_max_mps2)
         J = len(v_max_mps)
         self.monitor.retune(v_max_mps, a_max_mps2, settings.recover_s,
-                            _rise_bounds(J, pelvis_rise_mps))  # fmt: skip
+                            _pelvis_rise(J, pelvis_rise_mps))  # fmt: skip
         self.stale_after_s = settings.stale_after_s
 
     def take(
@@ -278,7 +278,7 @@ def screen_recording(params: ReachParams, rec: Recording) -> Screening:
                   params.a_max_mps2[:J])  # fmt: skip
 
 
-def _rise_bounds(n_joints: int, pelvis_rise_mps: float) -> np.ndarray:
+def _pelvis_rise(n_joints: int, pelvis_rise_mps: float) -> np.ndarray:
     """``(J,)`` the monitor's upward speed bounds: the pelvis's, none (``inf``) elsewhere."""
     bound = np.full(n_joints, np.inf)
     bound[FULL_JOINTS.index("pelvis")] = pelvis_rise_mps

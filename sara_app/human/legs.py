@@ -120,11 +120,9 @@ def fit_legs(
             if k < len(t):
                 rise = max(rise, float(((zp[k:] - zp[:-k]) / (t[k:] - t[:-k])).max()))
     # a person's left and right are alike: each side takes the higher of the two
-    sides = {p: p.split("_", 1)[1] for p in LEG_PARTS}
-    for p, a in zip(LEG_PARTS, above.copy(), strict=True):
-        for i, q in enumerate(LEG_PARTS):
-            if sides[q] == sides[p]:
-                above[i] = max(above[i], a)
+    kinds = [p.split("_", 1)[1] for p in LEG_PARTS]  # thigh, shin, foot
+    worst = {k: max(a for a, j in zip(above, kinds, strict=True) if j == k) for k in kinds}
+    above = np.array([worst[k] for k in kinds])
     above_m = np.ceil((above + margin_m) * 100.0) / 100.0
     rise_mps = max(math.ceil(rise * rise_margin * 20.0) / 20.0, 0.05)
     return LegHeights(
