@@ -183,3 +183,26 @@ def test_the_bound_lets_the_robot_work_beside_an_upper_body_track_without_a_coll
     unbounded = _handover_upper("ssm", False)
     assert unbounded.collisions_moving == 0
     assert unbounded.time_to_goal_s is None and unbounded.failsafe_share > 2 * ssm.failsafe_share
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (lambda b: b["above_pelvis_m"].pop("l_foot"), "missing"),
+        (lambda b: b["above_pelvis_m"].update(l_hand=0.0), "l_hand"),
+        (lambda b: b["above_pelvis_m"].update(l_shin=5.0), "l_shin"),
+        (lambda b: b["above_pelvis_m"].update(l_shin=float("nan")), "l_shin"),
+        (lambda b: b.update(rise_max_mps=0.0), "rise_max_mps"),
+        (lambda b: b.update(rise_max_mps=float("inf")), "rise_max_mps"),
+    ],
+)
+def test_a_malformed_bound_is_refused_naming_it(change, message: str) -> None:
+    """A parameter set whose legs' bound misses a leg part, names another part, or holds an
+    out-of-range or non-finite height or rise is refused at the boundary, naming what is wrong."""
+    from sara_app.errors import ParameterError
+    from sara_app.human.params import parse_param_set
+
+    data = load_param_set("bench_work").model_dump()
+    change(data["legs_unmeasured"])
+    with pytest.raises(ParameterError, match=message):
+        parse_param_set(data)
