@@ -97,3 +97,26 @@ def test_table1_misses_boxing_hands_and_running_body(results) -> None:
     run = results["09_06", "schepp2022_table1"]
     assert run["vel"].share < 0.5  # the runner's whole body exceeds 2 m/s
     assert "pelvis" in run["vel"].misses_per_joint
+
+
+def test_work_contains_the_walks_of_a_second_subject() -> None:
+    """``work`` is fitted to the walking pieces of CMU subject 62 as well as to 02_01 (subject
+    62 walks to the bench and away): every model contains each of them, less the one
+    reconstruction failure the fit left out (a head jump in 62_11 beyond 8 m/s)."""
+    from sara_app.human.failures import Ceilings, split
+    from sara_app.human.segments import walking_pieces
+
+    try:
+        shared_data_dir()
+    except RecordingError:
+        pytest.skip("CMU data folder not found")
+    ps = load_param_set("work")
+    pieces = [q for n in ("62_03", "62_05", "62_06", "62_09", "62_11")
+              for p in walking_pieces(load_recording(n))
+              for q in split(p, Ceilings(8.0, 400.0), ps.delta_y_m)[0]]  # fmt: skip
+    assert len(pieces) == 7
+    for rec in pieces:
+        reach = HumanReach(to_reach_params(ps, rec.kind))
+        res = containment(reach, rec.times_s, rec.positions_m, HORIZON_S)
+        for m in MODELS:
+            assert res[m].share == 1.0, (rec.name, m, res[m].misses_per_joint, res[m].worst[:2])

@@ -48,7 +48,7 @@ def _calibrate(args: argparse.Namespace) -> None:
     from sara_app.human.report import calibrate_command
 
     calibrate_command(args.recordings, args.horizon, args.base, args.name, args.out, args.delta_y,
-                      args.leave_one_out, _load(args), _ceilings(args))  # fmt: skip
+                      args.leave_one_out, _load(args), _ceilings(args), args.walking)  # fmt: skip
 
 
 def _legs(args: argparse.Namespace) -> None:
@@ -132,6 +132,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="ceiling of a joint's one-frame acceleration in m/s^2 beyond the tracker noise "
         "(with --max-speed)",
+    )
+    c.add_argument(
+        "--walking",
+        action="store_true",
+        help="fit and validate on the walking pieces of each recording only (the pelvis over the "
+        "floor at 0.6 m/s or more for 0.6 s or more); recordings without any are left out",
     )
     c.add_argument("--out", type=Path, required=True)
     _recording_options(c)

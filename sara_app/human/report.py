@@ -27,7 +27,14 @@ from sara_app.human.intake import screen_recording
 from sara_app.human.params import ParamSet, load_param_set, save_param_set, to_reach_params
 from sara_app.human.reach import MODELS, HumanReach
 from sara_app.human.recordings import Recording, load_recording
-from sara_app.human.validation import containment_on, format_validation, leave_one_out, widened
+from sara_app.human.segments import MIN_DURATION_S, MIN_SPEED_MPS, walking_pieces
+from sara_app.human.validation import (
+    Validation,
+    containment_on,
+    format_validation,
+    leave_one_out,
+    widened,
+)
 
 
 def write_jsonl(
@@ -221,6 +228,23 @@ def format_calibration(rep: CalibrationReport) -> str:
     return "\n".join(lines)
 
 
+def _description(
+    recs: Sequence[Recording], walking: bool, horizon_s: float, base: str,
+    val: Validation | None,
+) -> str:  # fmt: skip
+    """How a calibrated set was fitted, for its ``description``."""
+    on = ", ".join(r.name for r in recs)
+    if walking:
+        on += (f" (their walking pieces, `--walking`: the pelvis over the floor at "
+               f"{MIN_SPEED_MPS:g} m/s or more for {MIN_DURATION_S:g} s or more)")  # fmt: skip
+    margin = "" if val is None else (
+        ", then by the margin that leaving each recording out derives (speeds x{:.3f}, "
+        "accelerations x{:.3f}, arm rates x{:.3f})".format(*val.margin))  # fmt: skip
+    return (f"Calibrated by `sara-app calibrate` on {on} (horizon {horizon_s} s) from {base!r}: "
+            f"bounds widened until the models contain the recordings{margin}. Bounds driven by "
+            "single frames are listed by the command.")  # fmt: skip
+
+
 def calibrate_command(
     recordings: Sequence[str],
     horizon_s: float,
@@ -231,19 +255,30 @@ def calibrate_command(
     validate: bool = False,
     load: Load = load_recording,
     ceilings: Ceilings | None = None,
+    walking: bool = False,
 ) -> tuple[ParamSet, CalibrationReport]:
-    """Calibrate ``base`` on ``recordings`` and write the set to ``out``; with ``ceilings``,
-    reconstruction failures are split off first and listed (:mod:`sara_app.human.failures`);
-    with ``validate``, first leave each recording out in turn (:mod:`sara_app.human.validation`)
-    and widen the written set by the margin that derives."""
+    """Calibrate ``base`` on ``recordings`` and write the set to ``out``; with ``walking``, on
+    their walking pieces only (:mod:`sara_app.human.segments`; a recording without any is left
+    out, and said so); with ``ceilings``, reconstruction failures are split off first and listed
+    (:mod:`sara_app.human.failures`); with ``validate``, first leave each recording out in turn
+    (:mod:`sara_app.human.validation`) and widen the written set by the margin that derives."""
     recs = [load(r) for r in recordings]
+    walks = [walking_pieces(r) if walking else [r] for r in recs]
+    if walking:
+        for r, w in zip(recs, walks):
+            print(f"  {r.name}: walking pieces "
+                  + (", ".join(p.name.split("@")[1] for p in w) or "none: left out"))  # fmt: skip
+        recs, walks = [r for r, w in zip(recs, walks) if w], [w for w in walks if w]
+    if not recs:
+        raise InputError("none of the recordings has a walking piece to calibrate on")
     if validate and len(recs) < 2:
         raise InputError("leave-one-out validation needs at least two recordings")
     b = load_param_set(base)
     dy = b.delta_y_m if delta_y_m is None else delta_y_m
-    splits = [split(r, ceilings, dy) for r in recs]
-    kept = [p for p, _ in splits]
-    failed = [line for r, (_, f) in zip(recs, splits) for line in describe(r, f)]
+    splits = [[split(p, ceilings, dy) for p in w] for w in walks]
+    kept = [[q for pieces_, _ in sp for q in pieces_] for sp in splits]
+    failed = [line for w, sp in zip(walks, splits) for p, (_, f) in zip(w, sp)
+              for line in describe(p, f)]  # fmt: skip
     ps, rep = calibrate(b, [p for ps_ in kept for p in ps_], horizon_s, name, delta_y_m)
     print(format_calibration(rep))
     if ceilings is not None:
@@ -283,11 +318,7 @@ def calibrate_command(
     ps = ps.model_copy(
         update={
             "body_parts": parts,
-            "description": (
-                f"Calibrated by `sara-app calibrate` on {', '.join(r.name for r in recs)} "
-                f"(horizon {horizon_s} s) from {base!r}: bounds widened until the models contain "
-                "the recordings. Bounds driven by single frames are listed by the command."
-            ),
+            "description": _description(recs, walking, horizon_s, base, val),
             "sound_for": {
                 "models": ", ".join(sound),
                 "misses_per_recording": json.dumps(summary),
