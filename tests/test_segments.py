@@ -83,6 +83,14 @@ def test_calibrate_on_walking_pieces_leaves_the_standing_out(tmp_path, capsys) -
     assert "walking pieces" in ps["description"] and "margin" in ps["description"]
     assert main(["calibrate", str(files[2]), "--walking", "--out", str(out)]) == 2
     assert "none of the recordings has a walking piece" in capsys.readouterr().err
+    # one recording's walking pieces beside another one whole
+    assert main(["calibrate", f"{files[0]}@walking", str(files[2]), "--horizon", "0.1",
+                 "--out", str(out)]) == 0  # fmt: skip
+    assert "a: walking pieces 0.88-2.49s" in capsys.readouterr().out
+    described = json.loads(out.read_text())["description"]
+    assert "on a@walking, c (@walking: walking pieces" in described
+    assert set(json.loads(json.loads(out.read_text())["sound_for"]["misses_per_recording"])) == {
+        "a", "c"}  # fmt: skip
 
 
 def test_cmu_walk_is_walking_whole_and_bench_work_walks_in_and_out() -> None:

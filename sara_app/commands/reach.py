@@ -137,7 +137,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--walking",
         action="store_true",
         help="fit and validate on the walking pieces of each recording only (the pelvis over the "
-        "floor at 0.6 m/s or more for 0.6 s or more); recordings without any are left out",
+        "floor at 0.6 m/s or more for 0.6 s or more); recordings without any are left out. "
+        "One recording's walking pieces alone: name it NAME@walking",
     )
     c.add_argument("--out", type=Path, required=True)
     _recording_options(c)

@@ -114,6 +114,8 @@ def format_containment(name: str, res: dict[str, Containment]) -> str:
 
 
 Load = Callable[[str], Recording]
+WALKING_SUFFIX = "@walking"
+"""A recording named ``<name>@walking``: its walking pieces alone (``sara-app calibrate``)."""
 """How a command reads a recording by path or name (:func:`load_recording` with the user's
 options)."""
 
@@ -229,14 +231,16 @@ def format_calibration(rep: CalibrationReport) -> str:
 
 
 def _description(
-    recs: Sequence[Recording], walking: bool, horizon_s: float, base: str,
+    recs: Sequence[Recording], walk: Sequence[bool], walking: bool, horizon_s: float, base: str,
     val: Validation | None,
 ) -> str:  # fmt: skip
     """How a calibrated set was fitted, for its ``description``."""
-    on = ", ".join(r.name for r in recs)
-    if walking:
-        on += (f" (their walking pieces, `--walking`: the pelvis over the floor at "
-               f"{MIN_SPEED_MPS:g} m/s or more for {MIN_DURATION_S:g} s or more)")  # fmt: skip
+    on = ", ".join(r.name + (WALKING_SUFFIX if w and not walking else "")
+                   for r, w in zip(recs, walk))  # fmt: skip
+    if walking or any(walk):
+        which = "their" if walking else "@walking:"
+        on += (f" ({which} walking pieces, the pelvis over the floor at {MIN_SPEED_MPS:g} m/s or "
+               f"more for {MIN_DURATION_S:g} s or more)")  # fmt: skip
     margin = "" if val is None else (
         ", then by the margin that leaving each recording out derives (speeds x{:.3f}, "
         "accelerations x{:.3f}, arm rates x{:.3f})".format(*val.margin))  # fmt: skip
@@ -257,18 +261,21 @@ def calibrate_command(
     ceilings: Ceilings | None = None,
     walking: bool = False,
 ) -> tuple[ParamSet, CalibrationReport]:
-    """Calibrate ``base`` on ``recordings`` and write the set to ``out``; with ``walking``, on
+    """Calibrate ``base`` on ``recordings`` and write the set to ``out``. With ``walking``, on
     their walking pieces only (:mod:`sara_app.human.segments`; a recording without any is left
-    out, and said so); with ``ceilings``, reconstruction failures are split off first and listed
-    (:mod:`sara_app.human.failures`); with ``validate``, first leave each recording out in turn
-    (:mod:`sara_app.human.validation`) and widen the written set by the margin that derives."""
-    recs = [load(r) for r in recordings]
-    walks = [walking_pieces(r) if walking else [r] for r in recs]
-    if walking:
-        for r, w in zip(recs, walks):
-            print(f"  {r.name}: walking pieces "
-                  + (", ".join(p.name.split("@")[1] for p in w) or "none: left out"))  # fmt: skip
-        recs, walks = [r for r, w in zip(recs, walks) if w], [w for w in walks if w]
+    out, and said so), as for each recording named ``<name>@walking``; with ``ceilings``,
+    reconstruction failures are split off first and listed (:mod:`sara_app.human.failures`);
+    with ``validate``, first leave each recording out in turn (:mod:`sara_app.human.validation`)
+    and widen the written set by the margin that derives."""
+    walk = [walking or r.endswith(WALKING_SUFFIX) for r in recordings]
+    recs = [load(r.removesuffix(WALKING_SUFFIX)) for r in recordings]
+    walks = [walking_pieces(r) if w else [r] for r, w in zip(recs, walk)]
+    for r, w, pieces_ in zip(recs, walk, walks):
+        if w:
+            spans = ", ".join(p.name.split("@")[1] for p in pieces_)
+            print(f"  {r.name}: walking pieces {spans or 'none: left out'}")
+    keep = [i for i, pieces_ in enumerate(walks) if pieces_]
+    recs, walks, walk = [recs[i] for i in keep], [walks[i] for i in keep], [walk[i] for i in keep]
     if not recs:
         raise InputError("none of the recordings has a walking piece to calibrate on")
     if validate and len(recs) < 2:
@@ -318,7 +325,7 @@ def calibrate_command(
     ps = ps.model_copy(
         update={
             "body_parts": parts,
-            "description": _description(recs, walking, horizon_s, base, val),
+            "description": _description(recs, walk, walking, horizon_s, base, val),
             "sound_for": {
                 "models": ", ".join(sound),
                 "misses_per_recording": json.dumps(summary),
