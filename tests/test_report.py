@@ -79,15 +79,13 @@ def test_report_command_writes_a_self_contained_page(tmp_path: Path) -> None:
         assert pdf.read_bytes().startswith(b"%PDF")
 
 
-def test_report_refuses_bad_input_before_writing(tmp_path: Path) -> None:
+def test_report_refuses_bad_input_before_writing(tmp_path: Path, capsys) -> None:
+    from sara_app.cli import main
+
     out = tmp_path / "r.html"
     for extra, why in ((["--modes", "ssm,fly"], "valid choices"),
                        (["--episodes", "-1"], "expected >= 0")):  # fmt: skip
-        done = subprocess.run(
-            [sys.executable, "-m", "sara_app.cli", "report", "close_worker", "--out", str(out),
-             *extra], capture_output=True, text=True, timeout=120,
-        )  # fmt: skip
-        assert done.returncode == 2 and why in done.stderr and not out.exists()
-    cmd = [sys.executable, "-m", "sara_app.cli", "report", "no_such_cell", "--out", str(out)]
-    done = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
-    assert done.returncode != 0 and "no_such_cell" in done.stderr and not out.exists()
+        assert main(["report", "close_worker", "--out", str(out), *extra]) == 2
+        assert why in capsys.readouterr().err and not out.exists()
+    assert main(["report", "no_such_cell", "--out", str(out)]) != 0
+    assert "no_such_cell" in capsys.readouterr().err and not out.exists()
