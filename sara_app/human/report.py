@@ -114,10 +114,10 @@ def format_containment(name: str, res: dict[str, Containment]) -> str:
 
 
 Load = Callable[[str], Recording]
-WALKING_SUFFIX = "@walking"
-"""A recording named ``<name>@walking``: its walking pieces alone (``sara-app calibrate``)."""
 """How a command reads a recording by path or name (:func:`load_recording` with the user's
 options)."""
+WALKING_SUFFIX = "@walking"
+"""A recording named ``<name>@walking``: its walking pieces alone (``sara-app calibrate``)."""
 
 
 def reach_command(

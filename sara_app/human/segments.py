@@ -56,7 +56,7 @@ def walking_pieces(
             f"window {half_window_s!r} s; expected positive numbers"
         )
     walking = pelvis_speed(rec, half_window_s) > min_speed_mps  # NaN: not walking
-    t, out, n = rec.times_s, [], rec.n_frames
+    t, n = rec.times_s, rec.n_frames
     w = _half_window_frames(rec, half_window_s)
     edges = np.flatnonzero(np.diff(np.concatenate([[0], walking.astype(np.int8), [0]])))
     runs = [(a, b) for a, b in zip(edges[::2], edges[1::2]) if t[b - 1] - t[a] >= min_duration_s]
@@ -67,7 +67,5 @@ def walking_pieces(
             merged[-1][1] = b
         else:
             merged.append([a, b])
-    for a, b in merged:
-        out.append(Recording(f"{rec.name}@{t[a]:.2f}-{t[b - 1]:.2f}s", rec.kind, t[a:b],
-                                 rec.positions_m[a:b], rec.source))  # fmt: skip
-    return out
+    return [Recording(f"{rec.name}@{t[a]:.2f}-{t[b - 1]:.2f}s", rec.kind, t[a:b],
+                      rec.positions_m[a:b], rec.source) for a, b in merged]  # fmt: skip
