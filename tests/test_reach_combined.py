@@ -125,3 +125,25 @@ def test_combined_capsules_contain_motion_under_both_bounds(kind: str, seed: int
         assert volume(o, k) <= min(volume(acc, k), volume(vel, k)) * (1 + 1e-9)
     # where both bounds bite (0.05-0.1 s after the measurement): a quarter below the smaller
     assert volume(o, 2) < 0.8 * min(volume(acc, 2), volume(vel, 2))
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_a_joint_without_an_estimate_leaves_its_parts_to_the_other_models(kind: str) -> None:
+    """The parts that hold a joint without a velocity estimate are unbounded (no claim); the
+    other parts are the capsules they get with every estimate known."""
+    rng = np.random.default_rng(7)
+    reach = _reach(kind)
+    p = reach.params
+    y = _pose(rng, kind, 1)
+    J = y.shape[1]
+    v = _on_sphere(rng, y.shape, rng.uniform(0.0, 1.0, (1, J)) * p.v_max_mps[None])
+    dv = np.full((1, J), 0.2)
+    known = reach.combined(y, v, dv, T_START, T_END)
+    for j in range(J):
+        dv_j = dv.copy()
+        dv_j[0, j] = np.inf
+        o = reach.combined(y, v, dv_j, T_START, T_END)
+        holds = np.isin(reach.skeleton.part_joints, [j]).any(axis=1)[None, None, :]
+        holds = np.broadcast_to(holds, o.radius.shape)
+        assert np.isinf(o.radius[holds]).all()
+        np.testing.assert_array_equal(o.radius[~holds], known.radius[~holds])

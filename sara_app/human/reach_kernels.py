@@ -300,7 +300,15 @@ def combined_sets(
     grows, so the joint's union over the interval lies in the capsule of its centres at
     ``tau_a``, ``tau_b`` with the radius at ``tau_b``; a two-joint part lies in the capsule
     between the joints' mid-interval centres with radius ``R(tau_b)`` + the centre's largest
-    distance from its mid-interval place. ``a_max, v_max (J,)``."""
+    distance from its mid-interval place. ``a_max, v_max (J,)``.
+
+    A joint without a velocity estimate (``dv`` infinite, as R_ACC) gets no ball here: every
+    part holding it is left to the other models. R_VEL's ball at such a joint is sound, but
+    a part's capsule between it and a neighbour's shifted ball (radius the larger of the two)
+    is not monotone in what is known: it could clear a part that the same person's capsule
+    with the joint's estimate does not, so a history in which the gate distrusted a joint
+    would be less conservative than a fresh measurement (``tests/test_ingest_history.py``).
+    The vel model makes R_VEL's claim for the part on its own."""
     H, J, K = y.shape[0], y.shape[1], t_end_s.shape[0]
     X = np.empty(2 * J)
     centre = np.empty((3, J, 3))
@@ -324,6 +332,8 @@ def combined_sets(
                     Ca, Cm, Cb, rho, best = d * ta, d * tm, d * tb, acc, acc + d * (tb - tm)
                 if v_max[j] * tb < best or not known:
                     Ca, Cm, Cb, rho = 0.0, 0.0, 0.0, v_max[j] * tb
+                if not known:  # no claim: see the docstring
+                    rho = math.inf
                 f = 1.0 / d if known and d > 0.0 else 0.0
                 for r in range(3):
                     u = v[h, j, r] * f
