@@ -128,9 +128,11 @@ def test_combined_capsules_contain_motion_under_both_bounds(kind: str, seed: int
 
 
 @pytest.mark.parametrize("kind", KINDS)
-def test_a_joint_without_an_estimate_leaves_its_parts_to_the_other_models(kind: str) -> None:
-    """The parts that hold a joint without a velocity estimate are unbounded (no claim); the
-    other parts are the capsules they get with every estimate known."""
+def test_a_part_mixing_a_joint_without_an_estimate_makes_no_claim(kind: str) -> None:
+    """One joint without a velocity estimate: the parts that pair it with a joint that has one
+    are unbounded (no claim); a part of that joint alone is R_VEL's capsule; the other parts
+    are the capsules they get with every estimate known. Without any estimate every part is
+    R_VEL's capsule."""
     rng = np.random.default_rng(7)
     reach = _reach(kind)
     p = reach.params
@@ -139,11 +141,18 @@ def test_a_joint_without_an_estimate_leaves_its_parts_to_the_other_models(kind: 
     v = _on_sphere(rng, y.shape, rng.uniform(0.0, 1.0, (1, J)) * p.v_max_mps[None])
     dv = np.full((1, J), 0.2)
     known = reach.combined(y, v, dv, T_START, T_END)
+    vel = reach.vel(y, T_END)
+    vel_r = np.broadcast_to(vel.radius, known.radius.shape)
+    none = reach.combined(y, v, np.full((1, J), np.inf), T_START, T_END)
+    np.testing.assert_allclose(none.radius, vel_r, rtol=0, atol=1e-8)
+    pj = reach.skeleton.part_joints
     for j in range(J):
         dv_j = dv.copy()
         dv_j[0, j] = np.inf
         o = reach.combined(y, v, dv_j, T_START, T_END)
-        holds = np.isin(reach.skeleton.part_joints, [j]).any(axis=1)[None, None, :]
-        holds = np.broadcast_to(holds, o.radius.shape)
-        assert np.isinf(o.radius[holds]).all()
-        np.testing.assert_array_equal(o.radius[~holds], known.radius[~holds])
+        mixed = np.broadcast_to((pj == j).any(axis=1) & (pj != j).any(axis=1), o.radius.shape)
+        alone = np.broadcast_to((pj == j).all(axis=1), o.radius.shape)
+        assert np.isinf(o.radius[mixed]).all()
+        np.testing.assert_allclose(o.radius[alone], vel_r[alone], rtol=0, atol=1e-8)
+        rest = ~mixed & ~alone
+        np.testing.assert_array_equal(o.radius[rest], known.radius[rest])

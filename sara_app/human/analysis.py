@@ -136,7 +136,7 @@ def occupancies(
             radius = np.where(missing[:, None, :], np.inf, o.radius)
             o = Occupancy(m, o.ends, radius, o.names)
         elif m == "combined":
-            v, dv = (a[sel] for a in rs[m])  # no estimate (infinite bound): no claim
+            v, dv = (a[sel] for a in rs[m])  # no estimate (infinite bound): the speed ball
             o = reach.combined(ys, np.nan_to_num(v), dv, t_start_s, t_end_s)
         elif m == "arm":
             qd, bound = (a[sel] for a in rs[m])

@@ -330,8 +330,9 @@ class HumanReach:
         bound (R_VEL's), plus ``delta_y`` (:func:`~sara_app.human.reach_kernels.combined_ball`),
         in R_ACC's capsule layout (:func:`~sara_app.human.reach_kernels.combined_sets`; per
         joint the smallest of that ball, R_ACC's and R_VEL's); a joint without a velocity
-        estimate (``dv`` infinite) makes every part that holds it unbounded (no claim, as in
-        R_ACC: the vel model claims R_VEL's capsule). Sound when every joint's acceleration
+        estimate (``dv`` infinite) gets R_VEL's ball, and a part that mixes such a joint with
+        one that has an estimate is unbounded (no claim: the vel model claims R_VEL's
+        capsule). Sound when every joint's acceleration
         stays below a_max and its speed below v_max, and ``dv`` bounds the velocity error."""
         p = self.params
         y, v, dv, t_start_s, t_end_s = self._moving(y, v, dv, t_start_s, t_end_s)

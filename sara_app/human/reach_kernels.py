@@ -302,16 +302,18 @@ def combined_sets(
     between the joints' mid-interval centres with radius ``R(tau_b)`` + the centre's largest
     distance from its mid-interval place. ``a_max, v_max (J,)``.
 
-    A joint without a velocity estimate (``dv`` infinite, as R_ACC) gets no ball here: every
-    part holding it is left to the other models. R_VEL's ball at such a joint is sound, but
-    a part's capsule between it and a neighbour's shifted ball (radius the larger of the two)
-    is not monotone in what is known: it could clear a part that the same person's capsule
-    with the joint's estimate does not, so a history in which the gate distrusted a joint
-    would be less conservative than a fresh measurement (``tests/test_ingest_history.py``).
-    The vel model makes R_VEL's claim for the part on its own."""
+    A joint without a velocity estimate (``dv`` infinite) gets R_VEL's ball, so a part whose
+    joints all lack one is R_VEL's capsule (unmeasured legs, a person's first frame). A part
+    that mixes a joint without an estimate and one with makes no claim (infinite radius): the
+    capsule between R_VEL's ball and the neighbour's shifted ball (radius the larger of the
+    two) is sound but not monotone in what is known; it could clear a part that the same
+    person's capsule with the joint's estimate does not, so a history in which the gate
+    distrusted one joint would be less conservative than a fresh measurement
+    (``tests/test_ingest_history.py``). The vel model claims R_VEL's capsule for it."""
     H, J, K = y.shape[0], y.shape[1], t_end_s.shape[0]
     X = np.empty(2 * J)
     centre = np.empty((3, J, 3))
+    unknown = np.empty(J, dtype=np.bool_)
     for h in range(H):
         for k in range(K):
             ta = t_start_s[k] + delay_s
@@ -332,8 +334,7 @@ def combined_sets(
                     Ca, Cm, Cb, rho, best = d * ta, d * tm, d * tb, acc, acc + d * (tb - tm)
                 if v_max[j] * tb < best or not known:
                     Ca, Cm, Cb, rho = 0.0, 0.0, 0.0, v_max[j] * tb
-                if not known:  # no claim: see the docstring
-                    rho = math.inf
+                unknown[j] = not known
                 f = 1.0 / d if known and d > 0.0 else 0.0
                 for r in range(3):
                     u = v[h, j, r] * f
@@ -344,6 +345,9 @@ def combined_sets(
                 X[j] = R
                 X[J + j] = R + max(Cb - Cm, Cm - Ca)
             _parts(X, centre, half_thickness_m, ia, ib, end_index, ends[h, k], radius[h, k])
+            for p in range(ia.shape[0]):  # a part mixing known and unknown joints: no claim
+                if unknown[ia[p] % J] != unknown[ib[p] % J]:
+                    radius[h, k, p] = math.inf
 
 
 STATIC = types.Tuple((_ROI2, _RO2, _RO2))
