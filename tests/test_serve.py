@@ -55,19 +55,23 @@ def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(sig: signal.Signals) ->
            "--viewer-port", str(vp), "--api-port", str(ap)]  # fmt: skip
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
-        cell = None
+        cell, last = None, None
         t_end = time.monotonic() + 60
         while time.monotonic() < t_end and proc.poll() is None:
             try:
                 _, body = _get(f"http://127.0.0.1:{ap}/api/cells")
                 cells = json.loads(body)
                 if cells and cells[0].get("online") and cells[0].get("humans"):
-                    cell = cells[0]
-                    break
+                    last = cells[0]
+                    # a fault while the tracker's first frames arrive is the fail-safe start
+                    # (seen on a loaded machine); the cell must leave it by itself
+                    if last["mode"] != "fault":
+                        cell = last
+                        break
             except OSError:
                 pass
             time.sleep(0.5)
-        assert cell is not None, "the cell never came online in the API"
+        assert cell is not None, f"the cell never ran in the API (last seen: {last})"
         assert cell["cell"] == "cell1" and cell["mode"] in ("intended", "failsafe", "rest")
         # the worker runs (and says it runs) the default scenario's configuration
         from sara_app.cell.checksum import config_checksum
