@@ -277,16 +277,19 @@ def _state(
 
 def source_digest(module: ModuleType) -> str:
     """SHA-256 of a module's source file: a closure variable of a kernel that calls compiled
-    functions of that module (see :func:`_make_classify_kernels`)."""
+    functions of that module (see :func:`_make_classify_kernel`)."""
     return hashlib.sha256(Path(str(module.__file__)).read_bytes()).hexdigest()
 
 
-def _make_classify_kernels() -> tuple[Any, Any]:
-    """Build :func:`classify_kernel` and :func:`classify_set`. They call the kernels of
+def _make_classify_kernel() -> Any:
+    """Build :func:`classify_kernel`. It calls the kernels of
     :mod:`sara_app.geometry.shape_kernels`, and numba's cache checks only the calling kernel's own
     file: the digest of that module's source is a closure variable, which numba hashes into the
-    cache key, so a change there recompiles them instead of loading them with the old
-    geometry."""
+    cache key, so a change there recompiles it instead of loading it with the old geometry.
+    Only strings may be closure variables: numba pickles them into the key, and a compiled
+    function pickles with an identity new in every process (a cache miss at every start: 1.5 s
+    of compiling in every process that imported this module, until :func:`classify_set` took
+    :func:`classify_kernel` as a global)."""
     geometry_source = source_digest(shape_kernels)
 
     @njit(
@@ -503,6 +506,17 @@ def _make_classify_kernels() -> tuple[Any, Any]:
                         cls[k, i, j] = 1
         return True
 
+    return classify_kernel
+
+
+classify_kernel = _make_classify_kernel()
+
+
+def _make_classify_set() -> Any:
+    """Build :func:`classify_set` (as :func:`_make_classify_kernel`; it calls
+    :func:`classify_kernel` as this module's global, never as a closure variable)."""
+    geometry_source = source_digest(shape_kernels)
+
     @njit(
         _b1(
             _i8l, _i8l, _RO[4], _RO[2], _RO[3], _RO[2], _WF3, _WF3, _WF3, _WF4,
@@ -572,10 +586,10 @@ def _make_classify_kernels() -> tuple[Any, Any]:
             contact, cls, stack, diam, can_b[lo:hi], can_l[lo:hi],
         )  # fmt: skip
 
-    return classify_kernel, classify_set
+    return classify_set
 
 
-classify_kernel, classify_set = _make_classify_kernels()
+classify_set = _make_classify_set()
 
 
 @njit(types.void(_RO[2], _RO[2], _RO[2], _ROI1, _ROI1, _RO[2], _RO[1], _WF2), cache=True)

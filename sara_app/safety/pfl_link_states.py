@@ -54,7 +54,7 @@ __all__ = ["PathLinkStates"]
 def _make_kernel() -> Any:
     """Build :func:`path_states_kernel`. It calls kernels of four other files and numba's cache
     checks only its own: their source digests are a closure variable, which numba hashes into
-    the cache key (as :func:`sara_app.safety.contact_kernels._make_classify_kernels` does)."""
+    the cache key (as :func:`sara_app.safety.contact_kernels._make_classify_kernel` does)."""
     sources = "".join(
         source_digest(m) for m in (occupancy_kernels, crba_module, energy_module, contact_kernels)
     )
