@@ -10,10 +10,18 @@ chosen on a grid (the radius as a function of the insets separates into a functi
 so this is a pair of 1-D problems) to minimise the capsule volume; the best candidate is polished
 by Nelder-Mead over both end points (radius recomputed for every trial). The fitted capsules are
 cached per URDF file; per configuration only the end points are transformed.
+
+The fit takes about 0.7 s for a 9-link arm, in every process that loads a robot; the end points
+it finds are kept on disk (:func:`fit_cache_dir`), keyed by the SHA-256 of the link's support
+points and slacks and of this file's source. The radius is never taken from the disk: it is
+recomputed from the cached ends (:func:`enclosing_radius`), so a stale, foreign or corrupt
+entry can cost volume but never containment. No cache folder (read-only home): fitted anew.
 """
 
 from __future__ import annotations
 
+import hashlib
+import os
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -125,6 +133,43 @@ def fit_capsule(
 
 
 _FIT_CACHE: dict[tuple[str, int, int], tuple[tuple[str, ...], np.ndarray, np.ndarray]] = {}
+_SOURCE_SHA256 = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()
+
+
+def fit_cache_dir() -> Path:
+    """``$XDG_CACHE_HOME/sara_app/capsules``, else ``~/.cache/sara_app/capsules``."""
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    root = Path(xdg).expanduser() if xdg else Path.home() / ".cache"
+    return root / "sara_app" / "capsules"
+
+
+def _cached_fit(
+    points: np.ndarray, rho: np.ndarray, axis_points: np.ndarray
+) -> tuple[np.ndarray, float]:
+    """:func:`fit_capsule` of one link, its end points kept on disk (module notes)."""
+    P = np.ascontiguousarray(points, dtype=float).reshape(-1, 3)
+    rho_arr = np.ascontiguousarray(np.broadcast_to(np.asarray(rho, dtype=float), P.shape[:1]))
+    guide = np.ascontiguousarray(axis_points, dtype=float)
+    digest = hashlib.sha256(_SOURCE_SHA256.encode())
+    for a in (P, rho_arr, guide):
+        digest.update(str(a.shape).encode() + a.tobytes())
+    path = fit_cache_dir() / f"{digest.hexdigest()}.npy"
+    try:
+        ends = np.load(path, allow_pickle=False)
+        if ends.shape == (2, 3) and ends.dtype == np.float64 and np.all(np.isfinite(ends)):
+            return ends, enclosing_radius(P, rho_arr, ends) + ENCLOSURE_SLACK_M
+    except (OSError, ValueError, EOFError):
+        pass  # absent or unreadable: fitted anew below
+    ends, radius = fit_capsule(P, rho_arr, guide)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        with open(tmp, "wb") as f:
+            np.save(f, ends, allow_pickle=False)
+        os.replace(tmp, path)  # atomic: a reader sees the whole entry or none
+    except OSError:
+        pass  # no cache folder: the next process fits again
+    return ends, radius
 
 
 def fitted_capsules(path: Path, root: ET.Element) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
@@ -136,7 +181,7 @@ def fitted_capsules(path: Path, root: ET.Element) -> tuple[tuple[str, ...], np.n
         ends = np.zeros((len(names), 2, 3))
         radii = np.zeros(len(names))
         for i, name in enumerate(names):
-            ends[i], radii[i] = fit_capsule(*supports[name])
+            ends[i], radii[i] = _cached_fit(*supports[name])
         _FIT_CACHE[key] = (names, ends, radii)
     names, ends, radii = _FIT_CACHE[key]
     return names, ends.copy(), radii.copy()
