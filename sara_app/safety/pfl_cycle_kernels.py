@@ -93,36 +93,49 @@ def _record_start(out: np.ndarray, off: int, cap: int) -> tuple[int, float, floa
     return n, out[t + c], out[t + 2 * c], out[t + 3 * c]
 
 
-@njit(types.int64(_i8, _i8, _i8))  # not cached: reads planning_kernels' OUT_LEN (kernel_types)
-def plan_size(K: int, L: int, n: int) -> int:
-    """Length of the slab of a plan of ``K`` intervals (see :func:`plan_views`)."""
-    S = K + 1
-    return OUT_LEN + 5 * S + 5 * S * n + 2 * K * n + 6 * K * L + K * L
+def _make_plan_kernels() -> tuple[Any, Any]:
+    """Build :func:`plan_size` and :func:`plan_views`. They read ``planning_kernels.OUT_LEN``,
+    which numba freezes into the compiled code: that module's source digest is a closure
+    variable (hashed into numba's cache key), so a change there recompiles them. Uncached,
+    they were compiled at every import: 0.45 s in every process that imports this module."""
+    planning_source = source_digest(planning_kernels)
+
+    @njit(types.int64(_i8, _i8, _i8), cache=True)
+    def plan_size(K: int, L: int, n: int) -> int:
+        """Length of the slab of a plan of ``K`` intervals (see :func:`plan_views`)."""
+        if len(planning_source) == 0:  # never: ties the cache to planning_kernels.py
+            return -1
+        S = K + 1
+        return OUT_LEN + 5 * S + 5 * S * n + 2 * K * n + 6 * K * L + K * L
+
+    @njit(
+        types.Tuple(
+            (_W1, types.Array(_f8, 2, "C"), types.Array(_f8, 3, "C"), types.Array(_f8, 3, "C"),
+             types.Array(_f8, 4, "C"), types.Array(_f8, 2, "C"))
+        )(types.Array(_f8, 1, "C"), _i8, _i8, _i8),
+        cache=True,
+    )  # fmt: skip
+    def plan_views(slab: np.ndarray, K: int, L: int, n: int) -> Any:
+        """The arrays of a plan in its slab (one array to return to Python instead of six):
+        ``peek_kernel``'s record ``(OUT_LEN,)``, times | s | s' | s'' | sd_max (``K`` used)
+        ``(5, K+1)``, joint states ``(5, K+1, n)`` (q, dq/ds, d2q/ds2, v, a), bounds ``(2, K,
+        n)``, robot capsules ``(K, L, 2, 3)``, ``(K, L)``."""
+        o = OUT_LEN if len(planning_source) > 0 else 0  # the digest ties the cache (above)
+        S = K + 1
+        pts = slab[o : o + 5 * S].reshape((5, S))
+        o += 5 * S
+        joint = slab[o : o + 5 * S * n].reshape((5, S, n))
+        o += 5 * S * n
+        bounds = slab[o : o + 2 * K * n].reshape((2, K, n))
+        o += 2 * K * n
+        r_ends = slab[o : o + 6 * K * L].reshape((K, L, 2, 3))
+        o += 6 * K * L
+        return slab[:OUT_LEN], pts, joint, bounds, r_ends, slab[o : o + K * L].reshape((K, L))
+
+    return plan_size, plan_views
 
 
-@njit(
-    types.Tuple(
-        (_W1, types.Array(_f8, 2, "C"), types.Array(_f8, 3, "C"), types.Array(_f8, 3, "C"),
-         types.Array(_f8, 4, "C"), types.Array(_f8, 2, "C"))
-    )(types.Array(_f8, 1, "C"), _i8, _i8, _i8),
-    cache=False,  # reads planning_kernels' OUT_LEN (kernel_types, caching)
-)  # fmt: skip
-def plan_views(slab: np.ndarray, K: int, L: int, n: int) -> Any:
-    """The arrays of a plan in its slab (one array to return to Python instead of six):
-    ``peek_kernel``'s record ``(OUT_LEN,)``, times | s | s' | s'' | sd_max (``K`` used) ``(5,
-    K+1)``, joint states ``(5, K+1, n)`` (q, dq/ds, d2q/ds2, v, a), bounds ``(2, K, n)``,
-    robot capsules ``(K, L, 2, 3)``, ``(K, L)``."""
-    S = K + 1
-    o = OUT_LEN
-    pts = slab[o : o + 5 * S].reshape((5, S))
-    o += 5 * S
-    joint = slab[o : o + 5 * S * n].reshape((5, S, n))
-    o += 5 * S * n
-    bounds = slab[o : o + 2 * K * n].reshape((2, K, n))
-    o += 2 * K * n
-    r_ends = slab[o : o + 6 * K * L].reshape((K, L, 2, 3))
-    o += 6 * K * L
-    return slab[:OUT_LEN], pts, joint, bounds, r_ends, slab[o : o + K * L].reshape((K, L))
+plan_size, plan_views = _make_plan_kernels()
 
 
 @njit  # calls kernels of other files: compiled into its callers (kernel_types, caching)
@@ -319,4 +332,14 @@ def _make_kernel() -> Any:
     return cycle_kernel
 
 
-cycle_kernel = _make_kernel()
+cycle_kernel: Any  # declared here, built by __getattr__ on first use
+
+
+def __getattr__(name: str) -> Any:
+    """:func:`cycle_kernel` is built on first use (loading it from numba's cache takes about
+    0.5 s): an SSM cell imports this module for the planner's types and :func:`_plan` and
+    never runs it. A PFL shield imports it while the cell is built, before any control loop."""
+    if name == "cycle_kernel":
+        kernel = globals()["cycle_kernel"] = _make_kernel()
+        return kernel
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
