@@ -18,7 +18,6 @@ from typing import Protocol
 from sara_app.bus.access import Credentials, client_auth
 from sara_app.bus.session import ROBOT_ENCODINGS, Bus
 from sara_app.errors import SaraError
-from sara_app.scenario import load_scenario
 
 
 class CellProcess(Protocol):
@@ -105,6 +104,9 @@ def process_main(
         die_with_parent()
     configure_logging(name)
     try:
+        # here, not at the top: the router imports this module and needs no scenario (0.5 s)
+        from sara_app.scenario import load_scenario
+
         sc = load_scenario(args.scenario)
         auth = None
         if args.zenoh_user is not None or args.zenoh_credentials is not None:
