@@ -12,7 +12,7 @@ from typing import Annotated, Literal
 from pydantic import Field, field_validator, model_validator
 
 from sara_app.errors import UnknownNameError
-from sara_app.human.reach import MODELS
+from sara_app.human.model_names import MODELS
 from sara_app.safety.thresholds import RENAMED as THRESHOLDS_RENAMED
 from sara_app.safety.thresholds import ThresholdSet, load_thresholds
 from sara_app.settings import Name, NonNeg, StrictFinite
