@@ -23,8 +23,6 @@ def _kernels() -> list[tuple[str, CPUDispatcher]]:
         if not mod.name.endswith("_kernels"):
             continue
         module = importlib.import_module(mod.name)
-        for name in getattr(module, "__all__", ()):  # kernels built on first use, too
-            getattr(module, name)
         for name, f in vars(module).items():
             if isinstance(f, CPUDispatcher) and isinstance(f._cache, FunctionCache):
                 out.append((f"{mod.name}.{name}", f))

@@ -104,7 +104,7 @@ def _make_plan_kernels() -> tuple[Any, Any]:
     def plan_size(K: int, L: int, n: int) -> int:
         """Length of the slab of a plan of ``K`` intervals (see :func:`plan_views`)."""
         if len(planning_source) == 0:  # never: ties the cache to planning_kernels.py
-            return -1
+            raise ValueError("no planning_kernels source digest")
         S = K + 1
         return OUT_LEN + 5 * S + 5 * S * n + 2 * K * n + 6 * K * L + K * L
 
@@ -120,8 +120,10 @@ def _make_plan_kernels() -> tuple[Any, Any]:
         ``peek_kernel``'s record ``(OUT_LEN,)``, times | s | s' | s'' | sd_max (``K`` used)
         ``(5, K+1)``, joint states ``(5, K+1, n)`` (q, dq/ds, d2q/ds2, v, a), bounds ``(2, K,
         n)``, robot capsules ``(K, L, 2, 3)``, ``(K, L)``."""
-        o = OUT_LEN if len(planning_source) > 0 else 0  # the digest ties the cache (above)
+        if len(planning_source) == 0:  # never: ties the cache to planning_kernels.py
+            raise ValueError("no planning_kernels source digest")
         S = K + 1
+        o = OUT_LEN
         pts = slab[o : o + 5 * S].reshape((5, S))
         o += 5 * S
         joint = slab[o : o + 5 * S * n].reshape((5, S, n))
@@ -332,14 +334,4 @@ def _make_kernel() -> Any:
     return cycle_kernel
 
 
-cycle_kernel: Any  # declared here, built by __getattr__ on first use
-
-
-def __getattr__(name: str) -> Any:
-    """:func:`cycle_kernel` is built on first use (loading it from numba's cache takes about
-    0.5 s): an SSM cell imports this module for the planner's types and :func:`_plan` and
-    never runs it. A PFL shield imports it while the cell is built, before any control loop."""
-    if name == "cycle_kernel":
-        kernel = globals()["cycle_kernel"] = _make_kernel()
-        return kernel
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+cycle_kernel = _make_kernel()
