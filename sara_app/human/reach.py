@@ -332,8 +332,8 @@ class HumanReach:
         joint the smallest of that ball, R_ACC's and R_VEL's); a joint without a velocity
         estimate (``dv`` infinite) gets R_VEL's ball, and a part that mixes such a joint with
         one that has an estimate is unbounded (no claim: the vel model claims R_VEL's
-        capsule). Sound when every joint's acceleration
-        stays below a_max and its speed below v_max, and ``dv`` bounds the velocity error."""
+        capsule). Sound when every joint's acceleration stays below a_max and its speed below
+        v_max, and ``dv`` bounds the velocity error."""
         p = self.params
         y, v, dv, t_start_s, t_end_s = self._moving(y, v, dv, t_start_s, t_end_s)
         occ, ends, radius = self._output("combined", y.shape[0], t_end_s.shape[0])

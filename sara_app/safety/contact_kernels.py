@@ -281,16 +281,16 @@ def source_digest(module: ModuleType) -> str:
     return hashlib.sha256(Path(str(module.__file__)).read_bytes()).hexdigest()
 
 
-def _make_classify_kernel() -> Any:
+def _make_classify_kernel(geometry_source: str) -> Any:
     """Build :func:`classify_kernel`. It calls the kernels of
     :mod:`sara_app.geometry.shape_kernels`, and numba's cache checks only the calling kernel's own
-    file: the digest of that module's source is a closure variable, which numba hashes into the
-    cache key, so a change there recompiles it instead of loading it with the old geometry.
+    file: the digest of that module's source (``geometry_source``) is a closure variable, which
+    numba hashes into the cache key, so a change there recompiles it instead of loading it with
+    the old geometry.
     Only strings may be closure variables: numba pickles them into the key, and a compiled
     function pickles with an identity new in every process (a cache miss at every start: 1.5 s
     of compiling in every process that imported this module, until :func:`classify_set` took
     :func:`classify_kernel` as a global)."""
-    geometry_source = source_digest(shape_kernels)
 
     @njit(
         _b1(
@@ -509,13 +509,13 @@ def _make_classify_kernel() -> Any:
     return classify_kernel
 
 
-classify_kernel = _make_classify_kernel()
+_GEOMETRY_SOURCE = source_digest(shape_kernels)
+classify_kernel = _make_classify_kernel(_GEOMETRY_SOURCE)
 
 
-def _make_classify_set() -> Any:
+def _make_classify_set(geometry_source: str) -> Any:
     """Build :func:`classify_set` (as :func:`_make_classify_kernel`; it calls
     :func:`classify_kernel` as this module's global, never as a closure variable)."""
-    geometry_source = source_digest(shape_kernels)
 
     @njit(
         _b1(
@@ -589,7 +589,7 @@ def _make_classify_set() -> Any:
     return classify_set
 
 
-classify_set = _make_classify_set()
+classify_set = _make_classify_set(_GEOMETRY_SOURCE)
 
 
 @njit(types.void(_RO[2], _RO[2], _RO[2], _ROI1, _ROI1, _RO[2], _RO[1], _WF2), cache=True)
