@@ -81,6 +81,20 @@ def test_calibrated_set_contains_what_the_base_set_misses() -> None:
     assert rep.drivers_v["r_wrist"]
 
 
+def test_bounds_are_rounded_up_onto_a_grid_a_person_reads() -> None:
+    """A fitted bound is rounded UP (never below what the recordings need) onto the 0.01 m/s
+    grid and written without float residue (531 * 0.01 is 5.3100000000000005)."""
+    from sara_app.human.calibrate import _round_up
+
+    need = np.linspace(0.3, 9.0, 2001)
+    v = _round_up(need, 1.01, 0.01)
+    assert np.all(v >= need * 1.01)
+    assert np.all(v - need * 1.01 < 0.01 + 1e-12)
+    assert all(len(repr(float(x)).split(".")[1]) <= 2 for x in v), v
+    a = _round_up(need * 50, 1.0, 1.0)
+    assert np.all(a >= need * 50) and np.all(a == np.round(a))
+
+
 def test_frames_the_gate_distrusts_are_left_out_and_listed() -> None:
     """The shipped walk (rigid bones) with its right wrist label swapped to the head for 10
     frames: without the gate the fit would need tens of m/s; the gate blames the wrist's bone,

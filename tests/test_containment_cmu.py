@@ -68,6 +68,29 @@ def test_calibrated_set_contains_every_clip_with_every_model(results) -> None:
             assert res.share == 1.0, (clip, m, res.misses_per_joint, res.worst[:2])
 
 
+def test_fast_contains_the_walks_of_a_second_subject_whole() -> None:
+    """``fast`` is fitted to the walking pieces of CMU subject 62 as well: every model contains
+    each piece WHOLE (nothing split off: under fast's 12 mm noise bound the head jump in 62_11
+    that ``work`` leaves out is within the fitted bounds), and the monitor stays quiet."""
+    from sara_app.human.segments import walking_pieces
+
+    try:
+        shared_data_dir()
+    except RecordingError:
+        pytest.skip("CMU data folder not found")
+    ps = load_param_set("fast")
+    pieces = [p for n in ("62_03", "62_05", "62_06", "62_09", "62_11")
+              for p in walking_pieces(load_recording(n))]  # fmt: skip
+    assert len(pieces) == 6
+    for rec in pieces:
+        p = to_reach_params(ps, rec.kind)
+        res = containment(HumanReach(p), rec.times_s, rec.positions_m, HORIZON_S)
+        for m in MODELS:
+            assert res[m].share == 1.0, (rec.name, m, res[m].misses_per_joint, res[m].worst[:2])
+        s = screen(rec.times_s, rec.positions_m, p.delta_y_m, p.v_max_mps, p.a_max_mps2)
+        assert s.counts["speed"] == s.counts["acceleration"] == 0, (rec.name, s.violations[:3])
+
+
 def test_table1_walk_position_model_is_sound_acceleration_model_misses_a_heel_strike(
     results,
 ) -> None:

@@ -247,7 +247,9 @@ def _monitor_needs(
 
 
 def _round_up(x: np.ndarray, margin: float, step: float) -> np.ndarray:
-    return np.ceil(x * margin / step) * step
+    # Divided by the steps per unit, not multiplied by the step: 531 * 0.01 is
+    # 5.3100000000000005, 531 / 100 is 5.31 (what a person reads in the written set).
+    return np.ceil(x * margin / step) / round(1.0 / step)
 
 
 def calibrate(
