@@ -8,7 +8,10 @@ import argparse
 
 
 def _serve(args: argparse.Namespace) -> int:
-    from sara_app.processes.serve import main_for_cli
+    from sara_app.ops.compile_notice import compile_notice
+
+    with compile_notice():
+        from sara_app.processes.serve import main_for_cli
 
     return main_for_cli(
         args.scenario, args.cell, args.zenoh_port, args.viewer_port, args.api_port, args.duration,
@@ -33,7 +36,10 @@ def _observe(args: argparse.Namespace) -> int:
 
 
 def _worker(args: argparse.Namespace) -> int:
-    from sara_app.runtime.worker import main
+    from sara_app.ops.compile_notice import compile_notice
+
+    with compile_notice():
+        from sara_app.runtime.worker import main
 
     return main(_process_argv(args))
 
