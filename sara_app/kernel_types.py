@@ -18,7 +18,10 @@ kernel module for it.
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Callable
+from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 import numpy as np
@@ -63,3 +66,10 @@ def as_f8(a: Any) -> np.ndarray:
     """``a`` as a float64 array: the same object when it is one already (``np.asarray`` with a
     dtype costs a few hundred ns even then; the compiled kernels' wrappers call this per input)."""
     return a if type(a) is np.ndarray and a.dtype is _FLOAT64 else np.asarray(a, np.float64)
+
+
+def source_digest(module: ModuleType) -> str:
+    """SHA-256 (hex) of a module's source file: the closure variable that ties a cached kernel
+    to the kernels of another file it calls (the caching rule above), and the key of other
+    caches that must follow a file's code (the robot's fitted capsules)."""
+    return hashlib.sha256(Path(str(module.__file__)).read_bytes()).hexdigest()

@@ -21,6 +21,7 @@ from sara_app.bench.pfl import BENCH_CASES, shield_cell
 from sara_app.errors import ParameterError
 from sara_app.geometry import shape_kernels
 from sara_app.human import reach_kernels
+from sara_app.kernel_types import source_digest
 from sara_app.robot import (
     crba_kernels,
     energy,
@@ -31,7 +32,6 @@ from sara_app.robot import (
 from sara_app.robot.planning_kernels import OUT_LEN
 from sara_app.safety import contact_kernels, pfl_fused_kernels, pfl_kernels, pfl_link_states
 from sara_app.safety import pfl_cycle as pfl_cycle_module
-from sara_app.safety.contact_kernels import source_digest
 from sara_app.safety.pfl import PflCheck
 from sara_app.safety.pfl_cycle import CompiledCycle
 from sara_app.safety.pfl_cycle_kernels import BAIL, cycle_kernel, plan_size, plan_views

@@ -20,9 +20,9 @@ from pfl_compare import (  # noqa: E402
 from sara_app.geometry import shape_kernels
 from sara_app.human import reach_kernels
 from sara_app.human.widening import widening
+from sara_app.kernel_types import source_digest
 from sara_app.robot import crba_kernels, energy, occupancy_kernels
 from sara_app.safety import contact_kernels, pfl_kernels, pfl_link_states
-from sara_app.safety.contact_kernels import source_digest
 from sara_app.safety.pfl_fused_kernels import fused_kernel
 from sara_app.safety.pfl_shield import PflCycle
 from sara_app.safety.shield import HumanState

@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 
 from sara_app.errors import InputError
+from sara_app.kernel_types import source_digest
 from sara_app.robot import crba_kernels, energy, occupancy_kernels
 from sara_app.robot.energy import LinkMotion, path_interval_energy_J
 from sara_app.robot.model import load_robot
 from sara_app.robot.shielded import shielded_trajectory
 from sara_app.robot.trajectory import PathFollower
 from sara_app.safety import contact_kernels
-from sara_app.safety.contact_kernels import source_digest
 from sara_app.safety.pfl_link_states import PathLinkStates, path_states_kernel
 from sara_app.safety.velocity_error import VelocityErrorBound
 

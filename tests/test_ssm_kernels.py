@@ -15,7 +15,7 @@ from test_ssm import REACH, SETTINGS, cell
 from sara_app.geometry import shape_kernels
 from sara_app.human import reach_kernels
 from sara_app.human.reach import MODELS
-from sara_app.safety.contact_kernels import source_digest
+from sara_app.kernel_types import source_digest
 from sara_app.safety.ssm import SsmResult, SsmVerifier
 from sara_app.safety.ssm_kernels import ssm_kernel
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -30,6 +31,7 @@ from scipy.optimize import minimize
 
 from sara_app.errors import InputError
 from sara_app.geometry.shapes import point_segment_distance
+from sara_app.kernel_types import source_digest
 from sara_app.robot.urdf import link_supports
 
 __all__ = ["ENCLOSURE_SLACK_M", "enclosing_radius", "fit_capsule", "fitted_capsules"]
@@ -133,7 +135,7 @@ def fit_capsule(
 
 
 _FIT_CACHE: dict[tuple[str, int, int], tuple[tuple[str, ...], np.ndarray, np.ndarray]] = {}
-_SOURCE_SHA256 = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()
+_SOURCE_SHA256 = source_digest(sys.modules[__name__])
 
 
 def fit_cache_dir() -> Path:

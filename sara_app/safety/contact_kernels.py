@@ -9,10 +9,7 @@ This is what brings a PFL cycle (a few thousand capsule pairs) near the 1 ms bud
 
 from __future__ import annotations
 
-import hashlib
 import math
-from pathlib import Path
-from types import ModuleType
 from typing import Any
 
 import numpy as np
@@ -35,6 +32,7 @@ from sara_app.kernel_types import W3 as _WF3
 from sara_app.kernel_types import W4 as _WF4
 from sara_app.kernel_types import WB3 as _WB3
 from sara_app.kernel_types import WI8_3 as _WI3
+from sara_app.kernel_types import source_digest
 
 _PARALLEL_SIN2 = 1e-24  # as in sara_app.geometry.shapes
 
@@ -273,12 +271,6 @@ def _state(
         p1_dot[t, i, 0], p1_dot[t, i, 1], p1_dot[t, i, 2],
         omega[t, i, 0], omega[t, i, 1], omega[t, i, 2], reach[t, i],
     )  # fmt: skip
-
-
-def source_digest(module: ModuleType) -> str:
-    """SHA-256 of a module's source file: a closure variable of a kernel that calls compiled
-    functions of that module (see :func:`_make_classify_kernel`)."""
-    return hashlib.sha256(Path(str(module.__file__)).read_bytes()).hexdigest()
 
 
 def _make_classify_kernel(geometry_source: str) -> Any:

@@ -18,10 +18,9 @@ from numba import njit
 
 from sara_app.geometry import shape_kernels
 from sara_app.geometry.shape_kernels import segment_closest
-from sara_app.kernel_types import F8, RO1, RO3, ROI1, ROI2, W2, W4
+from sara_app.kernel_types import F8, RO1, RO3, ROI1, ROI2, W2, W4, source_digest
 from sara_app.robot import occupancy_kernels
 from sara_app.robot.occupancy_kernels import ends_kernel, fk_kernel
-from sara_app.safety.contact_kernels import source_digest
 
 __all__ = ["min_distance_kernel"]
 

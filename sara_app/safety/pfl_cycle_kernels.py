@@ -32,6 +32,7 @@ from sara_app.kernel_types import RO3 as _RO3
 from sara_app.kernel_types import ROI1 as _ROI1
 from sara_app.kernel_types import W1 as _W1
 from sara_app.kernel_types import WI2 as _WI2
+from sara_app.kernel_types import source_digest
 from sara_app.robot import (
     crba_kernels,
     energy,
@@ -52,7 +53,6 @@ from sara_app.robot.planning_kernels import (
 )
 from sara_app.robot.trajectory_kernels import shielded_samples_kernel
 from sara_app.safety import contact_kernels, pfl_fused_kernels, pfl_kernels, pfl_link_states
-from sara_app.safety.contact_kernels import source_digest
 from sara_app.safety.pfl_fused_kernels import (
     HUMAN,
     LINK_CONSTANTS,

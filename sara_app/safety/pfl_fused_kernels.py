@@ -47,9 +47,10 @@ from sara_app.kernel_types import WI1 as _WI1
 from sara_app.kernel_types import WI2 as _WI2
 from sara_app.kernel_types import WI8_3 as _WI83
 from sara_app.kernel_types import W as _W
+from sara_app.kernel_types import source_digest
 from sara_app.robot import crba_kernels, energy, occupancy_kernels
 from sara_app.safety import contact_kernels, pfl_kernels, pfl_link_states
-from sara_app.safety.contact_kernels import classify_set, source_digest
+from sara_app.safety.contact_kernels import classify_set
 from sara_app.safety.pfl_kernels import (
     merge_kernel,
     speed_kernel,

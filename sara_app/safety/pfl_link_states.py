@@ -38,6 +38,7 @@ from sara_app.kernel_types import W4 as _W4
 from sara_app.kernel_types import WB1 as _WB1
 from sara_app.kernel_types import WC2 as _WC2
 from sara_app.kernel_types import WC3 as _WC3
+from sara_app.kernel_types import source_digest
 from sara_app.robot import crba_kernels as crba_module
 from sara_app.robot import energy as energy_module
 from sara_app.robot import occupancy_kernels
@@ -45,7 +46,7 @@ from sara_app.robot.crba_kernels import crba_kernel
 from sara_app.robot.energy import LinkMotion, LinkSamples, energy_twist_kernel, path_energy_kernel
 from sara_app.robot.occupancy_kernels import ends_kernel, fk_kernel
 from sara_app.safety import contact_kernels
-from sara_app.safety.contact_kernels import jerk_coefficients, source_digest
+from sara_app.safety.contact_kernels import jerk_coefficients
 from sara_app.safety.velocity_error import VelocityErrorBound
 
 __all__ = ["PathLinkStates"]

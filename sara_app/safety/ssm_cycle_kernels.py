@@ -22,11 +22,10 @@ from numba import njit, types
 
 from sara_app.geometry import shape_kernels
 from sara_app.human import reach_kernels
-from sara_app.kernel_types import F8, I8, ROI1, ROI2, W1
+from sara_app.kernel_types import F8, I8, ROI1, ROI2, W1, source_digest
 from sara_app.robot import occupancy_kernels, planning_kernels, trajectory_kernels
 from sara_app.robot.planning_kernels import OUT_LEN
 from sara_app.safety import pfl_cycle_kernels, pfl_fused_kernels, ssm_kernels
-from sara_app.safety.contact_kernels import source_digest
 from sara_app.safety.pfl_cycle_kernels import FOLLOWER, OCCUPANCY, PATH, PLANNER, _plan
 from sara_app.safety.ssm_kernels import ARM, CONSTANTS, HUMAN, ssm_kernel
 

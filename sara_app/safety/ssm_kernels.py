@@ -31,8 +31,7 @@ from sara_app.geometry.shape_kernels import (
 )
 from sara_app.human import reach_kernels
 from sara_app.human.reach_kernels import ACC, POS, STATIC, person_sets
-from sara_app.kernel_types import B1, F8, I8, RO, ROI1, ROI2, WB3, W
-from sara_app.safety.contact_kernels import source_digest
+from sara_app.kernel_types import B1, F8, I8, RO, ROI1, ROI2, WB3, W, source_digest
 
 __all__ = ["KIND_ARM", "ssm_kernel"]
 
