@@ -43,6 +43,13 @@ ROUTER_MAX_MESSAGE_BYTES = 8 * 1024 * 1024
 before it is forwarded: twice the decoders' limit, so a too-large-but-plausible message is still
 counted as ``too_large`` by the worker, and a huge put never reaches (or stalls) anyone."""
 _NO_SCOUTING = {"multicast": {"enabled": False}, "gossip": {"enabled": False}}
+NO_SHARED_MEMORY = {"enabled": False}
+"""zenoh's shared-memory transport (``transport.shared_memory``), off in every session here.
+Its default (on, ``mode: lazy``) sets up a 16 MB pool, mlocked, and its watchdogs in the
+thread of the first put or receive of a message above 3 kB: in a live worker that was the first
+display message with a person in it, and the cycle took 6-14 ms instead of 0.3 (page faults and
+``mlock``, seen with ``perf``), long enough for the controller's command to expire. The cell's
+messages are small (commands 0.5 kB, skeletons 0.25 kB a person), so copying them costs less."""
 
 log = logging.getLogger("sara_app.bus")
 
@@ -102,7 +109,10 @@ def router_config_dict(
     """:func:`router_config` as a plain dict: also a stand-alone ``zenohd`` configuration file
     (JSON is JSON5) for a router on a machine of its own (``python -m sara_app.bus.router
     --print-config``)."""
-    transport: dict[str, Any] = {"link": {"rx": {"max_message_size": ROUTER_MAX_MESSAGE_BYTES}}}
+    transport: dict[str, Any] = {
+        "link": {"rx": {"max_message_size": ROUTER_MAX_MESSAGE_BYTES}},
+        "shared_memory": NO_SHARED_MEMORY,
+    }
     cfg: dict[str, Any] = {
         "mode": "router",
         "listen": {"endpoints": [endpoint(port, host, secured=access is not None)]},
@@ -125,9 +135,13 @@ def client_config(
     ``auth``: its credentials (:func:`sara_app.bus.access.client_auth`)."""
     connect = {"endpoints": [endpoint(port, host, secured=auth is not None)],
                "timeout_ms": int(timeout_ms)}  # fmt: skip
-    cfg: dict[str, Any] = {"mode": "client", "connect": connect, "scouting": _NO_SCOUTING}
-    if auth is not None:
-        cfg["transport"] = auth
+    transport: dict[str, Any] = {"shared_memory": NO_SHARED_MEMORY, **(auth or {})}
+    cfg: dict[str, Any] = {
+        "mode": "client",
+        "connect": connect,
+        "scouting": _NO_SCOUTING,
+        "transport": transport,
+    }
     return zenoh.Config.from_json5(json.dumps(cfg))
 
 

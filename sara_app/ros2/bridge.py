@@ -144,6 +144,8 @@ def ros_session(endpoint: str) -> zenoh.Session:
     conf.insert_json5("mode", '"client"')
     conf.insert_json5("connect/endpoints", f'["{endpoint}"]')
     conf.insert_json5("scouting/multicast/enabled", "false")
+    # no shared-memory pool set up in the relay's loop (sara_app.bus.session.NO_SHARED_MEMORY)
+    conf.insert_json5("transport/shared_memory/enabled", "false")
     return zenoh.open(conf)
 
 
