@@ -310,7 +310,7 @@ def _loop(
             if c.proc is not None:
                 all_pids.add(c.proc.pid)
         mono = time.monotonic()  # as serve: a verdict counts once worker and router run
-        sup.poll(mono, mono - last_verdict if last_verdict > sup.verdicts_due_s() else None)
+        sup.poll(mono, sup.hang_age(mono, last_verdict))
         for item in list(stopped):
             if now >= item[0]:
                 _signal(item[1], signal.SIGCONT)

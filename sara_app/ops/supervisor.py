@@ -5,8 +5,9 @@
 - A worker that stops cycling while its process lives (hung, stopped) is killed and restarted:
   once it has published verdicts, no verdict for ``HUNG_AFTER_S`` (two status heartbeats) is a
   hang, counted from the later of its start and the router's (after a router restart the bus
-  was down, not the worker). Meanwhile the API shows the cell offline with its mode unknown,
-  and the controller brakes along the last verified stop on its own.
+  was down, not the worker) and never while the router is down (:meth:`Supervisor.hang_age`).
+  Meanwhile the API shows the cell offline with its mode unknown, and the controller brakes
+  along the last verified stop on its own.
 - Children never outlive ``serve``: each asks the kernel to kill it when its parent dies
   (``bus.process.die_with_parent``), and ``stop()`` ends them in order.
 """
@@ -14,6 +15,7 @@
 from __future__ import annotations
 
 import logging
+import math
 import signal
 import subprocess
 import time
@@ -107,9 +109,22 @@ class Supervisor:
         """Since when the worker's verdicts can reach the supervisor (monotonic clock): the
         later of the worker's last start and the router's (after a router restart every session
         reconnects, about 2 s; until the first verdict after that, no hang is diagnosed: the bus
-        was down, not the worker)."""
+        was down, not the worker); ``inf`` while the router is down (dead, or waiting for its
+        restart: its backoff grows to 10 s, and the silence is the bus's)."""
         w = self.worker if worker is None else worker
+        if any(c.name == self.router and not c.alive for c in self.children):
+            return math.inf
         return max(c.started_s for c in self.children if c.name in (w, self.router))
+
+    def hang_age(
+        self, now: float, received_s: float | None, worker: str | None = None
+    ) -> float | None:
+        """The age to judge ``worker``'s hang on (for :meth:`poll`): ``now - received_s`` when
+        its newest verdict (received at ``received_s``, monotonic clock; None: none) came
+        through the worker and the router running now, else None (no hang can be told)."""
+        if received_s is None or not received_s > self.verdicts_due_s(worker):
+            return None
+        return now - received_s
 
     def status(self) -> dict[str, dict[str, object]]:
         return {

@@ -408,13 +408,11 @@ def _verdict_age(
     registry: Any, cell: str, sup: Supervisor, worker: str | None = None
 ) -> float | None:
     """Age of the cell's newest verdict when it came from the worker process running now
-    through the router running now (received after both started), else None."""
+    through the router running now (:meth:`Supervisor.hang_age`), else None."""
     snap = registry.cell(cell)
     age = None if snap is None else snap.get("verdict_age_s")
-    if age is None:
-        return None
-    running_s = time.monotonic() - sup.verdicts_due_s(worker)
-    return age if age < running_s else None
+    now = time.monotonic()
+    return sup.hang_age(now, None if age is None else now - age, worker)
 
 
 _STOP = threading.Event()
