@@ -3,7 +3,10 @@ clock is passed in, so the backoffs and ages are exact (the whole cell: test_sup
 
 from __future__ import annotations
 
+import signal
 import subprocess
+import sys
+import time
 from collections.abc import Iterator
 
 import pytest
@@ -85,3 +88,49 @@ def test_a_dead_child_restarts_after_a_doubling_backoff(sup: Supervisor) -> None
         now = worker.due_s
         assert sup.poll(now, None) == [f"worker restarted (#{worker.restarts})"]
     assert delays == [0.5, 1.0, 2.0, 4.0, 8.0, BACKOFF_S[1]]
+
+
+def _busy() -> subprocess.Popen[bytes]:
+    return subprocess.Popen([sys.executable, "-c", "while True: pass"])
+
+
+def test_a_stalled_bus_does_not_kill_a_worker_that_runs() -> None:
+    """A router that stops answering stays alive: the verdicts stop although the worker cycles
+    (its main thread runs). Only another message through the bus since the last verdict (the
+    controller's status) or a main thread that stopped running makes the silence a hang."""
+    sup = Supervisor([Child("router", _sleeper), Child("worker", _busy)])
+    sup.start()
+    try:
+        worker = _child(sup, "worker")
+        t0 = worker.started_s
+        seen = t0 + 1.0
+        assert sup.poll(t0 + 0.5, None) == []  # serve polls from the start, 30 times a second
+        for k in range(4):  # silent for 2.5 .. 4 s, the worker's main thread running
+            time.sleep(0.3)
+            now = t0 + 3.5 + 0.5 * k
+            assert sup.poll(now, sup.hang_age(now, seen)) == [], k
+            assert worker.alive and worker.restarts == 0
+        # the controller's status came through the bus after the last verdict: a hang
+        time.sleep(0.3)
+        events = sup.poll(t0 + 6.0, sup.hang_age(t0 + 6.0, seen), bus_since=True)
+        assert any("worker hung (5.0 s without a verdict)" in e for e in events)
+        assert worker.restarts == 1
+        # the restarted worker, stopped (SIGSTOP): its main thread no longer runs
+        assert worker.due_s is not None
+        sup.poll(worker.due_s, None)
+        assert worker.alive and worker.proc is not None
+        t1, seen = worker.started_s, worker.started_s + 0.5
+        assert sup.poll(t1 + 0.2, None) == []
+        time.sleep(0.3)
+        assert sup.poll(t1 + 1.0, sup.hang_age(t1 + 1.0, seen)) == []
+        worker.proc.send_signal(signal.SIGSTOP)
+        time.sleep(0.3)
+        assert sup.poll(t1 + 1.5, sup.hang_age(t1 + 1.5, seen)) == []
+        time.sleep(0.3)
+        assert sup.poll(t1 + 2.4, sup.hang_age(t1 + 2.4, seen)) == []  # 1.9 s silent
+        time.sleep(0.3)
+        events = sup.poll(t1 + 4.0, sup.hang_age(t1 + 4.0, seen))
+        assert any("worker hung (3.5 s without a verdict)" in e for e in events)
+        assert worker.restarts == 2
+    finally:
+        sup.stop(timeout_s=2.0)

@@ -251,7 +251,7 @@ def _loop(
     t_pass = t0
     window: list[float] = []  # skeleton ages of the verdicts since the last sample
     n_window = 0
-    last_verdict = time.monotonic()
+    last_verdict = last_ctl = time.monotonic()
     ctl_banked: dict[str, int] = {}
     ctl_last: dict[str, int] = {}
     stopped: list[tuple[float, Any, Event]] = []
@@ -301,6 +301,7 @@ def _loop(
                         ev.recovered_s = d.msg.stamp_s - ev.end_s
         for d in subs["ctl"].drain().messages:
             if isinstance(d.msg, ControllerStatusMsg):
+                last_ctl = time.monotonic()
                 counts = _ctl_counts(d.msg)
                 if ctl_last and counts["commands_received"] < ctl_last["commands_received"]:
                     for k, v in ctl_last.items():  # a restarted controller counts from 0
@@ -310,7 +311,7 @@ def _loop(
             if c.proc is not None:
                 all_pids.add(c.proc.pid)
         mono = time.monotonic()  # as serve: a verdict counts once worker and router run
-        sup.poll(mono, sup.hang_age(mono, last_verdict))
+        sup.poll(mono, sup.hang_age(mono, last_verdict), last_ctl > last_verdict)
         for item in list(stopped):
             if now >= item[0]:
                 _signal(item[1], signal.SIGCONT)

@@ -6,8 +6,13 @@
   once it has published verdicts, no verdict for ``HUNG_AFTER_S`` (two status heartbeats) is a
   hang, counted from the later of its start and the router's (after a router restart the bus
   was down, not the worker) and never while the router is down (:meth:`Supervisor.hang_age`).
-  Meanwhile the API shows the cell offline with its mode unknown, and the controller brakes
-  along the last verified stop on its own.
+  Silence alone does not tell a hung worker from a stalled bus (a router that stops answering
+  stays alive): a silent worker is killed when its main thread has not run for
+  ``HUNG_AFTER_S`` (stopped, deadlocked: ``/proc``), or when the bus has delivered another
+  process's message since its newest verdict (a worker that runs but does not publish). A
+  stalled router with a cycling worker behind it is left alone. Meanwhile the API shows the
+  cell offline with its mode unknown, and the controller brakes along the last verified stop on
+  its own.
 - Children never outlive ``serve``: each asks the kernel to kill it when its parent dies
   (``bus.process.die_with_parent``), and ``stop()`` ends them in order.
 """
@@ -21,6 +26,7 @@ import subprocess
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 log = logging.getLogger("sara_app.serve")
 
@@ -40,11 +46,31 @@ class Child:
     restarts: int = 0
     backoff_s: float = BACKOFF_S[0]
     due_s: float | None = None  # a restart is due at this time
+    cpu_ticks: int = -1  # the main thread's CPU time at the last poll (clock ticks; -1: none)
+    ran_s: float = 0.0  # when the main thread was last seen to run
 
     def spawn(self, now: float) -> None:
         self.proc = self.start()
-        self.started_s = now
+        self.started_s = self.ran_s = now
         self.due_s = None
+        self.cpu_ticks = -1
+
+    def ran_recently(self, now: float) -> bool:
+        """Whether the main thread has used CPU within ``HUNG_AFTER_S`` (call once a poll: it
+        records the CPU time). Unreadable (no ``/proc``): False, so that silence decides."""
+        if self.proc is None:
+            return False
+        try:
+            with open(f"/proc/{self.proc.pid}/task/{self.proc.pid}/stat", "rb") as f:
+                fields = f.read().rsplit(b")", 1)[1].split()
+            ticks = int(fields[11]) + int(fields[12])  # utime + stime
+        except (OSError, IndexError, ValueError):
+            return False
+        if ticks != self.cpu_ticks:
+            if self.cpu_ticks >= 0:  # the first reading is the baseline (ran_s: the start)
+                self.ran_s = now
+            self.cpu_ticks = ticks
+        return now - self.ran_s < HUNG_AFTER_S
 
     @property
     def alive(self) -> bool:
@@ -73,11 +99,16 @@ class Supervisor:
                 c.spawn(now)
 
     def poll(
-        self, now: float, verdict_age_s: float | None | Mapping[str, float | None]
+        self,
+        now: float,
+        verdict_age_s: float | None | Mapping[str, float | None],
+        bus_since: bool | Mapping[str, bool] = False,
     ) -> list[str]:
         """Restart what died or hung; returns what happened (for the log). ``verdict_age_s``:
         the age of the cell's newest verdict received since the worker last started (None:
-        none yet), or per worker child name for several cells."""
+        none yet; :meth:`hang_age`), or per worker child name for several cells;
+        ``bus_since``: whether another process's message (the controller's status) came
+        through the router after that verdict, likewise."""
         events = []
         for c in self.children:
             if c.due_s is not None:
@@ -85,10 +116,10 @@ class Supervisor:
                     c.spawn(now)
                     events.append(f"{c.name} restarted (#{c.restarts})")
                 continue
-            age = verdict_age_s.get(c.name) if isinstance(verdict_age_s, Mapping) else (
-                verdict_age_s if c.name == self.worker else None
-            )  # fmt: skip
-            hung = c.name in self.workers and c.alive and age is not None and age > HUNG_AFTER_S
+            age, bus = self._of(verdict_age_s, c.name), self._of(bus_since, c.name)
+            ran = c.ran_recently(now) if c.name in self.workers else True
+            silent = c.alive and age is not None and age > HUNG_AFTER_S
+            hung = c.name in self.workers and silent and (not ran or bool(bus))
             if hung and c.proc is not None:
                 c.proc.send_signal(signal.SIGKILL)
                 c.proc.wait()
@@ -104,6 +135,13 @@ class Supervisor:
         for e in events:
             log.warning("supervisor: %s", e)
         return events
+
+    def _of(self, value: Any, name: str) -> Any:
+        """``value`` of worker child ``name``: its entry of a mapping, or the value itself for
+        the (first) worker; None for any other child."""
+        if isinstance(value, Mapping):
+            return value.get(name)
+        return value if name == self.worker else None
 
     def verdicts_due_s(self, worker: str | None = None) -> float:
         """Since when the worker's verdicts can reach the supervisor (monotonic clock): the

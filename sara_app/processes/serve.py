@@ -252,7 +252,8 @@ def serve(
 
         def supervise() -> None:
             ages = {w: _verdict_age(registry, c, sup, w) for c, w in workers.items()}
-            sup.poll(time.monotonic(), ages)
+            bus = {w: _bus_since_verdict(registry, c) for c, w in workers.items()}
+            sup.poll(time.monotonic(), ages, bus)
             health.poll()
 
         frame_loop([(views[c], dashes[c]) for c in names], frame_hz, duration_s, supervise)
@@ -413,6 +414,16 @@ def _verdict_age(
     age = None if snap is None else snap.get("verdict_age_s")
     now = time.monotonic()
     return sup.hang_age(now, None if age is None else now - age, worker)
+
+
+def _bus_since_verdict(registry: Any, cell: str) -> bool:
+    """Whether the controller's status reached the registry after the cell's newest verdict:
+    the bus delivers, so a silent worker is silent itself (:meth:`Supervisor.poll`)."""
+    snap = registry.cell(cell)
+    ctl = None if snap is None else snap.get("controller")
+    if ctl is None or ctl.get("status_age_s") is None or snap.get("verdict_age_s") is None:
+        return False
+    return bool(ctl["status_age_s"] < snap["verdict_age_s"])
 
 
 _STOP = threading.Event()
