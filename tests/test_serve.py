@@ -235,3 +235,26 @@ def test_serve_runs_several_cells_on_one_router() -> None:
     while _children(zp) and time.monotonic() < t_end:
         time.sleep(0.2)
     assert _children(zp) == []
+
+
+def test_serve_says_why_when_its_api_port_is_taken_and_leaves_nothing_behind() -> None:
+    """The API port in use: one error line that says so, exit code 2, no cell process left,
+    and no traceback from the children stopped while they were still starting."""
+    import socket
+
+    zp, vp = free_port(), free_port()
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        ap = taken.getsockname()[1]
+        cmd = [sys.executable, "-m", "sara_app.cli", "serve", "--zenoh-port", str(zp),
+               "--viewer-port", str(vp), "--api-port", str(ap)]  # fmt: skip
+        out = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    text = out.stdout + out.stderr
+    assert out.returncode == 2, text[-2000:]
+    assert f"the API server did not start on http://127.0.0.1:{ap}/" in text
+    assert "Traceback" not in text and "KeyboardInterrupt" not in text, text[-3000:]
+    t_end = time.monotonic() + 10
+    while _children(zp) and time.monotonic() < t_end:
+        time.sleep(0.1)
+    assert _children(zp) == []

@@ -182,10 +182,14 @@ class Supervisor:
 
 
 def stop_processes(procs: list[subprocess.Popen[bytes]], timeout_s: float = 5.0) -> None:
-    """SIGINT to each, then wait ``timeout_s`` in all, then SIGKILL what is left."""
+    """SIGTERM to each, then wait ``timeout_s`` in all, then SIGKILL what is left. A cell
+    process that runs stops on SIGTERM as on Ctrl-C (``bus.process``, ``bus.router``: the loop
+    ends, the session closes); one still starting up has no handler yet and ends at once,
+    where SIGINT would print a KeyboardInterrupt traceback from the middle of its imports
+    (three of them under ``serve``'s own error when its API port was taken)."""
     for p in procs:
         if p.poll() is None:
-            p.send_signal(signal.SIGINT)
+            p.send_signal(signal.SIGTERM)
     t_end = time.monotonic() + timeout_s
     for p in procs:
         try:
