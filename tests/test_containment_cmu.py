@@ -13,6 +13,7 @@ import pytest
 from sara_app.errors import RecordingError
 from sara_app.human.analysis import containment
 from sara_app.human.intake import screen
+from sara_app.human.legs import containment as legs_containment
 from sara_app.human.params import load_param_set, to_reach_params
 from sara_app.human.reach import MODELS, HumanReach
 from sara_app.human.recordings import load_recording, shared_data_dir
@@ -48,9 +49,14 @@ def test_activity_sets_contain_their_recordings_and_keep_the_monitor_quiet(
     results, ps_name: str
 ) -> None:
     """``work`` (walking) and ``fast`` (walking, running, boxing): every model contains every
-    recording of the activity, and the conformance monitor finds nothing beyond the bounds."""
+    recording of the activity, the conformance monitor finds nothing beyond the bounds, and the
+    height bound of legs an upper-body tracker would not measure holds over every horizon."""
     ps = load_param_set(ps_name)
+    assert ps.legs_unmeasured is not None
     for clip in ACTIVITY[ps_name]:
+        for h in (0.1, 0.2, 0.5):
+            legs = legs_containment(_rec(clip), ps.legs_unmeasured, h, ps.delta_y_m)
+            assert legs.misses == 0, (clip, h, legs)
         res = results[clip, ps_name]
         for m in MODELS:
             assert res[m].share == 1.0, (clip, m, res[m].misses_per_joint, res[m].worst[:2])
@@ -128,3 +134,6 @@ def test_walking_sets_contain_the_walks_of_a_second_subject(ps_name: str, n_piec
             assert res[m].share == 1.0, (rec.name, m, res[m].misses_per_joint, res[m].worst[:2])
         s = screen(rec.times_s, rec.positions_m, p.delta_y_m, p.v_max_mps, p.a_max_mps2)
         assert s.counts["speed"] == s.counts["acceleration"] == 0, (rec.name, s.violations[:3])
+        assert ps.legs_unmeasured is not None
+        for h in (0.1, 0.2, 0.5):  # the legs' height bound (fitted to the walking pieces)
+            assert legs_containment(rec, ps.legs_unmeasured, h).misses == 0, (rec.name, h)

@@ -98,7 +98,7 @@ def test_the_bench_sets_bound_contains_the_bench_recording_through_the_live_boun
 
 
 def test_no_bound_without_one_in_the_set() -> None:
-    p = to_reach_params(load_param_set("work"), "full")
+    p = to_reach_params(load_param_set("schepp2022_table1"), "full")
     assert leg_caps(p, np.zeros((len(FULL_JOINTS), 3)), 0.0) is None
     bench = to_reach_params(load_param_set("bench_work"), "full")
     y = np.zeros((len(FULL_JOINTS), 3))
@@ -152,6 +152,43 @@ def test_the_legs_command_writes_a_set_that_loads(tmp_path, capsys) -> None:
     assert "ASSUMED" in loaded.sources["legs_unmeasured"]
     for rec in (load_recording(BENCH), load_recording(WALK)):
         assert containment(rec, loaded.legs_unmeasured, 0.5).misses == 0
+
+
+def test_pieces_of_one_recording_are_left_out_together() -> None:
+    """Two pieces of one recording lift the knee alike: left out one by one, each would be
+    fitted by its twin and look contained; left out as the recording they come from, both show
+    the lift that no other recording has (the misses a new recording of that kind would
+    make)."""
+    twin_a, twin_b = _standing(knee_lift_m=0.2), _standing(knee_lift_m=0.2)
+    other = _standing()
+    recs = [twin_a, twin_b, other]
+    by_piece = leave_one_out(recs, (0.2,), sources=["a1", "a2", "b"])
+    by_source = leave_one_out(recs, (0.2,), sources=["a", "a", "b"])
+    assert [r.misses for r in by_piece[:2]] == [0, 0]
+    assert all(r.misses > 0 and r.worst_excess_m > 0.19 for r in by_source[:2])
+    assert by_source[2].misses == 0
+    with pytest.raises(InputError, match="at least 2 recordings"):
+        leave_one_out(recs, (0.2,), sources=["a", "a", "a"])
+    with pytest.raises(InputError, match="2 sources for 3 recordings"):
+        leave_one_out(recs, (0.2,), sources=["a", "b"])
+
+
+def test_the_legs_command_takes_the_walking_pieces_of_a_recording(tmp_path, capsys) -> None:
+    """`NAME@walking`: the walking pieces alone, as `sara-app calibrate` takes them; the fitted
+    bound contains each piece, and the set's source names the pieces' recording as given."""
+    from sara_app.human.report import legs_command
+    from sara_app.human.segments import walking_pieces
+
+    out = tmp_path / "walk_legs.json"
+    ps = legs_command([f"{WALK}@walking", str(BENCH)], "work", out)
+    text = capsys.readouterr().out
+    walk = load_recording(WALK)
+    pieces = walking_pieces(walk)
+    assert pieces and f"{walk.name}: walking pieces" in text
+    assert ps.legs_unmeasured is not None
+    assert f"{WALK}@walking" in ps.sources["legs_unmeasured"]
+    for rec in pieces:
+        assert containment(rec, ps.legs_unmeasured, 0.5).misses == 0
 
 
 def _handover_upper(mode: str, bounded: bool) -> SimMetrics:

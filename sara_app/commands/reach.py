@@ -149,7 +149,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="fit the height bound of legs an upper-body tracker does not measure (full-body "
         "recordings of the activity; leave-one-out validated) into a parameter set",
     )
-    g.add_argument("recordings", nargs="+", help="full-body recordings (names or files)")
+    g.add_argument(
+        "recordings",
+        nargs="+",
+        help="full-body recordings (names or files); NAME@walking: that recording's walking "
+        "pieces alone",
+    )
     g.add_argument("--params", default="bench_work", help="the parameter set to add it to")
     g.add_argument("--out", type=Path, required=True, help="the parameter set written (JSON)")
     _recording_options(g)

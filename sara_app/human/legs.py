@@ -196,28 +196,34 @@ def rise_flagged(rec: Recording, rise_max_mps: float, delta_y_m: float = 0.0) ->
 
 def leave_one_out(
     recs: Sequence[Recording], horizons_s: Sequence[float] = (0.1, 0.2, 0.5),
-    margin_m: float = 0.0, delta_y_m: float = 0.0,
+    margin_m: float = 0.0, delta_y_m: float = 0.0, sources: Sequence[str] | None = None,
 ) -> list[LegContainment]:  # fmt: skip
     """Fit on every recording but one (:func:`fit_legs`, ``margin_m``), check the one left
     out at each horizon (the monitor's noise bound ``delta_y_m``); one row per recording and
-    horizon."""
-    if len(recs) < 2:
-        raise InputError(f"leave-one-out needs at least 2 recordings; got {len(recs)}")
+    horizon. ``sources``: the recording each of ``recs`` comes from (pieces of one recording,
+    e.g. its walking pieces, are left out together: they are not independent); default each
+    its own."""
+    src = [str(i) for i in range(len(recs))] if sources is None else list(sources)
+    if len(src) != len(recs):
+        raise InputError(f"{len(src)} sources for {len(recs)} recordings; expected one each")
+    if len(set(src)) < 2:
+        raise InputError(f"leave-one-out needs at least 2 recordings; got {len(set(src))}")
     rows = []
     for i, rec in enumerate(recs):
-        legs = fit_legs([r for j, r in enumerate(recs) if j != i], max(horizons_s), margin_m)
+        others = [r for j, r in enumerate(recs) if src[j] != src[i]]
+        legs = fit_legs(others, max(horizons_s), margin_m)
         rows += [containment(rec, legs, h, delta_y_m) for h in horizons_s]
     return rows
 
 
 def fit_validated(
     recs: Sequence[Recording], horizons_s: Sequence[float] = (0.1, 0.2, 0.5),
-    delta_y_m: float = 0.0,
+    delta_y_m: float = 0.0, sources: Sequence[str] | None = None,
 ) -> tuple[LegHeights, list[LegContainment], float]:  # fmt: skip
-    """Leave each recording out (:func:`leave_one_out`, no margin), derive the margin from the
-    worst excess of a recording left out (rounded up to 1 cm) and fit on all recordings with
-    it: ``(legs, the left-out rows, margin_m)``."""
-    rows = leave_one_out(recs, horizons_s, delta_y_m=delta_y_m)
+    """Leave each recording out (:func:`leave_one_out`, no margin; ``sources`` as there),
+    derive the margin from the worst excess of a recording left out (rounded up to 1 cm) and
+    fit on all recordings with it: ``(legs, the left-out rows, margin_m)``."""
+    rows = leave_one_out(recs, horizons_s, delta_y_m=delta_y_m, sources=sources)
     worst = max(r.worst_excess_m for r in rows)
     margin_m = max(0.0, math.ceil(worst * 100.0) / 100.0)
     return fit_legs(recs, max(horizons_s), margin_m), rows, margin_m

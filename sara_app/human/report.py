@@ -120,6 +120,17 @@ WALKING_SUFFIX = "@walking"
 """A recording named ``<name>@walking``: its walking pieces alone (``sara-app calibrate``)."""
 
 
+def walking_or_whole(rec: Recording, walking: bool) -> list[Recording]:
+    """``rec`` itself, or with ``walking`` its walking pieces (:mod:`sara_app.human.segments`;
+    printed, and an empty list said to be left out)."""
+    if not walking:
+        return [rec]
+    found = walking_pieces(rec)
+    spans = ", ".join(p.name.split("@")[1] for p in found)
+    print(f"  {rec.name}: walking pieces {spans or 'none: left out'}")
+    return found
+
+
 def reach_command(
     recording: str,
     horizon_s: float,
@@ -269,11 +280,7 @@ def calibrate_command(
     and widen the written set by the margin that derives."""
     walk = [walking or r.endswith(WALKING_SUFFIX) for r in recordings]
     recs = [load(r.removesuffix(WALKING_SUFFIX)) for r in recordings]
-    walks = [walking_pieces(r) if w else [r] for r, w in zip(recs, walk)]
-    for r, w, pieces_ in zip(recs, walk, walks):
-        if w:
-            spans = ", ".join(p.name.split("@")[1] for p in pieces_)
-            print(f"  {r.name}: walking pieces {spans or 'none: left out'}")
+    walks = [walking_or_whole(r, w) for r, w in zip(recs, walk)]
     keep = [i for i, pieces_ in enumerate(walks) if pieces_]
     recs, walks, walk = [recs[i] for i in keep], [walks[i] for i in keep], [walk[i] for i in keep]
     if not recs:
@@ -369,12 +376,22 @@ def legs_command(
 ) -> ParamSet:
     """``sara-app legs``: the height bound of unmeasured legs (:mod:`sara_app.human.legs`)
     fitted to full-body ``recordings`` with the margin their leave-one-out validation needs,
-    added to the set ``params`` and written to ``out``; prints the validation."""
+    added to the set ``params`` and written to ``out``; prints the validation. A recording
+    named ``<name>@walking`` gives its walking pieces alone (as for ``sara-app calibrate``;
+    none: left out, and said so); pieces of one recording are left out together."""
     from sara_app.human.legs import containment, fit_validated, format_containment
 
-    recs = [load(r) for r in recordings]
+    recs, sources = [], []
+    for name in recordings:
+        given = name.removesuffix(WALKING_SUFFIX)  # as given: two files may share a name
+        rec = load(given)
+        parts = walking_or_whole(rec, name.endswith(WALKING_SUFFIX))
+        recs += parts
+        sources += [given] * len(parts)
+    if not recs:
+        raise InputError("none of the recordings has a piece to fit the legs' heights to")
     base = load_param_set(params)
-    bounded, rows, margin_m = fit_validated(recs, delta_y_m=base.delta_y_m)
+    bounded, rows, margin_m = fit_validated(recs, delta_y_m=base.delta_y_m, sources=sources)
     print("legs below the pelvis, each recording left out (no margin):")
     print(f"{format_containment(rows)}\nmargin from the worst excess: {margin_m:.2f} m")
     fitted = [containment(r, bounded, h, base.delta_y_m) for r in recs for h in (0.1, 0.2, 0.5)]
@@ -387,7 +404,7 @@ def legs_command(
             "sources": {
                 **base.sources,
                 "legs_unmeasured": (
-                    f"`sara-app legs` on {', '.join(r.name for r in recs)}: each leg part's "
+                    f"`sara-app legs` on {', '.join(recordings)}: each leg part's "
                     f"highest joint over the pelvis and the pelvis's fastest rise (0.5 s), plus "
                     f"the margin {margin_m:.2f} m that leaving each recording out needs. ASSUMED "
                     "for the activity: feet on the floor (no kneeling on the bench, climbing or "
