@@ -12,8 +12,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sara_app.cell.build import base_pose
 from sara_app.errors import InputError, UnknownNameError
+from sara_app.geometry.poses import pose_from_xyz_rpy
 from sara_app.robot.ik import (
     end_effector_frame,
     frame_jacobian,
@@ -29,7 +29,7 @@ BASES = ((0.0, 0.0, 0.0, 0.0, 0.0, 0.0), (0.3, -0.2, 0.75, 0.1, -0.2, 1.2))
 @cache
 def robot(name: str, base: int) -> RobotModel:
     xyz, rpy = BASES[base][:3], BASES[base][3:]
-    return load_robot(name, T_world_base=base_pose(xyz, rpy))  # type: ignore[arg-type]
+    return load_robot(name, T_world_base=pose_from_xyz_rpy(xyz, rpy))  # type: ignore[arg-type]
 
 
 def _random_q(r: RobotModel, rng: np.random.Generator) -> np.ndarray:

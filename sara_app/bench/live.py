@@ -147,15 +147,15 @@ class _Display(threading.Thread):
         self.stop_event = threading.Event()
 
     def run(self) -> None:
-        from sara_app.cell.build import base_pose
         from sara_app.dashboard.bridge import CellView
         from sara_app.dashboard.viewer import Dashboard
+        from sara_app.geometry.poses import pose_from_xyz_rpy
         from sara_app.processes.serve import lower_thread_priority
         from sara_app.scenario import load_scenario, scenarios_dir
 
         lower_thread_priority(self.nice)
         sc = load_scenario(self.scenario)
-        T = base_pose(sc.robot.base_xyz_m, sc.robot.base_rpy_rad)
+        T = pose_from_xyz_rpy(sc.robot.base_xyz_m, sc.robot.base_rpy_rad)
         dash = Dashboard(robot=sc.robot.name, T_world_base=T)
         try:
             view = CellView(self.cell, self.hub, dash, sc, scenarios_dir())

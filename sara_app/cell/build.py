@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sara_app.cell.checksum import config_checksum
+from sara_app.geometry.poses import pose_from_xyz_rpy
 from sara_app.human.params import ParamSet, ReachParams, to_reach_params
 from sara_app.human.reach import HumanReach
 from sara_app.robot.model import JointLimits, RobotModel
@@ -17,22 +18,6 @@ from sara_app.robot.trajectory import PathFollower
 from sara_app.safety.modes import build_safety
 from sara_app.safety.shield import Shield
 from sara_app.scenario import Scenario
-
-
-def base_pose(xyz: tuple[float, float, float], rpy: tuple[float, float, float]) -> np.ndarray:
-    """``T_world_base (4, 4)`` from a position and roll-pitch-yaw (fixed axes x, y, z)."""
-    r, p, y = rpy
-    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
-    T = np.eye(4)
-    T[:3, :3] = np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
-    T[:3, 3] = xyz
-    return T
 
 
 def scaled_limits(limits: JointLimits, v: float, a: float, j: float) -> JointLimits:
@@ -50,7 +35,7 @@ def environment_boxes(sc: Scenario) -> tuple[np.ndarray, np.ndarray]:
     """The scenario's boxes as ``T_world_box (B, 4, 4)`` and ``half_extents_m (B, 3)``."""
     if not sc.environment:
         return np.zeros((0, 4, 4)), np.zeros((0, 3))
-    T = np.stack([base_pose(b.center_m, b.rpy_rad) for b in sc.environment])
+    T = np.stack([pose_from_xyz_rpy(b.center_m, b.rpy_rad) for b in sc.environment])
     return T, np.array([b.size_m for b in sc.environment], dtype=float) * 0.5
 
 
@@ -83,7 +68,7 @@ class Cell:
 
 
 def build_cell(sc: Scenario) -> Cell:
-    T = base_pose(sc.robot.base_xyz_m, sc.robot.base_rpy_rad)
+    T = pose_from_xyz_rpy(sc.robot.base_xyz_m, sc.robot.base_rpy_rad)
     robot = sc.robot.load(T)
     lim = scaled_limits(robot.limits, sc.limits.velocity, sc.limits.acceleration, sc.limits.jerk)
     wps = np.asarray(sc.task.waypoints_rad, dtype=float)

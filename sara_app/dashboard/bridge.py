@@ -40,13 +40,13 @@ from sara_app.bus.messages import (
     VerdictMsg,
 )
 from sara_app.bus.session import Bus
-from sara_app.cell.build import base_pose
 from sara_app.dashboard.frame import DisplayFrame
 from sara_app.dashboard.from_messages import boxes_of, occupancy_into, verdict_status
 from sara_app.dashboard.gizmos import GizmoEditing
 from sara_app.dashboard.viewer import Dashboard
 from sara_app.dashboard.whatif_panel import WhatIfHooks, WhatIfPanels
 from sara_app.errors import SaraError, ScenarioError, UnknownNameError, WorkerTimeoutError
+from sara_app.geometry.poses import pose_from_xyz_rpy
 from sara_app.ops.audit import AuditLog, default_audit_path
 from sara_app.ops.jobs import JobRunner
 from sara_app.robot.model import RobotModel
@@ -311,7 +311,7 @@ class CellView(GizmoEditing):
             apply=self.apply_whatif,
             cell=self.cell,
             robot=self.scenario.robot.name,
-            T_world_base=base_pose(robot.base_xyz_m, robot.base_rpy_rad),
+            T_world_base=pose_from_xyz_rpy(robot.base_xyz_m, robot.base_rpy_rad),
             audit_path=Path(audit) if audit is not None else default_audit_path(),
         )
         return WhatIfPanels(server, jobs, hooks)

@@ -17,7 +17,6 @@ from sara_app.bus.messages import (
     VerdictMsg,
 )
 from sara_app.bus.verdict_words import verdict_words
-from sara_app.cell.build import base_pose
 from sara_app.dashboard.frame import (
     CONTACT_CODES,
     ContactParts,
@@ -27,6 +26,7 @@ from sara_app.dashboard.frame import (
     LinkEnergy,
 )
 from sara_app.dashboard.tracking_text import tracking_now_status
+from sara_app.geometry.poses import pose_from_xyz_rpy
 from sara_app.human.skeleton import skeleton
 from sara_app.scenario import Scenario
 
@@ -162,6 +162,6 @@ def occupancy_into(frame: DisplayFrame, occ: OccupancyMsg) -> None:
 def boxes_of(sc: Scenario) -> EnvBoxes | None:
     if not sc.environment:
         return None
-    T = np.stack([base_pose(b.center_m, b.rpy_rad) for b in sc.environment])
+    T = np.stack([pose_from_xyz_rpy(b.center_m, b.rpy_rad) for b in sc.environment])
     half = np.array([b.size_m for b in sc.environment]) * 0.5
     return EnvBoxes(T, half)

@@ -11,11 +11,11 @@ from typing import Any
 
 import numpy as np
 
-from sara_app.cell.build import base_pose
 from sara_app.dashboard.access import acting
 from sara_app.dashboard.capsules import rotation_to_wxyz
 from sara_app.dashboard.viewer import Dashboard
 from sara_app.errors import SaraError, ScenarioError
+from sara_app.geometry.poses import pose_from_xyz_rpy
 from sara_app.robot.ik import end_effector_frame, pose_from_wxyz, solve_ik
 from sara_app.robot.model import RobotModel
 from sara_app.scenario import Scenario
@@ -54,7 +54,7 @@ class GizmoEditing:
         r = self.scenario.robot
         key = (r.name, tuple(r.base_xyz_m), tuple(r.base_rpy_rad))
         if self._robot_model is None or key != self._robot_key:
-            T = base_pose(r.base_xyz_m, r.base_rpy_rad)
+            T = pose_from_xyz_rpy(r.base_xyz_m, r.base_rpy_rad)
             self._robot_model = r.load(T, margin=False)
             self._robot_key = key
         return self._robot_model

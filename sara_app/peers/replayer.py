@@ -31,8 +31,8 @@ from sara_app.bus.messages import (
 )
 from sara_app.bus.process import process_main
 from sara_app.bus.session import Bus, Publisher, Subscription
-from sara_app.cell.build import base_pose
 from sara_app.errors import SaraError
+from sara_app.geometry.poses import pose_from_xyz_rpy
 from sara_app.human.glitches import Glitches
 from sara_app.human.params import to_reach_params
 from sara_app.robot.model import RobotModel
@@ -68,7 +68,7 @@ class Replayer:
     def load(self, sc: Scenario) -> None:
         self.scenario = sc
         self.params = to_reach_params(sc.param_set(), "full")
-        T = base_pose(sc.robot.base_xyz_m, sc.robot.base_rpy_rad)
+        T = pose_from_xyz_rpy(sc.robot.base_xyz_m, sc.robot.base_rpy_rad)
         self.robot: RobotModel = sc.robot.load(T, margin=False)
         self.q = np.asarray(sc.task.waypoints_rad[0], dtype=float)
         self._restart(time.time())

@@ -20,8 +20,8 @@ from sara_app.bus.access import Credentials, client_auth
 from sara_app.bus.codec import Decoder
 from sara_app.bus.messages import ScenarioStateMsg
 from sara_app.bus.session import Bus
-from sara_app.cell.build import base_pose
 from sara_app.errors import ParameterError, SaraError
+from sara_app.geometry.poses import pose_from_xyz_rpy
 from sara_app.ops.audit import default_data_dir
 from sara_app.scenario import Scenario, parse_scenario, scenarios_dir
 
@@ -86,7 +86,7 @@ def observe(
             views, dashes, urls = {}, {}, {}
             for i, c in enumerate(cells):
                 sc = announced_scenario(hub, c)
-                T = base_pose(sc.robot.base_xyz_m, sc.robot.base_rpy_rad)
+                T = pose_from_xyz_rpy(sc.robot.base_xyz_m, sc.robot.base_rpy_rad)
                 dash = Dashboard(robot=sc.robot.name, T_world_base=T,
                                  access=DashboardAccess(tokens, c))  # fmt: skip
                 view = CellView(c, hub, dash, sc, folder)

@@ -40,8 +40,8 @@ from sara_app.api.guard import load_tokens
 from sara_app.bus.access import Credentials, client_auth
 from sara_app.bus.process import LOG_LEVEL_ENV
 from sara_app.bus.session import Bus
-from sara_app.cell.build import base_pose
 from sara_app.errors import ParameterError, SaraError
+from sara_app.geometry.poses import pose_from_xyz_rpy
 from sara_app.ops.audit import default_data_dir
 from sara_app.ops.health import HealthLog
 from sara_app.ops.supervisor import Child, Supervisor
@@ -193,7 +193,7 @@ def serve(
     dashes = {
         c: Dashboard(
             robot=sc.robot.name,
-            T_world_base=base_pose(sc.robot.base_xyz_m, sc.robot.base_rpy_rad),
+            T_world_base=pose_from_xyz_rpy(sc.robot.base_xyz_m, sc.robot.base_rpy_rad),
             access=DashboardAccess(tokens, c),  # the API's tokens sign browsers in
         )
         for c in names

@@ -27,7 +27,6 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import minimize
 
 from sara_app.errors import InputError
 from sara_app.geometry.shapes import point_segment_distance
@@ -113,6 +112,10 @@ def fit_capsule(
         return float(_volume(np.sqrt(ss), r))
 
     # Nelder-Mead polish over both end points, restarted once with a smaller simplex.
+    # (scipy.optimize here, not at the top: only a fit that missed the cache needs it, and every
+    # cell process imports this module: 0.25 s of start-up each)
+    from scipy.optimize import minimize
+
     x = best_ends.ravel()
     f = objective(x)
     size = max(float(np.ptp(P, axis=0).max()), 1e-3)
