@@ -4,6 +4,8 @@ scenario chases the robot."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import threading
 import time
 
@@ -69,3 +71,18 @@ def test_skeletons_are_stamped_on_the_frame_clock() -> None:
     # the wake-up (a poll at half a period would scatter the gaps over half a period)
     off = np.abs(gaps * rate - np.round(gaps * rate))
     assert np.mean(off < 0.25) > 0.95, np.percentile(off, [50, 90])
+
+
+def test_the_replayer_imports_no_shield_and_no_optimizer() -> None:
+    """The replayer publishes people; it needs the scenario, the motions and the robot model,
+    not the shield and its kernels (it imported them for a pose helper: 1.2 s more before its
+    first skeleton, a 'no frame received' fault at every start as long) nor scipy's optimizer
+    (a capsule fit's, only on a cache miss)."""
+    heavy = ("sara_app.cell.build", "sara_app.safety.shield", "scipy.optimize")
+    code = (
+        "import sys\nimport sara_app.peers.replayer\n"
+        f"print(sorted(m for m in {heavy!r} if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120, check=True).stdout  # fmt: skip
+    assert out.strip().splitlines()[-1] == "[]", out[-500:]
