@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sara_app.cell.checksum import config_checksum
-from sara_app.geometry.poses import pose_from_xyz_rpy
+from sara_app.geometry.poses import box_arrays, pose_from_xyz_rpy
 from sara_app.human.params import ParamSet, ReachParams, to_reach_params
 from sara_app.human.reach import HumanReach
 from sara_app.robot.model import JointLimits, RobotModel
@@ -33,10 +33,7 @@ def scaled_limits(limits: JointLimits, v: float, a: float, j: float) -> JointLim
 
 def environment_boxes(sc: Scenario) -> tuple[np.ndarray, np.ndarray]:
     """The scenario's boxes as ``T_world_box (B, 4, 4)`` and ``half_extents_m (B, 3)``."""
-    if not sc.environment:
-        return np.zeros((0, 4, 4)), np.zeros((0, 3))
-    T = np.stack([pose_from_xyz_rpy(b.center_m, b.rpy_rad) for b in sc.environment])
-    return T, np.array([b.size_m for b in sc.environment], dtype=float) * 0.5
+    return box_arrays(sc.environment)
 
 
 @dataclass

@@ -26,7 +26,7 @@ from sara_app.dashboard.frame import (
     LinkEnergy,
 )
 from sara_app.dashboard.tracking_text import tracking_now_status
-from sara_app.geometry.poses import pose_from_xyz_rpy
+from sara_app.geometry.poses import box_arrays
 from sara_app.human.skeleton import skeleton
 from sara_app.scenario import Scenario
 
@@ -160,8 +160,4 @@ def occupancy_into(frame: DisplayFrame, occ: OccupancyMsg) -> None:
 
 
 def boxes_of(sc: Scenario) -> EnvBoxes | None:
-    if not sc.environment:
-        return None
-    T = np.stack([pose_from_xyz_rpy(b.center_m, b.rpy_rad) for b in sc.environment])
-    half = np.array([b.size_m for b in sc.environment]) * 0.5
-    return EnvBoxes(T, half)
+    return EnvBoxes(*box_arrays(sc.environment)) if sc.environment else None
