@@ -116,10 +116,12 @@ class Supervisor:
                     c.spawn(now)
                     events.append(f"{c.name} restarted (#{c.restarts})")
                 continue
-            age, bus = self._of(verdict_age_s, c.name), self._of(bus_since, c.name)
-            ran = c.ran_recently(now) if c.name in self.workers else True
-            silent = c.alive and age is not None and age > HUNG_AFTER_S
-            hung = c.name in self.workers and silent and (not ran or bool(bus))
+            hung = False
+            if c.name in self.workers:
+                age, bus = self._of(verdict_age_s, c.name), self._of(bus_since, c.name)
+                ran = c.ran_recently(now)  # every poll: it records the CPU time
+                silent = c.alive and age is not None and age > HUNG_AFTER_S
+                hung = silent and (not ran or bool(bus))
             if hung and c.proc is not None:
                 c.proc.send_signal(signal.SIGKILL)
                 c.proc.wait()

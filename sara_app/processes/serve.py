@@ -251,8 +251,9 @@ def serve(
         health = HealthLog(registry, dict.fromkeys(names, 1.0 / sc.shield.dt_s))
 
         def supervise() -> None:
-            ages = {w: _verdict_age(registry, c, sup, w) for c, w in workers.items()}
-            bus = {w: _bus_since_verdict(registry, c) for c, w in workers.items()}
+            snaps = {w: registry.cell(c) for c, w in workers.items()}  # one snapshot each
+            ages = {w: _verdict_age(snap, sup, w) for w, snap in snaps.items()}
+            bus = {w: _bus_since_verdict(snap) for w, snap in snaps.items()}
             sup.poll(time.monotonic(), ages, bus)
             health.poll()
 
@@ -406,21 +407,23 @@ def _is_loopback(host: str) -> bool:
 
 
 def _verdict_age(
-    registry: Any, cell: str, sup: Supervisor, worker: str | None = None
+    snap: dict[str, Any] | None, sup: Supervisor, worker: str | None = None
 ) -> float | None:
-    """Age of the cell's newest verdict when it came from the worker process running now
-    through the router running now (:meth:`Supervisor.hang_age`), else None."""
-    snap = registry.cell(cell)
+    """Age of the newest verdict in a cell's registry snapshot when it came from the worker
+    process running now through the router running now (:meth:`Supervisor.hang_age`), else
+    None."""
     age = None if snap is None else snap.get("verdict_age_s")
     now = time.monotonic()
     return sup.hang_age(now, None if age is None else now - age, worker)
 
 
-def _bus_since_verdict(registry: Any, cell: str) -> bool:
-    """Whether the controller's status reached the registry after the cell's newest verdict:
-    the bus delivers, so a silent worker is silent itself (:meth:`Supervisor.poll`)."""
-    snap = registry.cell(cell)
-    ctl = None if snap is None else snap.get("controller")
+def _bus_since_verdict(snap: dict[str, Any] | None) -> bool:
+    """Whether, in a cell's registry snapshot, the controller's status arrived after the
+    newest verdict: the bus delivers, so a silent worker is silent itself
+    (:meth:`Supervisor.poll`)."""
+    if snap is None:
+        return False
+    ctl = snap.get("controller")
     if ctl is None or ctl.get("status_age_s") is None or snap.get("verdict_age_s") is None:
         return False
     return bool(ctl["status_age_s"] < snap["verdict_age_s"])
