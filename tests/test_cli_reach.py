@@ -106,6 +106,25 @@ def test_the_legs_command_fits_full_body_recordings_and_refuses_one(tmp_path, ca
     assert "at least 2 recordings" in capsys.readouterr().err
 
 
+def test_the_displacement_command_validates_and_writes_a_loadable_set(tmp_path, capsys) -> None:
+    """Two recordings (one upper-body): each left out against the other's table, then the
+    table fitted on both in the written set; the legs, which only one measures, keep v_max."""
+    from sara_app.human.params import load_param_set
+
+    files = _two(tmp_path, "upper")
+    out = tmp_path / "d.json"
+    assert main(["displacement", *files, "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "each recording left out" in text and "  h: 0.1 s" in text and "  u: 0.1 s" in text
+    ps = load_param_set(out)
+    assert ps.displacement is not None and len(ps.displacement.max_m["head"]) == 50
+    # the sway: 0.3 m amplitude at 1 Hz, ~1.9 m/s peak; over 0.5 s it covers at most 0.6 m
+    assert ps.displacement.max_m["head"][-1] < 0.61
+    assert set(json.loads(ps.sound_for["displacement_left_out_misses_unflagged"])) == {"h", "u"}
+    assert main(["displacement", *files, "--margin", "0.5", "--out", str(out)]) == 2
+    assert "margin" in capsys.readouterr().err
+
+
 def test_calibrate_validates_leaving_each_recording_out(tmp_path, capsys) -> None:
     cal = tmp_path / "cal.json"
     files = _two(tmp_path, "upper")

@@ -27,6 +27,21 @@ def ref_static(r: HumanReach, y, t_end, base, speed):
     return y[:, r.skeleton.part_joints], tau[:, None] * speed + base
 
 
+def ref_vel_disp(r: HumanReach, y, t_end):
+    """R_VEL with a displacement table: base + min(v_max tau, D(tau)), D per part the larger of
+    its joints' table cells (cell ceil(tau / step) - 1; past the table its last value + v_max x
+    the rest)."""
+    p, sk = r.params, r.skeleton
+    tau = t_end + p.delay_s
+    D = np.maximum(p.disp_max_m[sk.part_joints[:, 0]], p.disp_max_m[sk.part_joints[:, 1]])
+    n, step = D.shape[1], p.disp_step_s
+    cell = np.maximum(np.ceil(tau / step).astype(int) - 1, 0)
+    inside = D[:, np.minimum(cell, n - 1)].T  # (K, P)
+    past = D[:, -1][None, :] + r.vel_speed[None, :] * (tau - n * step)[:, None]
+    d = np.where((cell < n)[:, None], inside, past)
+    return y[:, sk.part_joints], np.minimum(tau[:, None] * r.vel_speed, d) + r.vel_base
+
+
 def ref_pos(r: HumanReach, y, t_end):
     sk, p = r.skeleton, r.params
     tau = t_end + p.delay_s
@@ -100,6 +115,33 @@ def test_kernels_equal_numpy_formulas(c: dict) -> None:
     ends, radius = ref_acc(r, y, v, dv, ts, te)
     _close(occ.ends, ends)
     _close(occ.radius, radius)
+
+
+def _with_table(kind: str, seed: int) -> HumanReach:
+    """Table I's set with a random non-decreasing displacement table (5 cells of 20 ms), some
+    of it above v_max tau (then v_max tau holds)."""
+    from sara_app.human.params import DisplacementBound
+    from sara_app.human.skeleton import FULL_JOINTS
+
+    rng = np.random.default_rng(seed)
+    rows = {j: np.cumsum(rng.uniform(0.0, 0.08, 5)).round(3).tolist() for j in FULL_JOINTS}
+    ps = load_param_set("schepp2022_table1").model_copy(
+        update={"displacement": DisplacementBound(step_s=0.02, max_m=rows)}
+    )
+    return HumanReach(to_reach_params(ps, kind))
+
+
+@SETTINGS
+@given(inputs(), st.integers(0, 1000))
+def test_vel_with_a_displacement_table_equals_numpy(c: dict, seed: int) -> None:
+    r = _with_table(c["kind"], seed)
+    te = np.concatenate([c["te"] * 4.0, [0.0, 0.02, 0.04 - 0.01, 0.1, 0.5]])  # edges, past it
+    ends, radius = ref_vel_disp(r, c["y"], te)
+    occ = r.vel(c["y"], te)
+    _close(occ.ends[:, 0], ends)
+    _close(occ.radius[0], radius)
+    assert np.all(np.diff(radius, axis=0)[np.diff(te) >= 0] >= 0)  # monotone in time
+    _close(r.iso13855(c["y"], te).radius[0], ref_static(r, c["y"], te, r.iso_base, r.iso_speed)[1])
 
 
 def test_nan_velocity_bound_gives_nan_radius() -> None:

@@ -21,7 +21,7 @@ import numpy as np
 from sara_app.cell.build import Cell
 from sara_app.errors import SaraError
 from sara_app.human.gate import GateResult
-from sara_app.human.intake import Intake, IntakeSettings
+from sara_app.human.intake import Displacement, Intake, IntakeSettings, displacement_of
 from sara_app.human.legs import leg_caps
 from sara_app.human.skeleton import UPPER_JOINTS
 from sara_app.human.widening import widening
@@ -50,13 +50,17 @@ def unmeasured_track(
     a_max: np.ndarray,
     settings: IntakeSettings | None = None,
     pelvis_rise_mps: float = np.inf,
+    displacement: Displacement = None,
 ) -> Track:
     """A known person without a measurement yet (a fault until one arrives);
     ``pelvis_rise_mps``: the monitor's bound on the pelvis's rise where the legs are not
-    measured (:mod:`sara_app.human.legs`)."""
+    measured (:mod:`sara_app.human.legs`); ``displacement``: the monitor's displacement bound
+    (:func:`~sara_app.human.intake.displacement_of`)."""
     return Track(
         HumanState.unmeasured(human_id, len(v_max)),
-        Intake(delta_y_m, v_max, a_max, settings or IntakeSettings(), pelvis_rise_mps),
+        Intake(
+            delta_y_m, v_max, a_max, settings or IntakeSettings(), pelvis_rise_mps, displacement
+        ),  # fmt: skip
     )
 
 
@@ -65,7 +69,13 @@ def track_for(cell: Cell, human_id: str) -> Track:
     p = cell.params
     gate = cell.scenario.inputs.gate.intake()
     return unmeasured_track(
-        human_id, p.delta_y_m, p.v_max_mps, p.a_max_mps2, gate, p.pelvis_rise_mps
+        human_id,
+        p.delta_y_m,
+        p.v_max_mps,
+        p.a_max_mps2,
+        gate,
+        p.pelvis_rise_mps,
+        displacement_of(p),
     )
 
 

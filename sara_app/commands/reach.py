@@ -57,6 +57,13 @@ def _legs(args: argparse.Namespace) -> None:
     legs_command(args.recordings, args.params, args.out, load=_load(args))
 
 
+def _displacement(args: argparse.Namespace) -> None:
+    from sara_app.human.report import displacement_command
+
+    displacement_command(args.recordings, args.params, args.out, _load(args), _ceilings(args),
+                         args.margin)  # fmt: skip
+
+
 def _ceilings(args: argparse.Namespace) -> Ceilings | None:
     from sara_app.errors import ParameterError
     from sara_app.human.failures import Ceilings
@@ -159,3 +166,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--out", type=Path, required=True, help="the parameter set written (JSON)")
     _recording_options(g)
     g.set_defaults(run=_legs)
+
+    d = sub.add_parser(
+        "displacement",
+        help="fit how far each joint gets within a time (R_VEL's displacement bound, "
+        "leave-one-out validated) into a parameter set",
+    )
+    d.add_argument("recordings", nargs="+", help="recordings of the activity (names or files); "
+                   "NAME@walking: that recording's walking pieces alone")  # fmt: skip
+    d.add_argument("--params", default="bench_work", help="the parameter set to add it to")
+    d.add_argument("--margin", type=float, default=1.0,
+                   help="factor on the fitted table (>= 1; default 1: as fitted)")  # fmt: skip
+    d.add_argument("--max-speed", type=float, default=None,
+                   help="with --max-acc: reconstruction failures beyond these ceilings are "
+                   "split off first (as for calibrate)")  # fmt: skip
+    d.add_argument("--max-acc", type=float, default=None)
+    d.add_argument("--out", type=Path, required=True, help="the parameter set written (JSON)")
+    _recording_options(d)
+    d.set_defaults(run=_displacement)

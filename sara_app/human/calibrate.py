@@ -202,7 +202,7 @@ def _arm_contained(ps: ParamSet, recs: list[Recording], horizon_s: float) -> boo
     return True
 
 
-def _screened(
+def screened(
     base: ParamSet,
     recs: list[Recording],
     dy: float,
@@ -272,7 +272,7 @@ def calibrate(
     joints = skeleton("full" if "full" in kinds else "upper").joints
     dy = base.delta_y_m if delta_y_m is None else float(delta_y_m)
     rep = CalibrationReport(horizon_s, delta_y_m=dy)
-    trusted = _screened(base, recs, dy, joints, rep)
+    trusted = screened(base, recs, dy, joints, rep)
     v_fit, dvs = fit_velocity(recs, joints, dy, horizon_s, trusted=trusted)
     a_base = np.array([base.joints[j].a_max_mps2 for j in joints])
     v_base = np.array([base.joints[j].v_max_mps for j in joints])

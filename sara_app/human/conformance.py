@@ -15,6 +15,11 @@ hold right now:
   (the linear interpolation error bound), so a measured midpoint lies within that plus
   ``2 delta_y`` of the measured chord; value reported: the least acceleration that explains the
   measured distance, ``2 (d - 2 delta_y) / ((t_1 - t_0)(t_2 - t_1))``;
+- **displacement** (where the parameter set bounds it, R_VEL's table
+  :class:`~sara_app.human.params.DisplacementBound`): ``|y_2 - y_0| - 2 delta_y <= D(t_2 -
+  t_0)`` for every trusted position up to the table's horizon back (the last
+  ``DISPLACEMENT_FRAMES`` frames; a tracker faster than that many frames per horizon is checked
+  over the part of the horizon they cover); value reported: that distance, in m;
 - **rise** (a person whose legs are not measured, where the parameter set bounds those legs
   below the pelvis, :mod:`sara_app.human.legs`): ``z_2 - z_0 <= 2 delta_y + rise_max (t_2 -
   t_0)`` for the joints it bounds (the pelvis); value reported: ``(z_2 - z_0 - 2 delta_y) /
@@ -35,15 +40,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sara_app.errors import ParameterError
-from sara_app.human.conformance_kernels import observe_frame
+from sara_app.human.conformance_kernels import observe_displacement, observe_frame
 
-QUANTITIES = ("speed", "acceleration", "rise")
+QUANTITIES = ("speed", "acceleration", "rise", "displacement")
 
 
 @dataclass(frozen=True)
 class Violation:
     """One joint beyond its bound: ``quantity`` in ``QUANTITIES``, ``value`` and ``bound`` in
-    m/s or m/s^2, ``t_s`` the frame's stamp."""
+    m/s, m/s^2 or (displacement) m, ``t_s`` the frame's stamp."""
 
     joint: str
     quantity: str
@@ -54,18 +59,23 @@ class Violation:
 
 SPANS = 5
 """Spans checked: 1, 2, 4, 8 and 16 frames back."""
+DISPLACEMENT_FRAMES = 128
+"""Frames kept for the displacement check: a 0.5 s table at up to 256 Hz."""
 
 
 @dataclass
 class Monitor:
     """The monitor of one person; ``joints`` names ``v_max_mps``/``a_max_mps2`` ``(J,)``;
-    ``rise_max_mps (J,)``: the upward speed bounds (``inf``: a joint without; empty: none)."""
+    ``rise_max_mps (J,)``: the upward speed bounds (``inf``: a joint without; empty: none);
+    ``disp_m (J, N)``, ``disp_step_s``: the displacement bound (``N = 0``: none)."""
 
     joints: tuple[str, ...]
     v_max_mps: np.ndarray
     a_max_mps2: np.ndarray
     recover_s: float = 0.5
     rise_max_mps: np.ndarray = field(default_factory=lambda: np.empty(0))
+    disp_m: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
+    disp_step_s: float = 1.0
     counts: dict[str, int] = field(default_factory=lambda: dict.fromkeys(QUANTITIES, 0))
     """Frames x joints beyond a bound, per quantity, since the monitor was built."""
     last: list[Violation] = field(default_factory=list)
@@ -80,12 +90,19 @@ class Monitor:
         self.a_max_mps2 = np.asarray(self.a_max_mps2, dtype=float)
         J, N = len(self.joints), 2 ** (SPANS - 1) + 1
         self.rise_max_mps = _rise_bounds(self.rise_max_mps, J)
+        self.disp_m = _disp_table(self.disp_m, J)
         self._t = np.full(N, -np.inf)  # newest first
         self._y = np.zeros((N, J, 3))
         self._ok = np.zeros((N, J), bool)
         self._speed = np.zeros(J)  # the newest frame's, per joint (owned, reused)
         self._acc = np.zeros(J)
         self._rise = np.zeros(J)
+        self._d_t = np.full(DISPLACEMENT_FRAMES, -np.inf)  # circular, next slot self._d_slot
+        self._d_y = np.zeros((DISPLACEMENT_FRAMES, J, 3))
+        self._d_ok = np.zeros((DISPLACEMENT_FRAMES, J), bool)
+        self._d_slot = 0
+        self._d_value = np.zeros(J)
+        self._d_bound = np.full(J, np.inf)
         self.peak_speed_mps = np.zeros(J)
         """The largest speed and acceleration any frame needed, per joint (whatever the
         bounds: what a parameter set must allow for this motion to conform)."""
@@ -93,12 +110,15 @@ class Monitor:
 
     def retune(
         self, v_max_mps: np.ndarray, a_max_mps2: np.ndarray, recover_s: float,
-        rise_max_mps: np.ndarray | None = None,
+        rise_max_mps: np.ndarray | None = None, disp_m: np.ndarray | None = None,
+        disp_step_s: float = 1.0,
     ) -> None:  # fmt: skip
         self.v_max_mps = np.asarray(v_max_mps, dtype=float)
         self.a_max_mps2 = np.asarray(a_max_mps2, dtype=float)
         self.recover_s = recover_s
         self.rise_max_mps = _rise_bounds(rise_max_mps, len(self.joints))
+        self.disp_m = _disp_table(disp_m, len(self.joints))
+        self.disp_step_s = disp_step_s
 
     def observe(
         self,
@@ -128,6 +148,15 @@ class Monitor:
             bound = self.rise_max_mps
             found += [Violation(self.joints[j], "rise", float(self._rise[j]), float(bound[j]), t_s)
                       for j in np.flatnonzero(self._rise > bound)]  # fmt: skip
+        if self.disp_m.shape[1]:
+            value, bound = self._d_value, self._d_bound
+            observe_displacement(self._d_t, self._d_y, self._d_ok, self._d_slot, float(t_s),
+                                 np.asarray(y, float), np.asarray(trusted, bool),
+                                 float(delta_y_m), self.disp_m, float(self.disp_step_s),
+                                 self.v_max_mps, value, bound)  # fmt: skip
+            self._d_slot = (self._d_slot + 1) % DISPLACEMENT_FRAMES
+            found += [Violation(self.joints[j], "displacement", float(value[j]), float(bound[j]),
+                                t_s) for j in np.flatnonzero(value > bound)]  # fmt: skip
         self.newest_s = max(self.newest_s, t_s)
         if found:
             self.last = found
@@ -151,6 +180,21 @@ class Monitor:
             f"human {human_id!r}: {v.joint} {v.quantity} {v.value:.2f} > bound {v.bound:.2f}"
             f"{more}; failsafe until {self.recover_s} s within bounds"
         )
+
+
+def _disp_table(disp_m: np.ndarray | None, n_joints: int) -> np.ndarray:
+    """``(J, N)`` displacement table (None or empty: ``(J, 0)``, none); raises on another shape
+    or a value that is not finite and >= 0."""
+    if disp_m is None or np.size(disp_m) == 0:
+        return np.zeros((n_joints, 0))
+    table = np.ascontiguousarray(disp_m, dtype=float)
+    good = table.ndim == 2 and table.shape[0] == n_joints
+    if not (good and (np.isfinite(table) & (table >= 0)).all()):
+        raise ParameterError(
+            f"monitor displacement table of shape {np.shape(disp_m)}; expected ({n_joints}, N) "
+            "finite distances >= 0"
+        )
+    return table
 
 
 def _rise_bounds(rise_max_mps: np.ndarray | None, n_joints: int) -> np.ndarray:

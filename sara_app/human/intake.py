@@ -25,6 +25,10 @@ from sara_app.human.skeleton import FULL_JOINTS
 from sara_app.human.velocity import VelocityEstimator
 from sara_app.kernel_types import as_f8, entry
 
+Displacement = tuple[np.ndarray, float] | None
+"""A monitor's displacement bound: ``(disp_m (J, N), disp_step_s)`` of the parameter set
+(:class:`~sara_app.human.params.DisplacementBound`); None: none."""
+
 _REPEATED = entry(repeated_frame)
 """Without numba's dispatcher: ``Intake._repeated`` checks the shapes and dtypes."""
 
@@ -77,12 +81,14 @@ class Intake:
         a_max_mps2: np.ndarray,
         settings: IntakeSettings = IntakeSettings(),
         pelvis_rise_mps: float = np.inf,
+        displacement: Displacement = None,
     ) -> None:
         J = len(v_max_mps)
         self.gate = Gate(np.asarray(v_max_mps, float), settings.gate)
         self.estimator = VelocityEstimator(J, delta_y_m, a_max_mps2)
+        disp_m, disp_step_s = _table(displacement, J)
         self.monitor = Monitor(FULL_JOINTS[:J], v_max_mps, a_max_mps2, settings.recover_s,
-                               _pelvis_rise(J, pelvis_rise_mps))  # fmt: skip
+                               _pelvis_rise(J, pelvis_rise_mps), disp_m, disp_step_s)  # fmt: skip
         self.stale_after_s = settings.stale_after_s
         self.refusal: str | None = None
         """Why the last frame :meth:`take` returned None for: ``tracking_inconsistent`` or
@@ -96,13 +102,14 @@ class Intake:
     def retune(
         self, delta_y_m: float, v_max_mps: np.ndarray, a_max_mps2: np.ndarray,
         settings: IntakeSettings, pelvis_rise_mps: float = np.inf,
+        displacement: Displacement = None,
     ) -> None:  # fmt: skip
         """New parameters (a scenario edit): what was learned stays, velocity bounds restart."""
         self.gate.retune(v_max_mps, settings.gate)
         self.estimator.retune(delta_y_m, a_max_mps2)
         J = len(v_max_mps)
         self.monitor.retune(v_max_mps, a_max_mps2, settings.recover_s,
-                            _pelvis_rise(J, pelvis_rise_mps))  # fmt: skip
+                            _pelvis_rise(J, pelvis_rise_mps), *_table(displacement, J))  # fmt: skip
         self.stale_after_s = settings.stale_after_s
 
     def take(
@@ -246,11 +253,13 @@ def screen(
     a_max_mps2: np.ndarray,
     settings: IntakeSettings | None = None,
     missing: np.ndarray | None = None,
+    displacement: Displacement = None,
 ) -> Screening:
     """Every frame ``y (T, J, 3)`` through a fresh intake (:meth:`Intake.take`, as a live cell
     takes it: a refused frame does not feed the estimator); ``missing (T, J)``: joint-frames the
-    tracker did not measure."""
-    intake = Intake(delta_y_m, v_max_mps, a_max_mps2, settings or IntakeSettings())
+    tracker did not measure; ``displacement``: the monitor's displacement bound."""
+    intake = Intake(delta_y_m, v_max_mps, a_max_mps2, settings or IntakeSettings(),
+                    displacement=displacement)  # fmt: skip
     T, J = y.shape[:2]
     held = np.zeros((T, J), bool)
     flags = np.zeros((T, J, len(FLAGS)), bool)
@@ -275,7 +284,21 @@ def screen_recording(params: ReachParams, rec: Recording) -> Screening:
     recording's joints): what a live cell's gate and monitor make of that person."""
     J = rec.positions_m.shape[1]
     return screen(rec.times_s, rec.positions_m, params.delta_y_m, params.v_max_mps[:J],
-                  params.a_max_mps2[:J])  # fmt: skip
+                  params.a_max_mps2[:J], displacement=displacement_of(params))  # fmt: skip
+
+
+def displacement_of(params: ReachParams) -> Displacement:
+    """The monitor's displacement bound of ``params`` (None where the set has none)."""
+    if params.disp_max_m.shape[1] == 0:
+        return None
+    return params.disp_max_m, params.disp_step_s
+
+
+def _table(displacement: Displacement, n_joints: int) -> tuple[np.ndarray, float]:
+    """The monitor's ``(disp_m (J, N), disp_step_s)``: the first ``n_joints`` rows."""
+    if displacement is None:
+        return np.zeros((n_joints, 0)), 1.0
+    return displacement[0][:n_joints], displacement[1]
 
 
 def _pelvis_rise(n_joints: int, pelvis_rise_mps: float) -> np.ndarray:

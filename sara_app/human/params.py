@@ -84,6 +84,35 @@ class LegHeights(Strict):
         return v
 
 
+class DisplacementBound(Strict):
+    """How far each joint gets from where it was, per horizon: ``max_m[joint][i]`` bounds the
+    distance between its positions ``tau`` apart for every ``tau`` in ``(i step_s, (i + 1)
+    step_s]`` (beyond the measured position's ``delta_y``), non-decreasing in ``i``. A joint
+    at its peak speed does not keep it: hands that swing at 7 m/s are 0.7-0.8 m from where they
+    were 0.2 s before, not 1.4 m. Fitted to recordings (:func:`sara_app.human.calibrate.
+    fit_displacement`); R_VEL's radius grows by the smaller of ``v_max tau`` and this bound
+    (beyond the table: its last value plus ``v_max`` times the rest), and the conformance
+    monitor checks it."""
+
+    step_s: Annotated[float, Field(ge=0.001, le=0.1, allow_inf_nan=False)]
+    max_m: dict[str, list[NonNeg]]
+
+    @field_validator("max_m")
+    @classmethod
+    def _tables(cls, v: dict[str, list[float]]) -> dict[str, list[float]]:
+        _check_names("joint", v, FULL_JOINTS)
+        sizes = {len(row) for row in v.values()}
+        if len(sizes) != 1 or not 1 <= sizes.pop() <= 1000:
+            raise ValueError(
+                f"displacement tables of lengths {sorted({len(r) for r in v.values()})}; "
+                "expected one length, 1 to 1000 values per joint"
+            )
+        for j, row in v.items():
+            if any(b < a for a, b in zip(row, row[1:])):
+                raise ValueError(f"displacement table of {j!r} decreases; expected non-decreasing")
+        return v
+
+
 class ParamSet(Strict):
     """A named, complete human parameter set (the JSON file format)."""
 
@@ -102,6 +131,8 @@ class ParamSet(Strict):
     legs_unmeasured: LegHeights | None = None
     """The vertical bound of unmeasured legs; None: the legs of an upper-body track are bounded
     by their reach from the pelvis only."""
+    displacement: DisplacementBound | None = None
+    """Per-horizon displacement bounds (R_VEL's radius); None: R_VEL grows by ``v_max tau``."""
 
     @field_validator("joints")
     @classmethod
@@ -131,7 +162,9 @@ class ReachParams:
 
     ``v_max_mps``, ``a_max_mps2``: ``(J,)``; ``half_thickness_m``, ``iso_radius_m``: ``(P,)``;
     ``leg_above_pelvis_m (P,)``, ``pelvis_rise_mps``: the vertical bound of unmeasured legs
-    (:class:`LegHeights`; ``inf`` for parts it does not bound and where the set has none).
+    (:class:`LegHeights`; ``inf`` for parts it does not bound and where the set has none);
+    ``disp_max_m (J, N)``, ``disp_step_s``: the displacement bound (:class:`DisplacementBound`;
+    ``N = 0`` where the set has none).
     """
 
     kind: str
@@ -147,6 +180,8 @@ class ReachParams:
     arm: ArmModelParams
     leg_above_pelvis_m: np.ndarray
     pelvis_rise_mps: float
+    disp_max_m: np.ndarray
+    disp_step_s: float
 
 
 def to_reach_params(ps: ParamSet, kind: str) -> ReachParams:
@@ -154,6 +189,8 @@ def to_reach_params(ps: ParamSet, kind: str) -> ReachParams:
     sk = skeleton(kind)
     legs = ps.legs_unmeasured
     above = {} if legs is None else legs.above_pelvis_m
+    d = ps.displacement
+    disp = np.array([d.max_m[j] for j in sk.joints], dtype=float) if d is not None else None
     return ReachParams(
         kind=kind,
         name=ps.name,
@@ -168,6 +205,8 @@ def to_reach_params(ps: ParamSet, kind: str) -> ReachParams:
         arm=ps.arm,
         leg_above_pelvis_m=np.array([above.get(p, np.inf) for p in sk.parts]),
         pelvis_rise_mps=np.inf if legs is None else legs.rise_max_mps,
+        disp_max_m=np.zeros((len(sk.joints), 0)) if disp is None else disp,
+        disp_step_s=1.0 if ps.displacement is None else ps.displacement.step_s,
     )
 
 

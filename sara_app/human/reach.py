@@ -101,6 +101,11 @@ class HumanReach:
         # R_VEL / ISO: radius = base + speed * tau (max over the two joints, radius monotone).
         self.vel_base = p.delta_y_m + p.half_thickness_m
         self.vel_speed = np.maximum(p.v_max_mps[ja], p.v_max_mps[jb])
+        # R_VEL's displacement bound per part (P, N): the larger of its two joints' (inf: ISO).
+        disp = np.asarray(p.disp_max_m, dtype=np.float64)
+        self.vel_disp = np.maximum(disp[ja], disp[jb])
+        self.disp_step_s = float(p.disp_step_s)
+        self.no_disp = np.zeros((sk.n_parts, 0))
         self.iso_base = p.delta_y_m + p.iso_radius_m
         self.iso_speed = np.full(sk.n_parts, p.iso_v_max_mps)
         # R_ACC: per joint X = [R(tau_b) | R(tau_b) + |v| (tau_b - tau_a) / 2]; ball parts take
@@ -131,7 +136,8 @@ class HumanReach:
         # The kernels are called without dispatch (kernel_types.entry): their constants must be
         # exactly the signatures' dtypes, whatever types the parameters came in.
         for name in ("vel_base", "vel_speed", "iso_base", "iso_speed", "a_half", "a_max",
-                     "v_max", "pos_rspeed", "pos_rbase", "half_th"):  # fmt: skip
+                     "v_max", "pos_rspeed", "pos_rbase", "half_th", "vel_disp",
+                     "no_disp"):  # fmt: skip
             setattr(self, name, np.ascontiguousarray(getattr(self, name), dtype=np.float64))
 
     def _output(self, name: str, H: int, K: int) -> tuple[Occupancy, np.ndarray, np.ndarray]:
@@ -252,8 +258,9 @@ class HumanReach:
         """The models' constants as the compiled checks take them: ``(static, acc, pos,
         (delay_s, delta_y_m), n_limbs)`` (:func:`~sara_app.human.reach_kernels.person_sets`)."""
         p = self.params
+        disp = np.stack([self.vel_disp, np.full_like(self.vel_disp, np.inf)])  # ISO: none
         static = (self.part_joints, np.stack([self.vel_base, self.iso_base]),
-                  np.stack([self.vel_speed, self.iso_speed]))  # fmt: skip
+                  np.stack([self.vel_speed, self.iso_speed]), disp, self.disp_step_s)  # fmt: skip
         acc = (self.a_half, self.half_th, self.acc_ia, self.acc_ib,
                self.acc_ends, self.a_max, self.v_max)  # fmt: skip
         pos = (self.pos_seg_a, self.pos_seg_b, self.pos_seg_limb, self.pos_ends,
@@ -266,11 +273,14 @@ class HumanReach:
     # next call of the same model with the same shapes; ``model`` returns copies.
 
     def vel(self, y: np.ndarray, t_end_s: np.ndarray) -> Occupancy:
-        """R_VEL = y(0) + B(delta_y) + B(v_max tau) per joint, capsules per body part.
+        """R_VEL = y(0) + B(delta_y) + B(v_max tau) per joint, capsules per body part (Schepp et
+        al. 2022 Sec. II-B); where the set carries a displacement bound D(tau)
+        (:class:`~sara_app.human.params.DisplacementBound`), B(min(v_max tau, D(tau))).
 
-        Sound when every joint's speed stays below its v_max.
+        Sound when every joint's speed stays below its v_max and its displacement over any tau
+        within D(tau) (the conformance monitor checks both).
         """
-        return self._static("vel", y, t_end_s, self.vel_base, self.vel_speed)
+        return self._static("vel", y, t_end_s, self.vel_base, self.vel_speed, self.vel_disp)
 
     def iso13855(self, y: np.ndarray, t_end_s: np.ndarray) -> Occupancy:
         """ISO 13855 expansion (Pereira & Althoff 2016 Sec. III-A): every body part's capsule at the
@@ -278,16 +288,18 @@ class HumanReach:
         than v_iso (1.6 m/s upper body, 2.0 m/s full body): real fast motion breaks this (Pereira &
         Althoff 2016).
         """
-        return self._static("iso13855", y, t_end_s, self.iso_base, self.iso_speed)
+        return self._static("iso13855", y, t_end_s, self.iso_base, self.iso_speed, self.no_disp)
 
     def _static(
-        self, name: str, y: np.ndarray, t_end_s: np.ndarray, base: np.ndarray, speed: np.ndarray
-    ) -> Occupancy:
-        """Capsules at the measured pose whose radius grows linearly: base + speed * tau, tau =
-        t_end + delay."""
+        self, name: str, y: np.ndarray, t_end_s: np.ndarray, base: np.ndarray, speed: np.ndarray,
+        disp: np.ndarray,
+    ) -> Occupancy:  # fmt: skip
+        """Capsules at the measured pose whose radius grows as base + min(speed tau, disp(tau)),
+        tau = t_end + delay (``disp (P, N)``: the displacement bound, ``N = 0``: none)."""
         y, t_end_s = self._arrays(y, t_end_s)
         occ, ends, radius = self._output(name, y.shape[0], t_end_s.shape[0])
-        _STATIC_SETS(y, self.part_joints, t_end_s, self.params.delay_s, base, speed, ends, radius)
+        _STATIC_SETS(y, self.part_joints, t_end_s, self.params.delay_s, base, speed, disp,
+                     self.disp_step_s, ends, radius)  # fmt: skip
         return occ
 
     def acc(

@@ -44,6 +44,7 @@ __all__ = [
     "combined_sets",
     "person_sets",
     "pos_sets",
+    "displacement_bound",
     "static_sets",
 ]
 
@@ -55,7 +56,28 @@ KINDS = {"acc": KIND_ACC, "vel": KIND_VEL, "iso13855": KIND_ISO, "pos": KIND_POS
 """The models :func:`person_sets` computes, by name (Pereira's arm model is numpy)."""
 
 
-@njit(types.void(_RO3, _ROI2, _RO1, _f8, _RO1, _RO1, _W4, _W2), cache=True)
+@njit(_f8(_f8, _f8, _RO2, _i8, _f8), cache=True)
+def displacement_bound(
+    tau: float, speed_mps: float, disp_m: np.ndarray, p: int, step_s: float
+) -> float:
+    """How far part ``p`` gets within ``tau`` (s): the smaller of ``speed tau`` and its
+    displacement table ``disp_m (P, N)`` (cell ``i`` covers ``(i step, (i + 1) step]``; beyond
+    the table its last value plus ``speed`` times the rest; ``N = 0``: no table)."""
+    grown = tau * speed_mps
+    n = disp_m.shape[1]
+    if n == 0:
+        return grown
+    i = int(math.ceil(tau / step_s)) - 1  # rounding up picks the next (larger) cell: sound
+    if i < 0:
+        i = 0
+    if i < n:
+        d = disp_m[p, i]
+    else:
+        d = disp_m[p, n - 1] + speed_mps * (tau - n * step_s)
+    return d if d < grown else grown
+
+
+@njit(types.void(_RO3, _ROI2, _RO1, _f8, _RO1, _RO1, _RO2, _f8, _W4, _W2), cache=True)
 def static_sets(
     y: np.ndarray,
     part_joints: np.ndarray,
@@ -63,11 +85,15 @@ def static_sets(
     delay_s: float,
     base_m: np.ndarray,
     speed_mps: np.ndarray,
+    disp_m: np.ndarray,
+    disp_step_s: float,
     ends: np.ndarray,
     radius: np.ndarray,
 ) -> None:
     """Capsules at the measured pose ``ends (H, P, 2, 3) = y[:, part_joints]`` with radius
-    ``(K, P) = base + speed * (t_end + delay)`` (R_VEL, ISO 13855)."""
+    ``(K, P) = base + min(speed tau, disp(tau))``, ``tau = t_end + delay`` (R_VEL, ISO 13855;
+    :func:`displacement_bound`, ``disp_m (P, N)``, ``N = 0``: ``speed tau``). Monotone in
+    ``tau``, so the set at an interval's end covers the interval."""
     for h in range(y.shape[0]):
         for p in range(part_joints.shape[0]):
             for e in range(2):
@@ -76,7 +102,7 @@ def static_sets(
     for k in range(t_end_s.shape[0]):
         tau = t_end_s[k] + delay_s
         for p in range(base_m.shape[0]):
-            radius[k, p] = tau * speed_mps[p] + base_m[p]
+            radius[k, p] = base_m[p] + displacement_bound(tau, speed_mps[p], disp_m, p, disp_step_s)
 
 
 @njit(
@@ -350,8 +376,9 @@ def combined_sets(
                     radius[h, k, p] = math.inf
 
 
-STATIC = types.Tuple((_ROI2, _RO2, _RO2))
-"""``(part_joints (P, 2), base_m (2, P), speed_mps (2, P))``: rows vel, iso13855."""
+STATIC = types.Tuple((_ROI2, _RO2, _RO2, _RO3, _f8))
+"""``(part_joints (P, 2), base_m (2, P), speed_mps (2, P), disp_m (2, P, N), disp_step_s)``:
+rows vel, iso13855 (the displacement bound is R_VEL's; ISO 13855's row is ``inf``)."""
 ACC = types.Tuple((_RO1, _RO1, _ROI1, _ROI1, _ROI2, _RO1, _RO1))
 """``(a_half (J,), half_thickness_m (P,), ia, ib (P,), end_index (P, 2), a_max, v_max (J,))``:
 R_ACC's and the combined model's."""
@@ -407,6 +434,7 @@ def person_sets(
                  pos_e, pos_r[:, :k])  # fmt: skip
         return pos_e[0:1], pos_r[0, :k], 1
     row = 0 if kind == KIND_VEL else 1
-    part_joints, base, speed = static
-    static_sets(yh, part_joints, te, delay_s, base[row], speed[row], st_e, st_r[:k])
+    part_joints, base, speed, disp, disp_step = static
+    static_sets(yh, part_joints, te, delay_s, base[row], speed[row], disp[row], disp_step, st_e,
+                st_r[:k])  # fmt: skip
     return st_e[0:1], st_r[:k], 1

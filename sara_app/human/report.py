@@ -420,3 +420,75 @@ def legs_command(
     save_param_set(ps, out)
     print(f"wrote {out}")
     return ps
+
+
+def displacement_command(
+    recordings: Sequence[str],
+    params: str,
+    out: Path,
+    load: Load = load_recording,
+    ceilings: Ceilings | None = None,
+    margin: float = 1.0,
+) -> ParamSet:
+    """``sara-app displacement``: R_VEL's displacement bound (:mod:`sara_app.human.displacement`)
+    fitted to ``recordings`` (reconstruction failures under ``ceilings`` split off, the frames
+    the tracking gate distrusts under ``params`` left out), each recording first left out in
+    turn and checked against ``params`` with the others' table (printed), then fitted on all,
+    times ``margin``, added to the set ``params`` and written to ``out``. A recording named
+    ``<name>@walking`` gives its walking pieces alone."""
+    from sara_app.human.calibrate import screened
+    from sara_app.human.displacement import (
+        STEP_S,
+        fit_displacement,
+        format_held_out,
+        leave_one_out,
+        to_bound,
+        with_bound,
+    )
+    from sara_app.human.skeleton import FULL_JOINTS
+
+    base = load_param_set(params)
+    dy = base.delta_y_m
+    names, pieces, trusted = [], [], []
+    for name in recordings:
+        rec = load(name.removesuffix(WALKING_SUFFIX))
+        kept = [q for p in walking_or_whole(rec, name.endswith(WALKING_SUFFIX))
+                for q in split(p, ceilings, dy)[0]]  # fmt: skip
+        if kept:
+            names.append(rec.name)
+            pieces.append(kept)
+            trusted.append(screened(base, kept, dy, FULL_JOINTS, CalibrationReport(0.5)))
+    if not pieces:
+        raise InputError("none of the recordings has a piece to fit a displacement bound to")
+    rows = leave_one_out(base, pieces, trusted, names) if len(pieces) > 1 else []
+    if rows:
+        print(f"each recording left out (set {base.name!r} with the others' table; effective "
+              f"set of acc, vel, pos, combined):\n{format_held_out(rows)}")  # fmt: skip
+    flat = [p for ps in pieces for p in ps]
+    table = fit_displacement(flat, dy, 0.5, STEP_S, [t for ts in trusted for t in ts])
+    bound = to_bound(table, STEP_S, base, margin)
+    for j in ("head", "l_wrist", "r_wrist", "pelvis", "r_ankle"):
+        row = bound.max_m[j]
+        print(f"  {j}: " + ", ".join(f"{(i + 1) * STEP_S:g} s {row[i]:.3f} m"
+                                    for i in (4, 9, 19, 49) if i < len(row)))  # fmt: skip
+    held_out = {r.recording: {f"{h:g}s": [k - n, u] for h, (k, n, u) in r.by_horizon.items()}
+                for r in rows}  # fmt: skip
+    ps = with_bound(base, bound).model_copy(
+        update={
+            "sources": {
+                **base.sources,
+                "displacement": (
+                    f"`sara-app displacement` on {', '.join(recordings)}: per joint the largest "
+                    f"distance between positions tau apart (beyond delta_y), cells of {STEP_S:g} s "
+                    f"to 0.5 s, non-decreasing, times {margin:g}"
+                ),
+            },
+            "sound_for": {
+                **base.sound_for,
+                "displacement_left_out_misses_unflagged": json.dumps(held_out),
+            },
+        }
+    )
+    save_param_set(ps, out)
+    print(f"wrote {out}")
+    return ps

@@ -110,10 +110,28 @@ def _configuration(ev: Evidence) -> str:
     sources = _table(("what", "source"), ((_e(k), _e(v)) for k, v in ps["sources"].items()))
     sound = _table(("claim", "value"), ((_e(k), _e(v)) for k, v in ps["sound_for"].items()))
     return (
-        _configuration_head(sc, ps, joints) + f"{_legs(ps)}<h4>Sources</h4>{sources}"
+        _configuration_head(sc, ps, joints) + f"{_displacement(ps)}{_legs(ps)}"
+        f"<h4>Sources</h4>{sources}"
         f"<h4>Sound for (as the set claims; the next section checks it)</h4>{sound}"
         f"<details><summary>The scenario as validated (JSON)</summary><pre>"
         f"{_e(json.dumps(sc, indent=1))}</pre></details>"
+    )
+
+
+def _displacement(ps: dict) -> str:
+    """R_VEL's displacement bound, where the set has one: the table at a few horizons."""
+    d = ps.get("displacement")
+    if not d:
+        return "<p>R_VEL grows by v_max × tau (no displacement bound).</p>"
+    step, rows = d["step_s"], d["max_m"]
+    cols = [i for i in (4, 9, 19, 29, 49) if i < len(next(iter(rows.values())))]
+    table = _table(
+        ("joint", *(f"within {(i + 1) * step:g} s (m)" for i in cols)),
+        ((_e(j), *(_num(r[i], ".3f") for i in cols)) for j, r in rows.items()),
+    )
+    return (
+        "<h4>Displacement bound (R_VEL grows by the smaller of v_max × tau and this; checked "
+        f"by the monitor)</h4>{table}"
     )
 
 

@@ -20,6 +20,7 @@ import numpy as np
 from sara_app.bus.messages import RetireMsg, SkeletonMsg, TrackerFrameMsg
 from sara_app.cell.build import Cell
 from sara_app.cell.intake import Track, rewiden, take_measurement, track_for
+from sara_app.human.intake import displacement_of
 from sara_app.human.skeleton import full_body
 from sara_app.runtime.bus_io import CellBus, id_in
 from sara_app.runtime.presence import Presence
@@ -116,6 +117,7 @@ class People:
         )
         p, gate = new.params, inp.gate.intake()
         for t in self.presence.tracks.values():
-            t.intake.retune(p.delta_y_m, p.v_max_mps, p.a_max_mps2, gate, p.pelvis_rise_mps)
+            t.intake.retune(p.delta_y_m, p.v_max_mps, p.a_max_mps2, gate, p.pelvis_rise_mps,
+                            displacement_of(p))  # fmt: skip
             t.state.dv = np.full(len(p.v_max_mps), np.inf)
             rewiden(new, t)  # the same message under the new delta_y

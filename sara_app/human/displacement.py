@@ -1,0 +1,161 @@
+"""How far a joint gets within a time: the displacement bound of R_VEL, fitted to recordings.
+
+SaRA's R_VEL grows a joint's ball by ``v_max tau`` (Schepp et al. 2022 Sec. II-B): the joint at its
+peak speed for the whole horizon. Real motion does not keep its peak: a hammering wrist that
+reaches 7 m/s for a few frames is 0.7-0.8 m from where it was 0.2 s before, not 1.4 m, because
+the swing turns back and the arm's length bounds it. The displacement bound ``D_j(tau)`` is the
+largest distance between joint ``j``'s positions ``tau`` apart over the recordings of the
+activity (beyond the measurement's ``delta_y``, as ``v_max`` is fitted), on a grid of cells
+``(i step, (i + 1) step]``, made non-decreasing (a set at an interval's end must cover the
+interval); R_VEL then grows by ``min(v_max tau, D_j(tau))``
+(:func:`~sara_app.human.reach_kernels.displacement_bound`).
+
+What it assumes: the person does what the recordings do, as every fitted bound does; where the
+recordings never took a joint farther within ``tau``, nobody will. That is checked, not trusted:
+the conformance monitor measures every trusted joint's distance to where it was up to the
+table's horizon back and faults the person beyond it (:mod:`sara_app.human.conformance`), and
+:func:`leave_one_out` measures how often it holds on a recording the bound was not fitted to.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from sara_app.errors import InputError, ParameterError
+from sara_app.human.analysis import EFFECTIVE
+from sara_app.human.params import DisplacementBound, ParamSet
+from sara_app.human.recording import Recording
+from sara_app.human.skeleton import FULL_JOINTS
+from sara_app.human.validation import containment_on
+
+STEP_S = 0.01
+"""The table's cell width: a tenth of the shortest horizon reported (0.1 s)."""
+
+
+def cells(tau_s: np.ndarray, step_s: float) -> np.ndarray:
+    """The cell of each time ``tau_s (n,)``: ``ceil(tau / step) - 1`` (at least 0), as the
+    compiled sets look it up (:func:`~sara_app.human.reach_kernels.displacement_bound`)."""
+    return np.maximum(np.ceil(tau_s / step_s).astype(np.int64) - 1, 0)
+
+
+def fit_displacement(
+    recs: Sequence[Recording],
+    delta_y_m: float,
+    horizon_s: float,
+    step_s: float = STEP_S,
+    trusted: Sequence[np.ndarray] | None = None,
+) -> np.ndarray:
+    """``(J, N)`` in the full skeleton's joint order, ``N = ceil(horizon / step)``: per joint and
+    cell the largest ``|y(t + tau) - y(t)| - delta_y`` over the frame pairs of ``recs`` with
+    ``tau`` in the cell (or within a millionth of a step above its end; ``trusted [(T, J)]``:
+    the joint-frames to use, None: all), non-decreasing along the cells; a cell no pair falls in
+    takes the next one's value. ``nan`` for a joint no recording measures (an upper-body
+    recording measures the first joints only)."""
+    if not (step_s > 0 and horizon_s >= step_s):
+        raise ParameterError(f"displacement horizon {horizon_s} s, step {step_s} s; expected "
+                             "0 < step <= horizon")  # fmt: skip
+    n = int(math.ceil(horizon_s / step_s - 1e-9))
+    best = np.full((len(FULL_JOINTS), n), -np.inf)
+    for r, rec in enumerate(recs):
+        y, t = rec.positions_m, rec.times_s
+        J = y.shape[1]
+        ok = np.ones(y.shape[:2], bool) if trusted is None else np.asarray(trusted[r], bool)
+        lags = int(np.searchsorted(t - t[0], n * step_s + 1e-9, side="right"))
+        for lag in range(1, min(lags, len(t))):
+            tau = t[lag:] - t[:-lag]
+            # a pair within rounding of a cell's end counts in that cell (and so, the table
+            # being non-decreasing, in the next): stamps 50 ms apart come out 0.05 or 0.05 + 2e-17
+            c = cells(tau - 1e-6 * step_s, step_s)
+            inside = c < n
+            d = np.linalg.norm(y[lag:] - y[:-lag], axis=-1) - delta_y_m  # (T - lag, J)
+            d = np.where(ok[lag:] & ok[:-lag] & inside[:, None], d, -np.inf)
+            for q in range(J):
+                np.maximum.at(best[q], c[inside], d[inside, q])
+    out = np.full_like(best, np.nan)
+    for q in range(best.shape[0]):
+        row = best[q]
+        seen = np.isfinite(row)
+        if not seen.any():
+            continue
+        filled = row.copy()
+        nxt = -np.inf  # a cell without pairs: the next cell's value (larger, so sound)
+        for i in range(n - 1, -1, -1):
+            nxt = filled[i] = row[i] if seen[i] else nxt
+        out[q] = np.maximum.accumulate(np.maximum(filled, 0.0))
+    return out
+
+
+def to_bound(
+    table_m: np.ndarray, step_s: float, ps: ParamSet, margin: float = 1.0
+) -> DisplacementBound:
+    """The set's :class:`DisplacementBound` from a fitted ``table_m (J, N)`` times ``margin``,
+    rounded up to the millimetre; a joint without data (``nan``) gets ``v_max`` times each
+    cell's end (no tightening)."""
+    if not margin >= 1.0:
+        raise ParameterError(f"displacement margin {margin}; expected >= 1")
+    ends = step_s * np.arange(1, table_m.shape[1] + 1)
+    rows = {}
+    for q, j in enumerate(FULL_JOINTS):
+        fitted = np.isfinite(table_m[q]).all()
+        row = table_m[q] * margin if fitted else ps.joints[j].v_max_mps * ends
+        rows[j] = [math.ceil(float(x) * 1000.0) / 1000.0 for x in np.maximum.accumulate(row)]
+    return DisplacementBound(step_s=step_s, max_m=rows)
+
+
+def with_bound(ps: ParamSet, bound: DisplacementBound | None) -> ParamSet:
+    """``ps`` with the displacement bound ``bound`` (None: none)."""
+    return ps.model_copy(update={"displacement": bound})
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    """One recording checked against ``base`` with the table fitted on the others: per horizon
+    ``(checked, contained, unflagged)`` of the effective set (what the verdict uses), and the
+    factor by which its own table exceeds the others' at worst (1: within)."""
+
+    recording: str
+    by_horizon: dict[float, tuple[int, int, int]]
+    ratio: float
+
+
+def leave_one_out(
+    base: ParamSet,
+    pieces: Sequence[Sequence[Recording]],
+    trusted: Sequence[Sequence[np.ndarray]],
+    names: Sequence[str],
+    horizons_s: Sequence[float] = (0.1, 0.2, 0.5),
+    models: tuple[str, ...] = ("acc", "vel", "pos", "combined"),
+    step_s: float = STEP_S,
+) -> list[HeldOut]:
+    """Each recording (``pieces[i]``, its pieces without reconstruction failures, with the
+    gate's ``trusted`` masks) against ``base`` plus the table fitted on the OTHER recordings:
+    containment of the effective set of ``models`` and its unflagged misses (the monitor checks
+    that table too). ``base``'s own bounds are left as they are, so what is measured is the
+    table's generalisation."""
+    if len(pieces) < 2:
+        raise InputError(f"leave-one-out needs at least 2 recordings; got {len(pieces)}")
+    horizon = max(horizons_s)
+    own = [fit_displacement(p, base.delta_y_m, horizon, step_s, t) for p, t in zip(pieces, trusted)]
+    rows = []
+    for i, name in enumerate(names):
+        others = np.fmax.reduce([o for k, o in enumerate(own) if k != i])
+        bounded = with_bound(base, to_bound(np.maximum.accumulate(others, axis=1), step_s, base))
+        counts = {h: containment_on(bounded, pieces[i], h, models)[EFFECTIVE] for h in horizons_s}
+        fitted = np.isfinite(own[i]) & np.isfinite(others)
+        excess = own[i][fitted] / np.maximum(others[fitted], 1e-3)
+        rows.append(HeldOut(name, counts, max(1.0, float(excess.max(initial=1.0)))))
+    return rows
+
+
+def format_held_out(rows: Sequence[HeldOut]) -> str:
+    """One line per recording: effective-set containment, misses and unflagged per horizon."""
+    lines = []
+    for r in rows:
+        parts = [f"{h:g} s {100 * n / max(k, 1):.3f} % ({k - n} misses, {u} unflagged)"
+                 for h, (k, n, u) in r.by_horizon.items()]  # fmt: skip
+        lines.append(f"  {r.recording}: " + "; ".join(parts) + f"; own table x{r.ratio:.2f}")
+    return "\n".join(lines)
