@@ -262,3 +262,30 @@ def test_the_shipped_bench_set_contains_every_bench_recording_it_was_fitted_to()
     except Exception:  # noqa: BLE001 - RecordingError: no data folder on this machine
         pytest.skip("data folder not found")
     _check_bench_work(_bench_pieces(BENCH_TAKES), (0.2,))
+
+
+@pytest.mark.parametrize("strategy", ["rigid", "limbs"])
+def test_the_adversary_keeps_within_the_table_and_would_break_it_at_v_max(strategy: str) -> None:
+    """The simulated adversary chases a robot link at the set's bounds: with the table it keeps
+    the speed the table allows (the monitor finds no displacement beyond it over 4 s); at
+    ``v_max`` it would run through the table (what the shield's adversarial tests must not
+    do: they test the shield under the set's assumptions)."""
+    from sara_app.human.params import sustained_speed_mps
+    from sara_app.sim.motions import Adversary
+
+    ps = load_param_set("bench_work")
+    p = to_reach_params(ps, "full")
+    cap = sustained_speed_mps(p)
+    assert np.all(cap <= p.v_max_mps) and np.all(cap < 0.5 * p.v_max_mps[[7, 8]].min())
+    robot = np.array([[[0.0, 0.0, 1.0], [0.0, 0.0, 1.6]], [[0.0, 0.0, 1.6], [0.5, 0.0, 1.6]]])
+    counts = []
+    for v_max in (None, p.v_max_mps):
+        adv = Adversary(strategy, (2.5, 0.0), p, seed=3)
+        if v_max is not None:  # the adversary before the table: v_max alone
+            rigid = strategy == "rigid"
+            adv.v_max = np.full_like(adv.v_max, v_max.min()) if rigid else v_max.copy()
+        t = np.arange(0.0, 4.0, 0.002)
+        y = np.array([adv.pose(float(tk), robot.reshape(-1, 3), np.full(2, 0.06)) for tk in t])
+        rec = Recording("adv", "full", t[::5], y[::5])  # a 100 Hz tracker
+        counts.append(screen_recording(p, rec).counts["displacement"])
+    assert counts[0] == 0 and counts[1] > 0, counts

@@ -210,6 +210,18 @@ def to_reach_params(ps: ParamSet, kind: str) -> ReachParams:
     )
 
 
+def sustained_speed_mps(p: ReachParams) -> np.ndarray:
+    """``(J,)`` the largest speed a joint may keep up without leaving its displacement bound:
+    ``min(v_max, min_i D[i] / ((i + 1) step))`` (moving at most that fast, it is never farther
+    than ``v tau <= D(tau)`` from where it was ``tau`` before; past the table ``D`` grows at
+    ``v_max``); ``v_max`` where the set has no table."""
+    n = p.disp_max_m.shape[1]
+    if n == 0:
+        return np.asarray(p.v_max_mps, dtype=float).copy()
+    ends = p.disp_step_s * np.arange(1, n + 1)
+    return np.minimum(p.v_max_mps, (p.disp_max_m / ends).min(axis=1))
+
+
 def available_param_sets() -> tuple[str, ...]:
     return tuple(sorted(p.stem for p in PARAM_DIR.glob("*.json")))
 

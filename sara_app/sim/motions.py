@@ -13,7 +13,7 @@ import numpy as np
 
 from sara_app.errors import ParameterError
 from sara_app.geometry.shapes import segment_segment_closest
-from sara_app.human.params import ReachParams
+from sara_app.human.params import ReachParams, sustained_speed_mps
 from sara_app.human.recordings import Recording, load_recording
 from sara_app.human.scripted import (
     STANDING_LEGS_M,
@@ -149,7 +149,11 @@ class Adversary:
     ``'rigid'``: the whole body translates with one velocity, bounded by the smallest joint
     ``v_max`` and ``a_max`` (respects every model, R_POS included). ``'limbs'``: every joint
     chases its nearest robot point with its own bounds (respects R_VEL, R_ACC and ISO 13855 where
-    ``v_max`` is below its speed; limbs stretch, so R_POS and the arm model do not apply).
+    ``v_max`` is below its speed; limbs stretch, so R_POS and the arm model do not apply). Where
+    the set bounds displacements (R_VEL's table), ``v_max`` is the speed a joint may keep up
+    within it (:func:`~sara_app.human.params.sustained_speed_mps`): a person within every bound
+    of the set. A person who bursts to ``v_max`` and stops in time could press harder; not
+    modelled.
     Integration: the velocity changes by at most ``a_max dt`` per step and is projected onto the
     ``v_max`` ball (a projection onto a convex set containing the old velocity never lengthens
     the change), positions use the mean velocity of the step.
@@ -172,11 +176,13 @@ class Adversary:
         self.v = np.zeros_like(self.y)
         self.start_s = start_s
         self.t_last: float | None = None
+        # the speed it keeps up stays within the set's displacement bound too, where it has one
+        v_max = sustained_speed_mps(params)
         if strategy == "rigid":
-            self.v_max = np.full(len(self.y), float(params.v_max_mps.min()))
+            self.v_max = np.full(len(self.y), float(v_max.min()))
             self.a_max = np.full(len(self.y), float(params.a_max_mps2.min()))
         else:
-            self.v_max = params.v_max_mps.copy()
+            self.v_max = v_max
             self.a_max = params.a_max_mps2.copy()
         # a little randomness in how hard it pushes (still within the bounds)
         self.push = float(rng.uniform(0.85, 1.0))
