@@ -117,10 +117,16 @@ def test_the_displacement_command_validates_and_writes_a_loadable_set(tmp_path, 
     text = capsys.readouterr().out
     assert "each recording left out" in text and "  h: 0.1 s" in text and "  u: 0.1 s" in text
     ps = load_param_set(out)
-    assert ps.displacement is not None and len(ps.displacement.max_m["head"]) == 50
-    # the sway: 0.3 m amplitude at 1 Hz, ~1.9 m/s peak; over 0.5 s it covers at most 0.6 m
-    assert ps.displacement.max_m["head"][-1] < 0.61
+    d = ps.displacement
+    assert d is not None and len(d.max_m["head"]) == 50
+    # the sway (0.3 m at 1 Hz: at most 0.6 m in 0.5 s) is slower than the 2 m/s floor; the legs
+    # are not bounded by default
+    assert d.max_m["head"][-1] == 1.0 and d.max_m["l_knee"][-1] == ps.joints["l_knee"].v_max_mps / 2
     assert set(json.loads(ps.sound_for["displacement_left_out_misses_unflagged"])) == {"h", "u"}
+    args = ["--floor-speed", "0", "--with-legs", "--out", str(out)]
+    assert main(["displacement", *files, *args]) == 0
+    d = load_param_set(out).displacement
+    assert d is not None and d.max_m["head"][-1] < 0.61 and d.max_m["l_knee"][-1] < 0.61
     assert main(["displacement", *files, "--margin", "0.5", "--out", str(out)]) == 2
     assert "margin" in capsys.readouterr().err
 

@@ -58,10 +58,14 @@ def _legs(args: argparse.Namespace) -> None:
 
 
 def _displacement(args: argparse.Namespace) -> None:
+    from sara_app.human.displacement import Shaping
     from sara_app.human.report import displacement_command
+    from sara_app.human.skeleton import FULL_JOINTS, UPPER_JOINTS
 
+    joints = FULL_JOINTS if args.with_legs else UPPER_JOINTS
+    shaping = Shaping(joints, args.margin, args.floor_speed)
     displacement_command(args.recordings, args.params, args.out, _load(args), _ceilings(args),
-                         args.margin)  # fmt: skip
+                         shaping)  # fmt: skip
 
 
 def _ceilings(args: argparse.Namespace) -> Ceilings | None:
@@ -177,6 +181,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     d.add_argument("--params", default="bench_work", help="the parameter set to add it to")
     d.add_argument("--margin", type=float, default=1.0,
                    help="factor on the fitted table (>= 1; default 1: as fitted)")  # fmt: skip
+    d.add_argument("--floor-speed", type=float, default=2.0,
+                   help="m/s: every bounded joint may keep up at least this speed (default 2.0, "
+                   "ISO 13855's approach speed: a walk past is never a violation)")  # fmt: skip
+    d.add_argument("--with-legs", action="store_true",
+                   help="bound the legs too (default: the upper body only; standing work moves "
+                   "the legs little, so a walk past would be a violation)")  # fmt: skip
     d.add_argument("--max-speed", type=float, default=None,
                    help="with --max-acc: reconstruction failures beyond these ceilings are "
                    "split off first (as for calibrate)")  # fmt: skip

@@ -22,6 +22,7 @@ from sara_app.human.analysis import (
     occupancies,
 )
 from sara_app.human.calibrate import CalibrationReport, calibrate
+from sara_app.human.displacement import Shaping
 from sara_app.human.failures import Ceilings, describe, split
 from sara_app.human.intake import screen_recording
 from sara_app.human.params import ParamSet, load_param_set, save_param_set, to_reach_params
@@ -428,13 +429,14 @@ def displacement_command(
     out: Path,
     load: Load = load_recording,
     ceilings: Ceilings | None = None,
-    margin: float = 1.0,
+    shaping: Shaping | None = None,
 ) -> ParamSet:
     """``sara-app displacement``: R_VEL's displacement bound (:mod:`sara_app.human.displacement`)
     fitted to ``recordings`` (reconstruction failures under ``ceilings`` split off, the frames
     the tracking gate distrusts under ``params`` left out), each recording first left out in
     turn and checked against ``params`` with the others' table (printed), then fitted on all,
-    times ``margin``, added to the set ``params`` and written to ``out``. A recording named
+    shaped by ``shaping`` (default: the upper body, at least ISO 13855's 2 m/s sustained), added
+    to the set ``params`` and written to ``out``. A recording named
     ``<name>@walking`` gives its walking pieces alone."""
     from sara_app.human.calibrate import screened
     from sara_app.human.displacement import (
@@ -447,6 +449,7 @@ def displacement_command(
     )
     from sara_app.human.skeleton import FULL_JOINTS
 
+    shaping = shaping or Shaping()
     base = load_param_set(params)
     dy = base.delta_y_m
     names, pieces, trusted = [], [], []
@@ -460,13 +463,13 @@ def displacement_command(
             trusted.append(screened(base, kept, dy, FULL_JOINTS, CalibrationReport(0.5)))
     if not pieces:
         raise InputError("none of the recordings has a piece to fit a displacement bound to")
-    rows = leave_one_out(base, pieces, trusted, names) if len(pieces) > 1 else []
+    rows = leave_one_out(base, pieces, trusted, names, shaping=shaping) if len(pieces) > 1 else []
     if rows:
         print(f"each recording left out (set {base.name!r} with the others' table; effective "
               f"set of acc, vel, pos, combined):\n{format_held_out(rows)}")  # fmt: skip
     flat = [p for ps in pieces for p in ps]
     table = fit_displacement(flat, dy, 0.5, STEP_S, [t for ts in trusted for t in ts])
-    bound = to_bound(table, STEP_S, base, margin)
+    bound = to_bound(table, STEP_S, base, shaping)
     for j in ("head", "l_wrist", "r_wrist", "pelvis", "r_ankle"):
         row = bound.max_m[j]
         print(f"  {j}: " + ", ".join(f"{(i + 1) * STEP_S:g} s {row[i]:.3f} m"
@@ -480,7 +483,9 @@ def displacement_command(
                 "displacement": (
                     f"`sara-app displacement` on {', '.join(recordings)}: per joint the largest "
                     f"distance between positions tau apart (beyond delta_y), cells of {STEP_S:g} s "
-                    f"to 0.5 s, non-decreasing, times {margin:g}"
+                    f"to 0.5 s, non-decreasing, times {shaping.margin:g}, at least "
+                    f"{shaping.floor_mps:g} m/s x tau (ISO 13855's approach speed), for "
+                    f"{', '.join(shaping.joints)} (other joints: v_max x tau)"
                 ),
             },
             "sound_for": {
