@@ -309,3 +309,30 @@ def test_the_adversary_keeps_within_the_table_and_would_break_it_at_v_max(strate
         rec = Recording("adv", "full", t[::5], y[::5])  # a 100 Hz tracker
         counts.append(screen_recording(p, rec).counts["displacement"])
     assert counts[0] == 0 and counts[1] > 0, counts
+
+
+def test_a_displacement_violation_reaches_the_verdict_and_the_dashboard() -> None:
+    """The monitor's new quantity is in the contract: the worker's verdict with a displacement
+    violation and its tracking count validates (schema version 3) and round-trips, and the
+    dashboard names it with its unit."""
+    import json
+
+    from sara_app.bus.codec import Decoder
+    from sara_app.bus.examples import example_messages
+    from sara_app.bus.messages import VerdictMsg, encode
+    from sara_app.human.conformance import Violation
+    from sara_app.runtime.messages import violation_msgs
+
+    key, example = example_messages()["verdict"]
+    found = [("p1", Violation("l_wrist", "displacement", 0.91, 0.712, 12.5))]
+    data = json.loads(encode(example))
+    data["violations"] = [v.model_dump() for v in violation_msgs(found)]
+    data["tracking"] = {"p1": {"displacement": 3}}
+    msg = VerdictMsg.model_validate(data)
+    assert msg.schema_version == 3 and msg.violations[0].quantity == "displacement"
+    decoded = Decoder().decode(key, encode(msg))
+    assert decoded.msg == msg
+    from sara_app.dashboard.panels import _people_rows
+
+    rows = _people_rows({"violations": data["violations"]})
+    assert any("displacement 0.91 > 0.71 m" in text for _, text in rows), rows

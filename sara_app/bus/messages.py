@@ -286,11 +286,13 @@ def position_on_stop(
 
 
 TrackingFlag = Literal[
-    "jump", "bone", "frozen", "missing", "refused", "speed", "acceleration", "rise", "repeated"
-]
+    "jump", "bone", "frozen", "missing", "refused", "speed", "acceleration", "rise",
+    "displacement", "repeated",
+]  # fmt: skip
 """The tracking gate's flags (``jump``, ``bone``, ``frozen``; ``refused``: skeletons refused
 for a joint distrusted too long) and the conformance monitor's (``speed``, ``acceleration``,
-``rise``: the upward speed of a person whose legs are bounded below the pelvis)."""
+``rise``: the upward speed of a person whose legs are bounded below the pelvis,
+``displacement``: a joint farther from where it was than the set's displacement bound)."""
 
 
 class ViolationMsg(BaseModel):
@@ -300,10 +302,10 @@ class ViolationMsg(BaseModel):
 
     human_id: Name
     joint: Name
-    quantity: Literal["speed", "acceleration", "rise"]
+    quantity: Literal["speed", "acceleration", "rise", "displacement"]
     value: Finite
     """m/s or m/s^2: the least speed, acceleration or upward speed (``rise``) that explains the
-    measured motion."""
+    measured motion; m for ``displacement`` (the distance beyond the noise bound)."""
     bound: Finite
     stamp_s: Finite
 
@@ -330,15 +332,16 @@ class TrackingNowMsg(BaseModel):
 
 
 class VerdictMsg(_Msg):
-    """The outcome of one control cycle (key ``sara/<cell>/verdict``), schema version 2 (the
-    monitor's ``rise`` among the tracking flags and violations' quantities).
+    """The outcome of one control cycle (key ``sara/<cell>/verdict``), schema version 3 (2: the
+    monitor's ``rise`` among the tracking flags and violations' quantities; 3: its
+    ``displacement``).
 
     ``results``: model name -> True when that model's human set is free of the robot's set.
     ``skeleton_age_s``: human id -> age of the newest accepted skeleton at decision time.
     ``dropped``: reason -> count of rejected or dropped input messages since the worker started.
     """
 
-    schema_version: Literal[2] = 2  # type: ignore[assignment]
+    schema_version: Literal[3] = 3  # type: ignore[assignment]
     cell: Name
     safety_mode: Literal["ssm", "pfl", "jssa"]
     mode: Mode
