@@ -411,3 +411,44 @@ def test_tracking_glitches_and_a_too_fast_person_reach_the_verdict(cell: Cell) -
     assert v.human_id == "p1" and v.quantity == "speed" and v.value > v.bound
     assert late[-1].mode == "fault" and any("speed" in f for f in late[-1].faults)
     assert not any(c.mode == "intended" for c in cs if c.stamp_s > late[0].stamp_s)
+
+
+def test_an_arm_swung_farther_than_the_displacement_bound_faults_the_person(cell: Cell) -> None:
+    """``bench_work`` bounds how far a joint gets within a time (R_VEL's displacement table): an
+    arm swung up 135 degrees in 0.3 s, bones intact, within every speed and acceleration bound
+    (wrist at most 6.4 m/s, about 100 m/s^2), takes the wrist 0.96 m from where it was, farther
+    than the table's 0.8 m: the verdict names the displacement and the robot gets no intended
+    command after it."""
+    rng = np.random.default_rng(1)
+    base = STANDING + [2.5, 0, 0]
+    shoulder = base[NAMES.index("l_shoulder")]
+    arm = [NAMES.index("l_elbow"), NAMES.index("l_wrist")]
+
+    def pose(angle: float) -> np.ndarray:
+        c, s = np.cos(angle), np.sin(angle)
+        y = base.copy()
+        d = base[arm] - shoulder  # pitch about the shoulder's y axis: the arm swings forward, up
+        y[arm] = shoulder + np.stack(
+            [c * d[:, 0] - s * d[:, 2], d[:, 1], s * d[:, 0] + c * d[:, 2]], 1
+        )
+        return y + rng.uniform(-1, 1, y.shape) * 0.001
+
+    with Heartbeat(cell.bus, CELL) as hb:
+        hb.people = {"p1"}
+        cell.collect(0.6, every=lambda: cell.put_skeleton("p1", pose(0.0)))  # bones learned
+        t0 = time.monotonic()
+
+        def swing() -> None:
+            u = min((time.monotonic() - t0) / 0.3, 1.0)
+            cell.put_skeleton("p1", pose(0.75 * np.pi * (1 - np.cos(np.pi * u)) / 2))
+
+        vs, cs = cell.collect(0.8, every=swing)
+    late = [v for v in vs if v.violations]
+    assert late, "no violation named"
+    found = {(v.quantity, v.joint) for m in late for v in m.violations}
+    assert ("displacement", "l_wrist") in found, found
+    assert not {q for q, _ in found} & {"speed", "acceleration"}, found
+    v = next(v for m in late for v in m.violations if v.quantity == "displacement")
+    assert v.value > v.bound and late[-1].mode == "fault"
+    assert late[-1].tracking["p1"]["displacement"] > 0
+    assert not any(c.mode == "intended" for c in cs if c.stamp_s > late[0].stamp_s)
