@@ -336,3 +336,17 @@ def test_a_displacement_violation_reaches_the_verdict_and_the_dashboard() -> Non
 
     rows = _people_rows({"violations": data["violations"]})
     assert any("displacement 0.91 > 0.71 m" in text for _, text in rows), rows
+
+
+def test_a_recording_shorter_than_the_horizon_claims_nothing_past_its_length() -> None:
+    """A 0.2 s recording says nothing about 0.3 s: those cells stay unfitted and the set keeps
+    ``v_max tau`` there (the running maximum of what it saw would be a claim without data)."""
+    rec = _swinging(0)
+    short = Recording("short", "full", rec.times_s[:25], rec.positions_m[:25])  # 0.2 s
+    table = fit_displacement([short], DY, 0.5)
+    assert np.isfinite(table[:, :20]).all() and np.isnan(table[:, 20:]).all()
+    base = _base()
+    bound = to_bound(table, 0.01, base, Shaping(FULL_JOINTS, floor_mps=0.0))
+    head = bound.max_m["head"]
+    assert head[30] == pytest.approx(np.ceil(20.0 * 0.31 * 1e3) / 1e3)
+    assert all(b >= a for a, b in zip(head, head[1:]))

@@ -64,7 +64,8 @@ def fit_displacement(
     ``tau`` in the cell (or within a millionth of a step above its end; ``trusted [(T, J)]``:
     the joint-frames to use, None: all), non-decreasing along the cells; a cell no pair falls in
     takes the next one's value. ``nan`` for a joint no recording measures (an upper-body
-    recording measures the first joints only)."""
+    recording measures the first joints only) and past the longest pair of a joint's
+    recordings (recordings shorter than the horizon)."""
     if not (step_s > 0 and horizon_s >= step_s):
         raise ParameterError(f"displacement horizon {horizon_s} s, step {step_s} s; expected "
                              "0 < step <= horizon")  # fmt: skip
@@ -88,14 +89,15 @@ def fit_displacement(
     out = np.full_like(best, np.nan)
     for q in range(best.shape[0]):
         row = best[q]
-        seen = np.isfinite(row)
-        if not seen.any():
+        seen = np.flatnonzero(np.isfinite(row))
+        if not seen.size:
             continue
-        filled = row.copy()
-        nxt = -np.inf  # a cell without pairs: the next cell's value (larger, so sound)
-        for i in range(n - 1, -1, -1):
-            nxt = filled[i] = row[i] if seen[i] else nxt
-        out[q] = np.maximum.accumulate(np.maximum(filled, 0.0))
+        last = seen[-1]  # cells past the longest pair seen stay nan: no data, no claim
+        filled = row[: last + 1].copy()
+        nxt = row[last]  # a cell without pairs: the next cell's value (larger, so sound)
+        for i in range(last, -1, -1):
+            nxt = filled[i] = row[i] if np.isfinite(row[i]) else nxt
+        out[q, : last + 1] = np.maximum.accumulate(np.maximum(filled, 0.0))
     return out
 
 
@@ -123,17 +125,16 @@ def to_bound(
     table_m: np.ndarray, step_s: float, ps: ParamSet, shaping: Shaping = Shaping()
 ) -> DisplacementBound:
     """The set's :class:`DisplacementBound` from a fitted ``table_m (J, N)`` shaped by
-    ``shaping``, rounded up to the millimetre; a joint it does not bound, or without data
-    (``nan``), gets ``v_max`` times each cell's end (no tightening)."""
+    ``shaping``, rounded up to the millimetre; a joint it does not bound, and a cell without
+    data (``nan``), gets ``v_max`` times the cell's end (no tightening), the row non-decreasing."""
     ends = step_s * np.arange(1, table_m.shape[1] + 1)
     rows = {}
     for q, j in enumerate(FULL_JOINTS):
         v_max = ps.joints[j].v_max_mps * ends
-        if j in shaping.joints and np.isfinite(table_m[q]).all():
+        row = v_max
+        if j in shaping.joints:
             fitted = np.maximum(table_m[q] * shaping.margin, shaping.floor_mps * ends)
-            row = np.minimum(fitted, v_max)
-        else:
-            row = v_max
+            row = np.where(np.isfinite(table_m[q]), np.minimum(fitted, v_max), v_max)
         rows[j] = [math.ceil(float(x) * 1000.0) / 1000.0 for x in np.maximum.accumulate(row)]
     return DisplacementBound(step_s=step_s, max_m=rows)
 
