@@ -183,7 +183,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="factor on the fitted table (>= 1; default 1: as fitted)")  # fmt: skip
     d.add_argument("--floor-speed", type=float, default=2.0,
                    help="m/s: every bounded joint may keep up at least this speed (default 2.0, "
-                   "ISO 13855's approach speed: a walk past is never a violation)")  # fmt: skip
+                   "ISO 13855's approach speed: the CMU walk 02_01 stays within it)")  # fmt: skip
     d.add_argument("--with-legs", action="store_true",
                    help="bound the legs too (default: the upper body only; standing work moves "
                    "the legs little, so a walk past would be a violation)")  # fmt: skip

@@ -43,7 +43,8 @@ STEP_S = 0.01
 FLOOR_MPS = 2.0
 """The sustained speed every bounded joint is allowed at least: ISO 13855's approach speed (the
 larger of its two, 2.0 m/s; Pereira & Althoff 2016 Sec. III-A use it for the full body), so that
-moving at it, a walk past the bench included, is never a violation of the table."""
+keeping up that speed is no violation by itself (a walk past the bench: CMU 02_01's, at 1.3 m/s
+with its arms swinging, stays within bench_work's table; a brisker one may not)."""
 
 
 def cells(tau_s: np.ndarray, step_s: float) -> np.ndarray:
