@@ -132,6 +132,9 @@ def test_the_displacement_command_validates_and_writes_a_loadable_set(tmp_path, 
     assert d is not None and d.max_m["head"][44] < 0.61 and d.max_m["l_knee"][44] < 0.61
     assert main(["displacement", *files, "--margin", "0.5", "--out", str(out)]) == 2
     assert "margin" in capsys.readouterr().err
+    nowhere = str(tmp_path / "no" / "such" / "d.json")  # a folder that does not exist
+    assert main(["displacement", *files, "--out", nowhere]) == 2
+    assert "cannot write parameter set 'bench_work' to " in capsys.readouterr().err
 
 
 def test_calibrate_validates_leaving_each_recording_out(tmp_path, capsys) -> None:

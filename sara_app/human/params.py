@@ -249,4 +249,9 @@ def load_param_set(name_or_path: str | Path) -> ParamSet:
 
 
 def save_param_set(ps: ParamSet, path: str | Path) -> None:
-    Path(path).write_text(json.dumps(ps.model_dump(), indent=2) + "\n")
+    """Write ``ps`` as JSON to ``path``; a path that cannot be written is a ParameterError that
+    names it (the commands that fit a set end with this, after minutes of fitting)."""
+    try:
+        Path(path).write_text(json.dumps(ps.model_dump(), indent=2) + "\n")
+    except OSError as e:
+        raise ParameterError(f"cannot write parameter set {ps.name!r} to {path}: {e}") from None
