@@ -261,6 +261,34 @@ def _description(
             "single frames are listed by the command.")  # fmt: skip
 
 
+def _fit_pieces(
+    recordings: Sequence[str], load: Load, ceilings: Ceilings | None, delta_y_m: float,
+    walking: bool = False,
+) -> tuple[list[Recording], list[bool], list[list[Recording]], list[str]]:  # fmt: skip
+    """The recordings to fit, whether each is taken by its walking pieces, and each one's
+    pieces: its walking pieces (with ``walking``, or named ``<name>@walking``) or itself,
+    reconstruction failures under ``ceilings`` split off; a recording without a walking piece
+    is left out (and said so). Also the failures' lines."""
+    walk = [walking or r.endswith(WALKING_SUFFIX) for r in recordings]
+    recs = [load(r.removesuffix(WALKING_SUFFIX)) for r in recordings]
+    walks = [walking_or_whole(r, w) for r, w in zip(recs, walk)]
+    keep = [i for i, pieces_ in enumerate(walks) if pieces_]
+    recs, walks, walk = [recs[i] for i in keep], [walks[i] for i in keep], [walk[i] for i in keep]
+    splits = [[split(p, ceilings, delta_y_m) for p in w] for w in walks]
+    kept = [[q for pieces_, _ in sp for q in pieces_] for sp in splits]
+    failed = [line for w, sp in zip(walks, splits) for p, (_, f) in zip(w, sp)
+              for line in describe(p, f)]  # fmt: skip
+    return recs, walk, kept, failed
+
+
+def _print_failures(ceilings: Ceilings | None, failed: list[str]) -> None:
+    """The reconstruction failures left out under ``ceilings`` (nothing without ceilings)."""
+    if ceilings is not None:
+        print(f"reconstruction failures left out (ceilings {ceilings.max_speed_mps:g} m/s, "
+              f"{ceilings.max_acc_mps2:g} m/s^2): {len(failed) or 'none'}")  # fmt: skip
+        print("\n".join(f"  {line}" for line in failed))
+
+
 def calibrate_command(
     recordings: Sequence[str],
     horizon_s: float,
@@ -279,27 +307,16 @@ def calibrate_command(
     reconstruction failures are split off first and listed (:mod:`sara_app.human.failures`);
     with ``validate``, first leave each recording out in turn (:mod:`sara_app.human.validation`)
     and widen the written set by the margin that derives."""
-    walk = [walking or r.endswith(WALKING_SUFFIX) for r in recordings]
-    recs = [load(r.removesuffix(WALKING_SUFFIX)) for r in recordings]
-    walks = [walking_or_whole(r, w) for r, w in zip(recs, walk)]
-    keep = [i for i, pieces_ in enumerate(walks) if pieces_]
-    recs, walks, walk = [recs[i] for i in keep], [walks[i] for i in keep], [walk[i] for i in keep]
+    b = load_param_set(base)
+    dy = b.delta_y_m if delta_y_m is None else delta_y_m
+    recs, walk, kept, failed = _fit_pieces(recordings, load, ceilings, dy, walking)
     if not recs:
         raise InputError("none of the recordings has a walking piece to calibrate on")
     if validate and len(recs) < 2:
         raise InputError("leave-one-out validation needs at least two recordings")
-    b = load_param_set(base)
-    dy = b.delta_y_m if delta_y_m is None else delta_y_m
-    splits = [[split(p, ceilings, dy) for p in w] for w in walks]
-    kept = [[q for pieces_, _ in sp for q in pieces_] for sp in splits]
-    failed = [line for w, sp in zip(walks, splits) for p, (_, f) in zip(w, sp)
-              for line in describe(p, f)]  # fmt: skip
     ps, rep = calibrate(b, [p for ps_ in kept for p in ps_], horizon_s, name, delta_y_m)
     print(format_calibration(rep))
-    if ceilings is not None:
-        print(f"reconstruction failures left out (ceilings {ceilings.max_speed_mps:g} m/s, "
-              f"{ceilings.max_acc_mps2:g} m/s^2): {len(failed) or 'none'}")  # fmt: skip
-        print("\n".join(f"  {line}" for line in failed))
+    _print_failures(ceilings, failed)
     val = None
     if validate:
         val, _ = leave_one_out(b, kept, [r.name for r in recs], horizon_s, in_use(MODELS),
@@ -452,17 +469,13 @@ def displacement_command(
     shaping = shaping or Shaping()
     base = load_param_set(params)
     dy = base.delta_y_m
-    names, pieces, trusted = [], [], []
-    for name in recordings:
-        rec = load(name.removesuffix(WALKING_SUFFIX))
-        kept = [q for p in walking_or_whole(rec, name.endswith(WALKING_SUFFIX))
-                for q in split(p, ceilings, dy)[0]]  # fmt: skip
-        if kept:
-            names.append(rec.name)
-            pieces.append(kept)
-            trusted.append(screened(base, kept, dy, FULL_JOINTS, CalibrationReport(0.5)))
+    recs, _, kept, failed = _fit_pieces(recordings, load, ceilings, dy)
+    _print_failures(ceilings, failed)
+    names = [r.name for r, k in zip(recs, kept) if k]
+    pieces = [k for k in kept if k]
     if not pieces:
         raise InputError("none of the recordings has a piece to fit a displacement bound to")
+    trusted = [screened(base, k, dy, FULL_JOINTS, CalibrationReport(0.5)) for k in pieces]
     rows = leave_one_out(base, pieces, trusted, names, shaping=shaping) if len(pieces) > 1 else []
     if rows:
         print(f"each recording left out (set {base.name!r} with the others' table; effective "
