@@ -413,12 +413,21 @@ def test_tracking_glitches_and_a_too_fast_person_reach_the_verdict(cell: Cell) -
     assert not any(c.mode == "intended" for c in cs if c.stamp_s > late[0].stamp_s)
 
 
-def test_an_arm_swung_farther_than_the_displacement_bound_faults_the_person(cell: Cell) -> None:
+@pytest.fixture()
+def bench_work_cell(tmp_path: Path) -> Iterator[Cell]:
+    """The worker process of :func:`cell` on the set ``bench_work`` (hammering's speeds)."""
+    yield from _start(tmp_path, human_params="bench_work")
+
+
+def test_an_arm_swung_farther_than_the_displacement_bound_faults_the_person(
+    bench_work_cell: Cell,
+) -> None:
     """``bench_work`` bounds how far a joint gets within a time (R_VEL's displacement table): an
     arm swung up 135 degrees in 0.3 s, bones intact, within every speed and acceleration bound
     (wrist at most 6.4 m/s, about 100 m/s^2), takes the wrist 0.96 m from where it was, farther
     than the table's 0.8 m: the verdict names the displacement and the robot gets no intended
     command after it."""
+    cell = bench_work_cell
     rng = np.random.default_rng(1)
     base = STANDING + [2.5, 0, 0]
     shoulder = base[NAMES.index("l_shoulder")]

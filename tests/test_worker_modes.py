@@ -97,7 +97,7 @@ def test_pfl_display_shows_link_energies_the_check_skipped(worker) -> None:
     ok, why = w.apply(_with_mode(w, "pfl"))
     assert ok, why
     t = _run(w, 1000.0, 100)
-    y = joints(standing((6.0, 5.0), math.pi))  # out of reach of the sets of bench_work too
+    y = joints(standing((12.0, 9.0), math.pi))  # out of reach of every shipped set (15 m)
     far = HumanState("far", y, np.zeros_like(y), np.full(len(y), 0.05), t - 0.004)
     res = w.shield.cycle(t, [far])
     assert res.pfl is not None and not res.pfl.energy_known and res.trajectory is not None
