@@ -89,3 +89,18 @@ def test_report_refuses_bad_input_before_writing(tmp_path: Path, capsys) -> None
         assert why in capsys.readouterr().err and not out.exists()
     assert main(["report", "no_such_cell", "--out", str(out)]) != 0
     assert "no_such_cell" in capsys.readouterr().err and not out.exists()
+
+
+def test_the_report_checks_the_recording_the_cell_replays_with_its_skeleton() -> None:
+    """``bench_handover`` replays the shipped TUM handover (an upper-body recording): the report
+    checks it besides the CMU walk, under the set's upper-body sets (it crashed on an
+    upper-body recording given with ``--recording`` before), and the set contains it."""
+    from sara_app.report.evidence import Settings, gather
+
+    ev = gather(load_scenario("bench_handover"), Settings(modes=(), episodes=0))
+    rows = [r for r in ev.containment if r["recording"].startswith("HumanRobotHandover")]
+    assert {r["horizon_s"] for r in rows} == {0.1, 0.3, 0.5}
+    effective = [r for r in rows if r["model"] == "effective"]
+    assert effective and all(r["share"] == 1.0 and r["unflagged"] == 0 for r in effective)
+    assert all(r["monitor_violations"] == 0 for r in rows)
+    assert {r["recording"] for r in ev.containment} >= {"02_01"}

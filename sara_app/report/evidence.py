@@ -32,20 +32,21 @@ from sara_app.cell.build import build_cell
 from sara_app.cell.checksum import code_digest
 from sara_app.human.analysis import containment
 from sara_app.human.intake import screen_recording
-from sara_app.human.params import ReachParams
+from sara_app.human.params import ParamSet, to_reach_params
 from sara_app.human.reach import HumanReach
 from sara_app.human.recordings import load_recording
 from sara_app.ops.audit import AuditLog
 from sara_app.ops.threshold_edit import threshold_view
 from sara_app.report.stopping import stop_rows
-from sara_app.scenario import Scenario
+from sara_app.scenario import RecordingHuman, Scenario
 from sara_app.sim.closed_loop import run_closed_loop
 from sara_app.sim.compare import with_mode
 from sara_app.sim.episodes import run_episodes
 
 HORIZONS_S = (0.1, 0.3, 0.5)
 SHIPPED_RECORDINGS = ("02_01",)
-"""Recordings that ship with the package (the CMU walk), checked in every report."""
+"""Recordings that ship with the package (the CMU walk), checked in every report, besides the
+recordings the scenario's people replay."""
 MODES = ("ssm", "pfl", "jssa")
 
 Progress = Callable[[float, str], None]
@@ -90,12 +91,14 @@ class Evidence:
 
 
 def _containment_rows(
-    params: ReachParams, models: tuple[str, ...], names: Sequence[str]
+    ps: ParamSet, models: tuple[str, ...], names: Sequence[str]
 ) -> list[dict[str, Any]]:
-    reach = HumanReach(params)
+    """Per recording of ``names``, model and horizon, under ``ps`` for the recording's skeleton
+    (an upper-body recording gets the upper-body sets)."""
     rows = []
     for name in names:
         rec = load_recording(name)
+        reach = HumanReach(to_reach_params(ps, rec.kind))
         scr = screen_recording(reach.params, rec)
         for h in HORIZONS_S:
             res = containment(reach, rec.times_s, rec.positions_m, h, models, faulted=scr.faulted)
@@ -109,6 +112,12 @@ def _containment_rows(
                     "gate_flags": {k: int(v) for k, v in scr.counts.items()},
                 })  # fmt: skip
     return rows
+
+
+def scenario_recordings(sc: Scenario) -> list[str]:
+    """The recordings the scenario's people replay (each ships with the package or is named by
+    the scenario's author), in the order of its people."""
+    return [h.recording for h in sc.humans if isinstance(h, RecordingHuman)]
 
 
 def gather(sc: Scenario, settings: Settings, progress: Progress | None = None) -> Evidence:
@@ -137,9 +146,11 @@ def gather(sc: Scenario, settings: Settings, progress: Progress | None = None) -
         source=settings.source,
     )
     step("containment on recordings")
-    names = list(dict.fromkeys([*SHIPPED_RECORDINGS, *settings.recordings]))
+    names = list(
+        dict.fromkeys([*SHIPPED_RECORDINGS, *scenario_recordings(sc), *settings.recordings])
+    )
     models = tuple(sc.shield.models)
-    ev.containment = _containment_rows(cell.params, models, names)
+    ev.containment = _containment_rows(ps, models, names)
     step("thresholds, audit log and stops")
     ev.thresholds = threshold_view(sc)
     if settings.audit_path is not None:
