@@ -11,7 +11,13 @@ from collections.abc import Iterator
 
 import pytest
 
-from sara_app.ops.supervisor import BACKOFF_S, HUNG_AFTER_S, Child, Supervisor
+from sara_app.ops.supervisor import (
+    BACKOFF_S,
+    HUNG_AFTER_S,
+    ROUTER_STOPPED_AFTER_S,
+    Child,
+    Supervisor,
+)
 
 
 def _sleeper() -> subprocess.Popen[bytes]:
@@ -134,3 +140,29 @@ def test_a_stalled_bus_does_not_kill_a_worker_that_runs() -> None:
         assert worker.restarts == 2
     finally:
         sup.stop(timeout_s=2.0)
+
+
+def test_a_stopped_router_is_restarted_and_a_short_stop_is_left_alone(sup: Supervisor) -> None:
+    """A router stopped (SIGSTOP) resumes by itself after a short stop (``soak --chaos``: up to
+    2 s); stopped for ``ROUTER_STOPPED_AFTER_S`` it is killed and restarted (it never was: a
+    stopped router left every cell offline until someone sent it SIGCONT)."""
+    router, worker = _child(sup, "router"), _child(sup, "worker")
+    assert router.proc is not None
+    t0 = router.started_s
+    router.proc.send_signal(signal.SIGSTOP)
+    time.sleep(0.2)
+    assert sup.poll(t0 + 1.0, None) == []
+    assert sup.poll(t0 + 1.0 + ROUTER_STOPPED_AFTER_S - 0.1, None) == []
+    router.proc.send_signal(signal.SIGCONT)  # a short stop: it runs on, nothing restarted
+    time.sleep(0.2)
+    assert sup.poll(t0 + 7.0, None) == [] and router.stopped_s is None
+    router.proc.send_signal(signal.SIGSTOP)
+    time.sleep(0.2)
+    assert sup.poll(t0 + 8.0, None) == []
+    events = sup.poll(t0 + 8.0 + ROUTER_STOPPED_AFTER_S, None)
+    assert events[0] == f"router stopped for {ROUTER_STOPPED_AFTER_S:.1f} s: killed"
+    assert events[1].startswith("router exited (code -9): restart in 0.5 s")
+    assert not router.alive and router.restarts == 1
+    assert router.due_s is not None and sup.poll(router.due_s, None) == ["router restarted (#1)"]
+    assert router.alive and router.stopped_s is None
+    assert worker.alive and worker.restarts == 0  # the worker was never the cause

@@ -13,6 +13,11 @@
   stalled router with a cycling worker behind it is left alone. Meanwhile the API shows the
   cell offline with its mode unknown, and the controller brakes along the last verified stop on
   its own.
+- A router stopped (SIGSTOP, a debugger's stop: its state in ``/proc``) for
+  ``ROUTER_STOPPED_AFTER_S`` is killed and restarted; a shorter stop resumes by itself. A router
+  that hangs while it runs (a deadlock) cannot be told from an idle one by its CPU time (an idle
+  router uses none either, as while its worker restarts) and is left alone: the controllers
+  brake on their own meanwhile.
 - Children never outlive ``serve``: each asks the kernel to kill it when its parent dies
   (``bus.process.die_with_parent``), and ``stop()`` ends them in order.
 """
@@ -33,6 +38,9 @@ log = logging.getLogger("sara_app.serve")
 BACKOFF_S = (0.5, 10.0)
 STABLE_S = 30.0
 HUNG_AFTER_S = 2.0
+ROUTER_STOPPED_AFTER_S = 5.0
+"""A router stopped this long is restarted (``sara-app soak --chaos`` stops it for at most 2 s,
+which it survives: its sessions reconnect within a second of the SIGCONT)."""
 
 
 @dataclass
@@ -48,12 +56,32 @@ class Child:
     due_s: float | None = None  # a restart is due at this time
     cpu_ticks: int = -1  # the main thread's CPU time at the last poll (clock ticks; -1: none)
     ran_s: float = 0.0  # when the main thread was last seen to run
+    stopped_s: float | None = None  # since when the process is seen stopped (None: running)
 
     def spawn(self, now: float) -> None:
         self.proc = self.start()
         self.started_s = self.ran_s = now
         self.due_s = None
         self.cpu_ticks = -1
+        self.stopped_s = None
+
+    def stopped_for(self, now: float) -> float:
+        """How long the process has been seen stopped (its state ``T`` or ``t`` in ``/proc``:
+        SIGSTOP, a debugger), counted from the first poll that saw it; 0 while it runs or
+        when ``/proc`` cannot be read (call once a poll: it records the time)."""
+        state = b""
+        if self.proc is not None:
+            try:
+                with open(f"/proc/{self.proc.pid}/stat", "rb") as f:
+                    state = f.read().rsplit(b")", 1)[1].split()[0]
+            except (OSError, IndexError):
+                state = b""
+        if state not in (b"T", b"t"):
+            self.stopped_s = None
+            return 0.0
+        if self.stopped_s is None:
+            self.stopped_s = now
+        return now - self.stopped_s
 
     def ran_recently(self, now: float) -> bool:
         """Whether the main thread has used CPU within ``HUNG_AFTER_S`` (call once a poll: it
@@ -126,6 +154,12 @@ class Supervisor:
                 c.proc.send_signal(signal.SIGKILL)
                 c.proc.wait()
                 events.append(f"{c.name} hung ({age:.1f} s without a verdict): killed")
+            if c.name == self.router and c.alive and c.proc is not None:
+                stopped_s = c.stopped_for(now)
+                if stopped_s >= ROUTER_STOPPED_AFTER_S:
+                    c.proc.send_signal(signal.SIGKILL)
+                    c.proc.wait()
+                    events.append(f"{c.name} stopped for {stopped_s:.1f} s: killed")
             if not c.alive:
                 code = None if c.proc is None else c.proc.returncode
                 if now - c.started_s > STABLE_S:
