@@ -7,13 +7,13 @@ from __future__ import annotations
 
 import pytest
 
-from sara_app.human.analysis import EFFECTIVE
+from sara_app.human.analysis import EFFECTIVE, containment
 from sara_app.human.failures import Ceilings, split
 from sara_app.human.intake import screen_recording
 from sara_app.human.params import load_param_set, to_reach_params
+from sara_app.human.reach import HumanReach
 from sara_app.human.recording import Recording
 from sara_app.human.recordings import load_recording, shared_data_dir
-from sara_app.human.validation import containment_on
 from sara_app.scenario import load_scenario
 
 MODELS = ("acc", "vel", "pos", "combined")
@@ -36,11 +36,22 @@ def _need_data() -> None:
         pytest.skip("data folder not found")
 
 
-def _faulted(name: str) -> int:
+def _check(name: str, horizon_s: float | None) -> tuple[int, int, int, int]:
+    """``(checked, contained, unflagged, faulted frames)`` of the recording's pieces under the
+    shipped set: the effective set of ``MODELS`` at ``horizon_s`` (None: the monitor only)."""
     ps = load_param_set("bench_assembly")
-    return sum(
-        int(screen_recording(to_reach_params(ps, p.kind), p).faulted.sum()) for p in _pieces(name)
-    )
+    out = [0, 0, 0, 0]
+    for rec in _pieces(name):
+        p = to_reach_params(ps, rec.kind)
+        faulted = screen_recording(p, rec).faulted
+        out[3] += int(faulted.sum())
+        if horizon_s is not None:
+            c = containment(HumanReach(p), rec.times_s, rec.positions_m, horizon_s, MODELS,
+                            faulted=faulted)[EFFECTIVE]  # fmt: skip
+            out[0] += c.checked
+            out[1] += c.contained
+            out[2] += c.unflagged or 0
+    return out[0], out[1], out[2], out[3]
 
 
 def test_the_scenarios_of_light_work_run_on_it() -> None:
@@ -53,24 +64,17 @@ def test_the_scenarios_of_light_work_run_on_it() -> None:
 @pytest.mark.parametrize("horizon_s", [0.1, 0.2, 0.5])
 def test_the_shipped_handover_is_contained_with_the_monitor_quiet(horizon_s: float) -> None:
     """HumanRobotHandover/0 ships in the package (the ``bench_handover`` scenarios)."""
-    ps = load_param_set("bench_assembly")
-    checked, contained, unflagged = containment_on(
-        ps, _pieces("HumanRobotHandover/0"), horizon_s, MODELS
-    )[EFFECTIVE]
-    assert checked > 10_000 and contained == checked and unflagged == 0
-    assert _faulted("HumanRobotHandover/0") == 0
+    checked, contained, unflagged, faulted = _check("HumanRobotHandover/0", horizon_s)
+    assert checked > 10_000 and contained == checked and unflagged == 0 and faulted == 0
 
 
 def test_every_recording_it_was_fitted_to_is_contained() -> None:
     """The 15 recordings (with the data folder), 0.2 s: every future position inside the
     effective set, no frame faulted."""
     _need_data()
-    ps = load_param_set("bench_assembly")
     for name in FITTED:
-        pieces = _pieces(name)
-        checked, contained, _ = containment_on(ps, pieces, 0.2, MODELS)[EFFECTIVE]
-        assert checked > 0 and contained == checked, (name, checked - contained)
-        assert _faulted(name) == 0, name
+        checked, contained, _, faulted = _check(name, 0.2)
+        assert checked > 0 and contained == checked and faulted == 0, (name, checked, contained)
 
 
 @pytest.mark.parametrize("name", ["CollaborativeHammering/0", "PickPlaceCloseHuman/1"])
@@ -78,4 +82,4 @@ def test_work_beyond_it_is_faulted_by_the_monitor(name: str) -> None:
     """Forceful hammering (a wrist at 7.2 m/s) and a fast reach while picking (7.5 m/s) are
     beyond the set: the monitor faults the person (the robot then stays on its failsafe)."""
     _need_data()
-    assert _faulted(name) > 0
+    assert _check(name, None)[3] > 0
