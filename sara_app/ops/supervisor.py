@@ -43,6 +43,16 @@ ROUTER_STOPPED_AFTER_S = 5.0
 which it survives: its sessions reconnect within a second of the SIGCONT)."""
 
 
+def _stat_fields(path: str) -> list[bytes]:
+    """The fields of a ``/proc`` ``stat`` file after the command name (state first, then ppid,
+    ...; ``utime`` and ``stime`` at 11 and 12); empty when it cannot be read."""
+    try:
+        with open(path, "rb") as f:
+            return f.read().rsplit(b")", 1)[1].split()
+    except (OSError, IndexError):
+        return []
+
+
 @dataclass
 class Child:
     """One supervised process: ``start()`` spawns it."""
@@ -69,14 +79,8 @@ class Child:
         """How long the process has been seen stopped (its state ``T`` or ``t`` in ``/proc``:
         SIGSTOP, a debugger), counted from the first poll that saw it; 0 while it runs or
         when ``/proc`` cannot be read (call once a poll: it records the time)."""
-        state = b""
-        if self.proc is not None:
-            try:
-                with open(f"/proc/{self.proc.pid}/stat", "rb") as f:
-                    state = f.read().rsplit(b")", 1)[1].split()[0]
-            except (OSError, IndexError):
-                state = b""
-        if state not in (b"T", b"t"):
+        fields = [] if self.proc is None else _stat_fields(f"/proc/{self.proc.pid}/stat")
+        if not fields or fields[0] not in (b"T", b"t"):
             self.stopped_s = None
             return 0.0
         if self.stopped_s is None:
@@ -88,11 +92,10 @@ class Child:
         records the CPU time). Unreadable (no ``/proc``): False, so that silence decides."""
         if self.proc is None:
             return False
+        fields = _stat_fields(f"/proc/{self.proc.pid}/task/{self.proc.pid}/stat")
         try:
-            with open(f"/proc/{self.proc.pid}/task/{self.proc.pid}/stat", "rb") as f:
-                fields = f.read().rsplit(b")", 1)[1].split()
             ticks = int(fields[11]) + int(fields[12])  # utime + stime
-        except (OSError, IndexError, ValueError):
+        except (IndexError, ValueError):
             return False
         if ticks != self.cpu_ticks:
             if self.cpu_ticks >= 0:  # the first reading is the baseline (ran_s: the start)
