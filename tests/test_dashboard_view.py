@@ -55,6 +55,21 @@ def _settled(page: DevTools) -> np.ndarray:
     return wait_for(same, 30.0, "the picture to settle")  # type: ignore[return-value]
 
 
+def _difference(a: np.ndarray, b: np.ndarray) -> str:
+    """Where two pictures of the scene region differ, and which one has more drawn pixels
+    (the background is the lightest colour): what a failure needs to be read."""
+    a, b = a[150:, :540], b[150:, :540]
+    rows, cols = np.nonzero(np.abs(a - b).sum(-1) > 60)
+    if rows.size == 0:
+        return "no pixel apart"
+    drawn = [int(np.sum(img.sum(-1) < img.sum(-1).max() - 60)) for img in (a, b)]
+    return (
+        f"{rows.size} pixels apart in rows {rows.min() + 150}-{rows.max() + 150}, columns"
+        f" {cols.min()}-{cols.max()}; drawn pixels in the scene region: one {drawn[0]},"
+        f" two {drawn[1]}"
+    )
+
+
 def _untick(page: DevTools, name: str) -> None:
     page.click(_CHECKBOX.format(LABEL[name]))
 
@@ -75,11 +90,17 @@ def test_two_browsers_keep_their_own_view_settings(dash: Dashboard) -> None:
         # once both have loaded it: under load one browser's picture can hold still for two
         # screenshots before the robot's meshes arrive (a CI run saw 20 710 pixels apart)
 
+        last: list[tuple[np.ndarray, np.ndarray]] = []
+
         def both() -> tuple[np.ndarray, np.ndarray] | None:
             a, b = _settled(one), _settled(two)
+            last[:] = [(a, b)]
             return (a, b) if _changed(a[150:, :540], b[150:, :540]) < 200 else None
 
-        before_one, before_two = wait_for(both, 60.0, "the same default picture in both")
+        try:
+            before_one, before_two = wait_for(both, 60.0, "the same default picture in both")
+        except AssertionError as e:
+            raise AssertionError(f"{e}: {_difference(*last[0])}") from None
 
         # The robot is visible in the default view: hiding it in browser one changes pixels.
         _untick(one, "robot")
