@@ -356,3 +356,48 @@ def test_run_states_every_period_without_commands_and_one_per_command_taken() ->
     # one of its own per period, never a gap of several periods
     gaps = np.diff([s.stamp_s for s in during])
     assert taken <= len(during) <= taken + 0.5 / dt and gaps.max() < 3 * dt, (len(during), taken)
+
+
+@pytest.mark.parametrize("fault", ["raises", "ends"])
+def test_commands_are_still_taken_when_the_receiving_wait_fails(fault: str) -> None:
+    """Fault injection into ``Controller.run`` over a real bus: the receiving thread's wait
+    fails once (an error, or an end as if the subscription had closed) while the worker goes on
+    commanding; the commands are then read at every state due, and the robot follows them
+    rather than braking for good (a controller's receiving thread once ended silently in a CI
+    run and left its robot braking with the worker alive)."""
+    import threading
+
+    from sara_app.peers.controller import Controller
+
+    sc = load_scenario("standing_beside_path")
+    port = free_port()
+    with Bus.router(port), Bus.client(port) as cbus, Bus.client(port) as wbus:
+        ctl = Controller(CELL, sc, cbus)
+        real_receive = ctl.sub.receive
+
+        def failing_once():
+            ctl.sub.receive = real_receive  # only the first wait fails
+            if fault == "raises":
+                raise RuntimeError("injected: the channel's wait failed")
+            return None
+
+        ctl.sub.receive = failing_once  # type: ignore[method-assign]
+        pub = wbus.publisher(keys.robot_command_key(CELL))
+        runner = threading.Thread(target=ctl.run)
+        runner.start()
+        try:
+            dt, q0 = ctl.dt_s, ctl.q.tolist()
+            t0, sent = time.time(), 0
+            while time.time() - t0 < 0.5:
+                t = time.time()
+                pub.put(_cmd(sent, t, q0, dt))
+                sent += 1
+                time.sleep(max(t + dt - time.time(), 0.0))
+            following = not ctl.braking
+        finally:
+            ctl.stop_event.set()
+            runner.join(2.0)
+    assert not runner.is_alive()
+    assert ctl.receiver_ended
+    assert ctl.delivery.received >= 0.9 * sent, (ctl.delivery.received, sent)
+    assert following, "the robot braked while commands came every period"

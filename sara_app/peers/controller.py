@@ -127,6 +127,8 @@ class Controller:
         self.published_s = -1.0
         self.status_s = -np.inf
         self.stop_event = threading.Event()
+        self.receiver_ended = False
+        """The receiving thread of :meth:`run` ended before the stop; :meth:`_watch` reads."""
         # a stamp from the future would hold back every later command: refused (out_of_range)
         self.decoder = Decoder(max_future_s=FUTURE_TOLERANCE_S)
         self.sub = bus.subscribe(keys.robot_command_key(self.cell), self.decoder, capacity=64)
@@ -287,7 +289,7 @@ class Controller:
                 t.join(5.0)
             self._due.release()
 
-    def _locked_tick(self, commands: list[RobotCommandMsg]) -> None:
+    def _locked_tick(self, commands: list[RobotCommandMsg] | None) -> None:
         """:meth:`tick` now, under the lock (the time read inside it: the two threads' ticks
         and states stay in time order), then the deadline moved to a period after the last
         state; an error is logged and the robot keeps braking (never the end of the loop)."""
@@ -299,16 +301,31 @@ class Controller:
             self._due.arm(max(self.published_s + self.dt_s - time.time(), MIN_WAIT_S))
 
     def _receive(self) -> None:
-        while not self.stop_event.is_set():
-            got = self.sub.receive()
-            if got is None:  # closed
-                return
-            cmds = [d.msg for d in got.messages if isinstance(d.msg, RobotCommandMsg)]
-            self._locked_tick(cmds)
+        """Tick on each batch of commands received. Should the wait end other than by the
+        stop (an error from zenoh's channel, or a decoding error), the deadline's thread takes
+        over the reading (:meth:`_watch`): the commands are then taken at the next state due,
+        never left unread (a receiving thread that ended silently once left a controller
+        braking for good while the worker commanded it)."""
+        try:
+            while not self.stop_event.is_set():
+                got = self.sub.receive()
+                if got is None:
+                    break
+                cmds = [d.msg for d in got.messages if isinstance(d.msg, RobotCommandMsg)]
+                self._locked_tick(cmds)
+        except Exception:  # noqa: BLE001 - the deadline's thread reads on
+            log.exception("controller: waiting for commands failed")
+        if not self.stop_event.is_set():
+            log.error(
+                "controller: the command subscription's wait ended; reading the commands at"
+                " every state due instead (about one control period late)"
+            )
+            self.receiver_ended = True
+            self._locked_tick(None)  # what came meanwhile, and the deadline re-armed
 
     def _watch(self) -> None:
         while self._due.wait() and not self.stop_event.is_set():
-            self._locked_tick([])
+            self._locked_tick(None if self.receiver_ended else [])
 
 
 def main(argv: list[str] | None = None) -> int:
