@@ -312,3 +312,10 @@ def test_the_arm_model_is_refused_in_pfl_mode() -> None:
         parse_scenario(data)
     data["shield"]["mode"] = "ssm"
     assert parse_scenario(data).shield.models == ["vel", "arm"]
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_no_shipped_scenario_runs_on_table_i(name: str) -> None:
+    """Schepp et al. 2022's Table I is sound on none of the recordings: selectable by name, the
+    set of no shipped scenario (each names the set of its activity)."""
+    assert load_scenario(name).human_params != "schepp2022_table1"
