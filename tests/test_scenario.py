@@ -319,3 +319,18 @@ def test_no_shipped_scenario_runs_on_table_i(name: str) -> None:
     """Schepp et al. 2022's Table I is sound on none of the recordings: selectable by name, the
     set of no shipped scenario (each names the set of its activity)."""
     assert load_scenario(name).human_params != "schepp2022_table1"
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_every_shipped_scenario_is_a_bench_cell(name: str) -> None:
+    """Issue 31's cell: the robot's base on a bench whose top is 0.85-0.95 m high (a box in
+    ``environment`` under the base, top at the base's height), people on the floor."""
+    sc = load_scenario(name)
+    x, y, z = sc.robot.base_xyz_m
+    assert 0.85 <= z <= 0.95, (name, z)
+    under = [
+        b for b in sc.environment
+        if all(abs(p - c) <= s / 2 for p, c, s in zip((x, y), b.center_m[:2], b.size_m[:2]))
+        and b.rpy_rad == (0.0, 0.0, 0.0)
+    ]  # fmt: skip
+    assert any(abs(b.center_m[2] + b.size_m[2] / 2 - z) < 1e-6 for b in under), name
