@@ -383,6 +383,7 @@ def test_commands_are_still_taken_when_the_receiving_wait_fails(fault: str) -> N
 
         ctl.sub.receive = failing_once  # type: ignore[method-assign]
         pub = wbus.publisher(keys.robot_command_key(CELL))
+        status = wbus.subscribe(keys.controller_status_key(CELL), fifo=True, capacity=100)
         runner = threading.Thread(target=ctl.run)
         runner.start()
         try:
@@ -394,10 +395,16 @@ def test_commands_are_still_taken_when_the_receiving_wait_fails(fault: str) -> N
                 sent += 1
                 time.sleep(max(t + dt - time.time(), 0.0))
             following = not ctl.braking
+            ctl.publish_status(time.time())  # what the operator's health line reads
+            t_end = time.monotonic() + 5.0
+            said: list[ControllerStatusMsg] = []
+            while not said and time.monotonic() < t_end:
+                said = [m for m in _drain(status, ControllerStatusMsg) if m.receive_failed]
+                time.sleep(0.02)
         finally:
             ctl.stop_event.set()
             runner.join(2.0)
     assert not runner.is_alive()
-    assert ctl.receiver_ended
+    assert ctl.receiver_ended and said, "the status says the wait failed"
     assert ctl.delivery.received >= 0.9 * sent, (ctl.delivery.received, sent)
     assert following, "the robot braked while commands came every period"

@@ -34,12 +34,13 @@ def _verdict(seq: int, t: float, mode: str = "intended", **kw: object) -> Verdic
 
 
 def _controller(
-    seq: int, t: float, received: int, braked: int, causes: dict
+    seq: int, t: float, received: int, braked: int, causes: dict, receive_failed: bool = False
 ) -> ControllerStatusMsg:
     return ControllerStatusMsg(seq=seq, stamp_s=t, cell="c1", commands_received=received,
                                commands_lost=0, commands_late=3, commands_expired=braked,
                                commands_refused=0, braking_events=braked, worker_runs=1,
-                               braking=False, braking_causes=causes)  # fmt: skip
+                               braking=False, braking_causes=causes,
+                               receive_failed=receive_failed)  # fmt: skip
 
 
 def _status(t: float) -> StatusMsg:
@@ -97,6 +98,17 @@ def test_a_minute_of_verdicts_is_one_line_with_rate_states_delivery_and_faults(
     text = caplog.text
     assert "fault cleared" in text and "2 verdicts/s (0.3 % of 500 Hz)" in text
     assert "controller: 0 commands" in text and "faults: none" in text
+    assert "reading commands late" not in text
+    # a controller whose wait for commands failed says so in the next minute's line
+    _feed(reg, _controller(2, wall.t, 30_100, 2, {"worker": 2}, receive_failed=True),
+          "sara/c1/controller/status", wall.t)  # fmt: skip
+    for k in range(n + 100, n + 200):
+        wall.t += 0.002
+        _feed(reg, _verdict(k, wall.t), "sara/c1/verdict", wall.t)
+    mono.t += 60.0
+    caplog.clear()
+    health.poll()
+    assert "reading commands late (its wait for them failed: restart it)" in caplog.text
 
 
 def test_a_cell_going_offline_is_said_once() -> None:

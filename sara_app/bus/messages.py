@@ -635,6 +635,9 @@ class ControllerStatusMsg(_Msg):
     braking: bool
     braking_causes: dict[BrakingCause, Annotated[int, Field(ge=0)]] = {}
     """Why it braked on its own, per braking event (:data:`BrakingCause`)."""
+    receive_failed: bool = False
+    """Its wait for commands failed: it reads them at every state due instead, up to a
+    control period late (the reference controller; restart it to wait again)."""
 
 
 Message = (

@@ -235,4 +235,6 @@ def _controller_words(ctl: dict[str, Any] | None, before: dict[str, Any] | None)
         why = ", ".join(f"{CAUSE_WORDS.get(c, c)}: {n}" for c, n in causes.items() if n > 0)
         times = "once" if braked == 1 else f"{braked} times"
         text += f", braked on its own {times}" + (f" ({why})" if why else "")
+    if ctl.get("receive_failed"):
+        text += ", reading commands late (its wait for them failed: restart it)"
     return text

@@ -264,6 +264,7 @@ class Controller:
                 worker_runs=d.runs,
                 braking=self.braking,
                 braking_causes=dict(d.causes),
+                receive_failed=self.receiver_ended,
             )
         )
 
