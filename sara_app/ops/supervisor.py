@@ -147,22 +147,21 @@ class Supervisor:
                     c.spawn(now)
                     events.append(f"{c.name} restarted (#{c.restarts})")
                 continue
-            hung = False
+            kill_why = None  # why a child that runs is killed (then restarted below)
             if c.name in self.workers:
                 age, bus = self._of(verdict_age_s, c.name), self._of(bus_since, c.name)
                 ran = c.ran_recently(now)  # every poll: it records the CPU time
                 silent = c.alive and age is not None and age > HUNG_AFTER_S
-                hung = silent and (not ran or bool(bus))
-            if hung and c.proc is not None:
+                if silent and (not ran or bool(bus)):
+                    kill_why = f"hung ({age:.1f} s without a verdict)"
+            if c.name == self.router and c.alive:
+                stopped_s = c.stopped_for(now)  # every poll: it records since when
+                if stopped_s >= ROUTER_STOPPED_AFTER_S:
+                    kill_why = f"stopped for {stopped_s:.1f} s"
+            if kill_why is not None and c.proc is not None:
                 c.proc.send_signal(signal.SIGKILL)
                 c.proc.wait()
-                events.append(f"{c.name} hung ({age:.1f} s without a verdict): killed")
-            if c.name == self.router and c.alive and c.proc is not None:
-                stopped_s = c.stopped_for(now)
-                if stopped_s >= ROUTER_STOPPED_AFTER_S:
-                    c.proc.send_signal(signal.SIGKILL)
-                    c.proc.wait()
-                    events.append(f"{c.name} stopped for {stopped_s:.1f} s: killed")
+                events.append(f"{c.name} {kill_why}: killed")
             if not c.alive:
                 code = None if c.proc is None else c.proc.returncode
                 if now - c.started_s > STABLE_S:
