@@ -7,13 +7,13 @@ from __future__ import annotations
 
 import pytest
 
-from sara_app.human.analysis import EFFECTIVE, containment
+from sara_app.human.analysis import EFFECTIVE
 from sara_app.human.failures import Ceilings, split
 from sara_app.human.intake import screen_recording
 from sara_app.human.params import load_param_set, to_reach_params
-from sara_app.human.reach import HumanReach
 from sara_app.human.recording import Recording
 from sara_app.human.recordings import load_recording, shared_data_dir
+from sara_app.human.validation import containment_on
 from sara_app.scenario import load_scenario
 
 MODELS = ("acc", "vel", "pos", "combined")
@@ -36,22 +36,19 @@ def _need_data() -> None:
         pytest.skip("data folder not found")
 
 
-def _check(name: str, horizon_s: float | None) -> tuple[int, int, int, int]:
+def _check(name: str, horizon_s: float) -> tuple[int, int, int, int]:
     """``(checked, contained, unflagged, faulted frames)`` of the recording's pieces under the
-    shipped set: the effective set of ``MODELS`` at ``horizon_s`` (None: the monitor only)."""
+    shipped set: the effective set of ``MODELS`` at ``horizon_s``."""
+    counts, faulted = containment_on(load_param_set("bench_assembly"), _pieces(name), horizon_s,
+                                     MODELS)  # fmt: skip
+    return (*counts[EFFECTIVE], faulted)
+
+
+def _faulted_frames(name: str) -> int:
+    """Frames of the recording's pieces the conformance monitor faults under the shipped set."""
     ps = load_param_set("bench_assembly")
-    out = [0, 0, 0, 0]
-    for rec in _pieces(name):
-        p = to_reach_params(ps, rec.kind)
-        faulted = screen_recording(p, rec).faulted
-        out[3] += int(faulted.sum())
-        if horizon_s is not None:
-            c = containment(HumanReach(p), rec.times_s, rec.positions_m, horizon_s, MODELS,
-                            faulted=faulted)[EFFECTIVE]  # fmt: skip
-            out[0] += c.checked
-            out[1] += c.contained
-            out[2] += c.unflagged or 0
-    return out[0], out[1], out[2], out[3]
+    return sum(int(screen_recording(to_reach_params(ps, r.kind), r).faulted.sum())
+               for r in _pieces(name))  # fmt: skip
 
 
 def test_the_scenarios_of_light_work_run_on_it() -> None:
@@ -82,4 +79,4 @@ def test_work_beyond_it_is_faulted_by_the_monitor(name: str) -> None:
     """Forceful hammering (a wrist at 7.2 m/s) and a fast reach while picking (7.5 m/s) are
     beyond the set: the monitor faults the person (the robot then stays on its failsafe)."""
     _need_data()
-    assert _check(name, None)[3] > 0
+    assert _faulted_frames(name) > 0

@@ -180,7 +180,9 @@ def leave_one_out(
         others = np.fmax.reduce([o for k, o in enumerate(own) if k != i])
         table = np.maximum.accumulate(others, axis=1)
         bounded = with_bound(base, to_bound(table, step_s, base, shaping))
-        counts = {h: containment_on(bounded, pieces[i], h, models)[EFFECTIVE] for h in horizons_s}
+        counts = {
+            h: containment_on(bounded, pieces[i], h, models).counts[EFFECTIVE] for h in horizons_s
+        }
         bounded_rows = np.isin(FULL_JOINTS, shaping.joints)[:, None]
         fitted = np.isfinite(own[i]) & np.isfinite(others) & bounded_rows
         excess = own[i][fitted] / np.maximum(others[fitted], 1e-3)

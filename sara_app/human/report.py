@@ -326,7 +326,7 @@ def calibrate_command(
     summary = {}
     for rec, pieces in zip(recs, kept):
         for label, pset in (("base", b), ("calibrated", ps)):
-            res = containment_on(pset, pieces, horizon_s, MODELS, in_use(MODELS))
+            res = containment_on(pset, pieces, horizon_s, MODELS, in_use(MODELS)).counts
             misses = {m: c[0] - c[1] for m, c in res.items()}
             print(
                 f"  {rec.name} with {label} set: "

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -137,23 +138,35 @@ def _ratio(own: np.ndarray, others: np.ndarray) -> float:
     return float(np.max(own / others))
 
 
+class Screened(NamedTuple):
+    """:func:`containment_on`'s result: per model (and :data:`EFFECTIVE`) ``(checked,
+    contained, unflagged)`` summed over the recordings, and how many of their frames the
+    conformance monitor faulted (the misses there are flagged, not residual risk)."""
+
+    counts: dict[str, tuple[int, int, int]]
+    faulted_frames: int
+
+
 def containment_on(
     ps: ParamSet, recs: Sequence[Recording], horizon_s: float, models: tuple[str, ...],
     effective_of: tuple[str, ...] | None = None,
-) -> dict[str, tuple[int, int, int]]:  # fmt: skip
+) -> Screened:  # fmt: skip
     """Per model of ``models`` and the effective set of ``effective_of`` (default ``models``;
     key :data:`EFFECTIVE`): ``(checked, contained, unflagged)`` under ``ps`` summed over
-    ``recs``, each screened by a fresh intake (the monitor's faults clear its misses)."""
+    ``recs``, each screened by a fresh intake (the monitor's faults clear its misses), and the
+    frames it faulted."""
     out: dict[str, tuple[int, int, int]] = {}
+    n_faulted = 0
     for rec in recs:
         reach = HumanReach(to_reach_params(ps, rec.kind))
         fault = screen_recording(reach.params, rec).faulted
+        n_faulted += int(fault.sum())
         res = containment(reach, rec.times_s, rec.positions_m, horizon_s, models,
                           faulted=fault, effective_of=effective_of)  # fmt: skip
         for m, c in res.items():
             k, n, u = out.get(m, (0, 0, 0))
             out[m] = (k + c.checked, n + c.contained, u + (c.unflagged or 0))
-    return out
+    return Screened(out, n_faulted)
 
 
 def leave_one_out(
@@ -171,7 +184,8 @@ def leave_one_out(
     rows = []
     for i, (parts, name) in enumerate(zip(recs, names)):
         others = combine([p for k, p in enumerate(own) if k != i], "others")
-        checked, contained, unflagged = containment_on(others, parts, horizon_s, models)[EFFECTIVE]
+        held = containment_on(others, parts, horizon_s, models).counts
+        checked, contained, unflagged = held[EFFECTIVE]
         (v_own, a_own), (v_oth, a_oth) = _bounds(own[i]), _bounds(others)
         arm_ratio = own[i].arm.r_v_max_mps / others.arm.r_v_max_mps
         rows.append(HeldOut(name, checked, contained, unflagged, _ratio(v_own, v_oth),
