@@ -279,7 +279,7 @@ def test_pfl_frame_is_drawn_coloured_by_contact_with_the_link_table(
     assert "no contact possible" in row0
     hand = next(r for r in md.splitlines() if r.startswith("| panda_hand "))
     assert "rgb(20,150,50)" in hand and "edge" in hand
-    assert "Speed scale (PFL) | 40 %" in panels.status.content
+    assert "Speed scale | 40 %" in panels.status.content
     assert "Intervening | yes" in panels.status.content
 
 

@@ -288,7 +288,7 @@ def test_status_rows_of_the_safety_modes() -> None:
     md = status_markdown(base)
     assert "Speed scale" not in md and "JSSA" not in md and "Intervening" not in md
     md = status_markdown({**base, "intervened": False, "speed_scale": 0.255})
-    assert "Intervening | no" in md and "Speed scale (PFL) | 26 %" in md
+    assert "Intervening | no" in md and "Speed scale | 26 %" in md
     jssa = {"phi_m2": None, "active": False, "fallback": False, "d_min_m": 0.05}
     md = status_markdown({**base, "jssa": jssa})
     assert "JSSA | inactive" in md and "JSSA phi | n/a" in md and "n/a / 0.050 m" in md

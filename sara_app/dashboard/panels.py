@@ -134,7 +134,8 @@ def status_markdown(status: dict[str, Any]) -> str:
     if "intervened" in status:
         rows.append(("Intervening", "yes" if status["intervened"] else "no"))
     if status.get("speed_scale") is not None:
-        rows.append(("Speed scale (PFL)", _fmt(100.0 * _float(status["speed_scale"]), ".0f", " %")))
+        # SSM and PFL both scale the intended step's path speed (ModeFacts.scales_speed)
+        rows.append(("Speed scale", _fmt(100.0 * _float(status["speed_scale"]), ".0f", " %")))
     rows += _people_rows(status)
     jssa = status.get("jssa")
     if isinstance(jssa, dict):
