@@ -94,6 +94,14 @@ def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(sig: signal.Signals) ->
             policy = os.sched_getscheduler(pid)  # of the main thread: the loop
             rt = "sara_app.peers.replayer" not in text and _rt_permitted()
             assert policy == (os.SCHED_FIFO if rt else os.SCHED_OTHER), (text, policy)
+            # and zenoh's I/O threads, which carry its commands and states: the worker's were
+            # once left at normal priority (started by its early "starting" session), and a
+            # browser on the machine then made commands late and lost
+            io = _zenoh_threads(pid)
+            assert io, text
+            for tid, name in io.items():
+                got = os.sched_getscheduler(tid)
+                assert got == (os.SCHED_FIFO if rt else os.SCHED_OTHER), (text, name, got)
         plan = cpu_plan(1) if shutil.which("taskset") else None
         if plan is not None:  # the worker on a CPU of its own, every thread of everyone else off it
             for pid, text in kids.items():
@@ -131,6 +139,20 @@ def _communicate_or_dump(proc: subprocess.Popen[str], zenoh_port: int, timeout_s
             os.kill(pid, signal.SIGKILL)
         out = proc.communicate()[0]
         pytest.fail(f"serve did not exit {timeout_s} s after the signal; its output:\n{out}")
+
+
+def _zenoh_threads(pid: int) -> dict[int, str]:
+    """tid -> name of the zenoh runtime's I/O threads of process ``pid`` (``rx-0``, ``tx-0``,
+    ``net-0``, ``app-0``, ``acc-0``)."""
+    out = {}
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            name = (task / "comm").read_text().strip()
+        except OSError:
+            continue
+        if name.split("-")[0] in ("rx", "tx", "net", "app", "acc") and name[-1:].isdigit():
+            out[int(task.name)] = name
+    return out
 
 
 def _rt_permitted() -> bool:

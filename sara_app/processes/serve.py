@@ -13,11 +13,12 @@ Ctrl-C reaches only this process, which stops them in order). With Linux's sessi
 (``/proc/sys/kernel/sched_autogroup_enabled``) the scheduler first shares the CPUs fairly between
 sessions, so a worker alone in its session keeps the right to run at once when it wakes, however
 busy the other sessions are; nice values rank processes within a session only. The worker's control
-loop runs under ``SCHED_FIFO`` (priority ``WORKER_RT_PRIORITY``) where the system permits it, else
-at the normal priority (its zenoh I/O threads always do); the replayer (a stand-in for a tracker
+loop, and the zenoh I/O threads of the worker, the controller and the router (which carry the
+commands and states), run under ``SCHED_FIFO`` (priority ``WORKER_RT_PRIORITY``) where the system
+permits it, else at the normal priority; the replayer (a stand-in for a tracker
 that normally runs elsewhere) runs at nice ``REPLAYER_NICE``, its session's autogroup too; the
 display side of this process (the dashboard, the API and the threads they start) at nice
-``DISPLAY_NICE``, the router's zenoh I/O threads (started before) at the normal one.
+``DISPLAY_NICE``, its own zenoh I/O threads (started before) at the normal one.
 """
 
 from __future__ import annotations

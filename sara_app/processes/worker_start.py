@@ -6,6 +6,13 @@ minute before the worker could say anything. This module imports only the bus, o
 with the worker's credentials and publishes ``starting`` statuses (:mod:`sara_app.bus.starting`)
 while the worker's modules load; then it hands over to :func:`sara_app.runtime.worker.main`, which
 says ``starting`` again while it builds its cell. Without a router it just starts the worker.
+
+Zenoh starts its I/O threads (``rx``, ``tx``, ``net``, ``app``) once per process, with the first
+session, and every later session uses them: this early session is that first one. So it is
+opened under the real-time class the worker asks for (``--rt-priority``; the threads inherit
+it), and this thread goes back to normal scheduling at once (loading is no real-time work).
+Opened at normal priority, it left the worker's sending and receiving threads behind any
+browser on the machine: commands were lost and the robot braked on its own.
 """
 
 from __future__ import annotations
@@ -17,6 +24,7 @@ from pathlib import Path
 
 from sara_app.bus import keys
 from sara_app.bus.access import Credentials, client_auth
+from sara_app.bus.process import set_normal, set_realtime
 from sara_app.bus.session import Bus
 from sara_app.bus.starting import Starting
 from sara_app.errors import SaraError
@@ -31,6 +39,7 @@ def _early_args(argv: list[str]) -> argparse.Namespace:
     ap.add_argument("--port", type=int, default=7447)
     ap.add_argument("--zenoh-user", default=None)
     ap.add_argument("--zenoh-credentials", default=None)
+    ap.add_argument("--rt-priority", default="0")  # checked by the worker's own parser
     return ap.parse_known_args(argv)[0]
 
 
@@ -43,10 +52,16 @@ def main(argv: list[str] | None = None) -> int:
             auth = None
             if a.zenoh_user and a.zenoh_credentials:
                 auth = client_auth(a.zenoh_user, Credentials(a.zenoh_credentials))
-            bus = stack.enter_context(Bus.client(a.port, auth=auth))
+            priority = int(a.rt_priority)
+            rt = bool(priority) and set_realtime(priority, "worker", "session threads")
+            try:
+                bus = stack.enter_context(Bus.client(a.port, auth=auth))
+            finally:
+                if rt:
+                    set_normal()
             pub = bus.publisher(keys.status_key(cell))
             stack.enter_context(Starting(pub, cell, Path(a.scenario).stem, LOADING))
-        except (SaraError, OSError):
+        except (SaraError, OSError, ValueError):
             pass  # no early word: the worker reports its own errors
         from sara_app.runtime import worker  # the heavy import this module exists for
 
