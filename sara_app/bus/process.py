@@ -113,14 +113,14 @@ def process_main(
             if not (args.zenoh_user and args.zenoh_credentials):
                 raise SaraError("--zenoh-user and --zenoh-credentials go together")
             auth = client_auth(args.zenoh_user, Credentials(args.zenoh_credentials))
-        # the session's I/O threads start with it and inherit the real-time class: received
-        # and sent messages then do not wait behind a browser or other normal jobs
-        rt = bool(args.rt_priority) and set_realtime(args.rt_priority, name, "session threads")
-        with Bus.client(
-            args.port, args.router_host, auth=auth, robot_encoding=args.robot_encoding
-        ) as bus:
-            if rt:
-                set_normal()  # building the cell (seconds of kernel loading) at normal priority
+        bus, rt = realtime_session(
+            args.rt_priority,
+            name,
+            lambda: Bus.client(
+                args.port, args.router_host, auth=auth, robot_encoding=args.robot_encoding
+            ),
+        )
+        with bus:  # building the cell (seconds of kernel loading) at normal priority
             kw = {"state_dir": args.state_dir, "origin": args.scenario} if state else {}
             proc = factory(args.cell, sc, bus, **kw)
             for sig in (signal.SIGINT, signal.SIGTERM):
@@ -148,6 +148,20 @@ def freeze_heap(name: str = "process") -> int:
     n = gc.get_freeze_count()
     logging.getLogger(f"sara_app.{name}").debug("%d objects frozen before the loop", n)
     return n
+
+
+def realtime_session(priority: int, name: str, open_bus: Callable[[], Bus]) -> tuple[Bus, bool]:
+    """``open_bus()`` with the calling thread under ``SCHED_FIFO`` at ``priority`` (0: normal
+    scheduling), so that zenoh's I/O threads, which a process starts once, with its first
+    session, inherit the class: received and sent messages then do not wait behind a browser or
+    other normal jobs. The calling thread is back at normal scheduling when this returns or
+    raises. Returns the session and whether the class was taken (:func:`set_realtime`)."""
+    rt = bool(priority) and set_realtime(priority, name, "session threads")
+    try:
+        return open_bus(), rt
+    finally:
+        if rt:
+            set_normal()
 
 
 def set_normal() -> None:

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from sara_app.bus import keys
 from sara_app.bus.access import Credentials, client_auth
-from sara_app.bus.process import set_normal, set_realtime
+from sara_app.bus.process import realtime_session
 from sara_app.bus.session import Bus
 from sara_app.bus.starting import Starting
 from sara_app.errors import SaraError
@@ -52,13 +52,10 @@ def main(argv: list[str] | None = None) -> int:
             auth = None
             if a.zenoh_user and a.zenoh_credentials:
                 auth = client_auth(a.zenoh_user, Credentials(a.zenoh_credentials))
-            priority = int(a.rt_priority)
-            rt = bool(priority) and set_realtime(priority, "worker", "session threads")
-            try:
-                bus = stack.enter_context(Bus.client(a.port, auth=auth))
-            finally:
-                if rt:
-                    set_normal()
+            session, _ = realtime_session(
+                int(a.rt_priority), "worker", lambda: Bus.client(a.port, auth=auth)
+            )
+            bus = stack.enter_context(session)
             pub = bus.publisher(keys.status_key(cell))
             stack.enter_context(Starting(pub, cell, Path(a.scenario).stem, LOADING))
         except (SaraError, OSError, ValueError):
