@@ -259,8 +259,11 @@ def _flood_row(hub: Any, pub: Any, params: Any, cell: str, port: int, n: int, ra
     cmd = [sys.executable, "-m", "sara_app.bench.bus", "flood", str(port), cell, "flood",
            str(FLOOD_RATE_HZ), str(seconds)]  # fmt: skip
     lats, shares, sent = [], [], []
-    for _ in range(3):
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+    for run in range(3):
+        # each flood numbers on from where the last one could have ended: one restarting from 0
+        # is refused as out of order until its stamps are a second past the last one accepted
+        first = str(run * int(FLOOD_RATE_HZ * (seconds + 10)))
+        proc = subprocess.Popen([*cmd, first], stdout=subprocess.PIPE, text=True)
         try:
             time.sleep(0.5)  # the flood is on
             lat, cyc = _latency_run(hub, pub, cell, n, rate)
@@ -280,9 +283,12 @@ def _flood_row(hub: Any, pub: Any, params: Any, cell: str, port: int, n: int, ra
     return name, float(np.median(lat)), float(np.percentile(lat, 99)), note
 
 
-def flood(port: int, cell: str, human: str, rate_hz: float, seconds: float) -> int:
-    """Publish valid skeletons of ``human`` at ``rate_hz`` for ``seconds`` (a hostile tracker
-    for the flood row, run in a process of its own); returns the number sent."""
+def flood(
+    port: int, cell: str, human: str, rate_hz: float, seconds: float, first_seq: int = 0
+) -> int:
+    """Publish valid skeletons of ``human`` at ``rate_hz`` for ``seconds``, numbered from
+    ``first_seq`` (a hostile tracker for the flood row, run in a process of its own); returns
+    the number sent."""
     from sara_app.bus.session import Bus
     from sara_app.human.scripted import joints, standing
 
@@ -291,6 +297,7 @@ def flood(port: int, cell: str, human: str, rate_hz: float, seconds: float) -> i
     noisy = [measured(y, TRACKER_NOISE_M, rng) for _ in range(64)]  # precomputed: a cheap flood
     with Bus.client(port) as bus:
         p = bus.publisher(keys.skeleton_key(cell, human))
+        p.continue_after(first_seq - 1)
         t0 = time.monotonic()
         sent = 0
         while (now := time.monotonic()) - t0 < seconds:
@@ -307,9 +314,9 @@ def flood(port: int, cell: str, human: str, rate_hz: float, seconds: float) -> i
 if __name__ == "__main__":
     import sys
 
-    if len(sys.argv) == 7 and sys.argv[1] == "flood":
-        port_, cell_, human_, rate_, secs_ = sys.argv[2:]
-        print(flood(int(port_), cell_, human_, float(rate_), float(secs_)))
+    if len(sys.argv) == 8 and sys.argv[1] == "flood":
+        port_, cell_, human_, rate_, secs_, first_ = sys.argv[2:]
+        print(flood(int(port_), cell_, human_, float(rate_), float(secs_), int(first_)))
 
 
 def bench_rows(n: int = 2000) -> list[Row]:
