@@ -59,13 +59,13 @@ def entry(kernel: Any) -> Callable[..., Any]:
     return kernel.overloads[kernel.signatures[0]].entry_point  # type: ignore[no-any-return]
 
 
-_FLOAT64 = np.dtype(np.float64)
+FLOAT64 = np.dtype(np.float64)
 
 
 def as_f8(a: Any) -> np.ndarray:
     """``a`` as a float64 array: the same object when it is one already (``np.asarray`` with a
     dtype costs a few hundred ns even then; the compiled kernels' wrappers call this per input)."""
-    return a if type(a) is np.ndarray and a.dtype is _FLOAT64 else np.asarray(a, np.float64)
+    return a if type(a) is np.ndarray and a.dtype is FLOAT64 else np.asarray(a, np.float64)
 
 
 def source_digest(module: ModuleType) -> str:

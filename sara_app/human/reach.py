@@ -27,7 +27,7 @@ from sara_app.human.occupancy import Occupancy
 from sara_app.human.params import ReachParams
 from sara_app.human.reach_kernels import acc_sets, combined_sets, pos_sets, static_sets
 from sara_app.human.skeleton import skeleton
-from sara_app.kernel_types import as_f8, entry
+from sara_app.kernel_types import FLOAT64, as_f8, entry
 
 # The model methods check their inputs' dtypes and shapes, then call the compiled code directly
 # (kernel_types.entry: no per-call dispatch; a one-person set costs mostly such Python glue:
@@ -89,6 +89,7 @@ class HumanReach:
         self._tables()
         # (model, H, K) -> the Occupancy a buffered model method returns and its two buffers
         self._outputs: dict[tuple[str, int, int], tuple[Occupancy, np.ndarray, np.ndarray]] = {}
+        self._n_joints = sk.n_joints
 
     def _tables(self) -> None:
         """Per-capsule coefficients and int64 index tables of the compiled model kernels
@@ -139,6 +140,18 @@ class HumanReach:
                      "v_max", "pos_rspeed", "pos_rbase", "half_th", "vel_disp",
                      "no_disp"):  # fmt: skip
             setattr(self, name, np.ascontiguousarray(getattr(self, name), dtype=np.float64))
+        # Each model's constants in its kernel's argument order, one tuple per call rather than
+        # ten attribute reads (a one-person set costs mostly such per-call glue).
+        delay_s, delta_y_m = float(p.delay_s), float(p.delta_y_m)
+        # static_sets: radius = base + min(speed tau, disp(tau)), tau = t_end + delay (the
+        # displacement bound disp (P, N); N = 0: none)
+        self._vel_args = (delay_s, self.vel_base, self.vel_speed, self.vel_disp, self.disp_step_s)
+        self._iso_args = (delay_s, self.iso_base, self.iso_speed, self.no_disp, self.disp_step_s)
+        acc_tables = (self.half_th, self.acc_ia, self.acc_ib, self.acc_ends)
+        self._acc_args = (delay_s, self.a_half, delta_y_m, *acc_tables)
+        self._combined_args = (delay_s, self.a_max, self.v_max, delta_y_m, *acc_tables)
+        self._pos_tables = (self.pos_seg_a, self.pos_seg_b, self.pos_seg_limb, self.pos_ends)
+        self._pos_args = (delay_s, self.pos_rspeed, self.pos_rbase, self.n_limbs)
 
     def _output(self, name: str, H: int, K: int) -> tuple[Occupancy, np.ndarray, np.ndarray]:
         """``(occupancy, ends, radius)``: model ``name``'s buffers for ``H`` people and ``K``
@@ -163,17 +176,24 @@ class HumanReach:
         ends, radius = np.empty((H, K, P, 2, 3)), np.empty((H, K, P))  # acc, combined
         return Occupancy(name, ends, radius, self.part_names), ends, radius
 
-    def _arrays(self, y: np.ndarray, t_end_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``y (H, J, 3)`` and ``t_end_s (K,)`` as float64; a shape the compiled kernels cannot
-        index raises :class:`InputError` (values are the callers' to check, see ``model``)."""
-        y, t_end_s = as_f8(y), as_f8(t_end_s)
+    def _prepare(
+        self, name: str, y: np.ndarray, t_end_s: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, tuple[Occupancy, np.ndarray, np.ndarray]]:
+        """``y (H, J, 3)`` and ``t_end_s (K,)`` as float64 and model ``name``'s output for their
+        shapes (:meth:`_output`); a shape the compiled kernels cannot index raises
+        :class:`InputError` (values are the callers' to check, see ``model``). One method for
+        both: a one-person set costs mostly such per-call glue."""
+        # one test for both (as_f8's, per array, costs a tenth of a one-person vel set)
+        if not (type(y) is type(t_end_s) is np.ndarray and y.dtype is t_end_s.dtype is FLOAT64):
+            y, t_end_s = as_f8(y), as_f8(t_end_s)
         ys = y.shape
-        if len(ys) != 3 or ys[1] != self.skeleton.n_joints or ys[2] != 3 or t_end_s.ndim != 1:
+        if len(ys) != 3 or ys[1] != self._n_joints or ys[2] != 3 or t_end_s.ndim != 1:
             raise InputError(
                 f"joint positions {ys} and interval ends {t_end_s.shape}; expected (H, "
-                f"{self.skeleton.n_joints}, 3) and (K,)"
+                f"{self._n_joints}, 3) and (K,)"
             )
-        return y, t_end_s
+        out = self._outputs.get((name, ys[0], t_end_s.shape[0]))
+        return y, t_end_s, out if out is not None else self._output(name, ys[0], t_end_s.shape[0])
 
     def _coverage(self, model: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Which joints each capsule of ``model`` must contain, and with which margin.
@@ -232,14 +252,18 @@ class HumanReach:
             )
         return y
 
-    def _moving(
-        self, y: np.ndarray, v: np.ndarray, dv: np.ndarray, t_start_s: np.ndarray,
+    def _prepare_moving(
+        self, name: str, y: np.ndarray, v: np.ndarray, dv: np.ndarray, t_start_s: np.ndarray,
         t_end_s: np.ndarray,
-    ) -> tuple[np.ndarray, ...]:  # fmt: skip
-        """The inputs of the velocity-based models as float64, shapes checked (see
-        :meth:`_arrays`)."""
-        y, t_end_s = self._arrays(y, t_end_s)
-        v, dv, t_start_s = as_f8(v), as_f8(dv), as_f8(t_start_s)
+    ) -> tuple[Any, ...]:  # fmt: skip
+        """As :meth:`_prepare` for the velocity-based models: ``(y, v, dv, t_start_s, t_end_s,
+        output)``."""
+        y, t_end_s, out = self._prepare(name, y, t_end_s)
+        if not (
+            type(v) is type(dv) is type(t_start_s) is np.ndarray
+            and v.dtype is dv.dtype is t_start_s.dtype is FLOAT64
+        ):
+            v, dv, t_start_s = as_f8(v), as_f8(dv), as_f8(t_start_s)
         ys, ds = y.shape, dv.shape
         if (
             v.shape != ys
@@ -252,7 +276,7 @@ class HumanReach:
                 f"v {v.shape}, dv {dv.shape}, t_start_s {t_start_s.shape}; expected {y.shape}, "
                 f"{y.shape[:2]} and {t_end_s.shape}"
             )
-        return y, v, dv, t_start_s, t_end_s
+        return y, v, dv, t_start_s, t_end_s, out
 
     def kernel_constants(self) -> tuple[Any, ...]:
         """The models' constants as the compiled checks take them: ``(static, acc, pos,
@@ -280,7 +304,9 @@ class HumanReach:
         Sound when every joint's speed stays below its v_max and its displacement over any tau
         within D(tau) (the conformance monitor checks both).
         """
-        return self._static("vel", y, t_end_s, self.vel_base, self.vel_speed, self.vel_disp)
+        y, t_end_s, (occ, ends, radius) = self._prepare("vel", y, t_end_s)
+        _STATIC_SETS(y, self.part_joints, t_end_s, *self._vel_args, ends, radius)
+        return occ
 
     def iso13855(self, y: np.ndarray, t_end_s: np.ndarray) -> Occupancy:
         """ISO 13855 expansion (Pereira & Althoff 2016 Sec. III-A): every body part's capsule at the
@@ -288,18 +314,8 @@ class HumanReach:
         than v_iso (1.6 m/s upper body, 2.0 m/s full body): real fast motion breaks this (Pereira &
         Althoff 2016).
         """
-        return self._static("iso13855", y, t_end_s, self.iso_base, self.iso_speed, self.no_disp)
-
-    def _static(
-        self, name: str, y: np.ndarray, t_end_s: np.ndarray, base: np.ndarray, speed: np.ndarray,
-        disp: np.ndarray,
-    ) -> Occupancy:  # fmt: skip
-        """Capsules at the measured pose whose radius grows as base + min(speed tau, disp(tau)),
-        tau = t_end + delay (``disp (P, N)``: the displacement bound, ``N = 0``: none)."""
-        y, t_end_s = self._arrays(y, t_end_s)
-        occ, ends, radius = self._output(name, y.shape[0], t_end_s.shape[0])
-        _STATIC_SETS(y, self.part_joints, t_end_s, self.params.delay_s, base, speed, disp,
-                     self.disp_step_s, ends, radius)  # fmt: skip
+        y, t_end_s, (occ, ends, radius) = self._prepare("iso13855", y, t_end_s)
+        _STATIC_SETS(y, self.part_joints, t_end_s, *self._iso_args, ends, radius)
         return occ
 
     def acc(
@@ -320,13 +336,10 @@ class HumanReach:
         combination of points of the two balls). Sound when every joint's acceleration stays
         below a_max and ``dv`` bounds the velocity error.
         """
-        p = self.params
-        y, v, dv, t_start_s, t_end_s = self._moving(y, v, dv, t_start_s, t_end_s)
-        occ, ends, radius = self._output("acc", y.shape[0], t_end_s.shape[0])
-        _ACC_SETS(
-            y, v, dv, t_start_s, t_end_s, p.delay_s, self.a_half, p.delta_y_m,
-            self.half_th, self.acc_ia, self.acc_ib, self.acc_ends, ends, radius,
-        )  # fmt: skip
+        y, v, dv, t_start_s, t_end_s, (occ, ends, radius) = self._prepare_moving(
+            "acc", y, v, dv, t_start_s, t_end_s
+        )
+        _ACC_SETS(y, v, dv, t_start_s, t_end_s, *self._acc_args, ends, radius)
         return occ
 
     def combined(
@@ -346,13 +359,10 @@ class HumanReach:
         one that has an estimate is unbounded (no claim: the vel model claims R_VEL's
         capsule). Sound when every joint's acceleration stays below a_max and its speed below
         v_max, and ``dv`` bounds the velocity error."""
-        p = self.params
-        y, v, dv, t_start_s, t_end_s = self._moving(y, v, dv, t_start_s, t_end_s)
-        occ, ends, radius = self._output("combined", y.shape[0], t_end_s.shape[0])
-        _COMBINED_SETS(
-            y, v, dv, t_start_s, t_end_s, p.delay_s, self.a_max, self.v_max, p.delta_y_m,
-            self.half_th, self.acc_ia, self.acc_ib, self.acc_ends, ends, radius,
-        )  # fmt: skip
+        y, v, dv, t_start_s, t_end_s, (occ, ends, radius) = self._prepare_moving(
+            "combined", y, v, dv, t_start_s, t_end_s
+        )
+        _COMBINED_SETS(y, v, dv, t_start_s, t_end_s, *self._combined_args, ends, radius)
         return occ
 
     def pos(self, y: np.ndarray, t_end_s: np.ndarray) -> Occupancy:
@@ -364,13 +374,8 @@ class HumanReach:
         adds a single delta_y). Sound when the root's speed stays below its v_max and the limb
         lengths are rigid.
         """
-        y, t_end_s = self._arrays(y, t_end_s)
-        occ, ends, radius = self._output("pos", y.shape[0], t_end_s.shape[0])
-        _POS_SETS(
-            y, self.pos_seg_a, self.pos_seg_b, self.pos_seg_limb, self.pos_ends, t_end_s,
-            self.params.delay_s,
-            self.pos_rspeed, self.pos_rbase, self.n_limbs, ends, radius,
-        )  # fmt: skip
+        y, t_end_s, (occ, ends, radius) = self._prepare("pos", y, t_end_s)
+        _POS_SETS(y, *self._pos_tables, t_end_s, *self._pos_args, ends, radius)
         return occ
 
     def model(

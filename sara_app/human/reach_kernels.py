@@ -127,25 +127,23 @@ def pos_sets(
     base``, plus for the first ``n_limbs`` capsules the summed measured lengths of the limb's
     segments ``y[seg_b] - y[seg_a]`` (segment ``i`` belongs to limb ``seg_limb[i]``)."""
     H, C, K = y.shape[0], cap_joints.shape[0], t_end_s.shape[0]
-    lengths = np.zeros(n_limbs)
     for h in range(H):
-        for c in range(n_limbs):
-            lengths[c] = 0.0
-        for i in range(seg_a.shape[0]):
-            dx = y[h, seg_b[i], 0] - y[h, seg_a[i], 0]
-            dy = y[h, seg_b[i], 1] - y[h, seg_a[i], 1]
-            dz = y[h, seg_b[i], 2] - y[h, seg_a[i], 2]
-            lengths[seg_limb[i]] += math.sqrt(dx * dx + dy * dy + dz * dz)
         for c in range(C):
             for e in range(2):
                 for r in range(3):
                     ends[h, c, e, r] = y[h, cap_joints[c, e], r]
-        for k in range(K):
-            tau = t_end_s[k] + delay_s
-            for c in range(C):
-                radius[h, k, c] = tau * speed_mps[c] + base_m[c]
+            length = 0.0  # no scratch array: the control cycle calls this per person
+            if c < n_limbs:
+                for i in range(seg_a.shape[0]):
+                    if seg_limb[i] == c:
+                        dx = y[h, seg_b[i], 0] - y[h, seg_a[i], 0]
+                        dy = y[h, seg_b[i], 1] - y[h, seg_a[i], 1]
+                        dz = y[h, seg_b[i], 2] - y[h, seg_a[i], 2]
+                        length += math.sqrt(dx * dx + dy * dy + dz * dz)
+            for k in range(K):
+                radius[h, k, c] = (t_end_s[k] + delay_s) * speed_mps[c] + base_m[c]
                 if c < n_limbs:
-                    radius[h, k, c] += lengths[c]
+                    radius[h, k, c] += length
 
 
 @njit(cache=True)
