@@ -276,11 +276,14 @@ def test_models_give_the_same_sets_whatever_the_input_and_parameter_dtypes() -> 
         lambda a: np.asfortranarray(a),
         lambda a: a.tolist(),
     ]
+    args = (y, v, dv, ts, te)
     for make in variants:
-        got = sets(*(make(a) for a in (y, v, dv, ts, te)))
-        for (m, ends, radius), (_, want_ends, want_radius) in zip(got, ref):
-            np.testing.assert_array_equal(ends, want_ends, err_msg=m)
-            np.testing.assert_array_equal(radius, want_radius, err_msg=m)
+        # all arguments converted, then each alone (the methods test the dtypes of all at once)
+        for which in (range(5), *([i] for i in range(5))):
+            got = sets(*(make(a) if i in which else a for i, a in enumerate(args)))
+            for (m, ends, radius), (_, want_ends, want_radius) in zip(got, ref):
+                np.testing.assert_array_equal(ends, want_ends, err_msg=f"{m}, {list(which)}")
+                np.testing.assert_array_equal(radius, want_radius, err_msg=f"{m}, {list(which)}")
     p = reach.params
     as_int = dataclasses.replace(
         p, v_max_mps=np.ceil(p.v_max_mps).astype(np.int64),

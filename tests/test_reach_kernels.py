@@ -167,28 +167,3 @@ def test_shapes_the_kernels_cannot_index_raise_input_error() -> None:
         r.acc(y, y, np.zeros((1, 14)), np.array([0.0]), t)
     with pytest.raises(InputError, match="t_start_s"):
         r.acc(y, y, np.zeros((1, 15)), np.array([0.0, 0.1]), t)
-
-
-def test_inputs_of_other_types_give_the_float64_sets() -> None:
-    """The methods convert what is not a float64 array (float32, lists, int arrays), whichever
-    argument it is: the compiled kernels would read other dtypes as float64 (``entry``)."""
-    r = REACH["full"]
-    rng = np.random.default_rng(3)
-    y = rng.normal(size=(2, 15, 3))
-    v, dv = rng.normal(size=y.shape), np.full((2, 15), 0.2)
-    ts, te = np.array([0.0, 0.1]), np.array([0.1, 0.3])
-    want = {
-        "vel": r.vel(y, te).radius.copy(), "pos": r.pos(y, te).radius.copy(),
-        "iso13855": r.iso13855(y, te).radius.copy(),
-        "acc": r.acc(y, v, dv, ts, te).radius.copy(),
-        "combined": r.combined(y, v, dv, ts, te).radius.copy(),
-    }  # fmt: skip
-    for odd in (lambda a: a.astype(np.float32), lambda a: a.tolist()):
-        assert np.allclose(r.vel(y, odd(te)).radius, want["vel"], rtol=1e-6)
-        assert np.allclose(r.pos(odd(y), te).radius, want["pos"], rtol=1e-6)
-        assert np.allclose(r.iso13855(odd(y), odd(te)).radius, want["iso13855"], rtol=1e-6)
-        assert np.allclose(r.acc(y, v, odd(dv), ts, te).radius, want["acc"], rtol=1e-6)
-        assert np.allclose(r.combined(y, odd(v), dv, odd(ts), te).radius, want["combined"],
-                           rtol=1e-6)  # fmt: skip
-    ints = np.round(y).astype(np.int64)
-    assert np.array_equal(r.vel(ints, te).radius, r.vel(ints.astype(float), te).radius)
