@@ -289,6 +289,30 @@ def test_executed_motion_inside_verified_occupancy(
     assert "failsafe" in modes and "intended" in modes
 
 
+def test_model_flags_are_the_checks_per_model() -> None:
+    """Each cycle's per-model verdicts (``model_free``, the verdict message's ``results``): a
+    model is listed when it was evaluated for every person and interval, free when its sets
+    were free on all of them, by the arrays of the check the cycle ran (compiled or composed,
+    the model order as the check tried it)."""
+    sim = _episode("limbs", 3, (1.1, 0.2))
+    seen: set[tuple[str, bool]] = set()
+    for _ in range(300):
+        sim.step()
+        res = sim.last
+        assert res is not None
+        if res.ssm is None:
+            assert res.model_free == {}
+            continue
+        r = res.ssm
+        models = r.models or sim.shield.verifier.models
+        want = {
+            m: bool(r.free[:, i].all()) for i, m in enumerate(models) if r.evaluated[:, i].all()
+        }
+        assert res.model_free == want
+        seen |= set(want.items())
+    assert {flag for _, flag in seen} == {True, False}  # both verdicts occurred
+
+
 def test_min_distance_is_the_distance_at_the_command() -> None:
     """The verdict's minimum distance (one compiled call) equals pinocchio's link capsules and
     ``body_distance`` at the commanded configuration, for verified and braking cycles alike."""

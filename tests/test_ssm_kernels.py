@@ -17,7 +17,7 @@ from sara_app.human import reach_kernels
 from sara_app.human.reach import MODELS
 from sara_app.kernel_types import source_digest
 from sara_app.safety.ssm import SsmResult, SsmVerifier
-from sara_app.safety.ssm_kernels import ssm_kernel
+from sara_app.safety.ssm_kernels import model_verdicts, ssm_kernel
 
 
 def _assert_same(a: SsmResult, b: SsmResult) -> None:
@@ -138,3 +138,17 @@ def test_the_order_changes_the_work_not_the_verdict_or_the_parts_cleared(
         _assert_same(res, verify_reference(vf, *args))
         assert res.safe == first.safe
         np.testing.assert_array_equal(res.parts_clear, first.parts_clear)
+
+
+def test_model_verdicts_are_the_reductions_over_people_and_intervals() -> None:
+    """``model_verdicts`` (the cycle result's per-model flags) against numpy's reductions, on
+    random checks of 1-5 people, 1-6 models and 1-12 intervals, sparse and dense."""
+    rng = np.random.default_rng(7)
+    for _ in range(300):
+        H, M, K = (int(x) for x in rng.integers(1, (6, 7, 13)))
+        p = rng.choice([0.02, 0.5, 0.98])
+        evaluated, free = rng.random((2, H, M, K)) < p
+        out = np.empty((2, M), np.bool_)
+        model_verdicts(evaluated, free, out)
+        np.testing.assert_array_equal(out[0], evaluated.all(axis=(0, 2)))
+        np.testing.assert_array_equal(out[1], free.all(axis=(0, 2)))

@@ -45,6 +45,7 @@ from sara_app.safety.pfl_cycle_kernels import plan_views
 from sara_app.safety.settings import FUTURE_TOLERANCE_S, ShieldSettings
 from sara_app.safety.ssm import SsmResult, SsmVerifier
 from sara_app.safety.ssm_cycle_kernels import DONE, ssm_cycle_kernel
+from sara_app.safety.ssm_kernels import model_verdicts
 
 MODES = ("intended", "failsafe", "rest", "fault")
 
@@ -154,6 +155,7 @@ class Shield:
         self._compiled = _compiled_inputs(self.verifier, self.occupancy, self.tracking_margin_m,
                                           s.max_interval_s)  # fmt: skip
         self._info = np.empty(5)
+        self._verdicts = np.empty((2, len(self.verifier.models)), np.bool_)  # _annotate's
         self._half_th = reach.params.half_thickness_m
         self._parts = np.asarray(reach.skeleton.part_joints, dtype=np.int64)
         self._distance_inputs = _distance_inputs(self.occupancy, robot.radius_m)
@@ -492,9 +494,15 @@ class Shield:
         out.ssm = res
         out.speed_scale = self._scale
         out.intervened = out.intervened or self._scale < 1.0
-        # per model, over people and intervals
-        evaluated = np.logical_and.reduce(res.evaluated, axis=(0, 2)).tolist()
-        free = np.logical_and.reduce(res.free, axis=(0, 2)).tolist()
+        # per model, over people and intervals (the check's arrays: (H, M, K) booleans)
+        flags = self._verdicts
+        if res.evaluated.shape[1] != flags.shape[1] or res.free.shape != res.evaluated.shape:
+            raise InputError(
+                f"check arrays {res.evaluated.shape} and {res.free.shape}; expected (H, "
+                f"{flags.shape[1]}, K) both"
+            )
+        _MODEL_VERDICTS(res.evaluated, res.free, flags)
+        evaluated, free = flags.tolist()
         models = self.verifier.models if res.models is None else res.models
         for name, ev, fr in zip(models, evaluated, free):
             if ev:
@@ -529,6 +537,9 @@ dtypes."""
 _MIN_DISTANCE = entry(min_distance_kernel)
 """Without numba's dispatcher: :meth:`Shield.min_distance` checks its arguments' shapes and
 dtypes (the kernel indexes the joints by ``part_joints`` without bounds checks)."""
+_MODEL_VERDICTS = entry(model_verdicts)
+"""Without numba's dispatcher: :meth:`Shield._annotate` checks the shapes; the check's arrays
+are booleans (its own kernels' or the verifier's)."""
 _SSM_CYCLE = entry(ssm_cycle_kernel)
 """The kernel without numba's dispatcher (typing its nested tuples took about 5 us per call):
 its inputs are the verifier's checked arrays and the shield's own (see :func:`entry`)."""

@@ -31,9 +31,9 @@ from sara_app.geometry.shape_kernels import (
 )
 from sara_app.human import reach_kernels
 from sara_app.human.reach_kernels import ACC, POS, STATIC, person_sets
-from sara_app.kernel_types import B1, F8, I8, RO, ROI1, ROI2, WB3, W, source_digest
+from sara_app.kernel_types import B1, F8, I8, RO, ROB3, ROI1, ROI2, WB2, WB3, W, source_digest
 
-__all__ = ["KIND_ARM", "ssm_kernel"]
+__all__ = ["KIND_ARM", "model_verdicts", "ssm_kernel"]
 
 KIND_ARM = 5
 """Pereira's arm model: its capsules are computed before the call (``arm``)."""
@@ -48,6 +48,22 @@ CONSTANTS = types.Tuple((STATIC, ACC, POS, types.UniTuple(F8, 2), I8))
 ARM = types.Tuple((RO[5], RO[3]))
 """The arm model's capsules per person ``(ends (H, Ke, C, 2, 3), radius (H, K, C))`` (empty
 when the check does not use it)."""
+
+
+@njit(types.void(ROB3, ROB3, WB2), cache=True)
+def model_verdicts(evaluated: np.ndarray, free: np.ndarray, out: np.ndarray) -> None:
+    """Per model, over every person and interval of a check (``evaluated``, ``free (H, M, K)``,
+    :class:`~sara_app.safety.ssm.SsmResult`): ``out[0, m]`` model ``m`` was evaluated on all of
+    them, ``out[1, m]`` its sets were free on all of them (``out (2, M)``). Compiled: numpy's
+    two reductions over two axes cost 3 us of a 50 us cycle."""
+    H, M, K = evaluated.shape
+    for m in range(M):
+        ev, fr = True, True
+        for h in range(H):
+            for k in range(K):
+                ev = ev and evaluated[h, m, k]
+                fr = fr and free[h, m, k]
+        out[0, m], out[1, m] = ev, fr
 
 
 @njit  # calls kernels of other files: compiled into its callers (kernel_types, caching)
