@@ -50,6 +50,10 @@ def test_retire_forgets_a_ghost_and_every_request_is_audited(tmp_path: Path) -> 
         _until(lambda: "ghost" in worker.presence.tracks)
         body = {"user": "mallory", "reason": "tracker replaced; nobody there"}
         r = client.post(f"/api/cells/{CELL}/humans/ghost/retire", json=body)
+        assert r.status_code == 409 and "still reported" in r.text  # the stream was just now
+        assert "ghost" in worker.presence.tracks
+        time.sleep(sc.inputs.tracker_timeout_s + 0.05)  # nothing more on the key
+        r = client.post(f"/api/cells/{CELL}/humans/ghost/retire", json=body)
         assert r.status_code == 200, r.text
         assert "ghost" not in worker.presence.tracks
         r = client.post(f"/api/cells/{CELL}/humans/ghost/retire", json=body)
@@ -60,7 +64,8 @@ def test_retire_forgets_a_ghost_and_every_request_is_audited(tmp_path: Path) -> 
         assert [(x["human_id"], x["outcome"], x["user"]) for x in rows] == [
             ("ghost", "refused", "anna"),
             ("ghost", "applied", "anna"),
+            ("ghost", "refused", "anna"),
         ]
-        assert rows[1]["reason"] == body["reason"]
+        assert rows[1]["reason"] == body["reason"] and "still reported" in rows[2]["detail"]
         requests = client.get("/api/requests/audit").json()
-        assert [x["user"] for x in requests] == ["anna"] * 3  # the same user in every row
+        assert [x["user"] for x in requests] == ["anna"] * 4  # the same user in every row

@@ -63,8 +63,29 @@ def test_a_refused_message_makes_the_person_known_and_a_retire_forgets() -> None
     assert p.tracks["ghost"].state.stamp_s is None  # known, unseen
     p.frame("main", 1.4, [])  # out of order: stamp not newer than the last frame
     assert "ghost" in p.tracks
-    assert p.retire("ghost") and "ghost" not in p.tracks
-    assert not p.retire("ghost")
+    assert "still reported" in p.retire("ghost", 1.6)  # its stream went on 0.1 s ago
+    assert "ghost" in p.tracks
+    assert p.retire("ghost", 1.71) == "" and "ghost" not in p.tracks
+    assert "not known" in p.retire("ghost", 1.8)
+
+
+def test_a_person_a_tracker_still_reports_is_not_retired() -> None:
+    """Retire is for a person no tracker reports any more: while skeletons or frames listing
+    them keep coming (newest evidence within the trackers' timeout), it is refused."""
+    p = _presence(max_people=1)
+    p.frame("main", 1.0, [])
+    p.known("h1", 1.0)
+    assert "still reported" in p.retire("h1", 1.0)
+    assert "still reported" in p.retire("h1", 1.2)  # at the timeout: still
+    p.frame("main", 1.15, ["h1"])  # a frame lists them: evidence renewed
+    assert "still reported" in p.retire("h1", 1.3)
+    assert "h1" in p.tracks
+    assert "still reported" in p.retire("h1", float("nan"))  # no clock: no retire
+    assert p.retire("h1", 1.36) == "" and "h1" not in p.tracks
+    p.known("h2", 2.0)
+    p.known("h3", 2.0)  # the cell is full: an id in the overflow, same rule
+    assert "h3" in p.overflow and "still reported" in p.retire("h3", 2.1)
+    assert p.retire("h3", 2.3) == "" and "h3" not in p.overflow
 
 
 def test_overflow_is_a_fault_until_forgotten() -> None:
@@ -93,7 +114,7 @@ def test_configure_keeps_people_and_moves_extra_tracks_to_the_overflow() -> None
         st.tuples(
             st.sampled_from(["skel", "refuse", "frame_a", "frame_b", "retire"]),
             st.sampled_from(["h1", "h2", "h3"]),
-            st.floats(0.0, 0.1),
+            st.floats(0.0, 0.3),
             st.sets(st.sampled_from(["h1", "h2", "h3"])),
         ),
         max_size=40,
@@ -116,7 +137,9 @@ def test_forgetting_needs_positive_evidence(events) -> None:
             p.refused(hid, t)
             evidence[hid] = t
         elif kind == "retire":
-            if p.retire(hid):
+            fresh = hid in evidence and t - evidence[hid] <= 0.2
+            if p.retire(hid, t) == "":
+                assert not fresh, (hid, t, evidence[hid])  # never a person still reported
                 retired_at[hid] = i
                 evidence.pop(hid, None)
         else:
@@ -141,9 +164,9 @@ def test_a_full_overflow_list_faults_until_every_tracker_has_spoken_since() -> N
     for i in range(MAX_OVERFLOW + 5):
         p.known(f"h{i}", 2.0)
     assert len(p.overflow) == MAX_OVERFLOW
-    p.retire("h0")
+    p.retire("h0", 2.5)
     for h in list(p.overflow):
-        p.retire(h)
+        p.retire(h, 2.5)
     assert not p.tracks and not p.overflow
     assert any("max_people" in f for f in p.faults(2.0))  # dropped ids: not forgotten yet
     p.frame("a", 2.1, [])

@@ -3,7 +3,8 @@ report (the contract's ``sara/<cell>/retire``), every request recorded in the au
 
 - ``POST /api/cells/{cell}/humans/{human_id}/retire`` (:class:`RetireBody`): the worker forgets
   the person (until a tracker lists them or a skeleton arrives again); 200 applied, 409 the
-  person was not known, 504 no answer (the worker may or may not have applied it), each audited
+  person was not known or is still reported (newest evidence within the trackers' timeout),
+  504 no answer (the worker may or may not have applied it), each audited
   under the request's user (:func:`~sara_app.api.guard.request_user`: the token's).
 - ``GET /api/cells/{cell}/humans/audit``: the cell's recorded actions, newest first.
 """
@@ -54,7 +55,8 @@ def add_people_routes(
     @app.post(
         "/api/cells/{cell}/humans/{human_id}/retire", tags=["people"],
         responses={**BODY_RESPONSES, **responses(
-            404, 409, 422, 503, 504, _409="the worker does not know the person")},
+            404, 409, 422, 503, 504,
+            _409="the worker does not know the person, or a tracker still reports them")},
     )  # fmt: skip
     def retire(
         cell: CellName, human_id: HumanId, body: RetireBody, request: Request

@@ -93,18 +93,18 @@ class People:
                 if reason is not None:
                     self.io.drop(reason)
 
-    def drain_retirements(self) -> None:
-        """An operator's retirement of a person (positive evidence), answered."""
+    def drain_retirements(self, now: float) -> None:
+        """An operator's retirement of a person (positive evidence), answered; refused for a
+        person not known or still reported (:meth:`Presence.retire`)."""
         for d in self.io.retire.drain().messages:
             if isinstance(d.msg, RetireMsg):
-                found = self.presence.retire(d.msg.human_id)
-                if found:
+                reason = self.presence.retire(d.msg.human_id, now)
+                if not reason:
                     log.warning("human %r retired by %r: %s", d.msg.human_id, d.msg.user,
                                 d.msg.reason)  # fmt: skip
                 else:  # rate-limited: anyone may send these
-                    self.errors("retire of an unknown person", repr(d.msg.human_id))
-                reason = "" if found else f"human {d.msg.human_id!r} is not known"
-                self.io.ack(d.msg.request_id, found, reason)
+                    self.errors("retire refused", reason)
+                self.io.ack(d.msg.request_id, not reason, reason)
 
     def adopt(self, new: Cell) -> None:
         """Everyone stays known under a new cell, with their measurement and faults; their

@@ -137,10 +137,26 @@ class Presence:
         for hid in [h for h, e in self.overflow.items() if self._absent(h, e)]:
             del self.overflow[hid]
 
-    def retire(self, human_id: str) -> bool:
-        """An operator's retire action; False when the person was not known."""
-        found = self.tracks.pop(human_id, None) is not None
-        return self.overflow.pop(human_id, None) is not None or found
+    def retire(self, human_id: str, now_s: float) -> str:
+        """An operator's retire action at cell time ``now_s``: ``""`` when the person is
+        forgotten, else why not: not known, or still reported (their newest evidence, a
+        skeleton or a frame that lists them, is at most ``tracker_timeout_s`` old: forgetting a
+        person a tracker reports would hide them until their next message; retire is for a
+        person no tracker reports any more)."""
+        track = self.tracks.get(human_id)
+        evidence_s = track.evidence_s if track is not None else self.overflow.get(human_id)
+        if evidence_s is None:
+            return f"human {human_id!r} is not known"
+        age_s = now_s - evidence_s
+        if not age_s > self.tracker_timeout_s:  # NaN too
+            return (
+                f"human {human_id!r} is still reported (newest evidence {age_s:.3f} s old <= "
+                f"the trackers' timeout {self.tracker_timeout_s} s): retire is for a person no "
+                "tracker reports any more"
+            )
+        self.tracks.pop(human_id, None)
+        self.overflow.pop(human_id, None)
+        return ""
 
     # -- the cycle's view ------------------------------------------------------------------------
 

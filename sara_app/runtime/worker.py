@@ -127,7 +127,7 @@ class CellWorker:
         if self.cell.scenario.inputs.cycle_phase_lock:
             self.phase.observe(now, self.people.fresh_stamps)
         self.robot_in.drain(self.io.robot_state, self.cell.robot.n_dof, self.io.drop)
-        self.people.drain_retirements()
+        self.people.drain_retirements(now)
         self.edits.drain(self.io)
         self.edits.take(self._take)
 
