@@ -6,6 +6,34 @@ Messages name the bad value, what was expected and, where there is a finite set,
 from __future__ import annotations
 
 from collections.abc import Iterable
+from typing import Any
+
+CLIP_CHARS = 120
+"""How much of a bad value a message repeats (a request may send megabytes)."""
+
+
+def clipped(value: object, limit: int = CLIP_CHARS) -> str:
+    """``repr(value)``, cut to ``limit`` characters with an ellipsis."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def describe_validation(err: Any, *, with_input: bool, limit: int = 5) -> str:
+    """A pydantic ``ValidationError`` as one line: each field's location and message (at most
+    ``limit``), with the value it got (clipped) only when ``with_input``: a file read on the
+    server's side must not come back in an answer (a path to a token file was answered with
+    its tokens), nor its unexpected keys (the tokens are keys)."""
+    errors = err.errors(include_input=with_input, include_url=False)
+    parts = []
+    for e in errors[:limit]:
+        path, msg = list(e["loc"]), e["msg"]
+        if not with_input and e["type"] == "extra_forbidden":  # the key is the file's content
+            path, msg = path[:-1], "has a field that is not allowed"
+        loc = ".".join(str(p) for p in path) or "<root>"
+        got = f" (got {clipped(e['input'], 80)})" if with_input and "input" in e else ""
+        parts.append(f"{loc}: {msg}{got}")
+    more = len(errors) - limit
+    return "; ".join(parts) + (f" (+{more} more)" if more > 0 else "")
 
 
 class SaraError(Exception):
@@ -25,7 +53,7 @@ class UnknownNameError(ParameterError, KeyError):
 
     def __init__(self, kind: str, name: str, valid: Iterable[str]) -> None:
         self.kind, self.name, self.valid = kind, name, tuple(valid)
-        super().__init__(f"unknown {kind} {name!r}; valid choices: {', '.join(self.valid)}")
+        super().__init__(f"unknown {kind} {clipped(name)}; valid choices: {', '.join(self.valid)}")
 
     def __str__(self) -> str:  # KeyError would quote the whole message otherwise
         return str(self.args[0])

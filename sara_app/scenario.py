@@ -21,7 +21,7 @@ from pydantic import (
     field_validator,
 )
 
-from sara_app.errors import SaraError, ScenarioError
+from sara_app.errors import SaraError, ScenarioError, describe_validation
 from sara_app.human.gate import BONES, GateSettings
 from sara_app.human.intake import STALE_AFTER_S, IntakeSettings
 from sara_app.human.params import RENAMED as PARAM_SETS_RENAMED
@@ -306,13 +306,7 @@ class Scenario(StrictFinite):
 
 
 def _format_validation(err: ValidationError, origin: str) -> str:
-    lines = []
-    for e in err.errors()[:5]:
-        loc = ".".join(str(p) for p in e["loc"]) or "<root>"
-        lines.append(f"{loc}: {e['msg']} (got {e.get('input')!r:.80})")
-    more = len(err.errors()) - 5
-    tail = f" (+{more} more)" if more > 0 else ""
-    return f"scenario {origin}: " + "; ".join(lines) + tail
+    return f"scenario {origin}: " + describe_validation(err, with_input=True)
 
 
 def parse_scenario(data: object, origin: str = "<data>", *, strict: bool = False) -> Scenario:

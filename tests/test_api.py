@@ -335,6 +335,10 @@ def test_merge_sections() -> None:
     got = merge_sections(base, {"a": {"y": 3, "z": 4}, "b": [5], "c": {"k": 1}, "d": 0})
     assert got == {"a": {"x": 1, "y": 3, "z": 4}, "b": [5], "c": {"k": 1}, "d": 0}
     assert base == {"a": {"x": 1, "y": 2}, "b": [1, 2], "c": "s"}  # not modified
+    deep = {"shield": {"mode": "pfl", "pfl": {"overrides": [1], "min_speed_scale": 0.02}}}
+    got = merge_sections(deep, {"shield": {"pfl": {"min_speed_scale": 0.05}}})
+    assert got == {"shield": {"mode": "pfl", "pfl": {"overrides": [1], "min_speed_scale": 0.05}}}
+    assert deep["shield"]["pfl"]["min_speed_scale"] == 0.02  # not modified at any depth
 
 
 # -- live: uvicorn + zenoh router + a fake worker ------------------------------------------------

@@ -306,3 +306,56 @@ def test_a_threshold_above_the_physical_ceiling_or_a_loose_confirm_is_refused(
     assert r.status_code == 200, r.text
     with pytest.raises(ValueError):
         ThresholdOverride(region="hand", contact="constrained", shape="blunt", energy_J=1e300)
+
+
+def test_scenario_edits_neither_read_server_files_nor_raise_limits(
+    api: tuple[StandInRegistry, TestClient, AuditLog], tmp_path: Path
+) -> None:
+    """The hostile-user probe's findings: a threshold-set path loaded a 500 J table, a
+    parameter-set path echoed the tokens file, a PATCH of overrides raised the head's limit
+    86-fold without confirmation, and a PATCH of another pfl field dropped the engineer's
+    tightening. Now: paths 422 (nothing read), raises 409 (only the editor raises), partial
+    edits keep the rest of the section."""
+    reg, client, _ = api
+    loose = json.loads(json.dumps(SEED.model_dump()))
+    for region in loose["table"].values():
+        for contact in region.values():
+            for shape in contact.values():
+                shape["energy_J"] = 500.0
+    evil = tmp_path / "evil_thresholds.json"
+    evil.write_text(json.dumps(loose))
+    tokens = tmp_path / "tokens.json"
+    tokens.write_text(json.dumps({"tok-9d2b": "operator"}))
+    sc = load_scenario("empty_cell").model_dump(mode="json")
+    n_sent = len(reg.received)
+    for body in (
+        {**sc, "shield": {**sc["shield"], "pfl": {"thresholds": str(evil)}}},
+        {**sc, "human_params": str(tokens)},
+    ):
+        r = client.post("/api/cells/c1/scenario", json=body)
+        assert r.status_code == 422 and "refers to a file" in r.text, r.text
+        assert "tok-9d2b" not in r.text
+    r = client.patch("/api/cells/c1/scenario", json={"human_params": str(tokens)})
+    assert r.status_code == 422 and "tok-9d2b" not in r.text
+    r = client.put("/api/scenarios/mine", json={**sc, "robot": {"name": "/tmp/x.urdf"}})
+    assert r.status_code == 422 and "robot.name" in r.text
+    head = {"region": "head", "contact": "unconstrained", "shape": "blunt"}
+    raise_head = {"shield": {"pfl": {"overrides": [{**head, "energy_J": 9.5}]}}}
+    r = client.patch("/api/cells/c1/scenario", json=raise_head)
+    assert r.status_code == 409 and "PUT /api/cells/c1/thresholds" in r.text, r.text
+    assert len(reg.received) == n_sent  # nothing reached the worker
+    # the engineer tightens the head; an unrelated partial pfl edit keeps it
+    r = client.put("/api/cells/c1/thresholds", json={**head, "energy_J": 0.05})
+    assert r.status_code == 200, r.text
+    r = client.patch("/api/cells/c1/scenario", json={"shield": {"pfl": {"min_speed_scale": 0.05}}})
+    assert r.status_code == 200, r.text
+    pfl = reg.received[-1]["shield"]["pfl"]
+    assert pfl["min_speed_scale"] == 0.05 and pfl["overrides"] == [{**head, "energy_J": 0.05}]
+    n_sent = len(reg.received)
+    r = client.patch("/api/cells/c1/scenario", json={"shield": {"pfl": {"overrides": []}}})
+    assert r.status_code == 409 and "head/unconstrained/blunt 0.05 -> " in r.text  # dropped
+    r = client.post("/api/cells/c1/scenario", json=sc)  # the file as shipped: head at 0.11 J
+    assert r.status_code == 409 and "head/unconstrained/blunt 0.05 -> " in r.text
+    assert len(reg.received) == n_sent
+    tighter = {"shield": {"pfl": {"overrides": [{**head, "energy_J": 0.04}]}}}
+    assert client.patch("/api/cells/c1/scenario", json=tighter).status_code == 200

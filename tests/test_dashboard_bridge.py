@@ -36,6 +36,7 @@ from sara_app.dashboard.scene import CONTACT_RGB, CRITICAL_ACTIVE_RGB, CRITICAL_
 from sara_app.dashboard.viewer import Dashboard
 from sara_app.errors import UnknownNameError, WorkerTimeoutError
 from sara_app.human.skeleton import skeleton
+from sara_app.ops.client_edits import EditRefusedError
 from sara_app.robot.ik import end_effector_frame, pose_error
 from sara_app.scenario import Scenario, load_scenario, scenarios_dir
 
@@ -536,3 +537,30 @@ def test_the_pfl_table_and_the_status_show_the_same_cycle(view: tuple[CellView, 
     _feed(bus, occ.model_copy(update={"stamp_s": 0.5}), later.model_copy(update={"seq": 3}))
     frame = v.poll()
     assert frame is not None and frame.status["speed_scale"] == 1.0
+
+
+def test_scenario_tab_edits_neither_read_server_files_nor_raise_limits(
+    view: tuple[CellView, FakeBus], dash: Dashboard
+) -> None:
+    """The Scenario tab's edits go through ``client_edits``: a path refused before anything is
+    read, a raised energy refused (the Thresholds tab raises, confirmed and audited), a
+    tightening and the threshold tab's own edits pass."""
+    v, bus = view
+    sent = len(bus.params.sent)
+    with pytest.raises(EditRefusedError, match="refers to a file"):
+        v.edit({"human_params": "/root/.local/share/sara_app/api_tokens.json"})
+    head = {"region": "head", "contact": "unconstrained", "shape": "blunt"}
+    pfl = v.scenario.model_dump(mode="json")["shield"]
+    pfl["pfl"]["overrides"] = [{**head, "energy_J": 9.5}]
+    with pytest.raises(EditRefusedError, match="the Thresholds tab"):
+        v.edit({"shield": pfl})
+    assert len(bus.params.sent) == sent  # nothing sent
+    pfl["pfl"]["overrides"] = [{**head, "energy_J": 0.05}]
+    v.edit({"shield": pfl})  # a tightening
+    assert v.scenario.shield.pfl.overrides[0].energy_J == 0.05
+    panel = v.thresholds
+    assert panel is not None
+    panel.region.value, panel.contact.value, panel.shape.value = head.values()
+    panel.energy.value = 0.08  # up again, below the source: the tab's own path
+    assert panel.apply()
+    assert v.scenario.shield.pfl.overrides[0].energy_J == 0.08

@@ -69,6 +69,7 @@ from sara_app.api.thresholds import add_threshold_routes
 from sara_app.errors import ParameterError, SaraError, ScenarioError, WorkerTimeoutError
 from sara_app.human.params import available_param_sets, load_param_set
 from sara_app.ops.audit import AuditLog, default_audit_path
+from sara_app.ops.client_edits import EditRefusedError, check_client_edit, check_no_raise
 from sara_app.ops.jobs import JobRunner
 from sara_app.safety.thresholds import load_thresholds, threshold_set_names
 from sara_app.scenario import (
@@ -169,7 +170,11 @@ SEND_RESPONSES = {
     **responses(
         404, 409, 422, 500, 504,
         _404="the cell has not been seen on the bus, or the base scenario is unknown",
-        _409="the cell's worker refused the scenario (the detail gives its reason)",
+        _409="the cell's worker refused the scenario (the detail gives its reason), or the "
+        "edit raises a contact-energy limit in force (only PUT /api/cells/{cell}/thresholds "
+        "does, confirmed and audited)",
+        _422="the scenario is invalid, or refers to a file on the server that the cell does "
+        "not already use (clients name shipped items)",
         _500="the base scenario file is invalid",
     ),
 }  # fmt: skip
@@ -249,9 +254,12 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
     ) -> dict[str, Any]:
         """Validate a full scenario and have the cell's worker apply it (all or nothing)."""
         check_url_name("cell", cell)
-        sc = validate_scenario(scenario, "request body")
         with registry.edit_lock(cell):  # in order with the other edits of this cell
-            return send(cell, sc, timeout_s)
+            running = registry.applied_scenario(cell)
+            client_edit(running, scenario)
+            sc = validate_scenario(scenario, "request body")
+            current = None if running is None else validate_scenario(running, "the cell's")
+            return send(cell, guarded(cell, current, sc), timeout_s)
 
     @app.patch(
         "/api/cells/{cell}/scenario", tags=["cells"],
@@ -268,7 +276,7 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
         ``base`` when given (or when the worker has not announced one yet); validated as a whole
         and sent to the worker.
 
-        Object-valued sections are merged key by key, other fields replaced: e.g.
+        Objects are merged key by key at every depth, other values (lists too) replaced: e.g.
         ``{"shield": {"skeleton_timeout_s": 0.1}}``, ``{"human_params": "cmu_calibrated"}``, or
         ``{"human_params": {"delay_s": 0.05}}`` (the named set's values with that change)."""
         check_url_name("cell", cell)
@@ -278,8 +286,9 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
     def _patch(
         cell: str, changes: dict[str, Any], base: str | None, timeout_s: float
     ) -> dict[str, Any]:
-        _, sc = with_changes(registry, folder, cell, changes, base)
-        return {**send(cell, sc, timeout_s), "applied": sc.model_dump(mode="json")}
+        current, sc = with_changes(registry, folder, cell, changes, base)
+        sent = send(cell, guarded(cell, current, sc), timeout_s)
+        return {**sent, "applied": sc.model_dump(mode="json")}
 
 
 def with_changes(
@@ -302,7 +311,27 @@ def with_changes(
         named = load_param_set(hp).model_dump(mode="json")
         data = {**data, "human_params": {**named, "name": f"{hp}_edited"}}
     merged = merge_sections(data, changes)
+    client_edit(data, merged)
     return current, validate_scenario(merged, f"{current.name!r} with the changes")
+
+
+def client_edit(current: dict[str, Any] | None, new: Any) -> None:
+    """HTTP 422 for scenario data that refers to a file the cell's scenario ``current`` does not
+    use (:func:`~sara_app.ops.client_edits.check_client_edit`), before it is validated."""
+    try:
+        check_client_edit(current, new)
+    except EditRefusedError as e:
+        raise HTTPException(422, str(e)) from None
+
+
+def guarded(cell: str, current: Scenario | None, new: Scenario) -> Scenario:
+    """``new`` when it raises no contact-energy limit in force in ``current``; HTTP 409 naming
+    the threshold editor otherwise (:func:`~sara_app.ops.client_edits.check_no_raise`)."""
+    try:
+        check_no_raise(current, new, thresholds_path=f"PUT /api/cells/{cell}/thresholds")
+    except EditRefusedError as e:
+        raise HTTPException(409, str(e)) from None
+    return new
 
 
 def _stored_scenario(name: str, folder: Path) -> dict[str, Any]:
@@ -315,12 +344,14 @@ def _stored_scenario(name: str, folder: Path) -> dict[str, Any]:
 
 
 def merge_sections(data: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]:
-    """``data`` with ``changes``: object-valued sections merged one level deep, others replaced
-    (lists, such as ``humans`` or ``environment``, are replaced whole)."""
+    """``data`` with ``changes``: objects merged key by key at every depth, other values
+    replaced (lists, such as ``humans``, ``environment`` or ``shield.pfl.overrides``, whole).
+    Merged one level deep, ``{"shield": {"pfl": {"min_speed_scale": 0.05}}}`` replaced the
+    whole ``pfl`` section and dropped the safety engineer's threshold edits with it."""
     out = dict(data)
     for k, v in changes.items():
         old = out.get(k)
-        out[k] = {**old, **v} if isinstance(old, dict) and isinstance(v, dict) else v
+        out[k] = merge_sections(old, v) if isinstance(old, dict) and isinstance(v, dict) else v
     return out
 
 
@@ -351,6 +382,7 @@ def _add_scenario_routes(app: FastAPI, folder: Path) -> None:
     ) -> dict[str, Any]:
         """Validate and save as ``<name>.json``; replacing an existing name needs overwrite."""
         check_url_name("scenario", name)
+        client_edit(None, scenario)
         sc = validate_scenario({**scenario, "name": name}, "request body")
         exists = name in names()
         if exists and not overwrite:

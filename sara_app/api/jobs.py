@@ -53,7 +53,7 @@ START_RESPONSES = {
 
 def whatif_label(cell: str, changes: dict[str, Any]) -> str:
     """What a person reads in the job list: ``cell1: what if shield.dt_s = 0.002,
-    human_params = "fast"`` (one item per changed value, one level deep as the changes merge;
+    human_params = "fast"`` (one item per changed value of a section, nested objects as one value;
     long values and labels shortened)."""
     items = []
     for key, value in changes.items():

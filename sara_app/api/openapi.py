@@ -5,7 +5,8 @@ answers that go with them.
   themselves, so that a refusal names the field in the project's words (``task.waypoints_rad.0:
   ...``); the document still describes them exactly: :data:`SCENARIO` (a whole scenario),
   :data:`SCENARIO_TO_SAVE` (its name is the URL's) and :data:`SCENARIO_CHANGES` (any of its
-  sections, an object-valued one partially: merged one level deep), each with an example.
+  sections, an object-valued one partially: merged key by key at every depth), each with an
+  example.
   A route names its body with ``openapi_extra=body_schema(...)``; :func:`install` puts the
   schemas in ``components``.
 - Event streams: :data:`EVENT_STREAM`, the ``responses=`` of a Server-Sent Events route.
@@ -95,7 +96,9 @@ def scenario_schemas(param_sets: list[str], example: dict[str, Any] | None) -> d
 
 def changes_schema(sc: dict[str, Any], defs: dict[str, Any]) -> dict[str, Any]:
     """Any of the scenario's fields; an object-valued one may be partial (its keys merged into
-    the current section, one level deep); lists (``humans``, ``environment``) replace whole."""
+    the current section, at every depth: the schema states the top level's objects partial,
+    deeper ones as they are, which the merge also takes); lists (``humans``,
+    ``environment``) replace whole."""
     props = {k: _partial(v, defs) for k, v in sc["properties"].items()}
     return {
         "title": SCENARIO_CHANGES,
@@ -103,7 +106,8 @@ def changes_schema(sc: dict[str, Any], defs: dict[str, Any]) -> dict[str, Any]:
         "additionalProperties": False,
         "properties": props,
         "description": "Changes to a cell's scenario: each section given is merged into the "
-        "scenario in force (object sections key by key, other fields replaced); the result is "
+        "scenario in force (objects key by key at every depth, other values and lists "
+        "replaced); the result is "
         "checked as a whole. A partial `human_params` object edits the named set's values.",
         "examples": [CHANGES_EXAMPLE],
     }

@@ -48,6 +48,7 @@ from sara_app.dashboard.whatif_panel import WhatIfHooks, WhatIfPanels
 from sara_app.errors import SaraError, ScenarioError, UnknownNameError, WorkerTimeoutError
 from sara_app.geometry.poses import pose_from_xyz_rpy
 from sara_app.ops.audit import AuditLog, default_audit_path
+from sara_app.ops.client_edits import check_client_edit, check_no_raise
 from sara_app.ops.jobs import JobRunner
 from sara_app.robot.model import RobotModel
 from sara_app.safety.settings import SAFETY_MODES
@@ -185,12 +186,20 @@ class CellView(GizmoEditing):
         cell (:class:`AccessError` otherwise); audited as ``action``
         (:mod:`sara_app.dashboard.access`)."""
         return self.dash.access.change(
-            action, lambda: self._send(data), timeouts=(WorkerTimeoutError,)
+            action, lambda: self._send(data, action), timeouts=(WorkerTimeoutError,)
         )
 
-    def _send(self, data: dict[str, Any]) -> Scenario:
+    def _send(self, data: dict[str, Any], action: str) -> Scenario:
+        # a client's edit (:mod:`sara_app.ops.client_edits`): no file of its choosing (a stored
+        # scenario, "load", is the server's own), no raised energy limit but the threshold
+        # editor's ("threshold": confirmed and audited by apply_edit)
+        current = self.scenario
+        if action != "load":
+            check_client_edit(current.model_dump(mode="json"), data)
         sc = parse_scenario(data, "edited scenario")
         check_against_robot(sc)
+        if action != "threshold":
+            check_no_raise(current, sc, thresholds_path="the Thresholds tab")
         rid = uuid.uuid4().hex[:16]
         with self._ack_lock:
             self._late = None

@@ -17,7 +17,7 @@ from typing import Annotated
 import numpy as np
 from pydantic import Field, ValidationError, field_validator
 
-from sara_app.errors import ParameterError, UnknownNameError
+from sara_app.errors import ParameterError, UnknownNameError, describe_validation
 from sara_app.human.skeleton import FULL_BODY_PARTS, FULL_JOINTS, UPPER_JOINTS, skeleton
 from sara_app.settings import Strict
 
@@ -223,14 +223,20 @@ def sustained_speed_mps(p: ReachParams) -> np.ndarray:
 
 
 def available_param_sets() -> tuple[str, ...]:
-    return tuple(sorted(p.stem for p in PARAM_DIR.glob("*.json")))
+    """The shipped human parameter sets by name (the folder also holds the threshold sets,
+    ``thresholds_*``, which are not)."""
+    return tuple(
+        sorted(p.stem for p in PARAM_DIR.glob("*.json") if not p.stem.startswith("thresholds_"))
+    )
 
 
 def parse_param_set(data: object, origin: str = "<data>") -> ParamSet:
     try:
         return ParamSet.model_validate(data)
-    except ValidationError as e:
-        raise ParameterError(f"invalid parameter set {origin}: {e}") from None
+    except ValidationError as e:  # without the values: a file's content is not repeated
+        raise ParameterError(
+            f"invalid parameter set {origin}: {describe_validation(e, with_input=False)}"
+        ) from None
 
 
 def load_param_set(name_or_path: str | Path) -> ParamSet:

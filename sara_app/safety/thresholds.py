@@ -24,7 +24,7 @@ from typing import Annotated
 import numpy as np
 from pydantic import Field, ValidationError, model_validator
 
-from sara_app.errors import ParameterError, UnknownNameError
+from sara_app.errors import ParameterError, UnknownNameError, describe_validation
 from sara_app.human.skeleton import FULL_BODY_PARTS
 from sara_app.settings import Strict
 
@@ -169,8 +169,10 @@ class ThresholdSet(Strict):
 def _validated(data: object, what: str) -> ThresholdSet:
     try:
         return ThresholdSet.model_validate(data)
-    except ValidationError as exc:
-        raise ParameterError(f"threshold set {what} is invalid: {exc}") from None
+    except ValidationError as exc:  # without the values: a file's content is not repeated
+        raise ParameterError(
+            f"threshold set {what} is invalid: {describe_validation(exc, with_input=False)}"
+        ) from None
 
 
 def threshold_set_names() -> tuple[str, ...]:
