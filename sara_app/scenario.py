@@ -28,7 +28,7 @@ from sara_app.human.params import RENAMED as PARAM_SETS_RENAMED
 from sara_app.human.params import ParamSet, load_param_set, parse_param_set
 from sara_app.human.skeleton import FULL_JOINTS
 from sara_app.safety.settings import ShieldSettings
-from sara_app.settings import Finite, Name, NonNeg, Pos, StrictFinite
+from sara_app.settings import Coord, Extent, Finite, Name, NonNeg, Pos, StrictFinite
 
 MOTIONS = ("stand", "approach", "punch", "headbutt", "box_pick")
 STRATEGIES = ("rigid", "limbs")
@@ -45,9 +45,10 @@ class RobotSpec(StrictFinite):
     name: Annotated[str, Field(min_length=1, max_length=500)] = "panda"
     """A shipped robot (``panda``, ``ur5e``, ``ur10e``) or the path of a URDF file (absolute,
     or relative to the directory the cell is started in)."""
-    base_xyz_m: tuple[Finite, Finite, Finite] = (0.0, 0.0, 0.0)
+    base_xyz_m: tuple[Coord, Coord, Coord] = (0.0, 0.0, 0.0)
     base_rpy_rad: tuple[Finite, Finite, Finite] = (0.0, 0.0, 0.0)
-    margin_m: NonNeg = 0.0
+    margin_m: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] = 0.0
+    """Added to every link capsule's radius (m, at most 1)."""
     joint_limits: dict[str, JointLimitSpec] = {}
     """Acceleration and jerk limits per joint name, for a URDF without ``<sara_limits>`` (or
     overriding it)."""
@@ -94,8 +95,8 @@ class TaskSpec(StrictFinite):
 
 class BoxSpec(StrictFinite):
     name: Name
-    center_m: tuple[Finite, Finite, Finite]
-    size_m: tuple[Pos, Pos, Pos]
+    center_m: tuple[Coord, Coord, Coord]
+    size_m: tuple[Extent, Extent, Extent]
     rpy_rad: tuple[Finite, Finite, Finite] = (0.0, 0.0, 0.0)
 
 
@@ -108,7 +109,7 @@ class GlitchSpec(StrictFinite):
     other: Literal[FULL_JOINTS] = "head"  # type: ignore[valid-type]
     start_s: NonNeg = 1.0
     duration_s: Annotated[float, Field(gt=0, le=600)] = 0.01
-    offset_m: tuple[Finite, Finite, Finite] = (0.15, 0.0, 0.0)
+    offset_m: tuple[Coord, Coord, Coord] = (0.15, 0.0, 0.0)
 
 
 class SensorSpec(StrictFinite):
@@ -133,7 +134,7 @@ class _HumanBase(StrictFinite):
 class RecordingHuman(_HumanBase):
     type: Literal["recording"]
     recording: str = "02_01"
-    offset_m: tuple[Finite, Finite, Finite] = (0.0, 0.0, 0.0)
+    offset_m: tuple[Coord, Coord, Coord] = (0.0, 0.0, 0.0)
     yaw_rad: Finite = 0.0
     clip_start_s: NonNeg = 0.0
 
@@ -141,9 +142,9 @@ class RecordingHuman(_HumanBase):
 class ScriptedHuman(_HumanBase):
     type: Literal["scripted"]
     motion: Literal["stand", "approach", "punch", "headbutt", "box_pick"]
-    position_m: tuple[Finite, Finite] = (1.0, 0.0)
+    position_m: tuple[Coord, Coord] = (1.0, 0.0)
     """Where the person stands (pelvis, on the floor plane) at the start."""
-    target_m: tuple[Finite, Finite, Finite] = (0.4, 0.0, 0.5)
+    target_m: tuple[Coord, Coord, Coord] = (0.4, 0.0, 0.5)
     """The point the motion aims at (an end-effector position, a box place)."""
     speed_scale: Annotated[float, Field(gt=0, le=1)] = 1.0
 
@@ -151,7 +152,7 @@ class ScriptedHuman(_HumanBase):
 class AdversarialHuman(_HumanBase):
     type: Literal["adversarial"]
     strategy: Literal["rigid", "limbs"] = "rigid"
-    position_m: tuple[Finite, Finite] = (1.2, 0.0)
+    position_m: tuple[Coord, Coord] = (1.2, 0.0)
     seed: int = 0
 
 

@@ -42,15 +42,19 @@ def test_foreign_host_large_body_and_missing_token_are_refused_and_audited(
     auth = {"authorization": f"Bearer {TOKEN}", "content-type": "application/json"}
     r = c.put("/api/scenarios/big", content=big, headers=auth)
     assert r.status_code == 413
+    chunks = (b"x" * 65536 for _ in range(MAX_BODY_BYTES // 65536 + 2))  # no Content-Length
+    r = c.put("/api/scenarios/big", content=chunks, headers=auth)
+    assert r.status_code == 413 and "over" in r.json()["detail"]  # not FastAPI's 400
     r = c.put("/api/scenarios/x", content=b"{not json", headers=auth)
     assert r.status_code == 422  # refused by validation: audited too
     rows = c.get("/api/requests/audit").json()
     assert [(x["method"], x["status"], x["user"]) for x in rows] == [
         ("PUT", 422, "anna"),
         ("PUT", 413, "anna"),
+        ("PUT", 413, "anna"),
         ("PUT", 401, "local"),
     ]
-    assert rows[1]["body_bytes"] > MAX_BODY_BYTES
+    assert rows[1]["body_bytes"] > MAX_BODY_BYTES and rows[2]["body_bytes"] > MAX_BODY_BYTES
 
 
 def test_the_token_names_the_user_in_the_threshold_audit(tmp_path: Path) -> None:

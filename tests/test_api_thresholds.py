@@ -359,3 +359,14 @@ def test_scenario_edits_neither_read_server_files_nor_raise_limits(
     assert len(reg.received) == n_sent
     tighter = {"shield": {"pfl": {"overrides": [{**head, "energy_J": 0.04}]}}}
     assert client.patch("/api/cells/c1/scenario", json=tighter).status_code == 200
+
+
+def test_an_energy_must_be_a_json_number(api: tuple[StandInRegistry, TestClient, AuditLog]) -> None:
+    """``true`` was read as 1.0 J and ``"0.1"`` as 0.1 J: a typed value is a number."""
+    reg, client, _ = api
+    n = len(reg.received)
+    for bad in (True, "0.1"):
+        r = client.put("/api/cells/c1/thresholds", json={**HAND, "energy_J": bad})
+        assert r.status_code == 422, r.text
+    assert len(reg.received) == n
+    assert client.put("/api/cells/c1/thresholds", json={**HAND, "energy_J": 0.1}).status_code == 200

@@ -334,3 +334,27 @@ def test_every_shipped_scenario_is_a_bench_cell(name: str) -> None:
         and b.rpy_rad == (0.0, 0.0, 0.0)
     ]  # fmt: skip
     assert any(abs(b.center_m[2] + b.size_m[2] / 2 - z) < 1e-6 for b in under), name
+
+
+@pytest.mark.parametrize(
+    ("path", "value"),
+    [
+        (("environment", 0, "center_m"), [1e300, 0.0, 0.0]),
+        (("robot", "base_xyz_m"), [0.0, 0.0, 1e9]),
+        (("robot", "margin_m"), 1e308),
+        (("environment", 0, "size_m"), [1.0, 1e6, 1.0]),
+    ],
+)
+def test_positions_beyond_a_cell_are_refused_naming_the_field(path: tuple, value: object) -> None:
+    """A room, not the solar system: such values passed and overflowed the dashboard's meshes
+    or failed later with a kinematics message that did not say what was wrong."""
+    data = load_scenario("punches").model_dump(mode="json")
+    data.setdefault("environment", [])
+    if not data["environment"]:
+        data["environment"].append({"center_m": [1, 0, 0.4], "size_m": [0.5, 0.5, 0.8]})
+    node = data
+    for p in path[:-1]:
+        node = node[p]
+    node[path[-1]] = value
+    with pytest.raises(ScenarioError, match=".".join(str(p) for p in path)):
+        parse_scenario(data)

@@ -96,7 +96,11 @@ class Guard:
         user = self._user(headers.get("authorization", ""))
         scope.setdefault("state", {})["auth_user"] = user
 
+        over = [False]  # the streamed body passed the limit
+
         async def send_status(message: dict) -> None:
+            if over[0]:  # the app's answer to a body cut short (400): the 413 is sent instead
+                return
             if message["type"] == "http.response.start":
                 status[0] = message["status"]
             await send(message)
@@ -110,14 +114,16 @@ class Guard:
                 message = await receive()
                 size[0] += len(message.get("body", b""))
                 if size[0] > MAX_BODY_BYTES:
+                    if status[0] == 0:  # nothing answered yet: the answer is 413
+                        over[0], status[0] = True, 413
+                        await _reply(send, 413, f"request body over {MAX_BODY_BYTES} bytes")
                     raise _TooLarge()
                 return message
 
             try:
                 await self.app(scope, counted, send_status)
             except _TooLarge:
-                if status[0] == 0:
-                    await _reply(send_status, 413, f"request body over {MAX_BODY_BYTES} bytes")
+                pass  # answered in counted (FastAPI's body parser may also swallow it)
         if method in MUTATING:
             self._record(scope, method, status[0], user, size[0] or _length(headers))
 

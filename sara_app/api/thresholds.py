@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from fastapi import FastAPI, HTTPException, Query, Request
-from pydantic import BaseModel, ConfigDict, Field, StrictBool
+from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictFloat
 
 from sara_app.api.guard import request_user
 from sara_app.api.registry import EDIT_TIMEOUT_S, CellRegistry
@@ -57,7 +57,7 @@ class ThresholdEditBody(BaseModel):
     region: str = Field(json_schema_extra={"enum": list(REGIONS)}, description="Table I region")
     contact: str = Field(json_schema_extra={"enum": list(CONTACTS)})
     shape: str = Field(json_schema_extra={"enum": list(SHAPES)})
-    energy_J: float = Field(
+    energy_J: StrictFloat = Field(  # a number: true or "0.1" are refused, not read as 1.0 / 0.1
         description=f"admissible energy in J: a finite number > 0 and <= {MAX_THRESHOLD_J:g}",
         json_schema_extra={"exclusiveMinimum": 0, "maximum": MAX_THRESHOLD_J},
     )  # the range is the schema's; the service checks it so that a refusal is audited too
