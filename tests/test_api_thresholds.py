@@ -370,3 +370,15 @@ def test_an_energy_must_be_a_json_number(api: tuple[StandInRegistry, TestClient,
         assert r.status_code == 422, r.text
     assert len(reg.received) == n
     assert client.put("/api/cells/c1/thresholds", json={**HAND, "energy_J": 0.1}).status_code == 200
+
+
+def test_a_huge_bad_name_is_not_repeated_in_full(
+    api: tuple[StandInRegistry, TestClient, AuditLog],
+) -> None:
+    """A 900 KB region came back whole in the 422 (the audit row already clipped it)."""
+    _, client, _ = api
+    body = {**HAND, "region": "x" * 900_000, "energy_J": 1}
+    r = client.put("/api/cells/c1/thresholds", json=body)
+    assert r.status_code == 422 and len(r.content) < 2_000, len(r.content)
+    r = client.get("/api/jobs/" + "j" * 5_000)
+    assert r.status_code == 404 and len(r.content) < 2_000, len(r.content)
