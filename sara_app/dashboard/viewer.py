@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import viser
 
+from sara_app.dashboard import origin
 from sara_app.dashboard.access import DashboardAccess
 from sara_app.dashboard.frame import DisplayFrame
 from sara_app.dashboard.panels import DashboardPanels
@@ -56,6 +57,8 @@ class Dashboard:
         ``on_params_edit``, ``on_set_mode`` (see :mod:`sara_app.dashboard.panels`)."""
         if self.server is not None:
             raise InputError(f"dashboard already serving at {self.url}; call stop() first")
+        origin.install()  # foreign Host / Origin refused (cross-site WebSocket hijacking)
+        origin.allow_host(host)
         server = viser.ViserServer(host=host, port=port, label="SaRA cell", verbose=False)
         try:
             server.initial_camera.position = self.camera[0]
