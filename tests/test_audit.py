@@ -146,3 +146,18 @@ def test_unwritable_location_is_an_audit_error(tmp_path: Path) -> None:
     blocker.write_text("not a folder")
     with pytest.raises(AuditError, match="cannot be created"):
         AuditLog(blocker / "audit.sqlite")
+
+
+def test_the_file_is_its_owners_only(tmp_path: Path) -> None:
+    """Who changed what is not everyone's to read: the file (and its WAL files) 0600, also an
+    existing one created readable by all."""
+    import os
+    import stat
+
+    log = AuditLog(tmp_path / "a.sqlite")
+    log.record_request("PUT", "/x", 200, "127.0.0.1", "anna", 3)
+    for f in tmp_path.iterdir():
+        assert stat.S_IMODE(f.stat().st_mode) == 0o600, f
+    os.chmod(tmp_path / "a.sqlite", 0o644)
+    AuditLog(tmp_path / "a.sqlite")
+    assert stat.S_IMODE((tmp_path / "a.sqlite").stat().st_mode) == 0o600

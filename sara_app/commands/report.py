@@ -98,7 +98,14 @@ def _running_cell_report(args: argparse.Namespace) -> int:
     out = Path(args.out or f"{args.cell}-evidence.html")
     out.write_text(_api(args, "GET", st["report_url"], text=True))
     running = _api(args, "GET", f"/api/cells/{args.cell}").get("config_sha256")
-    same = "equal" if running == st["checksum"] else "DIFFERENT: the cell changed since"
+    same = (
+        "equal"
+        if running == st["checksum"]
+        else (
+            "DIFFERENT: the cell's scenario was edited, or the code or a parameter file on disk "
+            "changed since the cell started (the checksum covers them all)"
+        )
+    )
     print(f"report: {out} (checksum {st['checksum']}; the cell runs {running}: {same})")
     return 0 if running == st["checksum"] else 1
 

@@ -24,6 +24,7 @@ journal, a busy timeout and one short transaction per row, on a connection per c
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import sqlite3
@@ -37,6 +38,7 @@ from typing import Any
 
 from sara_app.errors import ParameterError, SaraError
 
+log = logging.getLogger("sara_app.audit")
 SCHEMA_VERSION = 3
 """1: threshold_changes; 2: + person_actions; 3: + api_requests. Every statement of the schema
 is idempotent (IF NOT EXISTS), so an older file is upgraded by running them all."""
@@ -185,6 +187,19 @@ class AuditLog:
                 f"audit folder {str(self.path.parent)!r} cannot be created: {e}"
             ) from e
         self._create()
+        self._restrict()
+
+    def _restrict(self) -> None:
+        """Owner-only access (sqlite creates the file 0644; who changed what is not everyone's
+        to read; its -wal and -shm files take the same mode). A file this user cannot chmod
+        (another owner's) stays as it is, with a warning."""
+        names = (self.path.name, self.path.name + "-wal", self.path.name + "-shm")
+        for f in (self.path.with_name(n) for n in names):
+            try:
+                if f.exists() and f.stat().st_mode & 0o077:
+                    f.chmod(0o600)
+            except OSError as e:
+                log.warning("audit log %s: access not restricted: %s", f, e)
 
     @contextmanager
     def _connect(self) -> Iterator[sqlite3.Connection]:
