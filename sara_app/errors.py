@@ -12,10 +12,13 @@ CLIP_CHARS = 120
 """How much of a bad value a message repeats (a request may send megabytes)."""
 
 
+def _cut(text: str, limit: int) -> str:
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 def clipped(value: object, limit: int = CLIP_CHARS) -> str:
     """``repr(value)``, cut to ``limit`` characters with an ellipsis."""
-    text = repr(value)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
+    return _cut(repr(value), limit)
 
 
 def describe_validation(err: Any, *, with_input: bool, limit: int = 5) -> str:
@@ -29,9 +32,9 @@ def describe_validation(err: Any, *, with_input: bool, limit: int = 5) -> str:
         path, msg = list(e["loc"]), e["msg"]
         if not with_input and e["type"] == "extra_forbidden":  # the key is the file's content
             path, msg = path[:-1], "has a field that is not allowed"
-        loc = ".".join(str(p) for p in path) or "<root>"
+        loc = ".".join(str(p) for p in path) or "<root>"  # a key may be a request's megabyte
         got = f" (got {clipped(e['input'], 80)})" if with_input and "input" in e else ""
-        parts.append(f"{loc}: {msg}{got}")
+        parts.append(f"{_cut(loc, CLIP_CHARS)}: {_cut(msg, 2 * CLIP_CHARS)}{got}")
     more = len(errors) - limit
     return "; ".join(parts) + (f" (+{more} more)" if more > 0 else "")
 

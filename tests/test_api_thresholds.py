@@ -359,6 +359,11 @@ def test_scenario_edits_neither_read_server_files_nor_raise_limits(
     assert len(reg.received) == n_sent
     tighter = {"shield": {"pfl": {"overrides": [{**head, "energy_J": 0.04}]}}}
     assert client.patch("/api/cells/c1/scenario", json=tighter).status_code == 200
+    # a PATCH onto another scenario file (?base=) is compared with the limits in force too
+    r = client.patch("/api/cells/c1/scenario?base=empty_cell", json={"sim": {"seed": 3}})
+    assert r.status_code == 409 and "head/unconstrained/blunt 0.04 -> " in r.text, r.text
+    r = client.patch("/api/cells/c1/scenario", json={"name": "close_worker"})
+    assert r.status_code == 422 and "name" in r.text  # the cell would say it runs another
 
 
 def test_an_energy_must_be_a_json_number(api: tuple[StandInRegistry, TestClient, AuditLog]) -> None:

@@ -46,7 +46,10 @@ def test_pages_only_for_this_machines_names(port: int) -> None:
 
 def test_websocket_from_another_site_is_refused(port: int) -> None:
     uri = f"ws://127.0.0.1:{port}"
-    for origin in ("http://evil.example", "http://127.0.0.1.evil.example:8080", "null"):
+    for origin in (
+        "http://evil.example", "http://127.0.0.1.evil.example:8080", "null",
+        f"http://127.0.0.1:{port + 1}", "http://localhost:8000",  # another local service
+    ):  # fmt: skip
         with pytest.raises(InvalidStatus) as e:
             connect(uri, origin=origin, subprotocols=[PROTOCOL], open_timeout=10)  # type: ignore[list-item,arg-type]
         assert e.value.response.status_code == 403, origin
@@ -60,6 +63,12 @@ def test_websocket_from_another_site_is_refused(port: int) -> None:
 def test_refusal_rules() -> None:
     ok = {"Host": "127.0.0.1:8080", "Origin": "http://localhost:8080"}
     assert refusal(ok) is None and refusal({"Host": "[::1]:8080"}) is None
+    assert refusal({"Host": "[::1]:8080", "Origin": "http://[::1]:8080"}) is None
+    assert refusal({"Host": "127.0.0.1", "Origin": "http://127.0.0.1"}) is None  # port 80
+    assert refusal({**ok, "Origin": "http://localhost:8000"}) is not None  # the API's page
+    assert refusal({**ok, "Origin": "http://localhost"}) is not None
+    assert refusal({**ok, "Origin": "ws://localhost:8080"}) is not None
+    assert refusal({**ok, "Origin": "http://localhost:80x"}) is not None
     assert refusal({"Host": "evil.example:8080"}) is not None
     assert refusal({**ok, "Origin": "https://evil.example"}) is not None
     assert refusal({**ok, "Origin": "file://"}) is not None

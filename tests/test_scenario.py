@@ -358,3 +358,16 @@ def test_positions_beyond_a_cell_are_refused_naming_the_field(path: tuple, value
     node[path[-1]] = value
     with pytest.raises(ScenarioError, match=".".join(str(p) for p in path)):
         parse_scenario(data)
+
+
+def test_a_huge_bad_key_or_value_is_not_repeated_in_full() -> None:
+    """A 100 KB unknown model name or key came back whole in the 422."""
+    data = load_scenario("punches").model_dump(mode="json")
+    for bad in (
+        {**data, "shield": {**data["shield"], "models": ["m" * 100_000]}},
+        {**data, "k" * 100_000: 1},
+        {**data, "robot": {**data["robot"], "joint_limits": {"j" * 100_000: {}}}},
+    ):
+        with pytest.raises(ScenarioError) as e:
+            parse_scenario(bad)
+        assert len(str(e.value)) < 2_000, len(str(e.value))

@@ -286,8 +286,16 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
     def _patch(
         cell: str, changes: dict[str, Any], base: str | None, timeout_s: float
     ) -> dict[str, Any]:
-        current, sc = with_changes(registry, folder, cell, changes, base)
-        sent = send(cell, guarded(cell, current, sc), timeout_s)
+        if "name" in changes:  # the cell and its threshold table would report another scenario
+            raise HTTPException(
+                422,
+                "name: a scenario's name is its file's; save it under a new name "
+                "(PUT /api/scenarios/{name}) and send that, or leave name out",
+            )
+        _, sc = with_changes(registry, folder, cell, changes, base)
+        running = registry.applied_scenario(cell)  # the limits in force, whatever ``base`` is
+        in_force = None if running is None else validate_scenario(running, "the cell's")
+        sent = send(cell, guarded(cell, in_force, sc), timeout_s)
         return {**sent, "applied": sc.model_dump(mode="json")}
 
 
@@ -325,8 +333,9 @@ def client_edit(current: dict[str, Any] | None, new: Any) -> None:
 
 
 def guarded(cell: str, current: Scenario | None, new: Scenario) -> Scenario:
-    """``new`` when it raises no contact-energy limit in force in ``current``; HTTP 409 naming
-    the threshold editor otherwise (:func:`~sara_app.ops.client_edits.check_no_raise`)."""
+    """``new`` when it raises no contact-energy limit in force in ``current`` (the scenario the
+    cell's worker runs; None while it has not said: the shipped values); HTTP 409 naming the
+    threshold editor otherwise (:func:`~sara_app.ops.client_edits.check_no_raise`)."""
     try:
         check_no_raise(current, new, thresholds_path=f"PUT /api/cells/{cell}/thresholds")
     except EditRefusedError as e:

@@ -42,15 +42,33 @@ def _host_name(netloc: str) -> str:
     return netloc.rsplit(":", 1)[0] if netloc.count(":") == 1 else netloc
 
 
+def _port(netloc: str, default: int) -> int | None:
+    """The port of ``netloc`` (``default`` when none is given; None when it is not a port)."""
+    rest = netloc.rsplit("]", 1)[-1] if netloc.startswith("[") else netloc
+    if ":" not in rest:
+        return default
+    text = rest.rsplit(":", 1)[1]
+    return int(text) if text.isdigit() else None
+
+
 def refusal(headers: Any) -> str | None:
-    """Why a request with ``headers`` is refused (None: it is not)."""
-    host = _host_name(headers.get("Host", ""))
+    """Why a request with ``headers`` is refused (None: it is not): a ``Host`` that is not
+    this machine's, or an ``Origin`` that is not this view's own page (the same name and port:
+    a page of another local service, e.g. on port 8000 or a developer's server, is another
+    site too)."""
+    raw_host = headers.get("Host", "")
+    host = _host_name(raw_host)
     if host not in _allowed:
         return f"host {host[:100]!r} is not served here; use 127.0.0.1"
     origin = headers.get("Origin")
     if origin is not None:
-        name = _host_name(urlsplit(origin).netloc) if "://" in origin else ""
-        if name not in _allowed:
+        parts = urlsplit(origin) if "://" in origin else None
+        if (
+            parts is None
+            or parts.scheme not in ("http", "https")
+            or _host_name(parts.netloc) not in _allowed
+            or _port(parts.netloc, 443 if parts.scheme == "https" else 80) != _port(raw_host, 80)
+        ):
             return f"origin {origin[:100]!r} may not use this view"
     return None
 
