@@ -387,3 +387,19 @@ def test_a_huge_bad_name_is_not_repeated_in_full(
     assert r.status_code == 422 and len(r.content) < 2_000, len(r.content)
     r = client.get("/api/jobs/" + "j" * 5_000)
     assert r.status_code == 404 and len(r.content) < 2_000, len(r.content)
+
+
+def test_a_huge_value_in_a_checked_body_is_not_repeated_in_full(
+    api: tuple[StandInRegistry, TestClient, AuditLog],
+) -> None:
+    """FastAPI's own 422 repeated the whole input (a 100 KB retire reason)."""
+    _, client, _ = api
+    r = client.post("/api/cells/c1/humans/p1/retire", json={"reason": "r" * 100_000})
+    assert r.status_code == 422 and len(r.content) < 2_000, len(r.content)
+    assert r.json()["detail"][0]["loc"] == ["body", "reason"]
+    r = client.put("/api/cells/c1/thresholds", json={**HAND, "energy_J": [0.1] * 50_000})
+    assert r.status_code == 422 and len(r.content) < 2_000, len(r.content)
+    for body in (b'{"reason": NaN}', b'{"reason": [Infinity, 1]}', b'{"reason": {"a": NaN}}'):
+        r = client.post("/api/cells/c1/humans/p1/retire", content=body,
+                        headers={"content-type": "application/json"})  # fmt: skip
+        assert r.status_code == 422, (body, r.status_code, r.text)

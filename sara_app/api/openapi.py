@@ -18,18 +18,21 @@ answers that go with them.
 from __future__ import annotations
 
 import copy
+import json
+import math
 from collections.abc import Callable, MutableMapping
 from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.exception_handlers import http_exception_handler
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
 from fastapi.routing import APIRoute
 from pydantic.json_schema import models_json_schema
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match
 
-from sara_app.errors import SaraError
+from sara_app.errors import CLIP_CHARS, SaraError, clipped
 from sara_app.human.params import RENAMED, ParamSet
 from sara_app.scenario import Scenario
 
@@ -142,6 +145,7 @@ def install(app: FastAPI, schemas: Callable[[], dict[str, Any]]) -> None:
 
     app.openapi = openapi  # type: ignore[method-assign]
     app.add_exception_handler(StarletteHTTPException, _allow_handler)  # type: ignore[arg-type]
+    app.add_exception_handler(RequestValidationError, _invalid_handler)  # type: ignore[arg-type]
 
 
 def _add_bodies(doc: dict[str, Any], schemas: dict[str, Any]) -> None:
@@ -190,3 +194,39 @@ async def _allow_handler(request: Request, exc: StarletteHTTPException) -> Respo
     method, path = request.method, request.url.path
     detail = f"method {method} is not allowed on {path[:200]}; allowed: {', '.join(allowed)}"
     return JSONResponse({"detail": detail}, 405, headers={"Allow": ", ".join(allowed)})
+
+
+def _short(value: Any) -> Any:
+    """``value`` as the answer repeats it (JSON): a long string or a large structure clipped,
+    bytes (a body that is not JSON) as text."""
+    if isinstance(value, bytes):
+        value = value.decode("utf-8", "replace")
+    if isinstance(value, str):
+        return value if len(value) <= CLIP_CHARS else value[: CLIP_CHARS - 3] + "..."
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)  # JSON has no NaN or Infinity
+    if isinstance(value, (int, float, bool)) or value is None:
+        return value
+    text = clipped(value)
+    if len(text) >= CLIP_CHARS or not isinstance(value, (list, dict)):
+        return text
+    try:
+        json.dumps(value, allow_nan=False)
+    except (TypeError, ValueError):
+        return text
+    return value
+
+
+async def _invalid_handler(request: Request, exc: RequestValidationError) -> Response:
+    """422 with FastAPI's list of field errors, each value, key and message clipped: FastAPI
+    repeats the whole input (a 100 KB ``reason`` came back whole)."""
+    errors = [
+        {
+            "loc": [_short(p) for p in e.get("loc", ())],
+            "msg": _short(str(e.get("msg", ""))),
+            "type": e.get("type", ""),
+            **({"input": _short(e["input"])} if "input" in e else {}),
+        }
+        for e in exc.errors()[:20]
+    ]
+    return JSONResponse({"detail": errors}, status_code=422)
