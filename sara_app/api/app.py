@@ -276,7 +276,9 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
         ``base`` when given (or when the worker has not announced one yet); validated as a whole
         and sent to the worker.
 
-        Objects are merged key by key at every depth, other values (lists too) replaced: e.g.
+        Objects are merged key by key at every depth, other values (lists too) replaced (so
+        an entry of a map, such as ``shield.pfl.link_shapes``, is removed only by sending the
+        whole scenario with POST; ``{}`` changes nothing): e.g.
         ``{"shield": {"skeleton_timeout_s": 0.1}}``, ``{"human_params": "cmu_calibrated"}``, or
         ``{"human_params": {"delay_s": 0.05}}`` (the named set's values with that change)."""
         check_url_name("cell", cell)
