@@ -122,3 +122,28 @@ def test_a_whatif_from_the_browser(setup: tuple[Dashboard, WhatIfPanels, list]) 
 
             path = os.path.join(os.environ["SARA_SCREENSHOT_DIR"], "whatif.png")
             Image.fromarray(ghost.astype(np.uint8)).save(path)
+
+
+def test_a_whatif_runs_the_same_people_under_both_settings() -> None:
+    """The edited run's scripted people move within the set in force, not the edited one: a
+    what-if of a smaller human set shows what it does to the same people (generated from the
+    edited set, they slowed down and the smaller set looked safe)."""
+    from sara_app.human.params import load_param_set
+    from sara_app.scenario import load_scenario, parse_scenario
+    from sara_app.sim.closed_loop import run_closed_loop
+    from sara_app.sim.whatif import compare
+
+    current = load_scenario("punches")
+    data = current.model_dump(mode="json")
+    tiny = load_param_set(data["human_params"]).model_dump(mode="json")
+    for joint in tiny["joints"].values():
+        joint["v_max_mps"], joint["a_max_mps2"] = 0.05, 0.5
+    edited = parse_scenario({**data, "human_params": {**tiny, "name": "tiny"}})
+    got = compare(current, edited, duration_s=1.8)["edited"]["frames"]  # the first punch
+    want = run_closed_loop(current, 1.8, frames=True)["frames"]
+    slow = run_closed_loop(edited, 1.8, frames=True)["frames"]  # people of the edited set
+    people = [np.array(f["humans"]) for f in got]
+    assert len(people) == len(want) > 10
+    for p, w in zip(people, want):
+        np.testing.assert_array_equal(p, np.array(w["humans"]))
+    assert max(np.abs(np.array(f["humans"]) - p).max() for f, p in zip(slow, people)) > 0.05

@@ -86,3 +86,26 @@ def test_the_replayer_imports_no_shield_and_no_optimizer() -> None:
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          timeout=120, check=True).stdout  # fmt: skip
     assert out.strip().splitlines()[-1] == "[]", out[-500:]
+
+
+def test_an_edited_human_model_does_not_change_how_the_people_move() -> None:
+    """The replayer stands for real people: after an accepted edit that shrinks the human
+    model's bounds, its scripted person punches as fast as before (it slowed down to fit the
+    edited set, so the cell's monitor had nothing to flag and the edit looked safe)."""
+    from sara_app.human.params import load_param_set
+    from sara_app.scenario import parse_scenario
+
+    sc = load_scenario("punches")
+    data = sc.model_dump(mode="json")
+    tiny = load_param_set(data["human_params"]).model_dump(mode="json")
+    for joint in tiny["joints"].values():
+        joint["v_max_mps"], joint["a_max_mps2"] = 0.05, 0.5
+    data["human_params"] = {**tiny, "name": "tiny"}
+    port = free_port()
+    with Bus.router(port), Bus.client(port) as rb:
+        rep = Replayer(CELL, sc, rb)
+        before = rep.motion_params.v_max_mps.copy()
+        rep.load(parse_scenario(data))  # an accepted edit
+        assert np.all(rep.params.v_max_mps == 0.05)  # what the cell assumes now
+        np.testing.assert_array_equal(rep.motion_params.v_max_mps, before)  # how they move
+        assert before.max() > 1.0

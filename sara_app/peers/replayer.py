@@ -63,6 +63,10 @@ class Replayer:
         self.pubs: dict[str, Publisher] = {}
         self.frame_pubs: dict[str, Publisher] = {}
         self.next_frame_s = 0.0
+        # The people move as the scenario it started with says people move, also after an
+        # edit: an edited human model changes what the cell assumes, not how fast the people
+        # are (followed, a smaller set slowed the replayed person down to fit it).
+        self.motion_params = to_reach_params(scenario.param_set(), "full")
         self.load(scenario)
 
     def load(self, sc: Scenario) -> None:
@@ -76,7 +80,7 @@ class Replayer:
     def _restart(self, now: float) -> None:
         self.t0 = now
         self.motions: list[HumanMotion] = [
-            make_motion(h, self.params) for h in self.scenario.humans
+            make_motion(h, self.motion_params) for h in self.scenario.humans
         ]
         self.next_s = [now for _ in self.scenario.humans]
         self.glitches = [Glitches(h.sensor.glitches) for h in self.scenario.humans]

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from sara_app.human.params import ReachParams
 from sara_app.scenario import Scenario
 from sara_app.sim.simulator import Simulation
 
@@ -29,10 +30,12 @@ def run_closed_loop(
     duration_s: float | None = None,
     progress: Callable[[float], None] | None = None,
     frames: bool = False,
+    motion_params: ReachParams | None = None,
 ) -> dict[str, Any]:
     """Run ``sc`` for ``duration_s`` (None: the scenario's) and summarise it (JSON-ready;
-    ``frames``: also ``t_s``, ``q`` ``(n,)`` and every person's joints ``(J, 3)`` at 25 Hz)."""
-    sim = Simulation(sc)
+    ``frames``: also ``t_s``, ``q`` ``(n,)`` and every person's joints ``(J, 3)`` at 25 Hz;
+    ``motion_params``: the bounds the scripted people move within, :class:`Simulation`)."""
+    sim = Simulation(sc, motion_params)
     T = sc.sim.duration_s if duration_s is None else duration_s
     n = int(round(T / sim.dt))
     t, sep, intended = [], [], []

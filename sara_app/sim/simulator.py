@@ -35,6 +35,7 @@ from sara_app.cell.build import build_cell, environment_boxes
 from sara_app.cell.intake import Track, take_measurement, track_for
 from sara_app.geometry.shapes import capsule_box_distances, segment_pair_distances
 from sara_app.human.glitches import Glitches
+from sara_app.human.params import ReachParams
 from sara_app.human.skeleton import UPPER_JOINTS, full_body
 from sara_app.robot.energy import LinkMotion
 from sara_app.robot.model import RobotModel
@@ -210,7 +211,10 @@ class ContactTruth:
 class Simulation:
     """One scenario in closed loop. ``step()`` advances one control cycle."""
 
-    def __init__(self, sc: Scenario) -> None:
+    def __init__(self, sc: Scenario, motion_params: ReachParams | None = None) -> None:
+        """``motion_params``: the bounds scripted and adversarial people move within (None:
+        the scenario's own set; a what-if passes the set in force, so that an edited human
+        model changes what the cell assumes, not how the people move)."""
         self.scenario = sc
         cell = build_cell(sc)
         self.robot: RobotModel = cell.robot
@@ -227,7 +231,8 @@ class Simulation:
         s = sc.shield
         self.dt = s.dt_s
         self.rng = np.random.default_rng(sc.sim.seed)
-        self.motions: list[HumanMotion] = [make_motion(h, self.params) for h in sc.humans]
+        moves = self.params if motion_params is None else motion_params
+        self.motions: list[HumanMotion] = [make_motion(h, moves) for h in sc.humans]
         self.sensors = [
             _Sensor(
                 h.sensor.rate_hz,
