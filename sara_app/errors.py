@@ -12,13 +12,14 @@ CLIP_CHARS = 120
 """How much of a bad value a message repeats (a request may send megabytes)."""
 
 
-def _cut(text: str, limit: int) -> str:
+def cut(text: str, limit: int = CLIP_CHARS) -> str:
+    """``text`` cut to ``limit`` characters with an ellipsis."""
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def clipped(value: object, limit: int = CLIP_CHARS) -> str:
     """``repr(value)``, cut to ``limit`` characters with an ellipsis."""
-    return _cut(repr(value), limit)
+    return cut(repr(value), limit)
 
 
 def describe_validation(err: Any, *, with_input: bool, limit: int = 5) -> str:
@@ -34,7 +35,7 @@ def describe_validation(err: Any, *, with_input: bool, limit: int = 5) -> str:
             path, msg = path[:-1], "has a field that is not allowed"
         loc = ".".join(str(p) for p in path) or "<root>"  # a key may be a request's megabyte
         got = f" (got {clipped(e['input'], 80)})" if with_input and "input" in e else ""
-        parts.append(f"{_cut(loc, CLIP_CHARS)}: {_cut(msg, 2 * CLIP_CHARS)}{got}")
+        parts.append(f"{cut(loc, CLIP_CHARS)}: {cut(msg, 2 * CLIP_CHARS)}{got}")
     more = len(errors) - limit
     return "; ".join(parts) + (f" (+{more} more)" if more > 0 else "")
 

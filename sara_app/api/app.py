@@ -255,11 +255,9 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
         """Validate a full scenario and have the cell's worker apply it (all or nothing)."""
         check_url_name("cell", cell)
         with registry.edit_lock(cell):  # in order with the other edits of this cell
-            running = registry.applied_scenario(cell)
-            client_edit(running, scenario)
+            client_edit(registry.applied_scenario(cell), scenario)
             sc = validate_scenario(scenario, "request body")
-            current = None if running is None else validate_scenario(running, "the cell's")
-            return send(cell, guarded(cell, current, sc), timeout_s)
+            return send(cell, guarded(cell, in_force(registry, cell), sc), timeout_s)
 
     @app.patch(
         "/api/cells/{cell}/scenario", tags=["cells"],
@@ -295,9 +293,8 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
                 "(PUT /api/scenarios/{name}) and send that, or leave name out",
             )
         _, sc = with_changes(registry, folder, cell, changes, base)
-        running = registry.applied_scenario(cell)  # the limits in force, whatever ``base`` is
-        in_force = None if running is None else validate_scenario(running, "the cell's")
-        sent = send(cell, guarded(cell, in_force, sc), timeout_s)
+        # the limits in force, whatever ``base`` is
+        sent = send(cell, guarded(cell, in_force(registry, cell), sc), timeout_s)
         return {**sent, "applied": sc.model_dump(mode="json")}
 
 
@@ -332,6 +329,12 @@ def client_edit(current: dict[str, Any] | None, new: Any) -> None:
         check_client_edit(current, new)
     except EditRefusedError as e:
         raise HTTPException(422, str(e)) from None
+
+
+def in_force(registry: CellRegistry, cell: str) -> Scenario | None:
+    """The scenario ``cell``'s worker runs, validated (None while it has not announced one)."""
+    running = registry.applied_scenario(cell)
+    return None if running is None else validate_scenario(running, f"the scenario {cell} runs")
 
 
 def guarded(cell: str, current: Scenario | None, new: Scenario) -> Scenario:

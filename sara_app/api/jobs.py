@@ -29,7 +29,7 @@ from sara_app.api.schema import (
     CellName,
     responses,
 )
-from sara_app.errors import UnknownNameError
+from sara_app.errors import UnknownNameError, cut
 from sara_app.ops.jobs import JobBusyError, JobRunner
 from sara_app.scenario import Scenario
 from sara_app.sim.whatif import table_markdown
@@ -62,12 +62,12 @@ def whatif_label(cell: str, changes: dict[str, Any]) -> str:
         else:
             items.append(f"{key} = {_value_text(value)}")
     label = f"{cell}: what if " + ", ".join(items) if items else f"{cell}: what if (no changes)"
-    return label if len(label) <= LABEL_CHARS else label[: LABEL_CHARS - 3] + "..."
+    return cut(label, LABEL_CHARS)
 
 
 def _value_text(value: Any) -> str:
     text = json.dumps(value, allow_nan=True)
-    return text if len(text) <= LABEL_VALUE_CHARS else text[: LABEL_VALUE_CHARS - 3] + "..."
+    return cut(text, LABEL_VALUE_CHARS)
 
 
 def add_job_routes(

@@ -32,7 +32,7 @@ from pydantic.json_schema import models_json_schema
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match
 
-from sara_app.errors import CLIP_CHARS, SaraError, clipped
+from sara_app.errors import CLIP_CHARS, SaraError, clipped, cut
 from sara_app.human.params import RENAMED, ParamSet
 from sara_app.scenario import Scenario
 
@@ -202,7 +202,7 @@ def _short(value: Any) -> Any:
     if isinstance(value, bytes):
         value = value.decode("utf-8", "replace")
     if isinstance(value, str):
-        return value if len(value) <= CLIP_CHARS else value[: CLIP_CHARS - 3] + "..."
+        return cut(value)
     if isinstance(value, float) and not math.isfinite(value):
         return str(value)  # JSON has no NaN or Infinity
     if isinstance(value, (int, float, bool)) or value is None:

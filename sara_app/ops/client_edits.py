@@ -28,7 +28,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from sara_app.errors import ParameterError
+from sara_app.errors import ParameterError, clipped
 from sara_app.human.params import RENAMED as PARAM_SETS_RENAMED
 from sara_app.human.params import available_param_sets
 from sara_app.ops.threshold_edit import effective_energy
@@ -115,7 +115,7 @@ def check_client_edit(current_data: Mapping[str, Any] | None, new_data: Any) -> 
     if bad:
         field, value = next(iter(bad.items()))
         raise EditRefusedError(
-            f"{field} = {value[:120]!r} refers to a file on the server; an edit from a client "
+            f"{field} = {clipped(value)} refers to a file on the server; an edit from a client "
             f"names a shipped item (robots: {', '.join(robot_names())}; parameter sets: "
             f"{', '.join(available_param_sets())}; threshold sets: "
             f"{', '.join(threshold_set_names())}; recordings by name) or sends a parameter "
