@@ -280,7 +280,10 @@ def test_scenario_post_checks_before_sending(
     r = client.post("/api/cells/cell1/scenario", json=_base(folder))
     assert r.status_code == 404  # never seen on the bus
     _feed(reg, "cell1", _status("cell1"), clock.now_s)
+    # its scenario is not announced: an unconfirmed edit cannot be compared with it
     r = client.post("/api/cells/cell1/scenario", json=_base(folder))
+    assert r.status_code == 409 and r.json()["detail"]["needs_confirmation"]
+    r = client.post("/api/cells/cell1/scenario?confirm=true", json=_base(folder))
     assert r.status_code == 504 and "no bus" in r.json()["detail"]
 
     # PATCH: merged onto the scenario file the cell reports ("demo" is not one), then validated
@@ -295,7 +298,9 @@ def test_scenario_post_checks_before_sending(
     ):
         r = client.patch("/api/cells/cell1/scenario?base=empty_cell", json=changes)
         assert r.status_code == 422 and field in r.json()["detail"], (changes, r.text)
-    r = client.patch("/api/cells/cell1/scenario?base=empty_cell", json={"shield": {"dt_s": 0.002}})
+    r = client.patch(
+        "/api/cells/cell1/scenario?base=empty_cell&confirm=true", json={"shield": {"dt_s": 0.002}}
+    )
     assert r.status_code == 504  # valid: it would be sent
 
 
@@ -455,17 +460,22 @@ def test_live_cell_and_scenario_round_trip(folder: Path) -> None:
 
                 sc = _base(folder)
                 sc["environment"][0]["center_m"] = [0.7, 0.0, 0.1]
+                # this stand-in worker announces no scenario: every edit is unconfirmed until
+                # confirmed (the comparison with what the cell runs is tested with a real one)
                 r = http.post("api/cells/cell1/scenario", json=sc)
+                assert r.status_code == 409 and r.json()["detail"]["needs_confirmation"]
+                assert len(worker.received) == 0
+                r = http.post("api/cells/cell1/scenario?confirm=true", json=sc)
                 assert r.status_code == 200, r.text
                 assert r.json()["accepted"]
                 assert worker.received[-1] == parse_scenario(sc).model_dump(mode="json")
                 assert worker.received[-1]["environment"][0]["center_m"] == [0.7, 0.0, 0.1]
                 sc["environment"][0]["name"] = "forbidden"
-                r = http.post("api/cells/cell1/scenario", json=sc)
+                r = http.post("api/cells/cell1/scenario?confirm=true", json=sc)
                 assert r.status_code == 409 and "blocks the task" in r.json()["detail"]
                 assert len(worker.received) == 2
                 r = http.patch(
-                    "api/cells/cell1/scenario",
+                    "api/cells/cell1/scenario?confirm=true",
                     json={"shield": {"skeleton_timeout_s": 0.1}, "human_params": {"delay_s": 0.05}},
                 )
                 assert r.status_code == 200, r.text
@@ -483,7 +493,11 @@ def test_live_cell_and_scenario_round_trip(folder: Path) -> None:
                 }
                 for k in set(want) - {"shield", "human_params"}:
                     assert got[k] == want[k], k
-                r = http.post("api/cells/cell2/scenario", params={"timeout_s": 0.5}, json=sc)
+                r = http.post(
+                    "api/cells/cell2/scenario",
+                    params={"timeout_s": 0.5, "confirm": "true"},
+                    json=sc,
+                )
                 assert r.status_code == 504 and "did not answer" in r.json()["detail"]
                 with http.stream("GET", "api/cells/cell1/events?limit=2&interval_s=0.05") as s:
                     data = [json.loads(x[6:]) for x in s.iter_lines() if x.startswith("data: ")]
@@ -611,11 +625,25 @@ def test_edit_over_the_api_reaches_the_real_worker(folder: Path) -> None:
                 return dict(client.get("/api/cells/cellw").json())
 
             _wait_until(lambda: snap().get("online"), 20.0)
+            _wait_until(lambda: reg.applied_scenario("cellw") is not None, 10.0)
             sc = _base(folder)
             sc["name"] = "moved_table"
             sc["environment"][0]["center_m"] = [0.8, 0.0, 0.1]
+            # moving the bench loosens what the verdict assumes: refused, recorded, unapplied
             r = client.post("/api/cells/cellw/scenario", json=sc)
+            assert r.status_code == 409, r.text
+            detail = r.json()["detail"]
+            assert detail["needs_confirmation"] and "'bench' center_m" in detail["loosens"][0]
+            assert worker.cell.scenario.environment[0].center_m != (0.8, 0.0, 0.1)
+            r = client.post("/api/cells/cellw/scenario", params={"confirm": "true"}, json=sc)
             assert r.status_code == 200, r.text
+            assert r.json()["loosens"] == detail["loosens"]
+            rows = client.get("/api/cells/cellw/assumptions/audit").json()
+            assert [(x["outcome"], x["confirmed"], x["user"]) for x in rows] == [
+                ("applied", True, "local"),
+                ("refused", False, "local"),
+            ]
+            assert rows[0]["changes"] == detail["loosens"] and rows[1]["id"] == detail["audit_id"]
             cell = _wait_until(lambda: (c := snap())["scenario"] == "moved_table" and c, 10.0)
             assert worker.cell.scenario.environment[0].center_m == (0.8, 0.0, 0.1)
             n = cell["verdicts_received"]
@@ -646,8 +674,8 @@ def test_concurrent_patches_are_serialised_and_none_is_lost(folder: Path) -> Non
         ] + [{"inputs": {"max_people": 7}}, {"inputs": {"tracker_timeout_s": 0.3}},
              {"sim": {"seed": 5}}]  # fmt: skip
 
-        def patch(changes: dict[str, Any]) -> int:
-            r = client.patch("/api/cells/cellp/scenario", json=changes)
+        def patch(changes: dict[str, Any]) -> int:  # some loosen (confirmed; not the point)
+            r = client.patch("/api/cells/cellp/scenario?confirm=true", json=changes)
             return r.status_code
 
         with ThreadPoolExecutor(8) as pool:

@@ -77,11 +77,38 @@ def test_an_older_file_is_upgraded_keeping_its_rows(tmp_path: Path) -> None:
     _row(AuditLog(path), "c1", 0.1)
     with sqlite3.connect(path) as con:  # as version 2 left it
         con.execute("DROP TABLE api_requests")
+        con.execute("DROP TABLE assumption_changes")
         con.execute("PRAGMA user_version = 2")
     log = AuditLog(path)
     assert log.schema_version == SCHEMA_VERSION and len(log.entries()) == 1
     log.record_request("POST", "/api/x", 401, "127.0.0.1", "local", 3)
     assert [r["status"] for r in log.requests()] == [401]
+    log.record_assumption_change(cell="c1", scenario="s", changes=["a: 1 -> 2"],
+                                 confirmed=True, outcome="applied")  # fmt: skip
+    assert [r["changes"] for r in log.assumption_changes("c1")] == [["a: 1 -> 2"]]
+
+
+def test_loosening_edits_are_recorded_per_cell_newest_first(tmp_path: Path) -> None:
+    log = AuditLog(tmp_path / "a.sqlite")
+    changes = ["shield.skeleton_timeout_s: 0.2 -> 1.0 (why)", "environment box 'b' removed"]
+    first = log.record_assumption_change(cell="c1", scenario="s", changes=changes,
+                                         confirmed=False, outcome="refused", user="ann",
+                                         via="dashboard", reason="not confirmed")  # fmt: skip
+    log.record_assumption_change(cell="c2", scenario="s", changes=["x"], confirmed=True,
+                                 outcome="applied")  # fmt: skip
+    second = log.record_assumption_change(
+        cell="c1", scenario="s", changes=changes, confirmed=True, outcome="no_answer", user="ann"
+    )
+    rows = log.assumption_changes("c1")
+    assert [r["id"] for r in rows] == [second["id"], first["id"]]
+    assert rows[1] == {**first, "changes": changes, "confirmed": False, "user": "ann",
+                       "via": "dashboard", "outcome": "refused"}  # fmt: skip
+    assert [r["outcome"] for r in log.assumption_changes("c1", 1)] == ["no_answer"]
+    with pytest.raises(ParameterError, match="outcome"):
+        log.record_assumption_change(cell="c1", scenario="s", changes=[], confirmed=True,
+                                     outcome="maybe")  # fmt: skip
+    with pytest.raises(ParameterError, match="limit"):
+        log.assumption_changes("c1", 0)
 
 
 def test_filters_order_limit_and_validation(tmp_path: Path) -> None:

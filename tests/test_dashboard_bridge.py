@@ -36,7 +36,9 @@ from sara_app.dashboard.scene import CONTACT_RGB, CRITICAL_ACTIVE_RGB, CRITICAL_
 from sara_app.dashboard.viewer import Dashboard
 from sara_app.errors import UnknownNameError, WorkerTimeoutError
 from sara_app.human.skeleton import skeleton
+from sara_app.ops.audit import AuditLog
 from sara_app.ops.client_edits import EditRefusedError
+from sara_app.ops.loosening import LooseningRefusedError
 from sara_app.robot.ik import end_effector_frame, pose_error
 from sara_app.scenario import Scenario, load_scenario, scenarios_dir
 
@@ -564,3 +566,30 @@ def test_scenario_tab_edits_neither_read_server_files_nor_raise_limits(
     panel.energy.value = 0.08  # up again, below the source: the tab's own path
     assert panel.apply()
     assert v.scenario.shield.pfl.overrides[0].energy_J == 0.08
+
+
+def test_a_loosening_edit_needs_the_confirmation_box(
+    view: tuple[CellView, FakeBus], dash: Dashboard, tmp_path: Path
+) -> None:
+    """An edit that loosens what the verdict assumes is refused (nothing sent, recorded) until
+    "Confirm loosening" is ticked; the box confirms one edit; a tightening needs none."""
+    v, bus = view
+    panels = dash.panels
+    assert panels is not None and not panels.loosening_confirmed()
+    sent = len(bus.params.sent)
+    inputs = v.scenario.model_dump(mode="json")["inputs"]
+    inputs["tracker_timeout_s"] = 1.0
+    with pytest.raises(LooseningRefusedError, match="tracker_timeout_s: 0.2 -> 1.0"):
+        v.edit({"inputs": inputs})
+    assert len(bus.params.sent) == sent and v.scenario.inputs.tracker_timeout_s == 0.2
+    panels.confirm_loosening.value = True  # type: ignore[misc]
+    v.edit({"inputs": inputs})
+    assert v.scenario.inputs.tracker_timeout_s == 1.0 and not panels.loosening_confirmed()
+    inputs["tracker_timeout_s"] = 0.1  # a tightening: no box needed
+    v.edit({"inputs": inputs})
+    assert v.scenario.inputs.tracker_timeout_s == 0.1
+    rows = AuditLog(tmp_path / "audit.sqlite").assumption_changes(CELL)
+    assert [(r["outcome"], r["confirmed"], r["via"]) for r in rows] == [
+        ("applied", True, "dashboard"), ("refused", False, "dashboard")]  # fmt: skip
+    assert rows[0]["changes"] == [
+        "inputs.tracker_timeout_s: 0.2 -> 1.0 (a silent tracker is noticed later)"]  # fmt: skip

@@ -13,10 +13,12 @@ import numpy as np
 import pytest
 from browser import CHROMIUM, DevTools, chromium_on, wait_for
 
+from sara_app.dashboard.panels import CONFIRM_LABEL
 from sara_app.dashboard.scene import demo_frame
 from sara_app.dashboard.viewer import Dashboard
 from sara_app.dashboard.whatif_panel import WhatIfHooks, WhatIfPanels
 from sara_app.ops.jobs import JobRunner
+from sara_app.ops.loosening import LooseningRefusedError
 from sara_app.scenario import load_scenario, parse_scenario
 
 pytestmark = pytest.mark.skipif(
@@ -44,7 +46,12 @@ def setup(tmp_path: Any) -> Iterator[tuple[Dashboard, WhatIfPanels, list[dict[st
             data["shield"]["mode"] = mode
         return parse_scenario(data, "edited").model_dump(mode="json")
 
-    hooks = WhatIfHooks(lambda: sc.model_dump(mode="json"), edited, applied.append,
+    def apply(data: dict[str, Any], confirm: bool) -> None:  # as if the edit loosened
+        if not confirm:
+            raise LooseningRefusedError(["inputs.tracker_timeout_s: 0.2 -> 1.0"], "tick it")
+        applied.append(data)
+
+    hooks = WhatIfHooks(lambda: sc.model_dump(mode="json"), edited, apply,
                         "c1", "panda", np.eye(4), tmp_path / "audit.sqlite")  # fmt: skip
     dash = Dashboard()
     dash.start(port=8726)
@@ -103,8 +110,19 @@ def test_a_whatif_from_the_browser(setup: tuple[Dashboard, WhatIfPanels, list]) 
                                                           .sum(-1) > 60) > 300 else None)(
             page.screenshot()), 60.0, "the ghost robot in the 3D view")  # fmt: skip
         assert isinstance(ghost, np.ndarray)
+        # an edit that loosens what the verdict assumes: refused until the box is ticked
+        assert not b.gui["confirm"].visible
+        page.click(_BUTTON.format("Apply the edit to the cell"))
+        wait_for(lambda: "Not applied" in _text(page) and "tracker_timeout_s" in _text(page),
+                 30.0, "the loosening refused")  # fmt: skip
+        wait_for(lambda: page.eval(_CHECKBOX.format(CONFIRM_LABEL) + " != null"), 30.0,
+                 "the confirmation box")  # fmt: skip
+        assert applied == []
+        page.click(_CHECKBOX.format(CONFIRM_LABEL))
+        wait_for(lambda: b.gui["confirm"].value, 30.0, "the box ticked")
         page.click(_BUTTON.format("Apply the edit to the cell"))
         wait_for(lambda: len(applied) > 0, 30.0, "the edit to be applied")
+        wait_for(lambda: not b.gui["confirm"].value, 30.0, "the box cleared after use")
         assert applied[0]["shield"]["mode"] == "ssm"
         wait_for(lambda: "Applied" in _text(page), 30.0, "the applied message")
         # the people replaced by the shipped recorded walk, in the what-if only

@@ -154,8 +154,8 @@ def test_delay_edit_flips_the_verdict_for_a_fixed_person(live: Live) -> None:
         assert live.failsafe_share(1.5) < 0.1
         named = load_param_set("schepp2022_table1").model_dump(mode="json")
         slow = {**named, "name": "slow_sensor", "delay_s": 0.3}
-        r = live.client.post(
-            f"/api/cells/{CELL}/scenario", json=_scenario_with(live, human_params=slow)
+        r = live.client.post(  # another human model: confirmed (sara_app.ops.loosening)
+            f"/api/cells/{CELL}/scenario?confirm=true", json=_scenario_with(live, human_params=slow)
         )
         assert r.status_code == 200, r.text
         assert live.worker.cell.params.delay_s == 0.3
@@ -171,7 +171,7 @@ def test_delay_edit_flips_the_verdict_for_a_fixed_person(live: Live) -> None:
         # the request's user (no token here: "local"), never the name in the body
         assert audit[0]["outcome"] == "applied" and audit[0]["user"] == "local"
         r = live.client.post(
-            f"/api/cells/{CELL}/scenario",
+            f"/api/cells/{CELL}/scenario?confirm=true",
             json=_scenario_with(live, human_params="schepp2022_table1"),
         )
         assert r.status_code == 200, r.text

@@ -17,6 +17,8 @@
   threshold editor with its audit log (:mod:`sara_app.api.thresholds`).
 - ``POST /api/cells/{cell}/humans/{human_id}/retire``, ``GET /api/cells/{cell}/humans/audit``:
   an operator retires a person no tracker reports any more, audited (:mod:`sara_app.api.people`).
+- An edit that loosens what the verdict assumes needs ``?confirm=true`` and is audited,
+  ``GET /api/cells/{cell}/assumptions/audit`` lists them (:mod:`sara_app.api.assumptions`).
 - ``GET /api/params``, ``GET /api/params/{name}``: human-model parameter sets;
   ``GET /api/thresholds``, ``GET /api/thresholds/{name}``: contact-energy threshold sets.
 - ``/docs``: OpenAPI; ``/``: the landing page from the repository's ``static/`` folder.
@@ -48,6 +50,7 @@ from fastapi.staticfiles import StaticFiles
 
 import sara_app
 from sara_app.api import openapi
+from sara_app.api.assumptions import EditConflict, LooseningGuard, add_assumption_audit_route
 from sara_app.api.guard import Guard
 from sara_app.api.jobs import add_job_routes
 from sara_app.api.openapi import EVENT_STREAM, body_schema
@@ -165,18 +168,26 @@ def known_cell_check(registry: CellRegistry) -> Callable[[str], dict[str, Any]]:
     return known_cell
 
 
+CONFIRM_DOC = (
+    "apply an edit that loosens what the safety verdict assumes (another human model, a box "
+    "removed, a longer timeout, the robot moved, ...): without it such an edit is refused (409, "
+    "listing each loosening); either way it is recorded in the audit log"
+)
+
 SEND_RESPONSES = {
     **BODY_RESPONSES,
     **responses(
-        404, 409, 422, 500, 504,
+        404, 422, 500, 504,
         _404="the cell has not been seen on the bus, or the base scenario is unknown",
-        _409="the cell's worker refused the scenario (the detail gives its reason), or the "
-        "edit raises a contact-energy limit in force (only PUT /api/cells/{cell}/thresholds "
-        "does, confirmed and audited)",
         _422="the scenario is invalid, or refers to a file on the server that the cell does "
         "not already use (clients name shipped items)",
         _500="the base scenario file is invalid",
     ),
+    409: {"model": EditConflict, "description": "the edit loosens what the verdict assumes "
+          "and confirm is not set (the detail lists the loosenings), or the cell's worker "
+          "refused the scenario (the detail gives its reason), or the edit raises a "
+          "contact-energy limit in force (only PUT /api/cells/{cell}/thresholds does, "
+          "confirmed and audited)"},
 }  # fmt: skip
 """What a route that sends a scenario to a cell's worker may answer besides 200."""
 
@@ -191,6 +202,7 @@ def _example_scenario(folder: Path) -> dict[str, Any] | None:
 
 def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None:
     known_cell = known_cell_check(registry)
+    loosening = LooseningGuard(lambda: app.state.threshold_audit())
 
     @app.get("/api/cells", tags=["cells"])
     def list_cells() -> list[dict[str, Any]]:
@@ -250,14 +262,32 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
     def send_scenario(
         cell: CellName,
         scenario: Annotated[dict[str, Any], Body()],
+        request: Request,
         timeout_s: float = Query(EDIT_TIMEOUT_S, gt=0.0, le=120.0),
+        confirm: bool = Query(False, description=CONFIRM_DOC),
     ) -> dict[str, Any]:
-        """Validate a full scenario and have the cell's worker apply it (all or nothing)."""
+        """Validate a full scenario and have the cell's worker apply it (all or nothing); an
+        edit that loosens what the verdict assumes only with ``confirm``, audited."""
         check_url_name("cell", cell)
         with registry.edit_lock(cell):  # in order with the other edits of this cell
             client_edit(registry.applied_scenario(cell), scenario)
             sc = validate_scenario(scenario, "request body")
-            return send(cell, guarded(cell, in_force(registry, cell), sc), timeout_s)
+            return checked_send(cell, in_force(registry, cell), sc, timeout_s, confirm, request)
+
+    def checked_send(
+        cell: str,
+        current: Scenario | None,
+        sc: Scenario,
+        timeout_s: float,
+        confirm: bool,
+        request: Request,
+    ) -> dict[str, Any]:
+        """``sc`` sent when it raises no energy limit in force (``current``) and loosens
+        nothing, or only with ``confirm`` (recorded)."""
+        known_cell(cell)  # an unknown cell is a 404 before anything is compared or recorded
+        guarded(cell, current, sc)
+        changes = loosening.check(cell, current, sc, confirm, request)
+        return loosening.send(cell, sc, changes, request, lambda: send(cell, sc, timeout_s))
 
     @app.patch(
         "/api/cells/{cell}/scenario", tags=["cells"],
@@ -266,8 +296,10 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
     def update_scenario(
         cell: CellName,
         changes: Annotated[dict[str, Any], Body()],
+        request: Request,
         base: BaseScenario = None,
         timeout_s: float = Query(EDIT_TIMEOUT_S, gt=0.0, le=120.0),
+        confirm: bool = Query(False, description=CONFIRM_DOC),
     ) -> dict[str, Any]:
         """Parameter update: ``changes`` applied to the scenario the cell runs now (as its
         worker announces it, edits from the dashboard included), or to the scenario file
@@ -278,13 +310,20 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
         an entry of a map, such as ``shield.pfl.link_shapes``, is removed only by sending the
         whole scenario with POST; ``{}`` changes nothing): e.g.
         ``{"shield": {"skeleton_timeout_s": 0.1}}``, ``{"human_params": "cmu_calibrated"}``, or
-        ``{"human_params": {"delay_s": 0.05}}`` (the named set's values with that change)."""
+        ``{"human_params": {"delay_s": 0.05}}`` (the named set's values with that change). An edit
+        that loosens what the verdict assumes only with ``confirm``, audited."""
         check_url_name("cell", cell)
-        with registry.edit_lock(cell):  # concurrent PATCHes: one after the other, each on the
-            return _patch(cell, changes, base, timeout_s)  # scenario its predecessor applied
+        # concurrent PATCHes: one after the other, each on the scenario its predecessor applied
+        with registry.edit_lock(cell):
+            return _patch(cell, changes, base, timeout_s, confirm, request)
 
     def _patch(
-        cell: str, changes: dict[str, Any], base: str | None, timeout_s: float
+        cell: str,
+        changes: dict[str, Any],
+        base: str | None,
+        timeout_s: float,
+        confirm: bool,
+        request: Request,
     ) -> dict[str, Any]:
         if "name" in changes:  # the cell and its threshold table would report another scenario
             raise HTTPException(
@@ -293,8 +332,8 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
                 "(PUT /api/scenarios/{name}) and send that, or leave name out",
             )
         _, sc = with_changes(registry, folder, cell, changes, base)
-        # the limits in force, whatever ``base`` is
-        sent = send(cell, guarded(cell, in_force(registry, cell), sc), timeout_s)
+        # the limits and assumptions in force, whatever ``base`` is
+        sent = checked_send(cell, in_force(registry, cell), sc, timeout_s, confirm, request)
         return {**sent, "applied": sc.model_dump(mode="json")}
 
 
@@ -556,6 +595,7 @@ def create_app(
     add_people_routes(
         app, registry, app.state.threshold_audit, known_cell_check(registry), check_url_name
     )
+    add_assumption_audit_route(app, app.state.threshold_audit, check_url_name)
     runner = jobs if jobs is not None else JobRunner()
     app.state.jobs = runner
 

@@ -23,6 +23,7 @@ import threading
 import time
 import uuid
 from collections import deque
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +44,7 @@ from sara_app.bus.session import Bus
 from sara_app.dashboard.frame import DisplayFrame
 from sara_app.dashboard.from_messages import boxes_of, occupancy_into, verdict_status
 from sara_app.dashboard.gizmos import GizmoEditing
+from sara_app.dashboard.panels import CONFIRM_HOW
 from sara_app.dashboard.viewer import Dashboard
 from sara_app.dashboard.whatif_panel import WhatIfHooks, WhatIfPanels
 from sara_app.errors import SaraError, ScenarioError, UnknownNameError, WorkerTimeoutError
@@ -50,6 +52,7 @@ from sara_app.geometry.poses import pose_from_xyz_rpy
 from sara_app.ops.audit import AuditLog, default_audit_path
 from sara_app.ops.client_edits import check_client_edit, check_no_raise
 from sara_app.ops.jobs import JobRunner
+from sara_app.ops.loosening import LooseningRefusedError, check_loosening
 from sara_app.robot.model import RobotModel
 from sara_app.safety.settings import SAFETY_MODES
 from sara_app.scenario import (
@@ -179,17 +182,67 @@ class CellView(GizmoEditing):
         data = self.scenario.model_dump(mode="json")
         return {k: v for k, v in data.items() if k not in _EDIT_EXCLUDE}
 
-    def send(self, data: dict[str, Any], action: str = "scenario") -> Scenario:
+    def send(
+        self, data: dict[str, Any], action: str = "scenario", confirm: bool = False
+    ) -> Scenario:
         """Validate ``data`` as a whole scenario, send it, wait for the worker's answer; the new
         scenario on acceptance, :class:`ScenarioError` with the reason otherwise,
         :class:`WorkerTimeoutError` without an answer. Only for a client that may change the
         cell (:class:`AccessError` otherwise); audited as ``action``
-        (:mod:`sara_app.dashboard.access`)."""
+        (:mod:`sara_app.dashboard.access`). An edit that loosens what the verdict assumes
+        (:mod:`sara_app.ops.loosening`) only with ``confirm``
+        (:class:`~sara_app.ops.loosening.LooseningRefusedError` otherwise), recorded with its
+        outcome either way."""
         return self.dash.access.change(
-            action, lambda: self._send(data, action), timeouts=(WorkerTimeoutError,)
+            action, lambda: self._checked(data, action, confirm), timeouts=(WorkerTimeoutError,)
         )
 
-    def _send(self, data: dict[str, Any], action: str) -> Scenario:
+    def _checked(self, data: dict[str, Any], action: str, confirm: bool) -> Scenario:
+        current = self.scenario
+        changes: list[str] = []
+
+        def check(sc: Scenario) -> None:
+            changes.extend(
+                check_loosening(current, sc, confirm=confirm, how_to_confirm=CONFIRM_HOW)
+            )
+
+        try:
+            sc = self._send(data, action, check)
+        except LooseningRefusedError as e:
+            self._record_loosening(e.changes, current.name, False, "refused", str(e))
+            raise
+        except WorkerTimeoutError as e:
+            self._record_loosening(changes, current.name, True, "no_answer", str(e))
+            raise
+        except Exception as e:
+            self._record_loosening(changes, current.name, True, "refused", str(e))
+            raise
+        self._record_loosening(changes, sc.name, True, "applied", "")
+        if changes and self.dash.panels is not None:
+            self.dash.panels.clear_confirmation()  # one confirmation, one edit
+        return sc
+
+    def confirmed(self) -> bool:
+        """Whether the Scenario tab's "Confirm loosening" is ticked."""
+        return self.dash.panels is not None and self.dash.panels.loosening_confirmed()
+
+    def _record_loosening(
+        self, changes: list[str], scenario: str, confirmed: bool, outcome: str, reason: str
+    ) -> None:
+        if not changes:
+            return
+        try:
+            log_ = self.audit if isinstance(self.audit, AuditLog) else AuditLog(self.audit)
+            log_.record_assumption_change(
+                cell=self.cell, scenario=scenario, changes=changes, confirmed=confirmed,
+                outcome=outcome, user=self.dash.access.user(), via="dashboard", reason=reason,
+            )  # fmt: skip
+        except SaraError:
+            log.exception("recording a loosening edit failed")
+
+    def _send(
+        self, data: dict[str, Any], action: str, check: Callable[[Scenario], None]
+    ) -> Scenario:
         # a client's edit (:mod:`sara_app.ops.client_edits`): no file of its choosing (a stored
         # scenario, "load", is the server's own), no raised energy limit but the threshold
         # editor's ("threshold": confirmed and audited by apply_edit)
@@ -200,6 +253,7 @@ class CellView(GizmoEditing):
         check_against_robot(sc)
         if action != "threshold":
             check_no_raise(current, sc, thresholds_path="the Thresholds tab")
+        check(sc)
         rid = uuid.uuid4().hex[:16]
         with self._ack_lock:
             self._late = None
@@ -273,7 +327,7 @@ class CellView(GizmoEditing):
 
     def select(self, name: str) -> None:
         sc = load_scenario(name, self.folder)
-        self.send(sc.model_dump(mode="json"), "load")
+        self.send(sc.model_dump(mode="json"), "load", self.confirmed())
         self.refresh_panels()
 
     def set_mode(self, mode: str) -> None:
@@ -289,7 +343,7 @@ class CellView(GizmoEditing):
     def edit(self, params: dict[str, Any]) -> None:
         data = self.scenario.model_dump(mode="json")
         data.update(params)
-        self.send(data, "parameters")
+        self.send(data, "parameters", self.confirmed())
         self.refresh_panels()
 
     def edited(self, mode: str | None = None) -> dict[str, Any]:
@@ -302,9 +356,9 @@ class CellView(GizmoEditing):
             data["shield"] = {**data["shield"], "mode": mode}
         return parse_scenario(data, "the edited parameters").model_dump(mode="json")
 
-    def apply_whatif(self, data: dict[str, Any]) -> None:
+    def apply_whatif(self, data: dict[str, Any], confirm: bool = False) -> None:
         """Apply a what-if's edited scenario (the validated, audited edit path)."""
-        self.send(data, "what-if")
+        self.send(data, "what-if", confirm)
         self.refresh_panels()
 
     def attach_whatif(self, jobs: JobRunner) -> WhatIfPanels | None:

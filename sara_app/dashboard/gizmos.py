@@ -44,7 +44,12 @@ class GizmoEditing:
     _robot_key: tuple[Any, ...] | None
     _robot_model: RobotModel | None
 
-    def send(self, data: dict[str, Any], action: str = "scenario") -> Scenario:
+    def send(
+        self, data: dict[str, Any], action: str = "scenario", confirm: bool = False
+    ) -> Scenario:
+        raise NotImplementedError
+
+    def confirmed(self) -> bool:
         raise NotImplementedError
 
     # -- robot waypoints -----------------------------------------------------------------------
@@ -166,7 +171,7 @@ class GizmoEditing:
             def apply() -> None:
                 data = self.scenario.model_dump(mode="json")
                 data["environment"][i]["center_m"] = [float(x) for x in g.position]
-                self.send(data, f"box-{i}")
+                self.send(data, f"box-{i}", self.confirmed())  # a moved box loosens
 
             self._report(f"box {i}", apply)
 

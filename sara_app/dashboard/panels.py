@@ -47,6 +47,11 @@ from sara_app.errors import SaraError
 from sara_app.safety.settings import MODE_FACTS, SAFETY_MODES
 
 NO_SCENARIO = "(no scenarios)"
+CONFIRM_LABEL = "Confirm loosening"
+"""The box that confirms an edit loosening what the verdict assumes
+(:mod:`sara_app.ops.loosening`): in the Scenario tab, and in the what-if folder once one is
+refused there."""
+CONFIRM_HOW = f"tick '{CONFIRM_LABEL}' and apply again"
 SMALL_MARGIN = 0.1
 """A PFL margin below this fraction of its threshold is shown amber (negative: red)."""
 MARGIN_RGB = {"ok": (20, 150, 50), "small": (220, 130, 0), "negative": (210, 0, 0)}
@@ -379,9 +384,22 @@ class DashboardPanels:
         self.save_name = gui.add_text("Save as", "")
         gui.add_button("Save as").on_click(on_event(self.save_as))
         self.params_folder = gui.add_folder("Parameters")
+        self.confirm_loosening = gui.add_checkbox(
+            CONFIRM_LABEL, False,
+            hint="Load, apply or drag an edit that loosens what the safety verdict assumes "
+            "(another human model, a box moved or removed, a longer timeout, ...); recorded in "
+            "the audit log",
+        )  # fmt: skip
         gui.add_button("Apply parameters").on_click(on_event(self.apply_params))
         self.message = gui.add_markdown("")
         self._messages_shown = 0
+
+    def loosening_confirmed(self) -> bool:
+        """Whether "Confirm loosening" is ticked (cleared by :meth:`clear_confirmation`)."""
+        return bool(self.confirm_loosening.value)
+
+    def clear_confirmation(self) -> None:
+        self.confirm_loosening.value = False  # type: ignore[misc]
 
     def add_tab(self, title: str) -> Any:
         """A new tab after the others (``with panels.add_tab("x"): gui.add_...``)."""

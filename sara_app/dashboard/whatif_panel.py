@@ -25,9 +25,11 @@ from viser.extras import ViserUrdf
 
 from sara_app.dashboard.access import on_event
 from sara_app.dashboard.from_messages import BONES
+from sara_app.dashboard.panels import CONFIRM_LABEL
 from sara_app.dashboard.view import ORDER
 from sara_app.errors import SaraError
 from sara_app.ops.jobs import Job, JobRunner
+from sara_app.ops.loosening import LooseningRefusedError
 from sara_app.robot.model import urdf_path
 from sara_app.sim.whatif import table_markdown
 
@@ -51,11 +53,12 @@ class WhatIfHooks:
     """What the panel needs from the cell's view: ``edited(mode)`` the scenario in force with
     the Scenario tab's parameters (and ``mode``, or None) as a dict (``SaraError`` if
     invalid); ``current()`` the scenario in force as a dict; ``apply(data)`` sends a scenario
-    through the validated, audited edit path; ``audit_path`` for the report."""
+    through the validated, audited edit path (``apply(data, confirm)``: an edit that loosens
+    what the verdict assumes only with ``confirm``); ``audit_path`` for the report."""
 
     current: Callable[[], dict[str, Any]]
     edited: Callable[[str | None], dict[str, Any]]
-    apply: Callable[[dict[str, Any]], None]
+    apply: Callable[[dict[str, Any], bool], None]
     cell: str
     robot: str
     T_world_base: np.ndarray
@@ -104,6 +107,7 @@ class WhatIfPanels:
             g["table"] = gui.add_markdown("")
             g["scrub"] = gui.add_slider("Edited run at (s)", 0.0, 1.0, 0.04, 0.0, disabled=True)
             g["ghost"] = gui.add_checkbox("Show it in the 3D view", False, disabled=True)
+            g["confirm"] = gui.add_checkbox(CONFIRM_LABEL, False, visible=False)
             g["apply"] = gui.add_button("Apply the edit to the cell", disabled=True)
             g["report"] = gui.add_button("Evidence report (download)")
         g["run"].on_click(on_event(lambda: self._run(b)))
@@ -157,12 +161,18 @@ class WhatIfPanels:
         if b.edited is None:
             return
         try:
-            self.hooks.apply(b.edited)
+            self.hooks.apply(b.edited, bool(b.gui["confirm"].value))
+        except LooseningRefusedError as e:
+            b.gui["status"].content = f"**Not applied**: {e}"
+            b.gui["confirm"].visible = True  # the engineer confirms, then applies again
+            return
         except SaraError as e:
             b.gui["status"].content = f"**Not applied**: {e}"
             return
         b.gui["status"].content = "Applied: the cell runs the edited settings."
         b.gui["apply"].disabled = True
+        b.gui["confirm"].value = False
+        b.gui["confirm"].visible = False
 
     # -- following the job -------------------------------------------------------------------
     def _follow(self) -> None:

@@ -14,7 +14,9 @@ request exceeded the source value, whether it was confirmed, who asked (free tex
 The same file holds the operators' actions on people (``person_actions``, schema version 2):
 the time, the cell, the person, the action (``retire``), who, why and the outcome; and every
 request to a mutating API route (``api_requests``: method, path, HTTP status, client, user,
-body size), refused ones included.
+body size), refused ones included; and every scenario edit that loosens what the verdict
+assumes (``assumption_changes``: the changes in words, whether confirmed, who, where from, the
+outcome; :mod:`sara_app.ops.loosening`).
 
 Schema version ``PRAGMA user_version`` (:data:`SCHEMA_VERSION`; a version 1 file gains the
 person table when opened); a newer file is refused rather than misread. Concurrent writers
@@ -39,9 +41,10 @@ from typing import Any
 from sara_app.errors import ParameterError, SaraError
 
 log = logging.getLogger("sara_app.audit")
-SCHEMA_VERSION = 3
-"""1: threshold_changes; 2: + person_actions; 3: + api_requests. Every statement of the schema
-is idempotent (IF NOT EXISTS), so an older file is upgraded by running them all."""
+SCHEMA_VERSION = 4
+"""1: threshold_changes; 2: + person_actions; 3: + api_requests; 4: + assumption_changes. Every
+statement of the schema is idempotent (IF NOT EXISTS), so an older file is upgraded by running
+them all."""
 ENV_VAR = "SARA_APP_DATA"
 OUTCOMES = ("applied", "refused", "no_answer")
 MAX_TEXT = 2000  # reasons longer than this are cut
@@ -94,6 +97,22 @@ _SCHEMA = (
     user TEXT NOT NULL,
     body_bytes INTEGER NOT NULL
 )""",
+    """CREATE TABLE IF NOT EXISTS assumption_changes (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    time_utc TEXT NOT NULL,
+    time_epoch_s REAL NOT NULL,
+    cell TEXT NOT NULL,
+    scenario TEXT NOT NULL,
+    user TEXT NOT NULL,
+    via TEXT NOT NULL,
+    changes TEXT NOT NULL,
+    confirmed INTEGER NOT NULL,
+    outcome TEXT NOT NULL CHECK (outcome IN ('applied', 'refused', 'no_answer')),
+    reason TEXT NOT NULL
+)""",
+)
+_CHANGE_COLUMNS = (
+    "id, time_utc, time_epoch_s, cell, scenario, user, via, changes, confirmed, outcome, reason"
 )
 _REQUEST_COLUMNS = "id, time_utc, time_epoch_s, method, path, status, client, user, body_bytes"
 _PERSON_COLUMNS = (
@@ -334,10 +353,53 @@ class AuditLog:
         with self._connect() as con:
             con.execute(f"INSERT INTO api_requests ({names}) VALUES (?, ?, ?, ?, ?, ?, ?, ?)", row)
 
+    def record_assumption_change(
+        self,
+        *,
+        cell: str,
+        scenario: str,
+        changes: list[str],
+        confirmed: bool,
+        outcome: str,
+        user: object = "unknown",
+        via: str = "api",
+        reason: str = "",
+    ) -> dict[str, Any]:
+        """Append one scenario edit that loosens what the verdict assumes
+        (:mod:`sara_app.ops.loosening`), confirmed or refused, and its outcome; the stored row
+        (``changes`` as a list)."""
+        if outcome not in OUTCOMES:
+            raise ParameterError(f"audit outcome {outcome!r}; valid: {', '.join(OUTCOMES)}")
+        now = float(self.clock())
+        stamp = datetime.fromtimestamp(now, UTC).isoformat(timespec="microseconds")
+        text = "\n".join(str(c).replace("\n", " ") for c in changes)[: 4 * MAX_TEXT]
+        row = (stamp, now, str(cell)[:64], str(scenario)[:64], _clean_user(user), str(via)[:32],
+               text, int(bool(confirmed)), outcome, str(reason)[:MAX_TEXT])  # fmt: skip
+        names = _CHANGE_COLUMNS.split(", ", 1)[1]
+        with self._connect() as con:
+            cur = con.execute(
+                f"INSERT INTO assumption_changes ({names}) VALUES ({', '.join('?' * len(row))})",
+                row,
+            )
+            got = con.execute(
+                f"SELECT {_CHANGE_COLUMNS} FROM assumption_changes WHERE id = ?", (cur.lastrowid,)
+            ).fetchone()
+        return _change_row(got)
+
+    def assumption_changes(self, cell: str, limit: int = 50) -> list[dict[str, Any]]:
+        """``cell``'s loosening edits (confirmed and refused), newest first."""
+        _check_limit(limit)
+        sql = (
+            f"SELECT {_CHANGE_COLUMNS} FROM assumption_changes WHERE cell = ? "
+            "ORDER BY id DESC LIMIT ?"
+        )
+        with self._connect() as con:
+            rows = con.execute(sql, (cell, limit)).fetchall()
+        return [_change_row(r) for r in rows]
+
     def requests(self, limit: int = 50) -> list[dict[str, Any]]:
         """The API's mutating requests, newest first."""
-        if isinstance(limit, bool) or not isinstance(limit, int) or not 1 <= limit <= MAX_LIMIT:
-            raise ParameterError(f"audit limit {limit!r}; expected an integer in 1..{MAX_LIMIT}")
+        _check_limit(limit)
         sql = f"SELECT {_REQUEST_COLUMNS} FROM api_requests ORDER BY id DESC LIMIT ?"
         with self._connect() as con:
             rows = con.execute(sql, (limit,)).fetchall()
@@ -345,8 +407,7 @@ class AuditLog:
 
     def person_actions(self, cell: str, limit: int = 50) -> list[dict[str, Any]]:
         """``cell``'s operator actions on people, newest first (at most ``limit``)."""
-        if isinstance(limit, bool) or not isinstance(limit, int) or not 1 <= limit <= MAX_LIMIT:
-            raise ParameterError(f"audit limit {limit!r}; expected an integer in 1..{MAX_LIMIT}")
+        _check_limit(limit)
         sql = (
             f"SELECT {_PERSON_COLUMNS} FROM person_actions WHERE cell = ? ORDER BY id DESC LIMIT ?"
         )
@@ -356,8 +417,7 @@ class AuditLog:
 
     def entries(self, cell: str | None = None, limit: int = 50) -> list[AuditEntry]:
         """Newest first; only ``cell``'s rows when given; at most ``limit`` (1..10000)."""
-        if isinstance(limit, bool) or not isinstance(limit, int) or not 1 <= limit <= MAX_LIMIT:
-            raise ParameterError(f"audit limit {limit!r}; expected an integer in 1..{MAX_LIMIT}")
+        _check_limit(limit)
         sql = f"SELECT {_COLUMNS} FROM threshold_changes"
         args: tuple[Any, ...] = ()
         if cell is not None:
@@ -367,6 +427,18 @@ class AuditLog:
         with self._connect() as con:
             rows = con.execute(sql, (*args, limit)).fetchall()
         return [_entry(r) for r in rows]
+
+
+def _check_limit(limit: object) -> None:
+    if isinstance(limit, bool) or not isinstance(limit, int) or not 1 <= limit <= MAX_LIMIT:
+        raise ParameterError(f"audit limit {limit!r}; expected an integer in 1..{MAX_LIMIT}")
+
+
+def _change_row(row: tuple[Any, ...]) -> dict[str, Any]:
+    d = dict(zip(_CHANGE_COLUMNS.split(", "), row, strict=True))
+    d["changes"] = d["changes"].split("\n") if d["changes"] else []
+    d["confirmed"] = bool(d["confirmed"])
+    return d
 
 
 def _entry(row: tuple[Any, ...]) -> AuditEntry:
