@@ -346,6 +346,16 @@ def _read(path: Path) -> object:
     )
 
 
+SHIPPED_SCENARIOS: frozenset[str] = frozenset({
+    "adversarial", "bench_handover", "bench_handover_upper", "bench_worker", "box_pick_place",
+    "close_worker", "cmu_walk", "empty_cell", "headbutt", "punches", "slow_approach",
+    "standing_beside_path", "tracking_glitches", "ur10e_close_worker",
+})  # fmt: skip
+"""The scenarios the project ships (``scenarios/``): a client never replaces one (the default
+cell starts from ``punches``; a replaced file would change what it runs at the next start
+without the confirmation an edit of what the verdict assumes needs)."""
+
+
 def scenarios_dir() -> Path:
     """The shipped ``scenarios/`` folder (repository root)."""
     return Path(__file__).resolve().parent.parent / "scenarios"

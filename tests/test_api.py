@@ -37,7 +37,13 @@ from sara_app.bus.session import Bus, free_port
 from sara_app.errors import SaraError
 from sara_app.human.params import available_param_sets, load_param_set
 from sara_app.safety.thresholds import threshold_set_names
-from sara_app.scenario import load_scenario, parse_scenario, scenario_names, scenarios_dir
+from sara_app.scenario import (
+    SHIPPED_SCENARIOS,
+    load_scenario,
+    parse_scenario,
+    scenario_names,
+    scenarios_dir,
+)
 
 VIEWER = "http://127.0.0.1:8080/"
 
@@ -155,6 +161,19 @@ def test_scenarios_read_as_validated(
     assert r.status_code == 404 and "empty_cell" in r.json()["detail"]
 
 
+def test_the_shipped_scenarios_are_the_repositorys() -> None:
+    """``SHIPPED_SCENARIOS`` (never replaced by a client) names every scenario file the
+    repository tracks."""
+    import subprocess
+
+    root = scenarios_dir().parent
+    if not (root / ".git").exists():
+        pytest.skip("not a git checkout")
+    out = subprocess.run(["git", "-C", str(root), "ls-files", "scenarios"], capture_output=True,
+                         text=True, check=True).stdout.split()  # fmt: skip
+    assert {Path(p).stem for p in out} == set(SHIPPED_SCENARIOS)
+
+
 def test_scenario_save_validates_and_never_overwrites_silently(
     offline: tuple[CellRegistry, TestClient, Clock], folder: Path
 ) -> None:
@@ -171,11 +190,14 @@ def test_scenario_save_validates_and_never_overwrites_silently(
     shipped = (folder / "empty_cell.json").read_bytes()
     saved = (folder / "my_edit.json").read_bytes()
     edit["environment"][0]["center_m"] = [0.5, 0.0, 0.1]
-    for name in ("empty_cell", "my_edit"):
+    for name, why in (("empty_cell", "shipped"), ("my_edit", "overwrite=true")):
         r = client.put(f"/api/scenarios/{name}", json=edit)
-        assert r.status_code == 409 and "overwrite=true" in r.json()["detail"]
+        assert r.status_code == 409 and why in r.json()["detail"]
     assert (folder / "empty_cell.json").read_bytes() == shipped
     assert (folder / "my_edit.json").read_bytes() == saved
+    r = client.put("/api/scenarios/empty_cell", params={"overwrite": "true"}, json=edit)
+    assert r.status_code == 409 and "shipped" in r.json()["detail"]  # never, even so
+    assert (folder / "empty_cell.json").read_bytes() == shipped
     r = client.put("/api/scenarios/my_edit", params={"overwrite": "true"}, json=edit)
     assert r.status_code == 200 and r.json()["overwritten"]
     assert client.get("/api/scenarios/my_edit").json()["environment"][0]["center_m"] == [

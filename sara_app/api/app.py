@@ -76,6 +76,7 @@ from sara_app.ops.client_edits import EditRefusedError, check_client_edit, check
 from sara_app.ops.jobs import JobRunner
 from sara_app.safety.thresholds import load_thresholds, threshold_set_names
 from sara_app.scenario import (
+    SHIPPED_SCENARIOS,
     Scenario,
     check_against_robot,
     load_scenario,
@@ -426,15 +427,22 @@ def _add_scenario_routes(app: FastAPI, folder: Path) -> None:
         "/api/scenarios/{name}", tags=["scenarios"],
         openapi_extra=body_schema(openapi.SCENARIO_TO_SAVE),
         responses={**BODY_RESPONSES, **responses(409, 422, _409="the name exists (or is "
-                                                   "stored in another file): not replaced")},
+                                                   "stored in another file, or is a shipped "
+                                                   "scenario): not replaced")},
     )  # fmt: skip
     def put_scenario(
         name: ScenarioName,
         scenario: Annotated[dict[str, Any], Body()],
         overwrite: bool = Query(False),
     ) -> dict[str, Any]:
-        """Validate and save as ``<name>.json``; replacing an existing name needs overwrite."""
+        """Validate and save as ``<name>.json``; replacing an existing name needs overwrite, and
+        a shipped scenario is never replaced."""
         check_url_name("scenario", name)
+        if name in SHIPPED_SCENARIOS:
+            raise HTTPException(
+                409, f"scenario {name!r} is shipped with the project and is never replaced; "
+                "save the edit under a new name",
+            )  # fmt: skip
         client_edit(None, scenario)
         sc = validate_scenario({**scenario, "name": name}, "request body")
         exists = name in names()
