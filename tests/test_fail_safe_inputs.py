@@ -24,9 +24,11 @@ from sara_app.bus.heartbeat import Heartbeat
 from sara_app.bus.messages import (
     ParamsAckMsg,
     ParamsMsg,
+    RetireMsg,
     RobotCommandMsg,
     RobotStateMsg,
     SkeletonMsg,
+    TrackerFrameMsg,
     VerdictMsg,
 )
 from sara_app.bus.session import Bus, free_port
@@ -302,18 +304,30 @@ def test_a_flood_at_the_default_rate_leaves_a_near_persons_verdicts_correct(
 
 
 def test_a_thousand_ids_fault_the_cell_and_the_loop_keeps_its_rate(cell: Cell) -> None:
+    """A thousand ids from a flooding process: the cell faults and keeps its rate. The real
+    tracker's frames never listed them, so they are no evidence that they left (a person
+    published by a program no frame vouches for is never forgotten by frames): the cell stays
+    faulted until an operator retires them; then work resumes."""
+    retire = cell.bus.publisher(keys.retire_key(CELL))
     with Heartbeat(cell.bus, CELL):  # the real tracker sees nobody
         cell.collect(0.5)
         proc = _flood(cell, 1000, 5_000.0, 0.2)
         vs, cs = cell.collect(2.0)
         proc.communicate(timeout=30)
         after, after_cmds = cell.collect(1.0)
+        for i in range(1000):  # the operator's decision, id by id, at an operator tool's pace
+            retire.put(RetireMsg(seq=retire.next_seq(), stamp_s=time.time(), request_id=f"r{i}",
+                                 human_id=f"x{i}", user="test", reason="flood"))  # fmt: skip
+            if i % 10 == 9:
+                cell.acks.drain()  # 1000 answers: a full queue would hold up this session
+                time.sleep(0.01)
+        retired, retired_cmds = cell.collect(2.0, every=cell.acks.drain)
     assert len(vs) / 2.0 > 0.9 * 250
     assert any(any("max_people" in f for f in v.faults) for v in vs)
     assert vs[-1].dropped.get("too_many_people", 0) > 0
-    # the tracker's later frames do not list them: forgotten on that evidence, work resumes
-    assert Counter(v.mode for v in after)["intended"] > 0.5 * len(after)
-    assert _moving(after_cmds) > 0.1
+    assert not any(v.mode == "intended" for v in after) and _moving(after_cmds) < 1e-9
+    assert Counter(v.mode for v in retired[-200:])["intended"] > 0.5 * 200, retired[-1].faults
+    assert _moving(retired_cmds) > 0.1
 
 
 def test_a_stale_or_malformed_robot_state_faults_and_recovers(tmp_path: Path) -> None:
@@ -461,3 +475,38 @@ def test_an_arm_swung_farther_than_the_displacement_bound_faults_the_person(
     assert v.value > v.bound and late[-1].mode == "fault"
     assert late[-1].tracking["p1"]["displacement"] > 0
     assert not any(c.mode == "intended" for c in cs if c.stamp_s > late[0].stamp_s)
+
+
+def test_a_second_program_on_the_replayers_tracker_id_never_hides_its_person(
+    cell: Cell,
+) -> None:
+    """Hostile-tracker probe, 2026-11-30: a person published next to a replayer by a second
+    program that also sends frames as tracker ``main``. The replayer's frames (listing only
+    its own people) were accepted and the other's refused as out of order; when the person's
+    skeletons paused, the replayer's frames forgot them and the robot moved beside them; when
+    the second program died, nothing faulted. Now the refused frames make the tracker a fault
+    that forgets nobody, and the replayer's stream never listed the person, so it cannot have
+    seen them leave: they stay known, a fault, until a retire."""
+    y = STANDING + [0.3, 0, 0]  # at the robot's path
+    other = cell.bus.publisher(keys.tracker_frame_key(CELL, "main"))
+
+    def second_program(skeleton: bool) -> Any:
+        def step() -> None:
+            if skeleton:
+                cell.put_skeleton("me", y)
+            other.put(TrackerFrameMsg(seq=other.next_seq(), stamp_s=time.time(), people=["me"]))
+
+        return step
+
+    with Heartbeat(cell.bus, CELL, rate_hz=30.0) as replayer:  # seq far ahead: wins the key
+        for _ in range(2000):
+            replayer.pub.next_seq()
+        before, _ = cell.collect(1.0)  # nobody yet: the robot works
+        assert Counter(v.mode for v in before)["intended"] > 0.5 * len(before)
+        vs, _ = cell.collect(1.0, every=second_program(True))
+        assert any("two publishers" in f for f in vs[-1].faults), vs[-1].faults
+        paused, pc = cell.collect(1.0, every=second_program(False))  # occluded, still listed
+        died, dc = cell.collect(2.5)  # the second program is gone
+    assert not any(v.mode == "intended" for v in vs[20:] + paused + died)
+    assert not any(c.mode == "intended" for c in pc + dc)
+    assert all(any("'me'" in f for f in v.faults) for v in died[-100:])  # still known

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sara_app.cell.intake import unmeasured_track
-from sara_app.runtime.presence import FORGET_AFTER_S, Presence
+from sara_app.runtime.presence import CONFLICT_HOLD_S, FORGET_AFTER_S, Presence
 
 A_MAX = np.full(15, 50.0)
 V_MAX = np.full(15, 2.0)
@@ -94,9 +94,12 @@ def test_overflow_is_a_fault_until_forgotten() -> None:
     made = [p.known(f"h{i}", 2.0) for i in range(5)]
     assert sum(m is not None for m in made) == 2 and len(p.overflow) == 3
     assert any("max_people" in f for f in p.faults(2.0))
-    p.frame("main", 2.1, ["h0"])
+    p.frame("main", 2.1, ["h0"])  # no tracker has listed h1-h4: none saw them leave
+    assert len(p.tracks) + len(p.overflow) == 5
+    p.frame("main", 2.2, [f"h{i}" for i in range(5)])
+    p.frame("main", 2.3, ["h0"])
     assert list(p.tracks) == ["h0"] and not p.overflow
-    assert not any("max_people" in f for f in p.faults(2.1))
+    assert not any("max_people" in f for f in p.faults(2.3))
 
 
 def test_configure_keeps_people_and_moves_extra_tracks_to_the_overflow() -> None:
@@ -123,12 +126,21 @@ def test_configure_keeps_people_and_moves_extra_tracks_to_the_overflow() -> None
 def test_forgetting_needs_positive_evidence(events) -> None:
     """Brute force: after any event sequence, a person is unknown only if retired after their
     last evidence, or if both trackers' newest frames are ``FORGET_AFTER_S`` later than it and
-    omit them."""
+    omit them and a tracker had listed them since they became known (it saw them leave); and
+    then they are unknown."""
     p = _presence(("a", "b"), max_people=8)
     evidence: dict[str, float] = {}
-    retired_at: dict[str, int] = {}
+    listed: set[str] = set()  # listed by a frame since they became known (this oracle's own)
+
+    def omitted(hid: str) -> bool:
+        frames = [p.frames.get(tid) for tid in ("a", "b")]
+        return hid in listed and all(
+            f is not None and f.stamp_s >= evidence[hid] + FORGET_AFTER_S
+            and hid not in f.people for f in frames
+        )  # fmt: skip
+
     t = 0.0
-    for i, (kind, hid, dt, people) in enumerate(events):
+    for kind, hid, dt, people in events:
         t += dt + 1e-3
         if kind == "skel":
             p.known(hid, t)
@@ -140,19 +152,19 @@ def test_forgetting_needs_positive_evidence(events) -> None:
             fresh = hid in evidence and t - evidence[hid] <= 0.2
             if p.retire(hid, t) == "":
                 assert not fresh, (hid, t, evidence[hid])  # never a person still reported
-                retired_at[hid] = i
                 evidence.pop(hid, None)
+                listed.discard(hid)
         else:
             p.frame(kind[-1], t, people)
             for h in people:
                 evidence[h] = t
-    for hid, ev in evidence.items():
-        frames = [p.frames.get(tid) for tid in ("a", "b")]
-        omitted = all(
-            f is not None and f.stamp_s >= ev + FORGET_AFTER_S and hid not in f.people
-            for f in frames
-        )
-        assert (hid in p.tracks) == (not omitted), (hid, ev, p.frames)
+                listed.add(h)
+        for h in [h for h in evidence if omitted(h)]:  # forgotten by this frame: known anew
+            assert h not in p.tracks, (h, evidence[h], p.frames)  # by a later one
+            del evidence[h]
+            listed.discard(h)
+    for hid in evidence:
+        assert hid in p.tracks, (hid, evidence[hid], p.frames)
 
 
 def test_a_full_overflow_list_faults_until_every_tracker_has_spoken_since() -> None:
@@ -173,3 +185,70 @@ def test_a_full_overflow_list_faults_until_every_tracker_has_spoken_since() -> N
     assert any("max_people" in f for f in p.faults(2.1))
     p.frame("b", 2.1, [])
     assert not any("max_people" in f for f in p.faults(2.1))
+
+
+def test_a_person_no_tracker_listed_is_not_forgotten_by_frames() -> None:
+    """Skeletons from a source no frame vouches for (a second program publishing people next
+    to the replayer): the frames omit the person from the start, so they never saw them leave;
+    the person stays known (a fault once unseen) until listed and omitted, or retired."""
+    p = _presence()
+    p.known("me", 1.0, 1.0)
+    for k in range(1, 30):
+        p.frame("main", 1.0 + k * 0.1, ["replayed"])
+    assert "me" in p.tracks
+    assert p.retire("me", 4.0) == ""
+
+
+def test_frames_received_while_a_persons_messages_keep_arriving_forget_nobody() -> None:
+    """Skeletons stamped 60 ms late (a slow pipeline) but arriving every cycle: a frame that
+    omits the person is stamped more than the margin after their evidence, yet received with
+    their stream still going: it does not forget them; once their messages stop, it does."""
+    p = _presence()
+    p.frame("main", 0.0, ["h1"], 0.0)
+    t = 0.0
+    for _ in range(100):
+        t += 0.016
+        p.known("h1", t - 0.06, t)  # received now, stamped 60 ms ago
+        p.frame("main", t, [], t)  # the tracker's frame omits them
+        assert "h1" in p.tracks
+    t += 0.04
+    p.frame("main", t, [], t)
+    assert "h1" in p.tracks  # 40 ms after their last message: within the margin
+    t += 0.02
+    p.frame("main", t, [], t)
+    assert "h1" not in p.tracks
+
+
+def test_refused_frames_make_the_tracker_a_fault_that_forgets_nobody() -> None:
+    """Two publishers on one tracker id: the second's frames are refused (out of order). The
+    tracker is a fault while that goes on and for ``CONFLICT_HOLD_S`` after, and its accepted
+    frames forget nobody meanwhile."""
+    p = _presence()
+    p.frame("main", 1.0, ["me"], 1.0, seq=10**9)
+    p.known("me", 1.0, 1.0)
+    assert p.faults(1.01) == []
+    p.frame_refused("main", 1.05)  # the other publisher's frame (a lower seq)
+    assert any("two publishers" in f for f in p.faults(1.06))
+    p.frame("main", 1.2, [], 1.2, seq=10**9 + 1)  # omits "me": in conflict, forgets nobody
+    assert "me" in p.tracks
+    assert any("two publishers" in f for f in p.faults(1.05 + CONFLICT_HOLD_S - 0.01))
+    assert not any("two publishers" in f for f in p.faults(1.05 + CONFLICT_HOLD_S + 0.01))
+    p.frame("main", 1.05 + CONFLICT_HOLD_S + 0.02, [], 1.05 + CONFLICT_HOLD_S + 0.02,
+            seq=10**9 + 2)  # fmt: skip
+    assert "me" not in p.tracks  # listed before, omitted now, no conflict: they left
+    assert p.frame("intruder", 9.0, []) == "unknown_tracker"
+    p.frame_refused("intruder", 9.0)  # an undeclared tracker's refusal is nobody's fault
+    assert not any("intruder" in f for f in p.faults(9.0))
+
+
+def test_a_restarted_tracker_did_not_see_anyone_leave() -> None:
+    """A tracker's new stream (its seq started again) lists nobody at first: the people it
+    listed before stay known until it lists them again and then omits them, or a retire."""
+    p = _presence()
+    p.frame("main", 1.0, ["h1", "h2"], 1.0, seq=500)
+    p.frame("main", 3.0, [], 3.0, seq=0)  # restarted (the contract's 1 s rule let it in)
+    assert set(p.tracks) == {"h1", "h2"}
+    p.frame("main", 3.1, ["h2"], 3.1, seq=1)  # sees h2 again
+    p.frame("main", 3.2, [], 3.2, seq=2)
+    assert set(p.tracks) == {"h1"}  # h2 left in view of the new stream; h1 not known to it
+    assert p.retire("h1", 3.3) == ""

@@ -159,14 +159,14 @@ def test_a_worker_holds_missing_joints_and_widens_low_ones() -> None:
                                joints=zed_frame(y, rng), confidence={**conf, **c})  # fmt: skip
 
         # never seen: a frame whose left wrist is missing is refused (nothing to hold)
-        worker.people.take_skeleton("p1", frame(0, left_wrist=0.0))
+        worker.people.take_skeleton("p1", frame(0, left_wrist=0.0), time.time())
         assert worker.presence.tracks["p1"].state.stamp_s is None
         for k in range(1, 20):  # clean frames: the wrist is known
-            worker.people.take_skeleton("p1", frame(k))
+            worker.people.take_skeleton("p1", frame(k), time.time())
         track = worker.presence.tracks["p1"]
         last_wrist = track.state.y[i("l_wrist")].copy()
         for k in range(20, 26):  # the wrist missing for 0.2 s: held and widened with time
-            worker.people.take_skeleton("p1", frame(k, left_wrist=0.0))
+            worker.people.take_skeleton("p1", frame(k, left_wrist=0.0), time.time())
             np.testing.assert_array_equal(track.state.y[i("l_wrist")], last_wrist)
             assert track.state.stamp_s == pytest.approx(t0 + k / 30)
         w = track.state.widen_m
@@ -178,7 +178,7 @@ def test_a_worker_holds_missing_joints_and_widens_low_ones() -> None:
         counts = track.intake.counts()
         assert counts["missing"] == 1 + 6  # the refused first frame is counted too
         # back, but low confidence: trusted again, widened by the scenario's extra
-        worker.people.take_skeleton("p1", frame(26, left_wrist=30.0))
+        worker.people.take_skeleton("p1", frame(26, left_wrist=30.0), time.time())
         extra = worker.cell.scenario.inputs.low_confidence_extra_m
         w = track.state.widen_m
         assert w is not None and w[MODELS.index("vel"), hand] == pytest.approx(extra)
@@ -186,6 +186,6 @@ def test_a_worker_holds_missing_joints_and_widens_low_ones() -> None:
         # missing too long (max_hold_s): refused, the person ages (counted)
         before = worker.io.decoder.counts.get("tracking_inconsistent", 0)
         for k in range(27, 50):
-            worker.people.take_skeleton("p1", frame(k, right_ankle=5.0))
+            worker.people.take_skeleton("p1", frame(k, right_ankle=5.0), time.time())
         assert worker.io.decoder.counts.get("tracking_inconsistent", 0) > before
         assert track.state.stamp_s < t0 + 49 / 30

@@ -7,8 +7,11 @@ assume. Adversaries chase the robot as commanded on ``sara/<cell>/robot/command`
 scenario with such a person makes the replayer subscribe to the commands (500 a second, each a
 copy the router sends). The scenario restarts after ``sim.duration_s``; an accepted scenario
 update (``params/ack``) restarts it with the new people. Like a real tracker it sends a frame
-(``TrackerFrameMsg``) for every tracker the scenario declares, listing the people it publishes,
-at ``FRAME_HZ``: without them the cell would not move (silence is not an empty cell).
+(``TrackerFrameMsg``) as the scenario's first declared tracker (``inputs.trackers[0]``,
+``main`` by default), listing the people it publishes, at ``FRAME_HZ``: without them the cell
+would not move (silence is not an empty cell). The other declared trackers are yours: a
+replayer that spoke for every declared tracker answered for a real tracker's people too (and
+its frames, not listing them, forgot them: hostile-tracker probe, 2026-11-30).
 """
 
 from __future__ import annotations
@@ -88,9 +91,9 @@ class Replayer:
         for h in self.scenario.humans:
             if h.id not in self.pubs:
                 self.pubs[h.id] = self.bus.publisher(keys.skeleton_key(self.cell, h.id))
-        for tid in self.scenario.inputs.trackers:
-            if tid not in self.frame_pubs:
-                self.frame_pubs[tid] = self.bus.publisher(keys.tracker_frame_key(self.cell, tid))
+        tid = self.scenario.inputs.trackers[0]
+        if tid not in self.frame_pubs:
+            self.frame_pubs[tid] = self.bus.publisher(keys.tracker_frame_key(self.cell, tid))
 
     def _follow_robot(self, follow: bool) -> None:
         """Subscribe to the robot's commands, or stop, as the people need them."""
@@ -143,11 +146,10 @@ class Replayer:
         return sent
 
     def publish_frames(self, now: float) -> None:
-        """One frame per declared tracker: every person of the scenario is in view."""
+        """A frame as the first declared tracker: every person of the scenario is in view."""
         people = [h.id for h in self.scenario.humans]
-        for tid in self.scenario.inputs.trackers:
-            pub = self.frame_pubs[tid]
-            pub.put(TrackerFrameMsg(seq=pub.next_seq(), stamp_s=now, people=people))
+        pub = self.frame_pubs[self.scenario.inputs.trackers[0]]
+        pub.put(TrackerFrameMsg(seq=pub.next_seq(), stamp_s=now, people=people))
 
     def run(self, duration_s: float | None = None) -> None:
         """Tick whenever a skeleton or frame is due, as a tracker publishes: on its own frame

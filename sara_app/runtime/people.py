@@ -60,8 +60,8 @@ class People:
     def _new_track(self, human_id: str) -> Track:
         return track_for(self.cell, human_id)
 
-    def take_skeleton(self, human_id: str, msg: SkeletonMsg) -> None:
-        track = self.presence.known(human_id, msg.stamp_s)
+    def take_skeleton(self, human_id: str, msg: SkeletonMsg, now: float) -> None:
+        track = self.presence.known(human_id, msg.stamp_s, now)
         if track is None:
             self.io.drop("too_many_people")
             return
@@ -77,7 +77,7 @@ class People:
             if isinstance(d.msg, SkeletonMsg) and d.key.human_id:
                 self.fresh_stamps[d.key.human_id] = d.msg.stamp_s
                 try:
-                    self.take_skeleton(d.key.human_id, d.msg)
+                    self.take_skeleton(d.key.human_id, d.msg, now)
                 except Exception as e:  # noqa: BLE001 - this message only: the person is unseen
                     self.errors("skeleton ingest failed", repr(e), e)
                     self.io.drop("internal")
@@ -87,9 +87,15 @@ class People:
             if hid is not None:  # a refused message on a person's key: that person is unseen
                 self.presence.refused(hid, now)
         frames = self.io.frames.drain_latest()
+        for key in frames.refused_keys:  # out of order (a second publisher?) or malformed
+            tid = id_in(key, "tracker_frame")
+            if tid is not None:
+                self.presence.frame_refused(tid, now)
         for d in frames.messages:
             if isinstance(d.msg, TrackerFrameMsg) and d.key.human_id:
-                reason = self.presence.frame(d.key.human_id, d.msg.stamp_s, d.msg.people)
+                reason = self.presence.frame(
+                    d.key.human_id, d.msg.stamp_s, d.msg.people, now, d.msg.seq
+                )
                 if reason is not None:
                     self.io.drop(reason)
 
