@@ -10,10 +10,13 @@ from hypothesis import strategies as st
 
 from sara_app.errors import ParameterError
 from sara_app.human.conformance import Monitor
+from sara_app.human.gate import GateSettings
 from sara_app.human.intake import Intake, IntakeSettings
 
 DY = 0.004
 J = 15
+SYNTHETIC = IntakeSettings(GateSettings(anatomy=False), recover_s=0.5)
+"""Points moving each on its own (no body): the gate's anatomy check off."""
 
 
 def _bang_bang(seed: int, a_max: float, v_max: float, T: int = 360, rate_hz: float = 120.0):
@@ -41,7 +44,7 @@ def _bang_bang(seed: int, a_max: float, v_max: float, T: int = 360, rate_hz: flo
 def test_motion_within_the_bounds_is_never_a_violation(seed: int) -> None:
     a_max, v_max = 40.0, 1.5
     t, y = _bang_bang(seed, a_max, v_max)
-    intake = Intake(DY, np.full(J, v_max), np.full(J, a_max))
+    intake = Intake(DY, np.full(J, v_max), np.full(J, a_max), SYNTHETIC)
     for k in range(len(t)):
         intake.take(float(t[k]), y[k], DY, J)  # points: no bones to learn
     assert intake.monitor.counts == {"speed": 0, "acceleration": 0, "rise": 0, "displacement": 0}
@@ -50,7 +53,7 @@ def test_motion_within_the_bounds_is_never_a_violation(seed: int) -> None:
 
 def test_too_fast_is_a_fault_until_recover_s_within_bounds() -> None:
     t, y = _bang_bang(0, 40.0, 3.0)  # 3 m/s against a bound of 1.5
-    intake = Intake(DY, np.full(J, 1.5), np.full(J, 40.0), IntakeSettings(recover_s=0.5))
+    intake = Intake(DY, np.full(J, 1.5), np.full(J, 40.0), SYNTHETIC)
     faults = []
     for k in range(len(t)):
         intake.take(float(t[k]), y[k], DY, J)
@@ -80,7 +83,7 @@ def test_too_fast_is_a_fault_until_recover_s_within_bounds() -> None:
 
 def test_accelerating_beyond_a_max_is_an_acceleration_violation() -> None:
     t, y = _bang_bang(1, 400.0, 1.4)  # within v_max, ten times a_max
-    intake = Intake(DY, np.full(J, 1.5), np.full(J, 40.0))
+    intake = Intake(DY, np.full(J, 1.5), np.full(J, 40.0), SYNTHETIC)
     for k in range(len(t)):
         intake.take(float(t[k]), y[k], DY, J)
     assert intake.monitor.counts["acceleration"] > 0

@@ -56,6 +56,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sara_app.errors import InputError, ParameterError
+from sara_app.human.anatomy import bone_ranges, implausible_bone
 from sara_app.human.gate_kernels import (
     ALL_GOOD,
     CLEAN,
@@ -103,6 +104,9 @@ class GateSettings:
     known_bones_m: tuple[tuple[str, str, float], ...] = ()
     """Bone lengths given by the scenario ``(joint, joint, m)``: checked from the first frame;
     the other bones are learned."""
+    anatomy: bool = True
+    """Refuse frames whose bones no person has (:mod:`sara_app.human.anatomy`). Off only for
+    synthetic point sets that are no bodies (tests of the monitor)."""
 
     def __post_init__(self) -> None:
         if not (self.bone_tol_m >= 0 and self.learn_frames >= 1 and self.max_hold_s > 0):
@@ -187,6 +191,7 @@ class Gate:
         self.bones = self.bones[(self.bones < J).all(axis=1)]
         self.length_m = self._known(self.settings)
         """``(B,)`` the bone lengths checked (nan: not known yet, being learned)."""
+        self._shortest_m, self._longest_m = bone_ranges(self.bones, FULL_JOINTS)
         self.y_trusted = np.zeros((J, 3))
         self.t_trusted = np.full(J, -np.inf)
         self.dy_trusted = np.zeros(J)  # delta_y of each joint's last trusted measurement
@@ -243,6 +248,35 @@ class Gate:
             self._learn_bones(y)
         self._tally(t_s, flagged=bool(bits & FLAGGED))
         return out
+
+    def implausible(
+        self, y: np.ndarray, delta_y_m: float, n_measured: int, missing: np.ndarray | None
+    ) -> str | None:
+        """Why frame ``y (J, 3)`` is no person's (a measured bone outside
+        :data:`~sara_app.human.anatomy.BONE_RANGE_M`, widened by the noise, ``2 delta_y``:
+        the ranges hold the joint-centre drift ``bone_tol_m`` covers already; counted as a
+        refused frame), or None; nothing else changes."""
+        if not self.settings.anatomy:
+            return None
+        lost = self._none if missing is None else np.asarray(missing, bool)
+        y = as_f8(y)
+        if y.shape != self.y_trusted.shape or lost.shape != self.t_trusted.shape:
+            raise InputError(
+                f"gate: frame of shape {y.shape}, missing flags {lost.shape}; expected "
+                f"{self.y_trusted.shape} and {self.t_trusted.shape}"
+            )
+        slack = 2.0 * float(delta_y_m)
+        k = implausible_bone(y, int(n_measured), lost, self.bones, self._shortest_m,
+                             self._longest_m, slack)  # fmt: skip
+        if k < 0:
+            return None
+        self.counts["refused"] += 1
+        a, b = (FULL_JOINTS[i] for i in self.bones[k])
+        length = float(np.linalg.norm(y[self.bones[k, 0]] - y[self.bones[k, 1]]))
+        return (
+            f"bone {a}-{b} {length:.3f} m is outside a person's "
+            f"{self._shortest_m[k]:g}-{self._longest_m[k]:g} m"
+        )
 
     def _tally(self, t_s: float, flagged: bool) -> None:
         """The frame's flags into :attr:`last_flag` and :attr:`counts` (``flagged``: some joint

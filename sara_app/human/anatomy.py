@@ -1,0 +1,81 @@
+"""Bone lengths a human body can have: a skeleton outside them is no person's measurement.
+
+The tracking gate (:mod:`sara_app.human.gate`) checks each bone against the person's own length,
+but it learns that length from the person's first frames: a skeleton whose joints all sit at
+one point (a tracker's degenerate output, or a hostile publisher) taught it zero-length bones
+and was trusted as a person, while a real person's hands could be 0.7 m from that point and
+the robot moved (hostile-tracker probe, 2026-11-30). So every measured bone of every frame must
+also lie within :data:`BONE_RANGE_M` (widened by the measurement noise, ``2 delta_y``); a frame
+that does not is refused and its person is a fault until a frame is a body again.
+
+The ranges are generous, for adults measured by any supported tracker, whose joint centres
+differ (a head joint at the nose, the ear or the skull's centre; a neck at the shoulders'
+midpoint or on the spine; a pelvis at the hips' midpoint or the sacrum). Recorded extremes of
+the project's recordings (CMU walk, run, boxing and subject 62's construction work, TUM's
+table-side collaboration, reconstruction failures included), 2026-11-30: head-neck 0.17-0.27 m,
+neck-pelvis 0.24-0.35, neck-shoulder 0.13-0.21, upper arm 0.26-0.35, forearm 0.19-0.29,
+pelvis-hip 0.14-0.16, thigh 0.41-0.43, shank 0.41-0.46; Drillis and Contini's segment ratios
+give upper arms of 0.26-0.39 m, forearms 0.20-0.31, thighs 0.34-0.51 and shanks 0.34-0.52 for
+statures of 1.4-2.1 m. Each range's lower end is at most about half of the smallest of these,
+its upper end at least 1.3 times the largest.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, types
+
+from sara_app.kernel_types import F8, I8, RO1, RO2, ROB1, ROI2
+
+BONE_RANGE_M: dict[tuple[str, str], tuple[float, float]] = {
+    ("head", "neck"): (0.04, 0.50),
+    ("neck", "pelvis"): (0.15, 0.90),
+    ("neck", "l_shoulder"): (0.05, 0.40),
+    ("neck", "r_shoulder"): (0.05, 0.40),
+    ("l_shoulder", "l_elbow"): (0.12, 0.55),
+    ("r_shoulder", "r_elbow"): (0.12, 0.55),
+    ("l_elbow", "l_wrist"): (0.10, 0.50),
+    ("r_elbow", "r_wrist"): (0.10, 0.50),
+    ("pelvis", "l_hip"): (0.03, 0.35),
+    ("pelvis", "r_hip"): (0.03, 0.35),
+    ("l_hip", "l_knee"): (0.18, 0.70),
+    ("r_hip", "r_knee"): (0.18, 0.70),
+    ("l_knee", "l_ankle"): (0.18, 0.70),
+    ("r_knee", "r_ankle"): (0.18, 0.70),
+}
+"""Per bone of :data:`sara_app.human.gate.BONES`: the shortest and longest length (m) of a
+measured adult's bone on any supported tracker (see the module notes)."""
+
+
+@njit(types.int64(RO2, I8, ROB1, ROI2, RO1, RO1, F8), cache=True)
+def implausible_bone(
+    y: np.ndarray,
+    n_measured: int,
+    lost: np.ndarray,
+    bones: np.ndarray,
+    shortest_m: np.ndarray,
+    longest_m: np.ndarray,
+    slack_m: float,
+) -> int:
+    """The index of the first bone ``(a, b)`` of ``bones (B, 2)`` whose joints are both
+    measured (``< n_measured`` and not ``lost (J,)``) and whose length in ``y (J, 3)`` lies
+    outside ``[shortest_m - slack_m, longest_m + slack_m]`` (NaN too); -1 when none does."""
+    for k in range(bones.shape[0]):
+        a, b = bones[k, 0], bones[k, 1]
+        if a >= n_measured or b >= n_measured or lost[a] or lost[b]:
+            continue
+        dx = y[a, 0] - y[b, 0]
+        dy = y[a, 1] - y[b, 1]
+        dz = y[a, 2] - y[b, 2]
+        length = (dx * dx + dy * dy + dz * dz) ** 0.5
+        if not (shortest_m[k] - slack_m <= length <= longest_m[k] + slack_m):
+            return k
+    return -1
+
+
+def bone_ranges(bones: np.ndarray, joints: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """``(shortest_m (B,), longest_m (B,))`` for ``bones (B, 2)`` (indices into ``joints``)."""
+    pairs = [(joints[a], joints[b]) for a, b in bones]
+    lo = np.array([BONE_RANGE_M[p][0] for p in pairs], dtype=float)
+    hi = np.array([BONE_RANGE_M[p][1] for p in pairs], dtype=float)
+    return lo, hi
