@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from sara_app.human.anatomy import BONE_RANGE_M
 from sara_app.human.gate import Gate, GateResult
 from sara_app.human.gate_kernels import FROZEN_EPS_M
+from sara_app.human.skeleton import FULL_JOINTS
 
 
 class ReferenceGate(Gate):
@@ -77,6 +79,11 @@ class ReferenceGate(Gate):
         length = np.linalg.norm(y[a] - y[b], axis=1)
         with np.errstate(invalid="ignore"):  # nan: a bone not known yet is not checked
             off = np.abs(length - self.length_m) > 2.0 * delta_y_m + self.settings.bone_tol_m
+        if self.settings.anatomy:  # a person's range, from the table by the joints' names
+            rng = np.array([BONE_RANGE_M[(FULL_JOINTS[i], FULL_JOINTS[k])] for i, k in self.bones])
+            noise = 2.0 * delta_y_m
+            with np.errstate(invalid="ignore"):  # nan: as for the own length, not checked
+                off |= (length < rng[:, 0] - noise) | (length > rng[:, 1] + noise)
         off &= measured[a] & measured[b]
         sa, sb = suspect[a], suspect[b]
         either = sa | sb

@@ -37,7 +37,8 @@ def test_the_compiled_check_equals_the_numpy_reference(seed: int, shape: tuple[i
     rng = np.random.default_rng(seed)
     known = (("l_elbow", "l_wrist", 0.27),) if rng.random() < 0.5 else ()
     gs = GateSettings(bone_tol_m=float(rng.uniform(0.0, 0.08)), learn_frames=5,
-                      max_hold_s=float(rng.uniform(0.05, 0.5)), known_bones_m=known)  # fmt: skip
+                      max_hold_s=float(rng.uniform(0.05, 0.5)), known_bones_m=known,
+                      anatomy=bool(rng.random() < 0.8))  # fmt: skip
     v_max = rng.uniform(0.5, 3.0, J)
     gates = (Gate(v_max.copy(), gs), ReferenceGate(v_max.copy(), gs))
     y = joints(standing((1.0, 0.0), 0.0))[:J]
@@ -66,6 +67,11 @@ def test_the_compiled_check_equals_the_numpy_reference(seed: int, shape: tuple[i
         elif event < 0.45:  # the whole person moves too fast
             y = y + rng.normal(scale=0.3, size=3)
             meas = y + rng.normal(scale=0.002, size=(J, 3))
+        elif event < 0.5:  # no body: every joint at one point, or one limb stretched
+            if rng.random() < 0.5:
+                meas = meas[:1] + rng.normal(scale=0.001, size=(J, 3))
+            else:
+                meas[rng.integers(J)] += rng.normal(scale=0.4, size=3)
         dy = float(rng.choice([0.004, 0.012, 0.03]))
         for g in gates:
             g.check(t, meas.copy(), dy, n_measured, None if missing is None else missing.copy())

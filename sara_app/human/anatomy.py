@@ -5,8 +5,10 @@ but it learns that length from the person's first frames: a skeleton whose joint
 one point (a tracker's degenerate output, or a hostile publisher) taught it zero-length bones
 and was trusted as a person, while a real person's hands could be 0.7 m from that point and
 the robot moved (hostile-tracker probe, 2026-11-30). So every measured bone of every frame must
-also lie within :data:`BONE_RANGE_M` (widened by the measurement noise, ``2 delta_y``); a frame
-that does not is refused and its person is a fault until a frame is a body again.
+also lie within :data:`BONE_RANGE_M` (widened by the measurement noise, ``2 delta_y``): a bone
+outside it is inconsistent like one off the person's own length, and the gate blames its ends
+(a joint that jumped, else both) and holds them. A person never seen whole has no history to
+hold: their held joints' sets are unbounded, the robot stays on its failsafe.
 
 The ranges are generous, for adults measured by any supported tracker, whose joint centres
 differ (a head joint at the nose, the ear or the skull's centre; a neck at the shoulders'
@@ -23,9 +25,6 @@ its upper end at least 1.3 times the largest.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, types
-
-from sara_app.kernel_types import F8, I8, RO1, RO2, ROB1, ROI2
 
 BONE_RANGE_M: dict[tuple[str, str], tuple[float, float]] = {
     ("head", "neck"): (0.04, 0.50),
@@ -47,34 +46,9 @@ BONE_RANGE_M: dict[tuple[str, str], tuple[float, float]] = {
 measured adult's bone on any supported tracker (see the module notes)."""
 
 
-@njit(types.int64(RO2, I8, ROB1, ROI2, RO1, RO1, F8), cache=True)
-def implausible_bone(
-    y: np.ndarray,
-    n_measured: int,
-    lost: np.ndarray,
-    bones: np.ndarray,
-    shortest_m: np.ndarray,
-    longest_m: np.ndarray,
-    slack_m: float,
-) -> int:
-    """The index of the first bone ``(a, b)`` of ``bones (B, 2)`` whose joints are both
-    measured (``< n_measured`` and not ``lost (J,)``) and whose length in ``y (J, 3)`` lies
-    outside ``[shortest_m - slack_m, longest_m + slack_m]`` (NaN too); -1 when none does."""
-    for k in range(bones.shape[0]):
-        a, b = bones[k, 0], bones[k, 1]
-        if a >= n_measured or b >= n_measured or lost[a] or lost[b]:
-            continue
-        dx = y[a, 0] - y[b, 0]
-        dy = y[a, 1] - y[b, 1]
-        dz = y[a, 2] - y[b, 2]
-        length = (dx * dx + dy * dy + dz * dz) ** 0.5
-        if not (shortest_m[k] - slack_m <= length <= longest_m[k] + slack_m):
-            return k
-    return -1
-
-
 def bone_ranges(bones: np.ndarray, joints: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
-    """``(shortest_m (B,), longest_m (B,))`` for ``bones (B, 2)`` (indices into ``joints``)."""
+    """``(shortest_m (B,), longest_m (B,))`` for ``bones (B, 2)`` (indices into ``joints``);
+    the gate's kernel checks them (:func:`sara_app.human.gate_kernels.gate_frame`)."""
     pairs = [(joints[a], joints[b]) for a, b in bones]
     lo = np.array([BONE_RANGE_M[p][0] for p in pairs], dtype=float)
     hi = np.array([BONE_RANGE_M[p][1] for p in pairs], dtype=float)

@@ -14,7 +14,9 @@ against three necessary conditions and never trusts a joint that fails one:
 - **Bone**: the distance between two joints joined by a bone stays within
   ``2 delta_y + bone_tol_m`` of the person's own bone length: given by the scenario
   (``known_bones_m``) or learned online as the median of the first ``learn_frames`` frames whose
-  joints all passed the jump test. An
+  joints all passed the jump test; and from the first frame on within ``2 delta_y`` of a
+  person's range (:mod:`sara_app.human.anatomy`: a skeleton collapsed to a point taught the
+  gate zero-length bones and was trusted). An
   inconsistent bone is blamed on its end joints that jumped or are held; on both when neither
   (conservative: holding a good joint only widens its set). ``bone_tol_m`` covers how much
   trackers' joint centres drift along a bone (soft tissue, joint-centre estimation); a named,
@@ -56,7 +58,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sara_app.errors import InputError, ParameterError
-from sara_app.human.anatomy import bone_ranges, implausible_bone
+from sara_app.human.anatomy import bone_ranges
 from sara_app.human.gate_kernels import (
     ALL_GOOD,
     CLEAN,
@@ -105,8 +107,8 @@ class GateSettings:
     """Bone lengths given by the scenario ``(joint, joint, m)``: checked from the first frame;
     the other bones are learned."""
     anatomy: bool = True
-    """Refuse frames whose bones no person has (:mod:`sara_app.human.anatomy`). Off only for
-    synthetic point sets that are no bodies (tests of the monitor)."""
+    """Every bone is also checked against a person's range (:mod:`sara_app.human.anatomy`).
+    Off only for synthetic point sets that are no bodies (tests of the monitor)."""
 
     def __post_init__(self) -> None:
         if not (self.bone_tol_m >= 0 and self.learn_frames >= 1 and self.max_hold_s > 0):
@@ -191,7 +193,7 @@ class Gate:
         self.bones = self.bones[(self.bones < J).all(axis=1)]
         self.length_m = self._known(self.settings)
         """``(B,)`` the bone lengths checked (nan: not known yet, being learned)."""
-        self._shortest_m, self._longest_m = bone_ranges(self.bones, FULL_JOINTS)
+        self._ranges()
         self.y_trusted = np.zeros((J, 3))
         self.t_trusted = np.full(J, -np.inf)
         self.dy_trusted = np.zeros(J)  # delta_y of each joint's last trusted measurement
@@ -211,6 +213,7 @@ class Gate:
         scenario now gives replace it."""
         self.v_max_mps = np.asarray(v_max_mps, dtype=float)
         self.settings = settings
+        self._ranges()
         known = self._known(settings)
         self.length_m = np.where(np.isnan(known), self.length_m, known)
 
@@ -236,9 +239,9 @@ class Gate:
         s = self.settings
         bits = gate_frame(
             float(t_s), y, float(delta_y_m), int(n_measured), lost, self.v_max_mps, self.bones,
-            self.length_m, s.bone_tol_m, s.max_hold_s, self.y_trusted, self.t_trusted,
-            self.dy_trusted, self.y_prev, self.first_seen_s, self.since_s, out.flags,
-            out.jump_speed_mps, out.trusted, self._same,
+            self.length_m, self.shortest_m, self.longest_m, s.bone_tol_m, s.max_hold_s,
+            self.y_trusted, self.t_trusted, self.dy_trusted, self.y_prev, self.first_seen_s,
+            self.since_s, out.flags, out.jump_speed_mps, out.trusted, self._same,
         )  # fmt: skip
         self._enclose_held(t_s, y, delta_y_m, out.trusted, out.flags[:, 2], lost,
                            all_good=bool(bits & ALL_GOOD))  # fmt: skip
@@ -248,35 +251,6 @@ class Gate:
             self._learn_bones(y)
         self._tally(t_s, flagged=bool(bits & FLAGGED))
         return out
-
-    def implausible(
-        self, y: np.ndarray, delta_y_m: float, n_measured: int, missing: np.ndarray | None
-    ) -> str | None:
-        """Why frame ``y (J, 3)`` is no person's (a measured bone outside
-        :data:`~sara_app.human.anatomy.BONE_RANGE_M`, widened by the noise, ``2 delta_y``:
-        the ranges hold the joint-centre drift ``bone_tol_m`` covers already; counted as a
-        refused frame), or None; nothing else changes."""
-        if not self.settings.anatomy:
-            return None
-        lost = self._none if missing is None else np.asarray(missing, bool)
-        y = as_f8(y)
-        if y.shape != self.y_trusted.shape or lost.shape != self.t_trusted.shape:
-            raise InputError(
-                f"gate: frame of shape {y.shape}, missing flags {lost.shape}; expected "
-                f"{self.y_trusted.shape} and {self.t_trusted.shape}"
-            )
-        slack = 2.0 * float(delta_y_m)
-        k = implausible_bone(y, int(n_measured), lost, self.bones, self._shortest_m,
-                             self._longest_m, slack)  # fmt: skip
-        if k < 0:
-            return None
-        self.counts["refused"] += 1
-        a, b = (FULL_JOINTS[i] for i in self.bones[k])
-        length = float(np.linalg.norm(y[self.bones[k, 0]] - y[self.bones[k, 1]]))
-        return (
-            f"bone {a}-{b} {length:.3f} m is outside a person's "
-            f"{self._shortest_m[k]:g}-{self._longest_m[k]:g} m"
-        )
 
     def _tally(self, t_s: float, flagged: bool) -> None:
         """The frame's flags into :attr:`last_flag` and :attr:`counts` (``flagged``: some joint
@@ -309,6 +283,15 @@ class Gate:
         centre, radius = enclose(self.y_trusted, r_hist, y, r_meas)
         out.y[:] = np.where(good[:, None], y, centre)
         out.extra_m[:] = np.where(good, 0.0, np.maximum(radius - delta_y_m, 0.0))
+
+    def _ranges(self) -> None:
+        """``shortest_m``, ``longest_m`` ``(B,)``: a person's bone lengths (no bounds with the
+        anatomy check off)."""
+        if self.settings.anatomy:
+            self.shortest_m, self.longest_m = bone_ranges(self.bones, FULL_JOINTS)
+        else:
+            self.shortest_m = np.full(len(self.bones), -np.inf)
+            self.longest_m = np.full(len(self.bones), np.inf)
 
     def _learn_bones(self, y: np.ndarray) -> None:
         a, b = self.bones[:, 0], self.bones[:, 1]

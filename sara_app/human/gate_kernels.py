@@ -27,7 +27,7 @@ FROZEN_EPS_M = 1e-9
 
 
 @njit(
-    types.int64(F8, RO2, F8, I8, ROB1, RO1, ROI2, RO1, F8, F8,
+    types.int64(F8, RO2, F8, I8, ROB1, RO1, ROI2, RO1, RO1, RO1, F8, F8,
                 W2, W1, W1, RO2, RO1, W1, WB2, W1, WB1, WB1),
     cache=True,
 )  # fmt: skip
@@ -40,6 +40,8 @@ def gate_frame(
     v_max_mps: np.ndarray,
     bones: np.ndarray,
     length_m: np.ndarray,
+    shortest_m: np.ndarray,
+    longest_m: np.ndarray,
     bone_tol_m: float,
     max_hold_s: float,
     y_trusted: np.ndarray,
@@ -59,7 +61,9 @@ def gate_frame(
     exactly), update the gate's state ``y_trusted (J, 3)``, ``t_trusted``, ``dy_trusted``,
     ``since_s`` (all ``(J,)``) in place; ``y_prev`` and ``first_seen_s`` are read only (the
     caller advances them after enclosing the held joints). ``bones (B, 2)``, ``length_m (B,)``
-    (nan: not known). Returns the bits :data:`ALL_GOOD`, :data:`FLAGGED`, :data:`CLEAN`,
+    (nan: not known); a bone is inconsistent when off its length by more than the noise and
+    ``bone_tol_m``, or outside ``[shortest_m, longest_m] (B,)`` (a person's: always known) by
+    more than the noise. Returns the bits :data:`ALL_GOOD`, :data:`FLAGGED`, :data:`CLEAN`,
     :data:`REFUSED`."""
     J = y.shape[0]
     noise = 2.0 * delta_y_m
@@ -93,7 +97,10 @@ def gate_frame(
         for c in range(3):
             e = y[a, c] - y[b, c]
             d2 += e * e
-        if not abs(math.sqrt(d2) - length_m[k]) > noise + bone_tol_m:  # nan: not known yet
+        length = math.sqrt(d2)
+        # NaN (a non-finite joint, which the decoder refuses first) is not judged, as before
+        person = not (length < shortest_m[k] - noise or length > longest_m[k] + noise)
+        if person and not abs(length - length_m[k]) > noise + bone_tol_m:  # nan: not known
             continue
         sa = flags[a, 0] or flags[a, 2] or math.isfinite(since_s[a])
         sb = flags[b, 0] or flags[b, 2] or math.isfinite(since_s[b])

@@ -93,8 +93,6 @@ class Intake:
         self.refusal: str | None = None
         """Why the last frame :meth:`take` returned None for: ``tracking_inconsistent`` or
         ``repeated`` (the contract's reasons)."""
-        self.implausible: str | None = None
-        """Why the newest frame was no person's skeleton (:meth:`Gate.implausible`), or None."""
         self._raw = np.full((J, 3), np.nan)  # the last frame as measured
         self._none_missing = np.zeros(J, dtype=np.bool_)
         self._raw_since_s = -np.inf  # stamp of the first frame with those values
@@ -138,10 +136,6 @@ class Intake:
             self.repeats += 1
             self.refusal = "repeated"
             return None
-        self.implausible = self.gate.implausible(y, delta_y_m, n_measured, missing)
-        if self.implausible is not None:  # no person's skeleton: not a measurement at all
-            self.refusal = "tracking_inconsistent"
-            return None
         g = self.gate.check(t_s, y, delta_y_m, n_measured, missing)
         # The monitor sees refused frames too: a measurement that still disagrees with the
         # history keeps the person's fault alive (recover_s counts from the last one).
@@ -175,10 +169,7 @@ class Intake:
         return self.newest_s - self._raw_since_s if self.stale_after_s is not None else 0.0
 
     def fault(self, human_id: str) -> str | None:
-        """The person's fault: no person's skeleton, a stale tracker, or motion beyond the
-        bounds; else None."""
-        if self.implausible is not None:
-            return f"human {human_id!r}: {self.implausible}: not a person's skeleton"
+        """The person's fault: a stale tracker, or motion beyond the bounds; else None."""
         if self.stale_after_s is not None and self.stale_s > self.stale_after_s:
             return (
                 f"human {human_id!r}: skeleton repeated bit-exactly for {self.stale_s:.2f} s > "
