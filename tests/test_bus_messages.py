@@ -12,7 +12,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sara_app.bus.codec import MAX_PAYLOAD_BYTES, REASONS, Decoder, MessageError, decode
+from sara_app.bus.codec import (
+    MAX_PAYLOAD_BYTES,
+    MAX_SMALL_PAYLOAD_BYTES,
+    REASONS,
+    SMALL_KINDS,
+    Decoder,
+    MessageError,
+    decode,
+)
 from sara_app.bus.examples import example_messages
 from sara_app.bus.keys import KINDS
 from sara_app.bus.messages import SCHEMA_VERSIONS, CapsulesMsg, SkeletonMsg, encode, source_points
@@ -149,6 +157,27 @@ def test_other_kinds_check_lengths_keys_and_nesting() -> None:
     _, d = _example("verdict")
     assert _reason("sara/cell1/verdicts", d) == "bad_key"
     assert _reason(SKEL_KEY, b" " * (MAX_PAYLOAD_BYTES + 1)) == "too_large"
+
+
+def test_small_kinds_are_too_large_above_64_kib_before_they_are_parsed() -> None:
+    """A skeleton, frame or robot state above 64 KiB is refused by its size alone (parsing 4 MB
+    skeletons held a live worker's loop up); the largest legitimate ones are far below."""
+    import time
+
+    _, skel = _example("skeleton")
+    padded = json.dumps(skel).encode()
+    padded = padded[:-1] + b" " * (MAX_SMALL_PAYLOAD_BYTES - len(padded)) + b"}"
+    assert len(padded) == MAX_SMALL_PAYLOAD_BYTES
+    decode(SKEL_KEY, padded)  # at the limit: parsed and taken
+    big = b"{" + b'"x": 1, ' * 500_000 + b'"y": 2}'
+    t0 = time.perf_counter()
+    for kind in sorted(SMALL_KINDS):
+        assert _reason(EXAMPLES[kind][0], big) == "too_large", kind
+    assert time.perf_counter() - t0 < 1.0  # six 4 MB payloads not parsed
+    key, occupancy = _example("occupancy")  # display messages may be larger
+    assert len(json.dumps(occupancy)) < MAX_SMALL_PAYLOAD_BYTES
+    assert SMALL_KINDS <= set(KINDS) and "occupancy" not in SMALL_KINDS
+    assert "params" not in SMALL_KINDS  # a whole scenario
     ends, radius = np.arange(24.0).reshape(2, 2, 2, 3), np.array([[0.1, 0.2], [0.3, 0.4]])
     e2, r2 = CapsulesMsg.from_arrays(ends, radius).arrays()
     np.testing.assert_array_equal(e2, ends.reshape(-1, 2, 3))

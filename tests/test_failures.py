@@ -28,7 +28,9 @@ def _with(rec: Recording, frames: slice, offset_m: np.ndarray) -> Recording:
 
 def test_a_flip_is_one_failure_and_the_fit_on_the_pieces_is_the_motions() -> None:
     rec = _synthetic(2.5)
-    bad = _with(rec, slice(120, 122), np.array([0.0, 0.6, 0.0]))  # away and back: 72 m/s
+    # away and back, 0.32 m (38 m/s), the forearm still a person's length (0.46 m): a flip the
+    # gate's anatomy check cannot see (0.6 m away, the forearm 0.81 m, it holds the wrist)
+    bad = _with(rec, slice(120, 122), np.array([0.0, 0.25, 0.2]))
     (f,) = find_failures(bad, CEILINGS, DY)
     pad = int(np.ceil(CEILINGS.margin_s * 120))
     assert f.first == 119 - pad and f.last == 122 + pad and f.joints == "l_wrist"
@@ -40,7 +42,7 @@ def test_a_flip_is_one_failure_and_the_fit_on_the_pieces_is_the_motions() -> Non
     wild = calibrate(base, [bad], 0.2, "wild")[0]
     tame = calibrate(base, parts, 0.2, "tame")[0]
     clean = calibrate(base, pieces(rec, [f]), 0.2, "clean")[0]
-    assert wild.joints["l_wrist"].v_max_mps > 30.0
+    assert wild.joints["l_wrist"].v_max_mps > 10.0
     assert tame.joints["l_wrist"].v_max_mps == clean.joints["l_wrist"].v_max_mps < 3.0
 
 

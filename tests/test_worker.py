@@ -30,6 +30,13 @@ from sara_app.runtime.worker import CellWorker
 from sara_app.scenario import load_scenario
 
 EXAMPLE = Path(__file__).resolve().parent.parent / "sara_app" / "bus" / "example_publisher.py"
+STANDING = np.array(
+    [
+        (0, 0, 1.65), (0, 0, 1.45), (0, 0, 0.95), (0, 0.18, 1.42), (0, -0.18, 1.42),
+        (0, 0.22, 1.15), (0, -0.22, 1.15), (0, 0.24, 0.9), (0, -0.24, 0.9), (0, 0.1, 0.92),
+        (0, -0.1, 0.92), (0, 0.1, 0.5), (0, -0.1, 0.5), (0, 0.1, 0.08), (0, -0.1, 0.08),
+    ]
+)  # fmt: skip
 
 # An independent client that stands a person at x (m) in front of the robot, on the end
 # effector's path when x is about 0.6.
@@ -214,7 +221,7 @@ def _locks_on(worker, verdicts, tb) -> None:
 
     pub = tb.publisher(keys.skeleton_key("cell1", "p"))
     rng = np.random.default_rng(0)
-    y0 = np.array([[2.5, 0.0, 1.0]]) + rng.normal(0, 0.2, (15, 3))
+    y0 = STANDING + [2.5, 0.0, 0.0]  # a person's shape (the gate checks bone lengths)
     dt = worker.shield.settings.dt_s
     got: list[VerdictMsg] = []
     while not got:  # a cycle's start, to begin at the worst phase: just after one
