@@ -227,6 +227,9 @@ def test_refused_frames_make_the_tracker_a_fault_that_forgets_nobody() -> None:
     p.frame("main", 1.0, ["me"], 1.0, seq=10**9)
     p.known("me", 1.0, 1.0)
     assert p.faults(1.01) == []
+    # one publisher whose clock stood still (seq advancing): dropped, no conflict
+    assert p.frame("main", 1.0, ["me"], 1.005, seq=10**9 + 1) == "out_of_order"
+    assert p.faults(1.01) == []
     p.frame_refused("main", 1.05)  # the other publisher's frame (a lower seq)
     assert any("two publishers" in f for f in p.faults(1.06))
     p.frame("main", 1.2, [], 1.2, seq=10**9 + 1)  # omits "me": in conflict, forgets nobody

@@ -22,11 +22,12 @@ A tracker frame (``TrackerFrameMsg``) says which people one tracker sees at its 
   frame vouches for) and the people a tracker knew before it restarted (its new stream does
   not know who left meanwhile: a restarted tracker's first, empty frames forgot everyone) stay
   known, a fault once unseen, until a tracker lists them again or an operator retires them.
-- **Contradictory frames.** A frame refused on a declared tracker's key (out of order: two
-  publishers on one tracker id, such as a second tracker started with the replayer's id; or
-  malformed) makes that tracker a fault for ``CONFLICT_HOLD_S`` and its frames forget nobody
-  meanwhile: whichever publisher's frames are accepted, the other's people are not its to
-  forget (hostile-tracker probe, 2026-11-30).
+- **Contradictory frames.** A frame the decoder refused on a declared tracker's key (its
+  ``seq`` out of order: two publishers on one tracker id, such as a second tracker started
+  with the replayer's id; or malformed) makes that tracker a fault for ``CONFLICT_HOLD_S``
+  and its frames forget nobody meanwhile: whichever publisher's frames are accepted, the
+  other's people are not its to forget (hostile-tracker probe, 2026-11-30). A frame whose
+  stamp does not advance on an advancing ``seq`` (one publisher's clock) is dropped only.
 - **Bounded.** At most ``max_people`` tracks; further people are kept as ids only (at most
   ``MAX_OVERFLOW``) and the cell faults while any is known. Over ``MAX_OVERFLOW`` ids the oldest
   id is dropped from the list (each frame checks every id: the list is kept short); the fault
@@ -159,9 +160,8 @@ class Presence:
         arrived = stamp_s if arrived_s is None else arrived_s
         seen = frozenset(people)
         old = self.frames.get(tracker_id)
-        if old is not None and stamp_s <= old.stamp_s:
-            self.frame_refused(tracker_id, arrived)
-            return "out_of_order"
+        if old is not None and stamp_s <= old.stamp_s:  # one publisher's clock stood still
+            return "out_of_order"  # (two publishers: the decoder refuses one's seq first)
         if old is not None and seq is not None and old.seq is not None and seq <= old.seq:
             for trackers in self.listed_by.values():  # a new stream: who left is not known
                 trackers.discard(tracker_id)
