@@ -245,7 +245,7 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
         return _stream(request, registry.cells, interval_s, limit)
 
     def send(cell: str, sc: Scenario, timeout_s: float) -> dict[str, Any]:
-        known_cell(cell)
+        """``sc`` to a known cell's worker (``checked_send`` checked the cell), its answer."""
         try:
             ans = registry.request_params(cell, sc.model_dump(mode="json"), timeout_s)
         except WorkerTimeoutError as e:

@@ -232,13 +232,19 @@ class CellView(GizmoEditing):
         if not changes:
             return
         try:
-            log_ = self.audit if isinstance(self.audit, AuditLog) else AuditLog(self.audit)
-            log_.record_assumption_change(
+            self._audit_log().record_assumption_change(
                 cell=self.cell, scenario=scenario, changes=changes, confirmed=confirmed,
                 outcome=outcome, user=self.dash.access.user(), via="dashboard", reason=reason,
             )  # fmt: skip
         except SaraError:
             log.exception("recording a loosening edit failed")
+
+    def _audit_log(self) -> AuditLog:
+        """The audit log, opened on first use when given as a path (once: each open runs the
+        schema's statements)."""
+        if not isinstance(self.audit, AuditLog):
+            self.audit = AuditLog(self.audit)
+        return self.audit
 
     def _send(
         self, data: dict[str, Any], action: str, check: Callable[[Scenario], None]
@@ -417,7 +423,7 @@ class CellView(GizmoEditing):
         from sara_app.dashboard.thresholds_panel import attach
 
         try:
-            audit = self.audit if isinstance(self.audit, AuditLog) else AuditLog(self.audit)
+            audit = self._audit_log()
         except SaraError as e:
             log.warning("no threshold editor: %s", e)
             return
