@@ -57,7 +57,7 @@ def test_every_example_round_trips(kind: str) -> None:
     assert d.msg == msg and d.key.kind == kind and d.key.cell == "cell1"
     data = json.loads(encode(msg))
     assert data["schema_version"] == SCHEMA_VERSIONS[kind] and data["seq"] == 42
-    assert SCHEMA_VERSIONS[kind] == {"verdict": 3, "robot_command": 2, "occupancy": 2}.get(kind, 1)
+    assert SCHEMA_VERSIONS[kind] == {"verdict": 4, "robot_command": 2, "occupancy": 2}.get(kind, 1)
     # every field is required or defaulted as documented: dropping an optional one still decodes
     pairs = {"failsafe_t_s": "failsafe_q", "failsafe_q": "failsafe_t_s"}  # go together
     for field, info in type(msg).model_fields.items():

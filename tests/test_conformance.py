@@ -47,7 +47,7 @@ def test_motion_within_the_bounds_is_never_a_violation(seed: int) -> None:
     intake = Intake(DY, np.full(J, v_max), np.full(J, a_max), SYNTHETIC)
     for k in range(len(t)):
         intake.take(float(t[k]), y[k], DY, J)  # points: no bones to learn
-    assert intake.monitor.counts == {"speed": 0, "acceleration": 0, "rise": 0, "displacement": 0}
+    assert not any(intake.monitor.counts.values()), intake.monitor.counts
     assert intake.fault("p") is None
 
 

@@ -60,13 +60,16 @@ class Cell:
         self.pubs: dict[str, Any] = {}
         self.rng = np.random.default_rng(0)
 
-    def put_skeleton(self, human: str, y: np.ndarray, stamp_s: float | None = None) -> None:
+    def put_skeleton(
+        self, human: str, y: np.ndarray, stamp_s: float | None = None, v: np.ndarray | None = None
+    ) -> None:
         pub = self.pubs.get(human) or self.pubs.setdefault(
             human, self.bus.publisher(keys.skeleton_key(CELL, human))
         )
         stamp = time.time() if stamp_s is None else stamp_s
         y = measured(np.asarray(y, float), 0.002, self.rng)  # a real tracker's noise
-        pub.put(SkeletonMsg.from_arrays("full", y, seq=pub.next_seq(), stamp_s=stamp))
+        msg = SkeletonMsg.from_arrays("full", y, seq=pub.next_seq(), stamp_s=stamp, v_mps=v)
+        pub.put(msg)
 
     def collect(self, seconds: float, every=None) -> tuple[list[VerdictMsg], list[RobotCommandMsg]]:
         self.verdicts.drain()
@@ -524,3 +527,31 @@ def test_a_skeleton_collapsed_to_a_point_is_no_person(cell: Cell) -> None:
         vs, cs = cell.collect(1.5, every=lambda: cell.put_skeleton("dot", point))
     assert not any(v.mode == "intended" for v in vs) and not any(c.mode == "intended" for c in cs)
     assert vs[-1].tracking.get("dot", {}).get("bone", 0) > 0, vs[-1].tracking
+
+
+def test_velocities_stated_against_the_positions_fault_the_person(cell: Cell) -> None:
+    """Hostile-tracker probe, 2026-11-30: reversed velocities (a frame transformation applied
+    to the positions only) shifted the acceleration model's sets away from the motion, trusted.
+    Now a person swaying sideways (0.3 m at 0.8 Hz, up to 1.5 m/s) whose tracker states the
+    reversed velocities is a fault named ``stated_velocity`` and the robot gets no intended
+    command after it; the same motion with its true velocities is never one."""
+    base = STANDING + [2.5, 0, 0]
+    w, t0 = 2 * np.pi * 0.8, time.monotonic()
+
+    def sway(sign: float) -> None:
+        t = time.monotonic() - t0
+        v = np.tile([0.0, sign * 0.3 * w * np.cos(w * t), 0.0], (len(NAMES), 1))
+        cell.put_skeleton("p1", base + [0.0, 0.3 * np.sin(w * t), 0.0], v=v)
+
+    with Heartbeat(cell.bus, CELL) as hb:
+        hb.people = {"p1"}
+        honest, _ = cell.collect(2.0, every=lambda: sway(1.0))
+        vs, cs = cell.collect(1.5, every=lambda: sway(-1.0))
+    assert not any(v.violations for v in honest)
+    assert "stated_velocity" not in honest[-1].tracking.get("p1", {})
+    assert any(v.mode == "intended" for v in honest)  # the honest person at 2.5 m: verified
+    late = [v for v in vs if v.violations]
+    assert late, "no violation named"
+    assert {q.quantity for m in late for q in m.violations} == {"stated_velocity"}
+    assert late[-1].mode == "fault" and late[-1].tracking["p1"]["stated_velocity"] > 0
+    assert not any(c.mode == "intended" for c in cs if c.stamp_s > late[0].stamp_s)

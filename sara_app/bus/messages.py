@@ -287,12 +287,13 @@ def position_on_stop(
 
 TrackingFlag = Literal[
     "jump", "bone", "frozen", "missing", "refused", "speed", "acceleration", "rise",
-    "displacement", "repeated",
+    "displacement", "stated_velocity", "repeated",
 ]  # fmt: skip
 """The tracking gate's flags (``jump``, ``bone``, ``frozen``; ``refused``: skeletons refused
 for a joint distrusted too long) and the conformance monitor's (``speed``, ``acceleration``,
 ``rise``: the upward speed of a person whose legs are bounded below the pelvis,
-``displacement``: a joint farther from where it was than the set's displacement bound)."""
+``displacement``: a joint farther from where it was than the set's displacement bound,
+``stated_velocity``: a tracker's stated velocity the positions contradict)."""
 
 
 class ViolationMsg(BaseModel):
@@ -302,10 +303,12 @@ class ViolationMsg(BaseModel):
 
     human_id: Name
     joint: Name
-    quantity: Literal["speed", "acceleration", "rise", "displacement"]
+    quantity: Literal["speed", "acceleration", "rise", "displacement", "stated_velocity"]
     value: Finite
     """m/s or m/s^2: the least speed, acceleration or upward speed (``rise``) that explains the
-    measured motion; m for ``displacement`` (the distance beyond the noise bound)."""
+    measured motion; m for ``displacement`` (the distance beyond the noise bound); m/s for
+    ``stated_velocity`` (the stated velocity's distance from the positions' estimate, the bound
+    the sum of both uncertainties)."""
     bound: Finite
     stamp_s: Finite
 
@@ -332,16 +335,16 @@ class TrackingNowMsg(BaseModel):
 
 
 class VerdictMsg(_Msg):
-    """The outcome of one control cycle (key ``sara/<cell>/verdict``), schema version 3 (2: the
+    """The outcome of one control cycle (key ``sara/<cell>/verdict``), schema version 4 (2: the
     monitor's ``rise`` among the tracking flags and violations' quantities; 3: its
-    ``displacement``).
+    ``displacement``; 4: its ``stated_velocity``).
 
     ``results``: model name -> True when that model's human set is free of the robot's set.
     ``skeleton_age_s``: human id -> age of the newest accepted skeleton at decision time.
     ``dropped``: reason -> count of rejected or dropped input messages since the worker started.
     """
 
-    schema_version: Literal[3] = 3  # type: ignore[assignment]
+    schema_version: Literal[4] = 4  # type: ignore[assignment]
     cell: Name
     safety_mode: Literal["ssm", "pfl", "jssa"]
     mode: Mode

@@ -126,11 +126,11 @@ def take_measurement(
     st.leg_cap = None  # unmeasured legs: below the gated pelvis, its uncertainty included
     if not legs_measured:
         st.leg_cap = leg_caps(p, g.y, _joint_extra(_stated_extra(cell, unc_m), g, low_m))
-    if v is not None:
-        st.v = np.where(seen[:, None], v, 0.0)
-        st.dv = np.full(J, p.delta_v_mps if unc_v_mps is None else max(unc_v_mps, p.delta_v_mps))
-        st.dv[~g.trusted] = np.inf  # a held joint's stated velocity may be the glitch's
-        st.v[~g.trusted] = 0.0
+    if v is not None:  # checked against the positions' estimate (a contradiction: a fault)
+        v_s = np.where((seen & g.trusted)[:, None], v, 0.0)
+        dv_s = np.full(J, p.delta_v_mps if unc_v_mps is None else max(unc_v_mps, p.delta_v_mps))
+        dv_s[~g.trusted] = np.inf  # a held joint's stated velocity may be the glitch's
+        st.v, st.dv = track.intake.stated(stamp_s, v_s, dv_s, v_est, dv_est)
     else:
         st.v, st.dv = v_est.copy(), dv_est.copy()
     if not legs_measured:

@@ -23,7 +23,10 @@ hold right now:
 - **rise** (a person whose legs are not measured, where the parameter set bounds those legs
   below the pelvis, :mod:`sara_app.human.legs`): ``z_2 - z_0 <= 2 delta_y + rise_max (t_2 -
   t_0)`` for the joints it bounds (the pelvis); value reported: ``(z_2 - z_0 - 2 delta_y) /
-  (t_2 - t_0)``.
+  (t_2 - t_0)``;
+- **stated velocity** (a tracker that states velocities, :mod:`sara_app.human.stated_velocity`):
+  the stated velocity's ball and the estimate's from the positions do not meet; value reported:
+  ``|v_stated - v_estimated|``, bound the sum of their two bounds (m/s).
 
 The fallback is the failsafe: a person with a violation is a fault (the robot stays on its
 verified failsafe) until frames stamped ``recover_s`` after their last violation show them
@@ -42,7 +45,7 @@ import numpy as np
 from sara_app.errors import ParameterError
 from sara_app.human.conformance_kernels import observe_displacement, observe_frame
 
-QUANTITIES = ("speed", "acceleration", "rise", "displacement")
+QUANTITIES = ("speed", "acceleration", "rise", "displacement", "stated_velocity")
 
 
 @dataclass(frozen=True)
@@ -158,12 +161,27 @@ class Monitor:
             found += [Violation(self.joints[j], "displacement", float(value[j]), float(bound[j]),
                                 t_s) for j in np.flatnonzero(value > bound)]  # fmt: skip
         self.newest_s = max(self.newest_s, t_s)
-        if found:
-            self.last = found
-            self.last_violation_s = t_s
-            for f in found:
-                self.counts[f.quantity] += 1
+        self._record(t_s, found)
         return found
+
+    def contradicted(
+        self, t_s: float, joints: np.ndarray, gap_mps: np.ndarray, bound_mps: np.ndarray
+    ) -> list[Violation]:
+        """Stated velocities the positions contradict in the frame ``t_s`` (observed first):
+        ``joints (J,)`` which, ``gap_mps``, ``bound_mps (J,)`` by how much and against what."""
+        found = [Violation(self.joints[j], "stated_velocity", float(gap_mps[j]),
+                           float(bound_mps[j]), t_s) for j in np.flatnonzero(joints)]  # fmt: skip
+        self._record(t_s, found)
+        return found
+
+    def _record(self, t_s: float, found: list[Violation]) -> None:
+        """A frame's violations (more of the same frame's join those found before)."""
+        if not found:
+            return
+        self.last = self.last + found if self.last_violation_s == t_s else found
+        self.last_violation_s = t_s
+        for f in found:
+            self.counts[f.quantity] += 1
 
     @property
     def violating(self) -> bool:

@@ -22,6 +22,7 @@ from sara_app.human.gate_kernels import repeated_frame
 from sara_app.human.params import ReachParams
 from sara_app.human.recording import Recording
 from sara_app.human.skeleton import FULL_JOINTS
+from sara_app.human.stated_velocity import reconcile
 from sara_app.human.velocity import VelocityEstimator
 from sara_app.kernel_types import as_f8, entry
 
@@ -147,6 +148,18 @@ class Intake:
             return None
         v, dv = self.estimator.update(t_s, g.y, g.trusted)
         return g, v, dv
+
+    def stated(
+        self, t_s: float, v_s: np.ndarray, dv_s: np.ndarray, v_e: np.ndarray, dv_e: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The velocity ``(J, 3)`` and bound ``(J,)`` to use for the frame ``t_s`` just taken,
+        from a tracker's stated ``v_s``, ``dv_s`` and the estimate ``v_e``, ``dv_e`` that
+        :meth:`take` returned (:func:`~sara_app.human.stated_velocity.reconcile`); a joint whose
+        stated velocity the positions contradict is the monitor's violation."""
+        v, dv, contradicted, gap = reconcile(v_s, dv_s, v_e, dv_e)
+        if contradicted.any():
+            self.monitor.contradicted(t_s, contradicted, gap, dv_s + dv_e)
+        return v, dv
 
     def _repeated(
         self, t_s: float, y: np.ndarray, n_measured: int, missing: np.ndarray | None
