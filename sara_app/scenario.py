@@ -218,6 +218,14 @@ class InputSpec(StrictFinite):
     be (``sara_app.human.trackers``): its sets grow by this. A named conservative choice, not
     a measured one: confirm it with the tracker at hand."""
     gate: GateSpec = GateSpec()
+    trust_stated_velocities: bool = False
+    """A skeleton's stated ``velocities`` narrow the acceleration models' sets (their ball
+    around the cell's estimate from the positions, ``sara_app.human.stated_velocity``). Off:
+    the estimate alone is used, sound under the parameter set's own bounds, and a stated
+    velocity is only checked against it (a contradiction is a fault). On only for a tracker
+    whose velocities are known to be right within their stated uncertainty: a wrong one the
+    positions cannot contradict (a slow joint, its velocity reversed) narrows the sets wrongly
+    (docs/measurements/2026-11-30-stated-velocities.md)."""
     cycle_phase_lock: bool = False
     """The live worker moves its cycles' phase (never their rate: at most 2 % of a period per
     cycle) so that a cycle starts just after the skeletons arrive (``sara_app.runtime.cadence``):

@@ -170,3 +170,12 @@ def test_check_refuses_without_confirmation_and_says_how(base: Scenario) -> None
     assert "tick the box" in str(e.value) and len(e.value.changes) == 1
     assert check_loosening(base, looser, confirm=True, how_to_confirm="") == e.value.changes
     assert check_loosening(base, base, confirm=False, how_to_confirm="") == []
+
+
+def test_trusting_stated_velocities_is_a_loosening_and_distrusting_them_is_not(
+    base: Scenario,
+) -> None:
+    trusting = _edited(base, _set("inputs.trust_stated_velocities", True))
+    found = loosenings(base, trusting)
+    assert len(found) == 1 and found[0].startswith("inputs.trust_stated_velocities: False -> True")
+    assert loosenings(trusting, base) == []

@@ -106,17 +106,28 @@ STANDING = np.array(
 )  # fmt: skip
 
 
-@pytest.fixture(scope="module")
-def cell():  # type: ignore[no-untyped-def]
+def _cell(trust: bool):  # type: ignore[no-untyped-def]
     data = load_scenario("punches").model_dump(mode="json")
     data["humans"] = []
+    data["inputs"]["trust_stated_velocities"] = trust
     return build_cell(parse_scenario(data, "punches_stated"))
 
 
-def _sway(cell, sign: float, rate_hz: float = 100.0, seconds: float = 2.0):  # type: ignore[no-untyped-def]
+@pytest.fixture(scope="module")
+def cell():  # type: ignore[no-untyped-def]
+    """The default: stated velocities checked, not trusted."""
+    return _cell(False)
+
+
+@pytest.fixture(scope="module")
+def trusting():  # type: ignore[no-untyped-def]
+    return _cell(True)
+
+
+def _sway(cell, sign: float | None, rate_hz: float = 100.0, seconds: float = 2.0):  # type: ignore[no-untyped-def]
     """A person swaying sideways (0.3 m, 0.8 Hz: up to 1.5 m/s, 7.6 m/s^2) with stated
-    velocities ``sign`` times the true ones; per frame the fault, the velocity used, its bound
-    and the true velocity."""
+    velocities ``sign`` times the true ones (None: none stated); per frame the fault, the
+    velocity used, its bound and the true velocity."""
     p = cell.params
     track = unmeasured_track("h", p.delta_y_m, p.v_max_mps, p.a_max_mps2,
                              cell.scenario.inputs.gate.intake())  # fmt: skip
@@ -125,7 +136,7 @@ def _sway(cell, sign: float, rate_hz: float = 100.0, seconds: float = 2.0):  # t
         t = 100.0 + k / rate_hz
         shift = np.array([1.5, 0.3 * math.sin(w * t), 0.0])
         v_true = np.array([0.0, 0.3 * w * math.cos(w * t), 0.0])
-        v = np.tile(sign * v_true, (len(STANDING), 1))
+        v = None if sign is None else np.tile(sign * v_true, (len(STANDING), 1))
         msg = SkeletonMsg.from_arrays("full", STANDING + shift, seq=k, stamp_s=t, v_mps=v)
         assert ingest_skeleton(cell, track, msg) is None
         st = track.state
@@ -133,21 +144,43 @@ def _sway(cell, sign: float, rate_hz: float = 100.0, seconds: float = 2.0):  # t
     return out
 
 
-def test_honest_velocities_are_never_refused_and_the_ball_used_holds_the_truth(cell) -> None:  # type: ignore[no-untyped-def]
-    frames = _sway(cell, 1.0)
-    assert all(f is None for f, *_ in frames)
-    for _, v, dv, v_true in frames:
-        assert (np.linalg.norm(v - v_true, axis=1) <= dv + 1e-9).all()
-    # narrower than the estimate alone: the stated bound (delta_v) is used
+def test_honest_velocities_are_never_refused_and_the_ball_used_holds_the_truth(
+    cell, trusting
+) -> None:  # type: ignore[no-untyped-def]
+    for c in (cell, trusting):
+        frames = _sway(c, 1.0)
+        assert all(f is None for f, *_ in frames)
+        for _, v, dv, v_true in frames:
+            assert (np.linalg.norm(v - v_true, axis=1) <= dv + 1e-9).all()
+    # trusted, narrower than the estimate alone: the stated bound (delta_v) is used
     assert max(float(dv.max()) for _, _, dv, _ in frames[10:]) <= cell.params.delta_v_mps + 1e-12
 
 
-def test_reversed_velocities_fault_the_person_and_the_estimate_is_used(cell) -> None:  # type: ignore[no-untyped-def]
+def test_untrusted_velocities_leave_the_estimate_as_it_is(cell, trusting) -> None:  # type: ignore[no-untyped-def]
+    """By default the velocity used is the positions' estimate whatever is stated: the sway's
+    reversed velocities give the same balls as no velocities at all, which hold the truth where
+    a trusting cell, at the slow frames the positions cannot contradict, uses the wrong ones."""
+    plain = _sway(cell, None)
+    for sign in (-1.0, 1.0):
+        for (_, v, dv, _), (_, v0, dv0, _) in zip(_sway(cell, sign), plain, strict=True):
+            np.testing.assert_array_equal(dv, dv0)
+            np.testing.assert_array_equal(v, v0)
+    trusted_misses = sum(
+        int((np.linalg.norm(v - vt, axis=1) > dv + 1e-9).sum())
+        for f, v, dv, vt in _sway(trusting, -1.0) if f is None
+    )  # fmt: skip
+    assert trusted_misses > 0  # what the default avoids
+
+
+@pytest.mark.parametrize("trust", [False, True])
+def test_reversed_velocities_fault_the_person_and_the_estimate_is_used(
+    cell, trusting, trust: bool
+) -> None:  # type: ignore[no-untyped-def]
     """The hostile-tracker probe's reversed velocities: the person is a fault (the robot stays
     on its failsafe) while they move fast enough for the positions to contradict them, and a
     contradicted joint's velocity is the estimate's, which holds the truth. (A joint whose
     estimate's bound is wider than twice its speed is not contradicted: trusted as stated.)"""
-    frames = _sway(cell, -1.0)
+    frames = _sway(trusting if trust else cell, -1.0)
     faults = [f for f, *_ in frames if f is not None]
     assert faults and all("stated_velocity" in f for f in faults)
     fast = [k for k, (*_, vt) in enumerate(frames) if np.linalg.norm(vt) > 1.2 and k > 10]

@@ -130,7 +130,8 @@ def take_measurement(
         v_s = np.where((seen & g.trusted)[:, None], v, 0.0)
         dv_s = np.full(J, p.delta_v_mps if unc_v_mps is None else max(unc_v_mps, p.delta_v_mps))
         dv_s[~g.trusted] = np.inf  # a held joint's stated velocity may be the glitch's
-        st.v, st.dv = track.intake.stated(stamp_s, v_s, dv_s, v_est, dv_est)
+        st.v, st.dv = track.intake.stated(stamp_s, v_s, dv_s, v_est, dv_est,
+                                          inputs.trust_stated_velocities)  # fmt: skip
     else:
         st.v, st.dv = v_est.copy(), dv_est.copy()
     if not legs_measured:

@@ -148,8 +148,13 @@ def status_markdown(status: dict[str, Any]) -> str:
     return "| | |\n|---|---|\n" + "\n".join(f"| {k} | {v} |" for k, v in rows)
 
 
-_UNIT = {"speed": "m/s", "acceleration": "m/s²", "rise": "m/s", "displacement": "m",
-         "stated_velocity": "m/s"}
+_UNIT = {
+    "speed": "m/s",
+    "acceleration": "m/s²",
+    "rise": "m/s",
+    "displacement": "m",
+    "stated_velocity": "m/s",
+}
 
 
 def _people_rows(status: dict[str, Any]) -> list[tuple[str, str]]:

@@ -150,16 +150,18 @@ class Intake:
         return g, v, dv
 
     def stated(
-        self, t_s: float, v_s: np.ndarray, dv_s: np.ndarray, v_e: np.ndarray, dv_e: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
+        self, t_s: float, v_s: np.ndarray, dv_s: np.ndarray, v_e: np.ndarray, dv_e: np.ndarray,
+        trust: bool,
+    ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
         """The velocity ``(J, 3)`` and bound ``(J,)`` to use for the frame ``t_s`` just taken,
         from a tracker's stated ``v_s``, ``dv_s`` and the estimate ``v_e``, ``dv_e`` that
-        :meth:`take` returned (:func:`~sara_app.human.stated_velocity.reconcile`); a joint whose
-        stated velocity the positions contradict is the monitor's violation."""
+        :meth:`take` returned: with ``trust``, the ball around both
+        (:func:`~sara_app.human.stated_velocity.reconcile`), else the estimate's. Either way a
+        joint whose stated velocity the positions contradict is the monitor's violation."""
         v, dv, contradicted, gap = reconcile(v_s, dv_s, v_e, dv_e)
         if contradicted.any():
             self.monitor.contradicted(t_s, contradicted, gap, dv_s + dv_e)
-        return v, dv
+        return (v, dv) if trust else (v_e.copy(), dv_e.copy())
 
     def _repeated(
         self, t_s: float, y: np.ndarray, n_measured: int, missing: np.ndarray | None

@@ -5,8 +5,10 @@ parameter set's ``delta_v``): the tracker claims ``v in B(v_s, dv_s)``. The cell
 from the positions (:mod:`sara_app.human.velocity`) claims ``v in B(v_e, dv_e)`` under the
 assumptions every acceleration model already makes (``a_max`` per joint, positions within
 ``delta_y``). Both claims together put the true velocity in the lens ``B(v_s, dv_s) ∩ B(v_e,
-dv_e)``; the velocity handed to the acceleration models is the smallest of three balls that
-enclose that lens: the stated one, the estimate's and the lens's own circle ball (below).
+dv_e)``. Where the scenario trusts the tracker's velocities (``inputs.trust_stated_velocities``)
+the velocity handed to the acceleration models is the smallest of three balls that enclose that
+lens: the stated one, the estimate's and the lens's own circle ball (below); by default it is
+the estimate's, and the stated velocity is only checked against it.
 
 - **Contradiction.** Where the two balls do not meet (``|v_s - v_e| > dv_s + dv_e``) at least
   one claim is false. The cell's estimate rests on the set's own assumptions (which the
@@ -15,8 +17,10 @@ enclose that lens: the stated one, the estimate's and the lens's own circle ball
   so the operator sees a tracker whose velocities disagree with its positions (a frame
   transformation applied to positions only, a sign, a unit) and the robot stays on its verified
   failsafe meanwhile.
-- **What is trusted.** Where the balls meet, the stated velocity is trusted within its stated
-  uncertainty: a wrong one that the positions cannot yet contradict narrows the set wrongly.
+- **What trusting means.** Where the balls meet, a trusted stated velocity is used within its
+  stated uncertainty: a wrong one that the positions cannot yet contradict narrows the set
+  wrongly (measured: reversed velocities of slow joints made the effective set miss future
+  positions the estimate's sets contain; hence off by default).
   How wrong it can be without a fault: less than ``dv_s + dv_e`` from the estimate; ``dv_e`` is
   ``2 sqrt(delta_y a_max)`` at its best lag (``delta_y`` 4 mm, a wrist's ``a_max`` 100 m/s^2:
   1.3 m/s), so reversed velocities are caught once the joint moves faster than about half of

@@ -74,6 +74,10 @@ LOWER_LOOSENS: dict[str, str] = {
 OFF_LOOSENS: dict[str, str] = {
     "inputs.gate.stale_tracker": "a tracker repeating its skeletons is not noticed",
 }
+ON_LOOSENS: dict[str, str] = {
+    "inputs.trust_stated_velocities": "a tracker's stated velocities narrow the sets: a wrong "
+    "one the positions cannot contradict narrows them wrongly",
+}
 ADDED_LOOSENS: dict[str, str] = {
     "shield.models": "a body part is cleared when any model's set is free: one more model is "
     "one more chance to clear it",
@@ -151,6 +155,7 @@ def _directed(path: str, old: Any, new: Any) -> list[str] | None:
         (HIGHER_LOOSENS, lambda a, b: b > a),
         (LOWER_LOOSENS, lambda a, b: b < a),
         (OFF_LOOSENS, lambda a, b: a and not b),
+        (ON_LOOSENS, lambda a, b: b and not a),
     ):
         key = _rule_of(path, rules)
         if key is not None:
