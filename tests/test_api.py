@@ -382,6 +382,7 @@ class FakeWorker:
         self.dropped: dict[str, int] = {"superseded": 133088}  # normal: the newest is used
         self.extra: dict[str, Any] = {}  # further verdict fields (faults, intervened, ...)
         self.received: list[dict[str, Any]] = []
+        self.confirmed: list[tuple[bool, str]] = []
         self._stop = threading.Event()
         self._status = self.bus.publisher(keys.status_key(cell))
         self._verdict = self.bus.publisher(keys.verdict_key(cell))
@@ -428,6 +429,7 @@ class FakeWorker:
 
     def _answer(self, msg: ParamsMsg) -> None:
         self.received.append(msg.scenario)
+        self.confirmed.append((msg.confirm, msg.user))
         boxes = [b["name"] for b in msg.scenario.get("environment", [])]
         ok = "forbidden" not in boxes
         reason = "" if ok else "environment: box 'forbidden' blocks the task"
@@ -492,6 +494,7 @@ def test_live_cell_and_scenario_round_trip(folder: Path) -> None:
                 assert r.json()["accepted"]
                 assert worker.received[-1] == parse_scenario(sc).model_dump(mode="json")
                 assert worker.received[-1]["environment"][0]["center_m"] == [0.7, 0.0, 0.1]
+                assert worker.confirmed[-1] == (True, "local")  # the worker checks it too
                 sc["environment"][0]["name"] = "forbidden"
                 r = http.post("api/cells/cell1/scenario?confirm=true", json=sc)
                 assert r.status_code == 409 and "blocks the task" in r.json()["detail"]

@@ -44,11 +44,18 @@ class StandInRegistry(CellRegistry):
         self.answer = "accept"
         self.delay_s = 0.0
         self.received: list[dict[str, Any]] = []
+        self.confirmed: list[bool] = []
 
     def request_params(
-        self, cell: str, scenario: dict[str, Any], timeout_s: float = 3.0
+        self,
+        cell: str,
+        scenario: dict[str, Any],
+        timeout_s: float = 3.0,
+        confirm: bool = False,
+        user: str = "",
     ) -> ParamsAnswer:
         time.sleep(self.delay_s)
+        self.confirmed.append(confirm)
         if self.answer == "silent":
             raise WorkerTimeoutError(f"the worker of cell {cell!r} did not answer")
         self.received.append(scenario)

@@ -585,9 +585,11 @@ def test_a_loosening_edit_needs_the_confirmation_box(
     panels.confirm_loosening.value = True  # type: ignore[misc]
     v.edit({"inputs": inputs})
     assert v.scenario.inputs.tracker_timeout_s == 1.0 and not panels.loosening_confirmed()
+    assert bus.params.sent[-1].confirm and bus.params.sent[-1].user  # the worker checks too
     inputs["tracker_timeout_s"] = 0.1  # a tightening: no box needed
     v.edit({"inputs": inputs})
     assert v.scenario.inputs.tracker_timeout_s == 0.1
+    assert not bus.params.sent[-1].confirm
     rows = AuditLog(tmp_path / "audit.sqlite").assumption_changes(CELL)
     assert [(r["outcome"], r["confirmed"], r["via"]) for r in rows] == [
         ("applied", True, "dashboard"), ("refused", False, "dashboard")]  # fmt: skip

@@ -186,6 +186,33 @@ def test_live_scenario_update_acknowledged_or_refused(cell) -> None:
     assert got[-1].scenario == worker.cell.scenario.model_dump(mode="json")
 
 
+def test_an_edit_that_loosens_needs_its_senders_confirmation(cell, caplog) -> None:
+    """Whoever sends it on the bus (not only the API and the dashboard, which ask their users):
+    an edit that loosens what the verdict assumes (a longer tracker timeout) is refused unless
+    the message carries ``confirm``; confirmed, it applies and the log names who confirmed."""
+    _, worker, _, tb = cell
+    acks = tb.subscribe(keys.params_ack_key("cell1"), fifo=True)
+    pub = tb.publisher(keys.params_key("cell1"))
+    data = worker.cell.scenario.model_dump(mode="json")
+    data["inputs"]["tracker_timeout_s"] = 0.5
+    answers: dict[str, ParamsAckMsg] = {}
+    for i, confirm in enumerate((False, True)):
+        pub.put(ParamsMsg(seq=i, stamp_s=time.time(), request_id=f"c{i}", scenario=data,
+                          confirm=confirm, user="engineer"))  # fmt: skip
+        t_end = time.monotonic() + 5
+        while f"c{i}" not in answers and time.monotonic() < t_end:
+            answers.update({d.msg.request_id: d.msg for d in acks.drain().messages})
+            time.sleep(0.02)
+        if i == 0:
+            assert worker.cell.scenario.inputs.tracker_timeout_s == 0.2  # refused: unchanged
+    assert not answers["c0"].accepted
+    assert "inputs.tracker_timeout_s: 0.2 -> 0.5" in answers["c0"].reason
+    assert "confirm: true" in answers["c0"].reason
+    assert answers["c1"].accepted and worker.cell.scenario.inputs.tracker_timeout_s == 0.5
+    assert any("'engineer'" in r.getMessage() and "tracker_timeout_s" in r.getMessage()
+               for r in caplog.records)  # fmt: skip
+
+
 def test_control_period_changes_live(cell) -> None:
     """A faster control loop is a scenario setting (``shield.dt_s``), applied over the bus."""
     _, worker, _, tb = cell

@@ -51,7 +51,7 @@ from fastapi.staticfiles import StaticFiles
 import sara_app
 from sara_app.api import openapi
 from sara_app.api.assumptions import EditConflict, LooseningGuard, add_assumption_audit_route
-from sara_app.api.guard import Guard
+from sara_app.api.guard import Guard, request_user
 from sara_app.api.jobs import add_job_routes
 from sara_app.api.openapi import EVENT_STREAM, body_schema
 from sara_app.api.people import add_people_routes
@@ -244,10 +244,12 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
         """Server-Sent Events: the list of every cell's snapshot every ``interval_s``."""
         return _stream(request, registry.cells, interval_s, limit)
 
-    def send(cell: str, sc: Scenario, timeout_s: float) -> dict[str, Any]:
-        """``sc`` to a known cell's worker (``checked_send`` checked the cell), its answer."""
+    def send(cell: str, sc: Scenario, timeout_s: float, confirm: bool, user: str) -> dict[str, Any]:
+        """``sc`` to a known cell's worker (``checked_send`` checked the cell), its answer;
+        ``confirm``: it carries ``user``'s confirmation of the loosenings the guard found."""
         try:
-            ans = registry.request_params(cell, sc.model_dump(mode="json"), timeout_s)
+            ans = registry.request_params(cell, sc.model_dump(mode="json"), timeout_s, confirm,
+                                          user)  # fmt: skip
         except WorkerTimeoutError as e:
             raise HTTPException(504, str(e)) from None
         except SaraError as e:
@@ -288,7 +290,10 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
         known_cell(cell)  # an unknown cell is a 404 before anything is compared or recorded
         guarded(cell, current, sc)
         changes = loosening.check(cell, current, sc, confirm, request)
-        return loosening.send(cell, sc, changes, request, lambda: send(cell, sc, timeout_s))
+        user = request_user(request)
+        return loosening.send(
+            cell, sc, changes, request, lambda: send(cell, sc, timeout_s, bool(changes), user)
+        )
 
     @app.patch(
         "/api/cells/{cell}/scenario", tags=["cells"],

@@ -347,9 +347,12 @@ class CellRegistry:
             return self._last_seq
 
     def request_params(
-        self, cell: str, scenario: dict[str, Any], timeout_s: float = 3.0
-    ) -> ParamsAnswer:
-        """Send a full scenario to ``cell``'s worker and wait for its accept/reject answer.
+        self, cell: str, scenario: dict[str, Any], timeout_s: float = 3.0,
+        confirm: bool = False, user: str = "",
+    ) -> ParamsAnswer:  # fmt: skip
+        """Send a full scenario to ``cell``'s worker and wait for its accept/reject answer;
+        ``confirm``: ``user`` confirmed that it loosens what the verdict assumes (the worker
+        refuses such an edit without).
 
         Raises InputError for a bad cell name or a scenario that cannot be sent (non-finite
         numbers), WorkerTimeoutError when no worker listens or none answers in ``timeout_s``.
@@ -358,8 +361,9 @@ class CellRegistry:
         request_id = f"api-{uuid.uuid4().hex[:16]}"
         try:
             msg: ParamsMsg | RetireMsg = ParamsMsg(
-                seq=self._next_seq(), stamp_s=time.time(), request_id=request_id, scenario=scenario
-            )
+                seq=self._next_seq(), stamp_s=time.time(), request_id=request_id,
+                scenario=scenario, confirm=confirm, user=user[:64],
+            )  # fmt: skip
         except ValidationError as e:
             raise InputError(f"scenario cannot be sent: {e.errors()[0]['msg']}") from None
         ans = self._ask(cell, "params", msg, timeout_s)

@@ -532,10 +532,17 @@ FiniteTree = Annotated[dict[str, Any], AfterValidator(lambda v: (_check_finite_t
 
 
 class ParamsMsg(_Msg):
-    """A full scenario or parameter update for the worker (key ``sara/<cell>/params``)."""
+    """A full scenario or parameter update for the worker (key ``sara/<cell>/params``).
+
+    ``confirm``: the sender's user confirmed that the edit loosens what the verdict assumes
+    (:mod:`sara_app.ops.loosening`); without it the worker refuses such an edit, whoever sends
+    it. ``user``: who confirmed (the worker's log names them). Both added 2026-11-30 within
+    schema version 1 (absent: not confirmed)."""
 
     request_id: Name
     scenario: FiniteTree
+    confirm: bool = False
+    user: Annotated[str, Field(max_length=64)] = ""
 
 
 class ParamsAckMsg(_Msg):

@@ -201,10 +201,11 @@ class CellView(GizmoEditing):
         current = self.scenario
         changes: list[str] = []
 
-        def check(sc: Scenario) -> None:
+        def check(sc: Scenario) -> bool:
             changes.extend(
                 check_loosening(current, sc, confirm=confirm, how_to_confirm=CONFIRM_HOW)
             )
+            return bool(changes)  # the worker refuses a loosening its sender did not confirm
 
         try:
             sc = self._send(data, action, check)
@@ -247,7 +248,7 @@ class CellView(GizmoEditing):
         return self.audit
 
     def _send(
-        self, data: dict[str, Any], action: str, check: Callable[[Scenario], None]
+        self, data: dict[str, Any], action: str, check: Callable[[Scenario], bool]
     ) -> Scenario:
         # a client's edit (:mod:`sara_app.ops.client_edits`): no file of its choosing (a stored
         # scenario, "load", is the server's own), no raised energy limit but the threshold
@@ -259,7 +260,7 @@ class CellView(GizmoEditing):
         check_against_robot(sc)
         if action != "threshold":
             check_no_raise(current, sc, thresholds_path="the Thresholds tab")
-        check(sc)
+        confirmed = check(sc)
         rid = uuid.uuid4().hex[:16]
         with self._ack_lock:
             self._late = None
@@ -269,6 +270,8 @@ class CellView(GizmoEditing):
                 stamp_s=time.time(),
                 request_id=rid,
                 scenario=sc.model_dump(mode="json"),
+                confirm=confirmed,
+                user=self.dash.access.user()[:64] if confirmed else "",
             )
             if not self.pub_params.put(msg):
                 raise ScenarioError("the scenario could not be sent to the worker (bus error)")

@@ -24,6 +24,7 @@ from typing import NamedTuple
 from sara_app.bus.messages import ParamsMsg
 from sara_app.cell.build import Cell, build_cell
 from sara_app.errors import SaraError
+from sara_app.ops.loosening import LooseningRefusedError, check_loosening
 from sara_app.runtime.bus_io import CellBus
 from sara_app.runtime.cell_state import CellState
 from sara_app.scenario import Scenario, check_against_robot, parse_scenario
@@ -33,20 +34,23 @@ MAX_PENDING_EDITS = 16
 
 
 class Built(NamedTuple):
-    """A finished build: the request, and the scenario and cell, or why it failed."""
+    """A finished build: the request, and the scenario and cell, or why it failed; whether the
+    sender confirmed a loosening, and who (:class:`~sara_app.bus.messages.ParamsMsg`)."""
 
     request_id: str
     scenario: Scenario | None
     cell: Cell | None
     error: str
+    confirm: bool = False
+    user: str = ""
 
 
-def build(request_id: str, data: dict) -> Built:
+def build(request_id: str, data: dict, confirm: bool = False, user: str = "") -> Built:
     """Validate ``data`` as a scenario and build its cell (never raises)."""
     try:
         sc = parse_scenario(data, "params message")
         check_against_robot(sc)
-        return Built(request_id, sc, build_cell(sc), "")
+        return Built(request_id, sc, build_cell(sc), "", confirm, user)
     except SaraError as e:
         return Built(request_id, None, None, str(e))
     except Exception as e:  # noqa: BLE001 - a failed build is a refused edit, never a crash
@@ -54,21 +58,39 @@ def build(request_id: str, data: dict) -> Built:
         return Built(request_id, None, None, f"internal error: {e!r}")
 
 
+def unconfirmed_loosening(current: Scenario, b: Built) -> str | None:
+    """Why ``b`` may not run after ``current``: it loosens what the verdict assumes and its
+    sender did not confirm that (:mod:`sara_app.ops.loosening`; the API and the dashboard
+    confirm and audit, any other editor on the bus must say so too); None when it may. A
+    confirmed loosening is logged with who confirmed it."""
+    if b.scenario is None:
+        return None
+    try:
+        found = check_loosening(current, b.scenario, confirm=b.confirm,
+                                how_to_confirm="send it with confirm: true")  # fmt: skip
+    except LooseningRefusedError as e:
+        return str(e)
+    if found:
+        log.warning("edit %s by %r loosens what the verdict assumes, confirmed: %s",
+                    b.request_id, b.user or "(no user given)", "; ".join(found))  # fmt: skip
+    return None
+
+
 class CellBuilder:
     """``submit(request_id, data)`` queues a build; ``done()`` returns the finished ones."""
 
     def __init__(self) -> None:
-        self._todo: queue.Queue[tuple[str, dict] | None] = queue.Queue(MAX_PENDING_EDITS)
+        self._todo: queue.Queue[tuple[str, dict, bool, str] | None] = queue.Queue(MAX_PENDING_EDITS)
         self._done: queue.Queue[Built] = queue.Queue()
         self._thread: threading.Thread | None = None
 
-    def submit(self, request_id: str, data: dict) -> bool:
+    def submit(self, request_id: str, data: dict, confirm: bool = False, user: str = "") -> bool:
         """Queue a build; False when ``MAX_PENDING_EDITS`` already wait."""
         if self._thread is None:
             self._thread = threading.Thread(target=self._run, name="sara-cell-builder", daemon=True)
             self._thread.start()
         try:
-            self._todo.put_nowait((request_id, data))
+            self._todo.put_nowait((request_id, data, confirm, user))
         except queue.Full:
             return False
         return True
@@ -163,7 +185,7 @@ class LiveEdits:
         finished builds into the queue of those to swap in."""
         for d in io.params.drain().messages:
             if isinstance(d.msg, ParamsMsg) and not self.builder.submit(
-                d.msg.request_id, d.msg.scenario
+                d.msg.request_id, d.msg.scenario, d.msg.confirm, d.msg.user
             ):
                 io.ack(d.msg.request_id, False, f"busy: {MAX_PENDING_EDITS} edits pending")
         self._waiting.extend(self.builder.done())  # built off the loop: swapped in by the loop

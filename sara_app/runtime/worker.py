@@ -38,7 +38,7 @@ from sara_app.robot.trajectory import JointState
 from sara_app.runtime import display
 from sara_app.runtime.bus_io import CellBus
 from sara_app.runtime.cadence import PhaseLock
-from sara_app.runtime.edits import Built, LiveEdits, build, carry_over
+from sara_app.runtime.edits import Built, LiveEdits, build, carry_over, unconfirmed_loosening
 from sara_app.runtime.messages import CycleMessages
 from sara_app.runtime.people import People
 from sara_app.runtime.presence import Presence
@@ -133,7 +133,13 @@ class CellWorker:
 
     def _take(self, b: Built) -> bool:
         """Swap a finished build in and answer it; False while it must wait for the robot to
-        come to rest (leaving a mode that holds no verified failsafe: it is halted meanwhile)."""
+        come to rest (leaving a mode that holds no verified failsafe: it is halted meanwhile).
+        An edit that loosens what the verdict assumes without its sender's confirmation is
+        refused first (:func:`~sara_app.runtime.edits.unconfirmed_loosening`)."""
+        refused = unconfirmed_loosening(self.cell.scenario, b)
+        if refused is not None:
+            self.io.ack(b.request_id, False, refused)
+            return True
         if b.cell is not None and self._needs_rest(b.cell) and not self.shield.at_rest:
             self.shield.halt_reason = f"stopping for the switch to {b.cell.shield.safety_mode}"
             return False
@@ -154,7 +160,8 @@ class CellWorker:
     def apply(self, data: dict) -> tuple[bool, str]:
         """Validate a scenario and apply it now, in the caller's thread (the loop builds edits
         off the loop instead, see :mod:`~sara_app.runtime.edits`); never half-applied. Returns
-        (accepted, why)."""
+        (accepted, why). In-process: the caller owns the worker, so no loosening is compared
+        (the bus's edits are, in :meth:`_take`)."""
         built = build("apply", data)
         return (False, built.error) if built.cell is None else self._swap(built.cell)
 
