@@ -82,3 +82,8 @@ class AccessError(SaraError, PermissionError):
 class WorkerTimeoutError(SaraError):
     """A cell worker did not answer a parameter request (absent, busy or not subscribed): it may
     still apply it later."""
+
+
+class WorkerRefusedError(SaraError):
+    """The cell's worker answered a scenario request with a refusal (its reason in the
+    message)."""

@@ -50,7 +50,12 @@ from fastapi.staticfiles import StaticFiles
 
 import sara_app
 from sara_app.api import openapi
-from sara_app.api.assumptions import EditConflict, LooseningGuard, add_assumption_audit_route
+from sara_app.api.assumptions import (
+    CONFIRM_HOW,
+    EditConflict,
+    add_assumption_audit_route,
+    refusal_detail,
+)
 from sara_app.api.guard import Guard, request_user
 from sara_app.api.jobs import add_job_routes
 from sara_app.api.openapi import EVENT_STREAM, body_schema
@@ -69,11 +74,18 @@ from sara_app.api.schema import (
     responses,
 )
 from sara_app.api.thresholds import add_threshold_routes
-from sara_app.errors import ParameterError, SaraError, ScenarioError, WorkerTimeoutError
+from sara_app.errors import (
+    ParameterError,
+    SaraError,
+    ScenarioError,
+    WorkerRefusedError,
+    WorkerTimeoutError,
+)
 from sara_app.human.params import available_param_sets, load_param_set
 from sara_app.ops.audit import AuditLog, default_audit_path
 from sara_app.ops.client_edits import EditRefusedError, check_client_edit, check_no_raise
 from sara_app.ops.jobs import JobRunner
+from sara_app.ops.loosening import LooseningRefusedError, apply_checked
 from sara_app.safety.thresholds import load_thresholds, threshold_set_names
 from sara_app.scenario import (
     SHIPPED_SCENARIOS,
@@ -203,7 +215,6 @@ def _example_scenario(folder: Path) -> dict[str, Any] | None:
 
 def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None:
     known_cell = known_cell_check(registry)
-    loosening = LooseningGuard(lambda: app.state.threshold_audit())
 
     @app.get("/api/cells", tags=["cells"])
     def list_cells() -> list[dict[str, Any]]:
@@ -246,16 +257,12 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
 
     def send(cell: str, sc: Scenario, timeout_s: float, confirm: bool, user: str) -> dict[str, Any]:
         """``sc`` to a known cell's worker (``checked_send`` checked the cell), its answer;
-        ``confirm``: it carries ``user``'s confirmation of the loosenings the guard found."""
-        try:
-            ans = registry.request_params(cell, sc.model_dump(mode="json"), timeout_s, confirm,
-                                          user)  # fmt: skip
-        except WorkerTimeoutError as e:
-            raise HTTPException(504, str(e)) from None
-        except SaraError as e:
-            raise HTTPException(422, str(e)) from None
+        ``confirm``: it carries ``user``'s confirmation of the loosenings found. Raises
+        WorkerTimeoutError, WorkerRefusedError or another SaraError (the scenario cannot be
+        sent)."""
+        ans = registry.request_params(cell, sc.model_dump(mode="json"), timeout_s, confirm, user)
         if not ans.accepted:
-            raise HTTPException(409, f"the worker of cell {cell!r} refused: {ans.reason}")
+            raise WorkerRefusedError(f"the worker of cell {cell!r} refused: {ans.reason}")
         return {"cell": cell, "scenario": sc.name, "accepted": True, "request_id": ans.request_id}
 
     @app.post(
@@ -289,11 +296,22 @@ def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None
         nothing, or only with ``confirm`` (recorded)."""
         known_cell(cell)  # an unknown cell is a 404 before anything is compared or recorded
         guarded(cell, current, sc)
-        changes = loosening.check(cell, current, sc, confirm, request)
         user = request_user(request)
-        return loosening.send(
-            cell, sc, changes, request, lambda: send(cell, sc, timeout_s, bool(changes), user)
-        )
+        try:
+            answer, found, row = apply_checked(
+                current, sc, lambda confirmed: send(cell, sc, timeout_s, confirmed, user),
+                confirm=confirm, how_to_confirm=CONFIRM_HOW, audit=app.state.threshold_audit,
+                cell=cell, user=user, via="api", no_answer=(WorkerTimeoutError,),
+            )  # fmt: skip
+        except LooseningRefusedError as e:
+            raise HTTPException(409, refusal_detail(e)) from None
+        except WorkerTimeoutError as e:
+            raise HTTPException(504, str(e)) from None
+        except WorkerRefusedError as e:
+            raise HTTPException(409, str(e)) from None
+        except SaraError as e:
+            raise HTTPException(422, str(e)) from None
+        return answer if row is None else {**answer, "loosens": found, "audit_id": row["id"]}
 
     @app.patch(
         "/api/cells/{cell}/scenario", tags=["cells"],

@@ -1,5 +1,6 @@
-"""The API's guard on scenario edits that loosen what the verdict assumes
-(:mod:`sara_app.ops.loosening`), and their audit listing.
+"""What the API answers about scenario edits that loosen what the verdict assumes
+(:mod:`sara_app.ops.loosening`: checked, recorded and sent by its ``apply_checked``), and their
+audit listing.
 
 - ``POST`` / ``PATCH /api/cells/{cell}/scenario`` without ``?confirm=true``: an edit that loosens
   anything is refused (409, the detail lists each loosening and the audit row), recorded as
@@ -13,14 +14,12 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from fastapi import FastAPI, HTTPException, Query, Request
+from fastapi import FastAPI, Query
 from pydantic import BaseModel
 
-from sara_app.api.guard import request_user
 from sara_app.api.schema import CellName, responses
 from sara_app.ops.audit import MAX_LIMIT, AuditLog
-from sara_app.ops.loosening import LooseningRefusedError, check_loosening
-from sara_app.scenario import Scenario
+from sara_app.ops.loosening import LooseningRefusedError
 
 CONFIRM_HOW = "repeat the request with ?confirm=true"
 
@@ -41,53 +40,12 @@ class EditConflict(BaseModel):
     detail: LooseningDetail | str
 
 
-class LooseningGuard:
-    """Checks one request's edit and records it (``audit()`` gives the open log)."""
-
-    def __init__(self, audit: Callable[[], AuditLog]) -> None:
-        self.audit = audit
-
-    def check(
-        self, cell: str, current: Scenario | None, new: Scenario, confirm: bool, request: Request
-    ) -> list[str]:
-        """The loosenings of ``new`` against ``current`` (the scenario in force); HTTP 409 with
-        them, recorded, when there are any and ``confirm`` is false."""
-        try:
-            return check_loosening(current, new, confirm=confirm, how_to_confirm=CONFIRM_HOW)
-        except LooseningRefusedError as e:
-            row = self.audit().record_assumption_change(
-                cell=cell, scenario=new.name, changes=e.changes, confirmed=False,
-                outcome="refused", user=request_user(request), via="api", reason=str(e),
-            )  # fmt: skip
-            detail = {"message": str(e), "needs_confirmation": True, "loosens": e.changes,
-                      "audit_id": row["id"]}  # fmt: skip
-            raise HTTPException(409, detail) from None
-
-    def send(
-        self,
-        cell: str,
-        new: Scenario,
-        changes: list[str],
-        request: Request,
-        send: Callable[[], dict[str, Any]],
-    ) -> dict[str, Any]:
-        """``send()`` (the worker's answer, or an HTTPException); a confirmed loosening is
-        recorded with its outcome, and the answer names it (``loosens``, ``audit_id``)."""
-        if not changes:
-            return send()
-        common: dict[str, Any] = {
-            "cell": cell, "scenario": new.name, "changes": changes, "confirmed": True,
-            "user": request_user(request), "via": "api",
-        }  # fmt: skip
-        log = self.audit()  # before sending: an edit that cannot be recorded is not made
-        try:
-            answer = send()
-        except HTTPException as e:
-            outcome = "no_answer" if e.status_code == 504 else "refused"
-            log.record_assumption_change(**common, outcome=outcome, reason=str(e.detail))
-            raise
-        row = log.record_assumption_change(**common, outcome="applied")
-        return {**answer, "loosens": changes, "audit_id": row["id"]}
+def refusal_detail(e: LooseningRefusedError) -> dict[str, Any]:
+    """The 409 detail of an unconfirmed loosening (:class:`LooseningDetail`; its refusal
+    recorded by :func:`~sara_app.ops.loosening.apply_checked`)."""
+    row = e.audit_row or {}
+    return {"message": str(e), "needs_confirmation": True, "loosens": e.changes,
+            "audit_id": row.get("id", -1)}  # fmt: skip
 
 
 def add_assumption_audit_route(

@@ -32,16 +32,12 @@ from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictFloat
 from sara_app.api.guard import request_user
 from sara_app.api.registry import EDIT_TIMEOUT_S, CellRegistry
 from sara_app.api.schema import BODY_RESPONSES, CellName, responses
-from sara_app.errors import SaraError, WorkerTimeoutError
+from sara_app.errors import SaraError, WorkerRefusedError, WorkerTimeoutError
 from sara_app.ops.audit import MAX_LIMIT, AuditLog
 from sara_app.ops.threshold_edit import ConfirmationRequired, apply_edit, threshold_view
 from sara_app.safety.settings import MAX_THRESHOLD_J
 from sara_app.safety.thresholds import CONTACTS, REGIONS, SHAPES
 from sara_app.scenario import Scenario, parse_scenario
-
-
-class WorkerRefusedError(SaraError):
-    """The cell's worker answered the scenario request with a refusal."""
 
 
 class ThresholdEditBody(BaseModel):

@@ -23,7 +23,6 @@ import threading
 import time
 import uuid
 from collections import deque
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -52,7 +51,7 @@ from sara_app.geometry.poses import pose_from_xyz_rpy
 from sara_app.ops.audit import AuditLog, default_audit_path
 from sara_app.ops.client_edits import check_client_edit, check_no_raise
 from sara_app.ops.jobs import JobRunner
-from sara_app.ops.loosening import LooseningRefusedError, check_loosening
+from sara_app.ops.loosening import apply_checked
 from sara_app.robot.model import RobotModel
 from sara_app.safety.settings import SAFETY_MODES
 from sara_app.scenario import (
@@ -198,27 +197,12 @@ class CellView(GizmoEditing):
         )
 
     def _checked(self, data: dict[str, Any], action: str, confirm: bool) -> Scenario:
-        current = self.scenario
-        changes: list[str] = []
-
-        def check(sc: Scenario) -> bool:
-            changes.extend(
-                check_loosening(current, sc, confirm=confirm, how_to_confirm=CONFIRM_HOW)
-            )
-            return bool(changes)  # the worker refuses a loosening its sender did not confirm
-
-        try:
-            sc = self._send(data, action, check)
-        except LooseningRefusedError as e:
-            self._record_loosening(e.changes, current.name, False, "refused", str(e))
-            raise
-        except WorkerTimeoutError as e:
-            self._record_loosening(changes, current.name, True, "no_answer", str(e))
-            raise
-        except Exception as e:
-            self._record_loosening(changes, current.name, True, "refused", str(e))
-            raise
-        self._record_loosening(changes, sc.name, True, "applied", "")
+        sc = self._validated(data, action)
+        sc, changes, _ = apply_checked(
+            self.scenario, sc, lambda confirmed: self._post(sc, confirmed), confirm=confirm,
+            how_to_confirm=CONFIRM_HOW, audit=self._audit_log, cell=self.cell,
+            user=self.dash.access.user(), via="dashboard", no_answer=(WorkerTimeoutError,),
+        )  # fmt: skip
         if changes and self.dash.panels is not None:
             self.dash.panels.clear_confirmation()  # one confirmation, one edit
         return sc
@@ -227,19 +211,6 @@ class CellView(GizmoEditing):
         """Whether the Scenario tab's "Confirm loosening" is ticked."""
         return self.dash.panels is not None and self.dash.panels.loosening_confirmed()
 
-    def _record_loosening(
-        self, changes: list[str], scenario: str, confirmed: bool, outcome: str, reason: str
-    ) -> None:
-        if not changes:
-            return
-        try:
-            self._audit_log().record_assumption_change(
-                cell=self.cell, scenario=scenario, changes=changes, confirmed=confirmed,
-                outcome=outcome, user=self.dash.access.user(), via="dashboard", reason=reason,
-            )  # fmt: skip
-        except SaraError:
-            log.exception("recording a loosening edit failed")
-
     def _audit_log(self) -> AuditLog:
         """The audit log, opened on first use when given as a path (once: each open runs the
         schema's statements)."""
@@ -247,12 +218,11 @@ class CellView(GizmoEditing):
             self.audit = AuditLog(self.audit)
         return self.audit
 
-    def _send(
-        self, data: dict[str, Any], action: str, check: Callable[[Scenario], bool]
-    ) -> Scenario:
-        # a client's edit (:mod:`sara_app.ops.client_edits`): no file of its choosing (a stored
-        # scenario, "load", is the server's own), no raised energy limit but the threshold
-        # editor's ("threshold": confirmed and audited by apply_edit)
+    def _validated(self, data: dict[str, Any], action: str) -> Scenario:
+        """``data`` as a client's edit of the scenario in force (:mod:`sara_app.ops.client_edits`):
+        no file of its choosing (a stored scenario, "load", is the server's own), no raised
+        energy limit but the threshold editor's ("threshold": confirmed and audited by
+        apply_edit)."""
         current = self.scenario
         if action != "load":
             check_client_edit(current.model_dump(mode="json"), data)
@@ -260,7 +230,11 @@ class CellView(GizmoEditing):
         check_against_robot(sc)
         if action != "threshold":
             check_no_raise(current, sc, thresholds_path="the Thresholds tab")
-        confirmed = check(sc)
+        return sc
+
+    def _post(self, sc: Scenario, confirmed: bool) -> Scenario:
+        """Send ``sc`` to the worker (``confirmed``: with the user's confirmation of its
+        loosenings) and wait for its answer."""
         rid = uuid.uuid4().hex[:16]
         with self._ack_lock:
             self._late = None

@@ -24,14 +24,17 @@ editor does for a limit above its source.
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
-from typing import Any
+from collections.abc import Callable, Iterator, Mapping
+from typing import Any, TypeVar
 
 from sara_app.errors import ParameterError, clipped
+from sara_app.ops.audit import AuditLog
 from sara_app.safety.topology import ROBOT_UNCLAMPABLE_PAIRS
 from sara_app.scenario import Scenario
 
-__all__ = ["LooseningRefusedError", "check_loosening", "loosenings"]
+__all__ = ["LooseningRefusedError", "apply_checked", "check_loosening", "loosenings"]
+
+T = TypeVar("T")
 
 FREE: tuple[str, ...] = (
     "schema_version",
@@ -96,6 +99,8 @@ class LooseningRefusedError(ParameterError):
 
     def __init__(self, changes: list[str], how_to_confirm: str) -> None:
         self.changes = changes
+        self.audit_row: dict[str, Any] | None = None
+        """The refusal's row in the audit log (:func:`apply_checked` records it)."""
         shown = "; ".join(changes[:MAX_LISTED])
         more = f" (and {len(changes) - MAX_LISTED} more)" if len(changes) > MAX_LISTED else ""
         super().__init__(
@@ -211,3 +216,48 @@ def check_loosening(
     if found and not confirm:
         raise LooseningRefusedError(found, how_to_confirm)
     return found
+
+
+def apply_checked(
+    current: Scenario | None,
+    new: Scenario,
+    send: Callable[[bool], T],
+    *,
+    confirm: bool,
+    how_to_confirm: str,
+    audit: Callable[[], AuditLog],
+    cell: str,
+    user: str,
+    via: str,
+    no_answer: tuple[type[BaseException], ...] = (),
+) -> tuple[T, list[str], dict[str, Any] | None]:
+    """Check ``new`` against ``current`` (:func:`check_loosening`), then ``send(confirmed)``
+    it: the edit's result, its loosenings and their audit row (None without any). An
+    unconfirmed loosening is recorded and raised (:class:`LooseningRefusedError` with its
+    ``audit_row``, nothing sent); a confirmed one is recorded with its outcome: ``applied``,
+    ``no_answer`` (``send`` raised one of ``no_answer``: the worker may or may not have applied
+    it) or ``refused`` (``send`` raised anything else, re-raised). The log is opened before
+    sending: an edit that cannot be recorded is not made. ``confirmed``, passed to ``send``,
+    goes to the worker with the edit, which refuses an unconfirmed loosening itself."""
+    try:
+        found = check_loosening(current, new, confirm=confirm, how_to_confirm=how_to_confirm)
+    except LooseningRefusedError as e:
+        e.audit_row = audit().record_assumption_change(
+            cell=cell, scenario=new.name, changes=e.changes, confirmed=False, outcome="refused",
+            user=user, via=via, reason=str(e),
+        )  # fmt: skip
+        raise
+    if not found:
+        return send(False), found, None
+    log = audit()
+    common: dict[str, Any] = {"cell": cell, "scenario": new.name, "changes": found,
+                              "confirmed": True, "user": user, "via": via}  # fmt: skip
+    try:
+        result = send(True)
+    except no_answer as e:
+        log.record_assumption_change(**common, outcome="no_answer", reason=str(e))
+        raise
+    except Exception as e:
+        log.record_assumption_change(**common, outcome="refused", reason=str(e))
+        raise
+    return result, found, log.record_assumption_change(**common, outcome="applied")
