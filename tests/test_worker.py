@@ -393,3 +393,33 @@ def test_the_worker_as_serve_starts_it_says_starting_while_it_loads(tmp_path: Pa
     first_running = next(i for i, s in enumerate(seen) if s.state == "running")
     assert all(s.state == "starting" for s in seen[:first_running])
     assert proc.returncode == 0
+
+
+def test_the_status_reports_the_whole_step_and_the_periods_missed(cell) -> None:
+    """``cycle_time`` is the shield's cycle alone; the status also carries the worker's whole
+    step (inputs, the shield, the messages sent), never shorter, and counts the control periods
+    its loop missed: a step held up for five periods (inputs handled slowly, injected here)
+    shows in both."""
+    _, worker, _, tb = cell
+    status = tb.subscribe(keys.status_key("cell1"), fifo=True, capacity=1000)
+    real = worker._ingest
+    stalls = iter([True])
+
+    def slow_once(now: float) -> None:
+        if worker.loop_us and next(stalls, False):
+            time.sleep(5 * worker.shield.settings.dt_s)
+        real(now)
+
+    time.sleep(1.2)
+    before = worker.overruns
+    worker._ingest = slow_once  # type: ignore[method-assign]
+    time.sleep(2.5)
+    seen = [d.msg for d in status.drain().messages if isinstance(d.msg, StatusMsg)]
+    running = [s for s in seen if s.state == "running" and s.loop_time_p99_us is not None]
+    assert running
+    for s in running:
+        assert s.loop_time_p50_us <= s.loop_time_p99_us
+        assert s.cycle_time_p50_us is not None and s.loop_time_p50_us >= s.cycle_time_p50_us
+    last = running[-1]
+    assert last.overruns >= before + 1
+    assert max(worker.loop_us) >= 5e6 * worker.shield.settings.dt_s  # the held-up step

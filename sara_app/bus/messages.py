@@ -563,6 +563,13 @@ class StatusMsg(_Msg):
     humans: list[str] = []
     cycle_time_p50_us: NonNeg | None = None
     cycle_time_p99_us: NonNeg | None = None
+    loop_time_p50_us: NonNeg | None = None
+    loop_time_p99_us: NonNeg | None = None
+    """The worker's whole step per cycle (the inputs taken, the shield's cycle, the command and
+    verdict sent; ``cycle_time`` is the shield's cycle alone), over its recent cycles."""
+    overruns: Annotated[int, Field(ge=0)] = 0
+    """Control periods the worker's loop missed since it started (a step that ended more than
+    a whole period late). The three added 2026-11-30 within schema version 1."""
     detail: Annotated[str, Field(max_length=300)] = ""
     """What a ``starting`` worker is doing (building the cell: loading the robot model and
     compiling the kernels, with the seconds so far)."""

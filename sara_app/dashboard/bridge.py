@@ -156,7 +156,7 @@ class CellView(GizmoEditing):
             t_s=v.stamp_s,
             q=self.q,
             verified=v.mode != "failsafe",
-            status=verdict_status(v, np.array(self.cycle_us)),
+            status=verdict_status(v, np.array(self.cycle_us), self.worker_status),
             boxes=boxes_of(self.scenario),
         )
         if self.occ is not None:

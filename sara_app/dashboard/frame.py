@@ -92,7 +92,9 @@ class DisplayFrame:
       trajectory per interval and link; ``verified``: the shield's verdict for it;
     - ``contact_class (K, L)`` int8 or None: one of the ``CONTACT_*`` values per capsule;
     - ``status``: ``mode`` (str), ``safety_mode`` (str), ``min_distance_m`` (float),
-      ``cycle_p50_us`` / ``cycle_p99_us`` (float), ``skeleton_age_ms`` (float, or dict human id
+      ``cycle_p50_us`` / ``cycle_p99_us`` (float: the shield's cycle), ``loop_p99_us`` (float
+      or None: the worker's whole step) and ``overruns`` (int or None: periods its loop
+      missed), ``skeleton_age_ms`` (float, or dict human id
       to float), ``dropped`` (int, or dict reason to count), ``intervened`` (bool),
       ``speed_scale`` (PFL, float), ``jssa`` (dict: ``phi_m2``, ``active``, ``fallback``,
       ``reason``, ``link``, ``distance_m``, ``d_min_m``), ``tracking`` (dict human id to dict

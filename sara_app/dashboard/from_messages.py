@@ -14,6 +14,7 @@ from sara_app.bus.messages import (
     JssaMsg,
     LinkEnergyMsg,
     OccupancyMsg,
+    StatusMsg,
     VerdictMsg,
 )
 from sara_app.bus.verdict_words import verdict_words
@@ -110,15 +111,20 @@ def jssa_display(j: JssaMsg | None) -> tuple[dict[str, Any] | None, np.ndarray |
     return status, pair
 
 
-def verdict_status(v: VerdictMsg, cycle_us: np.ndarray) -> dict[str, Any]:
+def verdict_status(
+    v: VerdictMsg, cycle_us: np.ndarray, worker: StatusMsg | None = None
+) -> dict[str, Any]:
     """The status entries of a verdict (keys documented on :class:`DisplayFrame`);
-    ``cycle_us (n,)``: recent cycle times [us] for the percentiles."""
+    ``cycle_us (n,)``: recent cycle times [us] for the percentiles; ``worker``: the worker's
+    newest status (its whole step's time and missed periods)."""
     return {
         "mode": v.mode,
         "safety_mode": v.safety_mode,
         "min_distance_m": v.min_distance_m,
         "cycle_p50_us": float(np.median(cycle_us)) if cycle_us.size else None,
         "cycle_p99_us": float(np.percentile(cycle_us, 99)) if cycle_us.size else None,
+        "loop_p99_us": None if worker is None else worker.loop_time_p99_us,
+        "overruns": None if worker is None else worker.overruns,
         "skeleton_age_ms": {k: 1e3 * a for k, a in v.skeleton_age_s.items()},
         "dropped": dict(v.dropped),
         "models": dict(v.results),

@@ -133,6 +133,11 @@ def status_markdown(status: dict[str, Any]) -> str:
             f"{_fmt(status.get('cycle_p50_us'), '.0f')} / "
             f"{_fmt(status.get('cycle_p99_us'), '.0f', ' us')}",
         ),
+        (
+            "Worker step p99 / periods missed",
+            f"{_fmt(status.get('loop_p99_us'), '.0f', ' us')} / "
+            f"{_fmt(status.get('overruns'), '.0f')}",
+        ),
         ("Skeleton age", _fmt(status.get("skeleton_age_ms"), ".1f", " ms")),
         ("Dropped messages", drops_text(status.get("dropped"))),
     ]

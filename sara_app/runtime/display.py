@@ -284,9 +284,13 @@ def status_msg(
     uptime_s: float,
     humans: Iterable[str],
     cycle_us: Sequence[float],
+    loop_us: Sequence[float] = (),
+    overruns: int = 0,
 ) -> StatusMsg:
-    """The status of cell ``name``: its state, scenario, people, cycle times and checksum."""
+    """The status of cell ``name``: its state, scenario, people, cycle times (the shield's
+    ``cycle_us``, the whole step's ``loop_us``), missed periods and checksum."""
     cu = np.array(cycle_us) if len(cycle_us) else None
+    lu = np.array(loop_us) if len(loop_us) else None
     return StatusMsg(
         seq=seq,
         stamp_s=now,
@@ -297,5 +301,8 @@ def status_msg(
         humans=sorted(humans),
         cycle_time_p50_us=None if cu is None else float(np.median(cu)),
         cycle_time_p99_us=None if cu is None else float(np.percentile(cu, 99)),
+        loop_time_p50_us=None if lu is None else float(np.median(lu)),
+        loop_time_p99_us=None if lu is None else float(np.percentile(lu, 99)),
+        overruns=overruns,
         config_sha256=cell.checksum,
     )

@@ -100,6 +100,9 @@ class CellWorker:
         self.robot_in = MeasuredRobot()
         self.pass_index = 0
         self.cycle_us: deque[float] = deque(maxlen=2000)
+        self.loop_us: deque[float] = deque(maxlen=2000)
+        """The whole step's time per cycle (inputs, the shield, the messages sent), us."""
+        self.overruns = 0
         self.started = time.time()
         self._next_display = 0.0
         self._next_status = 0.0
@@ -185,6 +188,7 @@ class CellWorker:
     def step(self, now: float) -> CycleResult:
         """One cycle: inputs, the shield, one command and one verdict. Whatever raises on the
         way makes the cycle a fault on the held failsafe, never an exception out of here."""
+        t0_ns = time.perf_counter_ns()
         problems: list[str] = []
         try:
             self._ingest(now)
@@ -210,6 +214,7 @@ class CellWorker:
         except Exception as e:  # noqa: BLE001
             self.errors("task advance failed", repr(e), e)
         self._publish(now, res)
+        self.loop_us.append((time.perf_counter_ns() - t0_ns) / 1e3)
         return res
 
     def _reanchor(self) -> None:
@@ -299,13 +304,13 @@ class CellWorker:
         return display.status_msg(
             self.name, self.cell, state, now, self.io.status.next_seq(),
             uptime_s=now - self.started, humans=self.tracks, cycle_us=self.cycle_us,
+            loop_us=self.loop_us, overruns=self.overruns,
         )  # fmt: skip
 
     def run(self, duration_s: float | None = None) -> None:
         """Cycle at the scenario's rate until ``stop_event`` is set (or ``duration_s``)."""
         t_end = None if duration_s is None else time.monotonic() + duration_s
         next_t = time.monotonic()
-        self.overruns = 0
         while not self.stop_event.is_set():
             mono = time.monotonic()
             if t_end is not None and mono >= t_end:
