@@ -109,3 +109,29 @@ def test_the_compiled_cycle_equals_the_python_composition() -> None:
 def test_the_arm_model_keeps_the_python_composition() -> None:
     assert _shield(("arm", "pos"))._compiled is None
     assert _shield()._compiled is not None
+
+
+def test_the_compiled_cycles_separation_is_min_distance_at_the_command() -> None:
+    """Where the compiled call's plan is committed, the separation it reports (from its
+    occupancy's capsule ends at sample 1) is ``Shield.min_distance`` at the command, bit for
+    bit; where the cycle brakes or nobody is there, the cycle calls ``min_distance`` itself."""
+    rng = np.random.default_rng(11)
+    sh = _shield()
+    t, used, braked = 0.0, 0, 0
+    for cycle in range(400):
+        if cycle % 40 == 0:
+            n = int(rng.integers(0, 3))
+        people = _people(rng, t, n) if n else []
+        res = sh.cycle(t, people)
+        if people:
+            want = sh.min_distance(res.command.q, [p.y for p in people])
+            assert res.min_distance_m is not None
+            assert res.min_distance_m == want or (
+                math.isnan(res.min_distance_m) and math.isnan(want)
+            )
+            used += sh._separation is not None and res.verified
+            braked += not res.verified
+        else:
+            assert res.min_distance_m is None
+        t += sh.settings.dt_s
+    assert used > 50 and braked > 10  # both kinds of cycle

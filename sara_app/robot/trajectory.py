@@ -342,14 +342,13 @@ class PathFollower:
     def step_from_record(self, out: np.ndarray, status: int, dt: float) -> FollowerStep:
         """The step of :meth:`peek` from ``peek_kernel``'s record ``out`` and status (planned
         from this follower's current state with step ``dt``)."""
-        s, v, a = self._s, self._v, self._a
         path = self.path
-        o = out.tolist()
         if status == FALLBACK:  # the failsafe already held
             held = self._stop
             d, j = cut_phases(held.profile.durs, held.profile.jerks, dt)
-            prof = ScalarProfile(s, v, a, d, j)
+            prof = ScalarProfile(self._s, self._v, self._a, d, j)
             return _follower_step(dt, path, prof, prof.end, held.advanced(dt), True)
+        o = out.tolist()
         prof = ScalarProfile._from_breaks(*profile_record(o, O_HEAD, H_CAP))
         end = (o[O_END], o[O_END + 1], o[O_END + 2])
         stop_prof = ScalarProfile._from_breaks(*profile_record(o, O_STOP, S_CAP))

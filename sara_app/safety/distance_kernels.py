@@ -22,7 +22,34 @@ from sara_app.kernel_types import F8, RO1, RO3, ROI1, ROI2, W2, W4, source_diges
 from sara_app.robot import occupancy_kernels
 from sara_app.robot.occupancy_kernels import ends_kernel, fk_kernel
 
-__all__ = ["min_distance_kernel"]
+__all__ = ["min_distance_kernel", "separation"]
+
+
+@njit  # calls kernels of other files: compiled into its callers (kernel_types, caching)
+def separation(
+    E: Any, s: int, robot_radius_m: Any, Y: Any, part_joints: Any, half_thickness_m: Any
+) -> float:
+    """Smallest surface distance (m; negative: overlap; NaN when any pair's is) between the
+    link capsules ``E[s] (L, 2, 3)`` of radii ``robot_radius_m (L,)`` and the body-part
+    capsules of the people's joints ``Y (H, J, 3)``: ``part_joints (P, 2)``, radii
+    ``half_thickness_m (P,)``; ``inf`` without people. :func:`min_distance_kernel` at one
+    configuration; the SSM cycle's kernel at its command (the checked plan's sample 1, whose
+    capsule ends its occupancy computed: :mod:`~sara_app.safety.ssm_cycle_kernels`)."""
+    best = math.inf
+    for h in range(Y.shape[0]):
+        for p in range(part_joints.shape[0]):
+            a, b = part_joints[p, 0], part_joints[p, 1]
+            for i in range(E.shape[1]):
+                d = segment_closest(
+                    Y[h, a, 0], Y[h, a, 1], Y[h, a, 2], Y[h, b, 0], Y[h, b, 1], Y[h, b, 2],
+                    E[s, i, 0, 0], E[s, i, 0, 1], E[s, i, 0, 2],
+                    E[s, i, 1, 0], E[s, i, 1, 1], E[s, i, 1, 2],
+                )[0]  # fmt: skip
+                g = d - half_thickness_m[p] - robot_radius_m[i]
+                if g != g:  # NaN: no distance can be claimed
+                    return g
+                best = min(best, g)
+    return best
 
 
 def _make_kernel() -> Any:
@@ -56,21 +83,9 @@ def _make_kernel() -> Any:
             Q[0, j] = q[q_index[j]]
         fk_kernel(Q, N, parents, H)
         ends_kernel(H, link_joint, ends_joint, E, 1)
-        best = math.inf if len(sources) > 0 else math.nan  # the digests tie the cache
-        for h in range(Y.shape[0]):
-            for p in range(part_joints.shape[0]):
-                a, b = part_joints[p, 0], part_joints[p, 1]
-                for i in range(E.shape[1]):
-                    d = segment_closest(
-                        Y[h, a, 0], Y[h, a, 1], Y[h, a, 2], Y[h, b, 0], Y[h, b, 1], Y[h, b, 2],
-                        E[0, i, 0, 0], E[0, i, 0, 1], E[0, i, 0, 2],
-                        E[0, i, 1, 0], E[0, i, 1, 1], E[0, i, 1, 2],
-                    )[0]  # fmt: skip
-                    g = d - half_thickness_m[p] - robot_radius_m[i]
-                    if g != g:  # NaN: no distance can be claimed
-                        return g
-                    best = min(best, g)
-        return best
+        if len(sources) == 0:  # never: the digests tie the cache to the callees
+            return math.nan
+        return separation(E, 0, robot_radius_m, Y, part_joints, half_thickness_m)
 
     return min_distance_kernel
 

@@ -152,7 +152,8 @@ def _plan(
 ) -> Any:
     """The shielded trajectory at path-speed cap ``cap`` and its robot capsules per interval
     (``Shield._shielded`` with the follower's cap set): ``(ok, status, robot arrays,
-    trajectory arrays, slab)`` (``slab``: the plan's arrays in one, see :func:`plan_views`);
+    trajectory arrays, slab, E)`` (``slab``: the plan's arrays in one, see :func:`plan_views`;
+    ``E (K+1, L, 2, 3)``: the link capsules' ends at the samples, written where ``ok``);
     ``ok`` False where there is no plan to check, ``status`` ``peek_kernel``'s."""
     s, v, a, dt, S, A_min, J_min, ramp_c = follower
     pc, rows, geo, consts = planner
@@ -181,6 +182,7 @@ def _plan(
     record, pts, joint, bounds, r_ends, r_radius = plan_views(slab, K, L, n)
     record[:] = out
     times, ps, sd_max = pts[0], pts[1:4], pts[4, :K]
+    E = np.empty((K + 1, L, 2, 3))
     if ok:
         p_s0, p_len, poly, M1, M2, qs = path
         shielded_samples_kernel(dt, T, s0, v0, a0, phases, p_s0, p_len, poly, M1, M2, qs,
@@ -190,7 +192,6 @@ def _plan(
             for j in range(n):
                 Qj[r, j] = joint[0, r, q_index[j]]
         H = frames(K + 1, n, T0)
-        E = np.empty((K + 1, L, 2, 3))
         code = intervals_kernel(Qj, bounds[0], times, N, parents, link_joint, ends_joint,
                                 lipschitz, radius0, H, E, r_ends, r_radius)  # fmt: skip
         ok = code == 0
@@ -199,7 +200,7 @@ def _plan(
                 r_radius[k, i] += margin[i]
     robot = (r_ends, r_radius)
     trajectory = (joint[0], joint[1], pts[2], sd_max, times, bounds[0], bounds[1])
-    return ok, status, robot, trajectory, slab
+    return ok, status, robot, trajectory, slab, E
 
 
 @njit(cache=True)
@@ -320,7 +321,7 @@ def _make_kernel() -> Any:
             new_cap = cand
             if state[6] == 1 or checks > max_replans or left < 1:
                 break
-            ok, status, robot_c, trajectory_c, plan_c = _plan(
+            ok, status, robot_c, trajectory_c, plan_c, _ = _plan(
                 cand, follower, planner, path, sampling, occupancy, out
             )
             if not ok:  # no slower plan to check: the failed check's verdict stands (brake)

@@ -37,11 +37,11 @@ from sara_app.kernel_types import as_f8, entry
 from sara_app.robot.failsafe import BOUND_PAD
 from sara_app.robot.model import RobotModel
 from sara_app.robot.occupancy import RobotOccupancy
+from sara_app.robot.planning_kernels import OUT_LEN
 from sara_app.robot.shielded import ShieldedTrajectory, from_samples, shielded_trajectory
 from sara_app.robot.trajectory import JointState, PathFollower
 from sara_app.safety.distance_kernels import min_distance_kernel
 from sara_app.safety.input_kernels import BAD_BOUND, NON_FINITE, human_values
-from sara_app.safety.pfl_cycle_kernels import plan_views
 from sara_app.safety.settings import FUTURE_TOLERANCE_S, ShieldSettings
 from sara_app.safety.ssm import SsmResult, SsmVerifier
 from sara_app.safety.ssm_cycle_kernels import DONE, ssm_cycle_kernel
@@ -154,11 +154,23 @@ class Shield:
         self.tracking_margin_m = self.occupancy.lipschitz @ np.full(robot.n_dof, s.tracking_tol_rad)
         self._compiled = _compiled_inputs(self.verifier, self.occupancy, self.tracking_margin_m,
                                           s.max_interval_s)  # fmt: skip
-        self._info = np.empty(5)
+        self._info = np.empty(6)
+        self._peek_record = np.empty(OUT_LEN)  # the cycle kernel's last peek_kernel record
         self._verdicts = np.empty((2, len(self.verifier.models)), np.bool_)  # _annotate's
         self._half_th = reach.params.half_thickness_m
         self._parts = np.asarray(reach.skeleton.part_joints, dtype=np.int64)
+        self._n_joints = reach.skeleton.n_joints
         self._distance_inputs = _distance_inputs(self.occupancy, robot.radius_m)
+        half, radius = as_f8(self._half_th), self._distance_inputs[-1]
+        ok = half.shape == (len(self._parts),)  # else min_distance raises, as it checks them
+        self._distance = {w: (w and ok, radius, self._parts, half if ok else radius[:0])
+                          for w in (False, True)}  # fmt: skip
+        """The cycle kernel's separation inputs (:data:`ssm_cycle_kernels.DISTANCE`), asked
+        for or not."""
+        self._separation: float | None = None
+        """The separation at the checked plan's sample 1 (the command when it is committed)
+        from this cycle's compiled call; None where it did not compute it."""
+        self._want_distance = True
         self._no_widening = np.zeros((1, len(MODELS), reach.skeleton.n_parts))
         self._commanded: tuple[PathFollower, float, np.ndarray] | None = None
         self.cycles = 0
@@ -273,7 +285,7 @@ class Shield:
     ) -> list[int]:
         """Indices of usable humans; a human that is not usable is a fault."""
         ok = []
-        J = self.reach.skeleton.n_joints
+        J = self._n_joints
         s = self.settings
         for i, h in enumerate(humans):
             if h.stamp_s is None or not math.isfinite(h.stamp_s):
@@ -318,6 +330,7 @@ class Shield:
         traj = ends = radius = None
         verified = False
         self._res: Any = None
+        self._separation, self._want_distance = None, bool(want_distance)
         try:
             if not faults:
                 traj, ends, radius, verified = self._plan_and_verify(
@@ -330,8 +343,10 @@ class Shield:
             verified = False
         res = self._res
         follower = self.follower
+        at_end = None
         if verified and traj is not None:
-            command = follower.commit(traj.step, JointState(traj.q[1], traj.v[1], traj.a[1]))
+            at_end = JointState(traj.q[1], traj.v[1], traj.a[1])
+            command = follower.commit(traj.step, at_end)
             mode = "failsafe" if traj.step.fallback else "intended"
         else:
             command = follower.brake(self.settings.dt_s)
@@ -356,7 +371,10 @@ class Shield:
         out.intervened = mode in ("failsafe", "fault")
         self._annotate(out, res)
         if want_distance and usable:
-            out.min_distance_m = self.min_distance(command.q, [humans[i].y for i in usable])
+            sep = self._separation  # the compiled cycle's, at the plan's sample 1
+            if sep is None or command is not at_end:  # none, or the command is not that sample
+                sep = self.min_distance(command.q, [humans[i].y for i in usable])
+            out.min_distance_m = sep
         out.cycle_time_us = (time.perf_counter() - t0) * 1e6
         return out
 
@@ -434,15 +452,15 @@ class Shield:
         sampling, occupancy = self._compiled
         constants, codes, maps, arm = check
         info = self._info
-        code, slab, free, evaluated, closest, parts = _SSM_CYCLE(
+        code, pts, joint, bounds, ends, radius, free, evaluated, closest, parts = _SSM_CYCLE(
             *state, sampling, occupancy, human, constants, codes, maps, arm,
-            (f.speed_cap, sc.min_speed_scale * V_here, sc.cut), sc.max_replans, info,
+            (f.speed_cap, sc.min_speed_scale * V_here, sc.cut), sc.max_replans,
+            self._distance[self._want_distance], info, self._peek_record,
         )  # fmt: skip
         if code != DONE:
             return self._composed(hum)
-        K, L, n = parts.shape[1], occupancy[5].shape[0], occupancy[0].shape[0]
-        out, pts, joint, bounds, ends, radius = plan_views(slab, K, L, n)
-        step = f.step_from_record(out, int(info[3]), self.settings.dt_s)
+        K = parts.shape[1]
+        step = f.step_from_record(self._peek_record, int(info[3]), self.settings.dt_s)
         samples = (pts[0], (pts[1], pts[2], pts[3]), joint[0], joint[1], joint[3], joint[4],
                    bounds[0], bounds[1], pts[4, :K])  # fmt: skip
         traj = from_samples(step, samples)
@@ -451,6 +469,8 @@ class Shield:
             bool(info[0]), free, evaluated, closest, parts, self.verifier.order
         )
         self._promote(res, int(info[4]))
+        if self._distance[self._want_distance][0]:  # the kernel computed it
+            self._separation = float(info[5])
         return traj, ends, radius, res.safe
 
     def _composed(

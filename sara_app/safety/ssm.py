@@ -111,6 +111,7 @@ class SsmVerifier:
         self._maps.flags.writeable = False
         self._codes = np.array([_CODES[m] for m in self.models], dtype=np.int64)
         self._constants = reach.kernel_constants()
+        self._sizes = (reach.skeleton.n_parts, reach.skeleton.n_joints)  # P, J (human()'s)
         self._orders: dict[tuple[str, ...], tuple[np.ndarray, np.ndarray, list[int]]] = {}
         self.order = self.models
         """The models in the order the check tries them."""
@@ -212,7 +213,7 @@ class SsmVerifier:
         float64; raises :class:`InputError` on shapes other than :meth:`verify`'s."""
         y, v, dv, age_s = as_f8(y), as_f8(v), as_f8(dv), as_f8(age_s)
         H, M = y.shape[0], len(self.models)
-        P, J = self.reach.skeleton.n_parts, self.reach.skeleton.n_joints
+        P, J = self._sizes
         shapes = (y.shape, v.shape, dv.shape, age_s.shape)
         if shapes != ((H, J, 3), (H, J, 3), (H, J), (H,)):
             raise InputError(
