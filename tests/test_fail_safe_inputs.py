@@ -555,3 +555,65 @@ def test_velocities_stated_against_the_positions_fault_the_person(cell: Cell) ->
     assert {q.quantity for m in late for q in m.violations} == {"stated_velocity"}
     assert late[-1].mode == "fault" and late[-1].tracking["p1"]["stated_velocity"] > 0
     assert not any(c.mode == "intended" for c in cs if c.stamp_s > late[0].stamp_s)
+
+
+class _LyingController:
+    """The reference controller in this process, ticked by the test, whose reported states
+    can lie: between ``lie_from`` and ``lie_to`` (monotonic s) it reports joint 0 ``offset`` rad
+    from where its robot is, at rest (one buggy controller, one stream)."""
+
+    def __init__(self, cell: Cell) -> None:
+        from sara_app.peers.controller import Controller
+
+        self.ctl = Controller(CELL, load_scenario("standing_beside_path"), cell.bus)
+        self.lie: tuple[float, float, float] = (np.inf, np.inf, 0.0)
+        self.robot_q: list[np.ndarray] = []  # where the robot was, tick by tick
+        real = self.ctl.publish
+
+        def publish(now: float) -> None:
+            lie_from, lie_to, offset = self.lie
+            if lie_from <= time.monotonic() < lie_to:
+                q = self.ctl.q.copy()
+                q[0] += offset
+                pub = self.ctl.pub
+                pub.put(RobotStateMsg(seq=pub.next_seq(), stamp_s=now, q=q.tolist(),
+                                      q_dot=[0.0] * len(q)))  # fmt: skip
+                self.ctl.published_s = now
+            else:
+                real(now)
+
+        self.ctl.publish = publish  # type: ignore[method-assign]
+
+    def tick(self) -> None:
+        self.ctl.tick(time.time())
+        self.robot_q.append(self.ctl.q.copy())
+
+
+def test_a_controller_reporting_the_robot_at_rest_elsewhere_moves_nothing(cell: Cell) -> None:
+    """Hostile controller-side probe, 2026-11-30: a controller whose states tracked the
+    commands, then reported the robot at rest 0.3 rad away for a few tenths of a second, made
+    the worker re-plan from that position and send an ``intended`` command 0.3 rad from the
+    last one, which the reference controller took (a jump of the real robot, again with every
+    lie). Now a stream that tracked the commands is never a reason to re-plan: the lie is a
+    tracking fault, the worker's commands never jump, and the robot moves on once the states
+    are true again."""
+    ctl = _LyingController(cell)
+    with Heartbeat(cell.bus, CELL):
+        vs, cs = cell.collect(1.5, every=ctl.tick)  # moving along its path, tracked
+        assert any(v.mode == "intended" for v in vs)
+        for _ in range(3):
+            t0 = time.monotonic()
+            ctl.lie = (t0, t0 + 0.4, 0.3)
+            vs, lied = cell.collect(0.6, every=ctl.tick)
+            assert any("tracking error" in f for v in vs for f in v.faults)
+            cs += lied
+        vs, after = cell.collect(1.5, every=ctl.tick)
+    cs += after
+    seqs = np.array([c.seq for c in cs])
+    qs = np.array([c.q for c in cs])
+    steps = np.max(np.abs(np.diff(qs, axis=0)), axis=1)[np.diff(seqs) == 1]  # consecutive
+    assert len(steps) > 1000 and steps.max() < 0.05, steps.max()  # no jump (0.3 rad before)
+    robot = np.array(ctl.robot_q)
+    # nor does the robot (ticked at about 60 Hz here: up to 0.05 rad a tick on its path)
+    assert np.max(np.abs(np.diff(robot, axis=0))) < 0.15
+    assert any(c.mode == "intended" for c in after)  # true states again: it moves on

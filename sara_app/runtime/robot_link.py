@@ -7,6 +7,16 @@ newest command's verified stop (what the contract has a controller do, and the r
 controller does). A state stamped ``t`` is compared with that trajectory at ``t``, so transport and
 scheduling delays between worker and controller do not count as tracking errors; a state older
 than the oldest remembered set point cannot be checked and is a fault.
+
+A state stream that has tracked the commands once is **bound** to them: from then on a state
+that contradicts them is a tracking fault, never a reason to re-anchor the worker's plan where
+the state says the robot rests (a hostile-controller probe: a second publisher, or one buggy
+controller, reporting the robot at rest 0.3 rad away made the worker re-plan from there and
+send an ``intended`` command that jumped the real robot by that much, again and again). Only a
+stream not bound yet (the first one a worker sees; one whose publisher restarted, which the
+decoder tells by its numbering starting over at least a second after the last state) may
+re-anchor the plan: a robot moved by hand while its controller runs needs the controller (or
+the worker) restarted.
 """
 
 from __future__ import annotations
@@ -38,11 +48,17 @@ class MeasuredRobot:
         )
         """The commands sent: ``(set point time, set point, its verified stop's arrays)``
         (:meth:`RobotCommandMsg.stop_arrays`), oldest first."""
+        self.bound = False
+        """The state stream has tracked the commands (see the module notes)."""
+        self._restarts = 0  # the decoder's count of restarted publishers, last seen
 
     def drain(self, sub: Subscription, n_dof: int, drop: Callable[[str], None]) -> None:
         """The newest ``robot/state`` off ``sub``; a state of another number of joints is
         dropped (``wrong_dof``) and is this robot's problem until a valid one arrives."""
         got = sub.drain_latest()
+        restarts = sub.decoder.restarts
+        if restarts != self._restarts:  # a restarted controller: a new stream, not bound yet
+            self._restarts, self.bound = restarts, False
         for d in got.messages:
             if not isinstance(d.msg, RobotStateMsg):
                 continue
@@ -97,18 +113,26 @@ class MeasuredRobot:
             return []  # nothing commanded yet at that time: the worker has just started
         err = float(np.max(np.abs(self.state.q - want[0])))
         if not err <= tol_rad + want[1]:  # NaN too
+            bound = (
+                "; this controller's states tracked the commands before: the plan is not moved "
+                "to where they say the robot is (restart the controller if it was moved)"
+                if self.bound else ""
+            )  # fmt: skip
             return [
                 f"tracking error {err:.4f} rad > tolerance {tol_rad} rad "
-                f"(+ {want[1]:.4f} rad on the stop before the next command)"
+                f"(+ {want[1]:.4f} rad on the stop before the next command){bound}"
             ]
+        self.bound = True
         return []
 
     def at_rest_elsewhere(self, q: np.ndarray, tol_rad: float, v_rest: float = 1e-6) -> bool:
-        """A fresh state at rest farther than ``tol_rad`` from ``q``: the robot stands somewhere
-        else than the worker's follower (a restarted worker, a robot moved by hand)."""
+        """A fresh state at rest farther than ``tol_rad`` from ``q`` from a stream not bound to
+        the commands: the robot stands somewhere else than the worker's follower (a restarted
+        worker or controller). A bound stream's is a tracking fault only (module notes)."""
         s = self.state
         return (
             s is not None
+            and not self.bound
             and self.problem is None
             and float(np.max(np.abs(s.v))) <= v_rest
             and float(np.max(np.abs(s.q - q))) > tol_rad
