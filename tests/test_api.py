@@ -773,3 +773,30 @@ def test_landing_page_says_a_cell_is_starting(folder: Path) -> None:
         finally:
             worker.close()
             server.stop()
+
+
+def test_a_status_stamped_in_the_future_blinds_nothing() -> None:
+    """Hostile controller-side probe, 2026-11-30: one ``controller/status`` stamped an hour
+    ahead and numbered 2e9 was kept, and every real status after it was refused as out of
+    order for that hour (the cell's controller shown offline). The registry now refuses a
+    message stamped ahead of its clock, as the worker and the controller do."""
+    from sara_app.bus.messages import ControllerStatusMsg
+
+    def status(seq: int, stamp: float, received: int) -> ControllerStatusMsg:
+        return ControllerStatusMsg(
+            seq=seq, stamp_s=stamp, cell="cell1", commands_received=received, commands_lost=0,
+            commands_late=0, commands_expired=0, commands_refused=0, braking_events=0,
+            worker_runs=1, braking=False,
+        )  # fmt: skip
+
+    port = free_port()
+    with Bus.router(port), CellRegistry.connect(port) as reg, Bus.client(port) as bus:
+        pub = bus.publisher(keys.controller_status_key("cell1"))
+        _wait_until(pub.has_subscribers)
+        pub.put(status(2_000_000_000, time.time() + 3600.0, 10**15))
+        for seq in range(1, 30):
+            pub.put(status(seq, time.time(), seq))
+            time.sleep(0.05)
+            reg.poll()
+        c = reg._cells["cell1"].controller
+        assert c is not None and c.commands_received == 29

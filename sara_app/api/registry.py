@@ -44,7 +44,7 @@ import numpy as np
 from pydantic import ValidationError
 
 from sara_app.bus import keys
-from sara_app.bus.codec import Decoded
+from sara_app.bus.codec import Decoded, Decoder
 from sara_app.bus.messages import (
     ControllerStatusMsg,
     ParamsAckMsg,
@@ -58,6 +58,7 @@ from sara_app.bus.session import Bus, Publisher, Subscription
 from sara_app.bus.verdict_words import verdict_words
 from sara_app.errors import InputError, WorkerTimeoutError
 from sara_app.ops.health import VerdictCounters
+from sara_app.safety.settings import FUTURE_TOLERANCE_S
 
 log = logging.getLogger("sara_app.api")
 
@@ -139,12 +140,18 @@ class CellRegistry:
         self._thread: threading.Thread | None = None
         self._subs: list[Subscription] = []
         if bus is not None:
+            # a message stamped ahead of this clock is refused (out_of_range), as the worker
+            # and the controller refuse one: a status stamped an hour ahead, numbered high,
+            # kept every real one out (the order rule) for that hour (hostile controller probe)
             self._subs = [
-                bus.subscribe(keys.all_status_keys(), capacity=256),
-                bus.subscribe(f"{keys.ROOT}/*/verdict", capacity=4096),
-                bus.subscribe(f"{keys.ROOT}/*/params/ack", capacity=256, fifo=True),
-                bus.subscribe(f"{keys.ROOT}/*/scenario", capacity=64),
-                bus.subscribe(f"{keys.ROOT}/*/controller/status", capacity=64),
+                bus.subscribe(key, Decoder(max_future_s=FUTURE_TOLERANCE_S), capacity, fifo)
+                for key, capacity, fifo in (
+                    (keys.all_status_keys(), 256, False),
+                    (f"{keys.ROOT}/*/verdict", 4096, False),
+                    (f"{keys.ROOT}/*/params/ack", 256, True),
+                    (f"{keys.ROOT}/*/scenario", 64, False),
+                    (f"{keys.ROOT}/*/controller/status", 64, False),
+                )
             ]
 
     @classmethod
