@@ -163,6 +163,9 @@ def test_a_record_on_the_wrong_key_or_a_short_one() -> None:
         (keys.skeleton_key("c1", "p1"), state, "malformed_compact"),
         (STATE_KEY, b"\x00", "malformed_compact"),
         (STATE_KEY, state[:39], "malformed_compact"),
+        # a state's size with the command's kind code: the key says what it is not
+        (STATE_KEY, _record(**(GOOD_STATE | {"kind": 2, "schema": 2})), "key_mismatch"),
+        (STATE_KEY, state[:12] + b"\x00\x00\x07\x00" + state[16:], "invalid"),  # reserved
     ):
         with pytest.raises(MessageError) as e:
             decode(key, payload)

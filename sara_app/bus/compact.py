@@ -223,6 +223,10 @@ def decode_compact(kind: str, payload: bytes) -> RobotStateMsg | RobotCommandMsg
             f"kind code {code} on a {kind} key; the compact encoding carries "
             f"{', '.join(f'{c} ({k})' for k, c in KIND_CODES.items())} only",
         )
+    if code != KIND_CODES[kind]:  # before its sizes: a command's length is not a state's
+        raise CompactError("key_mismatch", f"a {KINDS_BY_CODE[code]} record on a {kind} key")
+    if payload[12:16] != b"\x00\x00\x00\x00":
+        raise CompactError("invalid", f"reserved bytes 12-15 are {payload[12:16].hex()}, not 0")
     if version != ENCODING_VERSION or schema != _SCHEMA[KINDS_BY_CODE[code]]:
         raise CompactError(
             "schema_version",
@@ -243,8 +247,6 @@ def decode_compact(kind: str, payload: bytes) -> RobotStateMsg | RobotCommandMsg
     body = np.frombuffer(payload, dtype=_F8, offset=HEADER.size)
     _check_finite(body)
     _check_header(command, n, F, mode, flags, seq, stamp_s, valid_s)
-    if code != KIND_CODES[kind]:
-        raise CompactError("key_mismatch", f"a {KINDS_BY_CODE[code]} record on a {kind} key")
     if not command:
         return RobotStateMsg.model_construct(
             schema_version=1, seq=seq, stamp_s=stamp_s, q=body[:n].tolist(),
