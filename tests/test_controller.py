@@ -408,33 +408,3 @@ def test_commands_are_still_taken_when_the_receiving_wait_fails(fault: str) -> N
     assert ctl.receiver_ended and said, "the status says the wait failed"
     assert ctl.delivery.received >= 0.9 * sent, (ctl.delivery.received, sent)
     assert following, "the robot braked while commands came every period"
-
-
-def test_the_reference_controller_refuses_a_set_point_off_the_followed_stop() -> None:
-    """Defence in depth: while it follows, a command whose set point lies farther than the
-    tracking tolerance from the followed command's verified stop is refused (counted), and the
-    robot goes on along that stop instead of jumping."""
-    from sara_app.peers.controller import Controller
-
-    sc = load_scenario("standing_beside_path")
-    port = free_port()
-    with Bus.router(port), Bus.client(port) as cbus:
-        ctl = Controller(CELL, sc, cbus)
-        dt, q0 = ctl.dt_s, ctl.q.copy()
-        zero = [0.0] * len(q0)
-
-        def cmd(seq: int, stamp: float, q: np.ndarray) -> RobotCommandMsg:
-            return RobotCommandMsg(seq=seq, stamp_s=stamp, q=q.tolist(), q_dot=zero,
-                                   q_ddot=zero, mode="intended",
-                                   valid_until_s=stamp + max(2 * dt, 0.010),
-                                   failsafe_t_s=[dt], failsafe_q=[q.tolist()])  # fmt: skip
-
-        t = time.time()
-        ctl.tick(t, [cmd(1, t, q0)])  # where it stands: followed
-        ctl.tick(t + 0.5 * dt, [cmd(2, t + 0.5 * dt, q0 + 1e-4)])  # continues: followed
-        assert ctl.command is not None and ctl.command.seq == 2
-        far = q0 + 1e-4
-        far[0] += 0.3
-        ctl.tick(t + 1.0 * dt, [cmd(3, t + 1.0 * dt, far)])
-        assert ctl.command.seq == 2 and ctl.delivery.refused == 1
-        assert np.max(np.abs(ctl.q - q0)) < 1e-3  # no jump

@@ -14,11 +14,7 @@ plain Python, simulating a robot that tracks its set points exactly.
   stands (the worker re-anchors on the measured state); others are counted as refused. The same
   holds for its first command: a controller started while a worker runs follows nothing until
   the worker commands from where the robot stands (found by ``sara-app soak --chaos``: a
-  restarted controller took a set point 1.4 rad from its robot). While it follows, a command
-  whose set point is farther than ``tracking_tol_rad`` from the followed command's verified
-  stop at that time is refused too: no verification covered the jump to it (a hostile
-  controller-side probe made the worker re-plan from a false position, and this controller
-  took the jump).
+  restarted controller took a set point 1.4 rad from its robot).
 - The newest command is the one with the latest ``stamp_s`` (a restarted worker numbers its
   commands from 0 again). Delivery is counted (:class:`Delivery`: received, lost within a
   worker run, late, expired, refused) and published about once a second on
@@ -124,7 +120,6 @@ class Controller:
         points not yet reached."""
         self.delivery = Delivery()
         self._expired_log = SummarisedWarning(log, "commands expired")
-        self._jump_log = SummarisedWarning(log, "commands refused")
         self._tick_s = -np.inf
         self._braked: tuple[RobotCommandMsg, float] | None = None
         """The command that expired and the controller's loop gap then, until the next newer
@@ -215,33 +210,19 @@ class Controller:
         self._stop = cmd.stop_arrays()  # followed many times: its arrays once
 
     def _acceptable(self, cmd: RobotCommandMsg, now: float) -> bool:
-        """A command is followed while valid and its set point continues the followed
-        command's verified stop (within ``tracking_tol_rad`` of it at the set point's time: a
-        set point beyond is a jump no verification covered); before the first one and once the
-        robot brakes on its own (the newest command expired), only one whose set point is where
-        the robot stands (the worker re-anchored on the measured state)."""
+        """A command is followed while valid; before the first one and once the robot brakes on
+        its own (the newest command expired), only one whose set point is where the robot
+        stands (the worker re-anchored on the measured state)."""
         if self.command is not None and cmd.stamp_s <= self.command.stamp_s:
             return False  # not newer than the one followed (by time: seq restarts per run)
         if self.command is not None and not self.braking and now <= cmd.valid_until_s:
-            if self._continues(cmd):
-                return True
-            self.delivery.refused += 1
-            self._jump_log(f"a set point off the followed command's stop (seq {cmd.seq})")
-            return False
+            return True
         # braking on its own, or no command followed yet (a controller that just started: the
         # worker's command was verified from where the worker believed the robot to be)
         if float(np.max(np.abs(np.asarray(cmd.q) - self.q))) <= self.tol_rad:
             return True
         self.delivery.refused += 1
         return False
-
-    def _continues(self, cmd: RobotCommandMsg) -> bool:
-        """``cmd``'s set point lies within ``tol_rad`` of the followed command's verified stop
-        at its time (a command without a stop, JSSA's, is not checked)."""
-        if self._stop[0].size == 0:
-            return True
-        on_stop = position_on_stop(*self._stop, cmd.stamp_s + self.dt_s)[0]
-        return float(np.max(np.abs(np.asarray(cmd.q) - on_stop))) <= self.tol_rad
 
     def _on_points(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
         """Position and velocity at ``t_s`` on the straight segments through the set points
