@@ -15,8 +15,9 @@ controller, reporting the robot at rest 0.3 rad away made the worker re-plan fro
 send an ``intended`` command that jumped the real robot by that much, again and again). Only a
 stream not bound yet (the first one a worker sees; one whose publisher restarted, which the
 decoder tells by its numbering starting over at least a second after the last state) may
-re-anchor the plan: a robot moved by hand while its controller runs needs the controller (or
-the worker) restarted.
+re-anchor the plan, and one silent for a second or more (``UNBIND_GAP_S``: after a router
+restart); a robot moved by hand while its controller runs needs the controller (or the worker)
+restarted.
 """
 
 from __future__ import annotations
@@ -30,6 +31,10 @@ from sara_app.bus.messages import RobotStateMsg, position_on_stop
 from sara_app.bus.session import Subscription
 from sara_app.robot.trajectory import JointState
 
+UNBIND_GAP_S = 1.0
+"""A state stream silent this long is bound no more (as the decoder's restart rule: a second):
+after a router restart the controller, which braked on its own meanwhile, rests where the
+worker's plan may not, and the plan starts from there again (tests/test_supervision.py)."""
 HISTORY = 256
 """Set points remembered for the tracking check (about one second at 250 Hz)."""
 
@@ -66,6 +71,8 @@ class MeasuredRobot:
                 drop("wrong_dof")
                 self.problem = f"{len(d.msg.q)} joints received, robot has {n_dof}"
                 continue
+            if self.stamp_s is not None and d.msg.stamp_s - self.stamp_s >= UNBIND_GAP_S:
+                self.bound = False  # no evidence for a second or more (a router restarted)
             self.state = JointState(
                 q=np.asarray(d.msg.q), v=np.asarray(d.msg.q_dot), a=np.zeros(n_dof)
             )
