@@ -78,6 +78,7 @@ def test_an_older_file_is_upgraded_keeping_its_rows(tmp_path: Path) -> None:
     with sqlite3.connect(path) as con:  # as version 2 left it
         con.execute("DROP TABLE api_requests")
         con.execute("DROP TABLE assumption_changes")
+        con.execute("DROP TABLE robot_actions")
         con.execute("PRAGMA user_version = 2")
     log = AuditLog(path)
     assert log.schema_version == SCHEMA_VERSION and len(log.entries()) == 1
@@ -86,6 +87,27 @@ def test_an_older_file_is_upgraded_keeping_its_rows(tmp_path: Path) -> None:
     log.record_assumption_change(cell="c1", scenario="s", changes=["a: 1 -> 2"],
                                  confirmed=True, outcome="applied")  # fmt: skip
     assert [r["changes"] for r in log.assumption_changes("c1")] == [["a: 1 -> 2"]]
+    log.record_robot_action(cell="c1", q_rad=[0.1], user="ann", reason="r", outcome="applied")
+    assert [r["q_rad"] for r in log.robot_actions("c1")] == [[0.1]]
+
+
+def test_robot_actions_keep_the_positions_confirmed(tmp_path: Path) -> None:
+    log = AuditLog(tmp_path / "a.sqlite")
+    first = log.record_robot_action(cell="c1", q_rad=[0.1, -2.5, float("nan")], user="ann",
+                                    reason="moved by hand", outcome="refused",
+                                    detail="not at rest")  # fmt: skip
+    log.record_robot_action(cell="c2", q_rad=[0.0], user="bob", reason="x", outcome="applied")
+    second = log.record_robot_action(cell="c1", q_rad=[0.2], user="ann", reason="again",
+                                     outcome="no_answer")  # fmt: skip
+    rows = log.robot_actions("c1")
+    assert [r["id"] for r in rows] == [second["id"], first["id"]]
+    assert rows[1] == first and first["q_rad"] == [0.1, -2.5, None]  # never a NaN in JSON
+    assert (first["action"], first["user"], first["detail"]) == ("replan", "ann", "not at rest")
+    assert [r["outcome"] for r in log.robot_actions("c1", 1)] == ["no_answer"]
+    with pytest.raises(ParameterError, match="outcome"):
+        log.record_robot_action(cell="c1", q_rad=[], user="a", reason="r", outcome="maybe")
+    with pytest.raises(ParameterError, match="limit"):
+        log.robot_actions("c1", 0)
 
 
 def test_loosening_edits_are_recorded_per_cell_newest_first(tmp_path: Path) -> None:

@@ -24,6 +24,7 @@ from sara_app.bus.heartbeat import Heartbeat
 from sara_app.bus.messages import (
     ParamsAckMsg,
     ParamsMsg,
+    ReplanMsg,
     RetireMsg,
     RobotCommandMsg,
     RobotStateMsg,
@@ -632,3 +633,62 @@ def test_a_controller_reporting_the_robot_at_rest_elsewhere_moves_nothing(cell: 
     # nor does the robot (ticked at about 60 Hz here: up to 0.05 rad a tick on its path)
     assert np.max(np.abs(np.diff(robot, axis=0))) < 0.15
     assert any(c.mode == "intended" for c in after)  # true states again: it moves on
+
+
+def _replan(cell: Cell, q: list[float], request_id: str, every: Any) -> ParamsAckMsg:
+    """An operator's re-plan confirming ``q`` and the worker's answer (``every``: called while
+    waiting, the controller's tick)."""
+    pub = cell.pubs.get("replan") or cell.pubs.setdefault(
+        "replan", cell.bus.publisher(keys.robot_replan_key(CELL))
+    )
+    pub.put(ReplanMsg(seq=pub.next_seq(), stamp_s=time.time(), request_id=request_id, q=q,
+                      user="operator", reason="moved by hand; it stands there"))  # fmt: skip
+    got: list[ParamsAckMsg] = []
+
+    def answered() -> None:
+        msgs = [d.msg for d in cell.acks.drain().messages]
+        got.extend(m for m in msgs if isinstance(m, ParamsAckMsg) and m.request_id == request_id)
+
+    t_end = time.monotonic() + 20
+    while not got and time.monotonic() < t_end:
+        cell.collect(0.05, every=lambda: (answered(), every()))
+    assert got, "no answer"
+    return got[0]
+
+
+def test_a_robot_moved_by_hand_moves_again_only_on_the_operators_word(cell: Cell) -> None:
+    """The bound stream's cost (controller probe, 2026-11-30): a robot stopped elsewhere while
+    its controller kept running (here: moved 0.3 rad by hand, the reference controller at rest
+    there) stays a tracking fault. An operator's re-plan confirming another position, or sent
+    while the robot moves, is refused; one confirming where the controller says it stands makes
+    the worker plan from there, the controller takes the commands and the robot moves on, with
+    no jump in the worker's commands."""
+    ctl = _LyingController(cell)  # never lies here: the real reference controller
+    robot = ctl.ctl
+    with Heartbeat(cell.bus, CELL):
+        vs, _ = cell.collect(1.5, every=ctl.tick)
+        assert any(v.mode == "intended" for v in vs)
+        moving = _replan(cell, robot.q.tolist(), "while-moving", ctl.tick)
+        assert not moving.accepted and "not at rest" in moving.reason, moving.reason
+        moved = robot.q.copy()  # moved by hand: 0.3 rad on joint 0, at rest
+        moved[0] += 0.3
+        robot.q, robot.v = moved, np.zeros_like(moved)
+        robot.command, robot.points, robot.braking = None, [], False
+        vs, _ = cell.collect(1.5, every=ctl.tick)
+        assert vs and all(v.mode != "intended" for v in vs[-50:])
+        assert any("tracking error" in f for f in vs[-1].faults), vs[-1].faults
+        wrong = moved.copy()
+        wrong[1] += 0.05
+        refused = _replan(cell, wrong.tolist(), "elsewhere", ctl.tick)
+        assert not refused.accepted and "from the position confirmed" in refused.reason
+        vs, _ = cell.collect(0.5, every=ctl.tick)
+        assert all(v.mode != "intended" for v in vs)
+        ok = _replan(cell, moved.tolist(), "here", ctl.tick)
+        assert ok.accepted, ok.reason
+        vs, after = cell.collect(2.0, every=ctl.tick)
+    assert after and float(np.max(np.abs(np.asarray(after[0].q) - moved))) < 0.05
+    assert any(v.mode == "intended" for v in vs[-100:]), vs[-1].faults
+    assert not any("tracking error" in f for f in vs[-1].faults)
+    qs = np.array([c.q for c in after])
+    assert np.max(np.abs(np.diff(qs, axis=0))) < 0.05  # from where it stands: no jump
+    assert float(np.max(np.abs(robot.q - moved))) > 0.01  # the robot itself moved on

@@ -75,3 +75,30 @@ def test_faults_stale_tracking_and_a_clock_that_goes_back() -> None:
     assert "tracking error" in robot.faults(t_mid + 0.001, 0.05, 0.01)[0]
     robot.sent(robot.commanded[0][0] - 1.0, q_mid, (np.array([0.0]), q_mid[None]))
     assert len(robot.commanded) == 1  # time went back: the history starts afresh
+
+
+def test_a_replan_is_refused_unless_the_state_is_fresh_at_rest_and_where_confirmed() -> None:
+    """Each condition of an operator's re-plan alone refuses it, naming the bad value."""
+    lo, hi = -np.full(N, 2.9), np.full(N, 2.9)
+    robot = MeasuredRobot()
+    q = np.linspace(-0.5, 0.5, N)
+
+    def why(q_seen: np.ndarray, now_s: float = 10.0) -> str | None:
+        return robot.replan_refusal(q_seen, now_s, 0.05, 0.005, lo, hi)
+
+    assert why(q) is not None and "no robot state" in str(why(q))
+    robot.state, robot.stamp_s = JointState(q=q, v=np.zeros(N), a=np.zeros(N)), 10.0
+    assert why(q) is None and why(q + 0.004) is None
+    assert "0.0100 rad from the position confirmed" in str(why(q + 0.01))
+    assert "[-0.5000, " in str(why(q + 0.01))  # where the controller says the robot is
+    assert "old" in str(why(q, now_s=10.2))
+    robot.state = JointState(q=q, v=np.full(N, 1e-3), a=np.zeros(N))
+    assert "not at rest" in str(why(q))
+    robot.state = JointState(q=q, v=np.full(N, np.nan), a=np.zeros(N))
+    assert "not at rest" in str(why(q))  # NaN is never at rest
+    beyond = q.copy()
+    beyond[3] = 3.0
+    robot.state = JointState(q=beyond, v=np.zeros(N), a=np.zeros(N))
+    assert "joint 3 at 3.0000 rad is outside its limits" in str(why(beyond))
+    robot.state, robot.problem = JointState(q=q, v=np.zeros(N), a=np.zeros(N)), "bad"
+    assert "robot state: bad" == why(q)

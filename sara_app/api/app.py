@@ -17,6 +17,9 @@
   threshold editor with its audit log (:mod:`sara_app.api.thresholds`).
 - ``POST /api/cells/{cell}/humans/{human_id}/retire``, ``GET /api/cells/{cell}/humans/audit``:
   an operator retires a person no tracker reports any more, audited (:mod:`sara_app.api.people`).
+- ``POST /api/cells/{cell}/robot/replan``, ``GET /api/cells/{cell}/robot/audit``: an operator
+  confirms where a stopped robot stands so the worker plans from there, audited
+  (:mod:`sara_app.api.robot`).
 - An edit that loosens what the verdict assumes needs ``?confirm=true`` and is audited,
   ``GET /api/cells/{cell}/assumptions/audit`` lists them (:mod:`sara_app.api.assumptions`).
 - ``GET /api/params``, ``GET /api/params/{name}``: human-model parameter sets;
@@ -61,6 +64,7 @@ from sara_app.api.jobs import add_job_routes
 from sara_app.api.openapi import EVENT_STREAM, body_schema
 from sara_app.api.people import add_people_routes
 from sara_app.api.registry import EDIT_TIMEOUT_S, CellRegistry
+from sara_app.api.robot import add_robot_routes
 from sara_app.api.schema import (
     BODY_RESPONSES,
     GUARD_RESPONSES,
@@ -624,6 +628,9 @@ def create_app(
         app, registry, folder, audit_log, known_cell_check(registry), check_url_name
     )
     add_people_routes(
+        app, registry, app.state.threshold_audit, known_cell_check(registry), check_url_name
+    )
+    add_robot_routes(
         app, registry, app.state.threshold_audit, known_cell_check(registry), check_url_name
     )
     add_assumption_audit_route(app, app.state.threshold_audit, check_url_name)

@@ -18,7 +18,7 @@ from fastapi import FastAPI, HTTPException, Query, Request
 from pydantic import BaseModel, ConfigDict, Field
 
 from sara_app.api.guard import request_user
-from sara_app.api.registry import CellRegistry
+from sara_app.api.registry import CellRegistry, ParamsAnswer
 from sara_app.api.schema import BODY_RESPONSES, CellName, HumanId, responses
 from sara_app.errors import WorkerTimeoutError
 from sara_app.ops.audit import AuditLog
@@ -43,6 +43,23 @@ class RetireBody(BaseModel):
     ] = None  # fmt: skip
 
 
+def audited_ask(
+    cell: str, ask: Callable[[], ParamsAnswer], record: Callable[..., dict[str, Any]]
+) -> dict[str, Any]:
+    """An operator's request to ``cell``'s worker (``ask``), its outcome recorded (``record``
+    takes ``outcome`` and ``detail``) whatever it is: the stored row when applied; HTTP 409
+    when the worker refused (its reason), 504 when it did not answer."""
+    try:
+        ans = ask()
+    except WorkerTimeoutError as e:
+        record(outcome="no_answer", detail=str(e))
+        raise HTTPException(504, str(e)) from None
+    if not ans.accepted:
+        record(outcome="refused", detail=ans.reason)
+        raise HTTPException(409, f"the worker of cell {cell!r} refused: {ans.reason}")
+    return record(outcome="applied", detail="")
+
+
 def add_people_routes(
     app: FastAPI,
     registry: CellRegistry,
@@ -65,18 +82,14 @@ def add_people_routes(
         braking for them); audited whatever the outcome."""
         known_cell(cell)
         check_name("human", human_id)
-        log = audit()
         user = request_user(request)  # one user per request, as the request log has it
-        row = {"cell": cell, "human_id": human_id, "user": user, "reason": body.reason}
-        try:
-            ans = registry.request_retire(cell, human_id, user, body.reason)
-        except WorkerTimeoutError as e:
-            log.record_person_action(**row, outcome="no_answer", detail=str(e))
-            raise HTTPException(504, str(e)) from None
-        if not ans.accepted:
-            log.record_person_action(**row, outcome="refused", detail=ans.reason)
-            raise HTTPException(409, f"the worker of cell {cell!r} refused: {ans.reason}")
-        entry = log.record_person_action(**row, outcome="applied")
+        entry = audited_ask(
+            cell,
+            lambda: registry.request_retire(cell, human_id, user, body.reason),
+            lambda **outcome: audit().record_person_action(
+                cell=cell, human_id=human_id, user=user, reason=body.reason, **outcome
+            ),
+        )
         return {"cell": cell, "human_id": human_id, "retired": True, "audit": entry}
 
     @app.get("/api/cells/{cell}/humans/audit", tags=["people"], responses=responses(422, 503))

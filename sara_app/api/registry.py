@@ -49,6 +49,7 @@ from sara_app.bus.messages import (
     ControllerStatusMsg,
     ParamsAckMsg,
     ParamsMsg,
+    ReplanMsg,
     RetireMsg,
     ScenarioStateMsg,
     StatusMsg,
@@ -308,6 +309,7 @@ class CellRegistry:
             "loop_time_p50_us": None if st is None else st.loop_time_p50_us,
             "loop_time_p99_us": None if st is None else st.loop_time_p99_us,
             "overruns": None if st is None else st.overruns,
+            "robot_q_measured": None if st is None else st.robot_q_measured,
             "verdicts_received": c.verdicts,
             "last_seen_s": max(seen) if seen else None,
             "status_age_s": status_age,
@@ -397,8 +399,24 @@ class CellRegistry:
             raise InputError(f"retire request invalid: {e.errors()[0]['msg']}") from None
         return self._ask(cell, "retire", msg, timeout_s)
 
+    def request_replan(
+        self, cell: str, q_rad: list[float], user: str, reason: str, timeout_s: float = 3.0
+    ) -> ParamsAnswer:
+        """Ask ``cell``'s worker to plan from the measured robot state, which ``user`` confirmed
+        stands at ``q_rad`` (an operator's re-plan) and wait for its answer. Errors as
+        ``request_params``."""
+        keys.check_name("cell", cell)
+        try:
+            msg = ReplanMsg(
+                seq=self._next_seq(), stamp_s=time.time(),
+                request_id=f"replan-{uuid.uuid4().hex[:16]}", q=q_rad, user=user, reason=reason,
+            )  # fmt: skip
+        except ValidationError as e:
+            raise InputError(f"re-plan request invalid: {e.errors()[0]['msg']}") from None
+        return self._ask(cell, "robot_replan", msg, timeout_s)
+
     def _ask(
-        self, cell: str, kind: str, msg: ParamsMsg | RetireMsg, timeout_s: float
+        self, cell: str, kind: str, msg: ParamsMsg | RetireMsg | ReplanMsg, timeout_s: float
     ) -> ParamsAnswer:
         """Publish ``msg`` on ``cell``'s ``kind`` key and wait for the worker's ack of its
         ``request_id`` on ``params/ack``."""

@@ -9,7 +9,8 @@ role           may publish
 =============  =================================================================================
 tracker        ``sara/<cell>/human/*/skeleton``, ``sara/<cell>/tracker/*/frame``
 controller     ``sara/<cell>/robot/state``, ``sara/<cell>/controller/status``
-editor         ``sara/<cell>/params``, ``sara/<cell>/retire`` (the API, the dashboard)
+editor         ``sara/<cell>/params``, ``sara/<cell>/retire``, ``sara/<cell>/robot/replan``
+               (the API, the dashboard)
 worker         the worker's outputs: ``robot/command``, ``verdict``, ``occupancy``,
                ``params/ack``, ``status``, ``scenario``, and its liveliness token
 =============  =================================================================================
@@ -36,7 +37,7 @@ from sara_app.errors import ParameterError
 ROLES: dict[str, tuple[str, ...]] = {
     "tracker": ("human/*/skeleton", "tracker/*/frame"),
     "controller": ("robot/state", "controller/status"),
-    "editor": ("params", "retire"),
+    "editor": ("params", "retire", "robot/replan"),
     "worker": ("robot/command", "verdict", "occupancy", "params/ack", "status", "scenario"),
 }
 ROUTER_USER = "router"

@@ -36,7 +36,15 @@ from sara_app.errors import InputError
 MAX_PAYLOAD_BYTES = 4 * 1024 * 1024
 MAX_SMALL_PAYLOAD_BYTES = 64 * 1024
 SMALL_KINDS = frozenset(
-    {"skeleton", "tracker_frame", "robot_state", "retire", "controller_status", "params_ack"}
+    {
+        "skeleton",
+        "tracker_frame",
+        "robot_state",
+        "retire",
+        "controller_status",
+        "params_ack",
+        "robot_replan",
+    }
 )
 """Kinds whose messages are small (a 38-joint skeleton with confidences, velocities and
 uncertainties is about 6 kB, a frame listing the most people it may about 18 kB): above

@@ -18,6 +18,7 @@ from sara_app.bus.messages import (
     OccupancyMsg,
     ParamsAckMsg,
     ParamsMsg,
+    ReplanMsg,
     RetireMsg,
     RobotCommandMsg,
     RobotOccupancyMsg,
@@ -151,6 +152,14 @@ def example_messages() -> dict[str, tuple[str, Message]]:
             human_id="h2",
             user="operator",
             reason="left through the door; the tracker lost them",
+        ),  # fmt: skip
+        "robot_replan": ReplanMsg(
+            seq=seq,
+            stamp_s=t,
+            request_id="replan-4",
+            q=[0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.79],
+            user="operator",
+            reason="protective stop reset; the arm stands where the controller says",
         ),  # fmt: skip
     }
     ids = {"skeleton": HUMAN, "tracker_frame": TRACKER}

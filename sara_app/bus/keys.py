@@ -17,12 +17,15 @@ key                                        dir.    payload (``sara_app.bus.messa
 ``sara/<cell>/tracker/<id>/frame``         in      ``TrackerFrameMsg``: a tracker's heartbeat
 ``sara/<cell>/retire``                     in      ``RetireMsg``: an operator retires a person
 ``sara/<cell>/controller/status``          in      ``ControllerStatusMsg``: command delivery, 1 Hz
+``sara/<cell>/robot/replan``               in      ``ReplanMsg``: the robot is where it stands
 =========================================  ======  ================================================
 
 "in"/"out" are seen from the cell worker. ``<cell>`` and ``<id>`` are names of 1-64 characters
 from ``[A-Za-z0-9_-]`` (no ``/``, no zenoh wildcards ``*``/``$``/``**``), see ``NAME_PATTERN``.
 
-Key scheme 2 added the tracker frame and retire keys (scheme 1 had no tracker heartbeat).
+Key scheme 2 added the tracker frame and retire keys (scheme 1 had no tracker heartbeat);
+scheme 3 the robot's re-plan key (an operator's action after the robot was stopped or moved
+elsewhere while its controller ran).
 
 API: ``skeleton_key(cell, human_id)``, ``robot_state_key(cell)`` ... ``status_key(cell)``, or
 ``key(kind, cell, human_id=None)``; subscriptions: ``cell_keys(cell)`` (``sara/<cell>/**``),
@@ -38,7 +41,7 @@ from typing import Literal, NamedTuple, get_args
 
 from sara_app.errors import InputError, UnknownNameError
 
-KEY_SCHEME = 2
+KEY_SCHEME = 3
 ROOT = "sara"
 NAME_PATTERN = r"[A-Za-z0-9_-]{1,64}"
 _NAME_RE = re.compile(NAME_PATTERN)
@@ -56,6 +59,7 @@ Kind = Literal[
     "tracker_frame",
     "retire",
     "controller_status",
+    "robot_replan",
 ]
 KINDS: tuple[str, ...] = get_args(Kind)
 
@@ -73,6 +77,7 @@ _SUFFIX: dict[str, str] = {
     "tracker_frame": "tracker/{id}/frame",
     "retire": "retire",
     "controller_status": "controller/status",
+    "robot_replan": "robot/replan",
 }
 _BY_SUFFIX: dict[str, str] = {v: k for k, v in _SUFFIX.items() if "{id}" not in v}
 # kinds whose key holds an id: kind -> (first segment, last segment, what the id names)
@@ -165,6 +170,10 @@ def retire_key(cell: str) -> str:
 
 def controller_status_key(cell: str) -> str:
     return key("controller_status", cell)
+
+
+def robot_replan_key(cell: str) -> str:
+    return key("robot_replan", cell)
 
 
 def tracker_frame_keys(cell: str) -> str:

@@ -570,6 +570,10 @@ class StatusMsg(_Msg):
     overruns: Annotated[int, Field(ge=0)] = 0
     """Control periods the worker's loop missed since it started (a step that ended more than
     a whole period late). The three added 2026-11-30 within schema version 1."""
+    robot_q_measured: Annotated[list[Finite], Field(max_length=MAX_JOINTS)] | None = None
+    """The joint positions (rad) the newest robot state reports; None before a controller
+    spoke. What an operator confirms in a re-plan (``robot/replan``); added 2026-11-30 within
+    schema version 1 (optional)."""
     detail: Annotated[str, Field(max_length=300)] = ""
     """What a ``starting`` worker is doing (building the cell: loading the robot model and
     compiling the kernels, with the seconds so far)."""
@@ -623,6 +627,22 @@ class RetireMsg(_Msg):
     reason: Annotated[str, Field(max_length=500)] = ""
 
 
+class ReplanMsg(_Msg):
+    """An operator's decision that the robot stands where its controller says (key
+    ``sara/<cell>/robot/replan``), after it stopped or was moved away from the worker's plan
+    while the same controller ran (a protective stop, a hand guiding; the worker never moves its
+    plan there on the controller's word alone, see ``sara_app.runtime.robot_link``). ``q``:
+    the joint positions the operator confirms (rad, n_dof). The worker plans from the measured
+    state when that state is fresh, at rest and within the tracking tolerance of ``q``, and its
+    own plan is at rest; it answers on ``params/ack`` with ``request_id``. ``user`` and
+    ``reason`` go to the audit log."""
+
+    request_id: Name
+    q: JointVector
+    user: Annotated[str, Field(min_length=1, max_length=64)]
+    reason: Annotated[str, Field(max_length=500)] = ""
+
+
 BrakingCause = Literal["controller", "worker", "lost", "delivery"]
 """Why the newest command expired before a newer one came: ``controller``, the controller's own
 loop was held up past the command's validity (commands waited in its queue); ``worker``, the
@@ -670,6 +690,7 @@ Message = (
     | TrackerFrameMsg
     | RetireMsg
     | ControllerStatusMsg
+    | ReplanMsg
 )
 
 MODELS_BY_KIND: dict[str, type[_Msg]] = {
@@ -685,6 +706,7 @@ MODELS_BY_KIND: dict[str, type[_Msg]] = {
     "tracker_frame": TrackerFrameMsg,
     "retire": RetireMsg,
     "controller_status": ControllerStatusMsg,
+    "robot_replan": ReplanMsg,
 }
 
 

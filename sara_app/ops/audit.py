@@ -16,7 +16,9 @@ the time, the cell, the person, the action (``retire``), who, why and the outcom
 request to a mutating API route (``api_requests``: method, path, HTTP status, client, user,
 body size), refused ones included; and every scenario edit that loosens what the verdict
 assumes (``assumption_changes``: the changes in words, whether confirmed, who, where from, the
-outcome; :mod:`sara_app.ops.loosening`).
+outcome; :mod:`sara_app.ops.loosening`); and the operators' actions on the robot
+(``robot_actions``, schema version 5: ``replan``, the joint positions confirmed, who, why, the
+outcome and the worker's answer).
 
 Schema version ``PRAGMA user_version`` (:data:`SCHEMA_VERSION`; a version 1 file gains the
 person table when opened); a newer file is refused rather than misread. Concurrent writers
@@ -26,6 +28,7 @@ journal, a busy timeout and one short transaction per row, on a connection per c
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import os
@@ -41,8 +44,9 @@ from typing import Any
 from sara_app.errors import ParameterError, SaraError
 
 log = logging.getLogger("sara_app.audit")
-SCHEMA_VERSION = 4
-"""1: threshold_changes; 2: + person_actions; 3: + api_requests; 4: + assumption_changes. Every
+SCHEMA_VERSION = 5
+"""1: threshold_changes; 2: + person_actions; 3: + api_requests; 4: + assumption_changes; 5: +
+robot_actions. Every
 statement of the schema is idempotent (IF NOT EXISTS), so an older file is upgraded by running
 them all."""
 ENV_VAR = "SARA_APP_DATA"
@@ -110,7 +114,20 @@ _SCHEMA = (
     outcome TEXT NOT NULL CHECK (outcome IN ('applied', 'refused', 'no_answer')),
     reason TEXT NOT NULL
 )""",
+    """CREATE TABLE IF NOT EXISTS robot_actions (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    time_utc TEXT NOT NULL,
+    time_epoch_s REAL NOT NULL,
+    cell TEXT NOT NULL,
+    action TEXT NOT NULL CHECK (action IN ('replan')),
+    q_rad TEXT NOT NULL,
+    user TEXT NOT NULL,
+    reason TEXT NOT NULL,
+    outcome TEXT NOT NULL CHECK (outcome IN ('applied', 'refused', 'no_answer')),
+    detail TEXT NOT NULL
+)""",
 )
+_ROBOT_COLUMNS = "id, time_utc, time_epoch_s, cell, action, q_rad, user, reason, outcome, detail"
 _CHANGE_COLUMNS = (
     "id, time_utc, time_epoch_s, cell, scenario, user, via, changes, confirmed, outcome, reason"
 )
@@ -260,6 +277,33 @@ class AuditLog:
             return int(con.execute("PRAGMA user_version").fetchone()[0])
 
     # -- writing -------------------------------------------------------------------------------
+    def _stamped(self, outcome: str | None) -> tuple[str, float]:
+        """The row's time (UTC ISO 8601, epoch s), once ``outcome`` is known to be valid."""
+        if outcome is not None and outcome not in OUTCOMES:
+            raise ParameterError(f"audit outcome {outcome!r}; valid: {', '.join(OUTCOMES)}")
+        now = float(self.clock())
+        return datetime.fromtimestamp(now, UTC).isoformat(timespec="microseconds"), now
+
+    def _insert(self, table: str, columns: str, row: tuple[Any, ...]) -> tuple[Any, ...]:
+        """Insert ``row`` (every column of ``columns`` but ``id``) into ``table`` in one short
+        transaction; the stored row, ``id`` first."""
+        names = columns.split(", ", 1)[1]
+        with self._connect() as con:
+            cur = con.execute(
+                f"INSERT INTO {table} ({names}) VALUES ({', '.join('?' * len(row))})", row
+            )
+            return tuple(
+                con.execute(f"SELECT {columns} FROM {table} WHERE id = ?", (cur.lastrowid,))
+                .fetchone()
+            )  # fmt: skip
+
+    def _of_cell(self, table: str, columns: str, cell: str, limit: int) -> list[tuple[Any, ...]]:
+        """``cell``'s rows of ``table``, newest first (at most ``limit``)."""
+        _check_limit(limit)
+        sql = f"SELECT {columns} FROM {table} WHERE cell = ? ORDER BY id DESC LIMIT ?"
+        with self._connect() as con:
+            return list(con.execute(sql, (cell, limit)).fetchall())
+
     def record(
         self,
         *,
@@ -278,10 +322,7 @@ class AuditLog:
         via: str = "api",
     ) -> AuditEntry:
         """Append one row (one short transaction); the stored entry."""
-        if outcome not in OUTCOMES:
-            raise ParameterError(f"audit outcome {outcome!r}; valid: {', '.join(OUTCOMES)}")
-        now = float(self.clock())
-        stamp = datetime.fromtimestamp(now, UTC).isoformat(timespec="microseconds")
+        stamp, now = self._stamped(outcome)
         row = (
             stamp,
             now,
@@ -300,19 +341,8 @@ class AuditLog:
             outcome,
             str(reason)[:MAX_TEXT],
         )
-        with self._connect() as con:
-            cur = con.execute(
-                f"INSERT INTO threshold_changes ({_COLUMNS.split(', ', 1)[1]}) "
-                f"VALUES ({', '.join('?' * len(row))})",
-                row,
-            )
-            rowid = cur.lastrowid
-            got = con.execute(
-                f"SELECT {_COLUMNS} FROM threshold_changes WHERE id = ?", (rowid,)
-            ).fetchone()
-        return _entry(got)
+        return _entry(self._insert("threshold_changes", _COLUMNS, row))
 
-    # -- reading -------------------------------------------------------------------------------
     def record_person_action(
         self,
         *,
@@ -325,28 +355,40 @@ class AuditLog:
         action: str = "retire",
     ) -> dict[str, Any]:
         """Append one operator action on a person (one short transaction); the stored row."""
-        if outcome not in OUTCOMES:
-            raise ParameterError(f"audit outcome {outcome!r}; valid: {', '.join(OUTCOMES)}")
-        now = float(self.clock())
-        stamp = datetime.fromtimestamp(now, UTC).isoformat(timespec="microseconds")
+        stamp, now = self._stamped(outcome)
         row = (stamp, now, str(cell)[:64], str(human_id)[:64], action, _clean_user(user),
                str(reason)[:MAX_TEXT], outcome, str(detail)[:MAX_TEXT])  # fmt: skip
-        names = _PERSON_COLUMNS.split(", ", 1)[1]
-        with self._connect() as con:
-            cur = con.execute(
-                f"INSERT INTO person_actions ({names}) VALUES ({', '.join('?' * len(row))})", row
-            )
-            got = con.execute(
-                f"SELECT {_PERSON_COLUMNS} FROM person_actions WHERE id = ?", (cur.lastrowid,)
-            ).fetchone()
+        got = self._insert("person_actions", _PERSON_COLUMNS, row)
         return dict(zip(_PERSON_COLUMNS.split(", "), got, strict=True))
+
+    def record_robot_action(
+        self,
+        *,
+        cell: str,
+        q_rad: list[float],
+        user: object,
+        reason: str,
+        outcome: str,
+        detail: str = "",
+        action: str = "replan",
+    ) -> dict[str, Any]:
+        """Append one operator action on the robot (``q_rad``: the joint positions the operator
+        confirmed); the stored row, ``q_rad`` as a list."""
+        stamp, now = self._stamped(outcome)
+        q_text = json.dumps([_finite_or_none(x) for x in q_rad][:64])
+        row = (stamp, now, str(cell)[:64], action, q_text, _clean_user(user),
+               str(reason)[:MAX_TEXT], outcome, str(detail)[:MAX_TEXT])  # fmt: skip
+        return _robot_row(self._insert("robot_actions", _ROBOT_COLUMNS, row))
+
+    def robot_actions(self, cell: str, limit: int = 50) -> list[dict[str, Any]]:
+        """``cell``'s operator actions on the robot, newest first (at most ``limit``)."""
+        return [_robot_row(r) for r in self._of_cell("robot_actions", _ROBOT_COLUMNS, cell, limit)]
 
     def record_request(
         self, method: str, path: str, status: int, client: str, user: str, body_bytes: int
     ) -> None:
         """One request to a mutating API route, whatever its outcome (refused ones too)."""
-        now = float(self.clock())
-        stamp = datetime.fromtimestamp(now, UTC).isoformat(timespec="microseconds")
+        stamp, now = self._stamped(None)
         row = (stamp, now, method[:8], path[:300], int(status), client[:64], _clean_user(user),
                int(body_bytes))  # fmt: skip
         names = _REQUEST_COLUMNS.split(", ", 1)[1]
@@ -368,33 +410,15 @@ class AuditLog:
         """Append one scenario edit that loosens what the verdict assumes
         (:mod:`sara_app.ops.loosening`), confirmed or refused, and its outcome; the stored row
         (``changes`` as a list)."""
-        if outcome not in OUTCOMES:
-            raise ParameterError(f"audit outcome {outcome!r}; valid: {', '.join(OUTCOMES)}")
-        now = float(self.clock())
-        stamp = datetime.fromtimestamp(now, UTC).isoformat(timespec="microseconds")
+        stamp, now = self._stamped(outcome)
         text = "\n".join(str(c).replace("\n", " ") for c in changes)[: 4 * MAX_TEXT]
         row = (stamp, now, str(cell)[:64], str(scenario)[:64], _clean_user(user), str(via)[:32],
                text, int(bool(confirmed)), outcome, str(reason)[:MAX_TEXT])  # fmt: skip
-        names = _CHANGE_COLUMNS.split(", ", 1)[1]
-        with self._connect() as con:
-            cur = con.execute(
-                f"INSERT INTO assumption_changes ({names}) VALUES ({', '.join('?' * len(row))})",
-                row,
-            )
-            got = con.execute(
-                f"SELECT {_CHANGE_COLUMNS} FROM assumption_changes WHERE id = ?", (cur.lastrowid,)
-            ).fetchone()
-        return _change_row(got)
+        return _change_row(self._insert("assumption_changes", _CHANGE_COLUMNS, row))
 
     def assumption_changes(self, cell: str, limit: int = 50) -> list[dict[str, Any]]:
         """``cell``'s loosening edits (confirmed and refused), newest first."""
-        _check_limit(limit)
-        sql = (
-            f"SELECT {_CHANGE_COLUMNS} FROM assumption_changes WHERE cell = ? "
-            "ORDER BY id DESC LIMIT ?"
-        )
-        with self._connect() as con:
-            rows = con.execute(sql, (cell, limit)).fetchall()
+        rows = self._of_cell("assumption_changes", _CHANGE_COLUMNS, cell, limit)
         return [_change_row(r) for r in rows]
 
     def requests(self, limit: int = 50) -> list[dict[str, Any]]:
@@ -407,12 +431,7 @@ class AuditLog:
 
     def person_actions(self, cell: str, limit: int = 50) -> list[dict[str, Any]]:
         """``cell``'s operator actions on people, newest first (at most ``limit``)."""
-        _check_limit(limit)
-        sql = (
-            f"SELECT {_PERSON_COLUMNS} FROM person_actions WHERE cell = ? ORDER BY id DESC LIMIT ?"
-        )
-        with self._connect() as con:
-            rows = con.execute(sql, (cell, limit)).fetchall()
+        rows = self._of_cell("person_actions", _PERSON_COLUMNS, cell, limit)
         return [dict(zip(_PERSON_COLUMNS.split(", "), r, strict=True)) for r in rows]
 
     def entries(self, cell: str | None = None, limit: int = 50) -> list[AuditEntry]:
@@ -432,6 +451,12 @@ class AuditLog:
 def _check_limit(limit: object) -> None:
     if isinstance(limit, bool) or not isinstance(limit, int) or not 1 <= limit <= MAX_LIMIT:
         raise ParameterError(f"audit limit {limit!r}; expected an integer in 1..{MAX_LIMIT}")
+
+
+def _robot_row(row: tuple[Any, ...]) -> dict[str, Any]:
+    out = dict(zip(_ROBOT_COLUMNS.split(", "), row, strict=True))
+    out["q_rad"] = json.loads(out["q_rad"])
+    return out
 
 
 def _change_row(row: tuple[Any, ...]) -> dict[str, Any]:

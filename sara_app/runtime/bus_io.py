@@ -30,6 +30,7 @@ class CellBus:
         self.robot_state = bus.subscribe(keys.robot_state_key(cell), d)
         self.params = bus.subscribe(keys.params_key(cell), d, fifo=True)
         self.retire = bus.subscribe(keys.retire_key(cell), d, fifo=True)
+        self.replan = bus.subscribe(keys.robot_replan_key(cell), d, fifo=True)
         self.command = bus.publisher(keys.robot_command_key(cell))
         self.verdict = bus.publisher(keys.verdict_key(cell))
         self.occupancy = bus.publisher(keys.occupancy_key(cell), express=False)
@@ -45,7 +46,7 @@ class CellBus:
         return dict(self.decoder.counts)
 
     def ack(self, request_id: str, ok: bool, reason: str) -> None:
-        """Answer a scenario edit or a retirement."""
+        """Answer a scenario edit, a retirement or a re-plan."""
         self.acks.put(
             ParamsAckMsg(
                 seq=self.acks.next_seq(),

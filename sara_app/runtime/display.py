@@ -286,9 +286,11 @@ def status_msg(
     cycle_us: Sequence[float],
     loop_us: Sequence[float] = (),
     overruns: int = 0,
+    robot_q: Sequence[float] | None = None,
 ) -> StatusMsg:
     """The status of cell ``name``: its state, scenario, people, cycle times (the shield's
-    ``cycle_us``, the whole step's ``loop_us``), missed periods and checksum."""
+    ``cycle_us``, the whole step's ``loop_us``), missed periods, the measured robot's
+    ``robot_q`` and checksum."""
     cu = np.array(cycle_us) if len(cycle_us) else None
     lu = np.array(loop_us) if len(loop_us) else None
     return StatusMsg(
@@ -304,5 +306,6 @@ def status_msg(
         loop_time_p50_us=None if lu is None else float(np.median(lu)),
         loop_time_p99_us=None if lu is None else float(np.percentile(lu, 99)),
         overruns=overruns,
+        robot_q_measured=None if robot_q is None else [float(x) for x in robot_q],
         config_sha256=cell.checksum,
     )

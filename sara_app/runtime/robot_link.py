@@ -16,8 +16,10 @@ send an ``intended`` command that jumped the real robot by that much, again and 
 stream not bound yet (the first one a worker sees; one whose publisher restarted, which the
 decoder tells by its numbering starting over at least a second after the last state) may
 re-anchor the plan, and one silent for a second or more (``UNBIND_GAP_S``: after a router
-restart); a robot moved by hand while its controller runs needs the controller (or the worker)
-restarted.
+restart). A robot stopped or moved elsewhere while its controller ran (a protective stop, hand
+guiding, a controller that braked on its own) is planned from again only on an operator's word
+(``robot/replan``, :meth:`MeasuredRobot.replan_refusal`): the operator confirms the position
+the controller reports, and the worker takes it only if the state is there now, at rest.
 """
 
 from __future__ import annotations
@@ -131,6 +133,41 @@ class MeasuredRobot:
             ]
         self.bound = True
         return []
+
+    def replan_refusal(
+        self, q_seen: np.ndarray, now_s: float, timeout_s: float, tol_rad: float,
+        q_min: np.ndarray, q_max: np.ndarray, v_rest: float = 1e-6,
+    ) -> str | None:  # fmt: skip
+        """Why the plan may not start from the measured state an operator confirmed as
+        ``q_seen (n,)`` (None: it may): the state must be fresh (younger than ``timeout_s``),
+        valid, at rest, within ``tol_rad`` of ``q_seen`` and within the joint limits
+        ``q_min``/``q_max (n,)``. The worker's own plan must be at rest too (its caller)."""
+        s = self.state
+        if s is None or self.stamp_s is None:
+            return "no robot state received: the worker plans from its own model of the robot"
+        if self.problem is not None:
+            return f"robot state: {self.problem}"
+        age = now_s - self.stamp_s
+        if not age <= timeout_s:
+            return f"the newest robot state is {age:.3f} s old (at most {timeout_s} s)"
+        speed = float(np.max(np.abs(s.v)))
+        if not speed <= v_rest:
+            return f"the robot is not at rest (joint speed up to {speed:.3g} rad/s)"
+        off = float(np.max(np.abs(s.q - q_seen)))
+        if not off <= tol_rad:
+            said = ", ".join(f"{x:.4f}" for x in s.q)
+            return (
+                f"the controller reports the robot at [{said}] rad, {off:.4f} rad from the "
+                f"position confirmed (tolerance {tol_rad} rad)"
+            )
+        out = np.flatnonzero((s.q < q_min) | (s.q > q_max))
+        if out.size:
+            j = int(out[0])
+            return (
+                f"joint {j} at {s.q[j]:.4f} rad is outside its limits "
+                f"[{q_min[j]:.4f}, {q_max[j]:.4f}] rad"
+            )
+        return None
 
     def at_rest_elsewhere(self, q: np.ndarray, tol_rad: float, v_rest: float = 1e-6) -> bool:
         """A fresh state at rest farther than ``tol_rad`` from ``q`` from a stream not bound to

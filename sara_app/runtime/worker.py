@@ -25,8 +25,10 @@ import time
 from collections import deque
 from pathlib import Path
 
+import numpy as np
+
 from sara_app.bus import keys
-from sara_app.bus.messages import OccupancyMsg, ScenarioStateMsg, StatusMsg
+from sara_app.bus.messages import OccupancyMsg, ReplanMsg, ScenarioStateMsg, StatusMsg
 from sara_app.bus.ownership import claim_cell
 from sara_app.bus.process import SummarisedWarning, process_main
 from sara_app.bus.session import Bus
@@ -131,8 +133,44 @@ class CellWorker:
             self.phase.observe(now, self.people.fresh_stamps)
         self.robot_in.drain(self.io.robot_state, self.cell.robot.n_dof, self.io.drop)
         self.people.drain_retirements(now)
+        self._drain_replans(now)
         self.edits.drain(self.io)
         self.edits.take(self._take)
+
+    def _drain_replans(self, now: float) -> None:
+        """An operator's word that the robot stands where its controller says
+        (``robot/replan``): the plan starts from the measured state, or the request is refused
+        with the reason; answered either way, logged with who asked."""
+        for d in self.io.replan.drain().messages:
+            m = d.msg
+            if not isinstance(m, ReplanMsg):
+                continue
+            why = self._replan_refusal(m, now)
+            if why is None and self.robot_in.state is not None:
+                self.shield.restart_from(self.robot_in.state.q)
+                self.robot_in.commanded.clear()
+                log.warning("the plan starts from the measured robot state, confirmed by %r: %s",
+                            m.user, m.reason)  # fmt: skip
+            else:
+                self.errors("re-plan refused", str(why))
+            self.io.ack(m.request_id, why is None, why or "")
+
+    def _replan_refusal(self, m: ReplanMsg, now: float) -> str | None:
+        n, sc = self.cell.robot.n_dof, self.cell.scenario
+        if len(m.q) != n:
+            return f"{len(m.q)} joint positions confirmed; the robot has {n}"
+        if not self.shield.at_rest:
+            return "the worker's plan is not at rest yet (braking): ask again in a moment"
+        tol, lim = sc.shield.tracking_tol_rad, self.cell.robot.limits
+        why = self.robot_in.replan_refusal(
+            np.asarray(m.q, dtype=float), now, sc.inputs.robot_state_timeout_s, tol,
+            lim.q_min, lim.q_max,
+        )  # fmt: skip
+        if why is None and self.robot_in.state is not None:
+            off = float(np.max(np.abs(self.robot_in.state.q - self.shield.robot_state.q)))
+            if off <= tol:
+                return f"the robot stands where the plan is ({off:.4f} rad): nothing to re-plan"
+        return why
 
     def _take(self, b: Built) -> bool:
         """Swap a finished build in and answer it; False while it must wait for the robot to
@@ -305,6 +343,7 @@ class CellWorker:
             self.name, self.cell, state, now, self.io.status.next_seq(),
             uptime_s=now - self.started, humans=self.tracks, cycle_us=self.cycle_us,
             loop_us=self.loop_us, overruns=self.overruns,
+            robot_q=None if self.robot_in.state is None else self.robot_in.state.q.tolist(),
         )  # fmt: skip
 
     def run(self, duration_s: float | None = None) -> None:
