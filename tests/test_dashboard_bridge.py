@@ -85,6 +85,8 @@ class FakeBus:
         return self.subs.setdefault(key, FakeSub())
 
     def publisher(self, key: str, **_k: Any) -> FakePub:
+        if key == keys.robot_replan_key(CELL):  # re-plans: tests/test_dashboard_replan.py
+            return FakePub()
         assert key == keys.params_key(CELL)
         return self.params
 

@@ -34,6 +34,7 @@ from sara_app.bus.messages import (
     OccupancyMsg,
     ParamsAckMsg,
     ParamsMsg,
+    ReplanMsg,
     RobotCommandMsg,
     ScenarioStateMsg,
     StatusMsg,
@@ -100,6 +101,7 @@ class CellView(GizmoEditing):
         self.worker_status: StatusMsg | None = None
         self.scenario_revision: int | None = None
         self.pub_params = bus.publisher(keys.params_key(cell))
+        self.pub_replan = bus.publisher(keys.robot_replan_key(cell))
         self.q: np.ndarray | None = None
         self.occ: OccupancyMsg | None = None
         self.verdict: VerdictMsg | None = None
@@ -249,20 +251,67 @@ class CellView(GizmoEditing):
             )
             if not self.pub_params.put(msg):
                 raise ScenarioError("the scenario could not be sent to the worker (bus error)")
-            t_end = time.monotonic() + self.ack_timeout_s
-            while time.monotonic() < t_end:
-                for d in self.sub_ack.drain().messages:
-                    if isinstance(d.msg, ParamsAckMsg) and d.msg.request_id == rid:
-                        if not d.msg.accepted:
-                            raise ScenarioError(f"the worker refused it: {d.msg.reason}")
-                        self.scenario = sc
-                        return sc
-                time.sleep(0.01)
+            ans = self._answer(rid)
+            if ans is not None:
+                if not ans.accepted:
+                    raise ScenarioError(f"the worker refused it: {ans.reason}")
+                self.scenario = sc
+                return sc
             self._late = (rid, sc)
         raise WorkerTimeoutError(
             f"the worker did not answer within {self.ack_timeout_s} s (if it accepts the edit "
             "later, the view follows)"
         )
+
+    def _answer(self, rid: str) -> ParamsAckMsg | None:
+        """The worker's answer to request ``rid`` within the answer timeout (None: none came);
+        called under ``_ack_lock``."""
+        t_end = time.monotonic() + self.ack_timeout_s
+        while time.monotonic() < t_end:
+            for d in self.sub_ack.drain().messages:
+                if isinstance(d.msg, ParamsAckMsg) and d.msg.request_id == rid:
+                    return d.msg
+            time.sleep(0.01)
+        return None
+
+    def replan(self, q_rad: list[float]) -> None:
+        """Have the worker plan from where the robot stands, which the operator confirmed is
+        ``q_rad`` (the position the Status tab showed: the controller's word is not enough,
+        :mod:`sara_app.runtime.robot_link`); recorded in the audit's robot actions with its
+        outcome (the log is opened first: an action that cannot be recorded is not sent).
+        :class:`ScenarioError` with the worker's reason when it refuses,
+        :class:`WorkerTimeoutError` without an answer; only for a client that may change the
+        cell."""
+        self.dash.access.change(
+            "replan", lambda: self._replan(list(q_rad)), timeouts=(WorkerTimeoutError,)
+        )
+
+    def _replan(self, q_rad: list[float]) -> None:
+        audit, user = self._audit_log(), self.dash.access.user()
+        reason = "confirmed in the dashboard's Status tab"
+
+        def record(outcome: str, detail: str = "") -> None:
+            audit.record_robot_action(cell=self.cell, q_rad=q_rad, user=user, reason=reason,
+                                      outcome=outcome, detail=detail, via="dashboard")  # fmt: skip
+
+        rid = f"replan-{uuid.uuid4().hex[:16]}"
+        msg = ReplanMsg(seq=self._next_seq(), stamp_s=time.time(), request_id=rid, q=q_rad,
+                        user=user[:64], reason=reason)  # fmt: skip
+        with self._ack_lock:
+            self.sub_ack.drain()
+            sent = self.pub_replan.put(msg)
+            ans = self._answer(rid) if sent else None
+        if not sent:
+            record("refused", "bus error")
+            raise ScenarioError("the re-plan could not be sent to the worker (bus error)")
+        if ans is None:
+            why = f"the worker did not answer within {self.ack_timeout_s} s"
+            record("no_answer", why)
+            raise WorkerTimeoutError(why)
+        if not ans.accepted:
+            record("refused", ans.reason)
+            raise ScenarioError(f"the worker refused it: {ans.reason}")
+        record("applied")
 
     def _next_seq(self) -> int:
         # clock-based, like the API's: both publish on the params key, the worker keeps order
@@ -382,6 +431,7 @@ class CellView(GizmoEditing):
         panels = self.dash.panels
         if panels is not None:
             panels.on_set_mode = self.set_mode
+            panels.on_replan = self.replan
             panels.set_safety_mode(self.scenario.shield.mode)
             panels.set_scenarios(list(scenario_names(self.folder)), self.scenario.name)
             panels.set_params(self.editable())

@@ -94,7 +94,8 @@ class DisplayFrame:
     - ``status``: ``mode`` (str), ``safety_mode`` (str), ``min_distance_m`` (float),
       ``cycle_p50_us`` / ``cycle_p99_us`` (float: the shield's cycle), ``loop_p99_us`` (float
       or None: the worker's whole step) and ``overruns`` (int or None: periods its loop
-      missed), ``skeleton_age_ms`` (float, or dict human id
+      missed), ``robot_q_measured`` (list of float or None: where the controller reports the
+      robot, rad), ``skeleton_age_ms`` (float, or dict human id
       to float), ``dropped`` (int, or dict reason to count), ``intervened`` (bool),
       ``speed_scale`` (PFL, float), ``jssa`` (dict: ``phi_m2``, ``active``, ``fallback``,
       ``reason``, ``link``, ``distance_m``, ``d_min_m``), ``tracking`` (dict human id to dict

@@ -8,7 +8,9 @@ callbacks (set them as attributes or constructor arguments):
 - ``on_params_edit(params: dict)``: the "Apply parameters" button, with the full (nested)
   parameter dict as last given to :meth:`DashboardPanels.set_params`, edited values in place;
 - ``on_set_mode(mode: str)``: the status tab's safety-mode dropdown (``'ssm'``, ``'pfl'`` or
-  ``'jssa'``); on refusal the dropdown goes back to the last accepted mode.
+  ``'jssa'``); on refusal the dropdown goes back to the last accepted mode;
+- ``on_replan(q_rad: list[float])``: the status tab's "Plan from where the robot stands", with
+  the joint positions the tab shows (where the controller reports the robot).
 
 A callback that raises :class:`~sara_app.errors.SaraError` or ``ValueError`` (pydantic's
 ``ValidationError`` is one) is reported in the tab's message area as refused; otherwise "done"
@@ -52,6 +54,7 @@ CONFIRM_LABEL = "Confirm loosening"
 (:mod:`sara_app.ops.loosening`): in the Scenario tab, and in the what-if folder once one is
 refused there."""
 CONFIRM_HOW = f"tick '{CONFIRM_LABEL}' and apply again"
+REPLAN_LABEL = "Plan from where the robot stands"
 SMALL_MARGIN = 0.1
 """A PFL margin below this fraction of its threshold is shown amber (negative: red)."""
 MARGIN_RGB = {"ok": (20, 150, 50), "small": (220, 130, 0), "negative": (210, 0, 0)}
@@ -120,6 +123,15 @@ def drops_text(dropped: Any) -> str:
         return _fmt(dropped, ".0f")
     real = {k: v for k, v in dropped.items() if k != "superseded" and v}
     return _fmt(real, ".0f") if real else "none"
+
+
+def robot_q_markdown(q_rad: Any) -> str:
+    """Where the controller reports the robot (joint positions, rad), as the Status tab shows
+    and the re-plan confirms it."""
+    if not isinstance(q_rad, list | tuple) or not q_rad:
+        return "No robot position reported (no controller state yet)."
+    joints = ", ".join(f"{_float(x):.4f}" for x in q_rad)
+    return f"The controller reports the robot at: [{joints}] rad"
 
 
 def status_markdown(status: dict[str, Any]) -> str:
@@ -342,12 +354,15 @@ class DashboardPanels:
         on_save_as: Callable[[str], None] | None = None,
         on_params_edit: Callable[[dict[str, Any]], None] | None = None,
         on_set_mode: Callable[[str], None] | None = None,
+        on_replan: Callable[[list[float]], None] | None = None,
     ) -> None:
         self.server = server
         self.on_select_scenario = on_select_scenario
         self.on_save_as = on_save_as
         self.on_params_edit = on_params_edit
         self.on_set_mode = on_set_mode
+        self.on_replan = on_replan
+        self._robot_q_shown: list[float] | None = None
         self._mode = "ssm"
         self._syncing = False
         self._shown_mode: str | None = None
@@ -377,6 +392,16 @@ class DashboardPanels:
                 self.links = gui.add_markdown(link_energy_markdown([]))
             with gui.add_folder("Tracking flag totals", expand_by_default=False):
                 self.totals = gui.add_markdown(totals_markdown({}))
+            with gui.add_folder("Robot position", expand_by_default=False):
+                self.robot_q = gui.add_markdown(robot_q_markdown(None))
+                gui.add_button(
+                    REPLAN_LABEL,
+                    hint="After a protective stop or hand guiding moved the robot away from "
+                    "the plan (a tracking fault): confirms the position shown; the cell plans "
+                    "from there only if the robot stands there at rest. Recorded in the audit "
+                    "log",
+                ).on_click(on_event(self.replan))
+                self.replan_message = gui.add_markdown("")
             gui.add_markdown(LEGEND_MD)
             self.plot_sep = _uplot(gui, "Minimum separation", ("min dist [m]",), ("green",), "m")
             self.plot_cycle = _uplot(
@@ -433,6 +458,18 @@ class DashboardPanels:
         if accepted."""
         self.safety_mode.value = mode.upper()  # type: ignore[misc]
         return self._mode == mode
+
+    def replan(self) -> bool:
+        """The "Plan from where the robot stands" button: ``on_replan(position shown)``; True
+        if accepted."""
+        shown = self._robot_q_shown
+        if shown is None:
+            self.show_message("Re-plan refused: no robot position reported", error=True)
+            ok = False
+        else:
+            ok = self._invoke("Re-plan", self.on_replan, lambda: list(shown))
+        self.replan_message.content = self.message.content
+        return ok
 
     def _mode_selected(self) -> None:
         if self._syncing:
@@ -538,6 +575,11 @@ class DashboardPanels:
         html = banner_html(status)
         if html != self._banner_html:
             self.banner.content = self._banner_html = html
+        q = status.get("robot_q_measured")
+        q_md = robot_q_markdown(q)
+        if q_md != self.robot_q.content:
+            self.robot_q.content = q_md
+            self._robot_q_shown = None if q is None else [float(x) for x in q]
         links_md = link_energy_markdown(links or [])
         if links_md != self._links_md:
             self.links.content = self._links_md = links_md

@@ -17,8 +17,8 @@ request to a mutating API route (``api_requests``: method, path, HTTP status, cl
 body size), refused ones included; and every scenario edit that loosens what the verdict
 assumes (``assumption_changes``: the changes in words, whether confirmed, who, where from, the
 outcome; :mod:`sara_app.ops.loosening`); and the operators' actions on the robot
-(``robot_actions``, schema version 5: ``replan``, the joint positions confirmed, who, why, the
-outcome and the worker's answer).
+(``robot_actions``, schema version 5: ``replan``, the joint positions confirmed, who, where
+from, why, the outcome and the worker's answer).
 
 Schema version ``PRAGMA user_version`` (:data:`SCHEMA_VERSION`; a version 1 file gains the
 person table when opened); a newer file is refused rather than misread. Concurrent writers
@@ -122,12 +122,15 @@ _SCHEMA = (
     action TEXT NOT NULL CHECK (action IN ('replan')),
     q_rad TEXT NOT NULL,
     user TEXT NOT NULL,
+    via TEXT NOT NULL,
     reason TEXT NOT NULL,
     outcome TEXT NOT NULL CHECK (outcome IN ('applied', 'refused', 'no_answer')),
     detail TEXT NOT NULL
 )""",
 )
-_ROBOT_COLUMNS = "id, time_utc, time_epoch_s, cell, action, q_rad, user, reason, outcome, detail"
+_ROBOT_COLUMNS = (
+    "id, time_utc, time_epoch_s, cell, action, q_rad, user, via, reason, outcome, detail"
+)
 _CHANGE_COLUMNS = (
     "id, time_utc, time_epoch_s, cell, scenario, user, via, changes, confirmed, outcome, reason"
 )
@@ -371,12 +374,13 @@ class AuditLog:
         outcome: str,
         detail: str = "",
         action: str = "replan",
+        via: str = "api",
     ) -> dict[str, Any]:
         """Append one operator action on the robot (``q_rad``: the joint positions the operator
-        confirmed); the stored row, ``q_rad`` as a list."""
+        confirmed; ``via``: api, dashboard); the stored row, ``q_rad`` as a list."""
         stamp, now = self._stamped(outcome)
         q_text = json.dumps([_finite_or_none(x) for x in q_rad][:64])
-        row = (stamp, now, str(cell)[:64], action, q_text, _clean_user(user),
+        row = (stamp, now, str(cell)[:64], action, q_text, _clean_user(user), str(via)[:32],
                str(reason)[:MAX_TEXT], outcome, str(detail)[:MAX_TEXT])  # fmt: skip
         return _robot_row(self._insert("robot_actions", _ROBOT_COLUMNS, row))
 
