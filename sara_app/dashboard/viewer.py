@@ -54,7 +54,8 @@ class Dashboard:
     def start(self, host: str = "127.0.0.1", port: int = 8080, **callbacks: Any) -> str:
         """Start serving and return the real URL (viser moves to the next free port if
         ``port`` is taken). ``callbacks``: ``on_select_scenario``, ``on_save_as``,
-        ``on_params_edit``, ``on_set_mode``, ``on_replan`` (see :mod:`sara_app.dashboard.panels`)."""
+        ``on_params_edit``, ``on_set_mode``, ``on_replan`` (see
+        :mod:`sara_app.dashboard.panels`)."""
         if self.server is not None:
             raise InputError(f"dashboard already serving at {self.url}; call stop() first")
         origin.install()  # foreign Host / Origin refused (cross-site WebSocket hijacking)

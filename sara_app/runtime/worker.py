@@ -147,12 +147,16 @@ class CellWorker:
                 continue
             why = self._replan_refusal(m, now)
             if why is None and self.robot_in.state is not None:
-                self.shield.restart_from(self.robot_in.state.q)
+                try:
+                    self.shield.restart_from(self.robot_in.state.q)
+                except SaraError as e:  # answered, never left unanswered by a raise
+                    why = f"no plan from there: {e}"
+            if why is None:
                 self.robot_in.commanded.clear()
                 log.warning("the plan starts from the measured robot state, confirmed by %r: %s",
                             m.user, m.reason)  # fmt: skip
             else:
-                self.errors("re-plan refused", str(why))
+                self.errors("re-plan refused", why)
             self.io.ack(m.request_id, why is None, why or "")
 
     def _replan_refusal(self, m: ReplanMsg, now: float) -> str | None:
