@@ -30,6 +30,7 @@ from sara_app.scenario import load_scenario, scenarios_dir
 
 CELL = "replan1"
 TOKEN = "r" * 24
+LONG = "s" * 24  # a token whose user's name is longer than a bus message's user may be
 
 
 def _until(pred, seconds: float = 20.0, what: str = "") -> None:
@@ -52,12 +53,16 @@ def test_replan_after_a_hand_move_and_every_request_audited(tmp_path: Path) -> N
         thread.start()
         try:
             audit = AuditLog(tmp_path / "audit.sqlite")
-            app = create_app(reg, folder, audit=audit, tokens={TOKEN: "anna"},
+            app = create_app(reg, folder, audit=audit, tokens={TOKEN: "anna", LONG: "u" * 80},
                              require_token=True)  # fmt: skip
             client = TestClient(app, headers={"authorization": f"Bearer {TOKEN}"})
             _until(lambda: client.get(f"/api/cells/{CELL}").is_success, what="the cell")
             _until(lambda: worker.robot_in.bound and worker.last is not None
                    and worker.last.mode == "intended", what="moving, tracked")  # fmt: skip
+            r = TestClient(app, headers={"authorization": f"Bearer {LONG}"}).post(
+                f"/api/cells/{CELL}/robot/replan", json={"q": robot.q.tolist(), "reason": "x"}
+            )  # while it moves: refused, not a 500 for the user's long name (probe, 2026-11-30)
+            assert r.status_code == 409 and "not at rest" in r.text, r.text
             with robot._lock:  # noqa: SLF001 - moved by hand: 0.3 rad on joint 0, at rest
                 moved = robot.q.copy()
                 moved[0] += 0.3
@@ -105,6 +110,7 @@ def test_replan_after_a_hand_move_and_every_request_audited(tmp_path: Path) -> N
             assert [(x["action"], x["outcome"], x["user"]) for x in rows] == [
                 ("replan", "applied", "anna"),
                 ("replan", "refused", "anna"),
+                ("replan", "refused", "u" * 80),
             ]
             assert rows[0]["q_rad"] == moved.tolist() and rows[1]["q_rad"] == wrong.tolist()
             assert "from the position confirmed" in rows[1]["detail"]

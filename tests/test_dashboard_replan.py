@@ -21,6 +21,7 @@ from sara_app.dashboard.bridge import CellView
 from sara_app.dashboard.viewer import Dashboard
 from sara_app.ops.audit import AuditLog
 from sara_app.peers.controller import Controller
+from sara_app.runtime.robot_link import REPLAN_STILL_S
 from sara_app.scenario import load_scenario, scenarios_dir
 
 CELL = "dashreplan"
@@ -72,6 +73,13 @@ def test_the_status_tabs_replan_sends_the_position_it_shows(tmp_path: Path) -> N
                     robot.command, robot.points, robot.braking = None, [], False
                 text = f"[{moved[0]:.4f}, {moved[1]:.4f}"
                 _until(lambda: text in shown() and worker.shield.at_rest, what="the position")
+                link = worker.robot_in  # the worker takes it once it has stood still a while
+
+                def still_s() -> float:
+                    since, stamp = link.still_since_s, link.stamp_s
+                    return -1.0 if since is None or stamp is None else stamp - since
+
+                _until(lambda: still_s() >= REPLAN_STILL_S, what="standing still")
                 assert worker.last is not None and worker.last.mode != "intended"
                 assert panels.replan(), panels.replan_message.content
                 _until(lambda: worker.last is not None and worker.last.mode == "intended",

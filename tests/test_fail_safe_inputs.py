@@ -29,6 +29,7 @@ from sara_app.bus.messages import (
     RobotCommandMsg,
     RobotStateMsg,
     SkeletonMsg,
+    StatusMsg,
     TrackerFrameMsg,
     VerdictMsg,
 )
@@ -635,13 +636,16 @@ def test_a_controller_reporting_the_robot_at_rest_elsewhere_moves_nothing(cell: 
     assert any(c.mode == "intended" for c in after)  # true states again: it moves on
 
 
-def _replan(cell: Cell, q: list[float], request_id: str, every: Any) -> ParamsAckMsg:
+def _replan(
+    cell: Cell, q: list[float], request_id: str, every: Any, stamp_s: float | None = None
+) -> ParamsAckMsg:
     """An operator's re-plan confirming ``q`` and the worker's answer (``every``: called while
     waiting, the controller's tick)."""
     pub = cell.pubs.get("replan") or cell.pubs.setdefault(
         "replan", cell.bus.publisher(keys.robot_replan_key(CELL))
     )
-    pub.put(ReplanMsg(seq=pub.next_seq(), stamp_s=time.time(), request_id=request_id, q=q,
+    stamp = time.time() if stamp_s is None else stamp_s
+    pub.put(ReplanMsg(seq=pub.next_seq(), stamp_s=stamp, request_id=request_id, q=q,
                       user="operator", reason="moved by hand; it stands there"))  # fmt: skip
     got: list[ParamsAckMsg] = []
 
@@ -670,13 +674,7 @@ def test_a_robot_moved_by_hand_moves_again_only_on_the_operators_word(cell: Cell
         assert any(v.mode == "intended" for v in vs)
         moving = _replan(cell, robot.q.tolist(), "while-moving", ctl.tick)
         assert not moving.accepted and "not at rest" in moving.reason, moving.reason
-        moved = robot.q.copy()  # moved by hand: 0.3 rad on joint 0, at rest
-        moved[0] += 0.3
-        robot.q, robot.v = moved, np.zeros_like(moved)
-        robot.command, robot.points, robot.braking = None, [], False
-        vs, _ = cell.collect(1.5, every=ctl.tick)
-        assert vs and all(v.mode != "intended" for v in vs[-50:])
-        assert any("tracking error" in f for f in vs[-1].faults), vs[-1].faults
+        moved = _moved_by_hand(cell, ctl)
         wrong = moved.copy()
         wrong[1] += 0.05
         refused = _replan(cell, wrong.tolist(), "elsewhere", ctl.tick)
@@ -692,3 +690,101 @@ def test_a_robot_moved_by_hand_moves_again_only_on_the_operators_word(cell: Cell
     qs = np.array([c.q for c in after])
     assert np.max(np.abs(np.diff(qs, axis=0))) < 0.05  # from where it stands: no jump
     assert float(np.max(np.abs(robot.q - moved))) > 0.01  # the robot itself moved on
+
+
+def _moved_by_hand(cell: Cell, ctl: _LyingController) -> np.ndarray:
+    """The reference controller's robot moved 0.3 rad on joint 0 by hand, at rest there (its
+    controller running on); the cell is a tracking fault 1.5 s later. The position."""
+    robot = ctl.ctl
+    moved = robot.q.copy()
+    moved[0] += 0.3
+    robot.q, robot.v = moved, np.zeros_like(moved)
+    robot.command, robot.points, robot.braking = None, [], False
+    vs, _ = cell.collect(1.5, every=ctl.tick)
+    assert vs and all(v.mode != "intended" for v in vs[-50:])
+    assert any("tracking error" in f for f in vs[-1].faults), vs[-1].faults
+    return moved
+
+
+def test_another_keys_restart_never_moves_the_plan_to_a_robot_moved_by_hand(cell: Cell) -> None:
+    """Hostile-user probe of the re-plan, 2026-11-30: the worker's one decoder counted every
+    key's publisher restarts, and any count change unbound the robot's state stream, so two
+    refused retires (seq 10^9, then seq 1 after 1.3 s) made the worker plan from a robot moved
+    by hand with no operator's word (484 of 495 cycles intended). The robot's states now have
+    a decoder of their own."""
+    ctl = _LyingController(cell)
+    with Heartbeat(cell.bus, CELL):
+        vs, _ = cell.collect(1.5, every=ctl.tick)
+        assert any(v.mode == "intended" for v in vs)
+        _moved_by_hand(cell, ctl)
+        pub = cell.bus.publisher(keys.retire_key(CELL))
+        for seq in (10**9, 1):
+            pub.put(RetireMsg(seq=seq, stamp_s=time.time(), request_id=f"r{seq}",
+                              human_id="nobody", user="x", reason="x"))  # fmt: skip
+            vs, _ = cell.collect(1.3, every=ctl.tick)
+    assert vs and not any(v.mode == "intended" for v in vs), Counter(v.mode for v in vs)
+    assert any("tracking error" in f for f in vs[-1].faults)
+
+
+def test_a_replan_is_refused_while_a_second_publisher_lies(cell: Cell) -> None:
+    """Hostile-user probe of the re-plan, 2026-11-30: a second ``robot/state`` publisher
+    (seq 10^12 on) reported the robot at rest 0.3 rad away; the status showed the lie, an
+    operator confirmed it, the worker planned from there and the robot jumped 0.3 rad. The real
+    controller's states are refused as out of order meanwhile: the worker refuses a re-plan
+    while any state of the key was refused in the last 0.3 s, and the robot never jumps."""
+    ctl = _LyingController(cell)
+    hostile = cell.bus.publisher(keys.robot_state_key(CELL))
+    status = cell.bus.subscribe(keys.status_key(CELL), fifo=True)
+    seq = [10**12]
+    robot_q: list[np.ndarray] = []
+
+    def lie() -> None:
+        ctl.tick()
+        robot_q.append(ctl.ctl.q.copy())
+        q = ctl.ctl.q.copy()
+        q[0] += 0.3
+        seq[0] += 1
+        hostile.put(RobotStateMsg(seq=seq[0], stamp_s=time.time(), q=q.tolist(),
+                                  q_dot=[0.0] * len(q)))  # fmt: skip
+
+    with Heartbeat(cell.bus, CELL):
+        vs, _ = cell.collect(1.5, every=ctl.tick)
+        assert any(v.mode == "intended" for v in vs)
+        vs, _ = cell.collect(2.5, every=lie)
+        shown = [d.msg.robot_q_measured for d in status.drain().messages
+                 if isinstance(d.msg, StatusMsg) and d.msg.robot_q_measured]  # fmt: skip
+        assert shown and abs(shown[-1][0] - ctl.ctl.q[0] - 0.3) < 0.01  # the lie is shown
+        ack = _replan(cell, shown[-1], "confirm-shown", lie)
+        vs, _ = cell.collect(1.0, every=lie)
+    assert not ack.accepted and "refused on its key" in ack.reason, ack.reason
+    assert not any(v.mode == "intended" for v in vs)
+    steps = np.max(np.abs(np.diff(np.array(robot_q), axis=0)), axis=1)
+    assert steps.max() < 0.05, steps.max()  # no jump (0.3 rad before)
+
+
+def test_a_flood_of_replans_leaves_the_loop_its_rate(cell: Cell) -> None:
+    """Hostile-user probe of the re-plan, 2026-11-30: 3 000 re-plan requests in a burst (the
+    editor role) took the worker's every cycle (0-1 verdicts a second for 8 s). The worker takes
+    at most two a cycle now; the others wait (or are lost in the queue, unanswered: the API
+    says so). A request stamped long ago is refused."""
+    ctl = _LyingController(cell)
+    pub = cell.pubs["replan"] = cell.bus.publisher(keys.robot_replan_key(CELL))  # as _replan's
+    with Heartbeat(cell.bus, CELL):
+        cell.collect(0.5, every=ctl.tick)
+        q = ctl.ctl.q.tolist()
+        for i in range(3000):
+            pub.put(ReplanMsg(seq=pub.next_seq(), stamp_s=time.time(), request_id=f"f{i}",
+                              q=q, user="flood", reason="flood"))  # fmt: skip
+        answers: list[Any] = []  # read: a full queue of answers would hold up this session
+
+        def tick() -> None:
+            ctl.tick()
+            answers.extend(d.msg for d in cell.acks.drain().messages)
+
+        vs, _ = cell.collect(2.0, every=tick)
+        assert len(vs) / 2.0 > 0.9 * 250, len(vs)
+        assert 0 < len(answers) <= 2 * 250 * 2.5  # two a cycle at most (not the 3 000)
+        vs, cs = cell.collect(4.0, every=tick)  # the rest answered, then the robot moves on
+        assert any(v.mode == "intended" for v in vs[-100:]), vs[-1].faults
+        old = _replan(cell, q, "stale", ctl.tick, stamp_s=time.time() - 10.0)
+    assert not old.accepted and "s old" in old.reason, old.reason

@@ -11,7 +11,7 @@ import numpy as np
 
 from sara_app.bus.messages import position_on_stop
 from sara_app.robot.trajectory import JointState
-from sara_app.runtime.robot_link import MeasuredRobot
+from sara_app.runtime.robot_link import REPLAN_STILL_S, MeasuredRobot
 
 N = 7
 
@@ -88,7 +88,13 @@ def test_a_replan_is_refused_unless_the_state_is_fresh_at_rest_and_where_confirm
 
     assert why(q) is not None and "no robot state" in str(why(q))
     robot.state, robot.stamp_s = JointState(q=q, v=np.zeros(N), a=np.zeros(N)), 10.0
+    robot.still_since_s = 10.0 - REPLAN_STILL_S + 0.01
+    assert "stood still for 0.29 s" in str(why(q))
+    robot.still_since_s = 10.0 - REPLAN_STILL_S
     assert why(q) is None and why(q + 0.004) is None
+    robot.refused_s = 10.0 - REPLAN_STILL_S + 0.01  # a state of the key refused just now
+    assert "refused on its key" in str(why(q))
+    robot.refused_s = 10.0 - REPLAN_STILL_S
     assert "0.0100 rad from the position confirmed" in str(why(q + 0.01))
     assert "[-0.5000, " in str(why(q + 0.01))  # where the controller says the robot is
     assert "old" in str(why(q, now_s=10.2))

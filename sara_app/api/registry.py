@@ -392,7 +392,7 @@ class CellRegistry:
         try:
             msg = RetireMsg(
                 seq=self._next_seq(), stamp_s=time.time(),
-                request_id=f"retire-{uuid.uuid4().hex[:16]}", human_id=human_id, user=user,
+                request_id=f"retire-{uuid.uuid4().hex[:16]}", human_id=human_id, user=user[:64],
                 reason=reason,
             )  # fmt: skip
         except ValidationError as e:
@@ -409,7 +409,8 @@ class CellRegistry:
         try:
             msg = ReplanMsg(
                 seq=self._next_seq(), stamp_s=time.time(),
-                request_id=f"replan-{uuid.uuid4().hex[:16]}", q=q_rad, user=user, reason=reason,
+                request_id=f"replan-{uuid.uuid4().hex[:16]}", q=q_rad, user=user[:64],
+                reason=reason,
             )  # fmt: skip
         except ValidationError as e:
             raise InputError(f"re-plan request invalid: {e.errors()[0]['msg']}") from None

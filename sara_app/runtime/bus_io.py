@@ -27,7 +27,12 @@ class CellBus:
         self.decoder = d = Decoder(max_future_s=FUTURE_TOLERANCE_S)
         self.skeletons = bus.subscribe(keys.skeleton_keys(cell), d, capacity=SKELETON_QUEUE)
         self.frames = bus.subscribe(keys.tracker_frame_keys(cell), d)
-        self.robot_state = bus.subscribe(keys.robot_state_key(cell), d)
+        # the robot's states have their own decoder: a restart (a controller's numbering
+        # starting over) counts for its key alone, which decides whether the worker may plan
+        # from where the states say the robot is (a retire's restart re-anchored the plan:
+        # hostile-user probe, 2026-11-30)
+        self.robot_decoder = Decoder(max_future_s=FUTURE_TOLERANCE_S)
+        self.robot_state = bus.subscribe(keys.robot_state_key(cell), self.robot_decoder)
         self.params = bus.subscribe(keys.params_key(cell), d, fifo=True)
         self.retire = bus.subscribe(keys.retire_key(cell), d, fifo=True)
         self.replan = bus.subscribe(keys.robot_replan_key(cell), d, fifo=True)
@@ -43,7 +48,10 @@ class CellBus:
         self.decoder.count(reason)
 
     def dropped(self) -> dict[str, int]:
-        return dict(self.decoder.counts)
+        out = dict(self.decoder.counts)
+        for reason, n in self.robot_decoder.counts.items():
+            out[reason] = out.get(reason, 0) + n
+        return out
 
     def ack(self, request_id: str, ok: bool, reason: str) -> None:
         """Answer a scenario edit, a retirement or a re-plan."""

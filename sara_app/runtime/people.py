@@ -26,6 +26,10 @@ from sara_app.runtime.bus_io import CellBus, id_in
 from sara_app.runtime.presence import Presence
 
 log = logging.getLogger("sara_app.worker")
+RETIRES_PER_CYCLE = 8
+"""Retire requests taken per cycle at most (the rest wait in the subscription's queue): a flood
+of them could take the worker's every cycle (hostile-user probe, 2026-11-30; 8 a cycle is
+4 000 a second at 500 Hz, far above an operator's pace)."""
 
 
 def ingest_skeleton(cell: Cell, track: Track, msg: SkeletonMsg) -> str | None:
@@ -102,11 +106,11 @@ class People:
     def drain_retirements(self, now: float) -> None:
         """An operator's retirement of a person (positive evidence), answered; refused for a
         person not known or still reported (:meth:`Presence.retire`)."""
-        for d in self.io.retire.drain().messages:
+        for d in self.io.retire.drain(RETIRES_PER_CYCLE).messages:
             if isinstance(d.msg, RetireMsg):
                 reason = self.presence.retire(d.msg.human_id, now)
                 if not reason:
-                    log.warning("human %r retired by %r: %s", d.msg.human_id, d.msg.user,
+                    log.warning("human %r retired by %r: %r", d.msg.human_id, d.msg.user,
                                 d.msg.reason)  # fmt: skip
                 else:  # rate-limited: anyone may send these
                     self.errors("retire refused", reason)

@@ -39,6 +39,15 @@ after a router restart the controller, which braked on its own meanwhile, rests 
 worker's plan may not, and the plan starts from there again (tests/test_supervision.py)."""
 HISTORY = 256
 """Set points remembered for the tracking check (about one second at 250 Hz)."""
+STATES_PER_DRAIN = 64
+"""States decoded per cycle at most (a controller publishes one or a few per control period;
+each is decoded, so that a second publisher's lies cannot hide the real controller's states as
+superseded: they are refused as out of order, which a re-plan counts as evidence)."""
+REPLAN_STILL_S = 0.3
+"""An operator's re-plan needs the robot's states at rest at one position for this long, and no
+state of the key refused for this long (a second publisher, or one out of order)."""
+V_REST = 1e-6
+"""A state is at rest when no joint moves faster than this (rad/s or m/s)."""
 
 
 class MeasuredRobot:
@@ -58,23 +67,39 @@ class MeasuredRobot:
         self.bound = False
         """The state stream has tracked the commands (see the module notes)."""
         self._restarts = 0  # the decoder's count of restarted publishers, last seen
+        self.still_since_s: float | None = None
+        """Since when (state stamps) every state was at rest within the tolerance of the first
+        of them, ``_still_q`` (None: the newest is not at rest)."""
+        self._still_q: np.ndarray | None = None
+        self.refused_s = -np.inf
+        """When (the worker's clock) a state of the key was last refused."""
 
-    def drain(self, sub: Subscription, n_dof: int, drop: Callable[[str], None]) -> None:
-        """The newest ``robot/state`` off ``sub``; a state of another number of joints is
-        dropped (``wrong_dof``) and is this robot's problem until a valid one arrives."""
-        got = sub.drain_latest()
+    def drain(
+        self, sub: Subscription, n_dof: int, drop: Callable[[str], None], now_s: float,
+        tol_rad: float,
+    ) -> None:  # fmt: skip
+        """The ``robot/state`` messages off ``sub`` (its own decoder: its restarts are this
+        key's alone), in order, the newest valid one kept; a state of another number of joints
+        is dropped (``wrong_dof``) and is this robot's problem until a valid one arrives.
+        ``tol_rad``: how far apart two states may be and still stand at one position."""
+        got = sub.drain(STATES_PER_DRAIN)
         restarts = sub.decoder.restarts
-        if restarts != self._restarts:  # a restarted controller: a new stream, not bound yet
-            self._restarts, self.bound = restarts, False
+        if restarts > self._restarts:  # a restarted controller: a new stream, not bound yet
+            self.bound = False
+        self._restarts = restarts
+        if got.refused_keys:
+            self.refused_s = now_s
         for d in got.messages:
             if not isinstance(d.msg, RobotStateMsg):
                 continue
             if len(d.msg.q) != n_dof:
                 drop("wrong_dof")
                 self.problem = f"{len(d.msg.q)} joints received, robot has {n_dof}"
+                self.refused_s = now_s
                 continue
             if self.stamp_s is not None and d.msg.stamp_s - self.stamp_s >= UNBIND_GAP_S:
                 self.bound = False  # no evidence for a second or more (a router restarted)
+            self._still(np.asarray(d.msg.q), np.asarray(d.msg.q_dot), d.msg.stamp_s, tol_rad)
             self.state = JointState(
                 q=np.asarray(d.msg.q), v=np.asarray(d.msg.q_dot), a=np.zeros(n_dof)
             )
@@ -82,6 +107,13 @@ class MeasuredRobot:
             self.problem = None
         if got.refused_keys and not got.messages:
             self.problem = "the last message was refused (see dropped)"
+
+    def _still(self, q: np.ndarray, v: np.ndarray, stamp_s: float, tol_rad: float) -> None:
+        """Update since when the robot stands still (the state ``q``, ``v (n,)``)."""
+        if not float(np.max(np.abs(v))) <= V_REST:
+            self.still_since_s = self._still_q = None
+        elif self._still_q is None or not float(np.max(np.abs(q - self._still_q))) <= tol_rad:
+            self.still_since_s, self._still_q = stamp_s, q
 
     def sent(self, t_point_s: float, q: np.ndarray, stop: tuple[np.ndarray, np.ndarray]) -> None:
         """The worker sent a command whose set point ``q (n,)`` is for time ``t_point_s`` and
@@ -136,12 +168,15 @@ class MeasuredRobot:
 
     def replan_refusal(
         self, q_seen: np.ndarray, now_s: float, timeout_s: float, tol_rad: float,
-        q_min: np.ndarray, q_max: np.ndarray, v_rest: float = 1e-6,
+        q_min: np.ndarray, q_max: np.ndarray,
     ) -> str | None:  # fmt: skip
         """Why the plan may not start from the measured state an operator confirmed as
         ``q_seen (n,)`` (None: it may): the state must be fresh (younger than ``timeout_s``),
         valid, at rest, within ``tol_rad`` of ``q_seen`` and within the joint limits
-        ``q_min``/``q_max (n,)``. The worker's own plan must be at rest too (its caller)."""
+        ``q_min``/``q_max (n,)``; the states must have stood still there for
+        ``REPLAN_STILL_S``, with none of the key refused meanwhile (a second publisher's lies
+        make the real controller's states out of order: hostile-user probe, 2026-11-30). The
+        worker's own plan must be at rest too (its caller)."""
         s = self.state
         if s is None or self.stamp_s is None:
             return "no robot state received: the worker plans from its own model of the robot"
@@ -151,8 +186,19 @@ class MeasuredRobot:
         if not age <= timeout_s:
             return f"the newest robot state is {age:.3f} s old (at most {timeout_s} s)"
         speed = float(np.max(np.abs(s.v)))
-        if not speed <= v_rest:
+        if not speed <= V_REST:
             return f"the robot is not at rest (joint speed up to {speed:.3g} rad/s)"
+        if now_s - self.refused_s < REPLAN_STILL_S:
+            return (
+                "robot states were refused on its key in the last "
+                f"{REPLAN_STILL_S} s (out of order or invalid: a second publisher?)"
+            )
+        still = None if self.still_since_s is None else self.stamp_s - self.still_since_s
+        if still is None or not still >= REPLAN_STILL_S:
+            return (
+                f"the robot has stood still for {0.0 if still is None else still:.2f} s "
+                f"(at least {REPLAN_STILL_S} s)"
+            )
         off = float(np.max(np.abs(s.q - q_seen)))
         if not off <= tol_rad:
             said = ", ".join(f"{x:.4f}" for x in s.q)
@@ -169,7 +215,7 @@ class MeasuredRobot:
             )
         return None
 
-    def at_rest_elsewhere(self, q: np.ndarray, tol_rad: float, v_rest: float = 1e-6) -> bool:
+    def at_rest_elsewhere(self, q: np.ndarray, tol_rad: float, v_rest: float = V_REST) -> bool:
         """A fresh state at rest farther than ``tol_rad`` from ``q`` from a stream not bound to
         the commands: the robot stands somewhere else than the worker's follower (a restarted
         worker or controller). A bound stream's is a tracking fault only (module notes)."""

@@ -51,6 +51,11 @@ from sara_app.scenario import Scenario
 log = logging.getLogger("sara_app.worker")
 BUILDING = "building the cell: loading the robot model and compiling the safety kernels"
 _MIN_SLEEP_S = 20e-6  # the least the loop sleeps per cycle, even when late (s)
+REPLANS_PER_CYCLE = 2
+"""Re-plan requests taken per cycle at most (the rest wait in the subscription's queue): a flood
+of them took the worker's every cycle (hostile-user probe, 2026-11-30)."""
+REPLAN_MAX_AGE_S = 3.0
+"""A re-plan request older than this is refused (a replayed one; the API waits 3 s)."""
 
 
 class _Throttle:
@@ -131,7 +136,8 @@ class CellWorker:
         self.people.drain(now)
         if self.cell.scenario.inputs.cycle_phase_lock:
             self.phase.observe(now, self.people.fresh_stamps)
-        self.robot_in.drain(self.io.robot_state, self.cell.robot.n_dof, self.io.drop)
+        tol = self.cell.scenario.shield.tracking_tol_rad
+        self.robot_in.drain(self.io.robot_state, self.cell.robot.n_dof, self.io.drop, now, tol)
         self.people.drain_retirements(now)
         self._drain_replans(now)
         self.edits.drain(self.io)
@@ -141,7 +147,7 @@ class CellWorker:
         """An operator's word that the robot stands where its controller says
         (``robot/replan``): the plan starts from the measured state, or the request is refused
         with the reason; answered either way, logged with who asked."""
-        for d in self.io.replan.drain().messages:
+        for d in self.io.replan.drain(REPLANS_PER_CYCLE).messages:
             m = d.msg
             if not isinstance(m, ReplanMsg):
                 continue
@@ -153,7 +159,7 @@ class CellWorker:
                     why = f"no plan from there: {e}"
             if why is None:
                 self.robot_in.commanded.clear()
-                log.warning("the plan starts from the measured robot state, confirmed by %r: %s",
+                log.warning("the plan starts from the measured robot state, confirmed by %r: %r",
                             m.user, m.reason)  # fmt: skip
             else:
                 self.errors("re-plan refused", why)
@@ -161,6 +167,9 @@ class CellWorker:
 
     def _replan_refusal(self, m: ReplanMsg, now: float) -> str | None:
         n, sc = self.cell.robot.n_dof, self.cell.scenario
+        age = now - m.stamp_s
+        if not age <= REPLAN_MAX_AGE_S:
+            return f"the request is {age:.1f} s old (at most {REPLAN_MAX_AGE_S} s)"
         if len(m.q) != n:
             return f"{len(m.q)} joint positions confirmed; the robot has {n}"
         if not self.shield.at_rest:
