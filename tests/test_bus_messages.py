@@ -205,6 +205,17 @@ def test_seq_order_per_key() -> None:
     assert dec.decode(SKEL_KEY, _with_seq(0, 11.3)) is not None
 
 
+def test_a_subscribers_check_refuses_before_the_order_counts() -> None:
+    """A message the subscriber's own rule refuses (here: every seq above 100) is counted under
+    the rule's reason and never advances its key's order (a refused state with a huge seq held
+    the real controller's back)."""
+    dec = Decoder(check=lambda m: ("wrong_dof", "too high") if m.seq > 100 else None)
+    assert dec.decode(SKEL_KEY, _with_seq(5, 10.0)) is not None
+    assert dec.decode(SKEL_KEY, _with_seq(10**12, 10.1)) is None
+    assert dec.decode(SKEL_KEY, _with_seq(6, 10.2)) is not None  # not out of order
+    assert dec.counts == {"wrong_dof": 1}
+
+
 json_values = st.recursive(
     st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=5),
     lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=6), inner),

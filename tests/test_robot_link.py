@@ -6,12 +6,15 @@ older command's stop bounding the slack), the faults it reports, and a clock tha
 from __future__ import annotations
 
 import bisect
+import time
 
 import numpy as np
 
-from sara_app.bus.messages import position_on_stop
+from sara_app.bus import keys
+from sara_app.bus.compact import encode_compact
+from sara_app.bus.messages import RobotStateMsg, encode, position_on_stop
 from sara_app.robot.trajectory import JointState
-from sara_app.runtime.robot_link import REPLAN_STILL_S, MeasuredRobot
+from sara_app.runtime.robot_link import REPLAN_STILL_S, MeasuredRobot, decoder
 
 N = 7
 
@@ -108,3 +111,20 @@ def test_a_replan_is_refused_unless_the_state_is_fresh_at_rest_and_where_confirm
     assert "joint 3 at 3.0000 rad is outside its limits" in str(why(beyond))
     robot.state, robot.problem = JointState(q=q, v=np.zeros(N), a=np.zeros(N)), "bad"
     assert "robot state: bad" == why(q)
+
+
+def test_the_robot_keys_decoder_refuses_another_joint_count_before_its_order() -> None:
+    """A state of another number of joints with a huge ``seq`` is ``wrong_dof`` and does not
+    hold the controller's next states back as out of order; a restart on another key is not
+    this decoder's (it is the robot key's alone)."""
+    dec, key = decoder(N), keys.robot_state_key("c1")
+
+    def state(seq: int, n: int = N) -> bytes:
+        return encode(RobotStateMsg(seq=seq, stamp_s=time.time(), q=[0.0] * n, q_dot=[0.0] * n))
+
+    assert dec.decode(key, state(1)) is not None
+    assert dec.decode(key, state(10**12, 3)) is None
+    assert dec.decode(key, state(2)) is not None
+    msg = RobotStateMsg(seq=3, stamp_s=time.time(), q=[0.0] * 3, q_dot=[0.0] * 3)
+    assert dec.decode(key, encode_compact(msg)) is None  # compact records too
+    assert dec.counts == {"wrong_dof": 2} and dec.restarts == 0

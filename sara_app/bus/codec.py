@@ -23,7 +23,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any, NamedTuple
 
 from pydantic import ValidationError
@@ -168,9 +168,15 @@ class Decoder:
         restart_after_s: float = 1.0,
         logger: logging.Logger = log,
         max_future_s: float | None = None,
+        check: Callable[[Message], tuple[str, str] | None] | None = None,
     ) -> None:
         self.restart_after_s = float(restart_after_s)
         self.max_future_s = max_future_s
+        self.check = check
+        """The subscriber's own rule (``(reason, text)`` of a refusal, or None), judged before a
+        message counts for its key's order: a message the subscriber would drop anyway (a robot
+        state of another number of joints) cannot hold back its key's later messages with a
+        huge ``seq``."""
         """Stamps later than the reception time by more than this are refused as
         ``out_of_range`` (before they count for the order: a stamp from the far future would
         otherwise hold back every later message of its key); None: no such check."""
@@ -192,6 +198,9 @@ class Decoder:
             if self.max_future_s is not None and d.msg.stamp_s > d.recv_s + self.max_future_s:
                 ahead = d.msg.stamp_s - d.recv_s
                 raise MessageError("out_of_range", f"stamp_s {ahead:.4g} s in the future")
+            refusal = None if self.check is None else self.check(d.msg)
+            if refusal is not None:
+                raise MessageError(*refusal)
             self._check_order(str(key_expr), d.msg.seq, d.msg.stamp_s)
         except MessageError as e:
             self._reject(e.reason, str(key_expr), str(e))

@@ -12,6 +12,7 @@ from sara_app.bus.codec import Decoder
 from sara_app.bus.messages import ParamsAckMsg
 from sara_app.bus.session import Bus, Publisher
 from sara_app.errors import SaraError
+from sara_app.runtime import robot_link
 from sara_app.safety.settings import FUTURE_TOLERANCE_S
 
 SKELETON_QUEUE = 4096
@@ -23,15 +24,11 @@ class CellBus:
     """The keys of cell ``cell`` on ``bus``. ``status`` is opened by the worker before it builds
     its cell (it says ``starting`` meanwhile); the rest is declared here, after the build."""
 
-    def __init__(self, bus: Bus, cell: str, status: Publisher) -> None:
+    def __init__(self, bus: Bus, cell: str, status: Publisher, n_dof: int) -> None:
         self.decoder = d = Decoder(max_future_s=FUTURE_TOLERANCE_S)
         self.skeletons = bus.subscribe(keys.skeleton_keys(cell), d, capacity=SKELETON_QUEUE)
         self.frames = bus.subscribe(keys.tracker_frame_keys(cell), d)
-        # the robot's states have their own decoder: a restart (a controller's numbering
-        # starting over) counts for its key alone, which decides whether the worker may plan
-        # from where the states say the robot is (a retire's restart re-anchored the plan:
-        # hostile-user probe, 2026-11-30)
-        self.robot_decoder = Decoder(max_future_s=FUTURE_TOLERANCE_S)
+        self.robot_decoder = robot_link.decoder(n_dof)  # the robot's states: a decoder of their own
         self.robot_state = bus.subscribe(keys.robot_state_key(cell), self.robot_decoder)
         self.params = bus.subscribe(keys.params_key(cell), d, fifo=True)
         self.retire = bus.subscribe(keys.retire_key(cell), d, fifo=True)

@@ -25,13 +25,14 @@ the controller reports, and the worker takes it only if the state is there now, 
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable
 
 import numpy as np
 
-from sara_app.bus.messages import RobotStateMsg, position_on_stop
+from sara_app.bus.codec import Decoder
+from sara_app.bus.messages import Message, RobotStateMsg, position_on_stop
 from sara_app.bus.session import Subscription
 from sara_app.robot.trajectory import JointState
+from sara_app.safety.settings import FUTURE_TOLERANCE_S
 
 UNBIND_GAP_S = 1.0
 """A state stream silent this long is bound no more (as the decoder's restart rule: a second):
@@ -48,6 +49,21 @@ REPLAN_STILL_S = 0.3
 state of the key refused for this long (a second publisher, or one out of order)."""
 V_REST = 1e-6
 """A state is at rest when no joint moves faster than this (rad/s or m/s)."""
+
+
+def decoder(n_dof: int) -> Decoder:
+    """The decoder of one cell's ``robot/state`` key: its own (a publisher restart on another
+    key must not count as the controller's: a retire's restart re-anchored the plan, hostile-
+    user probe 2026-11-30), refusing a state of another number of joints than ``n_dof`` as
+    ``wrong_dof`` before it counts for the key's order (one with a huge ``seq`` held the real
+    controller's states back as out of order for a second)."""
+
+    def check(msg: Message) -> tuple[str, str] | None:
+        if isinstance(msg, RobotStateMsg) and len(msg.q) != n_dof:
+            return "wrong_dof", f"{len(msg.q)} joints received, robot has {n_dof}"
+        return None
+
+    return Decoder(max_future_s=FUTURE_TOLERANCE_S, check=check)
 
 
 class MeasuredRobot:
@@ -74,14 +90,11 @@ class MeasuredRobot:
         self.refused_s = -np.inf
         """When (the worker's clock) a state of the key was last refused."""
 
-    def drain(
-        self, sub: Subscription, n_dof: int, drop: Callable[[str], None], now_s: float,
-        tol_rad: float,
-    ) -> None:  # fmt: skip
-        """The ``robot/state`` messages off ``sub`` (its own decoder: its restarts are this
-        key's alone), in order, the newest valid one kept; a state of another number of joints
-        is dropped (``wrong_dof``) and is this robot's problem until a valid one arrives.
-        ``tol_rad``: how far apart two states may be and still stand at one position."""
+    def drain(self, sub: Subscription, now_s: float, tol_rad: float) -> None:
+        """The ``robot/state`` messages off ``sub`` (its decoder its own, :func:`decoder`: its
+        restarts are this key's alone), in order, the newest kept; a refused one is this
+        robot's problem until a valid one arrives. ``tol_rad``: how far apart two states may be
+        and still stand at one position."""
         got = sub.drain(STATES_PER_DRAIN)
         restarts = sub.decoder.restarts
         if restarts > self._restarts:  # a restarted controller: a new stream, not bound yet
@@ -92,16 +105,11 @@ class MeasuredRobot:
         for d in got.messages:
             if not isinstance(d.msg, RobotStateMsg):
                 continue
-            if len(d.msg.q) != n_dof:
-                drop("wrong_dof")
-                self.problem = f"{len(d.msg.q)} joints received, robot has {n_dof}"
-                self.refused_s = now_s
-                continue
             if self.stamp_s is not None and d.msg.stamp_s - self.stamp_s >= UNBIND_GAP_S:
                 self.bound = False  # no evidence for a second or more (a router restarted)
             self._still(np.asarray(d.msg.q), np.asarray(d.msg.q_dot), d.msg.stamp_s, tol_rad)
             self.state = JointState(
-                q=np.asarray(d.msg.q), v=np.asarray(d.msg.q_dot), a=np.zeros(n_dof)
+                q=np.asarray(d.msg.q), v=np.asarray(d.msg.q_dot), a=np.zeros(len(d.msg.q))
             )
             self.stamp_s = d.msg.stamp_s
             self.problem = None

@@ -102,7 +102,7 @@ class CellWorker:
         status.continue_after(last_status_seq(self.name))  # after the entry point's
         with Starting(status, self.name, scenario.name, BUILDING):
             self.cell = build_cell(scenario)
-        self.io = CellBus(bus, self.name, status)
+        self.io = CellBus(bus, self.name, status, self.cell.robot.n_dof)
         self.people = People(self.cell, self.io, self.errors)
         self.robot_in = MeasuredRobot()
         self.pass_index = 0
@@ -136,8 +136,7 @@ class CellWorker:
         self.people.drain(now)
         if self.cell.scenario.inputs.cycle_phase_lock:
             self.phase.observe(now, self.people.fresh_stamps)
-        tol = self.cell.scenario.shield.tracking_tol_rad
-        self.robot_in.drain(self.io.robot_state, self.cell.robot.n_dof, self.io.drop, now, tol)
+        self.robot_in.drain(self.io.robot_state, now, self.cell.scenario.shield.tracking_tol_rad)
         self.people.drain_retirements(now)
         self._drain_replans(now)
         self.edits.drain(self.io)
