@@ -98,5 +98,8 @@ def test_tokens_file(tmp_path: Path) -> None:
     (tmp_path / "bad.json").write_text(json.dumps({"short": "x"}))
     with pytest.raises(ParameterError, match="16 characters"):
         load_tokens(tmp_path / "bad.json")
+    (tmp_path / "long.json").write_text(json.dumps({"t" * 16: "u" * 65}))
+    with pytest.raises(ParameterError, match="65 characters; at most 64"):
+        load_tokens(tmp_path / "long.json")  # a user an audit row or bus message cannot hold
     with pytest.raises(ParameterError):
         create_app(CellRegistry(None), audit=AuditLog(tmp_path / "a.sqlite"), require_token=True)

@@ -794,3 +794,62 @@ def test_a_flood_of_replans_leaves_the_loop_its_rate(cell: Cell) -> None:
         assert any(v.mode == "intended" for v in vs[-100:]), vs[-1].faults
         old = _replan(cell, q, "stale", ctl.tick, stamp_s=time.time() - 10.0)
     assert not old.accepted and "s old" in old.reason, old.reason
+
+
+def _put_state(pub: Any, seq: int, q: Any, stamp_s: float | None = None) -> None:
+    q = [float(x) for x in q]
+    pub.put(RobotStateMsg(seq=seq, stamp_s=time.time() if stamp_s is None else stamp_s, q=q,
+                          q_dot=[0.0] * len(q)))  # fmt: skip
+
+
+def test_a_faked_restart_of_the_robots_own_key_never_moves_the_plan(cell: Cell) -> None:
+    """Second hostile-user probe of the re-plan, 2026-11-30: with the robot moved by hand (a
+    bound stream, a tracking fault), one state from a second publisher with seq 10^12 (at the
+    robot's true position) made the real controller's states out of order for a second; its
+    next one then looked like a restart, unbound the stream, and the worker planned from the
+    robot with no operator's word (232 of 497 cycles intended). A pair of states stamped 10 and
+    5 s ago (seq 10^13, then 0) did the same at once. A restart after refused states keeps the
+    stream bound now, and states stamped over 0.5 s ago are refused before they count."""
+    ctl = _LyingController(cell)
+    hostile = cell.bus.publisher(keys.robot_state_key(CELL))
+    with Heartbeat(cell.bus, CELL):
+        vs, _ = cell.collect(1.5, every=ctl.tick)
+        assert any(v.mode == "intended" for v in vs)
+        moved = _moved_by_hand(cell, ctl)
+        _put_state(hostile, 10**12, moved)
+        vs, _ = cell.collect(2.0, every=ctl.tick)
+        assert not any(v.mode == "intended" for v in vs), Counter(v.mode for v in vs)
+        now = time.time()
+        _put_state(hostile, 10**13, moved, now - 10.0)
+        _put_state(hostile, 0, moved, now - 5.0)
+        vs, _ = cell.collect(2.0, every=ctl.tick)
+    assert not any(v.mode == "intended" for v in vs), Counter(v.mode for v in vs)
+    assert vs[-1].dropped.get("out_of_range", 0) >= 2 and "tracking error" in vs[-1].faults[0]
+    assert float(np.max(np.abs(ctl.ctl.q - moved))) < 1e-9  # the robot stayed where it was
+
+
+def test_a_second_publisher_copying_the_commands_is_a_fault(cell: Cell) -> None:
+    """Second hostile-user probe of the re-plan, 2026-11-30: a second publisher (seq 10^14 on)
+    whose states copied the worker's commands hid the real controller (its states all refused
+    as out of order) and the cell ran intended, checking a robot made up. A state of the key
+    refused is a fault for 0.1 s now, even while others are accepted."""
+    ctl = _LyingController(cell)
+    hostile = cell.bus.publisher(keys.robot_state_key(CELL))
+    cmds = cell.bus.subscribe(keys.robot_command_key(CELL))
+    seq, last = [10**14], [None]
+
+    def mirror() -> None:
+        ctl.tick()
+        for d in cmds.drain().messages:
+            last[0] = d.msg.q
+        if last[0] is not None:
+            seq[0] += 1
+            _put_state(hostile, seq[0], last[0])
+
+    with Heartbeat(cell.bus, CELL):
+        vs, _ = cell.collect(1.5, every=ctl.tick)
+        assert any(v.mode == "intended" for v in vs)
+        cell.collect(0.5, every=mirror)
+        vs, _ = cell.collect(2.0, every=mirror)
+    assert vs and sum(v.mode == "intended" for v in vs) < 0.1 * len(vs), Counter(v.mode for v in vs)
+    assert vs[-1].dropped.get("out_of_order", 0) > 10

@@ -14,7 +14,12 @@ from sara_app.bus import keys
 from sara_app.bus.compact import encode_compact
 from sara_app.bus.messages import RobotStateMsg, encode, position_on_stop
 from sara_app.robot.trajectory import JointState
-from sara_app.runtime.robot_link import REPLAN_STILL_S, MeasuredRobot, decoder
+from sara_app.runtime.robot_link import (
+    REFUSED_FAULT_S,
+    REPLAN_STILL_S,
+    MeasuredRobot,
+    decoder,
+)
 
 N = 7
 
@@ -69,13 +74,16 @@ def test_faults_stale_tracking_and_a_clock_that_goes_back() -> None:
     q_mid, slack = robot.expected(t_mid) or (np.zeros(N), 0.0)
 
     def state(t: float, q: np.ndarray) -> None:
-        robot.state, robot.stamp_s, robot.problem = JointState(q, np.zeros(N), np.zeros(N)), t, None
+        robot.state, robot.stamp_s = JointState(q, np.zeros(N), np.zeros(N)), t
 
     state(t_mid, q_mid)
     assert robot.faults(t_mid + 0.001, 0.05, 0.01) == []
     assert "old" in robot.faults(t_mid + 0.2, 0.05, 0.01)[0]
     state(t_mid, q_mid + 0.01 + slack + 1e-3)
     assert "tracking error" in robot.faults(t_mid + 0.001, 0.05, 0.01)[0]
+    robot.refused_s = t_mid  # a state of the key refused: a fault for a while
+    assert "refused" in robot.faults(t_mid + REFUSED_FAULT_S - 1e-3, 0.5, 0.01)[0]
+    assert "tracking error" in robot.faults(t_mid + REFUSED_FAULT_S, 0.5, 0.01)[0]
     robot.sent(robot.commanded[0][0] - 1.0, q_mid, (np.array([0.0]), q_mid[None]))
     assert len(robot.commanded) == 1  # time went back: the history starts afresh
 
@@ -109,8 +117,16 @@ def test_a_replan_is_refused_unless_the_state_is_fresh_at_rest_and_where_confirm
     beyond[3] = 3.0
     robot.state = JointState(q=beyond, v=np.zeros(N), a=np.zeros(N))
     assert "joint 3 at 3.0000 rad is outside its limits" in str(why(beyond))
-    robot.state, robot.problem = JointState(q=q, v=np.zeros(N), a=np.zeros(N)), "bad"
-    assert "robot state: bad" == why(q)
+    robot.state = JointState(q=q, v=np.zeros(N), a=np.zeros(N))
+    assert why(q) is None
+    elsewhere = q + 0.01  # the automatic re-anchor (a stream not bound) needs the same evidence
+    assert robot.at_rest_elsewhere(elsewhere, 10.0, 0.05, 0.005)
+    robot.refused_s = 9.9
+    assert not robot.at_rest_elsewhere(elsewhere, 10.0, 0.05, 0.005)
+    robot.refused_s, robot.still_since_s = -np.inf, 9.9
+    assert not robot.at_rest_elsewhere(elsewhere, 10.0, 0.05, 0.005)
+    robot.still_since_s, robot.bound = 9.0, True
+    assert not robot.at_rest_elsewhere(elsewhere, 10.0, 0.05, 0.005)  # bound: never
 
 
 def test_the_robot_keys_decoder_refuses_another_joint_count_before_its_order() -> None:
@@ -128,3 +144,6 @@ def test_the_robot_keys_decoder_refuses_another_joint_count_before_its_order() -
     msg = RobotStateMsg(seq=3, stamp_s=time.time(), q=[0.0] * 3, q_dot=[0.0] * 3)
     assert dec.decode(key, encode_compact(msg)) is None  # compact records too
     assert dec.counts == {"wrong_dof": 2} and dec.restarts == 0
+    stale = RobotStateMsg(seq=10**13, stamp_s=time.time() - 10.0, q=[0.0] * N, q_dot=[0.0] * N)
+    assert dec.decode(key, encode(stale)) is None  # stamped long ago: never counts for the order
+    assert dec.decode(key, state(4)) is not None and dec.counts["out_of_range"] == 1

@@ -38,6 +38,10 @@ LOCAL_USER = "local"
 """The user of a request without a valid token (a service without tokens on loopback)."""
 
 
+MAX_USER_CHARS = 64
+"""The longest user name a token may carry: what a bus message records (``RetireMsg.user``)."""
+
+
 def load_tokens(path: str | Path, create: bool = False) -> dict[str, str]:
     """``{token: user}`` from a tokens file; with ``create``, a new file with one random token
     for user ``operator`` when there is none. ParameterError when it cannot be used."""
@@ -61,6 +65,12 @@ def load_tokens(path: str | Path, create: bool = False) -> dict[str, str]:
         raise ParameterError(
             f"API tokens file {str(p)!r}: expected a JSON object of tokens (16 characters or "
             "more) to user names"
+        )
+    long = [u for u in data.values() if len(u) > MAX_USER_CHARS]
+    if long:  # every audit row and bus message records the user whole (hostile-user probe)
+        raise ParameterError(
+            f"API tokens file {str(p)!r}: user name {long[0][:40]!r}... has {len(long[0])} "
+            f"characters; at most {MAX_USER_CHARS}"
         )
     return data
 

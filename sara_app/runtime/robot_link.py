@@ -24,6 +24,7 @@ the controller reports, and the worker takes it only if the state is there now, 
 
 from __future__ import annotations
 
+import time
 from collections import deque
 
 import numpy as np
@@ -45,8 +46,18 @@ STATES_PER_DRAIN = 64
 each is decoded, so that a second publisher's lies cannot hide the real controller's states as
 superseded: they are refused as out of order, which a re-plan counts as evidence)."""
 REPLAN_STILL_S = 0.3
-"""An operator's re-plan needs the robot's states at rest at one position for this long, and no
-state of the key refused for this long (a second publisher, or one out of order)."""
+"""Planning from where the states say the robot is (an operator's re-plan, or a re-anchor of a
+stream not bound) needs them at rest at one position for this long, and no state of the key
+refused for this long (a second publisher's states make the controller's out of order)."""
+REFUSED_FAULT_S = 0.1
+"""A state of the key refused (out of order, invalid, stale, another joint count) is a fault
+for this long, even while others are accepted: two publishers on one key are one too many (a
+second one that copied the commands hid the real controller: hostile-user probe)."""
+MAX_STATE_AGE_S = 0.5
+"""A state stamped longer ago than this is refused before it counts for the key's order (one
+stamped 10 s ago with a huge ``seq``, then one with ``seq`` 0, faked a controller restart at
+once). Below the decoder's restart rule's second, so that a faked restart takes a second of
+refused real states, which keeps the stream bound (:meth:`MeasuredRobot.drain`)."""
 V_REST = 1e-6
 """A state is at rest when no joint moves faster than this (rad/s or m/s)."""
 
@@ -61,9 +72,12 @@ def decoder(n_dof: int) -> Decoder:
     def check(msg: Message) -> tuple[str, str] | None:
         if isinstance(msg, RobotStateMsg) and len(msg.q) != n_dof:
             return "wrong_dof", f"{len(msg.q)} joints received, robot has {n_dof}"
+        age = time.time() - msg.stamp_s
+        if not age <= MAX_STATE_AGE_S:
+            return "out_of_range", f"stamped {age:.3g} s ago (at most {MAX_STATE_AGE_S} s)"
         return None
 
-    return Decoder(max_future_s=FUTURE_TOLERANCE_S, check=check)
+    return Decoder(max_future_s=FUTURE_TOLERANCE_S, check=check)  # its restarts: 1 s
 
 
 class MeasuredRobot:
@@ -74,7 +88,6 @@ class MeasuredRobot:
     def __init__(self) -> None:
         self.state: JointState | None = None
         self.stamp_s: float | None = None
-        self.problem: str | None = None
         self.commanded: deque[tuple[float, np.ndarray, tuple[np.ndarray, np.ndarray]]] = deque(
             maxlen=HISTORY
         )
@@ -92,29 +105,31 @@ class MeasuredRobot:
 
     def drain(self, sub: Subscription, now_s: float, tol_rad: float) -> None:
         """The ``robot/state`` messages off ``sub`` (its decoder its own, :func:`decoder`: its
-        restarts are this key's alone), in order, the newest kept; a refused one is this
-        robot's problem until a valid one arrives. ``tol_rad``: how far apart two states may be
-        and still stand at one position."""
+        restarts are this key's alone), in order, the newest kept; a refused one is a fault for
+        ``REFUSED_FAULT_S``. ``tol_rad``: how far apart two states may be and still stand at one
+        position. The stream is bound no more after a restart of its publisher or a second of
+        silence, unless a state of the key was refused in the second before: a second
+        publisher with a huge ``seq`` makes the real controller's states out of order for a
+        second, then look like a restart (hostile-user probe, 2026-11-30)."""
         got = sub.drain(STATES_PER_DRAIN)
-        restarts = sub.decoder.restarts
-        if restarts > self._restarts:  # a restarted controller: a new stream, not bound yet
-            self.bound = False
-        self._restarts = restarts
         if got.refused_keys:
             self.refused_s = now_s
+        quiet = now_s - self.refused_s >= UNBIND_GAP_S  # no state refused in the last second
+        restarts = sub.decoder.restarts
+        if restarts > self._restarts and quiet:  # a restarted controller: a new stream
+            self.bound = False
+        self._restarts = restarts
         for d in got.messages:
             if not isinstance(d.msg, RobotStateMsg):
                 continue
-            if self.stamp_s is not None and d.msg.stamp_s - self.stamp_s >= UNBIND_GAP_S:
+            gap = self.stamp_s is not None and d.msg.stamp_s - self.stamp_s >= UNBIND_GAP_S
+            if gap and quiet:
                 self.bound = False  # no evidence for a second or more (a router restarted)
             self._still(np.asarray(d.msg.q), np.asarray(d.msg.q_dot), d.msg.stamp_s, tol_rad)
             self.state = JointState(
                 q=np.asarray(d.msg.q), v=np.asarray(d.msg.q_dot), a=np.zeros(len(d.msg.q))
             )
             self.stamp_s = d.msg.stamp_s
-            self.problem = None
-        if got.refused_keys and not got.messages:
-            self.problem = "the last message was refused (see dropped)"
 
     def _still(self, q: np.ndarray, v: np.ndarray, stamp_s: float, tol_rad: float) -> None:
         """Update since when the robot stands still (the state ``q``, ``v (n,)``)."""
@@ -150,8 +165,11 @@ class MeasuredRobot:
         return q, slack
 
     def faults(self, now_s: float, timeout_s: float, tol_rad: float) -> list[str]:
-        if self.problem is not None:
-            return [f"robot state: {self.problem}"]
+        if now_s - self.refused_s < REFUSED_FAULT_S:
+            return [
+                "robot state: a state was refused on its key (see dropped: out of order, "
+                "invalid, stale or another joint count; two publishers?)"
+            ]
         if self.stamp_s is None or self.state is None:
             return []
         age = now_s - self.stamp_s
@@ -185,11 +203,34 @@ class MeasuredRobot:
         ``REPLAN_STILL_S``, with none of the key refused meanwhile (a second publisher's lies
         make the real controller's states out of order: hostile-user probe, 2026-11-30). The
         worker's own plan must be at rest too (its caller)."""
+        why = self._evidence(now_s, timeout_s)
+        s = self.state
+        if why is not None or s is None:
+            return why or "no robot state"
+        off = float(np.max(np.abs(s.q - q_seen)))
+        if not off <= tol_rad:
+            said = ", ".join(f"{x:.4f}" for x in s.q)
+            return (
+                f"the controller reports the robot at [{said}] rad, {off:.4f} rad from the "
+                f"position confirmed (tolerance {tol_rad} rad)"
+            )
+        out = np.flatnonzero((s.q < q_min) | (s.q > q_max))
+        if out.size:
+            j = int(out[0])
+            return (
+                f"joint {j} at {s.q[j]:.4f} rad is outside its limits "
+                f"[{q_min[j]:.4f}, {q_max[j]:.4f}] rad"
+            )
+        return None
+
+    def _evidence(self, now_s: float, timeout_s: float) -> str | None:
+        """Why the states are not evidence enough to plan from where they say the robot is
+        (None: they are): the newest must be fresh (younger than ``timeout_s``) and at rest,
+        the states must have stood still for ``REPLAN_STILL_S`` and none of the key have been
+        refused meanwhile."""
         s = self.state
         if s is None or self.stamp_s is None:
             return "no robot state received: the worker plans from its own model of the robot"
-        if self.problem is not None:
-            return f"robot state: {self.problem}"
         age = now_s - self.stamp_s
         if not age <= timeout_s:
             return f"the newest robot state is {age:.3f} s old (at most {timeout_s} s)"
@@ -207,31 +248,19 @@ class MeasuredRobot:
                 f"the robot has stood still for {0.0 if still is None else still:.2f} s "
                 f"(at least {REPLAN_STILL_S} s)"
             )
-        off = float(np.max(np.abs(s.q - q_seen)))
-        if not off <= tol_rad:
-            said = ", ".join(f"{x:.4f}" for x in s.q)
-            return (
-                f"the controller reports the robot at [{said}] rad, {off:.4f} rad from the "
-                f"position confirmed (tolerance {tol_rad} rad)"
-            )
-        out = np.flatnonzero((s.q < q_min) | (s.q > q_max))
-        if out.size:
-            j = int(out[0])
-            return (
-                f"joint {j} at {s.q[j]:.4f} rad is outside its limits "
-                f"[{q_min[j]:.4f}, {q_max[j]:.4f}] rad"
-            )
         return None
 
-    def at_rest_elsewhere(self, q: np.ndarray, tol_rad: float, v_rest: float = V_REST) -> bool:
-        """A fresh state at rest farther than ``tol_rad`` from ``q`` from a stream not bound to
-        the commands: the robot stands somewhere else than the worker's follower (a restarted
-        worker or controller). A bound stream's is a tracking fault only (module notes)."""
+    def at_rest_elsewhere(
+        self, q: np.ndarray, now_s: float, timeout_s: float, tol_rad: float
+    ) -> bool:
+        """Fresh states at rest, standing still farther than ``tol_rad`` from ``q (n,)``, from
+        a stream not bound to the commands: the robot stands somewhere else than the worker's
+        follower (a restarted worker or controller), with the evidence an operator's re-plan
+        needs (:meth:`_evidence`). A bound stream's is a tracking fault only (module notes)."""
         s = self.state
         return (
             s is not None
             and not self.bound
-            and self.problem is None
-            and float(np.max(np.abs(s.v))) <= v_rest
+            and self._evidence(now_s, timeout_s) is None
             and float(np.max(np.abs(s.q - q))) > tol_rad
         )

@@ -247,7 +247,7 @@ class CellWorker:
             problems.append(f"input handling failed: {e!r}"[:200])
         sc = self.cell.scenario
         try:
-            self._reanchor()
+            self._reanchor(now)
             robot = self.robot_in.faults(
                 now, sc.inputs.robot_state_timeout_s, sc.shield.tracking_tol_rad
             )
@@ -267,7 +267,7 @@ class CellWorker:
         self.loop_us.append((time.perf_counter_ns() - t0_ns) / 1e3)
         return res
 
-    def _reanchor(self) -> None:
+    def _reanchor(self, now: float) -> None:
         """A robot at rest where the follower is not (a restarted worker; a controller that
         braked on its own while the worker hung): when the follower rests too, start it from
         the measured position (towards its path's end), so commands continue from there."""
@@ -275,7 +275,8 @@ class CellWorker:
         q_meas = None if self.robot_in.state is None else self.robot_in.state.q
         if q_meas is None or not self.shield.at_rest:
             return
-        if self.robot_in.at_rest_elsewhere(self.shield.robot_state.q, tol):
+        timeout = self.cell.scenario.inputs.robot_state_timeout_s
+        if self.robot_in.at_rest_elsewhere(self.shield.robot_state.q, now, timeout, tol):
             self.shield.restart_from(q_meas)
             self.robot_in.commanded.clear()
             self._reanchored_log("follower re-anchored at the measured state")
