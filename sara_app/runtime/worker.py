@@ -172,7 +172,10 @@ class CellWorker:
         if len(m.q) != n:
             return f"{len(m.q)} joint positions confirmed; the robot has {n}"
         if not self.shield.at_rest:
-            return "the worker's plan is not at rest yet (braking): ask again in a moment"
+            return (
+                "the worker's plan is not at rest (it moves, or still brakes): a re-plan is for "
+                "a robot stopped away from the plan, once the plan has stopped too"
+            )
         tol, lim = sc.shield.tracking_tol_rad, self.cell.robot.limits
         why = self.robot_in.replan_refusal(
             np.asarray(m.q, dtype=float), now, sc.inputs.robot_state_timeout_s, tol,
