@@ -388,16 +388,8 @@ class CellRegistry:
     ) -> ParamsAnswer:
         """Ask ``cell``'s worker to forget ``human_id`` (an operator's retire action) and wait
         for its answer (refused: the person was not known). Errors as ``request_params``."""
-        keys.check_name("cell", cell)
-        try:
-            msg = RetireMsg(
-                seq=self._next_seq(), stamp_s=time.time(),
-                request_id=f"retire-{uuid.uuid4().hex[:16]}", human_id=human_id, user=user[:64],
-                reason=reason,
-            )  # fmt: skip
-        except ValidationError as e:
-            raise InputError(f"retire request invalid: {e.errors()[0]['msg']}") from None
-        return self._ask(cell, "retire", msg, timeout_s)
+        return self._operator_request(cell, "retire", RetireMsg, "retire", user, timeout_s,
+                                      human_id=human_id, reason=reason)  # fmt: skip
 
     def request_replan(
         self, cell: str, q_rad: list[float], user: str, reason: str, timeout_s: float = 3.0
@@ -405,16 +397,26 @@ class CellRegistry:
         """Ask ``cell``'s worker to plan from the measured robot state, which ``user`` confirmed
         stands at ``q_rad`` (an operator's re-plan) and wait for its answer. Errors as
         ``request_params``."""
+        return self._operator_request(cell, "robot_replan", ReplanMsg, "re-plan", user,
+                                      timeout_s, q=q_rad, reason=reason)  # fmt: skip
+
+    def _operator_request(
+        self, cell: str, kind: str, model: type[RetireMsg] | type[ReplanMsg], what: str,
+        user: str, timeout_s: float, **fields: Any,
+    ) -> ParamsAnswer:  # fmt: skip
+        """An operator's action (``what``) on ``cell``'s ``kind`` key: ``model`` with
+        ``fields``, the user cut to what a message holds, answered by the worker
+        (:meth:`_ask`)."""
         keys.check_name("cell", cell)
         try:
-            msg = ReplanMsg(
+            msg = model(
                 seq=self._next_seq(), stamp_s=time.time(),
-                request_id=f"replan-{uuid.uuid4().hex[:16]}", q=q_rad, user=user[:64],
-                reason=reason,
+                request_id=f"{what.replace('-', '')}-{uuid.uuid4().hex[:16]}", user=user[:64],
+                **fields,
             )  # fmt: skip
         except ValidationError as e:
-            raise InputError(f"re-plan request invalid: {e.errors()[0]['msg']}") from None
-        return self._ask(cell, "robot_replan", msg, timeout_s)
+            raise InputError(f"{what} request invalid: {e.errors()[0]['msg']}") from None
+        return self._ask(cell, kind, msg, timeout_s)
 
     def _ask(
         self, cell: str, kind: str, msg: ParamsMsg | RetireMsg | ReplanMsg, timeout_s: float
