@@ -694,8 +694,8 @@ def test_concurrent_patches_are_serialised_and_none_is_lost(folder: Path) -> Non
         _wait_until(lambda: reg.applied_scenario("cellp") is not None, 10.0)
         edits = [{"description": "serial"}] + [
             {"shield": {k: v}}
-            for k, v in [("dt_s", 0.005), ("max_interval_s", 0.03), ("tracking_tol_rad", 0.006),
-                         ("skeleton_timeout_s", 0.15)]  # fmt: skip
+            for k, v in [("models", ["pos", "vel", "acc"]), ("max_interval_s", 0.03),
+                         ("tracking_tol_rad", 0.006), ("skeleton_timeout_s", 0.15)]  # fmt: skip
         ] + [{"inputs": {"max_people": 7}}, {"inputs": {"tracker_timeout_s": 0.3}},
              {"sim": {"seed": 5}}]  # fmt: skip
 
@@ -708,7 +708,7 @@ def test_concurrent_patches_are_serialised_and_none_is_lost(folder: Path) -> Non
         assert codes == [200] * len(edits)
         sc = worker.cell.scenario
         assert sc.description == "serial" and sc.sim.seed == 5
-        assert (sc.shield.dt_s, sc.shield.max_interval_s) == (0.005, 0.03)
+        assert (sc.shield.models, sc.shield.max_interval_s) == (["pos", "vel", "acc"], 0.03)
         assert (sc.shield.tracking_tol_rad, sc.shield.skeleton_timeout_s) == (0.006, 0.15)
         assert (sc.inputs.max_people, sc.inputs.tracker_timeout_s) == (7, 0.3)
 

@@ -66,11 +66,15 @@ def test_the_commands_arrays_are_what_it_says() -> None:
         _says_the_same(cmd)
     res.command.q[:] = 0.0  # the command keeps arrays of its own
     assert not np.array_equal(cmd.q, res.command.q)
-    # a fault with a non-finite command: the last command's position, at rest, no stop
-    msgs.last = JointState(cmd.q, np.zeros(ROBOT.n_dof), np.zeros(ROBOT.n_dof))
+    # a fault with a non-finite command before any command was sent: no command (there is no
+    # position to hold; it was all zeros), the verdict says why
     bad = dataclasses.replace(res, command=JointState(np.full(7, np.nan), np.zeros(7), np.zeros(7)))
+    verdict, none = msgs.fault(t + dt, dt, bad, "boom", {}, (98, 98))
+    assert none is None and verdict.mode == "fault" and verdict.faults == ["boom"]
+    # after one: the last command's position, at rest, no stop
+    msgs.last = JointState(cmd.q, np.zeros(ROBOT.n_dof), np.zeros(ROBOT.n_dof))
     _, fault = msgs.fault(t + dt, dt, bad, "boom", {}, (99, 99))
-    assert fault.mode == "fault" and len(fault.failsafe_t_s) == 0
+    assert fault is not None and fault.mode == "fault" and len(fault.failsafe_t_s) == 0
     np.testing.assert_array_equal(fault.q, cmd.q)
     _says_the_same(fault)
 
@@ -89,7 +93,7 @@ def test_a_fault_with_a_non_finite_held_stop_holds_at_rest() -> None:
         msgs.verdict_and_command(t, dt, res, {}, (1, 1))
     msgs.last = JointState(res.command.q, np.zeros(7), np.zeros(7))
     _, fault = msgs.fault(t, dt, res, "boom", {}, (2, 2))
-    assert msgs.held is None and len(fault.failsafe_t_s) == 0
+    assert fault is not None and msgs.held is None and len(fault.failsafe_t_s) == 0
     np.testing.assert_array_equal(fault.q_dot, np.zeros(7))
     _says_the_same(fault)
 

@@ -53,6 +53,10 @@ class FakeSub:
         out, self.queue = self.queue, []
         return Drained(out, 0)
 
+    def drain_latest(self) -> Drained:
+        out, self.queue = self.queue[-1:], []
+        return Drained(out, 0)
+
 
 class FakePub:
     def __init__(self, on_put: Callable[[Any], None] | None = None) -> None:
@@ -188,12 +192,13 @@ def _verdict(mode: str = "pfl", **kw: Any) -> VerdictMsg:
     )
 
 
-def _feed(bus: FakeBus, occ: OccupancyMsg, verdict: VerdictMsg) -> None:
+def _feed(bus: FakeBus, occ: OccupancyMsg, verdict: VerdictMsg | None) -> None:
     cmd = RobotCommandMsg(seq=1, stamp_s=2.0, q=[0.0, -0.5, 0, -2.0, 0, 1.6, 0.8],
                           q_dot=[0.0] * 7, q_ddot=[0.0] * 7, mode="intended",
                           valid_until_s=2.008)  # fmt: skip
     bus.feed(keys.robot_command_key(CELL), cmd)
-    bus.feed(keys.verdict_key(CELL), verdict)
+    if verdict is not None:
+        bus.feed(keys.verdict_key(CELL), verdict)
     bus.feed(keys.occupancy_key(CELL), occ)
 
 
@@ -525,22 +530,44 @@ def test_before_the_first_verdict_the_status_says_what_the_worker_does(
     assert "starting: building the cell" in dash.panels.status.content
 
 
-def test_the_pfl_table_and_the_status_show_the_same_cycle(view: tuple[CellView, FakeBus]) -> None:
+@pytest.mark.parametrize("source", ["subscription", "registry"])
+def test_the_pfl_table_and_the_status_show_the_same_cycle(
+    source: str, dash: Dashboard, scenario: Scenario, tmp_path: Path
+) -> None:
     """The occupancy (link table, colours) comes at display rate, verdicts every cycle: the
-    frame shows the verdict of the occupancy's own cycle, not a later one."""
-    v, bus = view
+    frame shows the verdict of the occupancy's own cycle, not a later one; alike when the
+    verdicts come from the API's registry in the same process (``serve``), each taken once."""
+    from sara_app.api.registry import CellRegistry
+    from sara_app.bus.codec import Decoded
+
+    bus = FakeBus()
+    registry = CellRegistry(None) if source == "registry" else None
+    v = CellView(CELL, bus, dash, scenario, tmp_path, ack_timeout_s=0.5,
+                 audit=tmp_path / "audit.sqlite", verdicts=registry)  # type: ignore[arg-type]  # fmt: skip
+    assert (keys.verdict_key(CELL) in bus.subs) == (registry is None)
+
+    def feed(occ: OccupancyMsg, *verdicts: VerdictMsg) -> None:
+        _feed(bus, occ, None)
+        for verdict in verdicts:
+            if registry is None:
+                bus.feed(keys.verdict_key(CELL), verdict)
+            else:
+                key = keys.parse_key(keys.verdict_key(CELL))
+                registry.ingest(Decoded(key, verdict, 0.0))
+
     occ = _occupancy()  # stamped 1.0
     own = _verdict("pfl", speed_scale=0.07, intervened=True).model_copy(update={"stamp_s": 1.0})
     later = _verdict("pfl", speed_scale=1.0).model_copy(update={"stamp_s": 1.004, "seq": 2})
-    _feed(bus, occ, own)
-    bus.feed(keys.verdict_key(CELL), later)
+    feed(occ, own, later)
     frame = v.poll()
     assert frame is not None and frame.t_s == 1.0
     assert frame.status["speed_scale"] == 0.07 and frame.status["intervened"]
+    assert len(v.recent) == 2
     # an occupancy whose cycle's verdict is gone: the latest verdict
-    _feed(bus, occ.model_copy(update={"stamp_s": 0.5}), later.model_copy(update={"seq": 3}))
+    feed(occ.model_copy(update={"stamp_s": 0.5}), later.model_copy(update={"seq": 3}))
     frame = v.poll()
     assert frame is not None and frame.status["speed_scale"] == 1.0
+    assert len(v.recent) == 3  # each verdict once
 
 
 def test_scenario_tab_edits_neither_read_server_files_nor_raise_limits(

@@ -163,3 +163,88 @@ def test_the_occupancy_carries_the_bound_of_unmeasured_legs() -> None:
     assert upper.legs_below_m == pytest.approx(caps[thigh, 0] + caps[thigh, 1] * (0.01 + horizon))
     assert legs_below(None, 0.1) is None
     assert decode("sara/cell1/occupancy", encode(occ)).msg == occ
+
+
+def test_the_occupancy_of_many_people_is_each_persons_sets_as_verified() -> None:
+    """Six people measured at different times, with and without widening (one with a model
+    widened to infinity): the message built for all of them at once holds, per person, what
+    the reach model gives that person alone over their own interval, widened as the check
+    widens it, and the effective set of that person's models; a model not finite for a person
+    is left out for that person only."""
+    from sara_app.cell.build import build_cell
+    from sara_app.cell.intake import take_measurement, track_for
+    from sara_app.errors import InputError
+    from sara_app.human.reach import MODELS, part_capsules
+    from sara_app.human.scripted import joints, standing
+    from sara_app.human.widening import per_capsule
+    from sara_app.runtime.display import EFFECTIVE, effective_set, occupancy_msg
+    from sara_app.scenario import load_scenario
+
+    cell = build_cell(load_scenario("standing_beside_path"))
+    rng = np.random.default_rng(11)
+    tracks = [track_for(cell, f"p{i}") for i in range(6)]
+    for i, tr in enumerate(tracks):  # two measurements (velocities known) but for p5
+        y = joints(standing((1.0 + 0.3 * i, -0.5 + 0.2 * i), 0.4 * i))
+        for k in range(1 if i == 5 else 2):
+            stamp = 10.0 - 0.013 * i - 0.02 * (1 - k)
+            assert take_measurement(cell, tr, stamp, y + 0.01 * k) is None
+    P = cell.shield.reach.skeleton.n_parts
+    tracks[1].state.widen_m = rng.uniform(0.0, 0.05, (len(MODELS), P))
+    tracks[2].state.widen_m = np.zeros((len(MODELS), P))
+    first = cell.shield.verifier.models[0]
+    tracks[2].state.widen_m[MODELS.index(first), 3] = np.inf
+    now = 10.02
+    res = cell.shield.cycle(now, [tr.state for tr in tracks])
+    occ = occupancy_msg(cell, tracks, res, now, lambda: 0, lambda *a: None)
+    horizon = 0.0 if res.trajectory is None else res.trajectory.duration_s
+    reach = cell.shield.reach
+    assert [h.id for h in occ.humans] == [tr.state.id for tr in tracks]
+    for tr, shown in zip(tracks, occ.humans, strict=True):
+        st = tr.state
+        age = now - float(st.stamp_s)
+        sets = []
+        for name in cell.shield.verifier.models:
+            try:
+                o = reach.model(name, st.y[None], st.v[None], st.dv[None], np.array([age]),
+                                np.array([age + horizon]))  # fmt: skip
+            except InputError:  # velocities not known yet (one measurement)
+                assert name not in shown.models
+                continue
+            pm = part_capsules(reach, name)
+            r = o.radius[0, 0]
+            if st.widen_m is not None:
+                r = r + per_capsule(st.widen_m[MODELS.index(name)], pm, len(r))
+            if not np.isfinite(r).all():
+                assert name not in shown.models
+                continue
+            np.testing.assert_allclose(shown.models[name].ends_m, o.ends[0, 0].ravel(), atol=1e-12)
+            np.testing.assert_allclose(shown.models[name].radius_m, r, atol=1e-12)
+            sets.append((o.ends[0, 0], r, pm))
+        eff = effective_set(sets)
+        assert eff is not None
+        np.testing.assert_allclose(shown.models[EFFECTIVE].ends_m, eff[0].ravel(), atol=1e-12)
+        np.testing.assert_allclose(shown.models[EFFECTIVE].radius_m, eff[1], atol=1e-12)
+    assert first not in occ.humans[2].models and first in occ.humans[1].models
+    moving = [m for m in cell.shield.verifier.models if m in ("acc", "combined")]
+    assert moving and all(m in occ.humans[0].models and m not in occ.humans[5].models
+                          for m in moving)  # fmt: skip
+    assert len(occ.humans[5].models) > 1  # the models that need no velocities
+
+
+def test_the_effective_set_of_many_people_is_each_ones() -> None:
+    """``effective_set`` over rows of people equals the set of each person alone."""
+    from sara_app.runtime.display import effective_set
+
+    rng = np.random.default_rng(5)
+    H, P = 4, 6
+    maps = [np.array([0, 0, 1, 1, 2, 2]), np.arange(P)]
+    sets = [(rng.normal(size=(H, len(np.unique(m)), 2, 3)), rng.uniform(0.1, 0.5,
+             (H, len(np.unique(m)))), m) for m in maps]  # fmt: skip
+    sets[1][1][2, 4] = np.inf  # one person's capsule of one model unbounded
+    eff = effective_set(sets)
+    assert eff is not None and eff[0].shape == (H, P, 2, 3) and eff[1].shape == (H, P)
+    for h in range(H):
+        one = effective_set([(e[h], r[h], m) for e, r, m in sets])
+        assert one is not None
+        np.testing.assert_array_equal(eff[0][h], one[0])
+        np.testing.assert_array_equal(eff[1][h], one[1])

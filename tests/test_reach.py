@@ -297,3 +297,53 @@ def test_models_give_the_same_sets_whatever_the_input_and_parameter_dtypes() -> 
         a, b = r_int.model(m, y, v, dv, ts, te), r_float.model(m, y, v, dv, ts, te)
         np.testing.assert_array_equal(a.radius, b.radius, err_msg=m)
         np.testing.assert_array_equal(a.ends, b.ends, err_msg=m)
+
+
+@pytest.mark.parametrize("kind", ["full", "upper"])
+def test_people_sets_are_each_persons_own_model_set(kind: str) -> None:
+    """Every model over several people at once, each on the interval from their own
+    measurement, equals the model on that person alone (the compiled kernels are the checks'
+    own); a wrong number of ages is a domain error."""
+    reach = _reach(kind)
+    rng = np.random.default_rng(8)
+    H, J = 5, reach.skeleton.n_joints
+    y = rng.normal(scale=0.5, size=(H, J, 3))
+    v = rng.normal(size=(H, J, 3))
+    dv = rng.uniform(0.0, 0.1, (H, J))
+    age = rng.uniform(0.0, 0.1, H)
+    for name in MODELS:
+        ends, radius = reach.people_sets(name, y, v, dv, age, 0.2)
+        for h in range(H):
+            one = reach.model(name, y[h : h + 1], v[h : h + 1], dv[h : h + 1], age[h : h + 1],
+                              age[h : h + 1] + 0.2)  # fmt: skip
+            np.testing.assert_array_equal(ends[h], one.ends[0, 0])
+            np.testing.assert_array_equal(radius[h], one.radius[0, 0])
+    with pytest.raises(InputError, match="age_s"):
+        reach.people_sets("vel", y, v, dv, age[:2], 0.2)
+
+
+def test_people_sets_refuse_what_model_refuses_and_take_what_it_takes() -> None:
+    """The quick whole-array checks of ``people_sets`` fall back on the detailed ones: a
+    non-finite joint, velocity or age is named; one velocity bound per joint (broadcast over the
+    people) gives the sets of the bounds written out."""
+    reach = _reach("full")
+    rng = np.random.default_rng(9)
+    H, J = 3, reach.skeleton.n_joints
+    y, v = rng.normal(size=(H, J, 3)), rng.normal(size=(H, J, 3))
+    dv, age = np.full((H, J), 0.05), np.array([0.0, 0.01, 0.02])
+    bad_y = y.copy()
+    bad_y[1, 4, 2] = np.nan
+    with pytest.raises(InputError, match="not finite"):
+        reach.people_sets("vel", bad_y, v, dv, age, 0.1)
+    bad_v = v.copy()
+    bad_v[0, 0, 0] = np.inf
+    with pytest.raises(InputError, match="velocities are not finite"):
+        reach.people_sets("acc", y, bad_v, dv, age, 0.1)
+    reach.people_sets("vel", y, bad_v, dv, age, 0.1)  # not read by the velocity bound
+    with pytest.raises(InputError, match="finite"):
+        reach.people_sets("pos", y, v, dv, np.array([0.0, np.nan, 0.0]), 0.1)
+    with pytest.raises(InputError, match="0 <= start"):
+        reach.people_sets("pos", y, v, dv, age, -0.5)
+    one = reach.people_sets("acc", y, v, np.full(J, 0.05), age, 0.1)
+    full = reach.people_sets("acc", y, v, dv, age, 0.1)
+    np.testing.assert_array_equal(one[1], full[1])

@@ -227,6 +227,7 @@ def test_serve_runs_several_cells_on_one_router() -> None:
     cmd = [sys.executable, "-m", "sara_app.cli", "serve", "--cells", "2", "--zenoh-port",
            str(zp), "--viewer-port", str(vp), "--api-port", str(ap)]  # fmt: skip
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    failure: AssertionError | None = None
     try:
         cells: dict[str, dict] = {}
         t_end = time.monotonic() + 120
@@ -241,20 +242,25 @@ def test_serve_runs_several_cells_on_one_router() -> None:
                    for c in ("cell1", "cell2")):  # fmt: skip
                 break
             time.sleep(0.5)
-        assert set(cells) == {"cell1", "cell2"}, cells
-        assert all(cells[c]["online"] and cells[c]["humans"] for c in cells), cells
-        links = json.loads(_get(f"http://127.0.0.1:{ap}/api/links")[1])
-        assert set(links["viewers"]) == {"cell1", "cell2"}
-        assert len(set(links["viewers"].values())) == 2
-        for url in links["viewers"].values():
-            assert _get(url)[0] == 200
-        procs = json.loads(_get(f"http://127.0.0.1:{ap}/api/processes")[1])
-        assert {"router", "worker:cell1", "worker:cell2", "controller:cell1",
-                "replayer:cell2"} <= set(procs)  # fmt: skip
-        assert len(_child_pids(zp)) == 1 + 2 * 3
+        try:
+            assert set(cells) == {"cell1", "cell2"}, (proc.poll(), cells)
+            assert all(cells[c]["online"] and cells[c]["humans"] for c in cells), cells
+            links = json.loads(_get(f"http://127.0.0.1:{ap}/api/links")[1])
+            assert set(links["viewers"]) == {"cell1", "cell2"}
+            assert len(set(links["viewers"].values())) == 2
+            for url in links["viewers"].values():
+                assert _get(url)[0] == 200
+            procs = json.loads(_get(f"http://127.0.0.1:{ap}/api/processes")[1])
+            assert {"router", "worker:cell1", "worker:cell2", "controller:cell1",
+                    "replayer:cell2"} <= set(procs)  # fmt: skip
+            assert len(_child_pids(zp)) == 1 + 2 * 3, _children(zp)
+        except AssertionError as e:
+            failure = e  # reported with serve's output, which says why
     finally:
         proc.send_signal(signal.SIGINT)
         out = _communicate_or_dump(proc, zp, timeout_s=30)
+    if failure is not None:
+        pytest.fail(f"{failure}\nserve's output:\n{out[-8000:]}")
     assert proc.returncode == 0, out
     t_end = time.monotonic() + 10
     while _children(zp) and time.monotonic() < t_end:

@@ -332,3 +332,19 @@ def test_min_distance_is_the_distance_at_the_command() -> None:
         modes.add(res.mode)
         t += DT
     assert {"intended", "failsafe"} <= modes
+
+
+def test_a_restart_from_a_measured_rest_keeps_to_the_paths_corners() -> None:
+    """A robot at rest halfway along the first leg of an L-shaped path (a re-anchor, an
+    operator's re-plan, a robot edit): the new plan goes through the corner, where it went
+    straight to the path's end across what the corner goes around."""
+    corner = WPS[0] + [1.2, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+    end = corner + [0.0, 0.0, 0.0, 0.6, 0.0, 0.0, 0.0]
+    path = np.array([WPS[0], corner, end])
+    shield = Shield(ROBOT, PathFollower(path, ROBOT.limits), REACH, ShieldSettings())
+    halfway = (WPS[0] + corner) / 2
+    shield.restart_from(halfway)
+    np.testing.assert_allclose(shield.follower.path.waypoints, [halfway, corner, end])
+    shield.restart_from(end)  # at the end: it rests there
+    np.testing.assert_allclose(shield.follower.path.waypoints, [end])
+    assert shield.at_rest and shield.follower.done

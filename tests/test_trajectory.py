@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 from panda_limits import DT, HOME, PANDA, H, check_limits  # noqa: E402
 
 from sara_app.errors import RobotModelError
+from sara_app.robot.path import waypoints_ahead
 from sara_app.robot.trajectory import (
     JointState,
     PathFollower,
@@ -274,3 +275,25 @@ def test_degenerate_paths() -> None:
     np.testing.assert_allclose(f.step(DT).q, HOME)
     single = PathTrajectory(HOME[None, :])
     assert single.length == 0 and np.allclose(single.q(np.array([0.0, 1.0])), HOME)
+
+
+def test_waypoints_ahead_are_those_after_the_segment_the_robot_stands_on() -> None:
+    """Brute force: points sampled on each segment of random polylines (corners excluded) have
+    exactly the waypoints after that segment ahead; a point at a corner has the later
+    segment's; a single waypoint is ahead of anything."""
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        w = rng.uniform(-2.0, 2.0, size=(int(rng.integers(2, 6)), 7))
+        for j in range(len(w) - 1):
+            for t in (0.05, 0.5, 0.95):
+                q = w[j] + t * (w[j + 1] - w[j])
+                d = [np.linalg.norm(q - (w[i] + np.clip(np.dot(q - w[i], w[i + 1] - w[i])
+                     / np.dot(w[i + 1] - w[i], w[i + 1] - w[i]), 0, 1) * (w[i + 1] - w[i])))
+                     for i in range(len(w) - 1)]  # fmt: skip
+                if len(d) > 1 and sorted(d)[1] < 1e-9:  # a polyline crossing itself here
+                    continue
+                np.testing.assert_array_equal(waypoints_ahead(w, q), w[j + 1 :])
+        for j in range(1, len(w) - 1):  # at a corner: the segment leaving it
+            np.testing.assert_array_equal(waypoints_ahead(w, w[j]), w[j + 1 :])
+    single = rng.uniform(size=(1, 7))
+    np.testing.assert_array_equal(waypoints_ahead(single, np.zeros(7)), single)

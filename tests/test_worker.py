@@ -213,8 +213,11 @@ def test_an_edit_that_loosens_needs_its_senders_confirmation(cell, caplog) -> No
                for r in caplog.records)  # fmt: skip
 
 
-def test_control_period_changes_live(cell) -> None:
-    """A faster control loop is a scenario setting (``shield.dt_s``), applied over the bus."""
+def test_the_control_period_does_not_change_live(cell) -> None:
+    """The control period (``shield.dt_s``) is a scenario setting that needs the cell and its
+    controller restarted: a controller reaches each set point one period after the command's
+    stamp, the period it started with (live from 4 to 40 ms, the reference controller moved at
+    9.5 times a joint's velocity limit: hostile-user probe 2026-11-30). Refused, with why."""
     _, worker, _, tb = cell
     acks = tb.subscribe(keys.params_ack_key("cell1"), fifo=True)
     data = load_scenario("standing_beside_path").model_dump(mode="json")
@@ -227,9 +230,9 @@ def test_control_period_changes_live(cell) -> None:
     while ack is None and time.monotonic() < t_end:
         ack = next((d.msg for d in acks.drain().messages if isinstance(d.msg, ParamsAckMsg)), None)
         time.sleep(0.02)
-    assert ack is not None and ack.accepted, ack
-    assert worker.shield.settings.dt_s == 0.002
-    assert worker.phase.dt_s == 0.002  # the cycle phase lock follows the new period
+    assert ack is not None and not ack.accepted, ack
+    assert "shield.dt_s" in ack.reason and "restart" in ack.reason, ack.reason
+    assert worker.shield.settings.dt_s == 0.004 and worker.phase.dt_s == 0.004
 
 
 def test_the_cycles_lock_onto_a_regular_tracker() -> None:
@@ -257,7 +260,10 @@ def _locks_on(worker, verdicts, tb) -> None:
     t_next = got[-1].stamp_s + 5 * dt * (1 + int((time.time() - got[-1].stamp_s) / (5 * dt)))
     t_next += 1e-4  # each skeleton a period after the cycle before its stamp, unlocked
     t_end = time.monotonic() + 4.0
+    learnt: tuple[int, int] | None = None  # (hits, misses) after the first half: learning
     for seq in range(100000):
+        if learnt is None and time.monotonic() > t_end - 2.0:
+            learnt = (worker.phase.hits, worker.phase.misses)
         time.sleep(max(t_next - time.time(), 0.0))
         y = y0 + rng.normal(0, 0.001, y0.shape)
         pub.put(SkeletonMsg.from_arrays("full", y, seq=seq, stamp_s=time.time()))
@@ -266,7 +272,12 @@ def _locks_on(worker, verdicts, tb) -> None:
         if time.monotonic() > t_end:
             break
     lock = worker.phase
-    assert lock.reference == "p" and lock.hits > 10 * lock.misses, lock
+    assert learnt is not None and lock.reference == "p"
+    # locked (the second half: tau starts at 0.5 ms and the test's first skeletons come at the
+    # worst phase, so the first ones are missed while it learns): a miss is a skeleton taken a
+    # period late
+    hits, misses = lock.hits - learnt[0], lock.misses - learnt[1]
+    assert hits > 10 * misses, (hits, misses, lock)
     first: dict[float, float] = {}
     for v in got[len(got) // 2 :]:
         if "p" in v.skeleton_age_s:
@@ -423,3 +434,45 @@ def test_the_status_reports_the_whole_step_and_the_periods_missed(cell) -> None:
     last = running[-1]
     assert last.overruns >= before + 1
     assert max(worker.loop_us) >= 5e6 * worker.shield.settings.dt_s  # the held-up step
+
+
+def test_commands_stay_a_period_apart_when_the_loop_catches_up() -> None:
+    """A loop that runs late now and then (every 10th cycle 1.4 periods too long) catches up
+    by running the next cycle at once. Each command's set point is reached a period after its
+    stamp, so stamps closer than a period made the robot cover a verified step faster than
+    verified: up to 15.8x ``v_max`` (robot channel probe, 2026-12-01). Every command is now
+    stamped at least a period after the one before, the set points never ask for more than
+    ``v_max``, and the loop keeps its rate; once the stalls stop, the cycles' time is back on
+    the clock."""
+    sc = load_scenario("empty_cell")
+    sc = sc.model_copy(update={"inputs": sc.inputs.model_copy(update={"trackers": []})})
+    with _cell(sc) as (_, worker, _verdicts, tb):
+        dt = worker.shield.settings.dt_s
+        v_max = worker.cell.robot.limits.v_max
+        commands = tb.subscribe(keys.robot_command_key("cell1"), fifo=True, capacity=20000)
+        real_step, n = worker.step, [0]
+
+        def late_now_and_then(now: float):  # type: ignore[no-untyped-def]
+            res = real_step(now)
+            n[0] += 1
+            if n[0] % 10 == 0 and not stop_stalls.is_set():
+                time.sleep(1.4 * dt)
+            return res
+
+        stop_stalls = threading.Event()
+        worker.step = late_now_and_then  # type: ignore[method-assign]
+        time.sleep(2.0)
+        stop_stalls.set()
+        time.sleep(0.5)
+        lead_s = worker.t_cmd - time.time()
+        got = [d.msg for d in commands.drain().messages]
+    stamps = np.array([m.stamp_s for m in got])
+    q = np.array([m.q for m in got])
+    moving = [m.mode == "intended" for m in got]
+    assert sum(moving) > 0.9 * len(got) and np.ptp(q, axis=0).max() > 0.1  # the robot works
+    gaps = np.diff(stamps)
+    assert gaps.min() >= dt - 1e-6, np.sort(gaps)[:5]  # clock resolution at 1.8e9 s: 0.24 us
+    speed = np.abs(np.diff(q, axis=0)) / gaps[:, None]
+    assert (speed <= v_max * (1 + 1e-3) + 1e-9).all(), (speed / v_max).max()
+    assert len(got) > 0.9 * 2.5 / dt  # the rate kept (stalls cost at most 2 % while caught up)
+    assert lead_s < dt  # the cycle's time is back on the clock

@@ -25,6 +25,12 @@ announcement it falls back to the last scenario the worker accepted from this re
 only until a status shows that the worker runs something else (another scenario name or a
 restarted worker).
 
+``silence(cell)`` is what a supervisor judges a worker's hang on: how long the worker has been
+silent as far as this registry *knows* (counted to the start of its last complete drain, so a
+registry that is itself late, its thread starved on a loaded machine with thousands of verdicts
+queued, never reads its own lateness as the worker's silence), and whether a message the robot's
+controller published after the worker's newest verdict has come through the bus.
+
 ``bus=None`` gives a registry without a bus (tests, an API without cells); ``ingest(decoded)``
 feeds it messages directly. ``clock`` (default ``time.time``) is the wall clock the ages use.
 """
@@ -59,7 +65,7 @@ from sara_app.bus.session import Bus, Publisher, Subscription
 from sara_app.bus.verdict_words import verdict_words
 from sara_app.errors import InputError, WorkerTimeoutError
 from sara_app.ops.health import VerdictCounters
-from sara_app.safety.settings import FUTURE_TOLERANCE_S
+from sara_app.safety.settings import FUTURE_TOLERANCE_S, MAX_DT_S
 
 log = logging.getLogger("sara_app.api")
 
@@ -69,6 +75,8 @@ EDIT_TIMEOUT_S = 20.0
 off its control loop, which takes seconds where a safety mode's kernels load for the first time
 (about a minute on a fresh checkout, where they are compiled)."""
 CYCLE_WINDOW = 1000  # verdicts in the rolling cycle-time window
+RECENT_VERDICTS = 256
+"""Verdicts kept per cell for :meth:`CellRegistry.verdicts_after` (about 0.5 s at 500 Hz)."""
 RESTART_TOLERANCE_S = 2.0  # a worker's start time (stamp - uptime) moving more: a restart
 ANNOUNCED_TOLERANCE_S = 0.05
 """An announcement stamped this much before the running worker's start (both on the worker's
@@ -80,6 +88,19 @@ class _Applied:
     scenario: dict[str, Any]
     recv_s: float  # when the worker's acceptance arrived (registry clock)
     worker_start_s: float | None  # the worker's start time per its last status, if any
+
+
+class Silence(NamedTuple):
+    """A cell's worker as a supervisor sees it (:meth:`CellRegistry.silence`)."""
+
+    age_s: float
+    """Since when the newest verdict was taken in (registry clock; for which worker it was)."""
+    silent_s: float
+    """How long no verdict is known to have arrived: from the newest verdict's intake to the
+    start of the registry's last complete drain (0 while a drain that began after it runs)."""
+    bus_since: bool
+    """The controller's newest status was published after the newest verdict (stamps on the
+    publishers' clocks): the bus carries messages, the worker's silence is its own."""
 
 
 class ParamsAnswer(NamedTuple):
@@ -97,6 +118,7 @@ class _Cell:
     verdict_recv_s: float | None = None
     verdicts: int = 0
     cycle_us: deque[float] = field(default_factory=lambda: deque(maxlen=CYCLE_WINDOW))
+    recent: deque[VerdictMsg] = field(default_factory=lambda: deque(maxlen=RECENT_VERDICTS))
     controller: ControllerStatusMsg | None = None
     controller_recv_s: float | None = None
     fault_since_s: float | None = None
@@ -138,6 +160,7 @@ class CellRegistry:
         self._last_seq = 0
         self._edit_locks: dict[str, threading.Lock] = {}
         self._stop = threading.Event()
+        self._drained_s: float | None = None  # when the last complete drain began
         self._thread: threading.Thread | None = None
         self._subs: list[Subscription] = []
         if bus is not None:
@@ -145,13 +168,14 @@ class CellRegistry:
             # and the controller refuse one: a status stamped an hour ahead, numbered high,
             # kept every real one out (the order rule) for that hour (hostile controller probe)
             self._subs = [
-                bus.subscribe(key, Decoder(max_future_s=FUTURE_TOLERANCE_S), capacity, fifo)
-                for key, capacity, fifo in (
-                    (keys.all_status_keys(), 256, False),
-                    (f"{keys.ROOT}/*/verdict", 4096, False),
-                    (f"{keys.ROOT}/*/params/ack", 256, True),
-                    (f"{keys.ROOT}/*/scenario", 64, False),
-                    (f"{keys.ROOT}/*/controller/status", 64, False),
+                bus.subscribe(key, Decoder(max_future_s=ahead_s), capacity, fifo)
+                for key, capacity, fifo, ahead_s in (
+                    (keys.all_status_keys(), 256, False, FUTURE_TOLERANCE_S),
+                    # a verdict is stamped at its cycle's time: up to a period ahead
+                    (f"{keys.ROOT}/*/verdict", 4096, False, FUTURE_TOLERANCE_S + MAX_DT_S),
+                    (f"{keys.ROOT}/*/params/ack", 256, True, FUTURE_TOLERANCE_S),
+                    (f"{keys.ROOT}/*/scenario", 64, False, FUTURE_TOLERANCE_S),
+                    (f"{keys.ROOT}/*/controller/status", 64, False, FUTURE_TOLERANCE_S),
                 )
             ]
 
@@ -195,15 +219,46 @@ class CellRegistry:
 
     def poll(self) -> int:
         """Drain every subscription once; the number of messages taken in. Never raises."""
-        n = 0
+        n, began_s, complete = 0, self.clock(), True
         for sub in self._subs:
             try:
                 for d in sub.drain().messages:
                     self.ingest(d)
                     n += 1
             except Exception as e:  # noqa: BLE001 - the drain thread must keep running
+                complete = False
                 log.warning("api registry: draining %s failed: %r", sub.key_expr, e)
+        if complete:
+            with self._lock:  # whatever was queued when it began has been taken in
+                self._drained_s = began_s
         return n
+
+    def verdicts_after(self, name: str, seen: int) -> tuple[list[VerdictMsg], int]:
+        """Cell ``name``'s verdicts taken in after the first ``seen`` (the newest
+        ``RECENT_VERDICTS`` at most) and how many it has taken in so far: a dashboard in the
+        same process follows the cell on them instead of decoding every verdict a second time."""
+        with self._lock:
+            c = self._cells.get(name)
+            if c is None:
+                return [], seen
+            new = min(max(c.verdicts - seen, 0), len(c.recent))
+            return list(c.recent)[len(c.recent) - new :], c.verdicts
+
+    def silence(self, name: str) -> Silence | None:
+        """How silent cell ``name``'s worker is known to be (:class:`Silence`); None before its
+        first verdict or the first complete drain."""
+        with self._lock:
+            c = self._cells.get(name)
+            if c is None or c.verdict is None or c.verdict_recv_s is None:
+                return None
+            if self._drained_s is None:
+                return None
+            ctl = c.controller
+            return Silence(
+                age_s=max(self.clock() - c.verdict_recv_s, 0.0),
+                silent_s=max(self._drained_s - c.verdict_recv_s, 0.0),
+                bus_since=ctl is not None and ctl.stamp_s > c.verdict.stamp_s,
+            )
 
     # -- state -----------------------------------------------------------------------------
     def ingest(self, d: Decoded) -> None:
@@ -239,6 +294,7 @@ class CellRegistry:
                 elif cell.fault_since_s is None:
                     cell.fault_since_s = d.recv_s
                 cell.verdicts += 1
+                cell.recent.append(msg)
                 cell.cycle_us.append(msg.cycle_time_us)
                 cell.counters.add(msg)
 

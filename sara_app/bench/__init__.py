@@ -76,6 +76,7 @@ def bench_reach(n: int = 2000) -> list[tuple[str, float, float, str]]:
 # modules with a ``bench_rows(n)`` of their own, in print order
 STAGE_MODULES = (
     "sara_app.bench.shield",
+    "sara_app.bench.display",
     "sara_app.bench.energy",
     "sara_app.bench.pfl",
     "sara_app.bench.people",

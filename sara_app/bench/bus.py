@@ -8,14 +8,19 @@ clock (not waiting for the answers), and stamps each verdict when zenoh delivers
 subscriber; decoding comes after the run). The worker runs ``empty_cell`` with the person 1.5 m
 from the robot base, in a session of its own as under ``serve``. A skeleton that arrives during
 a cycle waits for the next one: the latency is about ``U(0, dt)`` plus one cycle plus two zenoh
-hops, so its p99 is bounded below by almost one control period. The control period is set over
-the bus (a ``params`` update of ``shield.dt_s``, as an engineer would); the default is 4 ms.
+hops, so its p99 is bounded below by almost one control period. Each control period is a worker
+started with it (the period is fixed for a worker's run); the scenarios' default is 4 ms.
 """
 
 from __future__ import annotations
 
+import contextlib
+import json
+import tempfile
 import threading
 import time
+from collections.abc import Iterator
+from pathlib import Path
 from typing import Any, cast
 
 import numpy as np
@@ -29,13 +34,12 @@ from sara_app.bus.messages import (
     CapsulesMsg,
     HumanOccupancyMsg,
     OccupancyMsg,
-    ParamsAckMsg,
-    ParamsMsg,
     RobotOccupancyMsg,
     SkeletonMsg,
     VerdictMsg,
     encode,
 )
+from sara_app.errors import SaraError
 from sara_app.sim.motions import measured
 
 Row = tuple[str, float, float, str]
@@ -98,26 +102,42 @@ LATENCY_DT_S = (0.004, 0.002, 0.001)
 1 kHz); a row says whether the worker kept up (cycle p99 below the period, every cycle run)."""
 
 
-def set_dt(bus: Any, pub: Any, cell: str, dt_s: float) -> bool:
-    """Send the cell's scenario with ``shield.dt_s`` changed on ``pub`` (the params key); True
-    once the worker accepted it."""
+def scenario_at_dt(folder: str | Path, dt_s: float) -> str:
+    """A file of :data:`LATENCY_SCENARIO` with the control period ``shield.dt_s`` in
+    ``folder``, for a worker to start with (the period is fixed for a worker's run: its robot
+    controller reaches each set point one period after the command's stamp)."""
     from sara_app.scenario import load_scenario
 
     data = load_scenario(LATENCY_SCENARIO).model_dump(mode="json")
     data["shield"]["dt_s"] = dt_s
-    acks = bus.subscribe(keys.params_ack_key(cell), fifo=True)
-    rid = f"bench-dt-{int(dt_s * 1e6)}"
-    pub.put(ParamsMsg(seq=pub.next_seq(), stamp_s=time.time(), request_id=rid, scenario=data))
-    t_end = time.monotonic() + 10.0
-    try:
-        while time.monotonic() < t_end:
-            for d in acks.drain().messages:
-                if isinstance(d.msg, ParamsAckMsg) and d.msg.request_id == rid:
-                    return d.msg.accepted
-            time.sleep(0.01)
-        return False
-    finally:
-        acks.close()
+    path = Path(folder) / f"{LATENCY_SCENARIO}-dt{int(round(dt_s * 1e6))}us.json"
+    path.write_text(json.dumps(data))
+    return str(path)
+
+
+@contextlib.contextmanager
+def latency_worker(hub: Any, cell: str, port: int, dt_s: float) -> Iterator[Any]:
+    """A worker process of ``cell`` on :data:`LATENCY_SCENARIO` at control period ``dt_s``, as
+    ``serve`` runs one, once its first verdict came; stopped on exit. Raises
+    :class:`~sara_app.errors.SaraError` when it sends none within a minute."""
+    from sara_app.ops.supervisor import stop_processes
+    from sara_app.processes.serve import WORKER_RT_PRIORITY, spawn_cell_process
+
+    with tempfile.TemporaryDirectory() as folder:
+        scenario = scenario_at_dt(folder, dt_s)
+        worker = spawn_cell_process("sara_app.runtime.worker", cell, scenario, port,
+                                    rt_priority=WORKER_RT_PRIORITY)  # fmt: skip
+        try:
+            first = hub.subscribe(keys.verdict_key(cell))
+            t_end = time.monotonic() + 60
+            while not first.drain().messages:
+                if time.monotonic() > t_end or worker.poll() is not None:
+                    raise SaraError(f"the worker of cell {cell} at dt {dt_s} s sent no verdict")
+                time.sleep(0.05)
+            first.close()
+            yield worker
+        finally:
+            stop_processes([worker])
 
 
 def _publish_at(pub: Any, rate_hz: float, n: int, out: dict[float, int]) -> None:
@@ -193,35 +213,23 @@ def first_verdict_latencies(
 def bench_latency(
     n: int = 600, rate_hz: float = 120.0, dts_s: tuple[float, ...] = LATENCY_DT_S
 ) -> list[Row]:
-    """Skeleton publication -> verdict reception, p50/p99 (us), per control period."""
+    """Skeleton publication -> verdict reception, p50/p99 (us), per control period (a worker
+    started at each)."""
     from sara_app.bus.session import Bus, free_port
-    from sara_app.ops.supervisor import stop_processes
-    from sara_app.processes.serve import WORKER_RT_PRIORITY, spawn_cell_process
 
     port = free_port()
     cell = "benchlat"
     rows: list[Row] = []
     with Bus.router(port) as hub:
-        worker = spawn_cell_process(
-            "sara_app.runtime.worker", cell, LATENCY_SCENARIO, port, rt_priority=WORKER_RT_PRIORITY
-        )
         beat = Heartbeat(hub, cell).start()  # the tracker's frames: the cell is not silent
         beat.people = {"p", "flood"}
         try:
-            first = hub.subscribe(keys.verdict_key(cell))
-            t_end = time.monotonic() + 60
-            while not first.drain().messages and time.monotonic() < t_end:
-                time.sleep(0.05)
-            first.close()
             pub = hub.publisher(keys.skeleton_key(cell, "p"))  # one numbering for all runs
-            params = hub.publisher(keys.params_key(cell))
             for dt_s in dts_s:
                 name = f"skeleton -> verdict, {rate_hz:.0f} Hz in, dt {dt_s * 1e3:g} ms"
-                if not set_dt(hub, params, cell, dt_s):
-                    rows.append((name, float("nan"), float("nan"), "dt update refused"))
-                    continue
-                time.sleep(0.5)  # settle
-                lat, cyc = _latency_run(hub, pub, cell, n, rate_hz)
+                with latency_worker(hub, cell, port, dt_s):
+                    time.sleep(0.5)  # settle
+                    lat, cyc = _latency_run(hub, pub, cell, n, rate_hz)
                 if not lat.size or not cyc.size:
                     rows.append((name, float("nan"), float("nan"), "no verdict matched"))
                     continue
@@ -233,28 +241,33 @@ def bench_latency(
                     f"{run_hz:.0f} verdicts/s: {'keeps up' if keeps_up else 'does NOT keep up'}"
                 )
                 rows.append((name, float(np.median(lat)), float(np.percentile(lat, 99)), note))
-            rows.append(_flood_row(hub, pub, params, cell, port, n, rate_hz))
+            rows.append(_flood_row(hub, pub, cell, port, n, rate_hz))
         finally:
             beat.stop()
-            stop_processes([worker])
     return rows
 
 
 FLOOD_RATE_HZ = 10_000.0
 
 
-def _flood_row(hub: Any, pub: Any, params: Any, cell: str, port: int, n: int, rate: float) -> Row:
+def _flood_row(hub: Any, pub: Any, cell: str, port: int, n: int, rate: float) -> Row:
     """The latency run again at the default control rate (dt 2 ms, 500 Hz) while another
     process floods one other person's key with ``FLOOD_RATE_HZ`` valid skeletons, three times:
     verdict latency over all three, and the loop's rate against its nominal one, median of the
     three (the contract's bound: >= 90 %)."""
+    dt = 0.002
+    name = f"skeleton -> verdict, {FLOOD_RATE_HZ:.0f} msg/s flood on another id, dt 2 ms"
+    with latency_worker(hub, cell, port, dt):
+        return _flooded(hub, pub, cell, port, n, rate, name, dt)
+
+
+def _flooded(
+    hub: Any, pub: Any, cell: str, port: int, n: int, rate: float, name: str, dt: float
+) -> Row:
+    """:func:`_flood_row`'s three runs against the running worker."""
     import subprocess
     import sys
 
-    dt = 0.002
-    name = f"skeleton -> verdict, {FLOOD_RATE_HZ:.0f} msg/s flood on another id, dt 2 ms"
-    if not set_dt(hub, params, cell, dt):
-        return name, float("nan"), float("nan"), "dt update refused"
     seconds = n / rate + 1.0
     cmd = [sys.executable, "-m", "sara_app.bench.bus", "flood", str(port), cell, "flood",
            str(FLOOD_RATE_HZ), str(seconds)]  # fmt: skip

@@ -3,7 +3,7 @@ fed people at a tracker's rate; for each cells x people load, every cell's skele
 latency and whether it keeps its control rate.
 
 Set-up as the single-cell latency benchmark (:mod:`sara_app.bench.bus`): this process hosts the
-router; ``N`` workers run ``empty_cell`` at a 2 ms cycle (set over the bus) in processes of
+router; ``N`` workers run ``empty_cell`` at a 2 ms cycle (started with it) in processes of
 their own at the real-time priority ``serve`` gives them (where the system permits); per cell
 one thread publishes ``P`` people (standing 1.5-3 m from the robot) at ``rate_hz``, paced on
 the clock, with a tracker frame listing them. A load passes when every cell's latency p99 is
@@ -13,6 +13,7 @@ cycle p99 below dt).
 
 from __future__ import annotations
 
+import tempfile
 import threading
 import time
 from typing import Any
@@ -20,16 +21,14 @@ from typing import Any
 import numpy as np
 
 from sara_app.bench.bus import (
-    LATENCY_SCENARIO,
     TRACKER_NOISE_M,
     Row,
     first_verdict_latencies,
-    set_dt,
+    scenario_at_dt,
 )
 from sara_app.bus import keys
 from sara_app.bus.heartbeat import Heartbeat
 from sara_app.bus.messages import SkeletonMsg
-from sara_app.errors import SaraError
 from sara_app.sim.motions import measured
 
 LATENCY_P99_MS = 5.0
@@ -128,9 +127,9 @@ def bench_cells(
         port = free_port()
         cells = [f"load{i + 1}" for i in range(n)]
         publishers: dict[str, Any] = {}
-        with Bus.router(port) as hub:
-            rt = WORKER_RT_PRIORITY
-            workers = [spawn_cell_process("sara_app.runtime.worker", c, LATENCY_SCENARIO, port,
+        with Bus.router(port) as hub, tempfile.TemporaryDirectory() as folder:
+            rt, scenario = WORKER_RT_PRIORITY, scenario_at_dt(folder, DT_S)
+            workers = [spawn_cell_process("sara_app.runtime.worker", c, scenario, port,
                                           rt_priority=rt) for c in cells]  # fmt: skip
             beats = [Heartbeat(hub, c).start() for c in cells]
             try:
@@ -142,9 +141,6 @@ def bench_cells(
                     time.sleep(0.1)
                 for f in firsts:
                     f.close()
-                for c in cells:
-                    if not set_dt(hub, hub.publisher(keys.params_key(c)), c, DT_S):
-                        raise SaraError(f"cell {c} refused the control period {DT_S} s")
                 for people in sorted(p for m, p in loads if m == n):
                     for b in beats:
                         b.people = {f"p{k}" for k in range(people)}

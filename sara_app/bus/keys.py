@@ -36,6 +36,7 @@ API: ``skeleton_key(cell, human_id)``, ``robot_state_key(cell)`` ... ``status_ke
 
 from __future__ import annotations
 
+import functools
 import re
 from typing import Literal, NamedTuple, get_args
 
@@ -196,8 +197,10 @@ def all_status_keys() -> str:
     return f"{ROOT}/*/status"
 
 
+@functools.lru_cache(maxsize=4096)  # every message is parsed; a cell has a few dozen keys
 def parse_key(key_expr: str) -> ParsedKey:
-    """Parse a concrete key (no wildcards) into ``ParsedKey``; InputError if it is not ours."""
+    """Parse a concrete key (no wildcards) into ``ParsedKey``; InputError if it is not ours
+    (not cached: a refused key is parsed again)."""
     parts = str(key_expr).split("/")
     if len(parts) < 3 or parts[0] != ROOT:
         raise InputError(f"key {key_expr!r} is not a {ROOT}/<cell>/... key")

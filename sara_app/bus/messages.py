@@ -536,9 +536,10 @@ class ParamsMsg(_Msg):
 
     ``confirm``: the sender's user confirmed that the edit loosens what the verdict assumes
     (:mod:`sara_app.ops.loosening`); without it the worker refuses such an edit, whoever sends
-    it. ``user``: who confirmed (the worker's log names them). Both added 2026-11-30 within
-    schema version 1 (absent: not confirmed)."""
+    it. ``user``: who confirmed (the worker's log names them). Schema version 2 (version 1 had
+    neither; absent: not confirmed)."""
 
+    schema_version: Literal[2] = 2  # type: ignore[assignment]
     request_id: Name
     scenario: FiniteTree
     confirm: bool = False
@@ -554,8 +555,10 @@ class ParamsAckMsg(_Msg):
 
 
 class StatusMsg(_Msg):
-    """Worker heartbeat, about 1 Hz (key ``sara/<cell>/status``)."""
+    """Worker heartbeat, about 1 Hz (key ``sara/<cell>/status``), schema version 2 (version 1
+    had no ``loop_time_*``, ``overruns`` or ``robot_q_measured``)."""
 
+    schema_version: Literal[2] = 2  # type: ignore[assignment]
     cell: Name
     state: Literal["starting", "running", "stopping", "fault"]
     scenario: str = ""
@@ -569,11 +572,10 @@ class StatusMsg(_Msg):
     verdict sent; ``cycle_time`` is the shield's cycle alone), over its recent cycles."""
     overruns: Annotated[int, Field(ge=0)] = 0
     """Control periods the worker's loop missed since it started (a step that ended more than
-    a whole period late). The three added 2026-11-30 within schema version 1."""
+    a whole period late)."""
     robot_q_measured: Annotated[list[Finite], Field(max_length=MAX_JOINTS)] | None = None
     """The joint positions (rad) the newest robot state reports; None before a controller
-    spoke. What an operator confirms in a re-plan (``robot/replan``); added 2026-11-30 within
-    schema version 1 (optional)."""
+    spoke. What an operator confirms in a re-plan (``robot/replan``)."""
     detail: Annotated[str, Field(max_length=300)] = ""
     """What a ``starting`` worker is doing (building the cell: loading the robot model and
     compiling the kernels, with the seconds so far)."""
@@ -659,8 +661,10 @@ class ControllerStatusMsg(_Msg):
     ``commands_refused``: not followed (expired and not where the robot stands);
     ``braking_events``: times the newest command expired and the robot braked on its own;
     ``worker_runs``: worker runs seen (a run's sequence numbers restart at 0); ``braking``: it
-    brakes on its own now."""
+    brakes on its own now. Schema version 2 (version 1 had no ``braking_causes`` or
+    ``receive_failed``)."""
 
+    schema_version: Literal[2] = 2  # type: ignore[assignment]
     cell: Name
     commands_received: Annotated[int, Field(ge=0)]
     commands_lost: Annotated[int, Field(ge=0)]

@@ -178,11 +178,18 @@ def _joint_extra(
     return stated_m + (0.0 if gated is None else gated.extra_m) + (0.0 if low_m is None else low_m)
 
 
-def rewiden(cell: Cell, track: Track) -> None:
-    """After new parameters (a scenario edit): the widening of the person's newest message
-    under them, where it is cached (nothing held or low; otherwise the next message sets it).
-    The legs' height bound is dropped until the next message (no bound is the wider set)."""
+def rewiden(cell: Cell, track: Track, params_changed: bool = True) -> None:
+    """After a scenario edit (``params_changed``: of the human parameters): the widening of
+    the person's newest message under the new parameters, where it is cached (nothing held or
+    low). Where it is not (joints the gate holds or the tracker marks low: the message's
+    extra uncertainty is not kept), infinite until the next message when the parameters
+    changed. Conservative shortcut: that person's sets clear nothing for up to one message
+    period (it kept the old set's widening: up to 8 mm short under a set of smaller
+    ``delta_y``, hostile-user probe 2026-11-30). The legs' height bound is dropped until the
+    next message (no bound is the wider set)."""
     track.state.leg_cap = None
     if track.widen_key is not None:
         unc_m, legs, _ = track.widen_key
         track.state.widen_m = _widening(cell, track, unc_m, legs, None)
+    elif params_changed and track.state.widen_m is not None:
+        track.state.widen_m = np.full_like(track.state.widen_m, np.inf)

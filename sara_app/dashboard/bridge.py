@@ -24,7 +24,7 @@ import time
 import uuid
 from collections import deque
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -71,6 +71,14 @@ VERDICTS_KEPT = 256
 come at 15 Hz)."""
 
 
+class VerdictSource(Protocol):
+    """Where a view may take a cell's verdicts from instead of its own subscription: the API's
+    registry in the same process (:meth:`~sara_app.api.registry.CellRegistry.verdicts_after`),
+    which decodes each of them anyway."""
+
+    def verdicts_after(self, name: str, seen: int) -> tuple[list[VerdictMsg], int]: ...
+
+
 class CellView(GizmoEditing):
     """Feeds one :class:`Dashboard` from one cell's messages; owns the scenario being edited."""
 
@@ -83,9 +91,11 @@ class CellView(GizmoEditing):
         scenarios_folder: Path,
         ack_timeout_s: float = 5.0,
         audit: AuditLog | str | Path | None = None,
+        verdicts: VerdictSource | None = None,
     ) -> None:
         """``audit``: the threshold audit log (or its path; None: the default path shared with
-        the API) for the dashboard's threshold editor tab."""
+        the API) for the dashboard's threshold editor tab; ``verdicts``: where the cell's
+        verdicts come from (None: a subscription of this view's own)."""
         self.cell = keys.check_name("cell", cell)
         self.bus, self.dash = bus, dashboard
         self.scenario = scenario
@@ -93,7 +103,10 @@ class CellView(GizmoEditing):
         self.ack_timeout_s = ack_timeout_s
         dec = Decoder()
         self.sub_occ = bus.subscribe(keys.occupancy_key(cell), dec)
-        self.sub_verdict = bus.subscribe(keys.verdict_key(cell), dec)
+        self.verdict_source = verdicts
+        self.verdicts_seen = 0
+        own = verdicts is None
+        self.sub_verdict = bus.subscribe(keys.verdict_key(cell), dec) if own else None
         self.sub_cmd = bus.subscribe(keys.robot_command_key(cell), dec)
         self.sub_ack = bus.subscribe(keys.params_ack_key(cell), dec, fifo=True)
         self.sub_scenario = bus.subscribe(keys.scenario_key(cell), dec)
@@ -121,14 +134,15 @@ class CellView(GizmoEditing):
 
     def poll(self) -> DisplayFrame | None:
         """Drain the bus; the frame to draw (None until the worker has spoken)."""
-        for d in self.sub_cmd.drain().messages:
+        # the newest command only: the view draws its set point, and decoding each of the 500
+        # a second (a whole verified stop apiece) starved this low-priority process's threads
+        for d in self.sub_cmd.drain_latest().messages:
             if isinstance(d.msg, RobotCommandMsg):
                 self.q = np.asarray(d.msg.q)
-        for d in self.sub_verdict.drain().messages:
-            if isinstance(d.msg, VerdictMsg):
-                self.verdict = d.msg
-                self.recent.append(d.msg)
-                self.cycle_us.append(d.msg.cycle_time_us)
+        for v in self._new_verdicts():
+            self.verdict = v
+            self.recent.append(v)
+            self.cycle_us.append(v.cycle_time_us)
         for d in self.sub_occ.drain().messages:
             if isinstance(d.msg, OccupancyMsg):
                 self.occ = d.msg
@@ -140,6 +154,16 @@ class CellView(GizmoEditing):
         if self.q is None or self.verdict is None:
             return None
         return self.frame()
+
+    def _new_verdicts(self) -> list[VerdictMsg]:
+        if self.verdict_source is not None:
+            new, self.verdicts_seen = self.verdict_source.verdicts_after(
+                self.cell, self.verdicts_seen
+            )
+            return new
+        if self.sub_verdict is None:
+            return []
+        return [d.msg for d in self.sub_verdict.drain().messages if isinstance(d.msg, VerdictMsg)]
 
     def waiting_status(self) -> dict[str, Any]:
         """The status table's entries before the first verdict: what the worker says it is

@@ -7,3 +7,6 @@ MODELS: tuple[str, ...] = ("pos", "vel", "acc", "iso13855", "arm", "combined")
 """Every model: SaRA's position, velocity and acceleration models (Schepp et al. 2022), the
 ISO 13855 expansion, Pereira's arm model, the combined speed-and-acceleration model."""
 SARA_MODELS: tuple[str, ...] = ("pos", "vel", "acc")
+
+MOVING_MODELS: tuple[str, ...] = ("acc", "combined")
+"""The models that need the measured joint velocities and their error bounds."""

@@ -16,24 +16,32 @@ Soundness conditions of each model (what the parameters must bound) are stated p
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
 
 from sara_app.errors import InputError, ParameterError, UnknownNameError
 from sara_app.human.arm import arm_occupancy
-from sara_app.human.model_names import MODELS
+from sara_app.human.model_names import MODELS, MOVING_MODELS
 from sara_app.human.occupancy import Occupancy
 from sara_app.human.params import ReachParams
-from sara_app.human.reach_kernels import acc_sets, combined_sets, pos_sets, static_sets
+from sara_app.human.reach_kernels import (
+    KINDS,
+    acc_sets,
+    combined_sets,
+    people_sets,
+    pos_sets,
+    static_sets,
+)
 from sara_app.human.skeleton import skeleton
 from sara_app.kernel_types import FLOAT64, as_f8, entry
 
 # The model methods check their inputs' dtypes and shapes, then call the compiled code directly
 # (kernel_types.entry: no per-call dispatch; a one-person set costs mostly such Python glue:
 # Schepp et al.'s C++ computes all three sets in 3 us).
-_STATIC_SETS, _ACC_SETS, _COMBINED_SETS, _POS_SETS = (
-    entry(k) for k in (static_sets, acc_sets, combined_sets, pos_sets)
+_STATIC_SETS, _ACC_SETS, _COMBINED_SETS, _POS_SETS, _PEOPLE_SETS = (
+    entry(k) for k in (static_sets, acc_sets, combined_sets, pos_sets, people_sets)
 )
 
 
@@ -89,6 +97,8 @@ class HumanReach:
         self._tables()
         # (model, H, K) -> the Occupancy a buffered model method returns and its two buffers
         self._outputs: dict[tuple[str, int, int], tuple[Occupancy, np.ndarray, np.ndarray]] = {}
+        # people_sets' one-interval buffers and the kernels' constants, built at first use
+        self._people_buffers: tuple[tuple[np.ndarray, ...], tuple[Any, ...]] | None = None
         self._n_joints = sk.n_joints
 
     def _tables(self) -> None:
@@ -413,6 +423,76 @@ class HumanReach:
             np.array(np.broadcast_to(o.radius, (H, K, C))),
             o.names,
         )
+
+    def people_sets(
+        self,
+        name: str,
+        y: np.ndarray,
+        v: np.ndarray,
+        dv: np.ndarray,
+        age_s: np.ndarray,
+        horizon_s: float,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Model ``name`` for each person on one interval from their own measurement: person
+        ``h`` (``y, v (H, J, 3)``, ``dv (H, J)``; velocities read by :data:`MOVING_MODELS`
+        only) on ``[age_s[h], age_s[h] + horizon_s]``.
+        Returns fresh ``ends (H, C, 2, 3)``, ``radius (H, C)``: what :meth:`model` gives person
+        by person, in one compiled call (:func:`~sara_app.human.reach_kernels.people_sets`) for
+        the compiled models; Pereira's arm model (numpy) person by person."""
+        moving = name in MOVING_MODELS
+        y, v, dv, age_s = self._people_inputs(y, v, dv, age_s, horizon_s, moving)
+        if not moving:  # not read: a person's velocities need not be known yet
+            v, dv = np.zeros_like(y), np.zeros(y.shape[:2])
+        kind = KINDS.get(name)
+        if kind is None:  # the arm model, or an unknown name (model's error)
+            t_start, t_end = age_s, age_s + float(horizon_s)
+            per_person = [self.model(name, y[h : h + 1], v[h : h + 1], dv[h : h + 1],
+                                     t_start[h : h + 1], t_end[h : h + 1])
+                          for h in range(y.shape[0])]  # fmt: skip
+            return (np.stack([o.ends[0, 0] for o in per_person]),
+                    np.stack([o.radius[0, 0] for o in per_person]))  # fmt: skip
+        H, P = y.shape[0], self.skeleton.n_parts
+        C_pos = len(self.pos_rbase)
+        C = C_pos if name == "pos" else P
+        if self._people_buffers is None:  # one interval's: the same for every call
+            buffers: tuple[np.ndarray, ...] = (
+                np.empty(1), np.empty(1), np.empty((1, 1, P, 2, 3)), np.empty((1, 1, P)),
+                np.empty((1, P, 2, 3)), np.empty((1, P)), np.empty((1, C_pos, 2, 3)),
+                np.empty((1, 1, C_pos)),
+            )  # fmt: skip
+            self._people_buffers = (buffers, self.kernel_constants())
+        buffers, constants = self._people_buffers
+        ends, radius = np.empty((H, C, 2, 3)), np.empty((H, C))
+        # checked above: float64 arrays of the signature's dimensions (entry's contract)
+        _PEOPLE_SETS(kind, y, as_f8(v), as_f8(dv), age_s, np.array([0.0, float(horizon_s)]),
+                     constants, buffers, ends, radius)  # fmt: skip
+        return ends, radius
+
+    def _people_inputs(
+        self, y: Any, v: Any, dv: Any, age_s: Any, horizon_s: float, moving: bool
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`people_sets`' inputs as float64 arrays, checked in a few whole-array tests
+        (the display calls it for every model: each check on its own cost more than the
+        kernel); otherwise the detailed checks raise :class:`InputError` with what is wrong
+        (or shape what :meth:`model` takes too). ``moving``: the velocities and their bounds
+        are checked too."""
+        y, v, dv, age_s = as_f8(y), as_f8(v), as_f8(dv), np.atleast_1d(as_f8(age_s))
+        H, J = (y.shape[0], self._n_joints) if y.ndim == 3 else (-1, self._n_joints)
+        ok = (y.shape == (H, J, 3) and age_s.shape == (H,) and bool(np.isfinite(y).all())
+              and bool(np.isfinite(age_s).all()) and age_s.min(initial=0.0) >= 0.0
+              and math.isfinite(horizon_s) and horizon_s >= 0.0)  # fmt: skip
+        if ok and moving:
+            ok = (v.shape == y.shape and dv.shape == (H, J) and bool(np.isfinite(v).all())
+                  and bool(np.isfinite(dv).all()) and dv.min(initial=0.0) >= 0.0)  # fmt: skip
+        if not ok:  # what is wrong, or inputs model() takes too (flat or broadcast velocities)
+            y = self.check_positions(y)
+            if moving:
+                v, dv = self.check_velocities(y, v, dv)
+                v, dv = as_f8(np.ascontiguousarray(v)), as_f8(np.ascontiguousarray(dv))
+            check_intervals(age_s, age_s + float(horizon_s))
+            if age_s.shape != (y.shape[0],):
+                raise InputError(f"age_s has shape {age_s.shape}; expected ({y.shape[0]},)")
+        return y, v, dv, age_s
 
     def check_velocities(
         self, y: np.ndarray, v: np.ndarray | None, dv: np.ndarray | None

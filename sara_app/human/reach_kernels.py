@@ -27,6 +27,7 @@ from sara_app.kernel_types import RO2 as _RO2
 from sara_app.kernel_types import RO3 as _RO3
 from sara_app.kernel_types import ROI1 as _ROI1
 from sara_app.kernel_types import ROI2 as _ROI2
+from sara_app.kernel_types import W1 as _W1
 from sara_app.kernel_types import W2 as _W2
 from sara_app.kernel_types import W3 as _W3
 from sara_app.kernel_types import W4 as _W4
@@ -42,6 +43,7 @@ __all__ = [
     "acc_sets",
     "combined_ball",
     "combined_sets",
+    "people_sets",
     "person_sets",
     "pos_sets",
     "displacement_bound",
@@ -436,3 +438,34 @@ def person_sets(
     static_sets(yh, part_joints, te, delay_s, base[row], speed[row], disp[row], disp_step, st_e,
                 st_r[:k])  # fmt: skip
     return st_e[0:1], st_r[:k], 1
+
+
+CONSTANTS = types.Tuple((STATIC, ACC, POS, types.UniTuple(_f8, 2), _i8))
+"""``(static, acc, pos, (delay_s, delta_y_m), n_limbs)``: ``HumanReach.kernel_constants``."""
+BUFFERS = types.Tuple((_W1, _W1, _W5, _W3, _W4, _W2, _W4, _W3))
+""":func:`person_sets`'s buffers (its docstring gives their shapes)."""
+
+
+@njit(types.void(_i8, _RO3, _RO3, _RO2, _RO1, _RO1, CONSTANTS, BUFFERS, _W4, _W2), cache=True)
+def people_sets(
+    kind: int,
+    y: np.ndarray,
+    v: np.ndarray,
+    dv: np.ndarray,
+    age_s: np.ndarray,
+    times: np.ndarray,
+    constants: Any,
+    buffers: Any,
+    out_ends: np.ndarray,
+    out_radius: np.ndarray,
+) -> None:
+    """Every person's capsules of model ``kind`` on one interval, each from their own
+    measurement: person ``h`` on ``[age_s[h] + times[0], age_s[h] + times[1]]`` (``y, v (H, J,
+    3)``, ``dv (H, J)``, ``age_s (H,)``, ``times (2,)``); into ``out_ends (H, C, 2, 3)``,
+    ``out_radius (H, C)``. :func:`person_sets` per person with buffers for one interval: the
+    sets the checks compute, in one call for all the people (a display of many people)."""
+    human = (y, v, dv)
+    for h in range(age_s.shape[0]):
+        ends, radius, _ = person_sets(kind, h, human, age_s[h], times, 0, 1, constants, buffers)
+        out_ends[h] = ends[0]
+        out_radius[h] = radius[0]

@@ -88,10 +88,11 @@ def capsule_widening(
 
 
 def per_capsule(widen_p: np.ndarray, part_map: np.ndarray, n_capsules: int) -> np.ndarray:
-    """``(C,)`` a model's widening per capsule from its per-part row ``widen_p (P,)`` and the
-    part -> capsule map (:func:`~sara_app.human.reach.part_capsules`): a capsule grows by the
-    largest widening of the parts it stands for. A capsule that stands for no part keeps its
-    radius: soundness needs each part inside its own (widened) capsule only."""
-    extra = np.zeros(n_capsules)
-    np.maximum.at(extra, part_map, widen_p)
+    """``(..., C)`` a model's widening per capsule from its per-part rows ``widen_p (..., P)``
+    (one row, or one per person) and the part -> capsule map
+    (:func:`~sara_app.human.reach.part_capsules`): a capsule grows by the largest widening of
+    the parts it stands for. A capsule that stands for no part keeps its radius: soundness
+    needs each part inside its own (widened) capsule only."""
+    extra = np.zeros((*widen_p.shape[:-1], n_capsules))
+    np.maximum.at(extra.T, part_map, widen_p.T)  # capsules on the first axis of the views
     return extra

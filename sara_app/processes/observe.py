@@ -83,13 +83,15 @@ def observe(
         try:
             jobs = JobRunner()
             closers.append(jobs.close)
+            registry = CellRegistry(hub).start()  # the views follow its verdicts
+            closers.append(registry.close)
             views, dashes, urls = {}, {}, {}
             for i, c in enumerate(cells):
                 sc = announced_scenario(hub, c)
                 T = pose_from_xyz_rpy(sc.robot.base_xyz_m, sc.robot.base_rpy_rad)
                 dash = Dashboard(robot=sc.robot.name, T_world_base=T,
                                  access=DashboardAccess(tokens, c))  # fmt: skip
-                view = CellView(c, hub, dash, sc, folder)
+                view = CellView(c, hub, dash, sc, folder, verdicts=registry)
                 urls[c] = dash.start(port=viewer_port + i, on_select_scenario=view.select,
                                      on_save_as=view.save_as, on_params_edit=view.edit)  # fmt: skip
                 closers.append(dash.stop)
@@ -98,8 +100,6 @@ def observe(
                 if panels is not None:
                     closers.append(panels.close)
                 views[c], dashes[c] = view, dash
-            registry = CellRegistry(hub).start()
-            closers.append(registry.close)
             app = create_app(
                 registry, folder, viewer_url=urls[cells[0]], tokens=tokens,
                 require_token=tokens is not None, hosts=() if not exposed else (api_host,),

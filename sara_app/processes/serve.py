@@ -35,7 +35,7 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sara_app.api.guard import load_tokens
 from sara_app.bus.access import Credentials, client_auth
@@ -49,6 +49,9 @@ from sara_app.ops.supervisor import Child, Supervisor
 from sara_app.processes.affinity import CpuPlan, cpu_plan, pin_threads, pinned
 from sara_app.processes.defaults import API_PORT, DEFAULT_SCENARIO, VIEWER_PORT, ZENOH_PORT
 from sara_app.scenario import load_scenario, scenarios_dir
+
+if TYPE_CHECKING:
+    from sara_app.api.registry import Silence
 
 log = logging.getLogger("sara_app.serve")
 REPLAYER_NICE = 5
@@ -224,9 +227,10 @@ def serve(
                       sorted(plan.rest))  # fmt: skip
         lower_thread_priority(display_nice)  # after the spawns: children inherit the caller's
         jobs = JobRunner()  # what-if runs and reports, for the dashboards and the API
+        registry = CellRegistry(hub)  # the views follow the cells' verdicts on it
         views, urls = {}, {}
         for i, c in enumerate(names):
-            view = CellView(c, hub, dashes[c], sc, folder)
+            view = CellView(c, hub, dashes[c], sc, folder, verdicts=registry)
             urls[c] = dashes[c].start(
                 port=viewer_port + i,
                 on_select_scenario=view.select,
@@ -238,7 +242,6 @@ def serve(
             if panels is not None:
                 whatifs.append(panels)
             views[c] = view
-        registry = CellRegistry(hub)
         registry.start()
         app = create_app(
             registry, folder, viewer_url=urls[names[0]], processes=sup.status, tokens=tokens,
@@ -252,9 +255,9 @@ def serve(
         health = HealthLog(registry, dict.fromkeys(names, 1.0 / sc.shield.dt_s))
 
         def supervise() -> None:
-            snaps = {w: registry.cell(c) for c, w in workers.items()}  # one snapshot each
-            ages = {w: _verdict_age(snap, sup, w) for w, snap in snaps.items()}
-            bus = {w: _bus_since_verdict(snap) for w, snap in snaps.items()}
+            seen = {w: registry.silence(c) for c, w in workers.items()}
+            ages = {w: _silent_for(s, sup, w) for w, s in seen.items()}
+            bus = {w: s is not None and s.bus_since for w, s in seen.items()}
             sup.poll(time.monotonic(), ages, bus)
             health.poll()
 
@@ -407,27 +410,19 @@ def _is_loopback(host: str) -> bool:
         return host == "localhost"
 
 
-def _verdict_age(
-    snap: dict[str, Any] | None, sup: Supervisor, worker: str | None = None
-) -> float | None:
-    """Age of the newest verdict in a cell's registry snapshot when it came from the worker
-    process running now through the router running now (:meth:`Supervisor.hang_age`), else
-    None."""
-    age = None if snap is None else snap.get("verdict_age_s")
+def _silent_for(seen: Silence | None, sup: Supervisor, worker: str) -> float | None:
+    """How long ``worker`` is known to have been silent (:meth:`CellRegistry.silence`) when its
+    newest verdict came from the worker process running now through the router running now
+    (:meth:`Supervisor.hang_age`), else None. Known, not merely seen: this process's threads
+    run at a lowered priority, and on a loaded machine the registry's drain fell seconds behind
+    the verdicts queued for it (two cells: 1 000 a second); its age of the newest verdict then
+    grew while the workers ran, and both were killed as hung (the CI of 2026-12-01)."""
+    if seen is None:
+        return None
     now = time.monotonic()
-    return sup.hang_age(now, None if age is None else now - age, worker)
-
-
-def _bus_since_verdict(snap: dict[str, Any] | None) -> bool:
-    """Whether, in a cell's registry snapshot, the controller's status arrived after the
-    newest verdict: the bus delivers, so a silent worker is silent itself
-    (:meth:`Supervisor.poll`)."""
-    if snap is None:
-        return False
-    ctl = snap.get("controller")
-    if ctl is None or ctl.get("status_age_s") is None or snap.get("verdict_age_s") is None:
-        return False
-    return bool(ctl["status_age_s"] < snap["verdict_age_s"])
+    if sup.hang_age(now, now - seen.age_s, worker) is None:
+        return None
+    return seen.silent_s
 
 
 _STOP = threading.Event()

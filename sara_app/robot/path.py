@@ -47,6 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sara_app.errors import RobotModelError
+from sara_app.geometry.shapes import point_segment_distance
 from sara_app.robot.joints import (
     LIMIT_MARGIN,
     S_TOL,
@@ -63,6 +64,7 @@ __all__ = [
     "piece_boxes",
     "piece_room",
     "sub_piece_room",
+    "waypoints_ahead",
 ]
 
 
@@ -135,6 +137,20 @@ def _polyline_pieces(
         dl=np.array([r[5] for r in rows]).reshape(-1, n),
         blend=np.array([r[6] for r in rows], dtype=bool),
     )
+
+
+def waypoints_ahead(waypoints: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The waypoints ``(W, n)`` still ahead of a robot at ``q (n,)`` that stands on (or near)
+    the polyline through them: those after the segment nearest to ``q`` (the later segment
+    where two are as near: a corner), ``(W', n)`` with ``W' >= 1``; all of them for a single
+    waypoint. A plan from ``q`` through them keeps to the task's path (within its blends)
+    instead of going straight to its end through whatever the corners went around."""
+    w = np.asarray(waypoints, dtype=float)
+    if len(w) < 2:
+        return w
+    dist = point_segment_distance(np.asarray(q, dtype=float), np.stack([w[:-1], w[1:]], axis=1))
+    nearest = int(np.flatnonzero(dist <= dist.min() + 1e-12)[-1])  # the later one of a tie
+    return w[nearest + 1 :]
 
 
 def _dedupe(points: np.ndarray) -> np.ndarray:

@@ -115,21 +115,71 @@ class CellBuilder:
                 pass  # a daemon thread: it ends with the process
 
 
-def carry_over(old: Cell, new: Cell) -> str | None:
+def task_pass(old: Cell, new: Cell, pass_index: int) -> tuple[int, bool]:
+    """The pass of ``new``'s task the robot goes on in after an edit, and whether it goes on
+    in the pass it runs (no re-plan): the same pass while the waypoints stay (a new blend
+    distance or number of cycles keeps the task's progress; an edit restarted the task at its
+    first pass: 9 passes of a task of 6, hostile-user probe 2026-11-30) and the new task has
+    that pass; else the first."""
+    same_route = new.scenario.task.waypoints_rad == old.scenario.task.waypoints_rad
+    if same_route and 0 <= pass_index < len(new.passes):
+        return pass_index, True
+    return 0, False
+
+
+def carry_over(old: Cell, new: Cell, pass_index: int = 0, goes_on: bool = False) -> str | None:
     """Prepare ``new`` to run from now on with the robot's follower and the failsafe it holds
     carried over from ``old`` (verified under the old parameters: the new parameters and safety
-    mode take effect from the next verified step); None, or why ``new`` cannot run now."""
-    sc = new.scenario
-    same_robot = sc.robot == old.scenario.robot and sc.limits == old.scenario.limits
+    mode take effect from the next verified step), in pass ``pass_index`` of its task
+    (:func:`task_pass`; ``goes_on``: the pass the robot runs, else re-planned onto it); None,
+    or why ``new`` cannot run now. The task's blend distance applies from the next re-plan
+    (a changed route now, else the next pass): the pass under way keeps its corners.
+
+    Another robot model, base pose or limits: only at rest, and the new follower starts where
+    the robot rests, through the waypoints of its pass still ahead (as a re-anchor does). It
+    started at its task's first waypoint, and the controller, following a valid stream of
+    commands, jumped there in one control period (2.4 rad after a velocity limit was lowered
+    at rest: found 2026-11-30). Refused live, as they would need the controller
+    restarted too: another joint count (the commands, the robot's states and their checks are
+    the old robot's) and another control period (a controller reaches each set point one
+    period after its command's stamp, the period it started with: after ``shield.dt_s`` went
+    from 4 to 40 ms live, the reference controller moved at 9.5 times a joint's velocity
+    limit, hostile-user probe 2026-11-30)."""
+    sc, was = new.scenario, old.scenario
+    same_robot = sc.robot == was.robot and sc.limits == was.limits
+    if sc.shield.dt_s != was.shield.dt_s:
+        return (
+            f"shield.dt_s: the control period ({was.shield.dt_s:g} s) changes only when the "
+            f"cell and its robot controller restart with {sc.shield.dt_s:g} s (the controller "
+            "reaches each set point one period after the command's stamp)"
+        )
     if not same_robot and not old.shield.at_rest:
         return "robot, base pose or limits can change only while the robot is at rest"
-    if same_robot:
+    n_old, n_new = old.robot.n_dof, new.robot.n_dof
+    if n_new != n_old:
+        return (
+            f"robot {sc.robot.name!r} has {n_new} joints, the cell's robot "
+            f"{was.robot.name!r} {n_old}: restart the cell to run another robot"
+        )
+    if not same_robot:  # from where the robot rests (the old follower's last command), on its pass
         try:
-            new.shield.adopt(old.shield)
-            if sc.task != old.scenario.task:
-                new.shield.follower.replan(new.passes[0])
+            new.shield.restart_from(old.shield.robot_state.q, new.passes[pass_index])
         except SaraError as e:
             return str(e)
+        return None
+    try:
+        new.shield.adopt(old.shield)
+    except SaraError as e:
+        return str(e)
+    f = new.shield.follower  # may be the old shield's own: restored if the re-plan fails
+    blend = f.blend_distance
+    f.blend_distance = sc.task.blend_distance_rad
+    try:
+        if not goes_on:
+            f.replan(new.passes[pass_index])
+    except SaraError as e:
+        f.blend_distance = blend
+        return str(e)
     return None
 
 

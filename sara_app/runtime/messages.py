@@ -126,17 +126,22 @@ class CycleMessages:
         why: str,
         dropped: dict[str, int],
         seqs: tuple[int, int],
-    ) -> tuple[VerdictMsg, CommandArrays]:
+    ) -> tuple[VerdictMsg, CommandArrays | None]:
         """A fault verdict that names ``why`` and the command of the held failsafe: the
         cycle's command when it and the held stop are finite (the shield moved the robot
-        there), else the last one sent, at rest (and then no stop: the robot holds)."""
+        there), else the last one sent, at rest (and then no stop: the robot holds); None
+        when none was sent yet (this worker never commanded the robot: a command at an
+        invented position, all zeros before 2026-11-30, could move it there; without one
+        the controller brakes or stays as the contract says)."""
+        command: CommandArrays | None = None
         try:
             command = self._command(now, dt, res.command, "fault", seqs[1])
         except CompactError:  # not finite (the command or the held stop): hold, at rest
-            zero = np.zeros(self.n_dof)
-            q = zero if self.last is None else self.last.q
             self.held = None
-            command = self._command(now, dt, JointState(q, zero, zero), "fault", seqs[1])
+            if self.last is not None:
+                zero = np.zeros(self.n_dof)
+                at_rest = JointState(self.last.q, zero, zero)
+                command = self._command(now, dt, at_rest, "fault", seqs[1])
         verdict = VerdictMsg(
             seq=seqs[0],
             stamp_s=now,

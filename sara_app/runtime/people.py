@@ -120,6 +120,7 @@ class People:
         """Everyone stays known under a new cell, with their measurement and faults; their
         velocity error bounds are re-derived under the new parameters from the next skeleton on
         (until then the acceleration model is unusable for them: infinite bound)."""
+        params_changed = new.scenario.human_params != self.cell.scenario.human_params
         self.cell = new
         inp = new.scenario.inputs
         self.presence.configure(
@@ -130,4 +131,4 @@ class People:
             t.intake.retune(p.delta_y_m, p.v_max_mps, p.a_max_mps2, gate, p.pelvis_rise_mps,
                             displacement_of(p))  # fmt: skip
             t.state.dv = np.full(len(p.v_max_mps), np.inf)
-            rewiden(new, t)  # the same message under the new delta_y
+            rewiden(new, t, params_changed)  # the same message under the new delta_y

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import gc
 import logging
+import math
 import sys
 import threading
 import time
@@ -28,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from sara_app.bus import keys
+from sara_app.bus.compact import CommandArrays
 from sara_app.bus.messages import OccupancyMsg, ReplanMsg, ScenarioStateMsg, StatusMsg
 from sara_app.bus.ownership import claim_cell
 from sara_app.bus.process import SummarisedWarning, process_main
@@ -40,7 +42,14 @@ from sara_app.robot.trajectory import JointState
 from sara_app.runtime import display
 from sara_app.runtime.bus_io import CellBus
 from sara_app.runtime.cadence import PhaseLock
-from sara_app.runtime.edits import Built, LiveEdits, build, carry_over, unconfirmed_loosening
+from sara_app.runtime.edits import (
+    Built,
+    LiveEdits,
+    build,
+    carry_over,
+    task_pass,
+    unconfirmed_loosening,
+)
 from sara_app.runtime.messages import CycleMessages
 from sara_app.runtime.people import People
 from sara_app.runtime.presence import Presence
@@ -110,6 +119,8 @@ class CellWorker:
         self.loop_us: deque[float] = deque(maxlen=2000)
         """The whole step's time per cycle (inputs, the shield, the messages sent), us."""
         self.overruns = 0
+        self.t_cmd = -math.inf
+        """The last cycle's time: its command's stamp (:meth:`step`)."""
         self.started = time.time()
         self._next_display = 0.0
         self._next_status = 0.0
@@ -117,6 +128,14 @@ class CellWorker:
         self.stop_event = threading.Event()
         self.messages = CycleMessages(self.name, self.cell.robot.n_dof)
         self.phase = PhaseLock(self.shield.settings.dt_s)
+
+    @property
+    def min_gap_s(self) -> float:
+        """The least time between two commands' stamps (:meth:`step`)."""
+        dt = self.shield.settings.dt_s
+        return (
+            dt * (1.0 - self.phase.max_slew) if self.cell.scenario.inputs.cycle_phase_lock else dt
+        )
 
     @property
     def shield(self) -> Shield:
@@ -224,13 +243,12 @@ class CellWorker:
     def _swap(self, new: Cell) -> tuple[bool, str]:
         """Run ``new`` from now on, with the robot's follower and failsafe carried over and
         every person kept (:meth:`People.adopt <sara_app.runtime.people.People.adopt>`)."""
-        why = carry_over(self.cell, new)
+        k, goes_on = task_pass(self.cell, new, self.pass_index)
+        why = carry_over(self.cell, new, k, goes_on)
         if why is not None:
             return False, why
+        self.pass_index = k
         self.cell = new
-        if self.phase.dt_s != new.shield.settings.dt_s:  # another control rate
-            self.phase = PhaseLock(new.shield.settings.dt_s)
-        self.pass_index = 0
         self.people.adopt(new)
         self.edits.revision += 1
         gc.freeze()  # the new cell joins the frozen heap (see bus.process.freeze_heap)
@@ -240,8 +258,19 @@ class CellWorker:
 
     def step(self, now: float) -> CycleResult:
         """One cycle: inputs, the shield, one command and one verdict. Whatever raises on the
-        way makes the cycle a fault on the held failsafe, never an exception out of here."""
+        way makes the cycle a fault on the held failsafe, never an exception out of here.
+
+        The inputs are judged at ``now``; the cycle's time is ``t_cmd = max(now, the previous
+        cycle's + min_gap_s)``: it is verified at that time (the people's sets grown for the
+        extra age), and its verdict and command are stamped then (set point at ``t_cmd +
+        dt``). Commands are thus never less than ``min_gap_s`` (one period; 2 % less with the
+        phase lock, as the contract allows) apart, however close together the cycles ran: a
+        worker catching up after a late cycle (its loop runs the next one at once) stamped
+        commands 1.1 ms apart at a 4 ms period, and the robot covered a whole verified step in
+        that gap, up to 15.8x ``v_max`` (robot channel probe, 2026-12-01). :meth:`run` keeps
+        ``t_cmd`` within a period of the clock and brings it back to it."""
         t0_ns = time.perf_counter_ns()
+        self.t_cmd = t_cmd = max(now, self.t_cmd + self.min_gap_s)
         problems: list[str] = []
         try:
             self._ingest(now)
@@ -256,17 +285,17 @@ class CellWorker:
             )
             faults = self.presence.faults(now) + self.presence.conformance() + robot + problems
             # the tracking check is the measured robot's (at the measurement's time)
-            res = self.shield.cycle(now, self.presence.humans(), None, input_faults=faults)
+            res = self.shield.cycle(t_cmd, self.presence.humans(), None, input_faults=faults)
         except Exception as e:  # noqa: BLE001 - last line of defence: brake, report, go on
             self.errors("worker cycle failed", repr(e), e)
-            res = self._fault_cycle(now, f"cycle failed: {e!r}"[:200])
+            res = self._fault_cycle(t_cmd, f"cycle failed: {e!r}"[:200])
         self.last = res
         self.cycle_us.append(res.cycle_time_us)
         try:
             self._advance_task()
         except Exception as e:  # noqa: BLE001
             self.errors("task advance failed", repr(e), e)
-        self._publish(now, res)
+        self._publish(t_cmd, res)
         self.loop_us.append((time.perf_counter_ns() - t0_ns) / 1e3)
         return res
 
@@ -320,6 +349,7 @@ class CellWorker:
         when the verdict cannot be sent, the command goes out as ``fault``)."""
         dt = self.shield.settings.dt_s
         seqs = (self.io.verdict.next_seq(), self.io.command.next_seq())
+        command: CommandArrays | None
         try:
             self.messages.observe(now, res, self.shield.holds_failsafe)
             verdict, command = self.messages.verdict_and_command(
@@ -329,11 +359,12 @@ class CellWorker:
             self.errors("building the cycle's messages failed", repr(e), e)
             why = f"messages failed: {e!r}"[:200]
             verdict, command = self.messages.fault(now, dt, res, why, self.io.dropped(), seqs)
-        if not self.io.verdict.put(verdict) and command.mode == "intended":
+        if not self.io.verdict.put(verdict) and command is not None and command.mode == "intended":
             command = command._replace(mode="fault")
-        self.io.command.put(command)
-        self.messages.last = JointState(command.q, command.q_dot, command.q_ddot)
-        self.robot_in.sent(command.stamp_s + dt, command.q, command.stop_arrays())
+        if command is not None:  # None: nothing commanded yet, and nothing to hold now
+            self.io.command.put(command)
+            self.messages.last = JointState(command.q, command.q_dot, command.q_ddot)
+            self.robot_in.sent(command.stamp_s + dt, command.q, command.stop_arrays())
         try:
             if now >= self._next_display:
                 self._next_display = now + self.display_period
@@ -370,10 +401,17 @@ class CellWorker:
             mono = time.monotonic()
             if t_end is not None and mono >= t_end:
                 break
+            lead_s = self.t_cmd - time.time()
+            if lead_s > 0.0:  # the next cycle's time would lead the clock by over a period
+                time.sleep(lead_s)
             self.step(time.time())  # never raises (a failed cycle is a fault cycle)
-            next_t += self.shield.settings.dt_s
+            dt = self.shield.settings.dt_s
+            next_t += dt
             if self.cell.scenario.inputs.cycle_phase_lock:
                 next_t += self.phase.slew_s()
+            # a cycle time ahead of the clock (after a catch-up): periods up to 2 % longer
+            # until the clock has caught up (the people's sets are grown by the lead meanwhile)
+            next_t += min(max(self.t_cmd - time.time(), 0.0), self.phase.max_slew * dt)
             delay = next_t - time.monotonic()
             # never a busy loop: under SCHED_FIFO an overrunning worker would otherwise keep its
             # CPU from every normally scheduled thread (zenoh I/O included)

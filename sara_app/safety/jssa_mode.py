@@ -169,12 +169,13 @@ class JssaMode(Shield):
             np.max(np.abs(self._v)) <= SETTLE_V_RAD_S and np.max(np.abs(self._a)) <= SETTLE_A_RAD_S2
         )
 
-    def restart_from(self, q: np.ndarray) -> None:
-        """The measured robot rests at ``q``: the reference and the robot state restart there.
-        Raises :class:`ParameterError` unless at rest."""
+    def restart_from(self, q: np.ndarray, waypoints: np.ndarray | None = None) -> None:
+        """The measured robot rests at ``q``: the reference (through the waypoints ahead, as
+        :meth:`Shield.restart_from`) and the robot state restart there. Raises
+        :class:`ParameterError` unless at rest."""
         if not self.at_rest:
             raise ParameterError("the follower can restart from a measured state only at rest")
-        self._start_at(self.follower, np.asarray(q, dtype=float))
+        self._start_at(self.follower, np.asarray(q, dtype=float), waypoints)
         self._q = np.asarray(q, dtype=float).copy()
         self._v, self._a = np.zeros_like(self._q), np.zeros_like(self._q)
 

@@ -17,6 +17,9 @@ from sara_app.safety.thresholds import RENAMED as THRESHOLDS_RENAMED
 from sara_app.safety.thresholds import ThresholdSet, load_thresholds
 from sara_app.settings import Name, NonNeg, StrictFinite
 
+MAX_DT_S = 0.05
+"""The longest control period a scenario may set (s); a cycle's verdict and command may be
+stamped up to a period ahead of the clock (``CellWorker.step``)."""
 FUTURE_TOLERANCE_S = 0.002
 """How far a message's stamp may lie ahead of the receiver's clock (clocks of one cell are
 synchronised); a skeleton stamped further ahead is a fault, a bus message is refused as
@@ -179,7 +182,7 @@ class ShieldSettings(StrictFinite):
 
     mode: Literal["ssm", "pfl", "jssa"] = "ssm"
     """Safety mode: speed and separation monitoring, power and force limiting, or JSSA."""
-    dt_s: Annotated[float, Field(ge=1e-4, le=0.05)] = 0.004
+    dt_s: Annotated[float, Field(ge=1e-4, le=MAX_DT_S)] = 0.004
     max_interval_s: Annotated[float, Field(gt=0, le=0.1)] = 0.02
     models: list[str] = ["pos", "vel", "acc", "combined"]
     tracking_tol_rad: Annotated[float, Field(gt=0, le=0.1)] = 0.005

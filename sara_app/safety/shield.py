@@ -37,6 +37,7 @@ from sara_app.kernel_types import as_f8, entry
 from sara_app.robot.failsafe import BOUND_PAD
 from sara_app.robot.model import RobotModel
 from sara_app.robot.occupancy import RobotOccupancy
+from sara_app.robot.path import waypoints_ahead
 from sara_app.robot.planning_kernels import OUT_LEN
 from sara_app.robot.shielded import ShieldedTrajectory, from_samples, shielded_trajectory
 from sara_app.robot.trajectory import JointState, PathFollower
@@ -210,8 +211,8 @@ class Shield:
         new mode commits its first verified step (SSM -> PFL: an SSM-verified stop touches
         nobody, so it is PFL-safe too; PFL -> SSM: the held stop may allow contacts below the
         energy thresholds until then). From JSSA nothing was verified: the robot must be at
-        rest; the new follower then starts where it stands (on or off the old path) and heads
-        for the old path's end. Raises :class:`ParameterError` otherwise.
+        rest; the new follower then starts where it stands (on or off the old path) and goes on
+        through the old path's waypoints ahead of it. Raises :class:`ParameterError` otherwise.
         """
         f = previous.follower
         now = previous.robot_state
@@ -228,27 +229,26 @@ class Shield:
                 f"at rest ({previous.safety_mode} holds no verified failsafe for it); stop "
                 "it first"
             )
-        self._start_at(f, now.q)
+        self._start_at(f, now.q, None)
 
-    def restart_from(self, q: np.ndarray) -> None:
+    def restart_from(self, q: np.ndarray, waypoints: np.ndarray | None = None) -> None:
         """The robot rests at ``q`` (measured), not where the follower rests: follow from there
-        to the current path's end. Raises :class:`ParameterError` unless at rest."""
+        through the waypoints of the current path (or ``waypoints (W, n)``) still ahead of it
+        to their end. Raises :class:`ParameterError` unless at rest."""
         if not self.at_rest:
             raise ParameterError("the follower can restart from a measured state only at rest")
-        self._start_at(self.follower, np.asarray(q, dtype=float))
+        self._start_at(self.follower, np.asarray(q, dtype=float), waypoints)
         self._commanded = None
 
-    def _start_at(self, f: PathFollower, q: np.ndarray) -> None:
-        """A new follower from ``q`` at rest to the end of ``f``'s path."""
-        goal = f.path.q(f.path.length)
-        if np.allclose(q, goal, atol=1e-9):
-            self.follower = PathFollower(
-                np.vstack([goal]), f.limits, blend_distance=f.blend_distance
-            )
-            return
-        self.follower = PathFollower(
-            np.vstack([q, goal]), f.limits, blend_distance=f.blend_distance
-        )
+    def _start_at(self, f: PathFollower, q: np.ndarray, waypoints: np.ndarray | None) -> None:
+        """A new follower from ``q`` at rest through the waypoints ahead of it
+        (:func:`~sara_app.robot.path.waypoints_ahead`) of ``f``'s path or ``waypoints``: it went
+        straight to the path's end, across the corners the task goes around."""
+        wps = f.path.waypoints if waypoints is None else np.asarray(waypoints, dtype=float)
+        ahead = waypoints_ahead(wps, q)
+        at_end = np.allclose(q, ahead[-1], atol=1e-9)  # then it rests there
+        points = ahead[-1:] if at_end else np.vstack([q, ahead])
+        self.follower = PathFollower(points, f.limits, blend_distance=f.blend_distance)
 
     # -- checks ---------------------------------------------------------------------------------
 

@@ -30,8 +30,8 @@ from sara_app.geometry.shape_kernels import (
     sphere_slack_m,
 )
 from sara_app.human import reach_kernels
-from sara_app.human.reach_kernels import ACC, POS, STATIC, person_sets
-from sara_app.kernel_types import B1, F8, I8, RO, ROB3, ROI1, ROI2, WB2, WB3, W, source_digest
+from sara_app.human.reach_kernels import CONSTANTS, person_sets
+from sara_app.kernel_types import B1, RO, ROB3, ROI1, ROI2, WB2, WB3, W, source_digest
 
 __all__ = ["KIND_ARM", "model_verdicts", "ssm_kernel"]
 
@@ -43,8 +43,6 @@ HUMAN = types.Tuple((RO[3], RO[3], RO[2], RO[3], RO[1], RO[3]))
 extra radius per model (in the check's order) and body part; ``caps`` each part's height bound
 ``base + rate * tau`` (m, m/s; ``tau`` the time since the measurement; ``base = inf``: none) of
 legs the tracker does not measure (:mod:`sara_app.human.legs`)."""
-CONSTANTS = types.Tuple((STATIC, ACC, POS, types.UniTuple(F8, 2), I8))
-"""``(static, acc, pos, (delay_s, delta_y_m), n_limbs)``: ``HumanReach.kernel_constants``."""
 ARM = types.Tuple((RO[5], RO[3]))
 """The arm model's capsules per person ``(ends (H, Ke, C, 2, 3), radius (H, K, C))`` (empty
 when the check does not use it)."""

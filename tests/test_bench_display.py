@@ -1,0 +1,16 @@
+"""``sara-app bench``'s display stage runs on the shipped scenario and times both loads."""
+
+from __future__ import annotations
+
+import math
+
+from sara_app.bench.display import bench_rows
+
+
+def test_the_display_stage_times_one_and_sixteen_people() -> None:
+    rows = bench_rows(40)
+    assert [r[0] for r in rows] == [
+        "worker display message, 1 people",
+        "worker display message, 16 people",
+    ]
+    assert all(math.isfinite(med) and 0 < med <= p99 for _, med, p99, _ in rows)
