@@ -21,6 +21,7 @@ from sara_app.bus.heartbeat import Heartbeat
 from sara_app.bus.messages import ControllerStatusMsg, RobotCommandMsg, RobotStateMsg, VerdictMsg
 from sara_app.bus.session import Bus, free_port
 from sara_app.ops.supervisor import stop_processes
+from sara_app.peers.controller import position_on_stop
 from sara_app.processes.serve import WORKER_RT_PRIORITY, connect_when_listening
 from sara_app.scenario import load_scenario
 
@@ -408,3 +409,93 @@ def test_commands_are_still_taken_when_the_receiving_wait_fails(fault: str) -> N
     assert ctl.receiver_ended and said, "the status says the wait failed"
     assert ctl.delivery.received >= 0.9 * sent, (ctl.delivery.received, sent)
     assert following, "the robot braked while commands came every period"
+
+
+def test_a_command_whose_stop_disagrees_with_its_set_point_is_refused(caplog) -> None:
+    """The contract: a command's stop starts at its set point, one control period after its
+    stamp. A first stop sample 1 us after the stamp (it was reached in 1 us), at another period
+    (a worker on another scenario file: ten times this controller's), or 0.5 rad from the set
+    point (jumped to at 58x v_max): refused, counted and logged; the robot stays where it is.
+    Hostile-user probe 2026-12-01."""
+    from sara_app.peers.controller import Controller
+
+    sc = load_scenario("standing_beside_path")
+    port = free_port()
+    with Bus.router(port), Bus.client(port) as cbus:
+        ctl = Controller(CELL, sc, cbus)
+        q0, t, dt = ctl.q.copy(), time.time(), ctl.dt_s
+        ctl.tick(t, [_cmd(0, t - dt, q0.tolist(), dt)])  # where it stands: followed
+        assert ctl.command is not None and ctl.command.seq == 0
+        q1 = (q0 + np.r_[0.001, np.zeros(len(q0) - 1)]).tolist()
+        far = (q0 + np.r_[0.5, np.zeros(len(q0) - 1)]).tolist()
+        bad = [_cmd(1, t + 0.0001, q1, 1e-6), _cmd(2, t + 0.0002, q1, 10 * dt),
+               _cmd(3, t + 0.0003, q1, dt).model_copy(update={"failsafe_q": [far]})]  # fmt: skip
+        for k, cmd in enumerate(bad):
+            ctl.tick(t + 0.0005 * (k + 1), [cmd])
+            assert ctl.command.seq == 0, cmd.seq
+        assert ctl.delivery.refused == 3
+        ctl.tick(t + 0.01)
+        assert float(np.max(np.abs(ctl.q - q0))) <= 1e-12
+        ctl.tick(t + 0.011, [_cmd(4, t + 0.0105, q1, dt)])  # as the contract says: followed
+        assert ctl.command.seq == 4
+    text = " ".join(r.getMessage() for r in caplog.records)
+    assert "commands refused" in text and "not one period" in text
+
+
+def test_no_set_point_is_reached_faster_than_the_joint_speed_limit() -> None:
+    """Commands that come after their set point's time (a late delivery) or after the robot
+    braked on its own: each set point was reached 1 us after the robot's last point, up to
+    3.98x ``v_max`` in a live cell (robot channel probe, 2026-12-01). The robot now reaches it
+    at the joint speed limit, never faster, and catches up with the command's verified stop on
+    its schedule (shifting the stop by the delay left a killed worker's robot 0.5 mrad off its
+    verified stop for the whole braking: CI of stop 52); on-time commands keep their schedule."""
+    from sara_app.peers.controller import Controller
+
+    sc = load_scenario("standing_beside_path")
+    port = free_port()
+    with Bus.router(port), Bus.client(port) as cbus:
+        ctl = Controller(CELL, sc, cbus)
+        dt, q0, v_max = ctl.dt_s, ctl.q.copy(), ctl.v_max
+        step = 0.9 * v_max * dt  # a step at 0.9 v_max on every joint
+        t = time.time()
+        states: list[tuple[float, np.ndarray]] = []
+
+        def tick(now: float, cmds: list[RobotCommandMsg] | None = None) -> None:
+            ctl.tick(now, cmds)
+            if ctl.published_s == now:  # a state of the robot at that time
+                states.append((now, ctl.q.copy()))
+
+        def command(seq: int, q_set: np.ndarray) -> RobotCommandMsg:
+            # its stop: on along the path, braking (half a step in the period after the set point)
+            stop = [q_set.tolist(), (q_set + 0.5 * step).tolist(), (q_set + 0.6 * step).tolist()]
+            return RobotCommandMsg(
+                seq=seq, stamp_s=t + seq * dt, q=q_set.tolist(), q_dot=[0.0] * len(q0),
+                q_ddot=[0.0] * len(q0), mode="intended", valid_until_s=t + seq * dt + 0.010,
+                failsafe_t_s=[dt, 2 * dt, 3 * dt], failsafe_q=stop,
+            )  # fmt: skip
+
+        for k in range(10):  # on time: handed over 0.4 ms after their stamps
+            tick(t + (k + 0.1) * dt, [command(k, q0 + k * step)])
+            tick(t + (k + 0.6) * dt)
+        on_time = ctl.delivery.slowed
+        # one handed over 1.5 periods after its stamp: its set point's time has passed
+        k = 10
+        q_set = q0 + k * step
+        late = command(k, q_set)
+        t_hand = t + (k + 1.5) * dt
+        for i in range(40):
+            tick(t_hand + i * dt / 8, [late] if i == 0 else None)
+        slowed = ctl.delivery.slowed
+    times = np.array([s[0] for s in states])
+    qs = np.array([s[1] for s in states])
+    speed = np.abs(np.diff(qs, axis=0)) / np.diff(times)[:, None]
+    assert on_time == 0  # the schedule kept while commands come on time
+    assert slowed == 1
+    assert (speed <= v_max * (1 + 1e-9)).all(), (speed / v_max).max()
+    # set point reached 0.4 periods late; on the stop's schedule again within 0.5 periods more
+    t_stop, q_stop = late.stop_arrays()
+    back = times >= late.stamp_s + 2.5 * dt
+    assert back.sum() >= 3  # a state every period
+    on_stop = np.array([position_on_stop(t_stop, q_stop, t)[0] for t in times[back]])
+    np.testing.assert_allclose(qs[back], on_stop, atol=1e-12)
+    assert np.allclose(qs[-1], q_set + 0.6 * step)

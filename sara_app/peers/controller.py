@@ -72,6 +72,8 @@ class Delivery:
     late: int = 0
     expired: int = 0
     refused: int = 0
+    slowed: int = 0
+    """Set points reached after their time: at the joint speed limit, never faster."""
     braking_events: int = 0
     runs: int = 0
     last_seq: int = -1
@@ -102,6 +104,23 @@ def brake_cause(braked: RobotCommandMsg, nxt: RobotCommandMsg, tick_gap_s: float
     return "worker" if nxt.stamp_s >= braked.valid_until_s else "delivery"
 
 
+def stop_disagrees(cmd: RobotCommandMsg, dt_s: float) -> str | None:
+    """Why ``cmd``'s verified stop does not start where and when its set point is (the contract:
+    the first sample is the set point, one control period ``dt_s`` after the stamp), or None.
+    Such a command is not followed: a first sample 1 us after the stamp was reached in 1 us,
+    one 0.5 rad from the set point was jumped to (58x v_max); and a worker on another period
+    than this controller's (another scenario file) is a cell set up wrong (hostile-user probe
+    2026-12-01)."""
+    if not cmd.failsafe_t_s:
+        return None
+    if abs(cmd.failsafe_t_s[0] - dt_s) > 1e-9:
+        t0 = cmd.failsafe_t_s[0]
+        return f"its stop starts {t0:g} s after its stamp, not one period ({dt_s:g} s)"
+    if cmd.failsafe_q[0] != cmd.q:
+        return "its stop does not start at its set point"
+    return None
+
+
 class Controller:
     """One cell's reference controller. ``tick(now)`` is one control period."""
 
@@ -109,6 +128,8 @@ class Controller:
         self.cell = keys.check_name("cell", cell)
         self.dt_s = scenario.shield.dt_s
         self.tol_rad = scenario.shield.tracking_tol_rad
+        self.v_max = np.asarray(scenario.robot.load(margin=False).limits.v_max, dtype=float)
+        """The robot's joint speed limits (rad/s): no set point is reached faster."""
         self.q = np.asarray(scenario.task.waypoints_rad[0], dtype=float)
         self.v = np.zeros_like(self.q)
         self.command: RobotCommandMsg | None = None
@@ -120,7 +141,11 @@ class Controller:
         points not yet reached."""
         self.delivery = Delivery()
         self._expired_log = SummarisedWarning(log, "commands expired")
+        self._disagree_log = SummarisedWarning(log, "commands refused")
+        self._slowed_log = SummarisedWarning(log, "set points reached late")
         self._tick_s = -np.inf
+        self._applied_s = -np.inf
+        """When the robot's set point was last applied (the speed limit counts from it)."""
         self._braked: tuple[RobotCommandMsg, float] | None = None
         """The command that expired and the controller's loop gap then, until the next newer
         command tells why (:func:`brake_cause`)."""
@@ -130,7 +155,9 @@ class Controller:
         self.receiver_ended = False
         """The receiving thread of :meth:`run` ended before the stop; :meth:`_watch` reads."""
         # a stamp from the future would hold back every later command: refused (out_of_range)
-        self.decoder = Decoder(max_future_s=FUTURE_TOLERANCE_S)
+        # beyond one control period (a worker catching up after a late cycle stamps its
+        # commands a period apart, up to a period ahead of the clock: CellWorker.step)
+        self.decoder = Decoder(max_future_s=FUTURE_TOLERANCE_S + self.dt_s)
         self.sub = bus.subscribe(keys.robot_command_key(self.cell), self.decoder, capacity=64)
         self.pub = bus.publisher(keys.robot_state_key(self.cell))
         self.pub_status = bus.publisher(keys.controller_status_key(self.cell))
@@ -179,7 +206,7 @@ class Controller:
             self.publish(now)
             return
         if now <= self.points[-1][0]:
-            self._apply(*self._on_points(now))
+            self._apply(*self._on_points(now), now)
         else:  # past the set point without a newer command: on its verified stop, on schedule
             if now > self.command.valid_until_s and not self.braking:
                 self.delivery.braking_events += 1
@@ -187,7 +214,7 @@ class Controller:
                 self.braking = True
                 self._braked = (self.command, gap_s)
                 self._why_braked(received)  # newer ones that came expired this tick
-            self._apply(*position_on_stop(*self._stop, now))
+            self._apply(*position_on_stop(*self._stop, now), now)
         self.publish(now)
 
     def _follow(self, cmd: RobotCommandMsg, now: float) -> None:
@@ -204,10 +231,21 @@ class Controller:
             q_now, _ = self._on_points(now)
             ahead = [p for p in self.points if p[0] > now]
             self.points = [(now, q_now), *ahead]
-        t_to = max(cmd.stamp_s + self.dt_s, self.points[-1][0] + 1e-6)
-        self.points.append((t_to, np.asarray(cmd.q, dtype=float)))
+        t_from, q_from = self.points[-1]
+        q_to = np.asarray(cmd.q, dtype=float)
+        # never faster than the robot can: a command that came after its set point's time (or
+        # after braking) was reached in 1 us, up to 3.98x v_max over 0.5 ms in a live cell
+        # (robot channel probe, 2026-12-01); its stop stays on the verified schedule, which the
+        # robot catches up with at most v_max (_apply)
+        t_due = cmd.stamp_s + self.dt_s
+        t_to = max(t_due, t_from + float(np.max(np.abs(q_to - q_from) / self.v_max)), t_from + 1e-6)
+        late_s = t_to - t_due
+        self.points.append((t_to, q_to))
         self.command, self.braking = cmd, False
         self._stop = cmd.stop_arrays()  # followed many times: its arrays once
+        if late_s > 1e-6:
+            self.delivery.slowed += 1
+            self._slowed_log(f"set point {late_s * 1e3:.3f} ms after its time (joint speed limit)")
 
     def _acceptable(self, cmd: RobotCommandMsg, now: float) -> bool:
         """A command is followed while valid; before the first one and once the robot brakes on
@@ -215,6 +253,11 @@ class Controller:
         stands (the worker re-anchored on the measured state)."""
         if self.command is not None and cmd.stamp_s <= self.command.stamp_s:
             return False  # not newer than the one followed (by time: seq restarts per run)
+        why = stop_disagrees(cmd, self.dt_s)
+        if why is not None:
+            self._disagree_log(why)
+            self.delivery.refused += 1
+            return False
         if self.command is not None and not self.braking and now <= cmd.valid_until_s:
             return True
         # braking on its own, or no command followed yet (a controller that just started: the
@@ -235,9 +278,22 @@ class Controller:
         slope = (q1 - q0) / (t1 - t0)
         return q0 + slope * (max(t_s, t0) - t0), slope
 
-    def _apply(self, q: np.ndarray, v: np.ndarray) -> None:
-        """The robot's set point (an ideal robot: reached at once)."""
-        self.q, self.v = q, v
+    def _apply(self, q: np.ndarray, v: np.ndarray, now: float) -> None:
+        """The robot's set point at ``now`` (an ideal robot: reached at once), but never faster
+        than ``v_max``: a robot behind the verified schedule (a set point reached late) moves
+        straight towards it at the joint speed limit, so it keeps to the schedule's path and is
+        back on the schedule as soon as the schedule slows (a verified stop always does). Shifting
+        the stop by the delay instead left the robot off its verified stop for the whole braking
+        (CI of stop 52: 0.5 mrad off a killed worker's stop)."""
+        step = q - self.q
+        elapsed_s = now - self._applied_s
+        if elapsed_s <= 0.0:  # no time passed: the robot has not moved
+            q, v = self.q, self.v
+            step = np.zeros_like(q)
+        over = float(np.max(np.abs(step) / (self.v_max * elapsed_s))) if elapsed_s > 0 else 0.0
+        if over > 1.0:
+            q, v = self.q + step / over, step / (over * elapsed_s)
+        self.q, self.v, self._applied_s = q, v, now
 
     def publish(self, now: float) -> None:
         self.published_s = now
