@@ -376,6 +376,33 @@ def test_a_stale_or_malformed_robot_state_faults_and_recovers(tmp_path: Path) ->
             assert vs[-1].mode == "rest" and not vs[-1].faults
 
 
+def test_a_robot_at_rest_outside_its_joint_limits_is_a_fault_not_a_plan(tmp_path: Path) -> None:
+    """A controller that starts (a stream not yet bound) reporting its robot at rest beyond a
+    joint limit: the worker re-anchored on it, the follower raised in every cycle and each cycle
+    was a 'cycle failed' fault with a traceback in the log. Now it is a fault that names the
+    joint and its limits; nothing is planned from there, and nothing moves."""
+    data = load_scenario("standing_beside_path").model_dump(mode="json")
+    data["task"]["waypoints_rad"] = data["task"]["waypoints_rad"][:1]
+    q_max = load_scenario("standing_beside_path").robot.load().limits.q_max
+    q = list(data["task"]["waypoints_rad"][0])
+    q[0] = float(q_max[0]) + 0.1
+    for c in _start(tmp_path, task=data["task"]):
+        pub = c.bus.publisher(keys.robot_state_key(CELL))
+
+        def state(pub: Any = pub) -> None:
+            pub.put(RobotStateMsg(seq=pub.next_seq(), stamp_s=time.time(), q=q,
+                                  q_dot=[0.0] * len(q)))  # fmt: skip
+
+        with Heartbeat(c.bus, CELL):
+            vs, cs = c.collect(1.5, every=state)
+    assert len(vs) > 100
+    assert not any("cycle failed" in f for v in vs for f in v.faults), vs[-1].faults
+    last = vs[-1]
+    assert last.mode == "fault"
+    assert any("outside its joint limits" in f and "joint 0" in f for f in last.faults)
+    assert not any(c.mode == "intended" for c in cs) and _moving(cs) == 0.0
+
+
 BIG_PUT = """
 import json, sys, time, zenoh
 port, key, mb = sys.argv[1], sys.argv[2], int(sys.argv[3])

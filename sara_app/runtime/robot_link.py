@@ -80,6 +80,16 @@ def decoder(n_dof: int) -> Decoder:
     return Decoder(max_future_s=FUTURE_TOLERANCE_S, check=check)  # its restarts: 1 s
 
 
+def outside_limits(q: np.ndarray, q_min: np.ndarray, q_max: np.ndarray) -> str | None:
+    """The first joint of ``q (n,)`` outside ``q_min``/``q_max (n,)`` (rad), its position and
+    its limits, or None: no plan starts from there (the robot model refuses it)."""
+    out = np.flatnonzero(~((q >= q_min) & (q <= q_max)))  # NaN too
+    if not out.size:
+        return None
+    j = int(out[0])
+    return f"joint {j} at {q[j]:.4f} rad is outside its limits [{q_min[j]:.4f}, {q_max[j]:.4f}] rad"
+
+
 class MeasuredRobot:
     """The newest ``robot/state`` and its faults (once a controller has spoken, a state older
     than the timeout, a refused one or one that tracks the commands worse than the tolerance is
@@ -214,14 +224,7 @@ class MeasuredRobot:
                 f"the controller reports the robot at [{said}] rad, {off:.4f} rad from the "
                 f"position confirmed (tolerance {tol_rad} rad)"
             )
-        out = np.flatnonzero((s.q < q_min) | (s.q > q_max))
-        if out.size:
-            j = int(out[0])
-            return (
-                f"joint {j} at {s.q[j]:.4f} rad is outside its limits "
-                f"[{q_min[j]:.4f}, {q_max[j]:.4f}] rad"
-            )
-        return None
+        return outside_limits(s.q, q_min, q_max)
 
     def _evidence(self, now_s: float, timeout_s: float) -> str | None:
         """Why the states are not evidence enough to plan from where they say the robot is

@@ -53,7 +53,7 @@ from sara_app.runtime.edits import (
 from sara_app.runtime.messages import CycleMessages
 from sara_app.runtime.people import People
 from sara_app.runtime.presence import Presence
-from sara_app.runtime.robot_link import MeasuredRobot
+from sara_app.runtime.robot_link import MeasuredRobot, outside_limits
 from sara_app.safety.shield import CycleResult, Shield
 from sara_app.scenario import Scenario
 
@@ -279,8 +279,7 @@ class CellWorker:
             problems.append(f"input handling failed: {e!r}"[:200])
         sc = self.cell.scenario
         try:
-            self._reanchor(now)
-            robot = self.robot_in.faults(
+            robot = self._reanchor(now) + self.robot_in.faults(
                 now, sc.inputs.robot_state_timeout_s, sc.shield.tracking_tol_rad
             )
             faults = self.presence.faults(now) + self.presence.conformance() + robot + problems
@@ -299,19 +298,27 @@ class CellWorker:
         self.loop_us.append((time.perf_counter_ns() - t0_ns) / 1e3)
         return res
 
-    def _reanchor(self, now: float) -> None:
+    def _reanchor(self, now: float) -> list[str]:
         """A robot at rest where the follower is not (a restarted worker; a controller that
         braked on its own while the worker hung): when the follower rests too, start it from
-        the measured position (towards its path's end), so commands continue from there."""
+        the measured position (towards its path's end), so commands continue from there.
+        Returns the cycle's fault when the robot rests outside its joint limits: no plan
+        starts there (restarting raised in every cycle, a traceback each time)."""
         tol = self.cell.scenario.shield.tracking_tol_rad
         q_meas = None if self.robot_in.state is None else self.robot_in.state.q
         if q_meas is None or not self.shield.at_rest:
-            return
+            return []
         timeout = self.cell.scenario.inputs.robot_state_timeout_s
-        if self.robot_in.at_rest_elsewhere(self.shield.robot_state.q, now, timeout, tol):
-            self.shield.restart_from(q_meas)
-            self.robot_in.commanded.clear()
-            self._reanchored_log("follower re-anchored at the measured state")
+        if not self.robot_in.at_rest_elsewhere(self.shield.robot_state.q, now, timeout, tol):
+            return []
+        lim = self.cell.robot.limits
+        why = outside_limits(q_meas, lim.q_min, lim.q_max)
+        if why is not None:
+            return [f"robot at rest outside its joint limits, not planned from there: {why}"]
+        self.shield.restart_from(q_meas)
+        self.robot_in.commanded.clear()
+        self._reanchored_log("follower re-anchored at the measured state")
+        return []
 
     def _fault_cycle(self, now: float, why: str) -> CycleResult:
         """A cycle that failed outside the shield's own fault handling: brake on the held
