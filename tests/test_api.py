@@ -26,6 +26,8 @@ with warnings.catch_warnings():  # starlette prefers httpx2 for its test client;
     warnings.filterwarnings("ignore", message=".*httpx.*deprecated")
     from fastapi.testclient import TestClient
 
+from waiting import wait_until as _wait_until
+
 from sara_app.api import ApiServer, ApiServerError, CellRegistry, create_app
 from sara_app.api.app import merge_sections
 from sara_app.api.jobs import LABEL_CHARS, whatif_label
@@ -447,16 +449,6 @@ class FakeWorker:
         self._stop.set()
         self._thread.join(timeout=2)
         self.bus.close()
-
-
-def _wait_until(fn: Any, timeout_s: float = 10.0) -> Any:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        got = fn()
-        if got:
-            return got
-        time.sleep(0.05)
-    raise AssertionError("condition not met in time")
 
 
 def test_live_cell_and_scenario_round_trip(folder: Path) -> None:

@@ -14,6 +14,7 @@ with warnings.catch_warnings():
     warnings.filterwarnings("ignore", message=".*httpx.*deprecated")
     from fastapi.testclient import TestClient
 
+from waiting import wait_until as _until
 from worker_thread import running_worker
 
 from sara_app.api import CellRegistry, create_app
@@ -24,13 +25,6 @@ from sara_app.scenario import load_scenario, scenarios_dir
 
 CELL = "retire1"
 TOKEN = "t" * 24
-
-
-def _until(pred, seconds: float = 10.0) -> None:
-    t_end = time.monotonic() + seconds
-    while not pred():
-        assert time.monotonic() < t_end, "timed out"
-        time.sleep(0.02)
 
 
 def test_retire_forgets_a_ghost_and_every_request_is_audited(tmp_path: Path) -> None:

@@ -12,6 +12,7 @@ import threading
 import time
 import warnings
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -19,6 +20,7 @@ with warnings.catch_warnings():
     warnings.filterwarnings("ignore", message=".*httpx.*deprecated")
     from fastapi.testclient import TestClient
 
+from waiting import wait_until
 from worker_thread import running_worker
 
 from sara_app.api import CellRegistry, create_app
@@ -28,16 +30,14 @@ from sara_app.ops.audit import AuditLog
 from sara_app.peers.controller import Controller
 from sara_app.scenario import load_scenario, scenarios_dir
 
+
+def _until(pred: Any, timeout_s: float = 20.0, what: str = "the condition") -> Any:
+    return wait_until(pred, timeout_s, what)
+
+
 CELL = "replan1"
 TOKEN = "r" * 24
 LONG = "s" * 24  # a token whose user's name is longer than a bus message's user may be
-
-
-def _until(pred, seconds: float = 20.0, what: str = "") -> None:
-    t_end = time.monotonic() + seconds
-    while not pred():
-        assert time.monotonic() < t_end, f"timed out: {what}"
-        time.sleep(0.02)
 
 
 def test_replan_after_a_hand_move_and_every_request_audited(tmp_path: Path) -> None:

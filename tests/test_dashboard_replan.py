@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import shutil
 import threading
-import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+from waiting import wait_until
 from worker_thread import running_worker
 
 from sara_app.bus.heartbeat import Heartbeat
@@ -24,14 +25,12 @@ from sara_app.peers.controller import Controller
 from sara_app.runtime.robot_link import REPLAN_STILL_S
 from sara_app.scenario import load_scenario, scenarios_dir
 
+
+def _until(pred: Any, timeout_s: float = 20.0, what: str = "the condition") -> Any:
+    return wait_until(pred, timeout_s, what)
+
+
 CELL = "dashreplan"
-
-
-def _until(pred, seconds: float = 20.0, what: str = "") -> None:
-    t_end = time.monotonic() + seconds
-    while not pred():
-        assert time.monotonic() < t_end, f"timed out: {what}"
-        time.sleep(0.02)
 
 
 def test_the_status_tabs_replan_sends_the_position_it_shows(tmp_path: Path) -> None:

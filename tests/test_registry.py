@@ -9,6 +9,8 @@ from __future__ import annotations
 import time
 from contextlib import closing
 
+from waiting import wait_until as _until
+
 from sara_app.api.registry import CellRegistry, Silence
 from sara_app.bus import keys
 from sara_app.bus.messages import ControllerStatusMsg, VerdictMsg
@@ -28,16 +30,6 @@ def _controller(seq: int, stamp_s: float) -> ControllerStatusMsg:
         commands_late=0, commands_expired=0, commands_refused=0, braking_events=0,
         worker_runs=1, braking=False,
     )  # fmt: skip
-
-
-def _until(fn, timeout_s: float = 10.0):  # type: ignore[no-untyped-def]
-    t_end = time.monotonic() + timeout_s
-    while time.monotonic() < t_end:
-        got = fn()
-        if got:
-            return got
-        time.sleep(0.02)
-    raise AssertionError("condition not met in time")
 
 
 def _polled(reg: CellRegistry) -> Silence | None:

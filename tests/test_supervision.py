@@ -17,6 +17,7 @@ import urllib.request
 from typing import Any
 
 from test_serve import _child_pids
+from waiting import wait_until
 
 from sara_app.bus import keys
 from sara_app.bus.access import Credentials, client_auth
@@ -30,17 +31,8 @@ def _api(port: int, path: str) -> Any:
         return json.loads(r.read())
 
 
-def _until(pred, seconds: float, what: str) -> Any:
-    t_end = time.monotonic() + seconds
-    while time.monotonic() < t_end:
-        try:
-            got = pred()
-        except OSError:
-            got = None
-        if got:
-            return got
-        time.sleep(0.1)
-    raise AssertionError(f"timed out: {what}")
+def _until(pred: Any, seconds: float, what: str) -> Any:
+    return wait_until(pred, seconds, what, every_s=0.1, tolerate=(OSError,))
 
 
 def test_serve_supervises_its_worker_and_leaves_nothing_behind() -> None:
