@@ -281,8 +281,9 @@ class Controller:
     def _apply(self, q: np.ndarray, v: np.ndarray, now: float) -> None:
         """The robot's set point at ``now`` (an ideal robot: reached at once), but never faster
         than ``v_max``: a robot behind the verified schedule (a set point reached late) moves
-        straight towards it at the joint speed limit, so it keeps to the schedule's path and is
-        back on the schedule as soon as the schedule slows (a verified stop always does). Shifting
+        straight towards the scheduled position at the joint speed limit (along the path where
+        the path is straight) and is back on the schedule once the schedule slows enough (a
+        verified stop always comes to rest). Shifting
         the stop by the delay instead left the robot off its verified stop for the whole braking
         (CI of stop 52: 0.5 mrad off a killed worker's stop)."""
         step = q - self.q
