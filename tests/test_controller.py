@@ -486,6 +486,13 @@ def test_no_set_point_is_reached_faster_than_the_joint_speed_limit() -> None:
         for i in range(40):
             tick(t_hand + i * dt / 8, [late] if i == 0 else None)
         slowed = ctl.delivery.slowed
+        # a late command whose set point is where the robot already stands is not late (every
+        # cell's first command was logged "reached late" at start)
+        stood = ctl.q.copy()
+        t_late = t_hand + 6 * dt
+        ctl.tick(t_late, [_cmd(50, t_late - 1.5 * dt, stood.tolist(), dt)])
+        assert ctl.command is not None and ctl.command.seq == 50
+        assert ctl.delivery.slowed == slowed
     times = np.array([s[0] for s in states])
     qs = np.array([s[1] for s in states])
     speed = np.abs(np.diff(qs, axis=0)) / np.diff(times)[:, None]

@@ -238,8 +238,11 @@ class Controller:
         # (robot channel probe, 2026-12-01); its stop stays on the verified schedule, which the
         # robot catches up with at most v_max (_apply)
         t_due = cmd.stamp_s + self.dt_s
-        t_to = max(t_due, t_from + float(np.max(np.abs(q_to - q_from) / self.v_max)), t_from + 1e-6)
-        late_s = t_to - t_due
+        t_reached = t_from + float(np.max(np.abs(q_to - q_from) / self.v_max))
+        t_to = max(t_due, t_reached, t_from + 1e-6)
+        # late by the speed limit only (every cell's first command, where the robot stands,
+        # was logged as reached late)
+        late_s = t_to - t_due if t_reached > max(t_due, t_from + 1e-6) else 0.0
         self.points.append((t_to, q_to))
         self.command, self.braking = cmd, False
         self._stop = cmd.stop_arrays()  # followed many times: its arrays once
