@@ -286,15 +286,15 @@ class Controller:
         than ``v_max``: a robot behind the verified schedule (a set point reached late) moves
         straight towards the scheduled position at the joint speed limit (along the path where
         the path is straight) and is back on the schedule once the schedule slows enough (a
-        verified stop always comes to rest). Shifting
-        the stop by the delay instead left the robot off its verified stop for the whole braking
-        (CI of stop 52: 0.5 mrad off a killed worker's stop)."""
-        step = q - self.q
+        verified stop always comes to rest). Shifting the stop by the delay instead left the
+        robot off its verified stop for the whole braking (CI of stop 52: 0.5 mrad off a killed
+        worker's stop)."""
         elapsed_s = now - self._applied_s
         if elapsed_s <= 0.0:  # no time passed: the robot has not moved
-            q, v = self.q, self.v
-            step = np.zeros_like(q)
-        over = float(np.max(np.abs(step) / (self.v_max * elapsed_s))) if elapsed_s > 0 else 0.0
+            self._applied_s = now
+            return
+        step = q - self.q
+        over = float(np.max(np.abs(step) / (self.v_max * elapsed_s)))
         if over > 1.0:
             q, v = self.q + step / over, step / (over * elapsed_s)
         self.q, self.v, self._applied_s = q, v, now

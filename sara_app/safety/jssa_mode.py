@@ -61,7 +61,7 @@ import time
 
 import numpy as np
 
-from sara_app.errors import ParameterError, SaraError
+from sara_app.errors import SaraError
 from sara_app.human.reach import MODELS, HumanReach
 from sara_app.robot.model import RobotModel
 from sara_app.robot.trajectory import JointState, PathFollower
@@ -173,9 +173,7 @@ class JssaMode(Shield):
         """The measured robot rests at ``q``: the reference (through the waypoints ahead, as
         :meth:`Shield.restart_from`) and the robot state restart there. Raises
         :class:`ParameterError` unless at rest."""
-        if not self.at_rest:
-            raise ParameterError("the follower can restart from a measured state only at rest")
-        self._start_at(self.follower, np.asarray(q, dtype=float), waypoints)
+        super().restart_from(q, waypoints)
         self._q = np.asarray(q, dtype=float).copy()
         self._v, self._a = np.zeros_like(self._q), np.zeros_like(self._q)
 
