@@ -51,7 +51,7 @@ def test_there_is_an_example_of_every_kind() -> None:
 
 
 CURRENT_VERSIONS = {
-    "verdict": 4, "robot_command": 2, "occupancy": 2,
+    "verdict": 4, "robot_command": 2, "occupancy": 3,
     "params": 2, "status": 2, "controller_status": 2,  # fields added, 2026-11-30
 }  # fmt: skip
 """The contract's version of each kind not at 1 (CONTRACT.md, "Every message has")."""

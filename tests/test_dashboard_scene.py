@@ -371,3 +371,31 @@ def test_the_legs_bound_is_drawn_at_its_height_with_the_effective_set(dash: Dash
     assert not b.visible
     scene.set_visible("effective", True)
     assert b.visible
+
+
+def test_capsules_with_a_cut_are_drawn_cut_and_the_rest_whole(dash: Dashboard) -> None:
+    """A person whose leg capsules carry a cut: those capsules leave the instanced group and
+    are drawn as one mesh that stays below each one's cut; the others stay instanced. Hidden
+    with their set; bad cut shapes and NaN cuts are refused like bad capsules."""
+    scene = dash.scene
+    assert scene is not None
+    frame = demo_frame(5.0)
+    h = frame.humans[0]
+    ends, radius = h.models["effective"]
+    cut = np.full(radius.shape, np.inf)
+    cut[:4] = ends[:4, :, 2].mean(axis=1)  # through the middle of the first four
+    h.cuts = {"effective": cut}
+    assert dash.update(frame)
+    mesh = scene.cut_models["effective"]
+    assert scene.models["effective"].count == len(radius) - 4 and mesh.count == 4
+    v = mesh.vertices
+    assert len(v) and v[:, 2].max() <= cut[:4].max() + 1e-6
+    assert not len(scene.cut_models["pos"].vertices)  # no cut there: nothing drawn
+    scene.set_visible("effective", False)
+    assert not mesh.visible and not len(mesh.vertices)
+    scene.set_visible("effective", True)
+    assert dash.update(frame)
+    assert len(mesh.vertices)
+    for bad in (np.full(3, 1.0), np.where(np.arange(len(radius)) < 1, np.nan, np.inf)):
+        h.cuts = {"effective": bad}
+        assert not dash.update(frame)

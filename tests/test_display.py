@@ -165,6 +165,55 @@ def test_the_occupancy_carries_the_bound_of_unmeasured_legs() -> None:
     assert decode("sara/cell1/occupancy", encode(occ)).msg == occ
 
 
+def test_the_legs_capsules_carry_the_cut_the_check_uses() -> None:
+    """An upper-body person at a bench (legs bounded in height): every model's capsule that
+    holds a leg part is cut at the highest bound of the parts it holds, at the end of the
+    horizon shown, and a capsule holding any unbounded part is whole (oracle: a loop over the
+    parts); the effective set's capsule of each part is cut at that part's bound. A full-body
+    person's capsules carry no cut."""
+    from sara_app.cell.build import build_cell
+    from sara_app.cell.intake import take_measurement, track_for
+    from sara_app.dashboard.frame import DisplayFrame
+    from sara_app.dashboard.from_messages import occupancy_into
+    from sara_app.human.scripted import joints, standing
+    from sara_app.runtime.display import occupancy_msg
+    from sara_app.scenario import load_scenario
+
+    cell = build_cell(load_scenario("bench_handover_upper"))
+    y = joints(standing((1.2, 0.9), 3.0))
+    tracks = [track_for(cell, "upper"), track_for(cell, "full")]
+    for tr, legs in zip(tracks, (False, True), strict=True):
+        assert take_measurement(cell, tr, 10.0, y, legs_measured=legs) is None
+    res = cell.shield.cycle(10.01, [tr.state for tr in tracks])
+    seq = iter(range(10))
+    occ = occupancy_msg(cell, tracks, res, 10.01, lambda: next(seq), lambda *a: None)
+    upper, full = occ.humans
+    caps = tracks[0].state.leg_cap
+    assert caps is not None
+    tau = 0.01 + (0.0 if res.trajectory is None else res.trajectory.duration_s)
+    part_z = caps[:, 0] + caps[:, 1] * tau  # (P,), inf where unbounded
+    assert np.isfinite(part_z).sum() == 6  # thighs, shins, feet
+    maps = dict(zip(cell.shield.verifier.models, cell.shield.verifier.part_maps, strict=True))
+    cut_somewhere = False
+    for name, msg in upper.models.items():
+        got = msg.cuts()
+        if name == "effective":
+            np.testing.assert_allclose(got, part_z)
+            continue
+        for c in range(len(msg.radius_m)):
+            parts = [p for p, m in enumerate(maps[name]) if m == c]
+            want = max(part_z[p] for p in parts) if parts else np.inf
+            assert got[c] == pytest.approx(want), (name, c)
+            cut_somewhere |= bool(np.isfinite(got[c]))
+    assert cut_somewhere
+    assert all(m.below_m is None for m in full.models.values())
+    assert decode("sara/cell1/occupancy", encode(occ)).msg == occ
+    frame = DisplayFrame(t_s=0.0, q=np.zeros(7))
+    occupancy_into(frame, occ)  # what the dashboard draws
+    np.testing.assert_allclose(frame.humans[0].cuts["effective"], part_z)
+    assert frame.humans[1].cuts == {}
+
+
 def test_the_occupancy_of_many_people_is_each_persons_sets_as_verified() -> None:
     """Six people measured at different times, with and without widening (one with a model
     widened to infinity): the message built for all of them at once holds, per person, what

@@ -371,12 +371,15 @@ class VerdictMsg(_Msg):
 
 
 class CapsulesMsg(BaseModel):
-    """Flat capsules: ``ends_m`` is ``(C, 2, 3)`` flattened, ``radius_m`` is ``(C,)``."""
+    """Flat capsules: ``ends_m`` is ``(C, 2, 3)`` flattened, ``radius_m`` is ``(C,)``;
+    ``below_m`` (``(C,)`` or None): the world height each capsule is cut at, the set being the
+    capsule's part at or below it (None entries, or no list: the whole capsule)."""
 
     model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
 
     ends_m: list[Finite]
     radius_m: list[NonNeg]
+    below_m: list[Finite | None] | None = None
 
     @model_validator(mode="after")
     def _lengths(self) -> CapsulesMsg:
@@ -385,19 +388,40 @@ class CapsulesMsg(BaseModel):
                 "inconsistent_length",
                 f"ends_m has {len(self.ends_m)} numbers; expected 6 * {len(self.radius_m)}",
             )
+        if self.below_m is not None and len(self.below_m) != len(self.radius_m):
+            raise _fail(
+                "inconsistent_length",
+                f"below_m has {len(self.below_m)} entries; expected {len(self.radius_m)} (one "
+                "per capsule) or none",
+            )
         return self
 
     @classmethod
-    def from_arrays(cls, ends_m: np.ndarray, radius_m: np.ndarray) -> CapsulesMsg:
-        """From ``(..., 2, 3)`` ends and ``(...)`` radii (flattened in C order)."""
+    def from_arrays(
+        cls, ends_m: np.ndarray, radius_m: np.ndarray, below_m: np.ndarray | None = None
+    ) -> CapsulesMsg:
+        """From ``(..., 2, 3)`` ends, ``(...)`` radii and cut heights (flattened in C order;
+        ``inf``: uncut; no list when no capsule is cut)."""
+        below = None
+        if below_m is not None:
+            z = np.asarray(below_m, float).ravel()
+            if np.isfinite(z).any():
+                below = [float(x) if np.isfinite(x) else None for x in z.tolist()]
         return cls(
             ends_m=np.asarray(ends_m, float).ravel().tolist(),
             radius_m=np.asarray(radius_m, float).ravel().tolist(),
+            below_m=below,
         )
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray]:
         """``(C, 2, 3)`` ends and ``(C,)`` radii."""
         return np.asarray(self.ends_m).reshape(-1, 2, 3), np.asarray(self.radius_m)
+
+    def cuts(self) -> np.ndarray:
+        """``(C,)`` the cut heights, ``inf`` where a capsule is whole."""
+        if self.below_m is None:
+            return np.full(len(self.radius_m), np.inf)
+        return np.array([np.inf if z is None else z for z in self.below_m], dtype=float)
 
 
 class HumanOccupancyMsg(BaseModel):
@@ -411,8 +435,8 @@ class HumanOccupancyMsg(BaseModel):
     models: dict[str, CapsulesMsg] = {}
     legs_below_m: Finite | None = None
     """World height (m) the legs of a person whose tracker does not measure them stay below
-    over the displayed horizon, where the parameter set bounds them (their models' capsules
-    are not cut by it); None: no bound."""
+    over the displayed horizon, where the parameter set bounds them (the highest of their
+    parts' bounds; each model's capsules carry their own cuts, ``below_m``); None: no bound."""
 
     @model_validator(mode="after")
     def _lengths(self) -> HumanOccupancyMsg:
@@ -503,10 +527,10 @@ class JssaMsg(BaseModel):
 
 
 class OccupancyMsg(_Msg):
-    """Display occupancies, about 10-20 Hz (key ``sara/<cell>/occupancy``), schema version 2
-    (a human's ``legs_below_m``)."""
+    """Display occupancies, about 10-20 Hz (key ``sara/<cell>/occupancy``), schema version 3
+    (version 2: a human's ``legs_below_m``; 3: the capsules' cuts, ``below_m``)."""
 
-    schema_version: Literal[2] = 2  # type: ignore[assignment]
+    schema_version: Literal[3] = 3  # type: ignore[assignment]
     humans: list[HumanOccupancyMsg] = []
     robot: RobotOccupancyMsg | None = None
     contacts: list[ContactMsg] = []

@@ -30,7 +30,9 @@ class HumanDisplay:
     ``joint_positions (J, 3)`` (NaN rows for missing joints are skipped), ``bone_pairs (B, 2)``
     int indices into the joints, ``models``: model name (one of :data:`MODEL_NAMES`) to
     ``(ends (C, 2, 3), radius (C,))`` reachable capsules over the whole horizon;
-    ``legs_below_m``: the height unmeasured legs stay below over it (None: no bound).
+    ``legs_below_m``: the height unmeasured legs stay below over it (None: no bound);
+    ``cuts``: model name to ``(C,)`` the height each of its capsules is cut at (the set is the
+    capsule's part at or below it; ``inf``: whole; a model not listed: all whole).
     """
 
     id: str
@@ -38,6 +40,7 @@ class HumanDisplay:
     bone_pairs: np.ndarray
     models: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     legs_below_m: float | None = None
+    cuts: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 @dataclass

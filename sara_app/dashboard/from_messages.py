@@ -151,7 +151,8 @@ def occupancy_into(frame: DisplayFrame, occ: OccupancyMsg) -> None:
     for h in occ.humans:
         models = {name: caps.arrays() for name, caps in h.models.items()}
         y = np.asarray(h.joints_m).reshape(-1, 3)
-        frame.humans.append(HumanDisplay(h.id, y, BONES, models, h.legs_below_m))
+        cuts = {name: caps.cuts() for name, caps in h.models.items() if caps.below_m}
+        frame.humans.append(HumanDisplay(h.id, y, BONES, models, h.legs_below_m, cuts))
     if occ.robot is not None:
         r = occ.robot
         e, rad = r.capsules.arrays()

@@ -83,7 +83,8 @@ LEGEND_MD = (
         )
     )
     + "<br/>**Human sets** (by default each person's effective set, what the verdict uses; the "
-    "models' own sets on demand under View (this browser)): "
+    "models' own sets on demand under View (this browser); the sets of legs the tracker does "
+    "not measure end flat at their height bound, where the check cuts them): "
     + ", ".join(_swatch(MODEL_COLORS[m], m) for m in MODEL_NAMES)
     + "<br/>**JSSA critical pair** (robot point to human point): "
     + ", ".join(

@@ -3,7 +3,9 @@
 Every part that can be shown or hidden lives under its own frame ``/view/<name>`` (``name`` one
 of :data:`VIEW_NAMES`): ``/view/robot/base`` (URDF via :class:`viser.extras.ViserUrdf`),
 ``/view/skeletons/bones`` (line segments) and ``/view/skeletons/joints`` (points),
-``/view/<model>/capsules`` (one translucent capsule group per set of :data:`MODEL_NAMES`),
+``/view/<model>/capsules`` (one translucent capsule group per set of :data:`MODEL_NAMES`) and
+``/view/<model>/cut`` (its capsules cut by a height bound, one mesh:
+:mod:`sara_app.dashboard.cut_capsules`),
 ``/view/occupancy/capsules`` (robot capsules in the verdict colour) and
 ``/view/occupancy_contact/capsules`` (the same, coloured by contact class),
 ``/view/boxes/batch`` (batched unit boxes), ``/view/contacts/capsules`` (the body parts in
@@ -29,6 +31,7 @@ from sara_app.dashboard.capsules import (
     rotation_to_wxyz,
     unit_box,
 )
+from sara_app.dashboard.cut_capsules import CutCapsules
 from sara_app.dashboard.frame import (
     CONTACT_ENV,
     CONTACT_SELF,
@@ -232,6 +235,10 @@ class CellScene:
             m: CapsuleGroup(server, f"{view_node(m)}/capsules", HUMAN_OPACITY, 16, MODEL_COLORS[m])
             for m in MODEL_NAMES
         }
+        self.cut_models = {
+            m: CutCapsules(server, f"{view_node(m)}/cut", HUMAN_OPACITY, MODEL_COLORS[m])
+            for m in MODEL_NAMES
+        }
         self.occupancy = CapsuleGroup(server, "/view/occupancy/capsules", ROBOT_OPACITY, 64)
         self.occupancy_contact = CapsuleGroup(
             server, "/view/occupancy_contact/capsules", ROBOT_OPACITY, 64
@@ -263,6 +270,7 @@ class CellScene:
         layer (one of :data:`LAYERS`): a part no browser shows is hidden and not sent."""
         if name in self.models:
             self.models[name].visible = visible
+            self.cut_models[name].visible = visible
             if name == EFFECTIVE:
                 self.legs_bound.visible = visible
         elif name in LAYERS:
@@ -302,8 +310,10 @@ class CellScene:
         with self.server.atomic():
             self._update_robot(q)
             self._update_skeletons(seg, joints)
-            for name, (ends, radius) in models.items():
-                self.models[name].set(ends, radius)
+            for name, (ends, radius, below) in models.items():
+                cut = np.isfinite(below)
+                self.models[name].set(ends[~cut], radius[~cut])
+                self.cut_models[name].set(ends[cut], radius[cut], below[cut])
             self._update_legs_bound(legs)
             self.occupancy.set(*occ[:2], occ[2])
             self.occupancy_contact.set(*occ[:2], occ[3])
@@ -323,22 +333,28 @@ class CellScene:
 
     def _model_capsules(
         self, humans: list[HumanDisplay]
-    ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-        """Per model: all humans' capsules concatenated, ``(C, 2, 3)`` and ``(C,)``."""
+    ) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Per model: all humans' capsules concatenated, ``(C, 2, 3)`` and ``(C,)``, and the
+        height each is cut at ``(C,)`` (``inf``: whole)."""
         for h in humans:
-            for m in h.models:
+            for m in (*h.models, *h.cuts):
                 if m not in self.models:
                     raise UnknownNameError("human model", m, MODEL_NAMES)
         out = {}
         for name in self.models:
-            pieces = [capsule_arrays(*h.models[name]) for h in humans if name in h.models]
-            if pieces:
-                out[name] = (
-                    np.concatenate([p[0] for p in pieces]),
-                    np.concatenate([p[1] for p in pieces]),
-                )
-            else:
-                out[name] = (np.zeros((0, 2, 3)), np.zeros(0))
+            ends, radius, below = [np.zeros((0, 2, 3))], [np.zeros(0)], [np.zeros(0)]
+            for h in (h for h in humans if name in h.models):
+                e, r = capsule_arrays(*h.models[name])
+                z = np.asarray(h.cuts.get(name, np.full(r.shape, np.inf)), dtype=float)
+                if z.shape != r.shape or np.isnan(z).any():
+                    raise InputError(
+                        f"human {h.id!r}: {name} cut heights have shape {z.shape} (NaN: "
+                        f"{bool(np.isnan(z).any())}); expected {r.shape}, no NaN"
+                    )
+                ends.append(e)
+                radius.append(r)
+                below.append(z)
+            out[name] = (np.concatenate(ends), np.concatenate(radius), np.concatenate(below))
         return out
 
     def _occupancy(

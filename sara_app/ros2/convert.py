@@ -97,7 +97,9 @@ def _capsule_markers(
 
 
 def occupancy_markers(occ: OccupancyMsg, frame_id: str) -> dict[str, Any]:
-    """The MarkerArray of one occupancy message."""
+    """The MarkerArray of one occupancy message. Capsules are drawn whole: a capsule's cut
+    (``below_m``, legs bounded in height) is not drawn (RViz has no cut capsule marker), so a
+    cut set shows larger than the check uses, never smaller."""
     base = {"header": header(occ.stamp_s, frame_id), "action": MARKER_ADD}
     markers: list[dict[str, Any]] = [{**base, "ns": "", "id": 0, "action": MARKER_DELETEALL}]
     if occ.robot is not None:

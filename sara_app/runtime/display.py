@@ -226,6 +226,7 @@ def _people_models(
     if H == 0:
         return ages, models
     y, v, dv = (np.stack([getattr(st, a) for st in states]) for a in ("y", "v", "dv"))
+    cut_p = part_cuts([st.leg_cap for st in states], age + horizon_s)
     ok_y = np.isfinite(y).all(axis=(1, 2))
     ok_v = ok_y & np.isfinite(v).all(axis=(1, 2)) & np.isfinite(dv).all(axis=1) & (dv >= 0).all(1)
     per_part: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
@@ -243,14 +244,44 @@ def _people_models(
         ends, radius = np.zeros((H, *e.shape[1:])), np.full((H, r.shape[1]), np.inf)
         ends[use], radius[use] = e, r
         finite = np.asarray(np.isfinite(radius).all(axis=1))
+        cut_c = capsule_cuts(cut_p, part_map, r.shape[1])
         for h in np.flatnonzero(finite).tolist():
-            models[h][name] = CapsulesMsg.from_arrays(ends[h], radius[h])
+            models[h][name] = CapsulesMsg.from_arrays(ends[h], radius[h], cut_c[h])
         per_part.append((ends, np.where(finite[:, None], radius, np.inf), part_map))
     eff = effective_set(per_part)
+    cut_eff = cut_p if eff is not None and cut_p.shape[1] == eff[1].shape[1] else None
     for i in range(H):
         if eff is not None and models[i]:
-            models[i][EFFECTIVE] = CapsulesMsg.from_arrays(eff[0][i], eff[1][i])
+            cut = None if cut_eff is None else cut_eff[i]
+            models[i][EFFECTIVE] = CapsulesMsg.from_arrays(eff[0][i], eff[1][i], cut)
     return ages, models
+
+
+def part_cuts(leg_caps: Sequence[np.ndarray | None], tau_s: np.ndarray) -> np.ndarray:
+    """``(H, P)``: the height each person's body parts are cut at over ``tau_s (H,)`` after
+    their measurements, from their height bounds ``leg_caps`` (each ``(P, 2)`` of
+    :func:`~sara_app.human.legs.leg_caps` or None); ``inf``: uncut. The bound at the
+    horizon's end, the highest over it: the SSM check cuts interval ``k``'s set at the
+    bound at that interval's end (:mod:`sara_app.safety.ssm_kernels`)."""
+    P = max((c.shape[0] for c in leg_caps if c is not None), default=0)
+    out = np.full((len(leg_caps), P), np.inf)
+    for h, c in enumerate(leg_caps):
+        if c is not None:
+            z = c[:, 0] + c[:, 1] * tau_s[h]
+            out[h] = np.where(np.isnan(z), np.inf, z)
+    return out
+
+
+def capsule_cuts(part_cut: np.ndarray, part_map: np.ndarray, C: int) -> np.ndarray:
+    """``(H, C)``: each capsule's cut from its parts' ``part_cut (H, P)`` (``part_map (P,)``
+    the capsule of each part): the highest of the parts it holds, ``inf`` (uncut) for a
+    capsule no part maps to or when no person's parts are cut (``P = 0``)."""
+    H = part_cut.shape[0]
+    if part_cut.shape[1] != len(part_map):
+        return np.full((H, C), np.inf)
+    out = np.full((H, C), -np.inf)
+    np.maximum.at(out, (np.arange(H)[:, None], np.asarray(part_map)[None, :]), part_cut)
+    return np.where(out == -np.inf, np.inf, out)
 
 
 def _widen_row(st: HumanState, row: int, part_map: np.ndarray) -> np.ndarray:
