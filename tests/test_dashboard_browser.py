@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Iterator
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -134,10 +135,38 @@ def test_page_connects_and_renders_the_verdict(
         "the robot to disappear",
     )
     assert isinstance(robot, np.ndarray) and isinstance(empty, np.ndarray)
+    # A set cut at a height bound (legs an upper-body tracker does not measure) is drawn as a
+    # mesh ending flat at the cut: the same capsule cut through its middle keeps its bottom
+    # and loses its top part in the image.
+    scene.set_visible("effective", True)
+    h = frame.humans[0]
+    one = {"effective": (np.array([[[0.3, -0.6, 0.3], [0.3, -0.6, 0.9]]]), np.array([0.35]))}
+
+    def rows(im: np.ndarray) -> tuple[int, int] | None:
+        """First and last image row of the 3D view (left of the panel) that differs from the
+        empty scene; None: none."""
+        r = np.flatnonzero((np.abs(im - empty)[:, :540].sum(-1) > 12).any(axis=1))
+        return (int(r[0]), int(r[-1])) if r.size else None
+
+    dash.update(replace(frame, humans=[replace(h, models=one, cuts={})]))
+    whole = wait_for(lambda: shot_with(lambda im: rows(im) is not None), 60.0, "the capsule")
+    assert isinstance(whole, np.ndarray)
+    top, bottom = rows(whole) or (0, 0)
+    assert bottom - top > 40
+    cuts = {"effective": np.array([0.6])}
+    dash.update(replace(frame, humans=[replace(h, models=one, cuts=cuts)]))
+
+    def cut_shown(im: np.ndarray) -> bool:
+        r = rows(im)
+        return r is not None and r[0] > top + 0.25 * (bottom - top) and abs(r[1] - bottom) <= 4
+
+    cut = wait_for(lambda: shot_with(cut_shown), 60.0, "the capsule cut at its middle")
+    assert isinstance(cut, np.ndarray)
     if os.environ.get("SARA_SCREENSHOT_DIR"):  # for looking at them by hand
         from PIL import Image
 
-        for name, img in (("verified", green), ("failsafe", red), ("pfl", pfl), ("robot", robot)):
+        for name, img in (("verified", green), ("failsafe", red), ("pfl", pfl), ("robot", robot),
+                          ("whole", whole), ("cut", cut)):  # fmt: skip
             path = os.path.join(os.environ["SARA_SCREENSHOT_DIR"], f"dashboard_{name}.png")
             Image.fromarray(img.astype(np.uint8)).save(path)
 
