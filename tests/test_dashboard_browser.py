@@ -143,13 +143,23 @@ def test_page_connects_and_renders_the_verdict(
     one = {"effective": (np.array([[[0.3, -0.6, 0.3], [0.3, -0.6, 0.9]]]), np.array([0.35]))}
 
     def rows(im: np.ndarray) -> tuple[int, int] | None:
-        """First and last image row of the 3D view (left of the panel) that differs from the
-        empty scene; None: none."""
-        r = np.flatnonzero((np.abs(im - empty)[:, :540].sum(-1) > 12).any(axis=1))
+        """First and last image row with at least 8 pixels of the set's warm tint (red over
+        blue; the grid is grey) in the 3D view, right of the axes gizmo and left of the
+        panel; None: none."""
+        view = im[:, 100:540]
+        r = np.flatnonzero((view[..., 0] - view[..., 2] >= 4).sum(axis=1) >= 8)
         return (int(r[0]), int(r[-1])) if r.size else None
 
+    last: list[np.ndarray] = [empty]
+
+    def settled(im: np.ndarray) -> bool:
+        """The same image twice in a row (the scene drawn, not on its way)."""
+        same = bool(np.array_equal(im, last[-1]))
+        last.append(im)
+        return same and rows(im) is not None
+
     dash.update(replace(frame, humans=[replace(h, models=one, cuts={})]))
-    whole = wait_for(lambda: shot_with(lambda im: rows(im) is not None), 60.0, "the capsule")
+    whole = wait_for(lambda: shot_with(settled), 60.0, "the capsule")
     assert isinstance(whole, np.ndarray)
     top, bottom = rows(whole) or (0, 0)
     assert bottom - top > 40

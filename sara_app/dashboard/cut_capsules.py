@@ -135,7 +135,7 @@ class CutCapsules:
         color: tuple[int, int, int],
     ) -> None:  # fmt: skip
         self._server, self.name, self._opacity, self._color = server, name, opacity, color
-        self._handle: viser.MeshHandle | None = None
+        self._handle: viser.BatchedMeshHandle | None = None
         self._shown: np.ndarray | None = None
         self._visible = True
         self.count = 0
@@ -157,9 +157,13 @@ class CutCapsules:
                 self._handle = None
             return
         translucent = self._opacity is not None and self._opacity < 1.0
-        self._handle = self._server.scene.add_mesh_simple(
-            self.name, vertices, faces, color=self._color, opacity=self._opacity,
-            cast_shadow=not translucent, receive_shadow=not translucent,
+        # one instance of a batched mesh: shaded as the instanced capsules beside it (a plain
+        # mesh of the same colour rendered in another tone)
+        self._handle = self._server.scene.add_batched_meshes_simple(
+            self.name, vertices, faces, np.array([[1.0, 0.0, 0.0, 0.0]], np.float32),
+            np.zeros((1, 3), np.float32), batched_scales=np.ones(1, np.float32),
+            batched_colors=np.array([self._color], np.uint8), opacity=self._opacity,
+            lod="off", cast_shadow=not translucent, receive_shadow=not translucent,
         )  # fmt: skip
 
     @property
