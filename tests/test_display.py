@@ -3,6 +3,8 @@ check on a Panda, a person and a table; a real JSSA cycle), and survive the wire
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -135,14 +137,14 @@ def test_the_effective_set_is_per_body_part_the_least_model_capsule_that_holds_i
             assert float(point_segment_distance(x, ends[p])) + half[p] <= radius[p] + 1e-9
 
 
-def test_the_occupancy_carries_the_bound_of_unmeasured_legs() -> None:
-    """A person of an upper-body source under a set that bounds the legs: the worker's display
-    message says how high the legs reach at the end of the horizon shown (the thighs' bound,
-    the highest), the same as the bound the check uses; a full-body person's says nothing."""
+def _upper_and_full_at_a_bench() -> tuple[Any, list[Any], Any, OccupancyMsg]:
+    """``bench_handover_upper``'s cell with the same standing person tracked twice, once
+    upper-body (legs bounded in height) and once full-body, measured at 10 s; the cycle at
+    10.01 s and its occupancy message."""
     from sara_app.cell.build import build_cell
     from sara_app.cell.intake import take_measurement, track_for
     from sara_app.human.scripted import joints, standing
-    from sara_app.runtime.display import legs_below, occupancy_msg
+    from sara_app.runtime.display import occupancy_msg
     from sara_app.scenario import load_scenario
 
     cell = build_cell(load_scenario("bench_handover_upper"))
@@ -153,6 +155,16 @@ def test_the_occupancy_carries_the_bound_of_unmeasured_legs() -> None:
     res = cell.shield.cycle(10.01, [tr.state for tr in tracks])
     seq = iter(range(10))
     occ = occupancy_msg(cell, tracks, res, 10.01, lambda: next(seq), lambda *a: None)
+    return cell, tracks, res, occ
+
+
+def test_the_occupancy_carries_the_bound_of_unmeasured_legs() -> None:
+    """A person of an upper-body source under a set that bounds the legs: the worker's display
+    message says how high the legs reach at the end of the horizon shown (the thighs' bound,
+    the highest), the same as the bound the check uses; a full-body person's says nothing."""
+    from sara_app.runtime.display import legs_below
+
+    cell, tracks, res, occ = _upper_and_full_at_a_bench()
     upper, full = occ.humans
     assert full.legs_below_m is None and upper.legs_below_m is not None
     caps = tracks[0].state.leg_cap
@@ -171,22 +183,10 @@ def test_the_legs_capsules_carry_the_cut_the_check_uses() -> None:
     horizon shown, and a capsule holding any unbounded part is whole (oracle: a loop over the
     parts); the effective set's capsule of each part is cut at that part's bound. A full-body
     person's capsules carry no cut."""
-    from sara_app.cell.build import build_cell
-    from sara_app.cell.intake import take_measurement, track_for
     from sara_app.dashboard.frame import DisplayFrame
     from sara_app.dashboard.from_messages import occupancy_into
-    from sara_app.human.scripted import joints, standing
-    from sara_app.runtime.display import occupancy_msg
-    from sara_app.scenario import load_scenario
 
-    cell = build_cell(load_scenario("bench_handover_upper"))
-    y = joints(standing((1.2, 0.9), 3.0))
-    tracks = [track_for(cell, "upper"), track_for(cell, "full")]
-    for tr, legs in zip(tracks, (False, True), strict=True):
-        assert take_measurement(cell, tr, 10.0, y, legs_measured=legs) is None
-    res = cell.shield.cycle(10.01, [tr.state for tr in tracks])
-    seq = iter(range(10))
-    occ = occupancy_msg(cell, tracks, res, 10.01, lambda: next(seq), lambda *a: None)
+    cell, tracks, res, occ = _upper_and_full_at_a_bench()
     upper, full = occ.humans
     caps = tracks[0].state.leg_cap
     assert caps is not None
