@@ -399,3 +399,20 @@ def test_capsules_with_a_cut_are_drawn_cut_and_the_rest_whole(dash: Dashboard) -
     for bad in (np.full(3, 1.0), np.where(np.arange(len(radius)) < 1, np.nan, np.inf)):
         h.cuts = {"effective": bad}
         assert not dash.update(frame)
+
+
+def test_at_most_max_cut_capsules_of_a_set_are_drawn_cut(dash: Dashboard) -> None:
+    """A message with more cut capsules than the dashboard draws cut: the first
+    MAX_CUT_CAPSULES cut, the rest whole (larger than the set, never smaller)."""
+    from sara_app.dashboard.scene import MAX_CUT_CAPSULES
+
+    scene = dash.scene
+    assert scene is not None
+    frame = demo_frame(6.0)
+    n = MAX_CUT_CAPSULES + 40
+    ends = np.tile(np.array([[[1.0, 0.0, 0.3], [1.0, 0.0, 0.9]]]), (n, 1, 1))
+    frame.humans[0].models = {"effective": (ends, np.full(n, 0.1))}
+    frame.humans[0].cuts = {"effective": np.full(n, 0.6)}
+    assert dash.update(frame)
+    assert scene.cut_models["effective"].count == MAX_CUT_CAPSULES
+    assert scene.models["effective"].count == 40
