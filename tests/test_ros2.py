@@ -60,6 +60,34 @@ def test_messages_round_trip_through_the_cdr_library() -> None:
     assert out.color.a == pytest.approx(0.3)
 
 
+def test_a_set_cut_at_a_height_bound_is_a_triangle_list_below_its_cut() -> None:
+    """An upper-body person's effective set with one capsule cut (legs bounded in height):
+    the whole capsules as cylinders and spheres, the cut one as a TRIANGLE_LIST whose points
+    all lie below the cut and within the capsule, encoded by the CDR library."""
+    from sara_app.bus.messages import CapsulesMsg, HumanOccupancyMsg
+    from sara_app.ros2.convert import occupancy_markers
+    from sara_app.ros2.interfaces import MARKER_TRIANGLE_LIST
+
+    occ = example_messages()["occupancy"][1]
+    assert isinstance(occ, OccupancyMsg)
+    ends = np.array([[[1.2, 0.0, 1.2], [1.2, 0.0, 1.6]], [[1.2, 0.0, 0.95], [1.2, 0.0, 0.95]],
+                     [[1.3, 0.1, 1.3], [1.1, 0.1, 1.5]]])  # fmt: skip
+    caps = CapsulesMsg.from_arrays(ends, np.array([0.1, 0.6, 0.1]), np.array([np.inf, 1.1, np.inf]))
+    human = HumanOccupancyMsg(id="h1", kind="upper", joints_m=occ.humans[0].joints_m,
+                              models={"effective": caps})  # fmt: skip
+    out = occupancy_markers(occ.model_copy(update={"humans": [human]}), "world")["markers"]
+    mine = [m for m in out if m["ns"].startswith("sara/human/h1/")]
+    assert [m["type"] for m in mine if m["ns"] == "sara/human/h1/effective"] == [3, 2, 2] * 2
+    (tri,) = [m for m in mine if m["ns"] == "sara/human/h1/effective/cut"]
+    assert tri["type"] == MARKER_TRIANGLE_LIST and len(tri["points"]) % 3 == 0
+    p = np.array([[q["x"], q["y"], q["z"]] for q in tri["points"]])
+    assert len(p) > 100 and p[:, 2].max() <= 1.1 + 1e-6
+    assert np.all(np.linalg.norm(p - [1.2, 0.0, 0.95], axis=1) <= 0.6 + 1e-6)
+    enc, dec = codec(MARKER_ARRAY)
+    back = [m for m in dec(enc({"markers": out})).markers if m.ns.endswith("/cut")]
+    assert len(back) == 1 and len(back[0].points) == len(p)
+
+
 def test_attachment_is_zenoh_serialised() -> None:
     gid = bytes(range(16))
     data = attachment(42, 1_700_000_000_123_456_789, gid)

@@ -3,7 +3,7 @@ model's capsules per person, widened as verified, their effective set, the robot
 that the cell worker builds on its verification thread at 15 Hz, for 1 and 16 people (the
 default ``inputs.max_people``) standing beside the robot's path in ``standing_beside_path``,
 each measured twice (velocities known), at staggered times; and the dashboard's mesh of the
-effective set's leg capsules cut at their height bound (:mod:`sara_app.dashboard.cut_capsules`)
+effective set's leg capsules cut at their height bound (:mod:`sara_app.geometry.capsule_mesh`)
 for 1 and 16 upper-body people in ``bench_handover_upper``."""
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ import numpy as np
 from sara_app.bench import timeit_us
 from sara_app.cell.build import Cell, build_cell
 from sara_app.cell.intake import Track, take_measurement, track_for
-from sara_app.dashboard.cut_capsules import cut_capsule_mesh
 from sara_app.dashboard.frame import EFFECTIVE
+from sara_app.geometry.capsule_mesh import cut_capsule_mesh
 from sara_app.human.scripted import joints, standing
 from sara_app.runtime.display import occupancy_msg
 from sara_app.scenario import load_scenario

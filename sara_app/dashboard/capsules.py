@@ -1,15 +1,6 @@
-"""Many capsules in viser as batched instances: one open tube plus one hemisphere per end.
-
-A capsule ``(a, b, r)`` is drawn as
-
-- the unit tube (radius 1, axis +z, ``z`` in ``[-0.5, 0.5]``, no end disks) at the midpoint of
-  ``a b``, rotated so that +z points along ``d = (b - a) / L`` and scaled by ``(r, r, L)``;
-- the unit upper hemisphere (radius 1, ``z >= 0``) at ``b`` rotated so that +z points along
-  ``d``, and at ``a`` rotated so that +z points along ``-d``, both scaled by ``r``.
-
-Tube and caps meet at the rims without overlap, so translucent capsules have no doubled seams. A
-degenerate capsule (``L = 0``) gets a zero-length tube and two hemispheres that close into a
-sphere. A capsule with a non-finite end or radius, or a negative radius, is hidden (scale 0).
+"""Many capsules in viser as batched instances: one open tube plus one hemisphere per end (the
+unit meshes and instance poses of :mod:`sara_app.geometry.capsule_mesh`; tube and caps meet at
+the rims without overlap, so translucent capsules have no doubled seams).
 
 One :class:`CapsuleGroup` is two batched mesh nodes with a fixed opacity (viser drops batches
 whose per-instance opacities change every frame). Instance arrays live in buffers of a capacity
@@ -24,114 +15,23 @@ import viser
 import viser.transforms
 
 from sara_app.errors import InputError
+from sara_app.geometry.capsule_mesh import (
+    capsule_arrays,
+    capsule_instances,
+    unit_box,
+    unit_hemisphere,
+    unit_tube,
+)
 from sara_app.geometry.shapes import quat_rotate, quat_z_to
 
-__all__ = ["quat_rotate", "quat_z_to"]
-
-_Z = np.array([0.0, 0.0, 1.0])
-_TINY = 1e-12
-
-
-# ----------------------------------------------------------------------------------------------
-# Unit meshes
-
-
-def unit_tube(sections: int = 20) -> tuple[np.ndarray, np.ndarray]:
-    """Open unit tube: vertices ``(2 S, 3)`` (rim at z = -0.5 then z = +0.5), faces ``(2 S, 3)``.
-
-    Faces are wound counter-clockwise seen from outside (outward normals).
-    """
-    ang = np.linspace(0.0, 2.0 * np.pi, sections, endpoint=False)
-    ring = np.stack([np.cos(ang), np.sin(ang)], axis=1)
-    bottom = np.column_stack([ring, np.full(sections, -0.5)])
-    top = np.column_stack([ring, np.full(sections, 0.5)])
-    vertices = np.concatenate([bottom, top])
-    i = np.arange(sections)
-    j = (i + 1) % sections
-    lower = np.stack([i, j, j + sections], axis=1)
-    upper = np.stack([i, j + sections, i + sections], axis=1)
-    return vertices, np.concatenate([lower, upper]).astype(np.uint32)
-
-
-def unit_hemisphere(sections: int = 20, rings: int = 6) -> tuple[np.ndarray, np.ndarray]:
-    """Upper unit hemisphere without its base disk: vertices ``(V, 3)``, faces ``(F, 3)``.
-
-    Ring 0 is the equator (z = 0, the same ``sections`` points as the tube rims), the last vertex
-    is the pole. Faces are wound counter-clockwise seen from outside.
-    """
-    elev = np.linspace(0.0, 0.5 * np.pi, rings + 1)[:-1]
-    ang = np.linspace(0.0, 2.0 * np.pi, sections, endpoint=False)
-    ce, se = np.cos(elev)[:, None], np.sin(elev)[:, None]
-    rim = np.stack(
-        [ce * np.cos(ang)[None], ce * np.sin(ang)[None], np.broadcast_to(se, (rings, sections))],
-        axis=-1,
-    ).reshape(-1, 3)
-    vertices = np.concatenate([rim, [[0.0, 0.0, 1.0]]])
-    i = np.arange(sections)
-    j = (i + 1) % sections
-    faces = []
-    for k in range(rings - 1):
-        lo, hi = k * sections, (k + 1) * sections
-        faces.append(np.stack([lo + i, lo + j, hi + j], axis=1))
-        faces.append(np.stack([lo + i, hi + j, hi + i], axis=1))
-    top = (rings - 1) * sections
-    pole = rings * sections
-    faces.append(np.stack([top + i, top + j, np.full(sections, pole)], axis=1))
-    return vertices, np.concatenate(faces).astype(np.uint32)
-
-
-def unit_box() -> tuple[np.ndarray, np.ndarray]:
-    """Unit cube ``[-0.5, 0.5]^3``: vertices ``(8, 3)``, faces ``(12, 3)`` wound outward."""
-    v = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
-    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
-    faces = [(a, b, c) for a, b, c, _ in quads] + [(a, c, d) for a, _, c, d in quads]
-    return v, np.array(faces, dtype=np.uint32)
+__all__ = [
+    "capsule_arrays", "capsule_instances", "quat_rotate", "quat_z_to", "unit_box",
+    "unit_hemisphere", "unit_tube",
+]  # fmt: skip
 
 
 # ----------------------------------------------------------------------------------------------
 # Instance math
-
-
-def capsule_instances(
-    ends: np.ndarray,
-    radius: np.ndarray,
-    tube_pos: np.ndarray,
-    tube_wxyz: np.ndarray,
-    tube_scale: np.ndarray,
-    cap_pos: np.ndarray,
-    cap_wxyz: np.ndarray,
-    cap_scale: np.ndarray,
-) -> None:
-    """Instance poses of ``N`` capsules ``ends (N, 2, 3)``, ``radius (N,)``, written in place.
-
-    Outputs (first ``N`` / ``2 N`` rows are written): ``tube_pos (N, 3)``, ``tube_wxyz (N, 4)``,
-    ``tube_scale (N, 3)`` = (r, r, L); caps interleaved per capsule (a then b):
-    ``cap_pos (2 N, 3)``, ``cap_wxyz (2 N, 4)``, ``cap_scale (2 N,)`` = r. Invalid capsules
-    (non-finite, negative radius) get scale 0 and position 0.
-    """
-    n = ends.shape[0]
-    ok = np.isfinite(ends).all(axis=(1, 2)) & np.isfinite(radius) & (radius >= 0.0)
-    e = np.where(ok[:, None, None], ends, 0.0)
-    r = np.where(ok, radius, 0.0)
-    axis = e[:, 1] - e[:, 0]
-    length = np.linalg.norm(axis, axis=1)
-    long = length > _TINY
-    d = np.where(long[:, None], axis / np.where(long, length, 1.0)[:, None], _Z)
-    q = quat_z_to(d)
-    tube_pos[:n] = 0.5 * (e[:, 0] + e[:, 1])
-    tube_wxyz[:n] = q
-    tube_scale[:n, 0] = r
-    tube_scale[:n, 1] = r
-    tube_scale[:n, 2] = length
-    cap_pos[: 2 * n] = e.reshape(-1, 3)
-    caps = cap_wxyz[: 2 * n].reshape(n, 2, 4)
-    caps[:, 1] = q
-    # q (x) (0, 1, 0, 0): a half turn about the local x axis first, so +z goes to -d.
-    caps[:, 0, 0] = -q[:, 1]
-    caps[:, 0, 1] = q[:, 0]
-    caps[:, 0, 2] = q[:, 3]
-    caps[:, 0, 3] = -q[:, 2]
-    cap_scale[: 2 * n] = np.repeat(r, 2)
 
 
 def rotation_to_wxyz(R: np.ndarray) -> np.ndarray:
@@ -232,17 +132,6 @@ class InstanceBatch:
         self._visible = bool(value)
         if self.handle is not None:
             self.handle.visible = self._visible
-
-
-def capsule_arrays(ends: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Checked float arrays ``ends (N, 2, 3)``, ``radius (N,)``; :class:`InputError` if not."""
-    e = np.asarray(ends, dtype=float)
-    r = np.asarray(radius, dtype=float)
-    if e.ndim != 3 or e.shape[1:] != (2, 3):
-        raise InputError(f"capsule ends have shape {e.shape}; expected (N, 2, 3)")
-    if r.shape != (e.shape[0],):
-        raise InputError(f"capsule radii have shape {r.shape}; expected ({e.shape[0]},)")
-    return e, r
 
 
 class CapsuleGroup:

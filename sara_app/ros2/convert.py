@@ -9,7 +9,10 @@
 - the occupancy -> ``visualization_msgs/MarkerArray``: every capsule as a cylinder and two
   spheres (RViz and Foxglove have no capsule), first a DELETEALL so that capsules of an older
   message never linger; the robot's capsules in the verdict colour, each person's effective set
-  (or, without one, every model's set) in one colour per person.
+  (or, without one, every model's set) in one colour per person; a set's capsules that are cut
+  at a height bound (``below_m``: legs an upper-body tracker does not measure) as one triangle
+  list, the capsules' parts below their cuts
+  (:func:`~sara_app.geometry.capsule_mesh.cut_capsule_mesh`).
 """
 
 from __future__ import annotations
@@ -21,8 +24,15 @@ import numpy as np
 
 from sara_app.bus.messages import OccupancyMsg, RobotCommandMsg
 from sara_app.errors import InputError
+from sara_app.geometry.capsule_mesh import cut_capsule_mesh
 from sara_app.geometry.shapes import quat_z_to
-from sara_app.ros2.interfaces import MARKER_ADD, MARKER_CYLINDER, MARKER_DELETEALL, MARKER_SPHERE
+from sara_app.ros2.interfaces import (
+    MARKER_ADD,
+    MARKER_CYLINDER,
+    MARKER_DELETEALL,
+    MARKER_SPHERE,
+    MARKER_TRIANGLE_LIST,
+)
 
 VERIFIED_RGBA = (0.12, 0.75, 0.24, 0.35)
 UNVERIFIED_RGBA = (0.88, 0.12, 0.12, 0.35)
@@ -96,10 +106,24 @@ def _capsule_markers(
     return out
 
 
+def _cut_marker(
+    ends: np.ndarray, radius: np.ndarray, below_m: np.ndarray, ns: str,
+    rgba: tuple[float, ...], base: dict[str, Any],
+) -> list[dict[str, Any]]:  # fmt: skip
+    """One TRIANGLE_LIST of capsules ``ends (C, 2, 3)``, ``radius (C,)`` cut at ``below_m
+    (C,)`` (none when nothing is left of them)."""
+    v, f = cut_capsule_mesh(ends, radius, below_m)
+    if not f.shape[0]:
+        return []
+    points = [dict(zip("xyz", p, strict=True)) for p in v[f].reshape(-1, 3).tolist()]
+    origin = {"position": {"x": 0.0, "y": 0.0, "z": 0.0}, "orientation": IDENTITY}
+    return [{**base, "ns": ns, "id": 0, "type": MARKER_TRIANGLE_LIST, "points": points,
+             "color": dict(zip("rgba", rgba, strict=True)), "pose": origin,
+             "scale": {"x": 1.0, "y": 1.0, "z": 1.0}}]  # fmt: skip
+
+
 def occupancy_markers(occ: OccupancyMsg, frame_id: str) -> dict[str, Any]:
-    """The MarkerArray of one occupancy message. Capsules are drawn whole: a capsule's cut
-    (``below_m``, legs bounded in height) is not drawn (RViz has no cut capsule marker), so a
-    cut set shows larger than the check uses, never smaller."""
+    """The MarkerArray of one occupancy message."""
     base = {"header": header(occ.stamp_s, frame_id), "action": MARKER_ADD}
     markers: list[dict[str, Any]] = [{**base, "ns": "", "id": 0, "action": MARKER_DELETEALL}]
     if occ.robot is not None:
@@ -110,6 +134,10 @@ def occupancy_markers(occ: OccupancyMsg, frame_id: str) -> dict[str, Any]:
         sets = [HUMAN_SET] if HUMAN_SET in h.models else sorted(h.models)
         for name in sets:
             ends, radius = h.models[name].arrays()
-            markers += _capsule_markers(ends, radius, f"sara/human/{h.id}/{name}", HUMAN_RGBA,
-                                        base)  # fmt: skip
+            cut = np.isfinite(h.models[name].cuts())
+            ns = f"sara/human/{h.id}/{name}"
+            markers += _capsule_markers(ends[~cut], radius[~cut], ns, HUMAN_RGBA, base)
+            if cut.any():
+                markers += _cut_marker(ends[cut], radius[cut], h.models[name].cuts()[cut],
+                                       f"{ns}/cut", HUMAN_RGBA, base)  # fmt: skip
     return {"markers": markers}

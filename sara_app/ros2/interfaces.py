@@ -54,7 +54,7 @@ FIELDS: dict[str, tuple[tuple[str, str], ...]] = {
 """Type name -> ``(field type, field name)`` in declaration order (constants are not part of a
 type's layout or hash)."""
 
-MARKER_CYLINDER, MARKER_SPHERE = 3, 2
+MARKER_CYLINDER, MARKER_SPHERE, MARKER_TRIANGLE_LIST = 3, 2, 11
 MARKER_ADD, MARKER_DELETEALL = 0, 3
 """``visualization_msgs/msg/Marker`` constants."""
 
