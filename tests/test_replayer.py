@@ -109,3 +109,26 @@ def test_an_edited_human_model_does_not_change_how_the_people_move() -> None:
         assert np.all(rep.params.v_max_mps == 0.05)  # what the cell assumes now
         np.testing.assert_array_equal(rep.motion_params.v_max_mps, before)  # how they move
         assert before.max() > 1.0
+
+
+def test_a_person_tracked_upper_body_is_sent_as_an_upper_body_skeleton() -> None:
+    """The handover tracked upper-body only (`sensor.tracks: upper`): the replayer sends the
+    upper body alone, so the cell treats the legs as unmeasured (it sent the replay's standing
+    legs as a full-body skeleton, and the live cell took them for measured ones); a full-body
+    person stays full-body."""
+    port = free_port()
+    with Bus.router(port), Bus.client(port) as rb, Bus.client(port) as tb:
+        for name, kind, joints in (("bench_handover_upper", "upper", 9), ("punches", "full", 15)):
+            sc = load_scenario(name)
+            sub = tb.subscribe(keys.skeleton_key(CELL, sc.humans[0].id), fifo=True)
+            rep = Replayer(CELL, sc, rb)
+            got: list[SkeletonMsg] = []
+            t_end = time.monotonic() + 5.0
+            while not got and time.monotonic() < t_end:
+                rep.tick(time.time())
+                time.sleep(0.02)
+                got = [d.msg for d in sub.drain().messages if isinstance(d.msg, SkeletonMsg)]
+            assert got, name
+            y, _ = got[0].to_arrays()
+            assert got[0].kind == kind and y.shape == (joints, 3), (name, got[0].kind, y.shape)
+            sub.close()

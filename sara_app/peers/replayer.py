@@ -3,7 +3,9 @@ time, at each person's sensor rate (the built-in demo's stand-in for a real trac
 
 A skeleton stamped ``t`` carries the pose of scenario time ``t - t0 - delay`` (the parameter
 set's sensor delay), with the scenario's sensor noise, so the cell sees exactly what its models
-assume. Adversaries chase the robot as commanded on ``sara/<cell>/robot/command``; only a
+assume; it is of the kind the person's sensor tracks (``sensor.tracks``: an upper-body
+recording's legs, which the replay stands on the floor, are not sent; the simulator does the
+same). Adversaries chase the robot as commanded on ``sara/<cell>/robot/command``; only a
 scenario with such a person makes the replayer subscribe to the commands (500 a second, each a
 copy the router sends). The scenario restarts after ``sim.duration_s``; an accepted scenario
 update (``params/ack``) restarts it with the new people. Like a real tracker it sends a frame
@@ -38,11 +40,20 @@ from sara_app.errors import SaraError
 from sara_app.geometry.poses import pose_from_xyz_rpy
 from sara_app.human.glitches import Glitches
 from sara_app.human.params import to_reach_params
+from sara_app.human.skeleton import FULL_JOINTS, UPPER_JOINTS
 from sara_app.robot.model import RobotModel
 from sara_app.scenario import Scenario, parse_scenario
-from sara_app.sim.motions import HumanMotion, make_motion, measured, reacts_to_robot
+from sara_app.sim.motions import (
+    HumanMotion,
+    make_motion,
+    measured,
+    measures_legs,
+    reacts_to_robot,
+)
 
 log = logging.getLogger("sara_app.replayer")
+UPPER_INDEX = [FULL_JOINTS.index(j) for j in UPPER_JOINTS]
+"""An upper-body skeleton's joints in the full body's joint order."""
 FRAME_HZ = 50.0
 _MIN_SLEEP_S = 1e-4
 """Never a busy loop (a skeleton already due: the next tick after this)."""
@@ -85,6 +96,10 @@ class Replayer:
         self.motions: list[HumanMotion] = [
             make_motion(h, self.motion_params) for h in self.scenario.humans
         ]
+        self.kinds = [
+            "full" if measures_legs(m, h.sensor.tracks) else "upper"
+            for h, m in zip(self.scenario.humans, self.motions, strict=True)
+        ]  # what each person's tracker measures (the legs of an upper-body source: nothing)
         self.next_s = [now for _ in self.scenario.humans]
         self.glitches = [Glitches(h.sensor.glitches) for h in self.scenario.humans]
         self._follow_robot(any(reacts_to_robot(m) for m in self.motions))
@@ -138,7 +153,10 @@ class Replayer:
             self.next_s[i] = max(self.next_s[i] + 1.0 / h.sensor.rate_hz, now - 0.5)
             y = self.glitches[i].apply(t_scn, measured(y, h.sensor.noise_m, self.rng))
             pub = self.pubs[h.id]
-            msg = SkeletonMsg.from_arrays("full", y, seq=pub.next_seq(), stamp_s=now)
+            kind = self.kinds[i]
+            if kind == "upper":
+                y = y[UPPER_INDEX]
+            msg = SkeletonMsg.from_arrays(kind, y, seq=pub.next_seq(), stamp_s=now)
             sent += pub.put(msg)
         if now >= self.next_frame_s:
             self.next_frame_s = max(self.next_frame_s + 1.0 / FRAME_HZ, now - 0.5)
