@@ -294,6 +294,15 @@ def test_status_rows_of_the_safety_modes() -> None:
     assert "JSSA | inactive" in md and "JSSA phi | n/a" in md and "n/a / 0.050 m" in md
 
 
+def test_the_status_says_whose_legs_are_held_below_a_height() -> None:
+    """A person whose legs the tracker does not measure: one row with the height the set holds
+    them below and what that assumes; none without such a person."""
+    md = status_markdown({"mode": "intended", "legs_below_m": {"p1": 1.2172, "p2": None}})
+    assert "| Legs not measured | **p1**: held below 1.22 m (assumed: standing work" in md
+    assert "**p2**: held below n/a" in md
+    assert "Legs not measured" not in status_markdown({"mode": "intended"})
+
+
 def test_status_rows_of_tracking_flags_and_violations() -> None:
     """A verdict's tracking as it stands (held joints, why, for how long; the newest flag)
     and violations in the status; the totals only in their own table (shown on demand)."""

@@ -212,6 +212,7 @@ def test_the_legs_capsules_carry_the_cut_the_check_uses() -> None:
     occupancy_into(frame, occ)  # what the dashboard draws
     np.testing.assert_allclose(frame.humans[0].cuts["effective"], part_z)
     assert frame.humans[1].cuts == {}
+    assert frame.status["legs_below_m"] == {upper.id: upper.legs_below_m}  # the status row
 
 
 def test_the_occupancy_of_many_people_is_each_persons_sets_as_verified() -> None:

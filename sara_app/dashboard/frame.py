@@ -104,7 +104,9 @@ class DisplayFrame:
       ``reason``, ``link``, ``distance_m``, ``d_min_m``), ``tracking`` (dict human id to dict
       flag to count), ``tracking_now`` (dict human id to the present state:
       :mod:`sara_app.dashboard.tracking_text`), ``violations`` (list of dicts: ``human_id``,
-      ``joint``, ``quantity``, ``value``, ``bound``); missing keys show as "n/a";
+      ``joint``, ``quantity``, ``value``, ``bound``), ``legs_below_m`` (dict human id to the
+      height their unmeasured legs are held below, for people whose set bounds them);
+      missing keys show as "n/a";
     - ``critical_pair (2, 3)`` or None: the JSSA critical pair (robot point, other point);
       ``critical_active``: whether JSSA modified the command this cycle;
     - ``links``: PFL energy and threshold per robot link (empty outside PFL);

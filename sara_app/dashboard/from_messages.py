@@ -153,6 +153,9 @@ def occupancy_into(frame: DisplayFrame, occ: OccupancyMsg) -> None:
         y = np.asarray(h.joints_m).reshape(-1, 3)
         cuts = {name: caps.cuts() for name, caps in h.models.items() if caps.below_m}
         frame.humans.append(HumanDisplay(h.id, y, BONES, models, h.legs_below_m, cuts))
+    legs = {h.id: h.legs_below_m for h in occ.humans if h.legs_below_m is not None}
+    if legs:
+        frame.status["legs_below_m"] = legs
     if occ.robot is not None:
         r = occ.robot
         e, rad = r.capsules.arrays()

@@ -176,8 +176,17 @@ _UNIT = {
 
 
 def _people_rows(status: dict[str, Any]) -> list[tuple[str, str]]:
-    """The tracking now (held joints, the newest flag), and who breaks the bounds."""
+    """The tracking now (held joints, the newest flag), whose legs are not measured and held
+    below a height (their sets end there), and who breaks the bounds."""
     rows = tracking_rows(status)
+    legs = status.get("legs_below_m")
+    if isinstance(legs, dict):
+        for who, z in list(legs.items())[:4]:
+            rows.append((
+                "Legs not measured",
+                f"**{md_cell(str(who))}**: held below {_fmt(z, '.2f', ' m')} (assumed: "
+                "standing work, feet on the floor; the pelvis's rise is monitored)",
+            ))  # fmt: skip
     for v in (status.get("violations") or [])[:4]:
         if isinstance(v, dict):
             unit = _UNIT.get(str(v.get("quantity")), "")
