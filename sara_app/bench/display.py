@@ -57,10 +57,12 @@ def bench_rows(n: int = 2000) -> list[Row]:
         res = cell.shield.cycle(now, [tr.state for tr in tracks])
         occ = occupancy_msg(cell, tracks, res, now, lambda: 0, _ignore)
         sets = [h.models[EFFECTIVE] for h in occ.humans if EFFECTIVE in h.models]
-        cut = np.concatenate([s.cuts() for s in sets])
-        ends = np.concatenate([s.arrays()[0] for s in sets])[np.isfinite(cut)]
-        radius = np.concatenate([s.arrays()[1] for s in sets])[np.isfinite(cut)]
-        mesh = partial(cut_capsule_mesh, ends, radius, cut[np.isfinite(cut)])
+        below = np.concatenate([s.cuts() for s in sets])
+        cut = np.isfinite(below)
+        arrays = [s.arrays() for s in sets]
+        ends = np.concatenate([e for e, _ in arrays])[cut]
+        radius = np.concatenate([r for _, r in arrays])[cut]
+        mesh = partial(cut_capsule_mesh, ends, radius, below[cut])
         v, f = mesh()
         med, p99 = timeit_us(mesh, max(n // 20, 50), warmup=5)
         note = (f"{len(radius)} cut capsules: {(v.nbytes + f.nbytes) / 1e3:.0f} kB per frame "

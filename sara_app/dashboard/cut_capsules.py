@@ -7,8 +7,7 @@ from __future__ import annotations
 import numpy as np
 import viser
 
-from sara_app.dashboard.capsules import capsule_arrays
-from sara_app.geometry.capsule_mesh import cut_capsule_mesh
+from sara_app.geometry.capsule_mesh import capsule_arrays, cut_capsule_mesh
 
 
 class CutCapsules:
@@ -29,8 +28,7 @@ class CutCapsules:
         """Show capsules ``ends (N, 2, 3)``, ``radius (N,)`` [m] cut at ``below_m (N,)`` [m]."""
         if not self._visible:
             capsule_arrays(ends, radius)  # bad shapes raise, shown or not
-            self._shown = None  # shown again: sent in full
-            return
+            return  # shown again: sent in full (hiding forgot what was sent)
         vertices, faces = cut_capsule_mesh(ends, radius, below_m)
         self.count = int(np.asarray(radius).shape[0])
         if self._shown is not None and np.array_equal(self._shown, vertices):

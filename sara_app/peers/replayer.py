@@ -40,7 +40,7 @@ from sara_app.errors import SaraError
 from sara_app.geometry.poses import pose_from_xyz_rpy
 from sara_app.human.glitches import Glitches
 from sara_app.human.params import to_reach_params
-from sara_app.human.skeleton import FULL_JOINTS, UPPER_JOINTS
+from sara_app.human.skeleton import UPPER_JOINTS
 from sara_app.robot.model import RobotModel
 from sara_app.scenario import Scenario, parse_scenario
 from sara_app.sim.motions import (
@@ -52,8 +52,6 @@ from sara_app.sim.motions import (
 )
 
 log = logging.getLogger("sara_app.replayer")
-UPPER_INDEX = [FULL_JOINTS.index(j) for j in UPPER_JOINTS]
-"""An upper-body skeleton's joints in the full body's joint order."""
 FRAME_HZ = 50.0
 _MIN_SLEEP_S = 1e-4
 """Never a busy loop (a skeleton already due: the next tick after this)."""
@@ -155,7 +153,7 @@ class Replayer:
             pub = self.pubs[h.id]
             kind = self.kinds[i]
             if kind == "upper":
-                y = y[UPPER_INDEX]
+                y = y[: len(UPPER_JOINTS)]  # the full body's first joints
             msg = SkeletonMsg.from_arrays(kind, y, seq=pub.next_seq(), stamp_s=now)
             sent += pub.put(msg)
         if now >= self.next_frame_s:

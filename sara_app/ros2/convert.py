@@ -134,10 +134,11 @@ def occupancy_markers(occ: OccupancyMsg, frame_id: str) -> dict[str, Any]:
         sets = [HUMAN_SET] if HUMAN_SET in h.models else sorted(h.models)
         for name in sets:
             ends, radius = h.models[name].arrays()
-            cut = np.isfinite(h.models[name].cuts())
+            below = h.models[name].cuts()
+            cut = np.isfinite(below)
             ns = f"sara/human/{h.id}/{name}"
             markers += _capsule_markers(ends[~cut], radius[~cut], ns, HUMAN_RGBA, base)
             if cut.any():
-                markers += _cut_marker(ends[cut], radius[cut], h.models[name].cuts()[cut],
-                                       f"{ns}/cut", HUMAN_RGBA, base)  # fmt: skip
+                markers += _cut_marker(ends[cut], radius[cut], below[cut], f"{ns}/cut",
+                                       HUMAN_RGBA, base)  # fmt: skip
     return {"markers": markers}
