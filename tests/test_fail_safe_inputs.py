@@ -351,17 +351,18 @@ def test_a_thousand_ids_fault_the_cell_and_the_loop_keeps_its_rate(cell: Cell) -
 
 
 def test_a_stale_or_malformed_robot_state_faults_and_recovers(tmp_path: Path) -> None:
-    """A controller that stops, sends a wrong-length state, then resumes: each a fault that
-    clears with fresh valid states (the robot stands still: one waypoint)."""
+    """A controller that stops, sends a wrong-length state, then one whose joint moves at 1e300
+    rad/s, and resumes: each a fault that clears with fresh valid states (the robot stands
+    still: one waypoint)."""
     data = load_scenario("standing_beside_path").model_dump(mode="json")
     data["task"]["waypoints_rad"] = data["task"]["waypoints_rad"][:1]
     q = data["task"]["waypoints_rad"][0]
     for c in _start(tmp_path, task=data["task"]):
         pub = c.bus.publisher(keys.robot_state_key(CELL))
 
-        def state(n: int = len(q), pub: Any = pub) -> None:
+        def state(n: int = len(q), pub: Any = pub, speed: float = 0.0) -> None:
             pub.put(RobotStateMsg(seq=pub.next_seq(), stamp_s=time.time(), q=q[:n],
-                                  q_dot=[0.0] * n))  # fmt: skip
+                                  q_dot=[speed] + [0.0] * (n - 1)))  # fmt: skip
 
         with Heartbeat(c.bus, CELL):
             vs, _ = c.collect(0.5, every=state)
@@ -372,6 +373,10 @@ def test_a_stale_or_malformed_robot_state_faults_and_recovers(tmp_path: Path) ->
             assert vs[-1].mode == "rest" and not vs[-1].faults  # fresh again: cleared
             vs, _ = c.collect(0.3, every=lambda: state(3))
             assert vs[-1].mode == "fault" and vs[-1].dropped.get("wrong_dof", 0) > 0
+            vs, _ = c.collect(0.5, every=state)
+            assert vs[-1].mode == "rest" and not vs[-1].faults
+            vs, _ = c.collect(0.3, every=lambda: state(speed=1e300))  # faster than any drive
+            assert vs[-1].mode == "fault" and vs[-1].dropped.get("out_of_range", 0) > 0
             vs, _ = c.collect(0.5, every=state)
             assert vs[-1].mode == "rest" and not vs[-1].faults
 

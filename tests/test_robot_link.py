@@ -17,11 +17,13 @@ from sara_app.robot.trajectory import JointState
 from sara_app.runtime.robot_link import (
     REFUSED_FAULT_S,
     REPLAN_STILL_S,
+    STATE_SPEED_FACTOR,
     MeasuredRobot,
     decoder,
 )
 
 N = 7
+V_MAX = np.linspace(1.0, 2.6, N)  # rad/s
 
 
 def _history(rng: np.random.Generator, n_points: int) -> MeasuredRobot:
@@ -133,7 +135,7 @@ def test_the_robot_keys_decoder_refuses_another_joint_count_before_its_order() -
     """A state of another number of joints with a huge ``seq`` is ``wrong_dof`` and does not
     hold the controller's next states back as out of order; a restart on another key is not
     this decoder's (it is the robot key's alone)."""
-    dec, key = decoder(N), keys.robot_state_key("c1")
+    dec, key = decoder(lambda: V_MAX), keys.robot_state_key("c1")
 
     def state(seq: int, n: int = N) -> bytes:
         return encode(RobotStateMsg(seq=seq, stamp_s=time.time(), q=[0.0] * n, q_dot=[0.0] * n))
@@ -147,3 +149,30 @@ def test_the_robot_keys_decoder_refuses_another_joint_count_before_its_order() -
     stale = RobotStateMsg(seq=10**13, stamp_s=time.time() - 10.0, q=[0.0] * N, q_dot=[0.0] * N)
     assert dec.decode(key, encode(stale)) is None  # stamped long ago: never counts for the order
     assert dec.decode(key, state(4)) is not None and dec.counts["out_of_range"] == 1
+
+
+def test_a_state_faster_than_any_drive_is_refused_by_the_robots_limits_in_force() -> None:
+    """A state whose joint moves faster than ``STATE_SPEED_FACTOR`` times its velocity limit
+    (either sign, 1e300 too) is ``out_of_range`` before it counts for the key's order; at the
+    factor it is taken; the limits are read per message (an edit may change the robot)."""
+    limits = [V_MAX]
+    dec, key = decoder(lambda: limits[0]), keys.robot_state_key("c1")
+    seq = iter(range(1, 100))
+
+    def taken(q_dot: np.ndarray, compact: bool = False) -> bool:
+        msg = RobotStateMsg(seq=next(seq), stamp_s=time.time(), q=[0.0] * N, q_dot=list(q_dot))
+        return dec.decode(key, encode_compact(msg) if compact else encode(msg)) is not None
+
+    at = STATE_SPEED_FACTOR * V_MAX
+    assert taken(at) and taken(-at) and taken(at, compact=True)
+    refused = 0
+    for j in range(N):
+        for v in (at[j] * (1 + 1e-9), -at[j] * 1.5, 1e300):
+            fast = at.copy() * 0.5
+            fast[j] = v
+            assert not taken(fast) and not taken(fast, compact=True)
+            refused += 2
+    assert dec.counts == {"out_of_range": refused}
+    assert taken(0.5 * at)  # the refused ones held nothing back
+    limits[0] = V_MAX / 4  # a slower robot in force: the same speeds are now too fast
+    assert not taken(0.5 * at) and taken(0.5 * at / 4)

@@ -6,6 +6,9 @@ scenario in force, status) and one set of drop counters for every input (the con
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
+
+import numpy as np
 
 from sara_app.bus import keys
 from sara_app.bus.codec import Decoder
@@ -24,11 +27,15 @@ class CellBus:
     """The keys of cell ``cell`` on ``bus``. ``status`` is opened by the worker before it builds
     its cell (it says ``starting`` meanwhile); the rest is declared here, after the build."""
 
-    def __init__(self, bus: Bus, cell: str, status: Publisher, n_dof: int) -> None:
+    def __init__(
+        self, bus: Bus, cell: str, status: Publisher, v_max_of: Callable[[], np.ndarray]
+    ) -> None:
+        """``v_max_of``: the velocity limits ``(n,)`` of the robot in force (its states' check,
+        :func:`~sara_app.runtime.robot_link.decoder`)."""
         self.decoder = d = Decoder(max_future_s=FUTURE_TOLERANCE_S)
         self.skeletons = bus.subscribe(keys.skeleton_keys(cell), d, capacity=SKELETON_QUEUE)
         self.frames = bus.subscribe(keys.tracker_frame_keys(cell), d)
-        self.robot_decoder = robot_link.decoder(n_dof)  # the robot's states: a decoder of their own
+        self.robot_decoder = robot_link.decoder(v_max_of)  # the robot's states: their own
         self.robot_state = bus.subscribe(keys.robot_state_key(cell), self.robot_decoder)
         self.params = bus.subscribe(keys.params_key(cell), d, fifo=True)
         self.retire = bus.subscribe(keys.retire_key(cell), d, fifo=True)

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
+from collections.abc import Callable
 
 import numpy as np
 
@@ -62,16 +63,34 @@ V_REST = 1e-6
 """A state is at rest when no joint moves faster than this (rad/s or m/s)."""
 
 
-def decoder(n_dof: int) -> Decoder:
+STATE_SPEED_FACTOR = 2.0
+"""A state that says a joint moves faster than this many times its velocity limit is refused
+(``out_of_range``): no drive turns a joint at twice its rated speed, so the state is wrong (a
+unit error, a corrupted value; one at 1e300 rad/s was taken, hostile-controller probe). ASSUMES
+a driver whose reported speeds are within this factor of the truth (a measured speed is a
+difference of encoder readings, whose noise is far below its rated speed)."""
+
+
+def decoder(v_max_of: Callable[[], np.ndarray]) -> Decoder:
     """The decoder of one cell's ``robot/state`` key: its own (a publisher restart on another
     key must not count as the controller's: a retire's restart re-anchored the plan, hostile-
-    user probe 2026-11-30), refusing a state of another number of joints than ``n_dof`` as
-    ``wrong_dof`` before it counts for the key's order (one with a huge ``seq`` held the real
-    controller's states back as out of order for a second)."""
+    user probe 2026-11-30), refusing before it counts for the key's order a state of another
+    number of joints than the robot's velocity limits ``v_max_of() (n,)`` (rad/s or m/s, of the
+    robot in force: an edit may change them) as ``wrong_dof`` (one with a huge ``seq`` held the
+    real controller's states back as out of order for a second), and one whose joint moves
+    faster than ``STATE_SPEED_FACTOR`` times its limit as ``out_of_range``."""
 
     def check(msg: Message) -> tuple[str, str] | None:
-        if isinstance(msg, RobotStateMsg) and len(msg.q) != n_dof:
-            return "wrong_dof", f"{len(msg.q)} joints received, robot has {n_dof}"
+        if isinstance(msg, RobotStateMsg):
+            v_max = v_max_of()
+            if len(msg.q) != len(v_max):
+                return "wrong_dof", f"{len(msg.q)} joints received, robot has {len(v_max)}"
+            for j, (v, m) in enumerate(zip(msg.q_dot, v_max)):
+                if not abs(v) <= STATE_SPEED_FACTOR * m:
+                    return "out_of_range", (
+                        f"joint {j} moves at {float(v):.4g} rad/s, more than "
+                        f"{STATE_SPEED_FACTOR:g} times its velocity limit {float(m):.4g} rad/s"
+                    )
         age = time.time() - msg.stamp_s
         if not age <= MAX_STATE_AGE_S:
             return "out_of_range", f"stamped {age:.3g} s ago (at most {MAX_STATE_AGE_S} s)"

@@ -111,7 +111,7 @@ class CellWorker:
         status.continue_after(last_status_seq(self.name))  # after the entry point's
         with Starting(status, self.name, scenario.name, BUILDING):
             self.cell = build_cell(scenario)
-        self.io = CellBus(bus, self.name, status, self.cell.robot.n_dof)
+        self.io = CellBus(bus, self.name, status, lambda: self.cell.robot.limits.v_max)
         self.people = People(self.cell, self.io, self.errors)
         self.robot_in = MeasuredRobot()
         self.pass_index = 0
