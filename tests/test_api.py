@@ -34,7 +34,7 @@ from sara_app.api.jobs import LABEL_CHARS, whatif_label
 from sara_app.api.registry import CYCLE_WINDOW
 from sara_app.bus import keys
 from sara_app.bus.codec import Decoded
-from sara_app.bus.messages import ParamsAckMsg, ParamsMsg, StatusMsg, VerdictMsg
+from sara_app.bus.messages import ParamsAckMsg, ParamsMsg, RetireMsg, StatusMsg, VerdictMsg
 from sara_app.bus.session import Bus, free_port
 from sara_app.errors import SaraError
 from sara_app.human.params import available_param_sets, load_param_set
@@ -625,17 +625,21 @@ def test_server_stop_ends_open_event_streams(folder: Path) -> None:
     server.stop()
 
 
-def test_edit_over_the_api_reaches_the_real_worker(folder: Path) -> None:
+def test_edit_over_the_api_reaches_the_real_worker(folder: Path, tmp_path: Path) -> None:
     """The project's cell worker (in a thread here) applies a scenario sent over the API: its
-    status then reports the new scenario, and the verdicts keep coming."""
+    status then reports the new scenario, and the verdicts keep coming. The worker records
+    what it answered in the API's audit log, and so also what another editor on the bus sent
+    it, which the API never saw."""
     from sara_app.runtime.worker import CellWorker
 
     port = free_port()
+    audit = tmp_path / "audit.sqlite"
     with Bus.router(port), CellRegistry.connect(port) as reg, Bus.client(port) as wbus:
-        worker = CellWorker("cellw", load_scenario("empty_cell", folder), wbus, status_hz=10.0)
+        worker = CellWorker("cellw", load_scenario("empty_cell", folder), wbus, status_hz=10.0,
+                            audit=audit)  # fmt: skip
         thread = threading.Thread(target=worker.run, daemon=True)
         thread.start()
-        client = TestClient(create_app(reg, folder))
+        client = TestClient(create_app(reg, folder, audit=audit))
         try:
 
             def snap() -> dict[str, Any]:
@@ -665,9 +669,49 @@ def test_edit_over_the_api_reaches_the_real_worker(folder: Path) -> None:
             assert worker.cell.scenario.environment[0].center_m == (0.8, 0.0, 0.1)
             n = cell["verdicts_received"]
             assert _wait_until(lambda: snap()["verdicts_received"] > n)
+            with Bus.client(port) as script:  # another editor on the bus, not the API
+                _the_worker_audits_every_editor(client, script, worker)
         finally:
             worker.stop_event.set()
             thread.join(5)
+
+
+def _the_worker_audits_every_editor(client: TestClient, bus: Bus, worker: Any) -> None:
+    """The worker's own record (``GET .../worker/audit``): the API's confirmed edit, then a
+    script on the bus: a loosening it did not confirm (refused), a tightening (applied, the
+    checksum in force after it), a retirement of nobody (refused); newest first."""
+
+    def rows(n: int) -> list[dict[str, Any]]:
+        return _wait_until(
+            lambda: len(r := client.get("/api/cells/cellw/worker/audit").json()) >= n and r, 10.0
+        )
+
+    first = rows(1)
+    assert [(x["request"], x["outcome"], x["confirmed"], x["user"]) for x in first] == [
+        ("edit", "applied", True, "local")
+    ]
+    assert first[0]["checksum"] == worker.cell.checksum
+    edits = bus.publisher(keys.params_key("cellw"))
+    loosened = worker.cell.scenario.model_dump(mode="json")
+    loosened["environment"] = []  # the bench removed, unconfirmed
+    tightened = worker.cell.scenario.model_dump(mode="json")
+    tightened["inputs"]["max_people"] = 3
+    for rid, sc in (("script-1", loosened), ("script-2", tightened)):
+        seq = time.time_ns() // 1000  # after the API's numbering on the key (time-based too)
+        edits.put(ParamsMsg(seq=seq, stamp_s=time.time(), request_id=rid, scenario=sc,
+                            user="script"))  # fmt: skip
+        rows(len(first) + int(rid[-1]))  # in order: one answered before the next is sent
+    retire = bus.publisher(keys.retire_key("cellw"))
+    retire.put(RetireMsg(seq=0, stamp_s=time.time(), request_id="script-3", human_id="nobody",
+                         user="script"))  # fmt: skip
+    got = rows(4)[:3]
+    assert [(x["request"], x["request_id"], x["user"], x["outcome"]) for x in got] == [
+        ("retire", "script-3", "script", "refused"),
+        ("edit", "script-2", "script", "applied"),
+        ("edit", "script-1", "script", "refused"),
+    ]
+    assert "loosens" in got[2]["reason"] and got[1]["checksum"] == worker.cell.checksum
+    assert worker.cell.scenario.inputs.max_people == 3 and worker.cell.scenario.environment
 
 
 def test_concurrent_patches_are_serialised_and_none_is_lost(folder: Path) -> None:

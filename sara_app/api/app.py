@@ -21,7 +21,9 @@
   confirms where a stopped robot stands so the worker plans from there, audited
   (:mod:`sara_app.api.robot`).
 - An edit that loosens what the verdict assumes needs ``?confirm=true`` and is audited,
-  ``GET /api/cells/{cell}/assumptions/audit`` lists them (:mod:`sara_app.api.assumptions`).
+  ``GET /api/cells/{cell}/assumptions/audit`` lists them (:mod:`sara_app.api.assumptions`);
+  ``GET /api/cells/{cell}/worker/audit``: every edit, retirement and re-plan the worker
+  answered, whoever sent it (its own record, :mod:`sara_app.runtime.ledger`).
 - ``GET /api/params``, ``GET /api/params/{name}``: human-model parameter sets;
   ``GET /api/thresholds``, ``GET /api/thresholds/{name}``: contact-energy threshold sets.
 - ``/docs``: OpenAPI; ``/``: the landing page from the repository's ``static/`` folder.

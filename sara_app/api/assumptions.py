@@ -7,6 +7,9 @@ audit listing.
   ``refused``; with it, sent to the worker and recorded with its outcome (``applied``,
   ``refused`` by the worker, ``no_answer``) under the request's user.
 - ``GET /api/cells/{cell}/assumptions/audit``: the cell's loosening edits, newest first.
+- ``GET /api/cells/{cell}/worker/audit``: every edit, retirement and re-plan the cell's worker
+  answered, whoever sent it (the API, the dashboard or another editor on the bus), newest first
+  (:mod:`sara_app.runtime.ledger`).
 """
 
 from __future__ import annotations
@@ -59,3 +62,14 @@ def add_assumption_audit_route(
         assumes, confirmed or refused, newest first."""
         check_name("cell", cell)
         return audit().assumption_changes(cell, limit)
+
+    @app.get("/api/cells/{cell}/worker/audit", tags=["cells"], responses=responses(422, 503))
+    def worker_audit(
+        cell: CellName, limit: int = Query(50, ge=1, le=MAX_LIMIT)
+    ) -> list[dict[str, Any]]:
+        """Every scenario edit, retirement and re-plan the cell's worker answered, whoever sent
+        it, as the worker recorded it: the request, the user its message names, whether a
+        loosening was confirmed, applied or refused and why, the configuration checksum in
+        force after it; newest first."""
+        check_name("cell", cell)
+        return audit().worker_answers(cell, limit)

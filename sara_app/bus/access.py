@@ -15,9 +15,11 @@ worker         the worker's outputs: ``robot/command``, ``verdict``, ``occupancy
                ``params/ack``, ``status``, ``scenario``, and its liveliness token
 =============  =================================================================================
 
-An editor's scenario edit that loosens what the verdict assumes is applied only when its
-message says its user confirmed it (``ParamsMsg.confirm``; the worker compares it with what it
-runs, :func:`sara_app.runtime.edits.unconfirmed_loosening`).
+Every editor's request the worker answers is in the audit log, whoever sent it (the worker's
+own record, :mod:`sara_app.runtime.ledger`). An editor's scenario edit that loosens what the
+verdict assumes is applied only when its message says its user confirmed it
+(``ParamsMsg.confirm``; the worker compares it with what it runs,
+:func:`sara_app.runtime.edits.unconfirmed_loosening`).
 
 An unauthenticated session, or one with a wrong password, cannot connect at all; an
 authenticated one cannot publish outside its role (the router drops the message). The

@@ -66,8 +66,9 @@ def process_main(
     *,
     state: bool = False,
 ) -> int:
-    """Run ``factory(cell, scenario, bus)`` (with ``state_dir=`` and ``origin=`` keywords when
-    ``state``: the folder of ``--state-dir`` and the ``--scenario`` argument)."""
+    """Run ``factory(cell, scenario, bus)`` (with ``state_dir=``, ``origin=`` and ``audit=``
+    keywords when ``state``: the folder of ``--state-dir``, the ``--scenario`` argument and the
+    audit log of ``--audit``)."""
     ap = argparse.ArgumentParser(prog=f"sara_app.{name}", description=description)
     ap.add_argument("--cell", default="cell1")
     ap.add_argument("--scenario", default="standing_beside_path")
@@ -99,6 +100,11 @@ def process_main(
     )
     if state:
         ap.add_argument("--state-dir", default=None, help="keep the cell's edits in this folder")
+        ap.add_argument(
+            "--audit",
+            default=None,
+            help="record every edit, retirement and re-plan answered in this audit log (SQLite)",
+        )
     args = ap.parse_args(argv)
     if args.die_with_parent:
         die_with_parent()
@@ -121,7 +127,10 @@ def process_main(
             ),
         )
         with bus:  # building the cell (seconds of kernel loading) at normal priority
-            kw = {"state_dir": args.state_dir, "origin": args.scenario} if state else {}
+            kw = (
+                {"state_dir": args.state_dir, "origin": args.scenario, "audit": args.audit}
+                if state else {}
+            )  # fmt: skip
             proc = factory(args.cell, sc, bus, **kw)
             for sig in (signal.SIGINT, signal.SIGTERM):
                 signal.signal(sig, lambda *_: proc.stop_event.set())

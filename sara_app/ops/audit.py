@@ -18,7 +18,11 @@ body size), refused ones included; and every scenario edit that loosens what the
 assumes (``assumption_changes``: the changes in words, whether confirmed, who, where from, the
 outcome; :mod:`sara_app.ops.loosening`); and the operators' actions on the robot
 (``robot_actions``, schema version 5: ``replan``, the joint positions confirmed, who, where
-from, why, the outcome and the worker's answer).
+from, why, the outcome and the worker's answer); and what the cell worker itself answered
+(``worker_answers``, schema version 6: every scenario edit, retirement and re-plan that reached
+it, whoever sent it, with the user its message names, whether a loosening was confirmed, the
+outcome, why, and the configuration checksum in force after it;
+:mod:`sara_app.runtime.ledger`).
 
 Schema version ``PRAGMA user_version`` (:data:`SCHEMA_VERSION`; a version 1 file gains the
 person table when opened); a newer file is refused rather than misread. Concurrent writers
@@ -39,18 +43,19 @@ from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from sara_app.errors import ParameterError, SaraError
 
 log = logging.getLogger("sara_app.audit")
-SCHEMA_VERSION = 5
+SCHEMA_VERSION = 6
 """1: threshold_changes; 2: + person_actions; 3: + api_requests; 4: + assumption_changes; 5: +
-robot_actions. Every
+robot_actions; 6: + worker_answers. Every
 statement of the schema is idempotent (IF NOT EXISTS), so an older file is upgraded by running
 them all."""
 ENV_VAR = "SARA_APP_DATA"
 OUTCOMES = ("applied", "refused", "no_answer")
+WORKER_REQUESTS = ("edit", "retire", "replan")
 MAX_TEXT = 2000  # reasons longer than this are cut
 MAX_USER = 200
 MAX_LIMIT = 10_000
@@ -127,6 +132,25 @@ _SCHEMA = (
     outcome TEXT NOT NULL CHECK (outcome IN ('applied', 'refused', 'no_answer')),
     detail TEXT NOT NULL
 )""",
+    """CREATE TABLE IF NOT EXISTS worker_answers (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    time_utc TEXT NOT NULL,
+    time_epoch_s REAL NOT NULL,
+    cell TEXT NOT NULL,
+    request TEXT NOT NULL CHECK (request IN ('edit', 'retire', 'replan')),
+    request_id TEXT NOT NULL,
+    user TEXT NOT NULL,
+    confirmed INTEGER NOT NULL,
+    outcome TEXT NOT NULL CHECK (outcome IN ('applied', 'refused')),
+    reason TEXT NOT NULL,
+    checksum TEXT NOT NULL,
+    lost_before INTEGER NOT NULL
+)""",
+    "CREATE INDEX IF NOT EXISTS worker_answers_cell ON worker_answers (cell, id)",
+)
+_WORKER_COLUMNS = (
+    "id, time_utc, time_epoch_s, cell, request, request_id, user, confirmed, outcome, reason, "
+    "checksum, lost_before"
 )
 _ROBOT_COLUMNS = (
     "id, time_utc, time_epoch_s, cell, action, q_rad, user, via, reason, outcome, detail"
@@ -143,6 +167,22 @@ _COLUMNS = (
     "new_energy_J, requested, source_energy_J, source_key, exceeds_source, confirmed, user, "
     "via, outcome, reason"
 )
+
+
+class WorkerAnswer(NamedTuple):
+    """One request the cell worker answered (:mod:`sara_app.runtime.ledger`): ``request`` is
+    ``edit``, ``retire`` or ``replan``; ``user`` the one its message names; ``outcome``
+    ``applied`` or ``refused``; ``checksum`` the configuration in force after it."""
+
+    time_epoch_s: float
+    cell: str
+    request: str
+    request_id: str
+    user: str
+    confirmed: bool
+    outcome: str
+    reason: str
+    checksum: str
 
 
 class AuditError(SaraError):
@@ -424,6 +464,36 @@ class AuditLog:
         """``cell``'s loosening edits (confirmed and refused), newest first."""
         rows = self._of_cell("assumption_changes", _CHANGE_COLUMNS, cell, limit)
         return [_change_row(r) for r in rows]
+
+    def record_worker_answers(self, rows: list[WorkerAnswer], lost_before: int = 0) -> None:
+        """Append the worker's answers ``rows`` in one transaction; ``lost_before``: answers
+        the worker could not record since its previous write (stored on the first row)."""
+        out = []
+        for k, a in enumerate(rows):
+            if a.outcome not in ("applied", "refused") or a.request not in WORKER_REQUESTS:
+                raise ParameterError(
+                    f"worker answer {a.request!r} {a.outcome!r}; valid: {WORKER_REQUESTS}, "
+                    "applied or refused"
+                )
+            stamp = datetime.fromtimestamp(a.time_epoch_s, UTC).isoformat(timespec="microseconds")
+            out.append((stamp, float(a.time_epoch_s), str(a.cell)[:64], a.request,
+                        str(a.request_id)[:64], _clean_user(a.user), int(bool(a.confirmed)),
+                        a.outcome, str(a.reason)[:MAX_TEXT], str(a.checksum)[:64],
+                        int(lost_before) if k == 0 else 0))  # fmt: skip
+        names = _WORKER_COLUMNS.split(", ", 1)[1]
+        sql = f"INSERT INTO worker_answers ({names}) VALUES ({', '.join('?' * 11)})"
+        with self._connect() as con:
+            con.execute("BEGIN")
+            con.executemany(sql, out)
+            con.execute("COMMIT")
+
+    def worker_answers(self, cell: str, limit: int = 50) -> list[dict[str, Any]]:
+        """``cell``'s requests as its worker answered them, newest first (at most ``limit``)."""
+        rows = self._of_cell("worker_answers", _WORKER_COLUMNS, cell, limit)
+        out = [dict(zip(_WORKER_COLUMNS.split(", "), r, strict=True)) for r in rows]
+        for d in out:
+            d["confirmed"] = bool(d["confirmed"])
+        return out
 
     def requests(self, limit: int = 50) -> list[dict[str, Any]]:
         """The API's mutating requests, newest first."""

@@ -43,7 +43,7 @@ from sara_app.bus.process import LOG_LEVEL_ENV
 from sara_app.bus.session import Bus
 from sara_app.errors import ParameterError, SaraError
 from sara_app.geometry.poses import pose_from_xyz_rpy
-from sara_app.ops.audit import default_data_dir
+from sara_app.ops.audit import default_audit_path, default_data_dir
 from sara_app.ops.health import HealthLog
 from sara_app.ops.supervisor import Child, Supervisor
 from sara_app.processes.affinity import CpuPlan, cpu_plan, pin_threads, pinned
@@ -306,7 +306,12 @@ def _cell_children(
     the others' (None: any)."""
     mine, rest = cpus
     rt = WORKER_RT_PRIORITY
-    keep = ("--state-dir", str(default_data_dir() / "cells"))  # edits survive restarts
+    keep = (
+        "--state-dir",
+        str(default_data_dir() / "cells"),  # edits survive restarts
+        "--audit",
+        str(default_audit_path()),
+    )  # what the worker answered, whoever asked
 
     def login(role: str) -> tuple[str, ...]:
         return ("--zenoh-user", role, "--zenoh-credentials", str(creds.path))

@@ -16,6 +16,7 @@ from sara_app.bus.messages import ParamsAckMsg
 from sara_app.bus.session import Bus, Publisher
 from sara_app.errors import SaraError
 from sara_app.runtime import robot_link
+from sara_app.runtime.ledger import AnswerLedger
 from sara_app.safety.settings import FUTURE_TOLERANCE_S
 
 SKELETON_QUEUE = 4096
@@ -46,6 +47,8 @@ class CellBus:
         self.acks = bus.publisher(keys.params_ack_key(cell))
         self.scenario = bus.publisher(keys.scenario_key(cell))
         self.status = status
+        self.ledger: AnswerLedger | None = None
+        """Where the answered requests are recorded (the worker sets it; None: nowhere)."""
 
     def drop(self, reason: str) -> None:
         """Count one input refused for ``reason`` (a contract reason)."""
@@ -57,8 +60,16 @@ class CellBus:
             out[reason] = out.get(reason, 0) + n
         return out
 
-    def ack(self, request_id: str, ok: bool, reason: str) -> None:
-        """Answer a scenario edit, a retirement or a re-plan."""
+    def answer(
+        self, request: str, request_id: str, user: str, ok: bool, reason: str,
+        confirmed: bool = False,
+    ) -> None:  # fmt: skip
+        """Answer a scenario edit, a retirement or a re-plan (``request``: edit, retire,
+        replan) on ``params/ack``, and record it in the audit log when the worker keeps one
+        (``ledger``, :mod:`~sara_app.runtime.ledger`): whoever sent it. Call it once the
+        answer has taken effect (the checksum recorded is the one in force)."""
+        if self.ledger is not None:
+            self.ledger.note(request, request_id, user, ok, reason, confirmed)
         self.acks.put(
             ParamsAckMsg(
                 seq=self.acks.next_seq(),

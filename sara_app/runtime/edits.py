@@ -234,10 +234,12 @@ class LiveEdits:
         """Requested edits off the bus into the builder (refused at once when it is full),
         finished builds into the queue of those to swap in."""
         for d in io.params.drain().messages:
-            if isinstance(d.msg, ParamsMsg) and not self.builder.submit(
-                d.msg.request_id, d.msg.scenario, d.msg.confirm, d.msg.user
+            m = d.msg
+            if isinstance(m, ParamsMsg) and not self.builder.submit(
+                m.request_id, m.scenario, m.confirm, m.user
             ):
-                io.ack(d.msg.request_id, False, f"busy: {MAX_PENDING_EDITS} edits pending")
+                busy = f"busy: {MAX_PENDING_EDITS} edits pending"
+                io.answer("edit", m.request_id, m.user, False, busy, m.confirm)
         self._waiting.extend(self.builder.done())  # built off the loop: swapped in by the loop
 
     def take(self, swap: Callable[[Built], bool]) -> None:

@@ -114,7 +114,7 @@ class People:
                                 d.msg.reason)  # fmt: skip
                 else:  # rate-limited: anyone may send these
                     self.errors("retire refused", reason)
-                self.io.ack(d.msg.request_id, not reason, reason)
+                self.io.answer("retire", d.msg.request_id, d.msg.user, not reason, reason)
 
     def adopt(self, new: Cell) -> None:
         """Everyone stays known under a new cell, with their measurement and faults; their

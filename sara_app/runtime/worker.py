@@ -50,6 +50,7 @@ from sara_app.runtime.edits import (
     task_pass,
     unconfirmed_loosening,
 )
+from sara_app.runtime.ledger import AnswerLedger
 from sara_app.runtime.messages import CycleMessages
 from sara_app.runtime.people import People
 from sara_app.runtime.presence import Presence
@@ -96,6 +97,7 @@ class CellWorker:
         status_hz: float = 1.0,
         state_dir: str | Path | None = None,
         origin: str | None = None,
+        audit: str | Path | None = None,
     ) -> None:
         self.name = keys.check_name("cell", cell_name)
         self.bus = bus
@@ -112,6 +114,8 @@ class CellWorker:
         with Starting(status, self.name, scenario.name, BUILDING):
             self.cell = build_cell(scenario)
         self.io = CellBus(bus, self.name, status, lambda: self.cell.robot.limits.v_max)
+        if audit is not None:
+            self.io.ledger = AnswerLedger(audit, self.name, lambda: self.cell.checksum)
         self.people = People(self.cell, self.io, self.errors)
         self.robot_in = MeasuredRobot()
         self.pass_index = 0
@@ -181,7 +185,7 @@ class CellWorker:
                             m.user, m.reason)  # fmt: skip
             else:
                 self.errors("re-plan refused", why)
-            self.io.ack(m.request_id, why is None, why or "")
+            self.io.answer("replan", m.request_id, m.user, why is None, why or "")
 
     def _replan_refusal(self, m: ReplanMsg, now: float) -> str | None:
         n, sc = self.cell.robot.n_dof, self.cell.scenario
@@ -213,7 +217,7 @@ class CellWorker:
         refused first (:func:`~sara_app.runtime.edits.unconfirmed_loosening`)."""
         refused = unconfirmed_loosening(self.cell.scenario, b)
         if refused is not None:
-            self.io.ack(b.request_id, False, refused)
+            self.io.answer("edit", b.request_id, b.user, False, refused, b.confirm)
             return True
         if b.cell is not None and self._needs_rest(b.cell) and not self.shield.at_rest:
             self.shield.halt_reason = f"stopping for the switch to {b.cell.shield.safety_mode}"
@@ -223,7 +227,7 @@ class CellWorker:
         if ok:  # on disk, then announced, then acknowledged: an ack means all three
             reason = self.edits.persist(self.cell.scenario)
             self.io.scenario.put(self.scenario_msg(time.time()))
-        self.io.ack(b.request_id, ok, reason)
+        self.io.answer("edit", b.request_id, b.user, ok, reason, b.confirm)
         return True
 
     def _needs_rest(self, new: Cell) -> bool:
@@ -428,6 +432,8 @@ class CellWorker:
                 next_t = time.monotonic()
         self.io.status.put(self.status_msg(time.time(), "stopping"))
         self.edits.close()
+        if self.io.ledger is not None:
+            self.io.ledger.close()
         self.release()
 
     def release(self) -> None:
