@@ -24,7 +24,7 @@ import time
 import uuid
 from collections import deque
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, cast
 
 import numpy as np
 
@@ -156,14 +156,14 @@ class CellView(GizmoEditing):
         return self.frame()
 
     def _new_verdicts(self) -> list[VerdictMsg]:
-        if self.verdict_source is not None:
-            new, self.verdicts_seen = self.verdict_source.verdicts_after(
-                self.cell, self.verdicts_seen
-            )
-            return new
-        if self.sub_verdict is None:
-            return []
-        return [d.msg for d in self.sub_verdict.drain().messages if isinstance(d.msg, VerdictMsg)]
+        """The verdicts since the last call: from this view's own subscription, or (``serve``)
+        from the source that shares one subscription among the views."""
+        if self.sub_verdict is not None:
+            msgs = self.sub_verdict.drain().messages
+            return [d.msg for d in msgs if isinstance(d.msg, VerdictMsg)]
+        source = cast(VerdictSource, self.verdict_source)  # set when there is no subscription
+        new, self.verdicts_seen = source.verdicts_after(self.cell, self.verdicts_seen)
+        return new
 
     def waiting_status(self) -> dict[str, Any]:
         """The status table's entries before the first verdict: what the worker says it is

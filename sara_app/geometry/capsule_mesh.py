@@ -22,6 +22,8 @@ against the plane, the cross-section closed by a lid. Drawn by the dashboard
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from sara_app.errors import InputError
@@ -151,14 +153,23 @@ SECTIONS, RINGS = 12, 4
 """Mesh resolution of a cut capsule (coarser than the instanced ones: it is sent as vertices)."""
 
 
+@functools.lru_cache(maxsize=8)
+def _unit_meshes(sections: int, rings: int) -> tuple[np.ndarray, ...]:
+    """The unit tube's and hemisphere's vertices and faces, built once per resolution (the cut
+    sets are meshed at the display's rate), read-only."""
+    out = (*unit_tube(sections), *unit_hemisphere(sections, rings))
+    for a in out:
+        a.setflags(write=False)
+    return out
+
+
 def capsule_triangles(
     ends: np.ndarray, radius: np.ndarray, sections: int = SECTIONS, rings: int = RINGS
 ) -> np.ndarray:
     """World triangles ``(N, F, 3, 3)`` of ``N`` capsules ``ends (N, 2, 3)``, ``radius (N,)``:
     the tube's faces, then the hemisphere at ``a``'s, then ``b``'s; wound outward."""
     n = ends.shape[0]
-    tube_v, tube_f = unit_tube(sections)
-    cap_v, cap_f = unit_hemisphere(sections, rings)
+    tube_v, tube_f, cap_v, cap_f = _unit_meshes(sections, rings)
     t_pos, t_q, t_s = np.zeros((n, 3)), np.zeros((n, 4)), np.zeros((n, 3))
     c_pos, c_q, c_s = np.zeros((2 * n, 3)), np.zeros((2 * n, 4)), np.zeros(2 * n)
     capsule_instances(ends, radius, t_pos, t_q, t_s, c_pos, c_q, c_s)
