@@ -14,7 +14,9 @@ import time
 import urllib.request
 from pathlib import Path
 
+import httpx
 import pytest
+from waiting import wait_until
 
 from sara_app.bus.session import free_port
 from sara_app.processes.affinity import cpu_plan
@@ -52,11 +54,16 @@ def _child_pids(zenoh_port: int) -> dict[int, str]:
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
-def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(sig: signal.Signals) -> None:
+def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(
+    sig: signal.Signals, tmp_path: Path
+) -> None:
     zp, vp, ap = free_port(), free_port(), free_port()
     cmd = [sys.executable, "-m", "sara_app.cli", "serve", "--zenoh-port", str(zp),
            "--viewer-port", str(vp), "--api-port", str(ap)]  # fmt: skip
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    env = {**os.environ, "SARA_APP_DATA": str(tmp_path)}  # its edit stays its own
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env
+    )
     try:
         cell, last = None, None
         t_end = time.monotonic() + 60
@@ -108,6 +115,7 @@ def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(sig: signal.Signals) ->
                 want = plan.worker(0) if "worker_start" in text else plan.rest
                 for task in Path(f"/proc/{pid}/task").iterdir():
                     assert os.sched_getaffinity(int(task.name)) == want, (text, task.name)
+        _an_edit_is_in_the_workers_own_audit(ap)
     finally:
         proc.send_signal(sig)
         out = _communicate_or_dump(proc, zp, timeout_s=30)
@@ -123,6 +131,19 @@ def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(sig: signal.Signals) ->
     while _children(zp) and time.monotonic() < t_end:
         time.sleep(0.2)
     assert _children(zp) == []
+
+
+def _an_edit_is_in_the_workers_own_audit(api_port: int) -> None:
+    """An edit over the API reaches serve's worker, which records it in the audit log serve
+    gave it: the row names the API's user and the checksum the cell runs from then on."""
+    url = f"http://127.0.0.1:{api_port}/api/cells/cell1"
+    before = httpx.get(url, timeout=5).json()["config_sha256"]
+    r = httpx.patch(url + "/scenario", json={"description": "audited"}, timeout=20)
+    assert r.status_code == 200, r.text
+    rows = wait_until(lambda: httpx.get(url + "/worker/audit", timeout=5).json(), 10.0)
+    assert [(x["request"], x["outcome"], x["user"]) for x in rows] == [("edit", "applied", "local")]
+    assert rows[0]["checksum"] != before
+    wait_until(lambda: httpx.get(url, timeout=5).json()["config_sha256"] == rows[0]["checksum"])
 
 
 def _communicate_or_dump(proc: subprocess.Popen[str], zenoh_port: int, timeout_s: float) -> str:
