@@ -104,3 +104,36 @@ def test_the_report_checks_the_recording_the_cell_replays_with_its_skeleton() ->
     assert effective and all(r["share"] == 1.0 and r["unflagged"] == 0 for r in effective)
     assert all(r["monitor_violations"] == 0 for r in rows)
     assert {r["recording"] for r in ev.containment} >= {"02_01"}
+
+
+def test_the_report_lists_what_the_worker_answered_and_marks_its_configuration(
+    tmp_path: Path,
+) -> None:
+    """The worker's record of the requests it answered (a real audit log) in the report: each
+    request with its user and outcome, the row that left this report's configuration in force
+    in bold, text escaped, rows the worker could not record counted; none without a log."""
+    from sara_app.ops.audit import AuditLog, WorkerAnswer
+    from sara_app.report.evidence import Evidence
+    from sara_app.report.html import _worker_answers
+
+    log = AuditLog(tmp_path / "audit.sqlite")
+    mine, other = "c" * 64, "d" * 64
+    log.record_worker_answers([
+        WorkerAnswer(1.0, "cell1", "edit", "api-1", "alice", True, "applied", "", other),
+        WorkerAnswer(2.0, "cell1", "retire", "s-2", "<script>", False, "refused", "not known",
+                     other),
+    ], lost_before=3)  # fmt: skip
+    log.record_worker_answers([WorkerAnswer(3.0, "cell1", "edit", "s-3", "bob", False,
+                                            "applied", "", mine)])  # fmt: skip
+    ev = Evidence("now", "here", "0", "x", mine, {}, {})
+    assert _worker_answers(ev) == ""  # no audit log given
+    ev.worker_answers = log.worker_answers("cell1")
+    page = _worker_answers(ev)
+    assert [page.index(x) for x in ("s-3", "s-2", "api-1")] == sorted(
+        page.index(x) for x in ("s-3", "s-2", "api-1")
+    )  # newest first
+    assert f"<b>{mine[:12]}</b>" in page and f"<b>{other[:12]}</b>" not in page
+    assert "&lt;script&gt;" in page and "<script>" not in page
+    assert "<b>3 answered requests could not be recorded</b>" in page
+    ev.worker_answers = log.worker_answers("cell2")
+    assert "None recorded for this cell" in _worker_answers(ev)

@@ -81,6 +81,9 @@ class Evidence:
     containment: list[dict[str, Any]] = field(default_factory=list)
     thresholds: dict[str, Any] = field(default_factory=dict)
     audit: list[dict[str, Any]] | None = None
+    worker_answers: list[dict[str, Any]] | None = None
+    """The requests the cell's worker answered (edits, retirements, re-plans), newest first;
+    None without an audit log or a cell."""
     stops: list[dict[str, Any]] = field(default_factory=list)
     closed_loop: list[dict[str, Any]] = field(default_factory=list)
     adversarial: list[dict[str, Any]] = field(default_factory=list)
@@ -156,6 +159,8 @@ def gather(sc: Scenario, settings: Settings, progress: Progress | None = None) -
     if settings.audit_path is not None:
         log = AuditLog(settings.audit_path)
         ev.audit = [e.to_dict() for e in log.entries(settings.cell, limit=500)]
+        if settings.cell is not None:
+            ev.worker_answers = log.worker_answers(settings.cell, limit=500)
     wps = np.asarray(sc.task.waypoints_rad, dtype=float)
     rows = stop_rows(cell.robot, cell.limits, wps, cell.params.delay_s, cell.shield.settings.dt_s)
     ev.stops = [asdict(r) for r in rows]

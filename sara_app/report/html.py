@@ -218,8 +218,33 @@ def _thresholds(ev: Evidence) -> str:
     return (
         f"<h2>3. Contact energy thresholds</h2><p>Set <code>{_e(tv.get('thresholds'))}</code>; "
         "edited values in bold. ISO/TS 15066 values are for reference (E = F²/2k; transient: "
-        f"2F).</p>{table}<h4>Sources</h4>{sources}<h3>Audit log</h3>{audit}"
+        f"2F).</p>{table}<h4>Sources</h4>{sources}<h3>Audit log</h3>{audit}" + _worker_answers(ev)
     )
+
+
+def _worker_answers(ev: Evidence) -> str:
+    """The requests the cell's worker answered, whoever sent them; the configuration each left
+    in force, marked where it is the one this report describes."""
+    rows = ev.worker_answers
+    if rows is None:
+        return ""
+    head = (
+        "<h3>Requests the cell's worker answered</h3><p>Every scenario edit, retirement and "
+        "re-plan that reached the worker, from the API, the dashboard or any other editor on the "
+        "bus, as the worker recorded it, newest first; the checksum is the configuration in "
+        "force after it (<b>bold</b>: this report's).</p>"
+    )
+    if not rows:
+        return head + "<p>None recorded for this cell.</p>"
+    lost = sum(int(a["lost_before"]) for a in rows)
+    note = f"<p><b>{lost} answered requests could not be recorded</b> (see the worker's log).</p>"
+    return head + (note if lost else "") + _table(
+        ("time (UTC)", "request", "id", "user", "confirmed", "outcome", "reason", "checksum"),
+        ((_e(a["time_utc"]), _e(a["request"]), _e(a["request_id"]), _e(a["user"]),
+          "yes" if a["confirmed"] else "no", _e(a["outcome"]), _e(a["reason"]),
+          f"<b>{_e(a['checksum'][:12])}</b>" if a["checksum"] == ev.checksum
+          else _e(a["checksum"][:12])) for a in rows),
+    )  # fmt: skip
 
 
 def _stops(ev: Evidence) -> str:
