@@ -691,6 +691,7 @@ def _the_worker_audits_every_editor(client: TestClient, bus: Bus, worker: Any) -
         ("edit", "applied", True, "local")
     ]
     assert first[0]["checksum"] == worker.cell.checksum
+    assert first[0]["reason"].startswith("confirmed loosening: environment box 'bench' center_m")
     edits = bus.publisher(keys.params_key("cellw"))
     loosened = worker.cell.scenario.model_dump(mode="json")
     loosened["environment"] = []  # the bench removed, unconfirmed

@@ -62,14 +62,16 @@ class CellBus:
 
     def answer(
         self, request: str, request_id: str, user: str, ok: bool, reason: str,
-        confirmed: bool = False,
+        confirmed: bool = False, recorded: str | None = None,
     ) -> None:  # fmt: skip
         """Answer a scenario edit, a retirement or a re-plan (``request``: edit, retire,
         replan) on ``params/ack``, and record it in the audit log when the worker keeps one
-        (``ledger``, :mod:`~sara_app.runtime.ledger`): whoever sent it. Call it once the
-        answer has taken effect (the checksum recorded is the one in force)."""
+        (``ledger``, :mod:`~sara_app.runtime.ledger`): whoever sent it, with ``recorded`` as
+        its reason (None: the answer's). Call it once the answer has taken effect (the
+        checksum recorded is the one in force)."""
         if self.ledger is not None:
-            self.ledger.note(request, request_id, user, ok, reason, confirmed)
+            said = reason if recorded is None else recorded
+            self.ledger.note(request, request_id, user, ok, said, confirmed)
         self.acks.put(
             ParamsAckMsg(
                 seq=self.acks.next_seq(),

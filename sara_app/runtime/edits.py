@@ -58,22 +58,23 @@ def build(request_id: str, data: dict, confirm: bool = False, user: str = "") ->
         return Built(request_id, None, None, f"internal error: {e!r}")
 
 
-def unconfirmed_loosening(current: Scenario, b: Built) -> str | None:
+def unconfirmed_loosening(current: Scenario, b: Built) -> tuple[str | None, list[str]]:
     """Why ``b`` may not run after ``current``: it loosens what the verdict assumes and its
     sender did not confirm that (:mod:`sara_app.ops.loosening`; the API and the dashboard
-    confirm and audit, any other editor on the bus must say so too); None when it may. A
-    confirmed loosening is logged with who confirmed it."""
+    confirm and audit, any other editor on the bus must say so too), or None when it may; and
+    the loosenings its sender confirmed (each in words). A confirmed loosening is logged with
+    who confirmed it."""
     if b.scenario is None:
-        return None
+        return None, []
     try:
         found = check_loosening(current, b.scenario, confirm=b.confirm,
                                 how_to_confirm="send it with confirm: true")  # fmt: skip
     except LooseningRefusedError as e:
-        return str(e)
+        return str(e), []
     if found:
         log.warning("edit %s by %r loosens what the verdict assumes, confirmed: %s",
                     b.request_id, b.user or "(no user given)", "; ".join(found))  # fmt: skip
-    return None
+    return None, found
 
 
 class CellBuilder:

@@ -215,7 +215,7 @@ class CellWorker:
         come to rest (leaving a mode that holds no verified failsafe: it is halted meanwhile).
         An edit that loosens what the verdict assumes without its sender's confirmation is
         refused first (:func:`~sara_app.runtime.edits.unconfirmed_loosening`)."""
-        refused = unconfirmed_loosening(self.cell.scenario, b)
+        refused, loosens = unconfirmed_loosening(self.cell.scenario, b)
         if refused is not None:
             self.io.answer("edit", b.request_id, b.user, False, refused, b.confirm)
             return True
@@ -227,7 +227,10 @@ class CellWorker:
         if ok:  # on disk, then announced, then acknowledged: an ack means all three
             reason = self.edits.persist(self.cell.scenario)
             self.io.scenario.put(self.scenario_msg(time.time()))
-        self.io.answer("edit", b.request_id, b.user, ok, reason, b.confirm)
+        said = reason  # the record says what the sender confirmed
+        if ok and loosens:
+            said = f"confirmed loosening: {'; '.join(loosens)}" + (f"; {reason}" if reason else "")
+        self.io.answer("edit", b.request_id, b.user, ok, reason, b.confirm, recorded=said)
         return True
 
     def _needs_rest(self, new: Cell) -> bool:
