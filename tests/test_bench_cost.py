@@ -13,6 +13,7 @@ import numpy as np
 from sara_app.bench.cost import (
     _cpu_s,
     _latencies,
+    _published_latencies,
     _switches,
     _zenoh_cpu_s,
     scenario_with_people,
@@ -93,6 +94,20 @@ def test_latency_is_publication_to_the_first_verdict_that_used_the_skeleton() ->
     lat = _latencies(got)
     # 10.0015 - 10.000, 10.0095 - 10.008: the cycles at 10.001 and 10.009, received 0.5 ms on
     np.testing.assert_allclose(lat, [[1000.0, 500.0], [1000.0, 500.0]], atol=1e-3)
+
+
+def test_latency_from_publication_takes_each_skeletons_own_publication_time() -> None:
+    """The same verdicts, the skeletons published 0.3 and 0.4 ms after their stamps: per
+    skeleton, stamp -> publication and publication -> the first verdict received that used it;
+    a skeleton whose publication was not heard is left out."""
+    got = []
+    for k in range(8):
+        stamp = 10.001 + 0.002 * k
+        skel = 10.000 if stamp < 10.008 else 10.008
+        got.append((stamp + 0.0005, stamp, {"p1": stamp - skel, "p2": stamp - skel}))
+    published = {("p1", 10.000): 10.0003, ("p1", 10.008): 10.0084}
+    lat = _published_latencies(got, published)
+    np.testing.assert_allclose(lat, [[300.0, 1200.0], [400.0, 1100.0]], atol=1e-3)
 
 
 def test_the_loads_copy_the_first_person_to_their_own_spots(tmp_path: Path) -> None:

@@ -59,6 +59,45 @@ def test_loopback_only_and_connection_errors() -> None:
         Bus.client(free_port(), timeout_ms=300)
 
 
+def test_a_timestamping_session_stamps_its_messages_when_it_puts_them(
+    router: tuple[Bus, int],
+) -> None:
+    """A session opened with ``timestamping`` gives each message it puts zenoh's timestamp of
+    the put (within the put call, on this machine's clock: what ``bench --live`` measures a
+    skeleton's publication from); a plain session's messages are stamped later (the router
+    stamps their arrival)."""
+    _, port = router
+    with Bus.client(port, timestamping=True) as a, Bus.client(port) as b, \
+            Bus.client(port) as c:  # fmt: skip
+        heard: list[tuple[str, tuple[float, str]]] = []
+        listener = c.session.declare_subscriber(
+            "sara/ts/**", lambda smp: heard.append((str(smp.key_expr), (
+                smp.timestamp.get_time().timestamp(), str(smp.timestamp.get_id())))),
+        )  # fmt: skip
+        pubs = {"own": a.session.declare_publisher("sara/ts/own"),
+                "router": b.session.declare_publisher("sara/ts/router")}  # fmt: skip
+        time.sleep(0.5)
+        spans = {}
+        for name, pub in pubs.items():
+            time.sleep(0.05)  # a cold put: its transit is long enough to tell the two apart
+            t0 = time.time()
+            pub.put(b"x")
+            spans[name] = (t0, time.time())
+        wait_for = time.monotonic() + 5
+        while len(heard) < 2 and time.monotonic() < wait_for:
+            time.sleep(0.01)
+        listener.undeclare()
+        for p in pubs.values():
+            p.undeclare()
+        ids = {"own": str(a.session.zid()), "router": str(b.session.zid())}
+    stamps = dict(heard)
+    lo, hi = spans["own"]
+    assert lo - 1e-6 <= stamps["sara/ts/own"][0] <= hi + 1e-6
+    assert stamps["sara/ts/own"][1] == ids["own"]  # the publisher's own clock stamped it
+    assert stamps["sara/ts/router"][0] >= spans["router"][0] - 1e-6
+    assert stamps["sara/ts/router"][1] != ids["router"]  # not the plain publisher's
+
+
 def test_client_to_client_through_the_router(router: tuple[Bus, int]) -> None:
     _, port = router
     with Bus.client(port) as a, Bus.client(port) as b:

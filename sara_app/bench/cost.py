@@ -11,9 +11,13 @@ Per run and load, two phases of ``seconds`` each:
    one control cycle. This process listens to the verdicts only (as serve's registry does).
    The skeleton -> verdict latency comes from the same verdicts: a verdict's ``stamp_s -
    skeleton_age_s`` is the stamp of the skeleton it used, so the first verdict that used a
-   skeleton gives its publication -> reception time here (one clock: this machine's).
+   skeleton gives its stamp -> reception time here (one clock: this machine's). The stamp is
+   the tracker's measurement time: it includes the tracker's own time before it publishes.
 2. **Messages**: every message on the cell's keys counted and sized per key kind, per cycle
-   (listening to all of them costs the router a copy of each: not done while measuring CPU).
+   (listening to all of them costs the router a copy of each: not done while measuring CPU);
+   and the latency from each skeleton's **publication** (its zenoh timestamp, which the
+   replayer's session sets when it puts the message) to the first verdict received that used
+   it: the issue's "skeleton published -> verdict received", under this phase's extra load.
 
 The rows are the median over ``runs`` runs (and the spread); ``docs/performance.md`` holds the
 numbers measured with it.
@@ -65,6 +69,9 @@ class LoadCost:
     latency_us: list[np.ndarray] = field(default_factory=list)
     """Per run, ``(N, 2)``: each skeleton's wait for a cycle and the cycle + verdict delivery
     (:func:`_latencies`)."""
+    published_us: list[np.ndarray] = field(default_factory=list)
+    """Per run, ``(N, 2)`` from the second phase: each skeleton's stamp -> publication (the
+    tracker's own time) and publication -> verdict received (:func:`_published_latencies`)."""
     verdict_hz: list[float] = field(default_factory=list)
     messages: dict[str, tuple[float, float]] = field(default_factory=dict)
 
@@ -131,12 +138,23 @@ def _latencies(received: list[tuple[float, float, dict[str, float]]]) -> np.ndar
     skeleton ages)``: per person and skeleton stamp, the first verdict that used it; shape
     ``(N, 2)``: the wait for a cycle (the skeleton's age when the cycle started) and the
     cycle and the verdict's delivery (cycle start -> received), whose sum is the latency."""
-    first: dict[tuple[str, float], tuple[float, float]] = {}
+    first = _first_use(received).values()
+    return np.array(
+        [(age * 1e6, (t_recv - stamp_s) * 1e6) for age, t_recv, stamp_s in first]
+    ).reshape(-1, 2)
+
+
+def _first_use(
+    received: list[tuple[float, float, dict[str, float]]],
+) -> dict[tuple[str, float], tuple[float, float, float]]:
+    """``(person, skeleton stamp)`` -> ``(its age at the cycle, s; when that verdict was
+    received; the verdict's stamp)``, from the first verdict received that used the
+    skeleton."""
+    first: dict[tuple[str, float], tuple[float, float, float]] = {}
     for t_recv, stamp_s, ages in received:
         for h, age in ages.items():
-            t_skel = round(stamp_s - age, 6)
-            first.setdefault((h, t_skel), (age * 1e6, (t_recv - stamp_s) * 1e6))
-    return np.array(list(first.values())).reshape(-1, 2)
+            first.setdefault((h, round(stamp_s - age, 6)), (age, t_recv, stamp_s))
+    return first
 
 
 def _verdicts(hub: Bus, cell: str, seconds: float) -> list[tuple[float, float, dict[str, float]]]:
@@ -164,27 +182,62 @@ def _verdicts(hub: Bus, cell: str, seconds: float) -> list[tuple[float, float, d
     return got
 
 
-def _messages(hub: Bus, cell: str, seconds: float) -> dict[str, tuple[int, int]]:
-    """Messages and bytes per key kind on the cell's keys over ``seconds``."""
+Heard = tuple[dict[str, tuple[int, int]], dict[tuple[str, float], float], list[Any]]
+
+
+def _messages(hub: Bus, cell: str, seconds: float) -> Heard:
+    """Messages and bytes per key kind on the cell's keys over ``seconds``; each skeleton's
+    publication time (its zenoh timestamp: the replayer's session stamps what it puts) by
+    ``(person, skeleton stamp)``; and the verdicts as :func:`_verdicts` gives them."""
     counts: dict[str, list[int]] = defaultdict(lambda: [0, 0])
+    published: dict[tuple[str, float], float] = {}
+    verdicts: list[Any] = []
     lock = threading.Lock()
 
     def seen(sample: Any) -> None:
+        t_recv = time.time()
         key = str(sample.key_expr)
+        payload = sample.payload.to_bytes()
         try:
-            kind = keys.parse_key(key).kind
+            k = keys.parse_key(key)
+            kind = k.kind
         except Exception:  # noqa: BLE001 - count what is not ours under its key
-            kind = key
+            k, kind = None, key
         with lock:
             c = counts[kind]
             c[0] += 1
-            c[1] += len(sample.payload.to_bytes())
+            c[1] += len(payload)
+        try:
+            if kind == "skeleton" and k is not None and sample.timestamp is not None:
+                stamp = round(float(json.loads(payload)["stamp_s"]), 6)
+                published[(str(k.human_id), stamp)] = sample.timestamp.get_time().timestamp()
+            elif kind == "verdict":
+                v = json.loads(payload)
+                verdicts.append((t_recv, float(v["stamp_s"]), v["skeleton_age_s"]))
+        except (ValueError, KeyError, TypeError):
+            pass  # not a message of the contract: counted above, not timed
 
     sub = hub.session.declare_subscriber(f"sara/{cell}/**", seen)
     time.sleep(seconds)
     sub.undeclare()
     with lock:
-        return {k: (v[0], v[1]) for k, v in counts.items()}
+        return {k: (v[0], v[1]) for k, v in counts.items()}, published, verdicts
+
+
+def _published_latencies(
+    received: list[tuple[float, float, dict[str, float]]],
+    published: dict[tuple[str, float], float],
+) -> np.ndarray:
+    """Per skeleton whose publication time is known (``published`` by ``(person, stamp)``),
+    from the first verdict received that used it (``received`` as :func:`_latencies` takes
+    it): ``(N, 2)`` us, the tracker's own time from stamp to publication, and publication ->
+    verdict received (the issue's latency: one clock, this machine's)."""
+    out = []
+    for (h, t_skel), (_, t_recv, _) in _first_use(received).items():
+        t_pub = published.get((h, t_skel))
+        if t_pub is not None:
+            out.append(((t_pub - t_skel) * 1e6, (t_recv - t_pub) * 1e6))
+    return np.array(out).reshape(-1, 2)
 
 
 def _measure(hub: Bus, cell: str, pids: dict[str, int], seconds: float, out: LoadCost) -> None:
@@ -202,7 +255,8 @@ def _measure(hub: Bus, cell: str, pids: dict[str, int], seconds: float, out: Loa
         out.per_process[n].append(ProcessCost(cpu_us, (_switches(p) - sw0[n]) / cycles, zenoh_us))
     out.verdict_hz.append(len(got) / span)
     out.latency_us.append(_latencies(got))
-    msgs = _messages(hub, cell, seconds)
+    msgs, published, heard = _messages(hub, cell, seconds)
+    out.published_us.append(_published_latencies(heard, published))
     n_cycles = max(out.verdict_hz[-1] * seconds, 1.0)
     out.messages = {k: (n / n_cycles, b / n_cycles) for k, (n, b) in sorted(msgs.items())}
 
@@ -283,12 +337,16 @@ def report(loads: list[LoadCost]) -> str:
         spread = " ".join(f"{x:.0f}" for x in total)
         lines.append(f"  {'all':12s} {np.median(total):14.0f} {spread:>22s} {'':15s} "
                      f"{np.median(total_zenoh):15.0f}")  # fmt: skip
-        parts = [a for a in load.latency_us if a.size]
-        for what, pick, note in (
-            ("skeleton published -> verdict received", lambda a: a.sum(1),
+        stamped = [a for a in load.latency_us if a.size]
+        published = [a for a in load.published_us if a.size]
+        for what, pick, parts, note in (
+            ("skeleton stamped -> verdict received", lambda a: a.sum(1), stamped,
              " (median of the runs)"),
-            ("  of which: waiting for a cycle", lambda a: a[:, 0], ""),
-            ("  the cycle and the verdict's delivery", lambda a: a[:, 1], ""),
+            ("  of which: waiting for a cycle", lambda a: a[:, 0], stamped, ""),
+            ("  the cycle and the verdict's delivery", lambda a: a[:, 1], stamped, ""),
+            ("skeleton published -> verdict received", lambda a: a[:, 1], published,
+             " (second phase)"),
+            ("  the tracker's own: stamped -> published", lambda a: a[:, 0], published, ""),
         ):  # fmt: skip
             if parts:
                 p50, p99 = np.median([np.percentile(pick(a), [50, 99]) for a in parts], 0) / 1e3

@@ -65,10 +65,12 @@ def process_main(
     argv: list[str] | None = None,
     *,
     state: bool = False,
+    timestamped: bool = False,
 ) -> int:
     """Run ``factory(cell, scenario, bus)`` (with ``state_dir=``, ``origin=`` and ``audit=``
     keywords when ``state``: the folder of ``--state-dir``, the ``--scenario`` argument and the
-    audit log of ``--audit``)."""
+    audit log of ``--audit``); ``timestamped``: its messages carry zenoh's publication
+    timestamp (:func:`~sara_app.bus.session.client_config`)."""
     ap = argparse.ArgumentParser(prog=f"sara_app.{name}", description=description)
     ap.add_argument("--cell", default="cell1")
     ap.add_argument("--scenario", default="standing_beside_path")
@@ -123,8 +125,12 @@ def process_main(
             args.rt_priority,
             name,
             lambda: Bus.client(
-                args.port, args.router_host, auth=auth, robot_encoding=args.robot_encoding
-            ),
+                args.port,
+                args.router_host,
+                auth=auth,
+                robot_encoding=args.robot_encoding,
+                timestamping=timestamped,
+            ),  # fmt: skip
         )
         with bus:  # building the cell (seconds of kernel loading) at normal priority
             kw = (

@@ -130,9 +130,12 @@ def client_config(
     host: str = LOOPBACK,
     timeout_ms: int = 5000,
     auth: dict[str, Any] | None = None,
+    timestamping: bool = False,
 ) -> zenoh.Config:
     """A client session that connects to ``tcp/<host>:<port>``, giving up after ``timeout_ms``;
-    ``auth``: its credentials (:func:`sara_app.bus.access.client_auth`)."""
+    ``auth``: its credentials (:func:`sara_app.bus.access.client_auth`); ``timestamping``:
+    each message it puts carries zenoh's timestamp of its publication (this machine's clock;
+    without it the router stamps the message's arrival)."""
     connect = {"endpoints": [endpoint(port, host, secured=auth is not None)],
                "timeout_ms": int(timeout_ms)}  # fmt: skip
     transport: dict[str, Any] = {"shared_memory": NO_SHARED_MEMORY, **(auth or {})}
@@ -142,6 +145,8 @@ def client_config(
         "scouting": _NO_SCOUTING,
         "transport": transport,
     }
+    if timestamping:
+        cfg["timestamping"] = {"enabled": True}
     return zenoh.Config.from_json5(json.dumps(cfg))
 
 
@@ -335,8 +340,9 @@ class Bus:
         timeout_ms: int = 5000,
         auth: dict[str, Any] | None = None,
         robot_encoding: str = "json",
+        timestamping: bool = False,
     ) -> Bus:
-        return cls(client_config(port, host, timeout_ms, auth), robot_encoding)
+        return cls(client_config(port, host, timeout_ms, auth, timestamping), robot_encoding)
 
     def subscribe(
         self,

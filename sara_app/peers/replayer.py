@@ -184,7 +184,8 @@ class Replayer:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return process_main("replayer", "replay scenario humans", Replayer, argv)
+    # its skeletons carry their publication time (sara-app bench --live measures from it)
+    return process_main("replayer", "replay scenario humans", Replayer, argv, timestamped=True)
 
 
 if __name__ == "__main__":
