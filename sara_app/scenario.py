@@ -213,6 +213,14 @@ class InputSpec(StrictFinite):
     """Coordinates (and speeds in m/s) beyond this magnitude are refused as ``out_of_range``."""
     robot_state_timeout_s: Annotated[float, Field(gt=0, le=5)] = 0.05
     """Once a controller publishes ``robot/state``, a state older than this is a fault."""
+    robot_rest_speed_rad_s: Annotated[float, Field(ge=0, le=0.05)] = 1e-6
+    """A robot state is at rest when no joint's reported speed exceeds this (rad/s, or m/s for
+    a prismatic joint). Planning from where the states say the robot is (an operator's
+    re-plan, a restarted controller) needs them at rest. The default suits a controller that
+    reports 0 at standstill (the reference controller, the simulator); a real driver reports
+    its velocity estimate's noise: set this to that noise at standstill (the states must also
+    stand still within ``shield.tracking_tol_rad`` for 0.3 s, and the plan's tracking check
+    catches a robot that drifts away afterwards)."""
     low_confidence_extra_m: Annotated[float, Field(ge=0, le=2)] = 0.10
     """How much farther than ``delta_y`` a joint the tracker reports with low confidence may
     be (``sara_app.human.trackers``): its sets grow by this. A named conservative choice, not

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import bisect
 import time
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -176,3 +177,44 @@ def test_a_state_faster_than_any_drive_is_refused_by_the_robots_limits_in_force(
     assert taken(0.5 * at)  # the refused ones held nothing back
     limits[0] = V_MAX / 4  # a slower robot in force: the same speeds are now too fast
     assert not taken(0.5 * at) and taken(0.5 * at / 4)
+
+
+class _States:
+    """The robot key's subscription as :meth:`MeasuredRobot.drain` reads it: ``put`` states,
+    ``drain`` hands them over (the subscription itself is tested in test_bus_session)."""
+
+    def __init__(self) -> None:
+        self.queue: list[RobotStateMsg] = []
+        self.decoder = decoder(lambda: V_MAX)
+
+    def drain(self, n: int) -> SimpleNamespace:
+        got, self.queue = self.queue[:n], self.queue[n:]
+        return SimpleNamespace(messages=[SimpleNamespace(msg=m) for m in got], refused_keys=0)
+
+
+def test_a_drivers_standstill_noise_is_at_rest_only_up_to_the_scenarios_rest_speed() -> None:
+    """A real driver reports its velocity estimate's noise at standstill (here up to 3e-4
+    rad/s): below the default rest speed (1e-6) the robot is never at rest, so no re-plan
+    could ever start from it; with the scenario's rest speed at the driver's noise (1e-3) it
+    is, after standing still for ``REPLAN_STILL_S``, and a state faster than that is not."""
+    rng = np.random.default_rng(3)
+    lo, hi = -np.full(N, 2.9), np.full(N, 2.9)
+    q = np.linspace(-0.5, 0.5, N)
+    for rest, at_rest in ((1e-6, False), (1e-3, True)):
+        robot, sub = MeasuredRobot(), _States()
+        robot.rest_speed = rest
+        t = 100.0
+        for k in range(200):  # 0.4 s at 500 Hz, standing within 0.1 mrad
+            t = 100.0 + 0.002 * k
+            v = rng.uniform(-3e-4, 3e-4, N)
+            sub.queue.append(RobotStateMsg(seq=k, stamp_s=t, q=list(q + rng.normal(0, 2e-5, N)),
+                                           q_dot=list(v)))  # fmt: skip
+            robot.drain(sub, t, 0.005)  # type: ignore[arg-type]
+        why = robot.replan_refusal(q, t, 0.05, 0.005, lo, hi)
+        if at_rest:
+            assert why is None
+        else:
+            assert "not at rest" in str(why) and "inputs.robot_rest_speed_rad_s" in str(why)
+    sub.queue.append(RobotStateMsg(seq=999, stamp_s=t + 0.002, q=list(q), q_dot=[2e-3] * N))
+    robot.drain(sub, t + 0.002, 0.005)  # type: ignore[arg-type]
+    assert "not at rest" in str(robot.replan_refusal(q, t + 0.002, 0.05, 0.005, lo, hi))

@@ -63,6 +63,7 @@ HIGHER_LOOSENS: dict[str, str] = {
     "shield.tracking_tol_rad": "the robot may deviate further from its verified plan",
     "inputs.tracker_timeout_s": "a silent tracker is noticed later",
     "inputs.robot_state_timeout_s": "a silent controller is noticed later",
+    "inputs.robot_rest_speed_rad_s": "a slowly moving robot is taken for one at rest",
     "inputs.cell_bound_m": "coordinates farther out are taken as measurements",
     "inputs.gate.bone_tol_m": "the tracking gate accepts bones further off their length",
     "inputs.gate.max_hold_s": "a distrusted joint is held for longer",

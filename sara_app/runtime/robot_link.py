@@ -60,7 +60,8 @@ stamped 10 s ago with a huge ``seq``, then one with ``seq`` 0, faked a controlle
 once). Below the decoder's restart rule's second, so that a faked restart takes a second of
 refused real states, which keeps the stream bound (:meth:`MeasuredRobot.drain`)."""
 V_REST = 1e-6
-"""A state is at rest when no joint moves faster than this (rad/s or m/s)."""
+"""A state is at rest when no joint moves faster than this (rad/s or m/s), unless the scenario
+says otherwise (``inputs.robot_rest_speed_rad_s``, :attr:`MeasuredRobot.rest_speed`)."""
 
 
 STATE_SPEED_FACTOR = 2.0
@@ -131,6 +132,9 @@ class MeasuredRobot:
         self._still_q: np.ndarray | None = None
         self.refused_s = -np.inf
         """When (the worker's clock) a state of the key was last refused."""
+        self.rest_speed = V_REST
+        """A state is at rest when no joint's reported speed exceeds this (rad/s or m/s; the
+        worker sets the scenario's ``inputs.robot_rest_speed_rad_s``)."""
 
     def drain(self, sub: Subscription, now_s: float, tol_rad: float) -> None:
         """The ``robot/state`` messages off ``sub`` (its decoder its own, :func:`decoder`: its
@@ -162,7 +166,7 @@ class MeasuredRobot:
 
     def _still(self, q: np.ndarray, v: np.ndarray, stamp_s: float, tol_rad: float) -> None:
         """Update since when the robot stands still (the state ``q``, ``v (n,)``)."""
-        if not float(np.max(np.abs(v))) <= V_REST:
+        if not float(np.max(np.abs(v))) <= self.rest_speed:
             self.still_since_s = self._still_q = None
         elif self._still_q is None or not float(np.max(np.abs(q - self._still_q))) <= tol_rad:
             self.still_since_s, self._still_q = stamp_s, q
@@ -257,8 +261,11 @@ class MeasuredRobot:
         if not age <= timeout_s:
             return f"the newest robot state is {age:.3f} s old (at most {timeout_s} s)"
         speed = float(np.max(np.abs(s.v)))
-        if not speed <= V_REST:
-            return f"the robot is not at rest (joint speed up to {speed:.3g} rad/s)"
+        if not speed <= self.rest_speed:
+            return (
+                f"the robot is not at rest (joint speed up to {speed:.3g} rad/s; at rest: at "
+                f"most {self.rest_speed:.3g}, the scenario's inputs.robot_rest_speed_rad_s)"
+            )
         if now_s - self.refused_s < REPLAN_STILL_S:
             return (
                 "robot states were refused on its key in the last "

@@ -159,7 +159,9 @@ class CellWorker:
         self.people.drain(now)
         if self.cell.scenario.inputs.cycle_phase_lock:
             self.phase.observe(now, self.people.fresh_stamps)
-        self.robot_in.drain(self.io.robot_state, now, self.cell.scenario.shield.tracking_tol_rad)
+        sc = self.cell.scenario
+        self.robot_in.rest_speed = sc.inputs.robot_rest_speed_rad_s  # the scenario in force
+        self.robot_in.drain(self.io.robot_state, now, sc.shield.tracking_tol_rad)
         self.people.drain_retirements(now)
         self._drain_replans(now)
         self.edits.drain(self.io)
