@@ -26,7 +26,6 @@ from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 
-from sara_app.errors import SaraError
 from sara_app.ops.audit import AuditLog, WorkerAnswer
 
 log = logging.getLogger("sara_app.worker")
@@ -107,9 +106,9 @@ class AnswerLedger:
             self._log.record_worker_answers(rows, lost_before=self.lost - self._lost_written)
             self._lost_written = self.lost
             self.written += len(rows)
-        except SaraError as e:
+        except Exception as e:  # noqa: BLE001 - the audit never stops the cell (nor itself)
             self.lost += len(rows)
-            self._say("audit: %d answered requests not recorded (%s)", self.lost, e)
+            self._say("audit: %d answered requests not recorded (%r)", self.lost, e)
 
     def _say(self, fmt: str, *args: object) -> None:
         now = time.monotonic()
