@@ -20,7 +20,7 @@ from sara_app.dashboard.access import DashboardAccess, acting
 from sara_app.dashboard.bridge import CellView
 from sara_app.dashboard.viewer import Dashboard
 from sara_app.errors import AccessError, ScenarioError, WorkerTimeoutError
-from sara_app.ops.audit import AuditLog
+from sara_app.ops.audit import AuditLog, WorkerAnswer
 from sara_app.scenario import load_scenario, scenarios_dir
 
 TOKEN = "t0ken-of-the-operator-0123"
@@ -115,7 +115,7 @@ def test_a_browser_changes_the_cell_only_after_signing_in(tmp_path: Path) -> Non
     stack = contextlib.ExitStack()
     try:
         with Bus.router(port), Bus.client(port) as wbus, Bus.client(port) as vbus, \
-                running_worker("acc1", sc, wbus, status_hz=10.0):  # fmt: skip
+                running_worker("acc1", sc, wbus, status_hz=10.0, audit=audit.path):  # fmt: skip
             view = CellView("acc1", vbus, dash, sc, folder, ack_timeout_s=20.0, audit=audit)
             url = dash.start(port=8750, on_params_edit=view.edit)  # as serve wires it
             view.refresh_panels()
@@ -156,6 +156,31 @@ def test_a_browser_changes_the_cell_only_after_signing_in(tmp_path: Path) -> Non
             wait_for(lambda: revision() != first, 10, "the worker's new revision")
             users = {u for p, s, u, _ in _rows(audit) if s == 200}
             assert users == {"operator"}
+            # the Changes tab shows the worker's own record of it, and a sender's text as text
+            audit.record_worker_answers(
+                [
+                    WorkerAnswer(
+                        time.time(),
+                        "acc1",
+                        "retire",
+                        "x1",
+                        "a|b <b>c</b>",
+                        False,
+                        "refused",
+                        "",
+                        "",
+                    )
+                ]
+            )
+            page.click("document.querySelector('[role=tab][title=Changes]')")
+
+            def changes() -> str | None:
+                view.poll()  # re-reads the rows when due
+                text = str(page.eval("document.body.innerText"))
+                return text if "a|b <b>c</b>" in text else None
+
+            text = str(wait_for(changes, 20, "the Changes tab"))
+            assert "operator" in text and "applied" in text, text
     finally:
         stack.close()
         dash.stop()

@@ -465,6 +465,24 @@ def test_threshold_editor_tab_sends_through_the_cell_view(
     assert panel.audit.entries(CELL, 1)[0].new_energy_J == 0.5 * source
 
 
+def test_the_changes_tab_reads_what_the_worker_answered(
+    view: tuple[CellView, FakeBus], dash: Dashboard
+) -> None:
+    """The view's "Changes" tab (attached once) shows the worker's rows of its audit log."""
+    from sara_app.ops.audit import WorkerAnswer
+
+    v, _ = view
+    panel = v.changes
+    assert panel is not None
+    v.refresh_panels()
+    assert v.changes is panel
+    v._audit_log().record_worker_answers(
+        [WorkerAnswer(1.0, CELL, "retire", "r1", "ops", False, "refused", "not known", "")]
+    )
+    panel.refresh()
+    assert "retire" in panel.table.content and "not known" in panel.table.content
+
+
 def test_a_late_acceptance_is_followed(view: tuple[CellView, FakeBus], dash: Dashboard) -> None:
     v, bus = view
     bus.silent = True

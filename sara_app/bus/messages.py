@@ -560,8 +560,8 @@ class ParamsMsg(_Msg):
 
     ``confirm``: the sender's user confirmed that the edit loosens what the verdict assumes
     (:mod:`sara_app.ops.loosening`); without it the worker refuses such an edit, whoever sends
-    it. ``user``: who confirmed (the worker's log names them). Schema version 2 (version 1 had
-    neither; absent: not confirmed)."""
+    it. ``user``: who sent it and confirmed it (the worker's log and its audit record name
+    them). Schema version 2 (version 1 had neither; absent: not confirmed)."""
 
     schema_version: Literal[2] = 2  # type: ignore[assignment]
     request_id: Name

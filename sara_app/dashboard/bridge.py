@@ -127,6 +127,7 @@ class CellView(GizmoEditing):
         self._robot_model: RobotModel | None = None
         self.audit = audit
         self.thresholds: Any = None
+        self.changes: Any = None  # the Changes tab (ChangesPanel), once the panels exist
         self._ack_lock = threading.Lock()
         self._late: tuple[str, Scenario] | None = None  # (request id, scenario) unanswered
 
@@ -151,6 +152,8 @@ class CellView(GizmoEditing):
                 self.worker_status = d.msg
         self._late_answer()
         self._follow_worker()
+        if self.changes is not None:
+            self.changes.refresh_if_due(time.monotonic())
         if self.q is None or self.verdict is None:
             return None
         return self.frame()
@@ -271,7 +274,7 @@ class CellView(GizmoEditing):
                 request_id=rid,
                 scenario=sc.model_dump(mode="json"),
                 confirm=confirmed,
-                user=self.dash.access.user()[:64] if confirmed else "",
+                user=self.dash.access.user()[:64],  # the worker's record names the sender
             )
             if not self.pub_params.put(msg):
                 raise ScenarioError("the scenario could not be sent to the worker (bus error)")
@@ -460,6 +463,7 @@ class CellView(GizmoEditing):
             panels.set_scenarios(list(scenario_names(self.folder)), self.scenario.name)
             panels.set_params(self.editable())
             self._attach_thresholds()
+            self._attach_changes()
         self.add_gizmos()
 
     def _attach_thresholds(self) -> None:
@@ -490,6 +494,17 @@ class CellView(GizmoEditing):
             )
         # with credentials in force the user is the signed-in one's, never a typed name
         self.thresholds.user.visible = not self.dash.access.required
+
+    def _attach_changes(self) -> None:
+        """The "Changes" tab (:mod:`sara_app.dashboard.changes_panel`): what the worker
+        answered, from the audit log; refreshed from :meth:`poll`."""
+        panels, server = self.dash.panels, self.dash.server
+        if self.changes is not None or panels is None or server is None:
+            return
+        from sara_app.dashboard.changes_panel import ChangesPanel
+
+        with panels.add_tab("Changes"):
+            self.changes = ChangesPanel(server.gui, self._audit_log, self.cell)
 
     def _send_and_show(self, data: dict[str, Any]) -> Scenario:
         sc = self.send(data, "threshold")
