@@ -14,7 +14,9 @@ lock held across a write) and a thread of its own writes the queue in one transa
 are counted as ``lost`` and logged, never silently dropped, and the first row of the next
 write says how many were lost since the write before (``lost_before``). A database that cannot
 be written is logged (rate-limited) and its rows counted as lost: the audit never stops the
-cell.
+cell. A worker killed outright (``kill -9``, a power cut) takes the rows of its last
+``FLUSH_S`` with it, uncounted: the requests' senders (the API, the dashboard) keep their own
+audit of what they asked.
 """
 
 from __future__ import annotations
