@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -45,3 +46,51 @@ def test_worker_and_controller_pass_the_robot_encoding_on() -> None:
         assert _process_argv(ap.parse_args([name]))[-2:] == ["--robot-encoding", "compact"]
         with pytest.raises(SystemExit):
             ap.parse_args([name, "--robot-encoding", "msgpack"])
+
+
+def test_a_worker_started_by_hand_records_what_it_answers(tmp_path: Path) -> None:
+    """``sara-app worker`` (a cell joined to a running router by hand) keeps the same record
+    as serve's workers: a retirement sent to it on the bus is in this machine's audit log."""
+    import os
+    import time
+
+    from sara_app.bus import keys
+    from sara_app.bus.messages import ParamsAckMsg, RetireMsg
+    from sara_app.bus.session import Bus, free_port
+    from sara_app.ops.audit import AuditLog
+
+    port = free_port()
+    env = {**os.environ, "SARA_APP_DATA": str(tmp_path)}
+    cmd = [sys.executable, "-m", "sara_app.cli", "worker", "--cell", "hand1", "--scenario",
+           "empty_cell", "--zenoh-port", str(port), "--duration", "30"]  # fmt: skip
+    with Bus.router(port), Bus.client(port) as bus:
+        acks = bus.subscribe(keys.params_ack_key("hand1"), fifo=True)
+        status = bus.subscribe(keys.status_key("hand1"))
+        proc = subprocess.Popen(cmd, env=env)
+        try:
+            t_end = time.monotonic() + 60
+            while not any(
+                getattr(d.msg, "state", "") == "running" for d in status.drain().messages
+            ):
+                assert proc.poll() is None and time.monotonic() < t_end, "worker did not run"
+                time.sleep(0.05)
+            pub = bus.publisher(keys.retire_key("hand1"))
+            pub.put(RetireMsg(seq=1, stamp_s=time.time(), request_id="r-hand", human_id="nobody",
+                              user="tester"))  # fmt: skip
+            answered = False
+            while not answered:
+                assert time.monotonic() < t_end, "no answer"
+                answered = any(isinstance(d.msg, ParamsAckMsg) and d.msg.request_id == "r-hand"
+                               for d in acks.drain().messages)  # fmt: skip
+                time.sleep(0.02)
+            rows: list[dict] = []
+            while not rows and time.monotonic() < t_end:
+                time.sleep(0.1)
+                path = tmp_path / "audit.sqlite"
+                rows = AuditLog(path).worker_answers("hand1") if path.exists() else []
+        finally:
+            proc.terminate()
+            proc.wait(20)
+    assert [(r["request"], r["request_id"], r["user"], r["outcome"]) for r in rows] == [
+        ("retire", "r-hand", "tester", "refused")
+    ]

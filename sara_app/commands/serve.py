@@ -36,12 +36,14 @@ def _observe(args: argparse.Namespace) -> int:
 
 
 def _worker(args: argparse.Namespace) -> int:
+    from sara_app.ops.audit import default_audit_path
     from sara_app.ops.compile_notice import compile_notice
 
     with compile_notice():
         from sara_app.runtime.worker import main
 
-    return main(_process_argv(args))
+    # what it answers goes to this machine's audit log, as serve's workers' does
+    return main([*_process_argv(args), "--audit", str(default_audit_path())])
 
 
 def _controller(args: argparse.Namespace) -> int:
