@@ -445,14 +445,20 @@ def test_unreachable_or_refused_waypoint_is_not_applied(
     np.testing.assert_allclose(_waypoint_gizmos(v)[0].position, home, atol=1e-6)
 
 
+def _attached_once(v: CellView, tab: str) -> Any:
+    """The view's panel ``tab`` (an attribute), the same after the panels are refreshed."""
+    panel = getattr(v, tab)
+    assert panel is not None
+    v.refresh_panels()
+    assert getattr(v, tab) is panel
+    return panel
+
+
 def test_threshold_editor_tab_sends_through_the_cell_view(
     view: tuple[CellView, FakeBus], dash: Dashboard
 ) -> None:
     v, bus = view
-    panel = v.thresholds
-    assert panel is not None
-    v.refresh_panels()
-    assert v.thresholds is panel  # attached once
+    panel = _attached_once(v, "thresholds")
     value, source = panel.source_value()
     panel.energy.value = 0.5 * source
     assert panel.apply()
@@ -472,10 +478,7 @@ def test_the_changes_tab_reads_what_the_worker_answered(
     from sara_app.ops.audit import WorkerAnswer
 
     v, _ = view
-    panel = v.changes
-    assert panel is not None
-    v.refresh_panels()
-    assert v.changes is panel
+    panel = _attached_once(v, "changes")
     v._audit_log().record_worker_answers(
         [WorkerAnswer(1.0, CELL, "retire", "r1", "ops", False, "refused", "not known", "")]
     )
