@@ -18,17 +18,9 @@ from sara_app.errors import InputError
 from sara_app.geometry.capsule_mesh import (
     capsule_arrays,
     capsule_instances,
-    unit_box,
     unit_hemisphere,
     unit_tube,
 )
-from sara_app.geometry.shapes import quat_rotate, quat_z_to
-
-__all__ = [
-    "capsule_arrays", "capsule_instances", "quat_rotate", "quat_z_to", "unit_box",
-    "unit_hemisphere", "unit_tube",
-]  # fmt: skip
-
 
 # ----------------------------------------------------------------------------------------------
 # Instance math

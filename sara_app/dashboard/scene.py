@@ -24,13 +24,7 @@ import viser
 import yourdfpy
 from viser.extras import ViserUrdf
 
-from sara_app.dashboard.capsules import (
-    CapsuleGroup,
-    InstanceBatch,
-    capsule_arrays,
-    rotation_to_wxyz,
-    unit_box,
-)
+from sara_app.dashboard.capsules import CapsuleGroup, InstanceBatch, rotation_to_wxyz
 from sara_app.dashboard.cut_capsules import CutCapsules
 from sara_app.dashboard.frame import (
     CONTACT_ENV,
@@ -45,6 +39,7 @@ from sara_app.dashboard.frame import (
     LinkEnergy,
 )
 from sara_app.errors import InputError, UnknownNameError
+from sara_app.geometry.capsule_mesh import capsule_arrays, unit_box
 from sara_app.human.skeleton import FULL_JOINTS
 from sara_app.human.widening import UNMEASURED_LEG_REACH_M
 from sara_app.robot.model import urdf_path
