@@ -43,7 +43,7 @@ def test_the_tab_shows_what_the_worker_answered_newest_first(
     lines = [ln for ln in text.splitlines() if ln.startswith("| 1970")]
     assert len(lines) == 2 and "refused" in lines[0] and "alice" in lines[1]  # newest first
     assert all(ln.count("|") - ln.count("\\|") == 7 for ln in lines)  # six columns each
-    assert "x\\|y \\<b\\>\\*bold\\*\\</b\\>" in lines[0]  # the sender's text, as text
+    assert "x\\|y &lt;b&gt;\\*bold\\*&lt;/b&gt;" in lines[0]  # the sender's text, as text
     assert "loosens: the bench \\| removed" in lines[0]  # one line
     assert "2 answered requests could not be recorded" in text
     log.record_worker_answers([_answer(3.0, "r3", "bob", "applied")])

@@ -15,6 +15,7 @@ from typing import Any
 
 import viser
 
+from sara_app.dashboard.tracking_text import md_cell
 from sara_app.errors import SaraError
 from sara_app.ops.audit import AuditLog
 
@@ -32,12 +33,13 @@ INTRO = (
 
 
 def _cell_text(x: object, limit: int = 64) -> str:
-    """``x`` for a markdown table cell: one line, no column break, no markup of its own (a
-    user name or reason is whatever the sender wrote)."""
+    """``x`` for a markdown table cell: one line of at most ``limit`` characters, no markdown
+    of its own (a user name or reason is whatever the sender wrote), then no HTML and no
+    column break (:func:`~sara_app.dashboard.tracking_text.md_cell`)."""
     text = " ".join(str(x).split())[:limit]
-    for ch in "\\|*_`<>[]#":
+    for ch in "\\*_`[]#":
         text = text.replace(ch, "\\" + ch)
-    return text
+    return md_cell(text)
 
 
 def changes_markdown(rows: Sequence[dict[str, Any]]) -> str:
