@@ -4,8 +4,12 @@ in-process API client's host name is allowed (see ``sara_app.api.guard``)."""
 
 from __future__ import annotations
 
+import fcntl
 import os
 import tempfile
+from collections.abc import Iterator
+
+import pytest
 
 from sara_app.api import guard
 
@@ -19,3 +23,36 @@ guard.LOOPBACK_NAMES = (*guard.LOOPBACK_NAMES, "testserver")
 _SHARED = os.path.join(os.path.dirname(__file__), "..", "..", "shared")
 if "SARA_DATA_DIR" not in os.environ and os.path.isdir(os.path.join(_SHARED, "data", "cmu_mocap")):
     os.environ["SARA_DATA_DIR"] = os.path.abspath(_SHARED)
+
+
+# Tests run in parallel (pytest-xdist), but a test marked ``exclusive`` asserts a rate, a period
+# or a share of cycles of real processes, which a neighbouring test's processes on a 2-core
+# machine can take away (in parallel: a controller's 27 ms stall, a phase lock 75 % on time):
+# it runs with no other test beside it. A readers-writer lock over all the workers, on files
+# that always exist: every test holds this folder shared, an exclusive one holds it alone; a
+# turnstile (conftest.py) held while an exclusive test waits stops new tests from starting.
+_MAIN_FD = _TURN_FD = -1
+
+
+def _lock(exclusive: bool) -> None:
+    global _MAIN_FD, _TURN_FD
+    if _MAIN_FD < 0:
+        _MAIN_FD = os.open(os.path.dirname(__file__), os.O_RDONLY)
+        _TURN_FD = os.open(__file__, os.O_RDONLY)
+    fcntl.flock(_TURN_FD, fcntl.LOCK_EX)
+    try:
+        fcntl.flock(_MAIN_FD, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+    finally:
+        fcntl.flock(_TURN_FD, fcntl.LOCK_UN)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Iterator[None]:
+    if "PYTEST_XDIST_WORKER" not in os.environ:  # one process: nothing beside it
+        yield
+        return
+    _lock(item.get_closest_marker("exclusive") is not None)
+    try:
+        yield
+    finally:
+        fcntl.flock(_MAIN_FD, fcntl.LOCK_UN)

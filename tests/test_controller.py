@@ -314,6 +314,7 @@ def test_a_started_controller_follows_no_command_from_elsewhere() -> None:
         assert ctl.command is not None and ctl.command.seq == 1
 
 
+@pytest.mark.exclusive
 def test_run_states_every_period_without_commands_and_one_per_command_taken() -> None:
     """``Controller.run`` over a real bus: with no command it publishes a state every control
     period (no gap over three periods); with commands at the control rate, a state per command

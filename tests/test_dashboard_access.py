@@ -117,7 +117,7 @@ def test_a_browser_changes_the_cell_only_after_signing_in(tmp_path: Path) -> Non
         with Bus.router(port), Bus.client(port) as wbus, Bus.client(port) as vbus, \
                 running_worker("acc1", sc, wbus, status_hz=10.0, audit=audit.path):  # fmt: skip
             view = CellView("acc1", vbus, dash, sc, folder, ack_timeout_s=20.0, audit=audit)
-            url = dash.start(port=8750, on_params_edit=view.edit)  # as serve wires it
+            url = dash.start(port=free_port(), on_params_edit=view.edit)  # as serve wires it
             view.refresh_panels()
             page = stack.enter_context(chromium_on(url))
             wait_for(lambda: page.eval("document.body.innerText.includes('Read-only')"), 30, "page")

@@ -28,7 +28,7 @@ from sara_app.bus.messages import (
     StatusMsg,
     VerdictMsg,
 )
-from sara_app.bus.session import Drained
+from sara_app.bus.session import Drained, free_port
 from sara_app.dashboard.bridge import CellView
 from sara_app.dashboard.frame import CONTACT_ENV, CONTACT_SELF, CONTACT_UNCONSTRAINED
 from sara_app.dashboard.from_messages import contact_class_grid
@@ -110,7 +110,7 @@ class FakeBus:
 @pytest.fixture(scope="module")
 def dash() -> Iterator[Dashboard]:
     d = Dashboard()
-    d.start(port=8740)
+    d.start(port=free_port())
     yield d
     d.stop()
 

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from browser import CHROMIUM, DevTools, chromium_on, wait_for
 
+from sara_app.bus.session import free_port
 from sara_app.dashboard.frame import CONTACT_ENV, MODEL_NAMES
 from sara_app.dashboard.scene import LAYERS, demo_frame
 from sara_app.dashboard.viewer import Dashboard
@@ -24,7 +25,7 @@ pytestmark = pytest.mark.skipif(
 @pytest.fixture()
 def browser_on_dashboard() -> Iterator[tuple[Dashboard, DevTools]]:
     dash = Dashboard()
-    url = dash.start(port=8720)
+    url = dash.start(port=free_port())
     for i in range(3):
         dash.update(demo_frame(0.1 * i, verified=True))
     try:

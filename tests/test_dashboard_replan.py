@@ -45,7 +45,7 @@ def test_the_status_tabs_replan_sends_the_position_it_shows(tmp_path: Path) -> N
                 Bus.client(port) as cbus, Heartbeat(cbus, CELL), \
                 running_worker(CELL, sc, wbus, status_hz=10.0) as worker:  # fmt: skip
             view = CellView(CELL, vbus, dash, sc, folder, ack_timeout_s=10.0, audit=audit)
-            dash.start(port=8761)
+            dash.start(port=free_port())
             view.refresh_panels()
             panels = dash.panels
             assert panels is not None and panels.on_replan == view.replan

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from sara_app.bus.messages import JointFlagMsg, TrackingNowMsg, VerdictMsg, ViolationMsg
+from sara_app.bus.session import free_port
 from sara_app.dashboard.frame import (
     CONTACT_ENV,
     CONTACT_SELF,
@@ -49,7 +50,7 @@ from sara_app.scenario import load_scenario, scenario_names
 @pytest.fixture(scope="module")
 def dash() -> Iterator[Dashboard]:
     d = Dashboard()
-    d.start(port=8690)
+    d.start(port=free_port())
     assert d.scene is not None
     for name in (*MODEL_NAMES, "occupancy"):  # every group sends its data
         d.scene.set_visible(name, True)
@@ -62,7 +63,7 @@ def test_by_default_the_effective_set_and_the_robot_are_shown() -> None:
     set (no per-model sets), the robot, its occupancy coloured by contact class; a hidden set
     is not sent."""
     d = Dashboard()
-    d.start(port=8695)
+    d.start(port=free_port())
     try:
         scene = d.scene
         assert scene is not None

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from browser import CHROMIUM, DevTools, chromium_on, wait_for
 
+from sara_app.bus.session import free_port
 from sara_app.dashboard.frame import EFFECTIVE
 from sara_app.dashboard.scene import DEFAULT_VISIBLE, demo_frame
 from sara_app.dashboard.view import CHECKBOXES
@@ -29,7 +30,7 @@ _CHECKBOX = (
 @pytest.fixture()
 def dash() -> Iterator[Dashboard]:
     d = Dashboard()
-    d.start(port=8724)
+    d.start(port=free_port())
     frame = demo_frame(1.0)
     frame.critical_pair = None
     d.update(frame)

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from browser import CHROMIUM, DevTools, chromium_on, wait_for
 
+from sara_app.bus.session import free_port
 from sara_app.dashboard.panels import CONFIRM_LABEL
 from sara_app.dashboard.scene import demo_frame
 from sara_app.dashboard.viewer import Dashboard
@@ -55,7 +56,7 @@ def setup(tmp_path: Any) -> Iterator[tuple[Dashboard, WhatIfPanels, list[dict[st
     hooks = WhatIfHooks(lambda: sc.model_dump(mode="json"), edited, apply,
                         "c1", "panda", np.eye(4), tmp_path / "audit.sqlite")  # fmt: skip
     dash = Dashboard()
-    dash.start(port=8726)
+    dash.start(port=free_port())
     dash.update(demo_frame(1.0))
     jobs = JobRunner()
     assert dash.server is not None

@@ -214,6 +214,7 @@ def test_waypoint_edit_moves_the_robot_occupancy(live: Live) -> None:
     assert np.all(np.abs([m.q[0] for m in cmds]) <= 0.1 + 1e-6)
 
 
+@pytest.mark.exclusive
 def test_pfl_threshold_lowered_below_the_link_energies_makes_the_robot_brake(
     live: Live,
 ) -> None:

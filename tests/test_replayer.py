@@ -10,6 +10,7 @@ import threading
 import time
 
 import numpy as np
+import pytest
 
 from sara_app.bus import keys
 from sara_app.bus.messages import RobotCommandMsg, SkeletonMsg
@@ -48,6 +49,7 @@ def test_only_a_person_who_chases_the_robot_makes_it_follow_the_commands() -> No
         assert scripted.sub_cmd is None  # and stops listening when nobody chases it
 
 
+@pytest.mark.exclusive
 def test_skeletons_are_stamped_on_the_frame_clock() -> None:
     """At the person's sensor rate, one skeleton per frame period: a frame clock, not a poll
     (which stamped skeletons up to half a period late and sent two in one poll after a late

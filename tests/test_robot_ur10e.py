@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from sara_app.bus.session import free_port
 from sara_app.errors import RobotModelError, ScenarioError
 from sara_app.robot.model import load_robot, urdf_dir
 from sara_app.scenario import check_against_robot, load_scenario, parse_scenario
@@ -130,7 +131,7 @@ def test_the_dashboard_draws_a_robot_given_by_path(tmp_path: Path) -> None:
     path = tmp_path / "arm.urdf"
     shutil.copy(urdf_dir() / "ur10e.urdf", path)
     dash = Dashboard(robot=str(path))
-    dash.start(port=8728)
+    dash.start(port=free_port())
     try:
         assert dash.scene is not None and len(dash.scene.joint_names) == 6
     finally:
