@@ -11,11 +11,15 @@ from pathlib import Path
 import numpy as np
 
 from sara_app.bench.cost import (
+    PROCESSES,
+    LoadCost,
+    ProcessCost,
     _cpu_s,
     _latencies,
     _published_latencies,
     _switches,
     _zenoh_cpu_s,
+    report,
     scenario_with_people,
 )
 from sara_app.bus.messages import VerdictMsg
@@ -116,3 +120,21 @@ def test_the_loads_copy_the_first_person_to_their_own_spots(tmp_path: Path) -> N
     assert [h.id for h in sc.humans] == ["p1", "p2", "p3", "p4"]
     spots = {tuple(h.position_m) for h in sc.humans}  # type: ignore[union-attr]
     assert len(spots) == 4
+
+
+def test_the_report_adds_the_processes_and_says_how_the_cpus_idled() -> None:
+    """Two runs: each process's median and runs, the cell's total per run, and the idle
+    states' median shares (a state one run did not use counts as 0 there)."""
+    load = LoadCost(1, "punches", 500.0)
+    for k, name in enumerate(PROCESSES):
+        load.per_process[name] += [ProcessCost(100.0 * (k + 1), 5.0, 10.0),
+                                   ProcessCost(100.0 * (k + 1) + 20, 5.0, 10.0)]  # fmt: skip
+    load.verdict_hz = [500.0, 499.0]
+    load.idle = [{"POLL": 0.2, "C1": 0.8}, {"POLL": 0.4, "C1": 0.5, "C6": 0.1}]
+    load.idle_driver = "intel_idle"
+    lines = report([load]).splitlines()
+    total = next(ln for ln in lines if ln.split()[:1] == ["all"])
+    assert total.split()[1:4] == ["1040", "1000", "1080"], total
+    idle = next(ln for ln in lines if "idle CPUs" in ln)
+    assert "65 % 'C1'" in idle and "30 % 'POLL'" in idle and "5 % 'C6'" in idle, idle
+    assert "intel_idle" in idle

@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from sara_app.bench import idle
 from sara_app.bus import keys
 from sara_app.bus.session import Bus, free_port
 
@@ -74,6 +75,10 @@ class LoadCost:
     tracker's own time) and publication -> verdict received (:func:`_published_latencies`)."""
     verdict_hz: list[float] = field(default_factory=list)
     messages: dict[str, tuple[float, float]] = field(default_factory=dict)
+    idle: list[dict[str, float]] = field(default_factory=list)
+    """Per run, the share of the CPUs' idle time in each cpuidle state during the CPU phase
+    (:mod:`sara_app.bench.idle`): a CPU that halts between messages wakes them cold."""
+    idle_driver: str = "none"
 
 
 def _cpu_s(pid: int) -> float:
@@ -244,9 +249,12 @@ def _measure(hub: Bus, cell: str, pids: dict[str, int], seconds: float, out: Loa
     cpu0 = {n: _cpu_s(p) for n, p in pids.items()}
     zenoh0 = {n: _zenoh_cpu_s(p) for n, p in pids.items()}
     sw0 = {n: _switches(p) for n, p in pids.items()}
+    idle0 = idle.idle_times_us()
     t0 = time.monotonic()
     got = _verdicts(hub, cell, seconds)
     span = time.monotonic() - t0
+    out.idle.append(idle.idle_shares(idle0, idle.idle_times_us()))
+    out.idle_driver = idle.idle_driver()
     cycles = max(len(got), 1)
     for n, p in pids.items():
         cpu_us, zenoh_us = (
@@ -337,6 +345,9 @@ def report(loads: list[LoadCost]) -> str:
         spread = " ".join(f"{x:.0f}" for x in total)
         lines.append(f"  {'all':12s} {np.median(total):14.0f} {spread:>22s} {'':15s} "
                      f"{np.median(total_zenoh):15.0f}")  # fmt: skip
+        states = {name for run in load.idle for name in run}
+        shares = {n: float(np.median([run.get(n, 0.0) for run in load.idle])) for n in states}
+        lines.append(f"  {idle.describe(shares, load.idle_driver)} (median of the runs)")
         stamped = [a for a in load.latency_us if a.size]
         published = [a for a in load.published_us if a.size]
         for what, pick, parts, note in (

@@ -1,0 +1,69 @@
+"""How the CPUs idled (sara_app.bench.idle): the cpuidle counters read as the kernel lays them
+out, and on this machine, what a PM QoS latency request of 0 does to them."""
+
+from __future__ import annotations
+
+import os
+import struct
+import time
+from pathlib import Path
+
+import pytest
+
+from sara_app.bench.idle import CPU_ROOT, describe, idle_driver, idle_shares, idle_times_us
+
+
+def _state(root: Path, cpu: int, k: int, name: str, time_us: int) -> None:
+    d = root / f"cpu{cpu}" / "cpuidle" / f"state{k}"
+    d.mkdir(parents=True, exist_ok=True)
+    (d / "name").write_text(name + "\n")
+    (d / "time").write_text(f"{time_us}\n")
+
+
+def test_the_states_are_summed_over_cpus_by_name(tmp_path: Path) -> None:
+    for cpu, (poll, halt) in enumerate(((100, 9_000), (300, 5_000))):
+        _state(tmp_path, cpu, 0, "POLL", poll)
+        _state(tmp_path, cpu, 1, "haltpoll idle", halt)
+    (tmp_path / "cpufreq").mkdir()  # not a CPU
+    before = idle_times_us(tmp_path)
+    assert before == {"POLL": 400, "haltpoll idle": 14_000}
+    _state(tmp_path, 0, 0, "POLL", 100 + 3_000)
+    _state(tmp_path, 1, 1, "haltpoll idle", 5_000 + 1_000)
+    shares = idle_shares(before, idle_times_us(tmp_path))
+    assert shares == pytest.approx({"POLL": 0.75, "haltpoll idle": 0.25})
+    line = describe(shares, "haltpoll")
+    assert line.index("75 % 'POLL'") < line.index("25 % 'haltpoll idle'") and "haltpoll" in line
+
+
+def test_no_states_no_idle_time_and_no_driver_are_said(tmp_path: Path) -> None:
+    assert idle_times_us(tmp_path) == {}
+    assert idle_shares({"POLL": 5}, {"POLL": 5}) == {}
+    assert idle_driver(tmp_path) == "none"
+    assert "no cpuidle states" in describe({}, "none")
+
+
+@pytest.mark.exclusive
+def test_a_latency_request_of_zero_makes_the_idle_cpus_poll() -> None:
+    """This machine's counters: an idle interval is spent in its deeper states, and while a
+    PM QoS request of 0 us is held (``/dev/cpu_dma_latency``, root only) in 'POLL'."""
+    if not idle_times_us():
+        pytest.skip(f"no cpuidle states under {CPU_ROOT}")
+    try:
+        fd = os.open("/dev/cpu_dma_latency", os.O_WRONLY)
+    except OSError as e:
+        pytest.skip(f"no PM QoS request allowed here: {e}")
+    try:
+        os.write(fd, struct.pack("i", 0))
+        time.sleep(0.05)  # the CPUs leave the states they were in
+        before = idle_times_us()
+        time.sleep(0.5)
+        held = idle_shares(before, idle_times_us())
+    finally:
+        os.close(fd)  # the request ends with its file
+    time.sleep(0.05)
+    before = idle_times_us()
+    time.sleep(0.5)
+    free = idle_shares(before, idle_times_us())
+    assert held.get("POLL", 0.0) > 0.9, held
+    if len(free) > 1:  # a machine whose only state is POLL has nothing deeper to show
+        assert free.get("POLL", 0.0) < 0.5, free
