@@ -44,10 +44,11 @@ def test_no_states_no_idle_time_and_no_driver_are_said(tmp_path: Path) -> None:
 
 @pytest.mark.exclusive
 def test_a_latency_request_of_zero_makes_the_idle_cpus_poll() -> None:
-    """This machine's counters: an idle interval is spent in its deeper states, and while a
-    PM QoS request of 0 us is held (``/dev/cpu_dma_latency``, root only) in 'POLL'."""
-    if not idle_times_us():
-        pytest.skip(f"no cpuidle states under {CPU_ROOT}")
+    """This machine's counters: while a PM QoS request of 0 us is held
+    (``/dev/cpu_dma_latency``, root only) the idle time is spent in 'POLL', and less of it
+    once the request is gone."""
+    if "POLL" not in idle_times_us():
+        pytest.skip(f"no cpuidle polling state under {CPU_ROOT}")
     try:
         fd = os.open("/dev/cpu_dma_latency", os.O_WRONLY)
     except OSError as e:
@@ -66,4 +67,4 @@ def test_a_latency_request_of_zero_makes_the_idle_cpus_poll() -> None:
     free = idle_shares(before, idle_times_us())
     assert held.get("POLL", 0.0) > 0.9, held
     if len(free) > 1:  # a machine whose only state is POLL has nothing deeper to show
-        assert free.get("POLL", 0.0) < 0.5, free
+        assert free.get("POLL", 0.0) < held["POLL"], (free, held)  # this one: 0 % polling
