@@ -4,13 +4,21 @@ out, and on this machine, what a PM QoS latency request of 0 does to them."""
 from __future__ import annotations
 
 import os
-import struct
 import time
 from pathlib import Path
 
 import pytest
 
-from sara_app.bench.idle import CPU_ROOT, describe, idle_driver, idle_shares, idle_times_us
+from sara_app.bench.idle import (
+    CPU_ROOT,
+    QOS_DEVICE,
+    describe,
+    idle_driver,
+    idle_polling,
+    idle_shares,
+    idle_times_us,
+)
+from sara_app.errors import AccessError
 
 
 def _state(root: Path, cpu: int, k: int, name: str, time_us: int) -> None:
@@ -49,22 +57,24 @@ def test_a_latency_request_of_zero_makes_the_idle_cpus_poll() -> None:
     once the request is gone."""
     if "POLL" not in idle_times_us():
         pytest.skip(f"no cpuidle polling state under {CPU_ROOT}")
-    try:
-        fd = os.open("/dev/cpu_dma_latency", os.O_WRONLY)
-    except OSError as e:
-        pytest.skip(f"no PM QoS request allowed here: {e}")
-    try:
-        os.write(fd, struct.pack("i", 0))
+    if not os.access(QOS_DEVICE, os.W_OK):
+        pytest.skip(f"no CPU latency request allowed here ({QOS_DEVICE})")
+    with idle_polling():
         time.sleep(0.05)  # the CPUs leave the states they were in
         before = idle_times_us()
         time.sleep(0.5)
         held = idle_shares(before, idle_times_us())
-    finally:
-        os.close(fd)  # the request ends with its file
-    time.sleep(0.05)
+    time.sleep(0.05)  # the request ended with its file
     before = idle_times_us()
     time.sleep(0.5)
     free = idle_shares(before, idle_times_us())
     assert held.get("POLL", 0.0) > 0.9, held
     if len(free) > 1:  # a machine whose only state is POLL has nothing deeper to show
         assert free.get("POLL", 0.0) < held["POLL"], (free, held)  # this one: 0 % polling
+
+
+def test_a_request_that_cannot_be_made_says_why(tmp_path: Path) -> None:
+    with pytest.raises(AccessError, match="cannot request polling idle CPUs") as e:
+        with idle_polling(tmp_path / "no_such_device"):
+            pass
+    assert "no_such_device" in str(e.value)

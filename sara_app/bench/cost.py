@@ -33,6 +33,7 @@ import tempfile
 import threading
 import time
 from collections import defaultdict
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -272,17 +273,18 @@ def _measure(hub: Bus, cell: str, pids: dict[str, int], seconds: float, out: Loa
 def bench_live(
     scenario: str = "punches", people: tuple[int, ...] = PEOPLE, seconds: float = 10.0,
     runs: int = 3, pin_cpus: bool = True, robot_encoding: str = "compact",
-    phase_lock: bool = False,
+    phase_lock: bool = False, idle_poll: bool = False,
 ) -> list[LoadCost]:  # fmt: skip
     """Each load measured ``runs`` times on a fresh cell (see the module notes); ``pin_cpus``:
     the worker on a CPU of its own and the rest (this process too) on the others, as serve
     does where the machine has a CPU to spare; ``robot_encoding``: of states and commands;
-    ``phase_lock``: the scenario's ``inputs.cycle_phase_lock``."""
+    ``phase_lock``: the scenario's ``inputs.cycle_phase_lock``; ``idle_poll``: the idle CPUs
+    poll instead of halting while it measures (:func:`sara_app.bench.idle.idle_polling`)."""
     from sara_app.processes.affinity import placed_as_serve
     from sara_app.scenario import load_scenario
 
     results = []
-    with placed_as_serve(pin_cpus) as plan:
+    with idle.idle_polling() if idle_poll else nullcontext(), placed_as_serve(pin_cpus) as plan:
         with tempfile.TemporaryDirectory(prefix="sara-bench-live-") as tmp:
             for n in people:
                 path = str(scenario_with_people(scenario, n, Path(tmp), phase_lock))

@@ -12,9 +12,18 @@ differently are not compared as if they were alike.
 
 from __future__ import annotations
 
+import os
+import struct
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
+from sara_app.errors import AccessError
+
 CPU_ROOT = Path("/sys/devices/system/cpu")
+QOS_DEVICE = Path("/dev/cpu_dma_latency")
+"""The kernel's CPU latency (PM QoS) request: a 32-bit value in us, held while the file is
+open (the kernel drops it when the file closes, also when its process dies)."""
 
 
 def idle_times_us(root: Path = CPU_ROOT) -> dict[str, int]:
@@ -56,3 +65,22 @@ def describe(shares: dict[str, float], driver: str) -> str:
         f"{100 * s:.0f} % {name!r}" for name, s in sorted(shares.items(), key=lambda x: -x[1])
     )
     return f"idle CPUs: {parts} (cpuidle driver {driver}; 'POLL' keeps the caches warm)"
+
+
+@contextmanager
+def idle_polling(device: Path = QOS_DEVICE) -> Iterator[None]:
+    """While inside, a CPU latency request of 0 us is held: the idle CPUs poll instead of
+    entering any state that takes time to leave. Raises :class:`AccessError` where the request
+    cannot be made (the device is root's on most systems)."""
+    try:
+        fd = os.open(device, os.O_WRONLY)
+    except OSError as e:
+        raise AccessError(
+            f"cannot request polling idle CPUs through {device}: {e.strerror}; it takes write "
+            "access to that device (root on most systems)"
+        ) from e
+    try:
+        os.write(fd, struct.pack("i", 0))
+        yield
+    finally:
+        os.close(fd)

@@ -17,7 +17,8 @@ def _bench(args: argparse.Namespace) -> None:
         from sara_app.bench.cost import bench_live, report
 
         loads = bench_live(args.scenario, tuple(args.people), args.seconds, args.runs,
-                           args.pin_cpus, args.robot_encoding, args.phase_lock)  # fmt: skip
+                           args.pin_cpus, args.robot_encoding, args.phase_lock,
+                           args.idle_poll)  # fmt: skip
         print(report(loads))
         return
     if args.cells:
@@ -68,6 +69,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--phase-lock", action=argparse.BooleanOptionalAction, default=False,
                    help="--live: the worker's cycles locked to the skeletons' phase (the "
                    "scenario's inputs.cycle_phase_lock, off by default)")  # fmt: skip
+    b.add_argument(
+        "--idle-poll",
+        action="store_true",
+        help="--live: the idle CPUs poll instead of halting while it measures (a CPU latency "
+        "request of 0 us: write access to /dev/cpu_dma_latency)",
+    )
     b.add_argument("--rate", type=float, default=120.0, help="skeletons per second of --cells")
     b.add_argument("--clients", type=int, default=50, help="event streams of --sse")
     b.add_argument("--scenario", default="punches", help="scenario of --view and --live")
