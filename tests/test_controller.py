@@ -25,6 +25,9 @@ from sara_app.peers.controller import position_on_stop
 from sara_app.processes.serve import WORKER_RT_PRIORITY, connect_when_listening
 from sara_app.scenario import load_scenario
 
+# live cells whose rates and timings the assertions read: no other test runs beside them
+pytestmark = pytest.mark.exclusive
+
 CELL = "ctl"
 
 
@@ -314,7 +317,6 @@ def test_a_started_controller_follows_no_command_from_elsewhere() -> None:
         assert ctl.command is not None and ctl.command.seq == 1
 
 
-@pytest.mark.exclusive
 def test_run_states_every_period_without_commands_and_one_per_command_taken() -> None:
     """``Controller.run`` over a real bus: with no command it publishes a state every control
     period (no gap over three periods); with commands at the control rate, a state per command

@@ -40,6 +40,9 @@ from sara_app.processes.serve import WORKER_RT_PRIORITY, connect_when_listening
 from sara_app.scenario import load_scenario
 from sara_app.sim.motions import measured
 
+# live cells whose rates and timings the assertions read: no other test runs beside them
+pytestmark = pytest.mark.exclusive
+
 CELL = "hostile"
 NAMES = skeleton("full").joints
 STANDING = np.array(
@@ -259,7 +262,6 @@ def _flood(
     return subprocess.Popen([sys.executable, "-c", FLOOD, *args], stdout=subprocess.PIPE, text=True)
 
 
-@pytest.mark.exclusive
 def test_a_flood_on_one_id_leaves_another_persons_stream_intact(cell: Cell) -> None:
     """The person's own tracker is a process of its own at 60 Hz, as the flooding one is (in the
     test's process its messages waited for the CPU, not for the worker)."""
@@ -279,7 +281,6 @@ def test_a_flood_on_one_id_leaves_another_persons_stream_intact(cell: Cell) -> N
     assert vs[-1].dropped.get("superseded", 0) > 10_000
 
 
-@pytest.mark.exclusive
 def test_a_flood_at_the_default_rate_leaves_a_near_persons_verdicts_correct(
     tmp_path: Path,
 ) -> None:
@@ -310,7 +311,6 @@ def test_a_flood_at_the_default_rate_leaves_a_near_persons_verdicts_correct(
         assert all(a is not None and a < 0.1 for a in ages), max(a or 1e9 for a in ages)
 
 
-@pytest.mark.exclusive
 def test_a_thousand_ids_fault_the_cell_and_the_loop_keeps_its_rate(cell: Cell) -> None:
     """A thousand ids from a flooding process: the cell faults and keeps its rate. The real
     tracker's frames never listed them, so they are no evidence that they left (a person
@@ -424,7 +424,6 @@ with zenoh.open(zenoh.Config.from_json5(json.dumps(conf))) as s:
 """
 
 
-@pytest.mark.exclusive
 def test_a_200_mb_put_is_refused_by_the_router_and_stalls_nothing(served_cell: Cell) -> None:
     """A 200 MB message on a person's key never reaches the worker (the router's limit), and
     the verdict stream goes on meanwhile: no gap longer than two control periods beyond the
@@ -806,7 +805,6 @@ def test_a_replan_is_refused_while_a_second_publisher_lies(cell: Cell) -> None:
     assert ctl.largest_jump() < 0.05  # no jump (0.3 rad before)
 
 
-@pytest.mark.exclusive
 def test_a_flood_of_replans_leaves_the_loop_its_rate(cell: Cell) -> None:
     """Hostile-user probe of the re-plan, 2026-11-30: 3 000 re-plan requests in a burst (the
     editor role) took the worker's every cycle (0-1 verdicts a second for 8 s). The worker takes

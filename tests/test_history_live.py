@@ -24,6 +24,9 @@ from sara_app.human.scripted import joints, standing
 from sara_app.ops.supervisor import stop_processes
 from sara_app.sim.motions import measured
 
+# live cells whose rates and timings the assertions read: no other test runs beside them
+pytestmark = pytest.mark.exclusive
+
 CELL = "hist"
 P_X_M = 0.3  # in front of the robot base, facing it: a fresh person there stops the robot
 LATENCY_S = 0.02

@@ -43,6 +43,9 @@ from sara_app.safety.thresholds import CONTACTS, REGIONS
 from sara_app.scenario import load_scenario, scenarios_dir
 from sara_app.sim.motions import measured
 
+# live cells whose rates and timings the assertions read: no other test runs beside them
+pytestmark = pytest.mark.exclusive
+
 CELL = "live1"
 STANDING = {  # a person standing upright, feet at x = 0
     "head": (0, 0, 1.65),
@@ -214,7 +217,6 @@ def test_waypoint_edit_moves_the_robot_occupancy(live: Live) -> None:
     assert np.all(np.abs([m.q[0] for m in cmds]) <= 0.1 + 1e-6)
 
 
-@pytest.mark.exclusive
 def test_pfl_threshold_lowered_below_the_link_energies_makes_the_robot_brake(
     live: Live,
 ) -> None:

@@ -29,6 +29,9 @@ from sara_app.bus.session import Bus, free_port
 from sara_app.runtime.worker import CellWorker
 from sara_app.scenario import load_scenario
 
+# live cells whose rates and timings the assertions read: no other test runs beside them
+pytestmark = pytest.mark.exclusive
+
 EXAMPLE = Path(__file__).resolve().parent.parent / "sara_app" / "bus" / "example_publisher.py"
 STANDING = np.array(
     [
@@ -235,7 +238,6 @@ def test_the_control_period_does_not_change_live(cell) -> None:
     assert worker.shield.settings.dt_s == 0.004 and worker.phase.dt_s == 0.004
 
 
-@pytest.mark.exclusive
 def test_the_cycles_lock_onto_a_regular_tracker() -> None:
     """``inputs.cycle_phase_lock`` on, a tracker publishing on its own frame clock (five control
     periods): the worker's cycles slide (never faster or slower than the slew bound allows)
@@ -324,7 +326,6 @@ def test_an_overrunning_loop_still_sleeps_every_cycle(monkeypatch) -> None:
     assert worker.overruns >= 3
 
 
-@pytest.mark.exclusive
 def test_a_slow_edit_is_built_off_the_loop(cell, monkeypatch) -> None:
     """An edit whose cell takes a second to build (a safety mode's kernels loading): the loop
     keeps publishing a verdict every cycle meanwhile, and the edit is applied afterwards."""
@@ -438,7 +439,6 @@ def test_the_status_reports_the_whole_step_and_the_periods_missed(cell) -> None:
     assert max(worker.loop_us) >= 5e6 * worker.shield.settings.dt_s  # the held-up step
 
 
-@pytest.mark.exclusive
 def test_commands_stay_a_period_apart_when_the_loop_catches_up() -> None:
     """A loop that runs late now and then (every 10th cycle 1.4 periods too long) catches up
     by running the next cycle at once. Each command's set point is reached a period after its

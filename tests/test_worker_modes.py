@@ -13,6 +13,9 @@ from sara_app.bus.session import Bus, free_port
 from sara_app.runtime.worker import CellWorker
 from sara_app.scenario import load_scenario
 
+# live cells whose rates and timings the assertions read: no other test runs beside them
+pytestmark = pytest.mark.exclusive
+
 
 @pytest.fixture()
 def worker():
