@@ -80,7 +80,8 @@ REASONS: tuple[str, ...] = (
     "too_many_people",
     "wrong_dof",
 )
-# pydantic error type -> reason; custom error types of messages.py pass through when listed.
+# pydantic error type -> reason; the contract's own error types (messages.base.contract_error)
+# pass through when listed.
 _ERROR_REASON = {
     "missing": "missing_field",
     "extra_forbidden": "unknown_field",
