@@ -8,7 +8,9 @@ Per run and load, two phases of ``seconds`` each:
    ``/proc/<pid>/stat``; of it, the threads of zenoh's runtimes, by their names) and the
    context switches (voluntary and not, all threads, from
    ``/proc/<pid>/task/*/status``) over the phase, divided by the verdicts received: the cost of
-   one control cycle. This process listens to the verdicts only (as serve's registry does).
+   one control cycle, and how the machine's CPUs idled meanwhile (polling or halted:
+   :mod:`sara_app.bench.idle`). This process listens to the verdicts only (as serve's registry
+   does).
    The skeleton -> verdict latency comes from the same verdicts: a verdict's ``stamp_s -
    skeleton_age_s`` is the stamp of the skeleton it used, so the first verdict that used a
    skeleton gives its stamp -> reception time here (one clock: this machine's). The stamp is
