@@ -12,6 +12,7 @@ on a real worker over real zenoh on 127.0.0.1:
 
 from __future__ import annotations
 
+import threading
 import time
 from typing import Any
 
@@ -61,6 +62,14 @@ def _ack(sub: Subscription, request_id: str) -> ParamsAckMsg:
                 return d.msg
         time.sleep(0.02)
     raise AssertionError(f"no answer to {request_id}")
+
+
+def _watch_passes(worker: Any, seen: list[int], stop: threading.Event) -> None:
+    """Append each pass index ``worker`` enters to ``seen`` until ``stop``."""
+    while not stop.is_set():
+        if worker.pass_index != seen[-1]:
+            seen.append(worker.pass_index)
+        time.sleep(0.002)
 
 
 def _edit_base(d: dict) -> None:
@@ -129,20 +138,26 @@ def test_an_edit_that_leaves_the_route_alone_keeps_its_progress(blend_rad: float
     with Bus.router(port), Bus.client(port) as wbus, Bus.client(port) as tb, Heartbeat(tb, CELL), \
             running_worker(CELL, sc, wbus, loop_task=False) as worker:  # fmt: skip
         acks = tb.subscribe(keys.params_ack_key(CELL), fifo=True)
-        seen = [0]
+        # the passes as the worker goes through them, watched apart from the wait for the
+        # edit's answer (under load that wait outlasted a whole pass: the pass went unseen)
+        seen, watching = [0], threading.Event()
+        watcher = threading.Thread(target=_watch_passes, args=(worker, seen, watching))
+        watcher.start()
         t_end = time.monotonic() + 60
         edited = False
-        while not (worker.pass_index == 2 and worker.shield.follower.done):
-            assert time.monotonic() < t_end, f"the task never ended (passes {seen})"
-            if worker.pass_index != seen[-1]:
-                seen.append(worker.pass_index)
-            if worker.pass_index == 1 and not edited:  # in its second pass
-                _describe(tb, worker, "mid", blend_rad)
-                assert _ack(acks, "mid").accepted
-                edited = True
-                want = sc.task.blend_distance_rad if blend_rad is None else blend_rad
-                assert worker.shield.follower.blend_distance == want
-            time.sleep(0.005)
+        try:
+            while not (worker.pass_index == 2 and worker.shield.follower.done):
+                assert time.monotonic() < t_end, f"the task never ended (passes {seen})"
+                if worker.pass_index == 1 and not edited:  # in its second pass
+                    _describe(tb, worker, "mid", blend_rad)
+                    assert _ack(acks, "mid").accepted
+                    edited = True
+                    want = sc.task.blend_distance_rad if blend_rad is None else blend_rad
+                    assert worker.shield.follower.blend_distance == want
+                time.sleep(0.005)
+        finally:
+            watching.set()
+            watcher.join()
         assert seen == [0, 1, 2], seen  # the edit did not start the task again
         want = sc.task.blend_distance_rad if blend_rad is None else blend_rad
         assert worker.shield.follower.path.blend_distance == want  # the last pass's path
