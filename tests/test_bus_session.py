@@ -15,12 +15,21 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import zenoh
 
 from sara_app.bus import keys
 from sara_app.bus.codec import Decoded, Decoder
 from sara_app.bus.examples import example_messages
 from sara_app.bus.messages import SkeletonMsg, encode
-from sara_app.bus.session import Bus, BusError, Subscription, endpoint, free_port
+from sara_app.bus.session import (
+    PRIORITY_OF_LANE,
+    Bus,
+    BusError,
+    Subscription,
+    endpoint,
+    free_port,
+    priority_of,
+)
 from sara_app.errors import ParameterError
 
 EXAMPLE_SCRIPT = Path(__file__).resolve().parents[1] / "sara_app" / "bus" / "example_publisher.py"
@@ -107,14 +116,55 @@ def test_client_to_client_through_the_router(router: tuple[Bus, int]) -> None:
         deadline = time.monotonic() + 10  # let the subscription reach the publishers' session
         while not all(p.has_subscribers() for p in pubs.values()) and time.monotonic() < deadline:
             time.sleep(0.01)
+        # one at a time: the publishers drop under congestion (zenoh's DROP), and a burst of
+        # 14 express puts outruns the transmit queue (2 batches, 1 ms before a drop) when this
+        # process's transmit thread waits for a CPU (a CI run lost one on a loaded machine)
+        got: list[Decoded] = []
         for k, (_, msg) in sent.items():
             assert pubs[k].put(msg)
-        got = _collect(sub, len(sent))
+            got += _collect(sub, 1)
         assert {d.key.kind: d.msg for d in got} == {k: m for k, (_, m) in sent.items()}
         assert sub.decoder.rejected == 0
     assert not pubs["verdict"].put(sent["verdict"][1])  # closed: refused, counted, no raise
     assert pubs["verdict"].failed == 1
     assert sub.drain()[:2] == ([], 0)
+
+
+ZENOH_PRIORITIES = ["REAL_TIME", "INTERACTIVE_HIGH", "INTERACTIVE_LOW", "DATA_HIGH", "DATA",
+                    "DATA_LOW", "BACKGROUND"]  # fmt: skip
+"""Zenoh's priorities, most urgent first (the order its transmit queues are served in)."""
+
+
+def test_each_kind_travels_in_its_lane(router: tuple[Bus, int]) -> None:
+    """Every key of the contract goes out at its lane's zenoh priority, as a subscriber in
+    another session sees it; the lanes in order of urgency, the robot's first; a key outside
+    the contract at zenoh's default."""
+    rank = {lane: ZENOH_PRIORITIES.index(str(PRIORITY_OF_LANE[lane]).split(".")[-1])
+            for lane in keys.LANES}  # fmt: skip
+    assert [rank[lane] for lane in keys.LANES] == sorted(set(rank.values()))
+    assert set(keys.LANE_OF) == set(keys.KINDS) and set(keys.LANE_OF.values()) == set(keys.LANES)
+    assert str(priority_of("elsewhere/x")) == str(zenoh.Priority.DATA)
+    _, port = router
+    heard: dict[str, str] = {}
+
+    def hear(sample: zenoh.Sample) -> None:
+        heard[keys.parse_key(str(sample.key_expr)).kind] = str(sample.priority)
+
+    with Bus.client(port) as a, Bus.client(port) as b:
+        listener = b.session.declare_subscriber(keys.cell_keys(CELL), hear)
+        sent = example_messages()
+        pubs = {k: a.publisher(key) for k, (key, _) in sent.items()}
+        deadline = time.monotonic() + 10
+        while not all(p.has_subscribers() for p in pubs.values()) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        for k, (_, msg) in sent.items():
+            assert pubs[k].put(msg)
+            while k not in heard and time.monotonic() < deadline:
+                time.sleep(0.005)
+        listener.undeclare()
+    assert set(sent) == set(keys.KINDS)
+    assert heard == {k: str(PRIORITY_OF_LANE[keys.LANE_OF[k]]) for k in keys.KINDS}
+    assert heard["robot_command"] == str(zenoh.Priority.REAL_TIME)
 
 
 def test_ring_channel_keeps_the_newest_and_counts_gaps() -> None:

@@ -38,6 +38,16 @@ def _short_task(passes: int = 1) -> Any:
     return parse_scenario(data)
 
 
+def _request(tb: Bus, request: ParamsMsg) -> None:
+    """Publish ``request`` once the worker's subscription is known (as the API does)."""
+    pub = tb.publisher(keys.params_key(CELL))
+    t_end = time.monotonic() + 10
+    while not pub.has_subscribers():
+        assert time.monotonic() < t_end, "the worker does not listen to its params key"
+        time.sleep(0.01)
+    assert pub.put(request)
+
+
 def _describe(tb: Bus, worker: Any, request_id: str, blend_rad: float | None = None) -> None:
     """Send the scenario the worker runs with another description (nothing the cell uses), and
     ``blend_rad``: another blend distance of the task's corners."""
@@ -47,7 +57,7 @@ def _describe(tb: Bus, worker: Any, request_id: str, blend_rad: float | None = N
         data["task"]["blend_distance_rad"] = blend_rad
     request = ParamsMsg(seq=len(request_id), stamp_s=time.time(), request_id=request_id,
                         scenario=data, confirm=True)  # fmt: skip
-    tb.publisher(keys.params_key(CELL)).put(request)
+    _request(tb, request)
 
 
 def _commands(sub: Subscription) -> list[RobotCommandMsg]:
@@ -108,7 +118,7 @@ def test_a_robot_edit_at_rest_goes_on_from_where_the_robot_rests(edit) -> None:
         edit(data)
         request = ParamsMsg(seq=0, stamp_s=time.time(), request_id="robot", scenario=data,
                             confirm=True, user="engineer")  # fmt: skip
-        tb.publisher(keys.params_key(CELL)).put(request)
+        _request(tb, request)
         ack = _ack(acks, "robot")
         time.sleep(1.0)
         sent = before[-1:] + _commands(commands)

@@ -48,8 +48,13 @@ def main() -> None:
             pw = dict(ln.strip().split(":", 1) for ln in fh if ":" in ln)[args.user]
         conf["transport"] = {"auth": {"usrpwd": {"user": args.user, "password": pw}}}
     with zenoh.open(zenoh.Config.from_json5(json.dumps(conf))) as session:
-        pub = session.declare_publisher(f"sara/{args.cell}/human/{args.human}/skeleton")
-        beat = session.declare_publisher(f"sara/{args.cell}/tracker/{args.tracker}/frame")
+        lane = zenoh.Priority.DATA_HIGH  # the evidence of people: see CONTRACT.md
+        pub = session.declare_publisher(
+            f"sara/{args.cell}/human/{args.human}/skeleton", priority=lane
+        )
+        beat = session.declare_publisher(
+            f"sara/{args.cell}/tracker/{args.tracker}/frame", priority=lane
+        )
         for seq in itertools.islice(itertools.count(), args.count or None):
             t = time.time()  # the measurement time, shared wall clock
             msg = {"schema_version": 1, "seq": seq, "stamp_s": t, "frame": "world",

@@ -81,6 +81,31 @@ _SUFFIX: dict[str, str] = {
     "robot_replan": "robot/replan",
 }
 _BY_SUFFIX: dict[str, str] = {v: k for k, v in _SUFFIX.items() if "{id}" not in v}
+
+Lane = Literal["control", "request", "evidence", "report", "display"]
+LANES: tuple[str, ...] = get_args(Lane)
+"""The transport lanes, most urgent first (:data:`LANE_OF`)."""
+LANE_OF: dict[str, str] = {
+    "robot_command": "control",
+    "robot_state": "control",
+    "params": "request",
+    "params_ack": "request",
+    "retire": "request",
+    "robot_replan": "request",
+    "scenario": "request",
+    "skeleton": "evidence",
+    "tracker_frame": "evidence",
+    "verdict": "report",
+    "status": "report",
+    "controller_status": "report",
+    "occupancy": "display",
+}
+"""The lane each kind travels in: a zenoh priority of its own (``sara_app.bus.session``). Zenoh
+queues each priority apart (in every session and on every router link) and drops a message
+when its priority's queue stays full for 1 ms; with every key in one priority, a process that
+waited for a CPU lost its commands and its edits' answers behind its display messages (a
+burst of 5 keys a cycle under load: 7-10 % of the commands and 20-27 % of the answers lost,
+none of either in lanes; docs/performance.md, "Lanes")."""
 # kinds whose key holds an id: kind -> (first segment, last segment, what the id names)
 _WITH_ID: dict[str, tuple[str, str, str]] = {
     "skeleton": ("human", "skeleton", "human id"),

@@ -13,7 +13,9 @@
   the (shareable) ``Decoder``.
 - ``bus.publisher(key)`` -> ``Publisher``: ``put(msg)`` encodes and sends, never raises (a failure
   is counted in ``failed`` and logged) and returns whether it was sent; ``next_seq()`` numbers
-  messages 0, 1, 2, ...; ``has_subscribers()`` tells whether anyone listens.
+  messages 0, 1, 2, ...; ``has_subscribers()`` tells whether anyone listens. Each key's
+  messages travel at its lane's priority (``priority_of``): the robot's ahead of everything,
+  then requests and answers, the evidence of people, reports, display.
 
 Zenoh callbacks run on zenoh threads and need the GIL; the channel handlers here keep all
 decoding on the caller's thread.
@@ -244,9 +246,26 @@ ROBOT_ENCODINGS = ("json", "compact")
 compact records of :mod:`sara_app.bus.compact`. Decoders accept both."""
 
 
+PRIORITY_OF_LANE: dict[str, zenoh.Priority] = {
+    "control": zenoh.Priority.REAL_TIME,
+    "request": zenoh.Priority.INTERACTIVE_HIGH,
+    "evidence": zenoh.Priority.DATA_HIGH,
+    "report": zenoh.Priority.DATA,
+    "display": zenoh.Priority.DATA_LOW,
+}
+"""The zenoh priority of each lane (:data:`sara_app.bus.keys.LANE_OF`)."""
+
+
+def priority_of(key_expr: str) -> zenoh.Priority:
+    """The zenoh priority a message on ``key_expr`` is published at: its kind's lane; a key
+    outside the contract travels as a report (zenoh's default priority)."""
+    kind = _kind(key_expr)
+    return PRIORITY_OF_LANE[keys.LANE_OF[kind] if kind is not None else "report"]
+
+
 class Publisher:
-    """Publishes validated messages on one key; numbers them with ``next_seq()``; ``compact``:
-    as compact records (robot keys only)."""
+    """Publishes validated messages on one key, in its kind's lane (:func:`priority_of`);
+    numbers them with ``next_seq()``; ``compact``: as compact records (robot keys only)."""
 
     def __init__(
         self, session: zenoh.Session, key_expr: str, express: bool, compact: bool = False
@@ -256,7 +275,10 @@ class Publisher:
         self.failed = 0
         self._seq = -1
         self._pub: Any = session.declare_publisher(
-            key_expr, congestion_control=zenoh.CongestionControl.DROP, express=express
+            key_expr,
+            congestion_control=zenoh.CongestionControl.DROP,
+            priority=priority_of(key_expr),
+            express=express,
         )
 
     def next_seq(self) -> int:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 
 
 def _bench(args: argparse.Namespace) -> None:
@@ -20,6 +21,14 @@ def _bench(args: argparse.Namespace) -> None:
                            args.pin_cpus, args.robot_encoding, args.phase_lock,
                            args.idle_poll)  # fmt: skip
         print(report(loads))
+        return
+    if args.lanes:
+        from sara_app.bench.lanes import bench_lanes
+        from sara_app.bench.lanes import report as lanes_report
+
+        hogs = 2 * (os.cpu_count() or 1) if args.hogs is None else args.hogs
+        losses = bench_lanes(args.lane_rounds, hogs=hogs, runs=args.runs)
+        print(lanes_report(losses, args.lane_rounds, hogs))
         return
     if args.cells:
         from sara_app.bench.cells import bench_cells
@@ -59,9 +68,22 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="instead: what the live cell (router, controller, worker, replayer) costs per "
         "control cycle: CPU, context switches, messages and bytes per key, latency",
     )
+    b.add_argument(
+        "--lanes",
+        action="store_true",
+        help="instead: messages a loaded machine loses per key of a worker's cycle, every key "
+        "in one zenoh priority and in the contract's lanes",
+    )
+    b.add_argument(
+        "--hogs",
+        type=int,
+        default=None,
+        help="--lanes: busy processes beside the publisher (default: 2 per CPU)",
+    )
+    b.add_argument("--lane-rounds", type=int, default=2000, help="--lanes: cycles per run")
     b.add_argument("--people", type=int, nargs="+", default=[1, 4], help="loads of --live")
     b.add_argument("--seconds", type=float, default=10.0, help="seconds per --live phase")
-    b.add_argument("--runs", type=int, default=3, help="runs per --live load")
+    b.add_argument("--runs", type=int, default=3, help="runs per --live load (and of --lanes)")
     b.add_argument("--pin-cpus", action=argparse.BooleanOptionalAction, default=True,
                    help="--live, --view: CPUs as serve places them")  # fmt: skip
     b.add_argument("--robot-encoding", choices=("compact", "json"), default="compact",

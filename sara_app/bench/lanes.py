@@ -1,0 +1,121 @@
+"""What a loaded machine loses on the bus, with every key in one zenoh priority and in the
+contract's lanes (``sara-app bench --lanes``).
+
+Every publisher of the cell drops a message (zenoh's ``DROP`` congestion control) when its
+priority's transmit queue stays full for 1 ms; a process whose transmit thread waits for a CPU
+fills it with one control cycle's burst. This bench publishes, at the control rate, what a
+worker puts in one cycle (its command, verdict, display message, status and an answer: the last
+two far rarer in a cell, here every cycle, the worst case; the contract's example messages, a
+display message smaller than a real one) from one session to a subscriber in
+another, through a router, while ``hogs`` busy processes load the machine; once with every key
+at zenoh's default priority (as before the lanes), once at its lane's
+(:func:`sara_app.bus.session.priority_of`), and counts what each key lost.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import threading
+import time
+from collections import Counter
+from typing import Any
+
+import zenoh
+
+from sara_app.bus import keys
+from sara_app.bus.examples import example_messages
+from sara_app.bus.messages import encode
+from sara_app.bus.session import Bus, free_port, priority_of
+
+CYCLE_KINDS = ("robot_command", "verdict", "occupancy", "status", "params_ack")
+"""What a worker puts in one control cycle, in its order (``sara_app.runtime``)."""
+BATCHED = ("occupancy",)
+"""Kinds the worker sends batched (not ``express``), as ``CellBus`` declares them."""
+MODES = ("one lane", "lanes")
+
+
+def _hogs(n: int) -> list[subprocess.Popen[bytes]]:
+    return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
+
+
+def _publishers(bus: Bus, cell: str, lanes: bool) -> list[tuple[str, Any, bytes]]:
+    """``(kind, zenoh publisher, payload)`` per cycle kind, as the worker declares them; at
+    zenoh's default priority unless ``lanes``."""
+    examples = example_messages()
+    out = []
+    for kind in CYCLE_KINDS:
+        key_expr, msg = keys.key(kind, cell), examples[kind][1]
+        priority = priority_of(key_expr) if lanes else zenoh.Priority.DATA
+        pub = bus.session.declare_publisher(
+            key_expr, congestion_control=zenoh.CongestionControl.DROP, priority=priority,
+            express=kind not in BATCHED,
+        )  # fmt: skip
+        out.append((kind, pub, encode(msg)))
+    return out
+
+
+def _run(port: int, cell: str, lanes: bool, rounds: int, period_s: float, hogs: int
+         ) -> dict[str, int]:  # fmt: skip
+    """Messages lost per kind in ``rounds`` cycles of one mode."""
+    heard: Counter[str] = Counter()
+    lock = threading.Lock()
+
+    def hear(sample: zenoh.Sample) -> None:
+        with lock:
+            heard[keys.parse_key(str(sample.key_expr)).kind] += 1
+
+    with Bus.client(port) as sender, Bus.client(port) as receiver:
+        listener = receiver.session.declare_subscriber(keys.cell_keys(cell), hear)
+        pubs = _publishers(sender, cell, lanes)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and not all(
+            p.matching_status.matching for _, p, _ in pubs
+        ):
+            time.sleep(0.01)
+        busy = _hogs(hogs)
+        try:
+            time.sleep(0.2)  # the hogs running
+            for _ in range(rounds):
+                for _, pub, payload in pubs:
+                    pub.put(payload)
+                time.sleep(period_s)
+        finally:
+            for proc in busy:
+                proc.kill()
+                proc.wait()
+        time.sleep(1.0)  # what is still on its way arrives
+        listener.undeclare()
+        for _, pub, _ in pubs:
+            pub.undeclare()
+    with lock:
+        return {kind: rounds - heard[kind] for kind in CYCLE_KINDS}
+
+
+def bench_lanes(
+    rounds: int = 2000, period_s: float = 0.002, hogs: int | None = None, runs: int = 2
+) -> dict[str, list[dict[str, int]]]:
+    """Per mode (:data:`MODES`), per run: messages lost per cycle kind out of ``rounds``, with
+    ``hogs`` busy processes (default: twice the CPUs) beside the publisher; the modes alternate
+    so that a machine's drift shows in both."""
+    n_hogs = 2 * (os.cpu_count() or 1) if hogs is None else hogs
+    port = free_port()
+    out: dict[str, list[dict[str, int]]] = {mode: [] for mode in MODES}
+    with Bus.router(port):
+        for run in range(runs):
+            for mode in MODES:
+                cell = f"lanes{run}{mode[0]}"
+                out[mode].append(_run(port, cell, mode == "lanes", rounds, period_s, n_hogs))
+    return out
+
+
+def report(losses: dict[str, list[dict[str, int]]], rounds: int, hogs: int) -> str:
+    """A table: per mode and kind, the messages lost in each run (of ``rounds``)."""
+    beside = f"{hogs} busy process{'' if hogs == 1 else 'es'} beside"
+    lines = [f"messages lost of {rounds} per key and run, {beside}", ""]
+    lines.append(f"{'key':16s} " + " ".join(f"{m:>16s}" for m in MODES))
+    for kind in CYCLE_KINDS:
+        cells = [", ".join(str(r[kind]) for r in losses[m]) for m in MODES]
+        lines.append(f"{kind:16s} " + " ".join(f"{c:>16s}" for c in cells))
+    return "\n".join(lines)
