@@ -153,6 +153,7 @@ def test_the_bridge_speaks_rmw_zenoh(rig: Rig) -> None:
     assert list(js.velocity) == [0.0, 1.0, 0.0] and js.header.frame_id == "world"
     seq, stamp_ns, gid = read_attachment(got[0].attachment.to_bytes())
     assert seq >= 1 and abs(stamp_ns / 1e9 - time.time()) < 60 and gid == b.gid
+    assert str(got[0].priority) == str(zenoh.Priority.REAL_TIME)  # the robot's lane
     # the occupancy -> MarkerArray: cylinder + two spheres per capsule, after a DELETEALL
     occ = example_messages()["occupancy"][1]
     assert isinstance(occ, OccupancyMsg) and occ.robot is not None
@@ -161,6 +162,7 @@ def test_the_bridge_speaks_rmw_zenoh(rig: Rig) -> None:
     assert got, "no MarkerArray on " + b.key_markers
     markers = codec(MARKER_ARRAY)[1](got[0].payload.to_bytes()).markers
     assert markers[0].action == MARKER_DELETEALL
+    assert str(got[0].priority) == str(zenoh.Priority.DATA_LOW)  # the display's lane
     ends, radius = occ.robot.capsules.arrays()
     robot = [m for m in markers if m.ns == "sara/robot"]
     assert len(robot) == 3 * len(radius)

@@ -31,7 +31,7 @@ from sara_app.bus import keys
 from sara_app.bus.codec import Decoder
 from sara_app.bus.messages import OccupancyMsg, RobotCommandMsg, RobotStateMsg
 from sara_app.bus.process import process_main
-from sara_app.bus.session import Bus
+from sara_app.bus.session import PRIORITY_OF_LANE, Bus
 from sara_app.errors import SaraError
 from sara_app.ros2.convert import command_joint_state, occupancy_markers, robot_state
 from sara_app.ros2.interfaces import codec
@@ -67,8 +67,13 @@ class Ros2Bridge:
         self.key_command = topic_key(d, spec.command_topic, JOINT_STATE)
         self.key_markers = topic_key(d, spec.occupancy_topic, MARKER_ARRAY)
         self.key_state = topic_key(d, spec.state_topic, JOINT_STATE)
-        self.pub_command = ros.declare_publisher(self.key_command)
-        self.pub_markers = ros.declare_publisher(self.key_markers)
+        # in the lanes of the cell's own keys (the contract's "Lanes"): the robot's first
+        self.pub_command = ros.declare_publisher(
+            self.key_command, priority=PRIORITY_OF_LANE["control"]
+        )
+        self.pub_markers = ros.declare_publisher(
+            self.key_markers, priority=PRIORITY_OF_LANE["display"]
+        )
         self._seq = 0
         self._next_markers = 0.0
         dec = Decoder()
