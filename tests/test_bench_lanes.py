@@ -44,12 +44,15 @@ def test_losses_are_counted_per_kind_and_reported() -> None:
     assert set(losses) == set(MODES)
     for mode in MODES:
         (run,) = losses[mode]
-        assert set(run) == set(CYCLE_KINDS)
-        assert all(0 <= n <= rounds for n in run.values()), run
+        assert set(run.lost) == set(CYCLE_KINDS)
+        assert all(0 <= n <= rounds for n in run.lost.values()), run
+        assert 0.0 < run.puts_p99_us < 2e6
     text = report(losses, rounds, 0)
     assert f"of {rounds} per key" in text
-    for kind in CYCLE_KINDS:
-        assert any(line.split()[0] == kind for line in text.splitlines()[3:]), kind
+    rows = {line.split()[0]: line for line in text.splitlines()[3:]}
+    assert set(rows) == {*CYCLE_KINDS, "puts"}
+    assert rows["robot_command"].split()[1:] == [str(losses[m][0].lost["robot_command"])
+                                                 for m in MODES]  # fmt: skip
 
 
 def test_the_command_line_runs_it() -> None:
@@ -61,4 +64,4 @@ def test_the_command_line_runs_it() -> None:
     assert proc.returncode == 0, proc.stderr
     assert "1 busy process beside" in proc.stdout
     rows = [line.split() for line in proc.stdout.splitlines()[3:]]
-    assert [r[0] for r in rows] == list(CYCLE_KINDS)
+    assert [r[0] for r in rows] == [*CYCLE_KINDS, "puts"]

@@ -9,7 +9,9 @@ two far rarer in a cell, here every cycle, the worst case; the contract's exampl
 display message smaller than a real one) from one session to a subscriber in
 another, through a router, while ``hogs`` busy processes load the machine; once with every key
 at zenoh's default priority (as before the lanes), once at its lane's
-(:func:`sara_app.bus.session.priority_of`), and counts what each key lost.
+(:func:`sara_app.bus.session.priority_of`), and counts what each key lost. It also times each
+cycle's puts: a put into a full queue waits (up to 1 ms) before it drops, and in a worker that
+wait is its control loop's.
 """
 
 from __future__ import annotations
@@ -20,8 +22,9 @@ import sys
 import threading
 import time
 from collections import Counter
-from typing import Any
+from typing import Any, NamedTuple
 
+import numpy as np
 import zenoh
 
 from sara_app.bus import keys
@@ -34,6 +37,14 @@ CYCLE_KINDS = ("robot_command", "verdict", "occupancy", "status", "params_ack")
 BATCHED = ("occupancy",)
 """Kinds the worker sends batched (not ``express``), as ``CellBus`` declares them."""
 MODES = ("one lane", "lanes")
+
+
+class LaneRun(NamedTuple):
+    """One run of one mode: messages lost per kind (of the run's cycles), and the 99th
+    percentile of the time one cycle's puts took (us)."""
+
+    lost: dict[str, int]
+    puts_p99_us: float
 
 
 def _hogs(n: int) -> list[subprocess.Popen[bytes]]:
@@ -57,8 +68,8 @@ def _publishers(bus: Bus, cell: str, lanes: bool) -> list[tuple[str, Any, bytes]
 
 
 def _run(port: int, cell: str, lanes: bool, rounds: int, period_s: float, hogs: int
-         ) -> dict[str, int]:  # fmt: skip
-    """Messages lost per kind in ``rounds`` cycles of one mode."""
+         ) -> LaneRun:  # fmt: skip
+    """``rounds`` cycles of one mode."""
     heard: Counter[str] = Counter()
     lock = threading.Lock()
 
@@ -74,12 +85,15 @@ def _run(port: int, cell: str, lanes: bool, rounds: int, period_s: float, hogs: 
             p.matching_status.matching for _, p, _ in pubs
         ):
             time.sleep(0.01)
+        puts_s = np.zeros(rounds)
         busy = _hogs(hogs)
         try:
             time.sleep(0.2)  # the hogs running
-            for _ in range(rounds):
+            for r in range(rounds):
+                t0 = time.perf_counter()
                 for _, pub, payload in pubs:
                     pub.put(payload)
+                puts_s[r] = time.perf_counter() - t0
                 time.sleep(period_s)
         finally:
             for proc in busy:
@@ -90,18 +104,20 @@ def _run(port: int, cell: str, lanes: bool, rounds: int, period_s: float, hogs: 
         for _, pub, _ in pubs:
             pub.undeclare()
     with lock:
-        return {kind: rounds - heard[kind] for kind in CYCLE_KINDS}
+        lost = {kind: rounds - heard[kind] for kind in CYCLE_KINDS}
+    return LaneRun(lost, float(np.percentile(puts_s, 99)) * 1e6)
 
 
 def bench_lanes(
     rounds: int = 2000, period_s: float = 0.002, hogs: int | None = None, runs: int = 2
-) -> dict[str, list[dict[str, int]]]:
-    """Per mode (:data:`MODES`), per run: messages lost per cycle kind out of ``rounds``, with
+) -> dict[str, list[LaneRun]]:
+    """Per mode (:data:`MODES`), per run: messages lost per cycle kind out of ``rounds`` and
+    the cycle's puts' time, with
     ``hogs`` busy processes (default: twice the CPUs) beside the publisher; the modes alternate
     so that a machine's drift shows in both."""
     n_hogs = 2 * (os.cpu_count() or 1) if hogs is None else hogs
     port = free_port()
-    out: dict[str, list[dict[str, int]]] = {mode: [] for mode in MODES}
+    out: dict[str, list[LaneRun]] = {mode: [] for mode in MODES}
     with Bus.router(port):
         for run in range(runs):
             for mode in MODES:
@@ -110,12 +126,15 @@ def bench_lanes(
     return out
 
 
-def report(losses: dict[str, list[dict[str, int]]], rounds: int, hogs: int) -> str:
-    """A table: per mode and kind, the messages lost in each run (of ``rounds``)."""
+def report(runs: dict[str, list[LaneRun]], rounds: int, hogs: int) -> str:
+    """A table: per mode and kind, the messages lost in each run (of ``rounds``), and each
+    run's 99th percentile of a cycle's puts."""
     beside = f"{hogs} busy process{'' if hogs == 1 else 'es'} beside"
     lines = [f"messages lost of {rounds} per key and run, {beside}", ""]
     lines.append(f"{'key':16s} " + " ".join(f"{m:>16s}" for m in MODES))
     for kind in CYCLE_KINDS:
-        cells = [", ".join(str(r[kind]) for r in losses[m]) for m in MODES]
+        cells = [", ".join(str(r.lost[kind]) for r in runs[m]) for m in MODES]
         lines.append(f"{kind:16s} " + " ".join(f"{c:>16s}" for c in cells))
+    cells = [", ".join(f"{r.puts_p99_us:.0f}" for r in runs[m]) for m in MODES]
+    lines.append(f"{'puts p99 (us)':16s} " + " ".join(f"{c:>16s}" for c in cells))
     return "\n".join(lines)
