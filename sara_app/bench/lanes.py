@@ -130,11 +130,13 @@ def report(runs: dict[str, list[LaneRun]], rounds: int, hogs: int) -> str:
     """A table: per mode and kind, the messages lost in each run (of ``rounds``), and each
     run's 99th percentile of a cycle's puts."""
     beside = f"{hogs} busy process{'' if hogs == 1 else 'es'} beside"
+    rows = [(kind, [", ".join(str(r.lost[kind]) for r in runs[m]) for m in MODES])
+            for kind in CYCLE_KINDS]  # fmt: skip
+    rows.append(("puts p99 (us)", [", ".join(f"{r.puts_p99_us:.0f}" for r in runs[m])
+                                   for m in MODES]))  # fmt: skip
+    width = max(16, *(len(c) for _, cells in rows for c in cells))
     lines = [f"messages lost of {rounds} per key and run, {beside}", ""]
-    lines.append(f"{'key':16s} " + " ".join(f"{m:>16s}" for m in MODES))
-    for kind in CYCLE_KINDS:
-        cells = [", ".join(str(r.lost[kind]) for r in runs[m]) for m in MODES]
-        lines.append(f"{kind:16s} " + " ".join(f"{c:>16s}" for c in cells))
-    cells = [", ".join(f"{r.puts_p99_us:.0f}" for r in runs[m]) for m in MODES]
-    lines.append(f"{'puts p99 (us)':16s} " + " ".join(f"{c:>16s}" for c in cells))
+    lines.append(f"{'key':16s} " + "  ".join(f"{m:>{width}s}" for m in MODES))
+    for name, cells in rows:
+        lines.append(f"{name:16s} " + "  ".join(f"{c:>{width}s}" for c in cells))
     return "\n".join(lines)
