@@ -8,11 +8,13 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
 import zenoh
 
 from sara_app.bench.lanes import BATCHED, CYCLE_KINDS, MODES, _publishers, bench_lanes, report
 from sara_app.bus import keys
 from sara_app.bus.session import Bus, free_port, priority_of
+from sara_app.errors import ParameterError
 
 
 def test_each_mode_publishes_the_cycle_as_declared() -> None:
@@ -65,3 +67,9 @@ def test_the_command_line_runs_it() -> None:
     assert "1 busy process beside" in proc.stdout
     rows = [line.split() for line in proc.stdout.splitlines()[3:]]
     assert [r[0] for r in rows] == [*CYCLE_KINDS, "puts"]
+
+
+@pytest.mark.parametrize("bad", [{"rounds": 0}, {"runs": 0}, {"hogs": -1}, {"period_s": -1.0}])
+def test_nonsense_is_refused_before_anything_starts(bad: dict) -> None:
+    with pytest.raises(ParameterError, match="expected rounds and runs >= 1"):
+        bench_lanes(**bad)

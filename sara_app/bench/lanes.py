@@ -31,6 +31,7 @@ from sara_app.bus import keys
 from sara_app.bus.examples import example_messages
 from sara_app.bus.messages import encode
 from sara_app.bus.session import Bus, free_port, priority_of
+from sara_app.errors import ParameterError
 
 CYCLE_KINDS = ("robot_command", "verdict", "occupancy", "status", "params_ack")
 """What a worker puts in one control cycle, in its order (``sara_app.runtime``)."""
@@ -116,6 +117,11 @@ def bench_lanes(
     ``hogs`` busy processes (default: twice the CPUs) beside the publisher; the modes alternate
     so that a machine's drift shows in both."""
     n_hogs = 2 * (os.cpu_count() or 1) if hogs is None else hogs
+    if rounds < 1 or runs < 1 or n_hogs < 0 or not period_s >= 0:
+        raise ParameterError(
+            f"bench --lanes: rounds {rounds}, runs {runs}, hogs {n_hogs}, period {period_s} s; "
+            "expected rounds and runs >= 1, hogs and period >= 0"
+        )
     port = free_port()
     out: dict[str, list[LaneRun]] = {mode: [] for mode in MODES}
     with Bus.router(port):

@@ -103,9 +103,10 @@ LANE_OF: dict[str, str] = {
 """The lane each kind travels in: a zenoh priority of its own (``sara_app.bus.session``). Zenoh
 queues each priority apart (in every session and on every router link) and drops a message
 when its priority's queue stays full for 1 ms; with every key in one priority, a process that
-waited for a CPU lost its commands and its edits' answers behind its display messages (a
-burst of 5 keys a cycle under load: 7-10 % of the commands and 20-27 % of the answers lost,
-none of either in lanes; docs/performance.md, "Lanes")."""
+waited for a CPU lost its commands and its edits' answers behind its display messages
+(``sara-app bench --lanes``, 4 busy processes on 2 CPUs: 2.4-5.6 % of the commands and 7-16 %
+of the answers lost in one priority, at most 0.15 % of either in lanes; docs/performance.md,
+"Lanes")."""
 # kinds whose key holds an id: kind -> (first segment, last segment, what the id names)
 _WITH_ID: dict[str, tuple[str, str, str]] = {
     "skeleton": ("human", "skeleton", "human id"),
