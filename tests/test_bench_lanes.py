@@ -11,7 +11,7 @@ import sys
 import pytest
 import zenoh
 
-from sara_app.bench.lanes import BATCHED, CYCLE_KINDS, MODES, _publishers, bench_lanes, report
+from sara_app.bench.lanes import CYCLE_KINDS, MODES, _publishers, bench_lanes, report
 from sara_app.bus import keys
 from sara_app.bus.session import Bus, free_port, priority_of
 from sara_app.errors import ParameterError
@@ -37,7 +37,7 @@ def test_each_mode_publishes_the_cycle_as_declared() -> None:
         (k, keys.key(k, "c1"), str(priority_of(keys.key(k, "c1"))), drop) for k in CYCLE_KINDS
     ]
     assert len({prio for _, _, prio, _ in got["lanes"]}) == 4  # command, answer, display apart
-    assert set(BATCHED) <= set(CYCLE_KINDS)
+    assert set(keys.BATCHED_KINDS) <= set(CYCLE_KINDS)
 
 
 def test_losses_are_counted_per_kind_and_reported() -> None:

@@ -35,8 +35,6 @@ from sara_app.errors import ParameterError
 
 CYCLE_KINDS = ("robot_command", "verdict", "occupancy", "status", "params_ack")
 """What a worker puts in one control cycle, in its order (``sara_app.runtime``)."""
-BATCHED = ("occupancy",)
-"""Kinds the worker sends batched (not ``express``), as ``CellBus`` declares them."""
 MODES = ("one lane", "lanes")
 
 
@@ -46,6 +44,11 @@ class LaneRun(NamedTuple):
 
     lost: dict[str, int]
     puts_p99_us: float
+
+
+def default_hogs() -> int:
+    """Busy processes beside the publisher unless told: two per CPU."""
+    return 2 * (os.cpu_count() or 1)
 
 
 def _hogs(n: int) -> list[subprocess.Popen[bytes]]:
@@ -62,7 +65,7 @@ def _publishers(bus: Bus, cell: str, lanes: bool) -> list[tuple[str, Any, bytes]
         priority = priority_of(key_expr) if lanes else zenoh.Priority.DATA
         pub = bus.session.declare_publisher(
             key_expr, congestion_control=zenoh.CongestionControl.DROP, priority=priority,
-            express=kind not in BATCHED,
+            express=kind not in keys.BATCHED_KINDS,
         )  # fmt: skip
         out.append((kind, pub, encode(msg)))
     return out
@@ -113,10 +116,9 @@ def bench_lanes(
     rounds: int = 2000, period_s: float = 0.002, hogs: int | None = None, runs: int = 2
 ) -> dict[str, list[LaneRun]]:
     """Per mode (:data:`MODES`), per run: messages lost per cycle kind out of ``rounds`` and
-    the cycle's puts' time, with
-    ``hogs`` busy processes (default: twice the CPUs) beside the publisher; the modes alternate
-    so that a machine's drift shows in both."""
-    n_hogs = 2 * (os.cpu_count() or 1) if hogs is None else hogs
+    the cycle's puts' time, with ``hogs`` busy processes (default: :func:`default_hogs`)
+    beside the publisher; the modes alternate so that a machine's drift shows in both."""
+    n_hogs = default_hogs() if hogs is None else hogs
     if rounds < 1 or runs < 1 or n_hogs < 0 or not period_s >= 0:
         raise ParameterError(
             f"bench --lanes: rounds {rounds}, runs {runs}, hogs {n_hogs}, period {period_s} s; "

@@ -107,6 +107,9 @@ waited for a CPU lost its commands and its edits' answers behind its display mes
 (``sara-app bench --lanes``, 4 busy processes on 2 CPUs: 2.4-5.6 % of the commands and 7-16 %
 of the answers lost in one priority, at most 0.15 % of either in lanes; docs/performance.md,
 "Lanes")."""
+BATCHED_KINDS: tuple[str, ...] = ("occupancy",)
+"""Kinds published batched (zenoh's batching, not ``express``): the display message, 10-20 Hz
+and large, can wait for the batch's time limit; every other kind goes out at once."""
 # kinds whose key holds an id: kind -> (first segment, last segment, what the id names)
 _WITH_ID: dict[str, tuple[str, str, str]] = {
     "skeleton": ("human", "skeleton", "human id"),

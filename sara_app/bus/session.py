@@ -378,11 +378,13 @@ class Bus:
         self._owned.append(sub)
         return sub
 
-    def publisher(self, key_expr: str, express: bool = True) -> Publisher:
-        """A publisher on one concrete key (``express``: send at once, no batching); on a robot
-        key, in the session's :attr:`robot_encoding`."""
-        compact = self.robot_encoding == "compact" and _kind(key_expr) in KIND_CODES
-        pub = Publisher(self.session, key_expr, express, compact)
+    def publisher(self, key_expr: str) -> Publisher:
+        """A publisher on one concrete key: sent at once (``express``) unless its kind is one of
+        :data:`~sara_app.bus.keys.BATCHED_KINDS`; on a robot key, in the session's
+        :attr:`robot_encoding`."""
+        kind = _kind(key_expr)
+        compact = self.robot_encoding == "compact" and kind in KIND_CODES
+        pub = Publisher(self.session, key_expr, kind not in keys.BATCHED_KINDS, compact)
         self._owned.append(pub)
         return pub
 

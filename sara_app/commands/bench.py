@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import os
 
 
 def _bench(args: argparse.Namespace) -> None:
@@ -23,10 +22,10 @@ def _bench(args: argparse.Namespace) -> None:
         print(report(loads))
         return
     if args.lanes:
-        from sara_app.bench.lanes import bench_lanes
+        from sara_app.bench.lanes import bench_lanes, default_hogs
         from sara_app.bench.lanes import report as lanes_report
 
-        hogs = 2 * (os.cpu_count() or 1) if args.hogs is None else args.hogs
+        hogs = default_hogs() if args.hogs is None else args.hogs
         losses = bench_lanes(args.lane_rounds, hogs=hogs, runs=args.runs)
         print(lanes_report(losses, args.lane_rounds, hogs))
         return

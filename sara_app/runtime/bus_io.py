@@ -43,7 +43,7 @@ class CellBus:
         self.replan = bus.subscribe(keys.robot_replan_key(cell), d, fifo=True)
         self.command = bus.publisher(keys.robot_command_key(cell))
         self.verdict = bus.publisher(keys.verdict_key(cell))
-        self.occupancy = bus.publisher(keys.occupancy_key(cell), express=False)
+        self.occupancy = bus.publisher(keys.occupancy_key(cell))  # batched: keys.BATCHED_KINDS
         self.acks = bus.publisher(keys.params_ack_key(cell))
         self.scenario = bus.publisher(keys.scenario_key(cell))
         self.status = status
