@@ -304,7 +304,7 @@ def test_serve_says_why_when_its_api_port_is_taken_and_leaves_nothing_behind() -
         out = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     text = out.stdout + out.stderr
     assert out.returncode == 2, text[-2000:]
-    assert f"the API server did not start on http://127.0.0.1:{ap}/" in text
+    assert f"the API server did not start on http://127.0.0.1:{ap}/: it exited at start-up" in text
     assert "Traceback" not in text and "KeyboardInterrupt" not in text, text[-3000:]
     t_end = time.monotonic() + 10
     while _children(zp) and time.monotonic() < t_end:

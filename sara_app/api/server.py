@@ -2,7 +2,10 @@
 
 ``ApiServer(app, host='127.0.0.1', port=8000)``; ``start() -> url`` returns the real address
 (``port=0`` picks a free one) and raises ``ApiServerError`` when uvicorn did not start within
-``start_timeout_s`` (port taken: uvicorn's thread dies at start-up); ``stop()`` ends open event
+``start_timeout_s`` (port taken: uvicorn's thread dies at start-up, reported at once; the
+timeout only ends a start that hangs: ``serve`` starts the API from its display side, niced below
+the cell's real-time processes, so on a loaded machine binding can take many seconds (5 s was
+once not enough for ``serve --cells 2`` beside a test suite)); ``stop()`` ends open event
 streams, asks uvicorn to exit and joins its thread. Usable as a context manager.
 """
 
@@ -25,7 +28,7 @@ class ApiServer:
     """uvicorn serving ``app`` on ``host:port`` from a daemon thread."""
 
     def __init__(
-        self, app: Any, host: str = "127.0.0.1", port: int = 8000, start_timeout_s: float = 5.0
+        self, app: Any, host: str = "127.0.0.1", port: int = 8000, start_timeout_s: float = 60.0
     ) -> None:
         if not isinstance(port, int) or not 0 <= port < 65536:
             raise ApiServerError(f"api port {port!r} is not in 0..65535")
