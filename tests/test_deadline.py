@@ -40,7 +40,9 @@ def test_it_fires_after_its_delay_and_not_before(deadline: Deadline) -> None:
     deadline.arm(0.08)
     t = _waiter(deadline, fired)
     time.sleep(0.04)
-    assert fired == []
+    seen, at = list(fired), time.monotonic()
+    if at < t0 + 0.08:  # a loaded machine may oversleep past the delay: then firing is right
+        assert seen == []
     while not fired and time.monotonic() - t0 < 5:
         time.sleep(0.002)
     assert fired[0][1] and fired[0][0] - t0 >= 0.08 - 1e-3
@@ -53,20 +55,33 @@ def test_it_fires_after_its_delay_and_not_before(deadline: Deadline) -> None:
 
 def test_pushing_it_back_delays_it_without_a_firing_between(deadline: Deadline) -> None:
     """Re-armed every 5 ms to 20 ms ahead for 0.3 s, it never fires; it fires 20 ms after the
-    last push."""
+    last push. (A loaded machine may oversleep a push past 20 ms: a firing then is right, so
+    each firing is checked against the pushes done before it, not against none at all.)"""
     fired: list[tuple[float, bool]] = []
-    deadline.arm(0.02)
+    arms: list[tuple[float, float]] = []  # (just before arm(), just after it)
+
+    def arm() -> None:
+        before = time.monotonic()
+        deadline.arm(0.02)
+        arms.append((before, time.monotonic()))
+
+    arm()
     t = _waiter(deadline, fired)
     t_end = time.monotonic() + 0.3
     while time.monotonic() < t_end:
-        deadline.arm(0.02)
+        arm()
         time.sleep(0.005)
     last = time.monotonic()
-    deadline.arm(0.02)
-    assert fired == []
-    while not fired and time.monotonic() - last < 5:
+    arm()
+    while not any(f >= arms[-1][1] for f, _ in fired):  # the last push's own firing
+        assert time.monotonic() - last < 5, "it never fired after the last push"
         time.sleep(0.002)
-    assert fired[0][1] and fired[0][0] - last >= 0.02 - 1e-3
+    for f, ok in fired:  # a push done before a firing had its 20 ms at least
+        assert ok and f >= max(b for b, a in arms if a <= f) + 0.02 - 1e-3, (f, arms[-3:])
+    # the longest it was left armed: from one push's start to the end of the next
+    left_s = max(a1 - b0 for (b0, _), (_, a1) in zip(arms, arms[1:], strict=False))
+    if left_s < 0.02:  # never left alone for its delay: never fired before the last
+        assert all(f >= last for f, _ in fired), (fired, left_s)
     deadline.close()
     t.join(2)
     assert not t.is_alive()
