@@ -49,12 +49,14 @@ def test_losses_are_counted_per_kind_and_reported() -> None:
         assert set(run.lost) == set(CYCLE_KINDS)
         assert all(0 <= n <= rounds for n in run.lost.values()), run
         assert 0.0 < run.puts_p99_us < 2e6
+        assert 0 <= run.commands_late <= rounds - run.lost["robot_command"], run  # arrived
     text = report(losses, rounds, 0)
     assert f"of {rounds} per key" in text
     rows = {line.split()[0]: line for line in text.splitlines()[3:]}
-    assert set(rows) == {*CYCLE_KINDS, "puts"}
+    assert set(rows) == {*CYCLE_KINDS, "commands", "puts"}
     assert rows["robot_command"].split()[1:] == [str(losses[m][0].lost["robot_command"])
                                                  for m in MODES]  # fmt: skip
+    assert rows["commands"].split()[2:] == [str(losses[m][0].commands_late) for m in MODES]
 
 
 def test_the_command_line_runs_it() -> None:
@@ -66,7 +68,7 @@ def test_the_command_line_runs_it() -> None:
     assert proc.returncode == 0, proc.stderr
     assert "1 busy process beside" in proc.stdout
     rows = [line.split() for line in proc.stdout.splitlines()[3:]]
-    assert [r[0] for r in rows] == [*CYCLE_KINDS, "puts"]
+    assert [r[0] for r in rows] == [*CYCLE_KINDS, "commands", "puts"]
 
 
 @pytest.mark.parametrize("bad", [{"rounds": 0}, {"runs": 0}, {"hogs": -1}, {"period_s": -1.0}])

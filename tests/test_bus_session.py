@@ -23,12 +23,15 @@ from sara_app.bus.examples import example_messages
 from sara_app.bus.messages import SkeletonMsg, encode
 from sara_app.bus.session import (
     PRIORITY_OF_LANE,
+    TX_QUEUE_BATCHES,
     Bus,
     BusError,
     Subscription,
+    client_config,
     endpoint,
     free_port,
     priority_of,
+    router_config,
 )
 from sara_app.errors import ParameterError
 
@@ -165,6 +168,17 @@ def test_each_kind_travels_in_its_lane(router: tuple[Bus, int]) -> None:
     assert set(sent) == set(keys.KINDS)
     assert heard == {k: str(PRIORITY_OF_LANE[keys.LANE_OF[k]]) for k in keys.KINDS}
     assert heard["robot_command"] == str(zenoh.Priority.REAL_TIME)
+
+
+def test_every_priority_queues_its_backlog_deep_in_clients_and_the_router() -> None:
+    """Sessions and the router hold TX_QUEUE_BATCHES batches per priority (zenoh's default is 2,
+    its limit 16), every lane's among them."""
+    assert 2 < TX_QUEUE_BATCHES <= 16
+    lanes = {str(PRIORITY_OF_LANE[lane]).split(".")[-1].lower() for lane in keys.LANES}
+    for config in (client_config(7447), router_config(7447)):
+        size = json.loads(config.get_json("transport/link/tx/queue/size"))
+        assert len(size) == 8 and lanes <= set(size), size
+        assert set(size.values()) == {TX_QUEUE_BATCHES}, size
 
 
 def test_ring_channel_keeps_the_newest_and_counts_gaps() -> None:

@@ -11,11 +11,14 @@ another, through a router, while ``hogs`` busy processes load the machine; once 
 at zenoh's default priority (as before the lanes), once at its lane's
 (:func:`sara_app.bus.session.priority_of`), and counts what each key lost. It also times each
 cycle's puts: a put into a full queue waits (up to 1 ms) before it drops, and in a worker that
-wait is its control loop's.
+wait is its control loop's; and counts the commands that arrived later than a command's
+shortest validity (``COMMAND_VALID_MIN_S`` after their put): a transmit queue deep enough to
+keep a command can still deliver it too late to be of use.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -29,7 +32,7 @@ import zenoh
 
 from sara_app.bus import keys
 from sara_app.bus.examples import example_messages
-from sara_app.bus.messages import encode
+from sara_app.bus.messages import COMMAND_VALID_MIN_S, encode
 from sara_app.bus.session import Bus, free_port, priority_of
 from sara_app.errors import ParameterError
 
@@ -39,11 +42,14 @@ MODES = ("one lane", "lanes")
 
 
 class LaneRun(NamedTuple):
-    """One run of one mode: messages lost per kind (of the run's cycles), and the 99th
-    percentile of the time one cycle's puts took (us)."""
+    """One run of one mode: messages lost per kind (of the run's cycles), the 99th
+    percentile of the time one cycle's puts took (us), and the commands that arrived but
+    later than a command's shortest validity after their put (``COMMAND_VALID_MIN_S``: a
+    controller would discard them, as good as lost)."""
 
     lost: dict[str, int]
     puts_p99_us: float
+    commands_late: int
 
 
 def default_hogs() -> int:
@@ -76,10 +82,15 @@ def _run(port: int, cell: str, lanes: bool, rounds: int, period_s: float, hogs: 
     """``rounds`` cycles of one mode."""
     heard: Counter[str] = Counter()
     lock = threading.Lock()
+    put_at, heard_at = np.full(rounds, np.nan), np.full(rounds, np.nan)  # commands, by seq
+    commands = _numbered_commands(rounds)
 
     def hear(sample: zenoh.Sample) -> None:
+        kind = keys.parse_key(str(sample.key_expr)).kind
+        if kind == "robot_command":
+            heard_at[int(json.loads(sample.payload.to_bytes())["seq"])] = time.monotonic()
         with lock:
-            heard[keys.parse_key(str(sample.key_expr)).kind] += 1
+            heard[kind] += 1
 
     with Bus.client(port) as sender, Bus.client(port) as receiver:
         listener = receiver.session.declare_subscriber(keys.cell_keys(cell), hear)
@@ -95,8 +106,9 @@ def _run(port: int, cell: str, lanes: bool, rounds: int, period_s: float, hogs: 
             time.sleep(0.2)  # the hogs running
             for r in range(rounds):
                 t0 = time.perf_counter()
-                for _, pub, payload in pubs:
-                    pub.put(payload)
+                put_at[r] = time.monotonic()
+                for kind, pub, payload in pubs:
+                    pub.put(commands[r] if kind == "robot_command" else payload)
                 puts_s[r] = time.perf_counter() - t0
                 time.sleep(period_s)
         finally:
@@ -109,7 +121,15 @@ def _run(port: int, cell: str, lanes: bool, rounds: int, period_s: float, hogs: 
             pub.undeclare()
     with lock:
         lost = {kind: rounds - heard[kind] for kind in CYCLE_KINDS}
-    return LaneRun(lost, float(np.percentile(puts_s, 99)) * 1e6)
+    late = int(np.sum(heard_at - put_at > COMMAND_VALID_MIN_S))  # NaN (lost): not late
+    return LaneRun(lost, float(np.percentile(puts_s, 99)) * 1e6, late)
+
+
+def _numbered_commands(rounds: int) -> list[bytes]:
+    """The contract's example command once per round, numbered by ``seq`` (the round), so that
+    the receiver tells each one's delay."""
+    msg = example_messages()["robot_command"][1]
+    return [encode(msg.model_copy(update={"seq": r})) for r in range(rounds)]
 
 
 def bench_lanes(
@@ -136,10 +156,12 @@ def bench_lanes(
 
 def report(runs: dict[str, list[LaneRun]], rounds: int, hogs: int) -> str:
     """A table: per mode and kind, the messages lost in each run (of ``rounds``), and each
-    run's 99th percentile of a cycle's puts."""
+    run's commands late and 99th percentile of a cycle's puts."""
     beside = f"{hogs} busy process{'' if hogs == 1 else 'es'} beside"
     rows = [(kind, [", ".join(str(r.lost[kind]) for r in runs[m]) for m in MODES])
             for kind in CYCLE_KINDS]  # fmt: skip
+    rows.append(("commands late", [", ".join(str(r.commands_late) for r in runs[m])
+                                   for m in MODES]))  # fmt: skip
     rows.append(("puts p99 (us)", [", ".join(f"{r.puts_p99_us:.0f}" for r in runs[m])
                                    for m in MODES]))  # fmt: skip
     width = max(16, *(len(c) for _, cells in rows for c in cells))

@@ -112,7 +112,10 @@ def router_config_dict(
     (JSON is JSON5) for a router on a machine of its own (``python -m sara_app.bus.router
     --print-config``)."""
     transport: dict[str, Any] = {
-        "link": {"rx": {"max_message_size": ROUTER_MAX_MESSAGE_BYTES}},
+        "link": {
+            "rx": {"max_message_size": ROUTER_MAX_MESSAGE_BYTES},
+            "tx": {"queue": tx_queue_config()},
+        },
         "shared_memory": NO_SHARED_MEMORY,
     }
     cfg: dict[str, Any] = {
@@ -140,7 +143,11 @@ def client_config(
     without it the router stamps the message's arrival)."""
     connect = {"endpoints": [endpoint(port, host, secured=auth is not None)],
                "timeout_ms": int(timeout_ms)}  # fmt: skip
-    transport: dict[str, Any] = {"shared_memory": NO_SHARED_MEMORY, **(auth or {})}
+    transport: dict[str, Any] = {
+        "shared_memory": NO_SHARED_MEMORY,
+        "link": {"tx": {"queue": tx_queue_config()}},
+        **(auth or {}),
+    }
     cfg: dict[str, Any] = {
         "mode": "client",
         "connect": connect,
@@ -254,6 +261,27 @@ PRIORITY_OF_LANE: dict[str, zenoh.Priority] = {
     "display": zenoh.Priority.DATA_LOW,
 }
 """The zenoh priority of each lane (:data:`sara_app.bus.keys.LANE_OF`)."""
+
+TX_QUEUE_BATCHES = 16
+"""Batches each priority's transmit queue holds (zenoh's ``transport.link.tx.queue.size``; its
+default 2, its most 16), in every session and on the router's links. A put into a full queue
+waits 1 ms, then drops: with 2, a transmit thread that waits a few ms for a CPU lost a cycle's
+verdict and status (3-9 % of them beside 4 busy processes, ``sara-app bench --lanes``), now and
+then an answer to an edit; with 16 they arrive late instead (none lost in the same runs). A
+command, too, arrives late rather than not at all; a command later than its validity is
+discarded by the controller, and the commands lost or late together stayed about as many
+(docs/performance.md, "Deeper transmit queues"). Allocated lazily: memory only while a backlog
+lasts, at most 1 MB per priority and link (16 batches of 64 kB)."""
+
+_TX_QUEUES = ("control", "real_time", "interactive_high", "interactive_low", "data_high", "data",
+              "data_low", "background")  # fmt: skip
+"""zenoh's transmit queues, one per priority, as its config names them."""
+
+
+def tx_queue_config() -> dict[str, Any]:
+    """``transport.link.tx.queue`` of every session here: :data:`TX_QUEUE_BATCHES` per
+    priority."""
+    return {"size": dict.fromkeys(_TX_QUEUES, TX_QUEUE_BATCHES)}
 
 
 def priority_of(key_expr: str) -> zenoh.Priority:
