@@ -132,3 +132,33 @@ def test_one_worker_per_cell_holds_under_access_control(tmp_path: Path) -> None:
         token.undeclare()
         time.sleep(0.2)
         claim_cell(b, CELL).undeclare()  # free again
+
+
+def test_the_contracts_example_tracker_logs_in_and_publishes(tmp_path: Path) -> None:
+    """``example_publisher.py --credentials`` (the contract's tracker, as an integrator runs it
+    against ``sara-app serve``) logs in as the tracker and its skeletons arrive; without the
+    credentials it cannot connect."""
+    import subprocess
+    import sys
+
+    script = Path(__file__).resolve().parents[1] / "sara_app" / "bus" / "example_publisher.py"
+    creds = Credentials.create(tmp_path / "zenoh_credentials.txt")
+    port = free_port()
+    args = [sys.executable, str(script), "--connect", f"tcp/127.0.0.1:{port}", "--cell", CELL,
+            "--count", "40", "--rate", "100"]  # fmt: skip
+    with Bus.router(port, access=router_access([CELL], creds)), \
+            Bus.client(port, auth=client_auth("worker", creds)) as w:  # fmt: skip
+        sub = w.subscribe(keys.skeleton_keys(CELL), fifo=True)
+        time.sleep(0.3)  # the subscription known at the router before the tracker puts
+        ok = subprocess.run([*args, "--credentials", str(creds.path)], capture_output=True,
+                            text=True, timeout=60)  # fmt: skip
+        assert ok.returncode == 0, ok.stderr
+        got: list = []
+        t_end = time.monotonic() + 5
+        while not (got and got[-1].msg.seq == 39) and time.monotonic() < t_end:
+            got += sub.drain().messages
+            time.sleep(0.01)
+        seqs = [d.msg.seq for d in got]  # all, from when the router knew the subscription
+        assert seqs and seqs == list(range(seqs[0], 40)) and seqs[0] < 35, seqs
+        refused = subprocess.run(args, capture_output=True, text=True, timeout=60)
+        assert refused.returncode != 0

@@ -42,11 +42,14 @@ def main() -> None:
     ap.add_argument("--credentials", help="the cell's zenoh credentials file (user:password)")
     ap.add_argument("--user", default="tracker", help="the zenoh user (role) to log in as")
     args = ap.parse_args()
-    conf: dict = {"mode": "client", "connect": {"endpoints": [args.connect]}}
+    # a backlog of up to 16 batches (zenoh keeps 2) when this process waits for a CPU
+    queue = {"size": {"data_high": 16}}
+    conf: dict = {"mode": "client", "connect": {"endpoints": [args.connect]},
+                  "transport": {"link": {"tx": {"queue": queue}}}}  # fmt: skip
     if args.credentials:  # a router with access control (sara-app serve) needs a login
         with open(args.credentials) as fh:
             pw = dict(ln.strip().split(":", 1) for ln in fh if ":" in ln)[args.user]
-        conf["transport"] = {"auth": {"usrpwd": {"user": args.user, "password": pw}}}
+        conf["transport"]["auth"] = {"usrpwd": {"user": args.user, "password": pw}}
     with zenoh.open(zenoh.Config.from_json5(json.dumps(conf))) as session:
         lane = zenoh.Priority.DATA_HIGH  # the evidence of people: see CONTRACT.md
         pub = session.declare_publisher(
