@@ -4,8 +4,11 @@ many event streams (``sara-app bench --sse``).
 As in ``serve``: the zenoh router and the cell worker in processes of their own, the REST service
 (registry + uvicorn) in this one. A probe process subscribes to the cell's verdicts and commands
 and measures, per message, reception time minus the message's stamp (same clock), and counts the
-commands' sequence gaps (lost commands). Phases alternate: idle, then ``clients`` Server-Sent
-Event streams (``/api/cells/<cell>/events``, 20 Hz each) read by threads of this process.
+commands' sequence gaps (lost commands). A verdict's stamp is its cycle's time, which leads the
+clock by up to a period after a late cycle (``CellWorker.step``): on a loaded machine the median
+can be below 0, and then says the worker ran ahead of the clock, not that delivery was free.
+Phases alternate: idle, then ``clients`` Server-Sent Event streams
+(``/api/cells/<cell>/events``, 20 Hz each) read by threads of this process.
 """
 
 from __future__ import annotations
