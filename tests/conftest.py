@@ -31,22 +31,7 @@ if "SARA_DATA_DIR" not in os.environ and os.path.isdir(os.path.join(_SHARED, "da
 # it runs with no other test beside it. A readers-writer lock over all the workers, on files
 # that always exist: every test holds this folder shared, an exclusive one holds it alone; a
 # turnstile (conftest.py) held while an exclusive test waits stops new tests from starting.
-#
-# Waiting for the neighbours to finish costs up to their longest test each time: spread over the
-# run, a hundred exclusive tests drained the other workers a hundred times. So the exclusive
-# tests are collected first (each keeps its order), they land on the first worker's share, and
-# that worker keeps the lock from one exclusive test to the next: the neighbours drain once.
 _MAIN_FD = _TURN_FD = -1
-_HELD = False  # this worker holds the lock alone between two exclusive tests
-
-
-def _exclusive(item: pytest.Item | None) -> bool:
-    return item is not None and item.get_closest_marker("exclusive") is not None
-
-
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    if "PYTEST_XDIST_WORKER" in os.environ:  # every worker sorts alike: the collections agree
-        items[:] = [i for i in items if _exclusive(i)] + [i for i in items if not _exclusive(i)]
 
 
 def _lock(exclusive: bool) -> None:
@@ -63,15 +48,11 @@ def _lock(exclusive: bool) -> None:
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Iterator[None]:
-    global _HELD
     if "PYTEST_XDIST_WORKER" not in os.environ:  # one process: nothing beside it
         yield
         return
-    if not _HELD:
-        _lock(_exclusive(item))
+    _lock(item.get_closest_marker("exclusive") is not None)
     try:
         yield
     finally:
-        _HELD = _exclusive(item) and _exclusive(nextitem)
-        if not _HELD:
-            fcntl.flock(_MAIN_FD, fcntl.LOCK_UN)
+        fcntl.flock(_MAIN_FD, fcntl.LOCK_UN)
