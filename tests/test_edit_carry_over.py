@@ -75,10 +75,15 @@ def _ack(sub: Subscription, request_id: str) -> ParamsAckMsg:
 
 
 def _watch_passes(worker: Any, seen: list[int], stop: threading.Event) -> None:
-    """Append each pass index ``worker`` enters to ``seen`` until ``stop``."""
-    while not stop.is_set():
+    """Append each pass index ``worker`` enters to ``seen`` until ``stop``, and the one it is in
+    when ``stop`` is set (a loaded machine can leave this thread unscheduled for a whole short
+    pass: a CI run saw [0, 1] of a task the waiting loop had seen end in its third pass)."""
+    while True:
+        stopping = stop.is_set()
         if worker.pass_index != seen[-1]:
             seen.append(worker.pass_index)
+        if stopping:
+            return
         time.sleep(0.002)
 
 
@@ -147,8 +152,9 @@ def test_an_edit_that_leaves_the_route_alone_keeps_its_progress(blend_rad: float
     """A new description, or a new blend distance (accepted and then never used: the follower
     kept its own, hostile-user probe 2026-11-30): the task goes on in its pass; the blend
     distance is the follower's from then on (the next pass's corners)."""
-    sc = _short_task(passes=3)
+    sc = _short_task(passes=4)
     assert len(sc.task.waypoints_rad) == 2
+    last = sc.task.cycles - 1
     port = free_port()
     with Bus.router(port), Bus.client(port) as wbus, Bus.client(port) as tb, Heartbeat(tb, CELL), \
             running_worker(CELL, sc, wbus, loop_task=False) as worker:  # fmt: skip
@@ -161,7 +167,7 @@ def test_an_edit_that_leaves_the_route_alone_keeps_its_progress(blend_rad: float
         t_end = time.monotonic() + 60
         edited = False
         try:
-            while not (worker.pass_index == 2 and worker.shield.follower.done):
+            while not (worker.pass_index == last and worker.shield.follower.done):
                 assert time.monotonic() < t_end, f"the task never ended (passes {seen})"
                 if worker.pass_index == 1 and not edited:  # in its second pass
                     _describe(tb, worker, "mid", blend_rad)
@@ -173,11 +179,12 @@ def test_an_edit_that_leaves_the_route_alone_keeps_its_progress(blend_rad: float
         finally:
             watching.set()
             watcher.join()
-        assert seen == [0, 1, 2], seen  # the edit did not start the task again
+        assert seen == list(range(sc.task.cycles)), seen  # the edit did not start it again
         want = sc.task.blend_distance_rad if blend_rad is None else blend_rad
-        assert worker.shield.follower.path.blend_distance == want  # the last pass's path
-        time.sleep(0.2)
-        rest_q = worker.shield.robot_state.q.copy()
+        # the last pass's path: built a pass or more after the edit (a loaded machine took
+        # over a second to apply it, which the pass after the edit's did not always wait for)
+        assert worker.shield.follower.path.blend_distance == want
+        rest_q = _at_rest(worker)
         _describe(tb, worker, "over")  # the task is over: the robot stays where it rests
         assert _ack(acks, "over").accepted
         moved = 0.0
@@ -185,7 +192,23 @@ def test_an_edit_that_leaves_the_route_alone_keeps_its_progress(blend_rad: float
         while time.monotonic() < t_end:
             moved = max(moved, float(np.max(np.abs(worker.shield.robot_state.q - rest_q))))
             time.sleep(0.01)
-        assert moved == 0.0 and worker.pass_index == 2, (moved, worker.pass_index)
+        assert moved == 0.0 and worker.pass_index == last, (moved, worker.pass_index)
+
+
+def _at_rest(worker: Any, timeout_s: float = 20.0) -> np.ndarray:
+    """The robot's position once the worker's state of it has stood still for 0.2 s: at the
+    end of its task's path it can still be catching up (a loaded machine's late heartbeat
+    made it brake off the path, and it moved 0.13-0.14 rad after its follower was done)."""
+    t_end = time.monotonic() + timeout_s
+    q = worker.shield.robot_state.q.copy()
+    still_since = time.monotonic()
+    while time.monotonic() - still_since < 0.2:
+        assert time.monotonic() < t_end, "the robot never came to rest"
+        time.sleep(0.01)
+        now = worker.shield.robot_state.q
+        if not np.array_equal(now, q):
+            q, still_since = now.copy(), time.monotonic()
+    return q
 
 
 def test_the_pass_goes_on_while_the_route_stays() -> None:

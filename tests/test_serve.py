@@ -20,7 +20,9 @@ from waiting import wait_until
 
 from sara_app.bus.session import free_port
 from sara_app.processes.affinity import cpu_plan
+from sara_app.processes.defaults import DEFAULT_SCENARIO
 from sara_app.processes.serve import REPLAYER_NICE, lower_thread_priority, start_process
+from sara_app.scenario import scenarios_dir
 
 
 def _get(url: str) -> tuple[int, bytes]:
@@ -243,14 +245,22 @@ def test_lower_thread_priority_acts_on_the_calling_thread_only() -> None:
 
 # two cells' real-time processes and serve's niced display side (the API's "online" is its view
 # of the verdicts): beside a neighbour's load the display side starved (two CI failures: the API
-# not bound in 5 s; both cells "offline" at 487 verdicts/s), so nothing runs beside it
+# not bound in 5 s; both cells "offline" at 487 verdicts/s), so nothing runs beside it. Even
+# alone, two cells of the default scenario at 500 Hz are more than a slow 2-core machine
+# carries (a CI run: 322 verdicts/s per cell, controllers and display side starved; the cost
+# per cycle is issue 33's, the capacity `sara-app bench --cells`'s): this test is about the
+# plumbing of several cells, so its cells run the default scenario at 100 Hz
 @pytest.mark.exclusive
-def test_serve_runs_several_cells_on_one_router() -> None:
+def test_serve_runs_several_cells_on_one_router(tmp_path: Path) -> None:
     """``serve --cells 2``: two cells of the scenario, each with its processes and its own 3D
     view, on one router; the API lists both running and links each cell's view."""
+    scenario = json.loads((scenarios_dir() / f"{DEFAULT_SCENARIO}.json").read_text())
+    scenario["shield"]["dt_s"] = 0.01
+    path = tmp_path / "cells_100hz.json"
+    path.write_text(json.dumps({**scenario, "name": "cells_100hz"}))
     zp, vp, ap = free_port(), free_port(), free_port()
-    cmd = [sys.executable, "-m", "sara_app.cli", "serve", "--cells", "2", "--zenoh-port",
-           str(zp), "--viewer-port", str(vp), "--api-port", str(ap)]  # fmt: skip
+    cmd = [sys.executable, "-m", "sara_app.cli", "serve", "--cells", "2", "--scenario", str(path),
+           "--zenoh-port", str(zp), "--viewer-port", str(vp), "--api-port", str(ap)]  # fmt: skip
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     failure: AssertionError | None = None
     try:
