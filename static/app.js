@@ -114,7 +114,8 @@ async function poll() {
 
 async function links() {
   try {
-    const r = await fetch("/api/links");
+    const r = await fetch("/api/links", { cache: "no-store" });
+    if (!r.ok) throw new Error("HTTP " + r.status);
     const l = await r.json();
     Object.assign(VIEWERS, l.viewers || {});
     if (l.viewer) {
@@ -123,7 +124,8 @@ async function links() {
       a.hidden = false;
     }
   } catch (e) {
-    /* the page works without the link */
+    /* the page works without the links meanwhile; asked again until they come */
+    setTimeout(links, POLL_MS);
   }
 }
 
