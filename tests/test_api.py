@@ -532,6 +532,34 @@ def test_live_cell_and_scenario_round_trip(folder: Path) -> None:
 
 
 @pytest.mark.skipif(not Path(CHROMIUM).exists(), reason=f"{CHROMIUM} is absent")
+def test_landing_page_asks_for_its_links_again_until_they_come(folder: Path) -> None:
+    """The first ``/api/links`` fails (a service still starting, a proxy's hiccup): the page
+    asks again and shows the 3D view's link (it asked once and stayed without it)."""
+    from fastapi import Request, Response
+
+    app = create_app(StandInRegistry(), folder, viewer_url=VIEWER)
+    refused: list[int] = []
+
+    @app.middleware("http")
+    async def _refuse_the_first_links(request: Request, call_next: Any) -> Response:
+        if request.url.path == "/api/links" and len(refused) < 2:
+            refused.append(1)
+            return Response("starting", status_code=503)
+        return await call_next(request)
+
+    server = ApiServer(app, port=0)
+    url = server.start()
+    try:
+        with chromium_on(url) as page:
+            link = "document.getElementById('viewer-link')"
+            assert _wait_until(lambda: page.eval(f"{link}.href") == VIEWER, 20.0), refused
+            assert page.eval(f"{link}.hidden") is False
+        assert len(refused) == 2
+    finally:
+        server.stop()
+
+
+@pytest.mark.skipif(not Path(CHROMIUM).exists(), reason=f"{CHROMIUM} is absent")
 def test_landing_page_shows_live_status_in_chromium(folder: Path, tmp_path: Path) -> None:
     port = free_port()
     with Bus.router(port), CellRegistry.connect(port) as reg:

@@ -44,7 +44,7 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import fastapi_offline
-from fastapi import Body, FastAPI, HTTPException, Query, Request
+from fastapi import Body, Depends, FastAPI, HTTPException, Query, Request
 from fastapi.openapi.docs import (
     get_redoc_html,
     get_swagger_ui_html,
@@ -592,6 +592,7 @@ def create_app(
         docs_url=None,  # served below from installed assets: the default loads them from a CDN
         redoc_url=None,
         responses=GUARD_RESPONSES,
+        dependencies=[Depends(openapi.single_query_values)],
     )
     _add_docs(app)
     openapi.install(

@@ -13,6 +13,8 @@ answers that go with them.
 - 405: the landing page's files are mounted at ``/``, so a method a route does not take would be
   answered by the file server ("Allow: GET, HEAD"); :func:`install` answers it with the methods
   the API's routes at that path take instead.
+- A query parameter given twice: no parameter of the API is a list, but FastAPI takes the last
+  of repeated values of a scalar one; :func:`single_query_values` refuses them (422).
 """
 
 from __future__ import annotations
@@ -215,6 +217,31 @@ def _short(value: Any) -> Any:
     except (TypeError, ValueError):
         return text
     return value
+
+
+def single_query_values(request: Request) -> None:
+    """Refuse (422, as any invalid parameter) a request that gives one of its route's query
+    parameters more than once: the document says each is one value (none is a list), and
+    FastAPI would take the last silently (schemathesis: ``GET /api/requests/audit?limit=&
+    limit=<text>&limit=<object>`` answered 200). An app-wide dependency."""
+    route = request.scope.get("route")
+    dependant = getattr(route, "dependant", None)
+    errors = []
+    for name in sorted(_query_names(dependant) if dependant is not None else ()):
+        values = request.query_params.getlist(name)
+        if len(values) > 1:
+            errors.append({"type": "repeated", "loc": ("query", name), "input": values,
+                           "msg": f"given {len(values)} times; expected once"})  # fmt: skip
+    if errors:
+        raise RequestValidationError(errors)
+
+
+def _query_names(dependant: Any) -> set[str]:
+    """The query parameters of a route's dependant and of its dependencies."""
+    names = {p.alias for p in dependant.query_params}
+    for sub in dependant.dependencies:
+        names |= _query_names(sub)
+    return names
 
 
 async def _invalid_handler(request: Request, exc: RequestValidationError) -> Response:
