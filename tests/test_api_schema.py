@@ -109,6 +109,12 @@ def test_every_answer_is_what_the_openapi_document_says(
     )
 
 
+def _concrete(template: str) -> str:
+    """A documented path with ``cell_app``'s cell, person, scenario and job in its slots."""
+    path = template.replace("{cell}", "c1").replace("{human_id}", KNOWN_PERSON)
+    return path.replace("{name}", "empty_cell").replace("{job_id}", "whatif-1")
+
+
 def test_a_method_no_route_takes_is_405_naming_the_routes_methods(cell_app: Any) -> None:
     """Every documented path answers a method none of its operations takes with 405 and
     ``Allow`` listing exactly the documented ones (the landing page's file server behind the
@@ -116,8 +122,7 @@ def test_a_method_no_route_takes_is_405_naming_the_routes_methods(cell_app: Any)
     paths = DOCUMENTED.openapi()["paths"]
     with TestClient(cell_app) as client:
         for template, operations in paths.items():
-            path = template.replace("{cell}", "c1").replace("{human_id}", KNOWN_PERSON)
-            path = path.replace("{name}", "empty_cell").replace("{job_id}", "whatif-1")
+            path = _concrete(template)
             documented = sorted(m.upper() for m in operations)
             for method in sorted({"DELETE", "OPTIONS", "PATCH", "POST", "PUT"} - set(documented)):
                 r = client.request(method, path)
@@ -137,8 +142,7 @@ def test_a_query_parameter_given_twice_is_refused_naming_it(cell_app: Any) -> No
     checked = 0
     with TestClient(cell_app) as client:
         for template, operations in paths.items():
-            path = template.replace("{cell}", "c1").replace("{human_id}", KNOWN_PERSON)
-            path = path.replace("{name}", "empty_cell").replace("{job_id}", "whatif-1")
+            path = _concrete(template)
             for method, op in operations.items():
                 for p in op.get("parameters", []):
                     if p["in"] != "query":
