@@ -240,7 +240,9 @@ class InputSpec(StrictFinite):
     a skeleton then waits about its transport delay for a cycle, not up to a period. For a
     worker with a CPU to itself and its tracker on another machine; off by default: cells that
     share a machine and lock onto one tracker all cycle at the same instant (docs/performance.md,
-    "The skeleton's wait for a cycle")."""
+    "The skeleton's wait for a cycle"). The worker's status reports the lock (its
+    ``phase_lock``: the learned delay, skeletons taken in time and a period late), and so do
+    the API's cell and the dashboard's Status panel."""
 
     @field_validator("trackers")
     @classmethod

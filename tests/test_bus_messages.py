@@ -52,8 +52,9 @@ def test_there_is_an_example_of_every_kind() -> None:
 
 CURRENT_VERSIONS = {
     "verdict": 4, "robot_command": 2, "occupancy": 3,
-    "params": 2, "status": 2, "controller_status": 2,  # fields added, 2026-11-30
+    "params": 2, "status": 3, "controller_status": 2,  # fields added, 2026-11-30
 }  # fmt: skip
+# status 3 since 2026-12-02: the phase lock's state
 """The contract's version of each kind not at 1 (CONTRACT.md, "Every message has")."""
 
 

@@ -26,6 +26,7 @@ from sara_app.bus.messages import (
     VerdictMsg,
 )
 from sara_app.bus.session import Bus, free_port
+from sara_app.processes.serve import WORKER_RT_PRIORITY
 from sara_app.runtime.worker import CellWorker
 from sara_app.scenario import load_scenario
 
@@ -238,64 +239,120 @@ def test_the_control_period_does_not_change_live(cell) -> None:
     assert worker.shield.settings.dt_s == 0.004 and worker.phase.dt_s == 0.004
 
 
-def test_the_cycles_lock_onto_a_regular_tracker() -> None:
+def test_the_cycles_lock_onto_a_regular_tracker(tmp_path: Path) -> None:
     """``inputs.cycle_phase_lock`` on, a tracker publishing on its own frame clock (five control
     periods): the worker's cycles slide (never faster or slower than the slew bound allows)
     until each skeleton is taken about the learned delay quantile after its stamp, not at a
-    phase that chance or the start left."""
+    phase that chance or the start left. The worker runs as its own process, as serve runs it
+    (real-time where permitted; a worker thread in the test's process shares the interpreter
+    with the test's publisher: a skeleton's put then waits for the worker's cycle, and its
+    delay is the test's, not the bus's); its status reports the lock."""
     sc = load_scenario("standing_beside_path")
     sc = sc.model_copy(update={"inputs": sc.inputs.model_copy(update={"cycle_phase_lock": True})})
-    with _cell(sc) as (_, worker, verdicts, tb):
-        _locks_on(worker, verdicts, tb)
+    path = tmp_path / "cell.json"
+    path.write_text(json.dumps(sc.model_dump(mode="json")))
+    port = free_port()
+    with Bus.router(port), Bus.client(port) as tb:
+        verdicts = tb.subscribe(keys.verdict_key("cell1"), fifo=True, capacity=20000)
+        status = tb.subscribe(keys.status_key("cell1"), fifo=True, capacity=1000)
+        cmd = [sys.executable, "-m", "sara_app.runtime.worker", "--cell", "cell1",
+               "--scenario", str(path), "--port", str(port),
+               "--rt-priority", str(WORKER_RT_PRIORITY)]  # fmt: skip
+        proc = subprocess.Popen(cmd)
+        try:
+            _locks_on(sc.shield.dt_s, verdicts, status, tb, proc)
+        finally:
+            proc.terminate()
+            try:
+                proc.wait(20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(10)
 
 
-def _locks_on(worker, verdicts, tb) -> None:
+def _locks_on(dt: float, verdicts, status, tb, proc) -> None:
     from sara_app.bus.messages import SkeletonMsg
 
     pub = tb.publisher(keys.skeleton_key("cell1", "p"))
     rng = np.random.default_rng(0)
     y0 = STANDING + [2.5, 0.0, 0.0]  # a person's shape (the gate checks bone lengths)
-    dt = worker.shield.settings.dt_s
     got: list[VerdictMsg] = []
+    statuses: list[StatusMsg] = []
+
+    def take() -> None:
+        got.extend(d.msg for d in verdicts.drain().messages if isinstance(d.msg, VerdictMsg))
+        statuses.extend(d.msg for d in status.drain().messages if isinstance(d.msg, StatusMsg))
+
+    t_start = time.monotonic() + 90
     while not got:  # a cycle's start, to begin at the worst phase: just after one
-        got += [d.msg for d in verdicts.drain().messages if isinstance(d.msg, VerdictMsg)]
+        assert proc.poll() is None and time.monotonic() < t_start, "the worker did not start"
+        take()
         time.sleep(0.01)
     t_next = got[-1].stamp_s + 5 * dt * (1 + int((time.time() - got[-1].stamp_s) / (5 * dt)))
     t_next += 1e-4  # each skeleton a period after the cycle before its stamp, unlocked
-    t_end = time.monotonic() + 4.0
-    learnt: tuple[int, int] | None = None  # (hits, misses) after the first half: learning
+    t_half = time.time() + 2.5  # learning before, locked after (statuses come about 1 Hz)
+    t_end = time.monotonic() + 5.0
     for seq in range(100000):
-        if learnt is None and time.monotonic() > t_end - 2.0:
-            learnt = (worker.phase.hits, worker.phase.misses)
         time.sleep(max(t_next - time.time(), 0.0))
         y = y0 + rng.normal(0, 0.001, y0.shape)
         pub.put(SkeletonMsg.from_arrays("full", y, seq=seq, stamp_s=time.time()))
         t_next += 5 * dt
-        got += [d.msg for d in verdicts.drain().messages if isinstance(d.msg, VerdictMsg)]
+        take()
         if time.monotonic() > t_end:
             break
-    lock = worker.phase
-    assert learnt is not None and lock.reference == "p"
+    t_stop = time.time()
+    t_wait = time.monotonic() + 5.0
+    while not any(s.stamp_s > t_stop for s in statuses):  # the lock's state after the last one
+        assert time.monotonic() < t_wait, "no status after the skeletons"
+        time.sleep(0.05)
+        take()
+    locked = [s.phase_lock for s in statuses if s.state == "running" and s.stamp_s >= t_half]
+    learning = [s.phase_lock for s in statuses if s.state == "running" and s.stamp_s < t_half]
+    assert learning and len(locked) >= 2 and all(p is not None for p in learning + locked)
+    first, lock = learning[-1], locked[-1]
+    assert lock.reference == "p"
     # locked (the second half: tau starts at 0.5 ms and the test's first skeletons come at the
     # worst phase, so the first ones are missed while it learns): a miss is a skeleton taken a
     # period late
-    hits, misses = lock.hits - learnt[0], lock.misses - learnt[1]
+    hits, misses = lock.hits - first.hits, lock.misses - first.misses
     assert hits > 10 * misses, (hits, misses, lock)
-    first: dict[float, float] = {}
-    for v in got[len(got) // 2 :]:
-        if "p" in v.skeleton_age_s:
+    ages_at: dict[float, float] = {}
+    for v in got:
+        if v.stamp_s >= t_half and "p" in v.skeleton_age_s:
             age = v.skeleton_age_s["p"]
-            first.setdefault(round(v.stamp_s - age, 6), age)
-    ages = np.array(list(first.values()))
+            ages_at.setdefault(round(v.stamp_s - age, 6), age)
+    ages = np.array(list(ages_at.values()))
     assert len(ages) > 100
     # locked: most skeletons are taken within a quarter period of tau, none before their stamp
-    assert np.mean(np.abs(ages - lock.tau_s) < dt / 4) > 0.8, (
-        lock.tau_s,
+    assert np.mean(np.abs(ages - lock.delay_s) < dt / 4) > 0.8, (
+        lock.delay_s,
         np.percentile(ages, [5, 50, 95]),
     )
     assert ages.min() >= 0.0
     stamps = np.array([v.stamp_s for v in got])
     assert np.median(np.diff(stamps)) == pytest.approx(dt, abs=1e-4)  # the control rate kept
+    _shown(got[-1], next(s for s in reversed(statuses) if s.phase_lock is lock))
+
+
+def _shown(verdict: VerdictMsg, status: StatusMsg) -> None:
+    """The phase lock of a worker's status as the API's cell snapshot and the dashboard's
+    status panel show it."""
+    from sara_app.api.registry import CellRegistry
+    from sara_app.bus.codec import Decoded
+    from sara_app.dashboard.from_messages import verdict_status
+    from sara_app.dashboard.panels import status_markdown
+
+    lock = status.phase_lock
+    assert lock is not None
+    reg = CellRegistry(None)
+    reg.ingest(Decoded(keys.parse_key(keys.status_key("cell1")), status, time.time()))
+    snapshot = reg.cell("cell1")
+    assert snapshot is not None and snapshot["phase_lock"] == {
+        "reference": "p", "delay_s": lock.delay_s, "hits": lock.hits, "misses": lock.misses
+    }  # fmt: skip
+    md = status_markdown(verdict_status(verdict, np.zeros(0), status))
+    assert f"| {1e3 * lock.delay_s:.2f} ms / {lock.hits} / {lock.misses} |" in md, md
+    assert "Phase lock" not in status_markdown(verdict_status(verdict, np.zeros(0), None))
 
 
 def test_an_overrunning_loop_still_sleeps_every_cycle(monkeypatch) -> None:
@@ -436,6 +493,7 @@ def test_the_status_reports_the_whole_step_and_the_periods_missed(cell) -> None:
         assert s.cycle_time_p50_us is not None and s.loop_time_p50_us >= s.cycle_time_p50_us
     last = running[-1]
     assert last.overruns >= before + 1
+    assert all(s.phase_lock is None for s in seen)  # the scenario's inputs.cycle_phase_lock: off
     assert max(worker.loop_us) >= 5e6 * worker.shield.settings.dt_s  # the held-up step
 
 

@@ -365,6 +365,7 @@ class CellRegistry:
             "loop_time_p50_us": None if st is None else st.loop_time_p50_us,
             "loop_time_p99_us": None if st is None else st.loop_time_p99_us,
             "overruns": None if st is None else st.overruns,
+            "phase_lock": None if st is None or st.phase_lock is None else dict(st.phase_lock),
             "robot_q_measured": None if st is None else st.robot_q_measured,
             "verdicts_received": c.verdicts,
             "last_seen_s": max(seen) if seen else None,

@@ -18,6 +18,7 @@ from sara_app.bus.messages import (
     OccupancyMsg,
     ParamsAckMsg,
     ParamsMsg,
+    PhaseLockMsg,
     ReplanMsg,
     RetireMsg,
     RobotCommandMsg,
@@ -126,6 +127,7 @@ def example_messages() -> dict[str, tuple[str, Message]]:
             humans=[HUMAN],
             cycle_time_p50_us=380.0,
             cycle_time_p99_us=900.0,
+            phase_lock=PhaseLockMsg(reference=HUMAN, delay_s=0.0012, hits=5120, misses=9),
         ),
         "scenario": ScenarioStateMsg(
             seq=seq, stamp_s=t, cell=CELL, revision=3, scenario={"name": "demo", "humans": []}

@@ -97,9 +97,10 @@ class DisplayFrame:
     - ``status``: ``mode`` (str), ``safety_mode`` (str), ``min_distance_m`` (float),
       ``cycle_p50_us`` / ``cycle_p99_us`` (float: the shield's cycle), ``loop_p99_us`` (float
       or None: the worker's whole step) and ``overruns`` (int or None: periods its loop
-      missed), ``robot_q_measured`` (list of float or None: where the controller reports the
-      robot, rad), ``skeleton_age_ms`` (float, or dict human id
-      to float), ``dropped`` (int, or dict reason to count), ``intervened`` (bool),
+      missed), ``phase_lock`` (:class:`~sara_app.bus.messages.PhaseLockMsg` or None: the
+      cycle phase's lock onto the skeletons, when on), ``robot_q_measured`` (list of float or
+      None: where the controller reports the robot, rad), ``skeleton_age_ms`` (float, or dict
+      human id to float), ``dropped`` (int, or dict reason to count), ``intervened`` (bool),
       ``speed_scale`` (PFL, float), ``jssa`` (dict: ``phi_m2``, ``active``, ``fallback``,
       ``reason``, ``link``, ``distance_m``, ``d_min_m``), ``tracking`` (dict human id to dict
       flag to count), ``tracking_now`` (dict human id to the present state:

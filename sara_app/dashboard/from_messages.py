@@ -125,6 +125,7 @@ def verdict_status(
         "cycle_p99_us": float(np.percentile(cycle_us, 99)) if cycle_us.size else None,
         "loop_p99_us": None if worker is None else worker.loop_time_p99_us,
         "overruns": None if worker is None else worker.overruns,
+        "phase_lock": None if worker is None else worker.phase_lock,
         "robot_q_measured": None if worker is None else worker.robot_q_measured,
         "skeleton_age_ms": {k: 1e3 * a for k, a in v.skeleton_age_s.items()},
         "dropped": dict(v.dropped),

@@ -154,6 +154,12 @@ def status_markdown(status: dict[str, Any]) -> str:
         ("Skeleton age", _fmt(status.get("skeleton_age_ms"), ".1f", " ms")),
         ("Dropped messages", drops_text(status.get("dropped"))),
     ]
+    lock = status.get("phase_lock")
+    if lock is not None:  # inputs.cycle_phase_lock on
+        rows.append(
+            ("Phase lock: delay / taken in time / a period late",
+             f"{1e3 * lock.delay_s:.2f} ms / {lock.hits} / {lock.misses}")
+        )  # fmt: skip
     if "intervened" in status:
         rows.append(("Intervening", "yes" if status["intervened"] else "no"))
     if status.get("speed_scale") is not None:

@@ -21,6 +21,7 @@ from sara_app.bus.messages import (
     JssaMsg,
     LinkEnergyMsg,
     OccupancyMsg,
+    PhaseLockMsg,
     RobotOccupancyMsg,
     ScenarioStateMsg,
     StatusMsg,
@@ -31,6 +32,7 @@ from sara_app.dashboard.frame import EFFECTIVE
 from sara_app.errors import SaraError
 from sara_app.human.model_names import MODELS, MOVING_MODELS
 from sara_app.human.widening import per_capsule
+from sara_app.runtime.cadence import PhaseLock
 from sara_app.safety.shield import CycleResult, HumanState
 from sara_app.safety.thresholds import link_shapes
 
@@ -338,10 +340,11 @@ def status_msg(
     loop_us: Sequence[float] = (),
     overruns: int = 0,
     robot_q: Sequence[float] | None = None,
+    phase: PhaseLock | None = None,
 ) -> StatusMsg:
     """The status of cell ``name``: its state, scenario, people, cycle times (the shield's
     ``cycle_us``, the whole step's ``loop_us``), missed periods, the measured robot's
-    ``robot_q`` and checksum."""
+    ``robot_q``, checksum and the cycle phase's lock (``phase``; None: not locked)."""
     cu = np.array(cycle_us) if len(cycle_us) else None
     lu = np.array(loop_us) if len(loop_us) else None
     return StatusMsg(
@@ -359,4 +362,14 @@ def status_msg(
         overruns=overruns,
         robot_q_measured=None if robot_q is None else [float(x) for x in robot_q],
         config_sha256=cell.checksum,
+        phase_lock=None if phase is None else phase_lock_msg(phase),
     )
+
+
+def phase_lock_msg(phase: PhaseLock) -> PhaseLockMsg:
+    """The status's view of the cycle phase's lock (the reference's id is a person id the
+    worker accepted, so a valid name)."""
+    return PhaseLockMsg(
+        reference=phase.reference, delay_s=float(phase.tau_s), hits=phase.hits,
+        misses=phase.misses,
+    )  # fmt: skip

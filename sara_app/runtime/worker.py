@@ -407,6 +407,7 @@ class CellWorker:
             uptime_s=now - self.started, humans=self.tracks, cycle_us=self.cycle_us,
             loop_us=self.loop_us, overruns=self.overruns,
             robot_q=None if self.robot_in.state is None else self.robot_in.state.q.tolist(),
+            phase=self.phase if self.cell.scenario.inputs.cycle_phase_lock else None,
         )  # fmt: skip
 
     def run(self, duration_s: float | None = None) -> None:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from typing import Annotated, Any, Literal
 
-from pydantic import AfterValidator, Field, field_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator
 
 from sara_app.bus.messages.base import (
     MAX_JOINTS,
@@ -58,11 +58,28 @@ class ParamsAckMsg(MsgBase):
     reason: str = ""
 
 
-class StatusMsg(MsgBase):
-    """Worker heartbeat, about 1 Hz (key ``sara/<cell>/status``), schema version 2 (version 1
-    had no ``loop_time_*``, ``overruns`` or ``robot_q_measured``)."""
+class PhaseLockMsg(BaseModel):
+    """Where the worker's cycle phase stands against the skeleton stream (the scenario's
+    ``inputs.cycle_phase_lock``; ``sara_app.runtime.cadence``): the person whose skeletons it
+    follows (``reference``; None before the first), the learned delay from a skeleton's stamp
+    to the cycle that takes it (``delay_s``, a high quantile) and, since the worker started,
+    the skeletons taken within that delay (``hits``) and a period or more later (``misses``,
+    counted while the grid is locked)."""
 
-    schema_version: Literal[2] = 2  # type: ignore[assignment]
+    model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
+
+    reference: Name | None = None
+    delay_s: Finite
+    hits: Annotated[int, Field(ge=0)] = 0
+    misses: Annotated[int, Field(ge=0)] = 0
+
+
+class StatusMsg(MsgBase):
+    """Worker heartbeat, about 1 Hz (key ``sara/<cell>/status``), schema version 3 (version 1
+    had no ``loop_time_*``, ``overruns`` or ``robot_q_measured``; version 2 no
+    ``phase_lock``)."""
+
+    schema_version: Literal[3] = 3  # type: ignore[assignment]
     cell: Name
     state: Literal["starting", "running", "stopping", "fault"]
     scenario: str = ""
@@ -87,6 +104,9 @@ class StatusMsg(MsgBase):
     """The running configuration's checksum (scenario, parameter and threshold sets, code; see
     ``sara_app.cell.checksum``): the one printed in the cell's evidence report. Empty while
     starting."""
+    phase_lock: PhaseLockMsg | None = None
+    """The cycle phase's lock onto the skeletons; None while ``inputs.cycle_phase_lock`` is
+    off."""
 
 
 class ScenarioStateMsg(MsgBase):
