@@ -12,7 +12,8 @@
   ``PATCH`` the same with a partial update (parameters, shield settings, boxes) on a scenario
   file (default: the one the cell runs).
 - ``GET /api/scenarios``, ``GET/PUT /api/scenarios/{name}``: list, read, save (validated;
-  an existing name is replaced only with ``?overwrite=true``; the stored ``name`` is the URL's).
+  an existing name is replaced only with ``?overwrite=true``; the stored ``name`` is the URL's;
+  :mod:`sara_app.api.library`).
 - ``GET/PUT /api/cells/{cell}/thresholds``, ``GET /api/cells/{cell}/thresholds/audit``: the
   threshold editor with its audit log (:mod:`sara_app.api.thresholds`).
 - ``POST /api/cells/{cell}/humans/{human_id}/retire``, ``GET /api/cells/{cell}/humans/audit``:
@@ -25,8 +26,10 @@
   ``GET /api/cells/{cell}/worker/audit``: every edit, retirement and re-plan the worker
   answered, whoever sent it (its own record, :mod:`sara_app.runtime.ledger`).
 - ``GET /api/params``, ``GET /api/params/{name}``: human-model parameter sets;
-  ``GET /api/thresholds``, ``GET /api/thresholds/{name}``: contact-energy threshold sets.
-- ``/docs``: OpenAPI; ``/``: the landing page from the repository's ``static/`` folder.
+  ``GET /api/thresholds``, ``GET /api/thresholds/{name}``: contact-energy threshold sets
+  (:mod:`sara_app.api.library`).
+- ``/docs``: OpenAPI (:func:`sara_app.api.openapi.add_docs`); ``/``: the landing page from the
+  repository's ``static/`` folder.
 
 Names in URLs are ``[A-Za-z0-9_-]{1,64}`` (422 otherwise): no path ever leaves its folder.
 """
@@ -35,22 +38,13 @@ from __future__ import annotations
 
 import asyncio
 import json
-import os
-import re
-import tempfile
 import threading
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Annotated, Any
 
-import fastapi_offline
 from fastapi import Body, Depends, FastAPI, HTTPException, Query, Request
-from fastapi.openapi.docs import (
-    get_redoc_html,
-    get_swagger_ui_html,
-    get_swagger_ui_oauth2_redirect_html,
-)
-from fastapi.responses import HTMLResponse, StreamingResponse
+from fastapi.responses import StreamingResponse
 from fastapi.staticfiles import StaticFiles
 
 import sara_app
@@ -63,6 +57,15 @@ from sara_app.api.assumptions import (
 )
 from sara_app.api.guard import Guard, request_user
 from sara_app.api.jobs import add_job_routes
+from sara_app.api.library import (
+    add_param_routes,
+    add_scenario_routes,
+    client_edit,
+    example_scenario,
+    human_param_sets,
+    stored_scenario,
+    validate_scenario,
+)
 from sara_app.api.openapi import EVENT_STREAM, body_schema
 from sara_app.api.people import add_people_routes
 from sara_app.api.registry import EDIT_TIMEOUT_S, CellRegistry
@@ -70,13 +73,10 @@ from sara_app.api.robot import add_robot_routes
 from sara_app.api.schema import (
     BODY_RESPONSES,
     GUARD_RESPONSES,
-    NAME_PATTERN,
-    NAME_RULE,
     BaseScenario,
     CellName,
-    ParamSetName,
-    ScenarioName,
-    ThresholdSetName,
+    check_known,
+    check_url_name,
     responses,
 )
 from sara_app.api.thresholds import add_threshold_routes
@@ -87,63 +87,18 @@ from sara_app.errors import (
     WorkerRefusedError,
     WorkerTimeoutError,
 )
-from sara_app.human.params import available_param_sets, load_param_set
+from sara_app.human.params import load_param_set
 from sara_app.ops.audit import AuditLog, default_audit_path
-from sara_app.ops.client_edits import EditRefusedError, check_client_edit, check_no_raise
+from sara_app.ops.client_edits import EditRefusedError, check_no_raise
 from sara_app.ops.jobs import JobRunner
 from sara_app.ops.loosening import LooseningRefusedError, apply_checked
-from sara_app.safety.thresholds import load_thresholds, threshold_set_names
 from sara_app.scenario import (
-    SHIPPED_SCENARIOS,
     Scenario,
-    check_against_robot,
-    load_scenario,
-    parse_scenario,
-    save_scenario,
     scenario_names,
-    scenario_path,
     scenarios_dir,
 )
 
-NAME_RE = re.compile(NAME_PATTERN)
 STATIC_DIR = Path(sara_app.__file__).resolve().parent.parent / "static"
-
-
-def check_url_name(kind: str, name: str) -> str:
-    """``name`` when it is a valid name; HTTP 422 naming the rule otherwise."""
-    if not NAME_RE.fullmatch(name):
-        raise HTTPException(422, f"{kind} name {name[:80]!r} is invalid; use {NAME_RULE}")
-    return name
-
-
-def check_known(kind: str, name: str, valid: list[str] | tuple[str, ...]) -> str:
-    """``name`` when valid and one of ``valid``; HTTP 422 or 404 (listing ``valid``)."""
-    check_url_name(kind, name)
-    if name not in valid:
-        raise HTTPException(404, f"{kind} {name!r} not found; valid: {', '.join(valid)}")
-    return name
-
-
-def validate_scenario(data: dict[str, Any], origin: str) -> Scenario:
-    """A scenario checked as a whole (schema, strictly as the OpenAPI document states it, and
-    robot); HTTP 422 with the field otherwise."""
-    try:
-        sc = parse_scenario(data, origin, strict=True)
-        check_against_robot(sc)
-    except SaraError as e:
-        raise HTTPException(422, str(e)) from None
-    return sc
-
-
-def _save_atomic(sc: Scenario, path: Path) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=".json", dir=path.parent)
-    os.close(fd)
-    try:
-        save_scenario(sc, tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
 
 
 async def _sse(
@@ -209,14 +164,6 @@ SEND_RESPONSES = {
           "confirmed and audited)"},
 }  # fmt: skip
 """What a route that sends a scenario to a cell's worker may answer besides 200."""
-
-
-def _example_scenario(folder: Path) -> dict[str, Any] | None:
-    """The scenario shown as the example body in ``/docs``: ``empty_cell`` where it is."""
-    try:
-        return load_scenario("empty_cell", folder).model_dump(mode="json")
-    except SaraError:
-        return None
 
 
 def _add_cell_routes(app: FastAPI, registry: CellRegistry, folder: Path) -> None:
@@ -379,7 +326,7 @@ def with_changes(
     else:
         base = base or str(known_cell_check(registry)(cell).get("scenario") or "")
         check_known("scenario", base, sorted(set(scenario_names(folder))))
-        data = _stored_scenario(base, folder)
+        data = stored_scenario(base, folder)
     current = validate_scenario(data, f"the scenario of cell {cell!r}")
     hp = data["human_params"]
     if isinstance(hp, str) and isinstance(changes.get("human_params"), dict):
@@ -389,15 +336,6 @@ def with_changes(
     merged = merge_sections(data, changes)
     client_edit(data, merged)
     return current, validate_scenario(merged, f"{current.name!r} with the changes")
-
-
-def client_edit(current: dict[str, Any] | None, new: Any) -> None:
-    """HTTP 422 for scenario data that refers to a file the cell's scenario ``current`` does not
-    use (:func:`~sara_app.ops.client_edits.check_client_edit`), before it is validated."""
-    try:
-        check_client_edit(current, new)
-    except EditRefusedError as e:
-        raise HTTPException(422, str(e)) from None
 
 
 def in_force(registry: CellRegistry, cell: str) -> Scenario | None:
@@ -417,15 +355,6 @@ def guarded(cell: str, current: Scenario | None, new: Scenario) -> Scenario:
     return new
 
 
-def _stored_scenario(name: str, folder: Path) -> dict[str, Any]:
-    """The scenario file ``name`` as JSON data; HTTP 500 when the stored file is invalid (the
-    request is not at fault)."""
-    try:
-        return load_scenario(name, folder).model_dump(mode="json")
-    except SaraError as e:
-        raise HTTPException(500, f"stored scenario {name!r} is invalid: {e}") from None
-
-
 def merge_sections(data: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]:
     """``data`` with ``changes``: objects merged key by key at every depth, other values
     replaced (lists, such as ``humans``, ``environment`` or ``shield.pfl.overrides``, whole).
@@ -436,130 +365,6 @@ def merge_sections(data: dict[str, Any], changes: dict[str, Any]) -> dict[str, A
         old = out.get(k)
         out[k] = merge_sections(old, v) if isinstance(old, dict) and isinstance(v, dict) else v
     return out
-
-
-def _add_scenario_routes(app: FastAPI, folder: Path) -> None:
-    def names() -> list[str]:
-        return sorted(set(scenario_names(folder)))
-
-    @app.get("/api/scenarios", tags=["scenarios"])
-    def list_scenarios() -> list[str]:
-        return names()
-
-    @app.get("/api/scenarios/{name}", tags=["scenarios"], responses=responses(404, 422, 500))
-    def get_scenario(name: ScenarioName) -> dict[str, Any]:
-        """The validated scenario as JSON."""
-        check_known("scenario", name, names())
-        return _stored_scenario(name, folder)
-
-    @app.put(
-        "/api/scenarios/{name}", tags=["scenarios"],
-        openapi_extra=body_schema(openapi.SCENARIO_TO_SAVE),
-        responses={**BODY_RESPONSES, **responses(409, 422, _409="the name exists (or is "
-                                                   "stored in another file, or is a shipped "
-                                                   "scenario): not replaced")},
-    )  # fmt: skip
-    def put_scenario(
-        name: ScenarioName,
-        scenario: Annotated[dict[str, Any], Body()],
-        overwrite: bool = Query(False),
-    ) -> dict[str, Any]:
-        """Validate and save as ``<name>.json``; replacing an existing name needs overwrite, and
-        a shipped scenario is never replaced."""
-        check_url_name("scenario", name)
-        if name in SHIPPED_SCENARIOS:
-            raise HTTPException(
-                409, f"scenario {name!r} is shipped with the project and is never replaced; "
-                "save the edit under a new name",
-            )  # fmt: skip
-        client_edit(None, scenario)
-        sc = validate_scenario({**scenario, "name": name}, "request body")
-        exists = name in names()
-        if exists and not overwrite:
-            raise HTTPException(
-                409, f"scenario {name!r} exists; choose a new name or pass ?overwrite=true"
-            )
-        path = folder / f"{name}.json"
-        if exists and scenario_path(name, folder) != path:  # one file per name
-            other = scenario_path(name, folder).name
-            raise HTTPException(409, f"scenario {name!r} is stored as {other}; not replaced")
-        _save_atomic(sc, path)
-        return {"name": name, "file": path.name, "overwritten": exists}
-
-
-def _human_param_sets() -> list[str]:
-    """Shipped files that are human-model parameter sets (the folder also holds thresholds)."""
-    out = []
-    for name in available_param_sets():
-        try:
-            load_param_set(name)
-        except SaraError:
-            continue
-        out.append(name)
-    return out
-
-
-def _add_param_routes(app: FastAPI) -> None:
-    @app.get("/api/params", tags=["params"])
-    def list_params() -> list[str]:
-        """Names of the shipped human-model parameter sets."""
-        return _human_param_sets()
-
-    @app.get("/api/params/{name}", tags=["params"], responses=responses(404, 422))
-    def get_params(name: ParamSetName) -> dict[str, Any]:
-        check_known("parameter set", name, _human_param_sets())
-        return load_param_set(name).model_dump(mode="json")
-
-    @app.get("/api/thresholds", tags=["params"])
-    def list_thresholds() -> list[str]:
-        """Names of the shipped contact-energy threshold sets (power and force limiting)."""
-        return list(threshold_set_names())
-
-    @app.get("/api/thresholds/{name}", tags=["params"], responses=responses(404, 422, 500))
-    def get_thresholds(name: ThresholdSetName) -> dict[str, Any]:
-        check_known("threshold set", name, threshold_set_names())
-        try:
-            return load_thresholds(name).model_dump(mode="json")
-        except SaraError as e:
-            raise HTTPException(500, str(e)) from None
-
-
-DOCS_ASSETS = "/docs-assets"
-"""Where the Swagger UI's and ReDoc's files are served from (the ``fastapi-offline``
-package's copies)."""
-
-
-def _add_docs(app: FastAPI) -> None:
-    """``/docs`` and ``/redoc`` without internet: their scripts, style sheet and icon come from
-    the installed ``fastapi-offline`` package, not from a CDN (a cell's network may have no
-    way out)."""
-    assets = Path(fastapi_offline.__file__).parent / "static"
-    app.mount(DOCS_ASSETS, StaticFiles(directory=assets), name="docs")
-
-    @app.get("/docs", include_in_schema=False)
-    def docs() -> HTMLResponse:
-        return get_swagger_ui_html(
-            openapi_url=app.openapi_url or "/openapi.json",
-            title=f"{app.title} - API",
-            swagger_js_url=f"{DOCS_ASSETS}/swagger-ui-bundle.js",
-            swagger_css_url=f"{DOCS_ASSETS}/swagger-ui.css",
-            swagger_favicon_url=f"{DOCS_ASSETS}/favicon.png",
-            oauth2_redirect_url="/docs/oauth2-redirect",
-        )
-
-    @app.get("/docs/oauth2-redirect", include_in_schema=False)
-    def docs_redirect() -> HTMLResponse:
-        return get_swagger_ui_oauth2_redirect_html()
-
-    @app.get("/redoc", include_in_schema=False)
-    def redoc() -> HTMLResponse:
-        return get_redoc_html(
-            openapi_url=app.openapi_url or "/openapi.json",
-            title=f"{app.title} - ReDoc",
-            redoc_js_url=f"{DOCS_ASSETS}/redoc.standalone.js",
-            redoc_favicon_url=f"{DOCS_ASSETS}/favicon.png",
-            with_google_fonts=False,
-        )
 
 
 def create_app(
@@ -594,9 +399,9 @@ def create_app(
         responses=GUARD_RESPONSES,
         dependencies=[Depends(openapi.single_query_values)],
     )
-    _add_docs(app)
+    openapi.add_docs(app)
     openapi.install(
-        app, lambda: openapi.scenario_schemas(_human_param_sets(), _example_scenario(folder))
+        app, lambda: openapi.scenario_schemas(human_param_sets(), example_scenario(folder))
     )
     app.state.registry = registry
     app.state.stopping = threading.Event()  # set by ApiServer.stop(): ends event streams
@@ -650,8 +455,8 @@ def create_app(
         lambda cell, changes, base: with_changes(registry, folder, cell, changes, base),
         check_url_name, audit_path,
     )  # fmt: skip
-    _add_scenario_routes(app, folder)
-    _add_param_routes(app)
+    add_scenario_routes(app, folder)
+    add_param_routes(app)
     app.add_middleware(
         Guard,
         audit=app.state.threshold_audit,

@@ -15,6 +15,7 @@ answers that go with them.
   the API's routes at that path take instead.
 - A query parameter given twice: no parameter of the API is a list, but FastAPI takes the last
   of repeated values of a scalar one; :func:`single_query_values` refuses them (422).
+- The document's pages, ``/docs`` and ``/redoc``, from installed files (:func:`add_docs`).
 """
 
 from __future__ import annotations
@@ -23,13 +24,21 @@ import copy
 import json
 import math
 from collections.abc import Callable, MutableMapping
+from pathlib import Path
 from typing import Any
 
+import fastapi_offline
 from fastapi import FastAPI, Request
 from fastapi.exception_handlers import http_exception_handler
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse, Response
+from fastapi.openapi.docs import (
+    get_redoc_html,
+    get_swagger_ui_html,
+    get_swagger_ui_oauth2_redirect_html,
+)
+from fastapi.responses import HTMLResponse, JSONResponse, Response
 from fastapi.routing import APIRoute
+from fastapi.staticfiles import StaticFiles
 from pydantic.json_schema import models_json_schema
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match
@@ -257,3 +266,41 @@ async def _invalid_handler(request: Request, exc: RequestValidationError) -> Res
         for e in exc.errors()[:20]
     ]
     return JSONResponse({"detail": errors}, status_code=422)
+
+
+DOCS_ASSETS = "/docs-assets"
+"""Where the Swagger UI's and ReDoc's files are served from (the ``fastapi-offline``
+package's copies)."""
+
+
+def add_docs(app: FastAPI) -> None:
+    """``/docs`` and ``/redoc`` without internet: their scripts, style sheet and icon come from
+    the installed ``fastapi-offline`` package, not from a CDN (a cell's network may have no
+    way out)."""
+    assets = Path(fastapi_offline.__file__).parent / "static"
+    app.mount(DOCS_ASSETS, StaticFiles(directory=assets), name="docs")
+
+    @app.get("/docs", include_in_schema=False)
+    def docs() -> HTMLResponse:
+        return get_swagger_ui_html(
+            openapi_url=app.openapi_url or "/openapi.json",
+            title=f"{app.title} - API",
+            swagger_js_url=f"{DOCS_ASSETS}/swagger-ui-bundle.js",
+            swagger_css_url=f"{DOCS_ASSETS}/swagger-ui.css",
+            swagger_favicon_url=f"{DOCS_ASSETS}/favicon.png",
+            oauth2_redirect_url="/docs/oauth2-redirect",
+        )
+
+    @app.get("/docs/oauth2-redirect", include_in_schema=False)
+    def docs_redirect() -> HTMLResponse:
+        return get_swagger_ui_oauth2_redirect_html()
+
+    @app.get("/redoc", include_in_schema=False)
+    def redoc() -> HTMLResponse:
+        return get_redoc_html(
+            openapi_url=app.openapi_url or "/openapi.json",
+            title=f"{app.title} - ReDoc",
+            redoc_js_url=f"{DOCS_ASSETS}/redoc.standalone.js",
+            redoc_favicon_url=f"{DOCS_ASSETS}/favicon.png",
+            with_google_fonts=False,
+        )

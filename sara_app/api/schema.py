@@ -12,19 +12,22 @@ type and body the service returns (``tests/test_api_schema.py`` holds the servic
 - :data:`GUARD_RESPONSES`: what the front door (:mod:`sara_app.api.guard`) may answer on any
   route; :data:`CHANGE_RESPONSES` and :data:`BODY_RESPONSES`: on a route that changes something
   (with a body).
-- :data:`CellName` and the other URL names: ``[A-Za-z0-9_-]{1,64}``, checked by the schema.
+- :data:`CellName` and the other URL names: ``[A-Za-z0-9_-]{1,64}``, checked by the schema;
+  :func:`check_url_name` and :func:`check_known` where a route checks a name itself.
 """
 
 from __future__ import annotations
 
+import re
 from typing import Annotated, Any
 
-from fastapi import Path, Query
+from fastapi import HTTPException, Path, Query
 from pydantic import BaseModel, ConfigDict, Field
 
 NAME_PATTERN = r"^[A-Za-z0-9_-]{1,64}$"
 """A name in a URL (cell, scenario, parameter set, person): no path ever leaves its folder."""
 NAME_RULE = "1-64 of [A-Za-z0-9_-]"
+NAME_RE = re.compile(NAME_PATTERN)
 
 
 class ErrorBody(BaseModel):
@@ -101,3 +104,18 @@ BaseScenario = Annotated[
         description="the scenario file to start from (default: the scenario the cell runs)",
     ),
 ]
+
+
+def check_url_name(kind: str, name: str) -> str:
+    """``name`` when it is a valid name; HTTP 422 naming the rule otherwise."""
+    if not NAME_RE.fullmatch(name):
+        raise HTTPException(422, f"{kind} name {name[:80]!r} is invalid; use {NAME_RULE}")
+    return name
+
+
+def check_known(kind: str, name: str, valid: list[str] | tuple[str, ...]) -> str:
+    """``name`` when valid and one of ``valid``; HTTP 422 or 404 (listing ``valid``)."""
+    check_url_name(kind, name)
+    if name not in valid:
+        raise HTTPException(404, f"{kind} {name!r} not found; valid: {', '.join(valid)}")
+    return name
