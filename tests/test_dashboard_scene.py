@@ -20,15 +20,7 @@ from sara_app.dashboard.frame import (
     LinkEnergy,
 )
 from sara_app.dashboard.from_messages import verdict_status
-from sara_app.dashboard.panels import (
-    MARGIN_RGB,
-    RollingSeries,
-    flatten,
-    link_energy_markdown,
-    margin_level,
-    status_markdown,
-    unflatten,
-)
+from sara_app.dashboard.panels import RollingSeries, flatten, unflatten
 from sara_app.dashboard.scene import (
     CONTACT_RGB,
     CRITICAL_ACTIVE_RGB,
@@ -40,6 +32,12 @@ from sara_app.dashboard.scene import (
     VIEW_NAMES,
     demo_frame,
     occupancy_colors,
+)
+from sara_app.dashboard.status_text import (
+    MARGIN_RGB,
+    link_energy_markdown,
+    margin_level,
+    status_markdown,
 )
 from sara_app.dashboard.tracking_text import totals_markdown
 from sara_app.dashboard.viewer import Dashboard
@@ -351,8 +349,8 @@ def test_contact_parts_layer_and_critical_colour(dash: Dashboard) -> None:
 
 
 def test_the_legend_names_every_human_model_in_its_colour() -> None:
-    from sara_app.dashboard.panels import LEGEND_MD
     from sara_app.dashboard.scene import MODEL_COLORS
+    from sara_app.dashboard.status_text import LEGEND_MD
 
     assert len(set(MODEL_COLORS.values())) == len(MODEL_NAMES)  # distinguishable
     for m in MODEL_NAMES:

@@ -332,7 +332,7 @@ def test_a_displacement_violation_reaches_the_verdict_and_the_dashboard() -> Non
     assert msg.schema_version >= 3 and msg.violations[0].quantity == "displacement"
     decoded = Decoder().decode(key, encode(msg))
     assert decoded.msg == msg
-    from sara_app.dashboard.panels import _people_rows
+    from sara_app.dashboard.status_text import _people_rows
 
     rows = _people_rows({"violations": data["violations"]})
     assert any("displacement 0.91 > 0.71 m" in text for _, text in rows), rows

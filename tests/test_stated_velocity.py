@@ -202,7 +202,7 @@ def test_a_contradiction_reaches_the_verdict_and_the_dashboard() -> None:
     from sara_app.bus.codec import Decoder
     from sara_app.bus.examples import example_messages
     from sara_app.bus.messages import VerdictMsg, encode
-    from sara_app.dashboard.panels import _people_rows
+    from sara_app.dashboard.status_text import _people_rows
     from sara_app.runtime.messages import violation_msgs
 
     key, example = example_messages()["verdict"]

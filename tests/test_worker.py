@@ -340,7 +340,7 @@ def _shown(verdict: VerdictMsg, status: StatusMsg) -> None:
     from sara_app.api.registry import CellRegistry
     from sara_app.bus.codec import Decoded
     from sara_app.dashboard.from_messages import verdict_status
-    from sara_app.dashboard.panels import status_markdown
+    from sara_app.dashboard.status_text import status_markdown
 
     lock = status.phase_lock
     assert lock is not None
