@@ -15,13 +15,8 @@ from sara_app.errors import RobotModelError
 from sara_app.robot.failsafe import StopProfile, _finite, rest_stop
 from sara_app.robot.joints import LIMIT_MARGIN, REST_A, REST_V, S_TOL, limit_arrays
 from sara_app.robot.model import JointLimits
-from sara_app.robot.path import (
-    PathTables,
-    PathTrajectory,
-    path_tables,
-    piece_room,
-    sub_piece_room,
-)
+from sara_app.robot.path import PathTrajectory
+from sara_app.robot.path_limits import PathTables, path_tables, piece_room, sub_piece_room
 from sara_app.robot.profile import ScalarProfile, velocity_phases
 
 

@@ -62,9 +62,7 @@ from sara_app.kernel_types import RO2 as _RO2
 from sara_app.kernel_types import W2 as _W2
 from sara_app.robot.joints import LIMIT_MARGIN, REST_A, REST_V, limit_arrays
 from sara_app.robot.model import JointLimits
-from sara_app.robot.path import (
-    PathTrajectory,
-)
+from sara_app.robot.path import PathTrajectory
 from sara_app.robot.profile import ScalarProfile, phases_end, velocity_phases
 
 __all__ = [

@@ -277,7 +277,7 @@ def _piece(pc: np.ndarray, x: float) -> int:
 
 @njit(_S2(_ip, _f8, _f8, _RO2, _RO3), cache=True)
 def _piece_room(k: int, w: float, am: float, pc: np.ndarray, rows: np.ndarray) -> tuple:
-    """``path.piece_room``; ``rows (P, n, 7)``: per joint ``M1, M2, M3, 1/M1, v, a, j``."""
+    """``path_limits.piece_room``; ``rows (P, n, 7)``: per joint ``M1, M2, M3, 1/M1, v, a, j``."""
     if pc[k, LIN] != 0.0:
         if w > pc[k, V_LIN]:
             return -1.0, -1.0
@@ -312,7 +312,7 @@ def _sub_piece_room(
     rows: np.ndarray,
     geo: np.ndarray,
 ) -> tuple:
-    """``path.sub_piece_room``; ``geo (P, 2, n)``: per piece ``u`` and ``dl``."""
+    """``path_limits.sub_piece_room``; ``geo (P, 2, n)``: per piece ``u`` and ``dl``."""
     if pc[k, LIN] != 0.0:
         return _piece_room(k, w, am, pc, rows)
     s0 = pc[k, S0]

@@ -53,7 +53,8 @@ from sara_app.robot.joints import (
     limit_arrays,
 )
 from sara_app.robot.model import JointLimits
-from sara_app.robot.path import PathTables, PathTrajectory, path_tables, piece_boxes
+from sara_app.robot.path import PathTrajectory
+from sara_app.robot.path_limits import PathTables, path_tables, piece_boxes
 from sara_app.robot.planning_kernels import (
     FALLBACK,
     H_CAP,
