@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from soa_reference import all_pairs, segment_box_soa
 
 from sara_app.safety.contact import (
     ENV_CONSTRAINED,
@@ -18,7 +19,6 @@ from sara_app.safety.contact import (
     ContactClassifier,
     ContactResult,
 )
-from sara_app.safety.contact_kernels import all_pairs, segment_box_soa
 
 
 def segment_box_closest(
@@ -27,7 +27,7 @@ def segment_box_closest(
     """Closest points of segments ``(M, 2, 3)`` and boxes ``(B, 4, 4), (B, 3)``.
 
     Returns ``(distance (M, B), point_on_segment (3, M, B), point_on_box (3, M, B))``, world
-    frame (coordinates first), from :func:`contact_kernels.segment_box_soa`.
+    frame (coordinates first), from :func:`soa_reference.segment_box_soa`.
     """
     M, B = ends.shape[0], T_world_box.shape[0]
     p, q = ends[:, 0].T, ends[:, 1].T

@@ -15,6 +15,7 @@ from contact_reference import (
     speed_bounds,
 )
 from scipy.sparse.csgraph import connected_components
+from soa_reference import all_pairs
 
 from sara_app.errors import InputError, ParameterError, UnknownNameError
 from sara_app.geometry import shape_kernels
@@ -31,12 +32,7 @@ from sara_app.safety.contact import (
     ContactResult,
     VelocityErrorBound,
 )
-from sara_app.safety.contact_kernels import (
-    all_pairs,
-    classify_kernel,
-    classify_set,
-    source_digest,
-)
+from sara_app.safety.contact_kernels import classify_kernel, classify_set, source_digest
 from sara_app.safety.topology import human_safe_matrix, unclampable_matrix
 
 # A table: top face at z = 0.

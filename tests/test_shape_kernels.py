@@ -20,6 +20,7 @@ import numpy as np
 from contact_reference import segment_box_closest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from soa_reference import all_pairs
 
 from sara_app.geometry import shapes as geo
 from sara_app.geometry.shape_kernels import (
@@ -32,7 +33,6 @@ from sara_app.geometry.shape_kernels import (
     set_pair_distances,
     set_pair_gaps,
 )
-from sara_app.safety.contact_kernels import all_pairs
 
 SETTINGS = settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 BAND_M = 1e-9  # round-off ties are not compared

@@ -315,7 +315,7 @@ def set_pair_distances(ends: np.ndarray, radius: np.ndarray, d: np.ndarray, s: n
     """All pairs within one capsule set per interval: surface distances ``d (K, N, N)`` and
     closest-point parameters ``s (K, N, N)`` (``s[k, a, b]`` on ``a`` towards ``b``), each
     unordered pair computed once; the diagonal is ``-2 r`` and ``s = 0`` (as
-    :func:`sara_app.safety.contact_kernels.all_pairs` minus the radii). ``ends (Ke, N, 2, 3)``,
+    ``tests/soa_reference.py``'s ``all_pairs`` minus the radii). ``ends (Ke, N, 2, 3)``,
     ``radius (Kr, N)`` with ``Ke, Kr`` in ``{1, K}``. The segment computation is reused from the
     previous interval when its capsule axes are exactly the same (a set whose radii grow). The
     PFL classification calls the per-pair form :func:`set_pair_entry` only where a rule reads a
@@ -385,8 +385,7 @@ def _segment_box(
 ) -> tuple[float, float, float, float, float, float, float]:
     """Closest points of segment ``[p, q]`` and one solid box (rotation ``R``, centre ``c``,
     half extents ``h``): ``(distance, segment point xyz, box point xyz)``; ``work (3, 8)``
-    scratch. The piecewise minimisation of :func:`sara_app.safety.contact_kernels.
-    segment_box_soa`."""
+    scratch. The piecewise minimisation of ``tests/soa_reference.py``'s ``segment_box_soa``."""
     a, d, bp = work[0], work[1], work[2]
     for i in range(3):
         a[i] = R[0, i] * (p[0] - c[0]) + R[1, i] * (p[1] - c[1]) + R[2, i] * (p[2] - c[2])
