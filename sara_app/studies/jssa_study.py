@@ -105,16 +105,6 @@ def seed_walk(
     return fn
 
 
-def straight_walk(p0_xy: np.ndarray, v_xy: np.ndarray) -> HumanFn:
-    """A human at constant velocity (the JSSA model's assumption, eq. 4), facing its way."""
-    yaw = float(np.arctan2(v_xy[1], v_xy[0]))
-
-    def fn(t: float) -> HumanSample:
-        return rigid_human(p0_xy + t * v_xy, yaw, v_xy, np.zeros(2))
-
-    return fn
-
-
 PANDA_HOME = np.array([0.0, 0.2, 0.0, -1.6, 0.0, 1.8, 0.785])  # hand 0.62 m ahead, 1.21 m high
 TABLE_HEIGHT_M = 0.75
 
