@@ -466,6 +466,45 @@ def test_the_worker_as_serve_starts_it_says_starting_while_it_loads(tmp_path: Pa
     assert proc.returncode == 0
 
 
+def test_a_status_that_cannot_be_built_never_ends_the_cycles(monkeypatch) -> None:
+    """The heartbeat is built after the cycle's verdict and command went out; when building it
+    raises (injected: any failure of the status's inputs), the step still returns, every cycle
+    keeps its verdict, the failure is counted, and the status comes again once it can be
+    built. Before, the exception left ``step`` and ended the worker's loop."""
+    port = free_port()
+    with Bus.router(port) as hub, Bus.client(port) as wb:
+        worker = CellWorker("cell1", load_scenario("standing_beside_path"), wb, loop_task=False)
+        verdicts = hub.subscribe(keys.verdict_key("cell1"), fifo=True, capacity=10000)
+        status = hub.subscribe(keys.status_key("cell1"), fifo=True, capacity=1000)
+        time.sleep(0.3)  # the subscriptions known to the worker's session before its first put
+        real = worker.status_msg
+
+        def broken(now: float, state: str) -> StatusMsg:
+            raise ValueError("phase_lock: injected failure")
+
+        monkeypatch.setattr(worker, "status_msg", broken)
+        dt = worker.shield.settings.dt_s
+        t = time.time()
+        n = int(3.0 / dt)  # three status periods
+        for _ in range(n):
+            worker.step(t)
+            t += dt
+        assert worker.errors.counts["status heartbeat failed"] == 3
+        monkeypatch.setattr(worker, "status_msg", real)
+        for _ in range(int(1.5 / dt)):
+            worker.step(t)
+            t += dt
+        total = n + int(1.5 / dt)
+        got: list[VerdictMsg] = []
+        t_end = time.monotonic() + 5.0
+        while len(got) < total and time.monotonic() < t_end:
+            got += [d.msg for d in verdicts.drain().messages if isinstance(d.msg, VerdictMsg)]
+            time.sleep(0.05)
+        seen = [d.msg for d in status.drain().messages if isinstance(d.msg, StatusMsg)]
+    assert len(got) == total, sorted(set(range(total)) - {v.seq for v in got})
+    assert [s.state for s in seen if s.state == "running"]  # and the heartbeat is back
+
+
 def test_the_status_reports_the_whole_step_and_the_periods_missed(cell) -> None:
     """``cycle_time`` is the shield's cycle alone; the status also carries the worker's whole
     step (inputs, the shield, the messages sent), never shorter, and counts the control periods

@@ -389,8 +389,13 @@ class CellWorker:
             self.errors("occupancy display failed", repr(e), e)
         if now >= self._next_status:
             self._next_status = now + self.status_period
-            self.io.status.put(self.status_msg(now, "running"))
-            self.io.scenario.put(self.scenario_msg(now))
+            try:
+                self.io.status.put(self.status_msg(now, "running"))
+                self.io.scenario.put(self.scenario_msg(now))
+            except Exception as e:  # noqa: BLE001 - the cycle's verdict and command went out;
+                # a heartbeat that cannot be built is logged and counted, and the cell shows as
+                # offline where its statuses stop (the registry's rule), never a crashed loop
+                self.errors("status heartbeat failed", repr(e), e)
 
     def occupancy_msg(self, now: float, res: CycleResult) -> OccupancyMsg:
         return display.occupancy_msg(
@@ -436,7 +441,10 @@ class CellWorker:
             if delay < -self.shield.settings.dt_s:
                 self.overruns += 1
                 next_t = time.monotonic()
-        self.io.status.put(self.status_msg(time.time(), "stopping"))
+        try:
+            self.io.status.put(self.status_msg(time.time(), "stopping"))
+        except Exception as e:  # noqa: BLE001 - the cell is given up below either way
+            self.errors("status heartbeat failed", repr(e), e)
         self.edits.close()
         if self.io.ledger is not None:
             self.io.ledger.close()
