@@ -44,7 +44,6 @@ from __future__ import annotations
 import bisect
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -55,9 +54,6 @@ from sara_app.robot.joints import (
     check_waypoints,
 )
 from sara_app.robot.model import JointLimits
-
-if TYPE_CHECKING:
-    from sara_app.robot.path_limits import PathTables
 
 __all__ = ["PathTrajectory", "waypoints_ahead"]
 
@@ -201,7 +197,7 @@ class PathTrajectory:
         self.n_joints = int(start.shape[0])
         self._start = np.array(start, dtype=float)
         self._p = pieces
-        self._tables: PathTables | None = None  # path_limits.path_tables's cache
+        self._tables: object = None  # path_limits.path_tables's cache (its PathTables)
         if pieces is None:
             self.length = 0.0
             self._s0_list: list[float] = [0.0]

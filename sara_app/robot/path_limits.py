@@ -69,8 +69,8 @@ class PathTables:
 
 def path_tables(path: PathTrajectory, limits: JointLimits) -> PathTables:
     """:class:`PathTables` of ``path`` under ``limits`` (cached on the path per limits object)."""
-    cached = getattr(path, "_tables", None)
-    if cached is not None and cached.source is limits:
+    cached = path._tables
+    if isinstance(cached, PathTables) and cached.source is limits:
         return cached
     tables = PathTables(path, limits)
     path._tables = tables
