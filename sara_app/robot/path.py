@@ -197,7 +197,6 @@ class PathTrajectory:
         self.n_joints = int(start.shape[0])
         self._start = np.array(start, dtype=float)
         self._p = pieces
-        self._tables: object = None  # path_limits.path_tables's cache (its PathTables)
         if pieces is None:
             self.length = 0.0
             self._s0_list: list[float] = [0.0]

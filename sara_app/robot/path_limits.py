@@ -6,6 +6,7 @@ its limits, and the tables the follower's scalar loops read."""
 from __future__ import annotations
 
 import math
+import weakref
 
 import numpy as np
 
@@ -67,13 +68,16 @@ class PathTables:
             )
 
 
+_CACHE: weakref.WeakKeyDictionary[PathTrajectory, PathTables] = weakref.WeakKeyDictionary()
+"""The newest tables of each live path (a path does not change once built)."""
+
+
 def path_tables(path: PathTrajectory, limits: JointLimits) -> PathTables:
-    """:class:`PathTables` of ``path`` under ``limits`` (cached on the path per limits object)."""
-    cached = path._tables
-    if isinstance(cached, PathTables) and cached.source is limits:
+    """:class:`PathTables` of ``path`` under ``limits`` (cached per path and limits object)."""
+    cached = _CACHE.get(path)
+    if cached is not None and cached.source is limits:
         return cached
-    tables = PathTables(path, limits)
-    path._tables = tables
+    tables = _CACHE[path] = PathTables(path, limits)
     return tables
 
 
