@@ -26,6 +26,7 @@ from sara_app.bus.messages import (
     VerdictMsg,
 )
 from sara_app.bus.session import Bus, free_port
+from sara_app.ops.supervisor import stop_processes
 from sara_app.processes.serve import WORKER_RT_PRIORITY
 from sara_app.runtime.worker import CellWorker
 from sara_app.scenario import load_scenario
@@ -262,12 +263,7 @@ def test_the_cycles_lock_onto_a_regular_tracker(tmp_path: Path) -> None:
         try:
             _locks_on(sc.shield.dt_s, verdicts, status, tb, proc)
         finally:
-            proc.terminate()
-            try:
-                proc.wait(20)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(10)
+            stop_processes([proc], timeout_s=20.0)
 
 
 def _locks_on(dt: float, verdicts, status, tb, proc) -> None:
@@ -306,11 +302,12 @@ def _locks_on(dt: float, verdicts, status, tb, proc) -> None:
         assert time.monotonic() < t_wait, "no status after the skeletons"
         time.sleep(0.05)
         take()
-    locked = [s.phase_lock for s in statuses if s.state == "running" and s.stamp_s >= t_half]
-    learning = [s.phase_lock for s in statuses if s.state == "running" and s.stamp_s < t_half]
-    assert learning and len(locked) >= 2 and all(p is not None for p in learning + locked)
-    first, lock = learning[-1], locked[-1]
-    assert lock.reference == "p"
+    locked = [s for s in statuses if s.state == "running" and s.stamp_s >= t_half]
+    learning = [s for s in statuses if s.state == "running" and s.stamp_s < t_half]
+    assert learning and len(locked) >= 2
+    assert all(s.phase_lock is not None for s in learning + locked)
+    first, lock = learning[-1].phase_lock, locked[-1].phase_lock
+    assert first is not None and lock is not None and lock.reference == "p"
     # locked (the second half: tau starts at 0.5 ms and the test's first skeletons come at the
     # worst phase, so the first ones are missed while it learns): a miss is a skeleton taken a
     # period late
@@ -331,7 +328,7 @@ def _locks_on(dt: float, verdicts, status, tb, proc) -> None:
     assert ages.min() >= 0.0
     stamps = np.array([v.stamp_s for v in got])
     assert np.median(np.diff(stamps)) == pytest.approx(dt, abs=1e-4)  # the control rate kept
-    _shown(got[-1], next(s for s in reversed(statuses) if s.phase_lock is lock))
+    _shown(got[-1], locked[-1])
 
 
 def _shown(verdict: VerdictMsg, status: StatusMsg) -> None:

@@ -28,9 +28,7 @@ import numpy as np
 import viser
 
 from sara_app.dashboard.access import on_event
-from sara_app.dashboard.frame import (
-    LinkEnergy,
-)
+from sara_app.dashboard.frame import LinkEnergy
 from sara_app.dashboard.status_text import (
     LEGEND_MD,
     as_float,
