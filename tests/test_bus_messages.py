@@ -147,6 +147,27 @@ def _example(kind: str, **change: Any) -> tuple[str, dict[str, Any]]:
     return key, json.loads(encode(msg)) | change
 
 
+LOCK = {"reference": "h1", "delay_s": 0.0012, "hits": 5, "misses": 0}
+BAD_PHASE_LOCKS: list[tuple[str, Any]] = [
+    ("non_finite", LOCK | {"delay_s": float("nan")}),
+    ("invalid", LOCK | {"reference": "../x"}),
+    ("invalid", LOCK | {"hits": -1}),
+    ("invalid", LOCK | {"misses": 1.5}),
+    ("unknown_field", LOCK | {"locked": True}),
+    ("missing_field", {k: v for k, v in LOCK.items() if k != "delay_s"}),
+    ("invalid", "locked"),
+]
+
+
+@pytest.mark.parametrize(("reason", "lock"), BAD_PHASE_LOCKS)
+def test_a_status_with_a_bad_phase_lock_is_refused(reason: str, lock: Any) -> None:
+    """The worker's status reports the phase lock (schema 3): a status whose lock is not a
+    finite delay, two counts >= 0 and a valid person id is refused with its reason."""
+    key, data = _example("status", phase_lock=lock)
+    assert _reason(key, data) == reason
+    assert decode(key, json.dumps(data | {"phase_lock": LOCK}).encode()).msg.phase_lock
+
+
 def test_other_kinds_check_lengths_keys_and_nesting() -> None:
     key, d = _example("robot_state", q_dot=[0.0] * 6)
     assert _reason(key, d) == "inconsistent_length"
