@@ -145,6 +145,25 @@ def test_a_skeleton_of_no_plausible_size_is_refused(tmp_path: Path) -> None:
     assert load_bvh(path, unit="mm").kind == "full"  # the user's word
 
 
+@pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf])
+@pytest.mark.parametrize("channel, first", [(1, "Hips"), (5, "LHipJoint")])
+def test_a_non_finite_channel_is_refused_naming_its_frame(
+    tmp_path: Path, value: float, channel: int, first: str
+) -> None:
+    """A corrupt channel (the root's Y position, or its Y rotation, which moves every joint
+    below it) is refused with the frame and the first joint it misplaces, before the unit and up
+    axis are guessed from it (it was refused as a skeleton of no plausible size)."""
+    n = len(CMU_CM)
+    frames = [_frame((0, 90, 0), 0, n) for _ in range(4)]
+    frames[2][channel] = value
+    path = _write_bvh(tmp_path / "c.bvh", CMU_CM, {"Head": HEAD_END}, frames, 0.01)
+    with pytest.raises(RecordingError, match=rf"frame 2 puts '{first}' at a non-finite position "
+                       r"\(1 of 4 frames"):  # fmt: skip
+        load_bvh(path)
+    assert load_bvh(_write_bvh(tmp_path / "ok.bvh", CMU_CM, {"Head": HEAD_END},
+                               [_frame((0, 90, 0), 0, n)] * 4, 0.01)).kind == "full"  # fmt: skip
+
+
 def test_a_t_pose_first_frame_is_dropped(tmp_path: Path) -> None:
     tpose = dict(CMU_CM)
     n = len(tpose)

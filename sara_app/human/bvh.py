@@ -122,13 +122,22 @@ def _read(path: Path) -> tuple[list[str], np.ndarray, np.ndarray, float]:
 
     try:
         b = pybvh.read_bvh_file(path, warn_on_world_up_disagreement=False)
-        pos = np.asarray(b.node_positions(), dtype=float)
-        rest = np.asarray(b.rest_pose_positions(), dtype=float)
+        with np.errstate(invalid="ignore", over="ignore"):  # a non-finite channel: said below
+            pos = np.asarray(b.node_positions(), dtype=float)
+            rest = np.asarray(b.rest_pose_positions(), dtype=float)
     except (OSError, ValueError, IndexError, KeyError) as exc:
         raise RecordingError(f"cannot read BVH file {str(path)!r}: {exc}") from None
     names = [n.name for n in b.nodes]
     if pos.ndim != 3 or pos.shape[1:] != (len(names), 3) or pos.shape[0] < 2:
         raise RecordingError(f"BVH file {path.name!r}: expected at least two frames of motion")
+    bad = ~np.isfinite(pos).all(axis=2)  # (T, N): a nan or inf channel, or an overflow
+    if bad.any():
+        f, n = (int(i) for i in np.argwhere(bad)[0])
+        raise RecordingError(
+            f"BVH file {path.name!r}: frame {f} puts {names[n]!r} at a non-finite position "
+            f"({int(bad.any(axis=1).sum())} of {len(bad)} frames have one); expected finite "
+            "channel values"
+        )
     dt = float(b.frame_time)
     if not (math.isfinite(dt) and dt > 0):
         raise RecordingError(f"BVH file {path.name!r}: frame time {dt!r}; expected > 0 s")
