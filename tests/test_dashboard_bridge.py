@@ -533,6 +533,32 @@ def test_view_follows_the_scenario_the_worker_announces(view) -> None:
     assert v.scenario.shield.mode == "pfl"
 
 
+def test_the_scenario_tab_says_what_the_human_set_in_force_is_sound_on(
+    view: tuple[CellView, FakeBus], dash: Dashboard
+) -> None:
+    """The set of the scenario in force, from its own record; another set once the worker
+    announces a scenario that uses it (an edit made elsewhere)."""
+    from sara_app.bus.messages import ScenarioStateMsg
+    from sara_app.dashboard.human_set_text import human_set_markdown
+    from sara_app.human.params import load_param_set
+
+    v, bus = view
+    assert dash.panels is not None
+    v.refresh_panels()
+    shown = dash.panels.human_set.content
+    assert shown == human_set_markdown(v.scenario.param_set())
+    assert shown.startswith(f"**{v.scenario.param_set().name}**") and "Fitted to" in shown
+    other = "work" if v.scenario.param_set().name != "work" else "fast"
+    data = dict(v.scenario.model_dump(mode="json"), human_params=other)
+    bus.feed(
+        keys.scenario_key(CELL),
+        ScenarioStateMsg(seq=1, stamp_s=2.0, cell=CELL, revision=3, scenario=data),
+    )
+    v.poll()
+    assert dash.panels.human_set.content == human_set_markdown(load_param_set(other))
+    assert "contained whole" in dash.panels.human_set.content or other == "fast"
+
+
 def test_before_the_first_verdict_the_status_says_what_the_worker_does(
     view: tuple[CellView, FakeBus], dash: Dashboard
 ) -> None:

@@ -44,6 +44,7 @@ from sara_app.bus.session import Bus
 from sara_app.dashboard.frame import DisplayFrame
 from sara_app.dashboard.from_messages import boxes_of, occupancy_into, verdict_status
 from sara_app.dashboard.gizmos import GizmoEditing
+from sara_app.dashboard.human_set_text import human_set_markdown
 from sara_app.dashboard.panels import CONFIRM_HOW
 from sara_app.dashboard.viewer import Dashboard
 from sara_app.dashboard.whatif_panel import WhatIfHooks, WhatIfPanels
@@ -462,9 +463,17 @@ class CellView(GizmoEditing):
             panels.set_safety_mode(self.scenario.shield.mode)
             panels.set_scenarios(list(scenario_names(self.folder)), self.scenario.name)
             panels.set_params(self.editable())
+            panels.set_human_set(self._human_set())
             self._attach_thresholds()
             self._attach_changes()
         self.add_gizmos()
+
+    def _human_set(self) -> str:
+        """What the scenario's human set is sound on, in words (its own record)."""
+        try:
+            return human_set_markdown(self.scenario.param_set())
+        except SaraError as e:  # a set that cannot be read now (a file renamed meanwhile)
+            return human_set_markdown(None, f"the set cannot be read: {e}")
 
     def _attach_thresholds(self) -> None:
         """The threshold editor (:mod:`sara_app.dashboard.thresholds_panel`) in its own tab,

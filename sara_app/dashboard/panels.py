@@ -29,6 +29,7 @@ import viser
 
 from sara_app.dashboard.access import on_event
 from sara_app.dashboard.frame import LinkEnergy
+from sara_app.dashboard.human_set_text import human_set_markdown
 from sara_app.dashboard.status_text import (
     LEGEND_MD,
     as_float,
@@ -236,6 +237,8 @@ class DashboardPanels:
         gui.add_button("Apply parameters").on_click(on_event(self.apply_params))
         self.message = gui.add_markdown("")
         self._messages_shown = 0
+        with gui.add_folder("Human set in force: what it is sound on", expand_by_default=False):
+            self.human_set = gui.add_markdown(human_set_markdown(None, "no scenario yet"))
 
     def loosening_confirmed(self) -> bool:
         """Whether "Confirm loosening" is ticked (cleared by :meth:`clear_confirmation`)."""
@@ -329,6 +332,12 @@ class DashboardPanels:
         self.scenario.options = options
         if current in options:
             self.scenario.value = current  # type: ignore[misc]
+
+    def set_human_set(self, markdown: str) -> None:
+        """Show what the human set in force is sound on
+        (:mod:`~sara_app.dashboard.human_set_text`)."""
+        if self.human_set.content != markdown:
+            self.human_set.content = markdown
 
     def set_params(self, params: dict[str, Any]) -> None:
         """Show editable inputs for ``params`` (nested dict of numbers, bools, strings, lists;
