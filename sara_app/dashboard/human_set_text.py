@@ -122,5 +122,7 @@ def human_set_markdown(ps: ParamSet | None, why_none: str = "") -> str:
         if k == "horizon_s":
             continue
         label = _LABELS.get(k, k.replace("_", " ").capitalize())
+        if k == "leave_one_out" and "margin_v_a_arm" in record:  # the folds had no margin
+            label += ", fitted without the margin this gave the set"
         lines.append(f"| {md_cell(label)} | {md_cell(_entry(k, record[k], horizon))} |")
     return "\n".join(lines)
