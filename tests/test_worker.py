@@ -466,20 +466,28 @@ def test_the_worker_as_serve_starts_it_says_starting_while_it_loads(tmp_path: Pa
 def test_a_status_that_cannot_be_built_never_ends_the_cycles(monkeypatch) -> None:
     """The heartbeat is built after the cycle's verdict and command went out; when building it
     raises (injected: any failure of the status's inputs), the step still returns, every cycle
-    keeps its verdict, the failure is counted, and the status comes again once it can be
-    built. Before, the exception left ``step`` and ended the worker's loop."""
+    hands its verdict to the bus, the failure is counted, and the status comes again once it
+    can be built. Before, the exception left ``step`` and ended the worker's loop. The verdicts
+    are counted where the worker puts them: the steps run back to back, far faster than a
+    control period, and a loaded machine's transmit queue may drop some of such a burst (CI of
+    2026-12-02: 5 of 1 125), which is the bus's lane rule, not this guard's."""
     port = free_port()
     with Bus.router(port) as hub, Bus.client(port) as wb:
         worker = CellWorker("cell1", load_scenario("standing_beside_path"), wb, loop_task=False)
-        verdicts = hub.subscribe(keys.verdict_key("cell1"), fifo=True, capacity=10000)
         status = hub.subscribe(keys.status_key("cell1"), fifo=True, capacity=1000)
         time.sleep(0.3)  # the subscriptions known to the worker's session before its first put
-        real = worker.status_msg
+        real, put = worker.status_msg, worker.io.verdict.put
+        sent: list[VerdictMsg] = []
 
         def broken(now: float, state: str) -> StatusMsg:
             raise ValueError("phase_lock: injected failure")
 
+        def counted(msg: VerdictMsg) -> bool:
+            sent.append(msg)
+            return put(msg)
+
         monkeypatch.setattr(worker, "status_msg", broken)
+        monkeypatch.setattr(worker.io.verdict, "put", counted)
         dt = worker.shield.settings.dt_s
         t = time.time()
         n = int(3.0 / dt)  # three status periods
@@ -492,14 +500,14 @@ def test_a_status_that_cannot_be_built_never_ends_the_cycles(monkeypatch) -> Non
             worker.step(t)
             t += dt
         total = n + int(1.5 / dt)
-        got: list[VerdictMsg] = []
+        seen: list[StatusMsg] = []
         t_end = time.monotonic() + 5.0
-        while len(got) < total and time.monotonic() < t_end:
-            got += [d.msg for d in verdicts.drain().messages if isinstance(d.msg, VerdictMsg)]
+        while not any(s.state == "running" for s in seen) and time.monotonic() < t_end:
+            seen += [d.msg for d in status.drain().messages if isinstance(d.msg, StatusMsg)]
             time.sleep(0.05)
-        seen = [d.msg for d in status.drain().messages if isinstance(d.msg, StatusMsg)]
-    assert len(got) == total, sorted(set(range(total)) - {v.seq for v in got})
-    assert [s.state for s in seen if s.state == "running"]  # and the heartbeat is back
+    assert [v.seq for v in sent] == list(range(total))  # one verdict per cycle, none skipped
+    assert {v.mode for v in sent} <= {"intended", "failsafe", "rest", "fault"}
+    assert any(s.state == "running" for s in seen)  # and the heartbeat is back on the bus
 
 
 def test_the_status_reports_the_whole_step_and_the_periods_missed(cell) -> None:
