@@ -104,3 +104,5 @@ def test_text_from_the_set_cannot_break_the_table_or_add_markup() -> None:
     rows = _rows(md)  # two cells per row: the pipe is escaped
     assert rows["Note"] == "a \\| b &lt;script&gt;alert(1)&lt;/script&gt;"
     assert rows["Long"] == "x" * (TEXT_LIMIT - 3) + "..."
+    braces = human_set_markdown(_with_record({}, description='{"a": 1}'))
+    assert '{"a": 1}' in braces  # a description is text, whatever it starts with

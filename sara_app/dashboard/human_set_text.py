@@ -24,7 +24,6 @@ TEXT_LIMIT = 240
 
 _LABELS = {
     "models": "Models",
-    "horizon_s": "Horizon of the record (s)",
     "misses_per_recording": "Fitted to",
     "leave_one_out": "Each recording left out of the fit",
     "ceilings": "Ceilings",
@@ -99,6 +98,10 @@ def _entry(key: str, text: str, horizon: str) -> str:
             return _pairs(table)
         except (ValueError, TypeError, KeyError, AttributeError):
             return f"a table of {len(text)} characters (in the set's file)"
+    return _short(text)
+
+
+def _short(text: str) -> str:
     return text if len(text) <= TEXT_LIMIT else text[: TEXT_LIMIT - 3] + "..."
 
 
@@ -109,7 +112,7 @@ def human_set_markdown(ps: ParamSet | None, why_none: str = "") -> str:
         return f"*No human set to show{': ' + md_cell(why_none) if why_none else ''}.*"
     lines = [f"**{md_cell(ps.name)}**", ""]
     if ps.description:
-        lines += [md_cell(_entry("", ps.description, "")), ""]
+        lines += [md_cell(_short(ps.description)), ""]
     record = ps.sound_for
     if not record:
         lines.append("*The set records nothing it was checked on: sound on no recording known.*")
@@ -119,7 +122,7 @@ def human_set_markdown(ps: ParamSet | None, why_none: str = "") -> str:
     lines += ["| What | On the recordings |", "|---|---|"]
     keys = [k for k in _ORDER if k in record] + [k for k in record if k not in _LABELS]
     for k in keys:
-        if k == "horizon_s":
+        if k == "horizon_s":  # said with the counts it applies to
             continue
         label = _LABELS.get(k, k.replace("_", " ").capitalize())
         if k == "leave_one_out" and "margin_v_a_arm" in record:  # the folds had no margin
