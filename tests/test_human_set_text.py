@@ -1,7 +1,8 @@
-"""What the dashboard says the human set in force is sound on (sara_app.dashboard.human_set_text):
-its counts against the set's own record recomputed here from the raw JSON (the oracle), for every
-shipped set; records it cannot read are said to be unreadable, never guessed at and never an
-exception; text from the set cannot break the table or inject markup."""
+"""What a human set is sound on, in words (sara_app.human.sound_record) and as the dashboard
+shows it (sara_app.dashboard.human_set_text): its counts against the set's own record recomputed
+here from the raw JSON (the oracle), for every shipped set; records it cannot read are said to be
+unreadable, never guessed at and never an exception; text from the set cannot break the table or
+inject markup."""
 
 from __future__ import annotations
 
@@ -10,8 +11,9 @@ import re
 
 import pytest
 
-from sara_app.dashboard.human_set_text import TEXT_LIMIT, human_set_markdown
+from sara_app.dashboard.human_set_text import human_set_markdown
 from sara_app.human.params import ParamSet, available_param_sets, load_param_set
+from sara_app.human.sound_record import TEXT_LIMIT
 
 
 def _rows(md: str) -> dict[str, str]:

@@ -5,6 +5,7 @@ ISO 13855's formula against hand-computed values."""
 
 from __future__ import annotations
 
+import html
 import os
 import re
 import subprocess
@@ -16,6 +17,7 @@ import pytest
 
 from sara_app.cell.build import build_cell
 from sara_app.cell.checksum import config_checksum
+from sara_app.human.sound_record import summary
 from sara_app.report.stopping import iso13855_separation_m, stop_rows
 from sara_app.robot.failsafe import plan_joint_stop
 from sara_app.scenario import load_scenario
@@ -75,6 +77,13 @@ def test_report_command_writes_a_self_contained_page(tmp_path: Path) -> None:
     assert "02_01" in page and "SSM" in page and "PFL" in page and "JSSA" not in page
     # close_worker's set bounds unmeasured legs: the report says how, and what it assumes
     assert "l_shin -0.18 m" in page and "ASSUMED for the activity" in page
+    # what the set claims, in words (its left-out fits among them), and its record as written
+    record = load_scenario("close_worker").param_set().sound_for
+    rows = summary(record)
+    assert any(what.startswith("Each recording left out") for what, _ in rows)
+    for what, text in rows:
+        assert f"<td>{html.escape(what)}</td><td>{html.escape(text)}</td>" in page, what
+    assert "The set's record as written" in page and html.escape(record["leave_one_out"]) in page
     if want_pdf:
         assert pdf.read_bytes().startswith(b"%PDF")
 

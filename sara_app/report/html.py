@@ -11,6 +11,7 @@ import math
 from collections.abc import Iterable, Sequence
 from typing import Any
 
+from sara_app.human.sound_record import summary
 from sara_app.human.widening import UNMEASURED_LEG_REACH_M
 from sara_app.report.evidence import HORIZONS_S, Evidence
 from sara_app.report.stopping import C_M
@@ -108,11 +109,14 @@ def _configuration(ev: Evidence) -> str:
          for j, b in ps["joints"].items()),
     )  # fmt: skip
     sources = _table(("what", "source"), ((_e(k), _e(v)) for k, v in ps["sources"].items()))
-    sound = _table(("claim", "value"), ((_e(k), _e(v)) for k, v in ps["sound_for"].items()))
+    record = ps["sound_for"]
+    sound = _table(("claim", "on the recordings"), ((_e(k), _e(v)) for k, v in summary(record)))
+    raw = _table(("entry", "as recorded"), ((_e(k), _e(v)) for k, v in record.items()))
     return (
         _configuration_head(sc, ps, joints) + f"{_displacement(ps)}{_legs(ps)}"
         f"<h4>Sources</h4>{sources}"
         f"<h4>Sound for (as the set claims; the next section checks it)</h4>{sound}"
+        f"<details><summary>The set's record as written</summary>{raw}</details>"
         f"<details><summary>The scenario as validated (JSON)</summary><pre>"
         f"{_e(json.dumps(sc, indent=1))}</pre></details>"
     )
