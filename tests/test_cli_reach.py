@@ -12,13 +12,13 @@ from sara_app.human.recordings import Recording, save_csv
 from sara_app.human.skeleton import FULL_JOINTS, UPPER_JOINTS
 
 
-def _csv(tmp_path, kind="full"):
-    """A small recording swaying along x; ``upper``: the 9 joints of an upper-body tracker
-    (or of the TUM table-side recordings), named ``u``, else ``h``."""
+def _csv(tmp_path, kind="full", sway_m=0.3):
+    """A small recording swaying ``sway_m`` along x; ``upper``: the 9 joints of an upper-body
+    tracker (or of the TUM table-side recordings), named ``u``, else ``h``."""
     t = np.arange(0, 0.5, 1 / 60)
     n, low, name = (len(FULL_JOINTS), 0.1, "h") if kind == "full" else (len(UPPER_JOINTS), 0.9, "u")
     base = np.linspace([0, 0, low], [0.3, 0.2, 1.7], n)
-    y = base[None] + 0.3 * np.sin(2 * np.pi * t)[:, None, None] * np.array([1.0, 0, 0])
+    y = base[None] + sway_m * np.sin(2 * np.pi * t)[:, None, None] * np.array([1.0, 0, 0])
     path = tmp_path / f"{name}.csv"
     save_csv(Recording(name, kind, t, y, "test"), path)
     return path
@@ -150,6 +150,35 @@ def test_calibrate_validates_leaving_each_recording_out(tmp_path, capsys) -> Non
     assert all(float(m) >= 1.0 for m in sound["margin_v_a_arm"].split(", "))
     assert main(["calibrate", files[0], "--leave-one-out", "--out", str(cal)]) == 2
     assert "at least two recordings" in capsys.readouterr().err
+
+
+def test_calibrate_can_validate_without_widening(tmp_path, capsys) -> None:
+    """``--no-widen``: the same left-out rows, the bounds of the fit alone, and the margin in the
+    record as declined (never as applied); without ``--leave-one-out`` it is refused."""
+    a, b = tmp_path / "a", tmp_path / "b"
+    a.mkdir()
+    b.mkdir()  # the second sways twice as fast: left out, it needs a margin on the first's fit
+    files = [str(_csv(a)), str(_csv(b, sway_m=0.6))]
+    runs = {}
+    for name, extra in (("fit", []), ("wide", ["--leave-one-out"]),
+                        ("kept", ["--leave-one-out", "--no-widen"])):  # fmt: skip
+        out = tmp_path / f"{name}.json"
+        assert main(["calibrate", *files, "--horizon", "0.1", *extra, "--out", str(out)]) == 0
+        runs[name] = json.loads(out.read_text())
+    fit, wide, kept = runs["fit"], runs["wide"], runs["kept"]
+    assert kept["joints"] == fit["joints"] and kept["arm"] == fit["arm"]
+    margin = [float(m) for m in wide["sound_for"]["margin_v_a_arm"].split(", ")]
+    assert max(margin) > 1.0  # else widening and not widening could not be told apart
+    assert kept["joints"] != wide["joints"]
+    record = kept["sound_for"]
+    assert "margin_v_a_arm" not in record
+    assert record["margin_declined_v_a_arm"] == wide["sound_for"]["margin_v_a_arm"]
+    assert record["leave_one_out"] == wide["sound_for"]["leave_one_out"]
+    assert "not widened by the margin" in kept["description"]
+    assert "then by the margin" in wide["description"]
+    capsys.readouterr()
+    assert main(["calibrate", *files, "--no-widen", "--out", str(tmp_path / "x.json")]) == 2
+    assert "--no-widen" in capsys.readouterr().err
 
 
 def test_a_bvh_unit_and_up_axis_are_options_of_bvh_files_only(tmp_path, capsys) -> None:

@@ -40,6 +40,11 @@ def test_every_shipped_set_is_summarised_with_its_own_counts(name: str) -> None:
         assert text.startswith(f"{whole} of {len(table)} contained whole")
         assert f"{misses:,} future positions".replace(",", " ") in text
         assert f"{unflagged:,} of them unflagged".replace(",", " ") in text
+    margin = [k for k in record if k.startswith("margin_")]
+    assert len(margin) <= 1, margin  # applied or declined, never both
+    if "margin_declined_v_a_arm" in record:
+        said = rows["Margin it would need, not applied (speeds, accelerations, arm)"]
+        assert said == record["margin_declined_v_a_arm"]
     for label, text in rows.items():
         assert len(text) <= TEXT_LIMIT or label == "Fitted to", (label, text)
         assert '{"' not in text, (label, text)  # a table is counted, never dumped

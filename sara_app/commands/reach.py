@@ -48,7 +48,8 @@ def _calibrate(args: argparse.Namespace) -> None:
     from sara_app.human.report import calibrate_command
 
     calibrate_command(args.recordings, args.horizon, args.base, args.name, args.out, args.delta_y,
-                      args.leave_one_out, _load(args), _ceilings(args), args.walking)  # fmt: skip
+                      args.leave_one_out, _load(args), _ceilings(args), args.walking,
+                      not args.no_widen)  # fmt: skip
 
 
 def _legs(args: argparse.Namespace) -> None:
@@ -129,6 +130,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="validate: check each recording against the set fitted on the others, and widen "
         "the written set by the margin that derives",
+    )
+    c.add_argument(
+        "--no-widen",
+        action="store_true",
+        help="with --leave-one-out: record the margin in the set's record as declined instead of "
+        "widening by it (the set stays as fitted; its left-out rows say how it fares on "
+        "recordings it was not fitted to)",
     )
     c.add_argument(
         "--max-speed",

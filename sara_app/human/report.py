@@ -29,6 +29,7 @@ from sara_app.human.params import ParamSet, load_param_set, save_param_set, to_r
 from sara_app.human.reach import MODELS, HumanReach
 from sara_app.human.recordings import Recording, load_recording
 from sara_app.human.segments import MIN_DURATION_S, MIN_SPEED_MPS, walking_pieces
+from sara_app.human.sound_record import MARGIN_KEYS
 from sara_app.human.validation import (
     Validation,
     containment_on,
@@ -244,7 +245,7 @@ def format_calibration(rep: CalibrationReport) -> str:
 
 def _description(
     recs: Sequence[Recording], walk: Sequence[bool], walking: bool, horizon_s: float, base: str,
-    val: Validation | None,
+    val: Validation | None, widen: bool = True,
 ) -> str:  # fmt: skip
     """How a calibrated set was fitted, for its ``description``."""
     on = ", ".join(r.name + (WALKING_SUFFIX if w and not walking else "")
@@ -253,9 +254,16 @@ def _description(
         which = "their" if walking else "@walking:"
         on += (f" ({which} walking pieces, the pelvis over the floor at {MIN_SPEED_MPS:g} m/s or "
                f"more for {MIN_DURATION_S:g} s or more)")  # fmt: skip
-    margin = "" if val is None else (
-        ", then by the margin that leaving each recording out derives (speeds x{:.3f}, "
-        "accelerations x{:.3f}, arm rates x{:.3f})".format(*val.margin))  # fmt: skip
+    margin = ""
+    if val is not None:
+        factors = "speeds x{:.3f}, accelerations x{:.3f}, arm rates x{:.3f}".format(*val.margin)
+        margin = (
+            f", then by the margin that leaving each recording out derives ({factors})"
+            if widen
+            else f", not widened by the margin that leaving each recording out derives ({factors}):"
+            " declined, so on a recording it was not fitted to it is as sound as its left-out"
+            " rows say"
+        )
     return (f"Calibrated by `sara-app calibrate` on {on} (horizon {horizon_s} s) from {base!r}: "
             f"bounds widened until the models contain the recordings{margin}. Bounds driven by "
             "single frames are listed by the command.")  # fmt: skip
@@ -300,18 +308,23 @@ def calibrate_command(
     load: Load = load_recording,
     ceilings: Ceilings | None = None,
     walking: bool = False,
+    widen: bool = True,
 ) -> tuple[ParamSet, CalibrationReport]:
     """Calibrate ``base`` on ``recordings`` and write the set to ``out``. With ``walking``, on
     their walking pieces only (:mod:`sara_app.human.segments`; a recording without any is left
     out, and said so), as for each recording named ``<name>@walking``; with ``ceilings``,
     reconstruction failures are split off first and listed (:mod:`sara_app.human.failures`);
     with ``validate``, first leave each recording out in turn (:mod:`sara_app.human.validation`)
-    and widen the written set by the margin that derives."""
+    and widen the written set by the margin that derives; without ``widen``, that margin is
+    recorded as declined and the set stays as fitted (its left-out rows say what that costs)."""
     b = load_param_set(base)
     dy = b.delta_y_m if delta_y_m is None else delta_y_m
     recs, walk, kept, failed = _fit_pieces(recordings, load, ceilings, dy, walking)
     if not recs:
         raise InputError("none of the recordings has a walking piece to calibrate on")
+    if not widen and not validate:
+        raise InputError("--no-widen declines the margin --leave-one-out derives: give both, or "
+                         "neither (calibrate alone widens nothing)")  # fmt: skip
     if validate and len(recs) < 2:
         raise InputError("leave-one-out validation needs at least two recordings")
     ps, rep = calibrate(b, [p for ps_ in kept for p in ps_], horizon_s, name, delta_y_m)
@@ -322,7 +335,8 @@ def calibrate_command(
         val, _ = leave_one_out(b, kept, [r.name for r in recs], horizon_s, in_use(MODELS),
                                delta_y_m)  # fmt: skip
         print(format_validation(val))
-        ps = widened(ps, val.margin, name)
+        if widen:
+            ps = widened(ps, val.margin, name)
     summary = {}
     for rec, pieces in zip(recs, kept):
         for label, pset in (("base", b), ("calibrated", ps)):
@@ -350,7 +364,7 @@ def calibrate_command(
     ps = ps.model_copy(
         update={
             "body_parts": parts,
-            "description": _description(recs, walk, walking, horizon_s, base, val),
+            "description": _description(recs, walk, walking, horizon_s, base, val, widen),
             "sound_for": {
                 "models": ", ".join(sound),
                 "misses_per_recording": json.dumps(summary),
@@ -378,7 +392,7 @@ def calibrate_command(
                                 for r in val.rows
                             }
                         ),
-                        "margin_v_a_arm": ", ".join(f"{m:.3f}" for m in val.margin),
+                        MARGIN_KEYS[widen]: ", ".join(f"{m:.3f}" for m in val.margin),
                     }
                 ),
             },

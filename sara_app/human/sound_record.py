@@ -20,6 +20,10 @@ TEXT_LIMIT = 240
 """Characters of a free-text entry given (the rest is in the set's file; the evidence report
 keeps the record whole beside its summary)."""
 
+MARGIN_KEYS = {True: "margin_v_a_arm", False: "margin_declined_v_a_arm"}
+"""The record's key for the margin leaving each recording out derives, by whether the set was
+widened by it (``sara-app calibrate --leave-one-out``) or not (``--no-widen``)."""
+
 _LABELS = {
     "models": "Models",
     "misses_per_recording": "Fitted to",
@@ -27,6 +31,7 @@ _LABELS = {
     "ceilings": "Ceilings",
     "reconstruction_failures_left_out": "Reconstruction failures left out",
     "margin_v_a_arm": "Margin (speeds, accelerations, arm)",
+    "margin_declined_v_a_arm": "Margin it would need, not applied (speeds, accelerations, arm)",
     "legs_unmeasured_left_out_misses_unflagged_0_5s": (
         "Unmeasured legs' height bound, each left out, before the margin this gave it (0.5 s)"
     ),
