@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -87,6 +88,62 @@ def test_every_offline_command_takes_an_upper_body_recording(tmp_path, capsys) -
     # the legs' height bound needs legs: an upper-body recording is refused, saying so
     assert main(["legs", up, str(_csv(tmp_path)), "--out", str(tmp_path / "l.json")]) == 2
     assert "need a full-body recording" in capsys.readouterr().err
+
+
+def _frames(tmp_path, n: int, name: str = "short", jump_m: float = 0.0):
+    """A standing full-body recording of ``n`` frames at 60 Hz; ``jump_m`` added to every
+    joint of frame 1 (a finite coordinate no person reaches)."""
+    t = np.arange(n) / 60.0
+    y = np.repeat(np.linspace([0, 0, 0.1], [0.3, 0.2, 1.7], len(FULL_JOINTS))[None], n, axis=0)
+    if n > 1:
+        y[1] += jump_m
+    path = tmp_path / f"{name}.csv"
+    save_csv(Recording(name, "full", t, y, "test"), path)
+    return str(path)
+
+
+@pytest.mark.parametrize("n", [1, 2])
+def test_every_offline_command_refuses_a_recording_too_short_to_say_anything(
+    tmp_path, capsys, n
+) -> None:
+    """One or two frames: no acceleration (and with one no velocity) to check or fit. Each
+    command said "nan %" or ended in a ValueError or a KeyError; now each refuses, naming the
+    recording and the frames it needs."""
+    short, ok = _frames(tmp_path, n), _csv(tmp_path)
+    out = str(tmp_path / "o.json")
+    for args in (["reach", short], ["volumes", short], ["calibrate", short, str(ok), "--out", out],
+                 ["legs", str(ok), short, "--out", out],
+                 ["displacement", str(ok), short, "--out", out]):  # fmt: skip
+        assert main(args) == 2, args
+        err = capsys.readouterr().err
+        assert f"recording 'short' has {n} frame(s)" in err and "at least 3" in err, (args, err)
+
+
+def test_a_horizon_shorter_than_a_frame_checks_nothing_and_says_so(tmp_path, capsys) -> None:
+    """No future frame within the horizon: ``reach`` says nothing was checked (it printed
+    "nan %"); ``calibrate`` has nothing to fit and refuses, naming the frame interval (it ended
+    in a ValueError)."""
+    rec = _frames(tmp_path, 30)
+    assert main(["reach", rec, "--horizon", "0.001"]) == 0
+    text = capsys.readouterr().out
+    assert "nan" not in text and text.count("nothing checked: no future position") == 7
+    assert main(["calibrate", rec, "--horizon", "0.001", "--out", str(tmp_path / "c.json")]) == 2
+    err = capsys.readouterr().err
+    assert "no two frames" in err and "0.01667 s" in err
+
+
+def test_a_miss_by_an_absurd_coordinate_is_listed_with_its_size(tmp_path, capsys) -> None:
+    """A finite coordinate whose square overflows: its misses were counted but the list of the
+    worst was empty (not finite, dropped); now it leads the list in words, and one merely far
+    off in metres."""
+    for jump, said in (
+        (1e300, r"by more than any finite distance"),
+        (1e6, r"by \d\.\d+e\+0[67] m"),
+    ):
+        rec = _frames(tmp_path, 30, f"j{jump:g}", jump)
+        assert main(["reach", rec, "--horizon", "0.1"]) == 0
+        worst = [x for x in capsys.readouterr().out.splitlines() if "worst:" in x]
+        assert len(worst) == 7 and all(re.search(said, x) for x in worst), (jump, worst)
 
 
 def _two(tmp_path, second: str = "full") -> list[str]:

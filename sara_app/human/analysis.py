@@ -244,10 +244,12 @@ def _tally(
     miss = ~inside & v3
     for j in np.unique(np.nonzero(miss)[2]):
         res.misses_per_joint[names[j]] = int(miss[:, :, j].sum())
-    flat = np.where(miss, worst_excess, -np.inf)
+    # an excess that overflowed (coordinates near the float limit) is a miss by more than any
+    # finite one: listed first, never dropped from the list as not finite
+    flat = np.where(miss, np.nan_to_num(worst_excess, nan=np.inf, posinf=np.inf), -np.inf)
     for f in np.argsort(flat, axis=None)[::-1][:n_worst]:
         i, k, j = np.unravel_index(f, flat.shape)
-        if not np.isfinite(flat[i, k, j]):
+        if flat[i, k, j] == -np.inf:
             break
         res.worst.append(
             Miss(names[j], int(i), float(times_s[i]), float(tau[i, k]), float(flat[i, k, j]))

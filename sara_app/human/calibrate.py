@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sara_app.errors import ParameterError
+from sara_app.errors import InputError, ParameterError
 from sara_app.human.analysis import containment
 from sara_app.human.failures import Failure, pieces, runs
 from sara_app.human.intake import screen
@@ -122,7 +122,7 @@ def fit_velocity(
         J = need.shape[1]  # an upper-body recording fits the upper joints only
         for q in range(J):
             drivers[q] += _top(need[:, q], rec, i, tau, n_drivers)
-        best[:J] = np.maximum(best[:J], need.max(axis=0))
+        best[:J] = np.maximum(best[:J], need.max(axis=0, initial=0.0))  # a piece without pairs: 0
     for q in range(len(joints)):
         drivers[q] = sorted(drivers[q], key=lambda d: -d.value)[:n_drivers]
     return best, drivers
@@ -151,7 +151,7 @@ def _acc_need(
         need = np.where(use, 2.0 * slack / tau[:, None] ** 2, -np.inf)
         for q in range(Jr):
             drivers[q] += _top(need[:, q], rec, i, tau, n_drivers)
-        need_all[:Jr] = np.maximum(need_all[:Jr], need.max(axis=0))
+        need_all[:Jr] = np.maximum(need_all[:Jr], need.max(axis=0, initial=-np.inf))
     return need_all, [sorted(d, key=lambda x: -x.value)[:n_drivers] for d in drivers]
 
 
@@ -267,6 +267,13 @@ def calibrate(
     measured with the fitted bounds in force (under them no joint jumps, so the monitor checks
     every joint) and the bounds raised until they cover them.
     """
+    if not any(len(_pairs(r, horizon_s)[0]) for r in recs):
+        gaps = [float(np.min(np.diff(r.times_s))) for r in recs if r.n_frames > 1]
+        raise InputError(
+            f"no two frames of the recordings lie within the horizon {horizon_s} s"
+            + (f" (their shortest frame interval is {min(gaps):.4g} s)" if gaps else "")
+            + ": nothing to fit; give a longer horizon or recordings of more frames"
+        )
     kinds = {r.kind for r in recs}
     # with any full-body recording the legs are fitted too (from the full-body ones only)
     joints = skeleton("full" if "full" in kinds else "upper").joints

@@ -94,6 +94,13 @@ def in_use(models: Sequence[str]) -> tuple[str, ...]:
     return used or tuple(models)
 
 
+def _excess(excess_m: float) -> str:
+    """A miss's distance outside the set, in words."""
+    if not np.isfinite(excess_m):
+        return "more than any finite distance (coordinates beyond what floats can square)"
+    return f"{100 * excess_m:.1f} cm" if excess_m < 10.0 else f"{excess_m:.3g} m"
+
+
 def format_containment(name: str, res: dict[str, Containment]) -> str:
     lines = [f"containment on {name} (share of future joint positions inside the set; "
              "effective: inside every model a cell uses, what the verdict relies on):"]  # fmt: skip
@@ -103,10 +110,13 @@ def format_containment(name: str, res: dict[str, Containment]) -> str:
             misses = c.checked - c.contained
             na += (f"; {c.unflagged} unflagged (the monitor had not faulted the person), "
                    f"{misses - c.unflagged} at a fault")  # fmt: skip
+        if not c.checked:  # a share of nothing is no containment
+            lines.append(f"  {m:9s} nothing checked: no future position within the horizon{na}")
+            continue
         lines.append(f"  {m:9s} {100 * c.share:8.3f} %  ({c.checked - c.contained} misses{na})")
         if c.misses_per_joint:
             worst = ", ".join(
-                f"{w.joint} at t={w.t_s:.3f}s +{w.dt_s:.3f}s by {100 * w.excess_m:.1f} cm"
+                f"{w.joint} at t={w.t_s:.3f}s +{w.dt_s:.3f}s by " + _excess(w.excess_m)
                 for w in c.worst[:3]
             )
             per = ", ".join(f"{j}: {n}" for j, n in c.misses_per_joint.items())
@@ -118,6 +128,23 @@ def format_containment(name: str, res: dict[str, Containment]) -> str:
 Load = Callable[[str], Recording]
 """How a command reads a recording by path or name (:func:`load_recording` with the user's
 options)."""
+
+MIN_FRAMES = 3
+"""Frames a recording needs for the offline commands: a velocity takes two, an acceleration
+three; with fewer, no model's containment, volume or bound says anything."""
+
+
+def _analysable(load: Load, name: str) -> Recording:
+    """``load(name)``, refused (:class:`InputError`) with fewer than :data:`MIN_FRAMES` frames."""
+    rec = load(name)
+    if rec.n_frames < MIN_FRAMES:
+        raise InputError(
+            f"recording {rec.name!r} has {rec.n_frames} frame(s); the offline commands need at "
+            f"least {MIN_FRAMES} (a velocity takes two frames, an acceleration three)"
+        )
+    return rec
+
+
 WALKING_SUFFIX = "@walking"
 """A recording named ``<name>@walking``: its walking pieces alone (``sara-app calibrate``)."""
 
@@ -143,7 +170,7 @@ def reach_command(
 ) -> dict[str, Containment]:
     if not (np.isfinite(horizon_s) and horizon_s > 0):
         raise InputError(f"horizon {horizon_s} s; expected a finite value > 0")
-    rec = load(recording)
+    rec = _analysable(load, recording)
     ps = load_param_set(params)
     reach = HumanReach(to_reach_params(ps, rec.kind))
     # every input error comes before anything is written
@@ -178,7 +205,7 @@ def volume_table(
 ) -> dict[str, list[float]]:
     """Mean set volume per model and horizon (the trend of Schepp et al. 2022 Fig. 7), optional
     PNG."""
-    rec = load(recording)
+    rec = _analysable(load, recording)
     ps = load_param_set(params)
     reach = HumanReach(to_reach_params(ps, rec.kind))
     columns = [*models, EFFECTIVE] if len(models) > 1 else list(models)
@@ -278,7 +305,7 @@ def _fit_pieces(
     reconstruction failures under ``ceilings`` split off; a recording without a walking piece
     is left out (and said so). Also the failures' lines."""
     walk = [walking or r.endswith(WALKING_SUFFIX) for r in recordings]
-    recs = [load(r.removesuffix(WALKING_SUFFIX)) for r in recordings]
+    recs = [_analysable(load, r.removesuffix(WALKING_SUFFIX)) for r in recordings]
     walks = [walking_or_whole(r, w) for r, w in zip(recs, walk)]
     keep = [i for i, pieces_ in enumerate(walks) if pieces_]
     recs, walks, walk = [recs[i] for i in keep], [walks[i] for i in keep], [walk[i] for i in keep]
@@ -338,22 +365,24 @@ def calibrate_command(
         if widen:
             ps = widened(ps, val.margin, name)
     summary = {}
+    checked = dict.fromkeys(MODELS, 0)
     for rec, pieces in zip(recs, kept):
         for label, pset in (("base", b), ("calibrated", ps)):
             res = containment_on(pset, pieces, horizon_s, MODELS, in_use(MODELS)).counts
             misses = {m: c[0] - c[1] for m, c in res.items()}
-            print(
-                f"  {rec.name} with {label} set: "
-                + ", ".join(
-                    f"{m} {100 * c[1] / max(c[0], 1):.4f}% ({misses[m]} misses"
-                    + ("" if m != EFFECTIVE else f", {c[2]} unflagged")
-                    + ")"
-                    for m, c in res.items()
-                )
-            )
+            print(f"  {rec.name} with {label} set: " + ", ".join(
+                (f"{m} {100 * c[1] / c[0]:.4f}% ({misses[m]} misses" if c[0] else
+                 f"{m} nothing checked ({misses[m]} misses")
+                + ("" if m != EFFECTIVE else f", {c[2]} unflagged") + ")"
+                for m, c in res.items()
+            ))  # fmt: skip
             if label == "calibrated":
                 summary[rec.name] = misses
-    sound = [m for m in MODELS if all(s[m] == 0 for s in summary.values())]
+                for m in MODELS:
+                    checked[m] += res[m][0]
+    # a model is sound on the recordings where it missed nothing it was checked on, and it was
+    # checked on something (an acceleration model is unavailable on two frames)
+    sound = [m for m in MODELS if checked[m] and all(s[m] == 0 for s in summary.values())]
     # The hand ball is centred at the wrist: its radius must reach the fingertips (Pereira & Althoff
     # 2016's hand radius 0.205 m), which Schepp et al. 2022's 0.205 m thickness does not.
     parts = dict(ps.body_parts)
@@ -416,7 +445,7 @@ def legs_command(
     recs, sources = [], []
     for name in recordings:
         given = name.removesuffix(WALKING_SUFFIX)  # as given: two files may share a name
-        rec = load(given)
+        rec = _analysable(load, given)
         parts = walking_or_whole(rec, name.endswith(WALKING_SUFFIX))
         recs += parts
         sources += [given] * len(parts)
