@@ -132,6 +132,25 @@ def test_a_horizon_shorter_than_a_frame_checks_nothing_and_says_so(tmp_path, cap
     assert "no two frames" in err and "0.01667 s" in err
 
 
+def test_calibrate_and_volumes_refuse_bad_numbers_before_fitting(tmp_path, capsys) -> None:
+    """A negative or NaN noise bound was fitted with and written (a set the loader then
+    refused); a negative horizon reached the fit; an empty or NaN horizon of ``volumes`` ended
+    in a ValueError. Each is refused naming the value and what is expected, nothing written."""
+    rec, out = _frames(tmp_path, 30), tmp_path / "c.json"
+    for opts, said in ((["--delta-y", "-1"], "noise bound -1.0 m"),
+                       (["--delta-y", "nan"], "noise bound nan m"),
+                       (["--horizon", "-1"], "horizon -1.0 s"),
+                       (["--horizon", "inf"], "horizon inf s")):  # fmt: skip
+        assert main(["calibrate", rec, *opts, "--out", str(out)]) == 2
+        assert said in capsys.readouterr().err and not out.exists()
+    for horizons in ("", "0.1,nan", "-1", "0.1,,0.2", "x"):
+        with pytest.raises(SystemExit) as e:
+            main(["volumes", rec, f"--horizons={horizons}"])
+        assert e.value.code == 2
+        assert "expected comma-separated seconds" in capsys.readouterr().err
+    assert main(["volumes", rec, "--horizons", "0.1,0.2"]) == 0
+
+
 def test_a_miss_by_an_absurd_coordinate_is_listed_with_its_size(tmp_path, capsys) -> None:
     """A finite coordinate whose square overflows: its misses were counted but the list of the
     worst was empty (not finite, dropped); now it leads the list in words, and one merely far

@@ -22,6 +22,25 @@ def _models(text: str) -> list[str]:
     return names
 
 
+def _horizons(text: str) -> list[float]:
+    """``--horizons``: comma-separated seconds, each finite and > 0."""
+    import math
+
+    out = []
+    for h in text.split(","):
+        try:
+            v = float(h)
+        except ValueError:
+            v = math.nan
+        if not (math.isfinite(v) and v > 0):
+            raise argparse.ArgumentTypeError(
+                f"horizon {h.strip()!r}; expected comma-separated seconds, each finite and > 0 "
+                "(for example 0.1,0.2,0.5)"
+            )
+        out.append(v)
+    return out
+
+
 def _load(args: argparse.Namespace) -> Callable[[str], Recording]:
     """The recording reader with the user's BVH unit and up axis."""
     from functools import partial
@@ -40,8 +59,7 @@ def _reach(args: argparse.Namespace) -> None:
 def _volumes(args: argparse.Namespace) -> None:
     from sara_app.human.report import volume_table
 
-    hs = [float(h) for h in args.horizons.split(",")]
-    volume_table(args.recording, args.params, hs, args.png, load=_load(args))
+    volume_table(args.recording, args.params, args.horizons, args.png, load=_load(args))
 
 
 def _calibrate(args: argparse.Namespace) -> None:
@@ -108,7 +126,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     v = sub.add_parser("volumes", help="set volume per model vs horizon (table + PNG)")
     v.add_argument("recording")
     v.add_argument("--params", default="bench_work")
-    v.add_argument("--horizons", default="0.05,0.1,0.15,0.2,0.3,0.4,0.5")
+    v.add_argument("--horizons", type=_horizons, default="0.05,0.1,0.15,0.2,0.3,0.4,0.5",
+                   help="comma-separated seconds")  # fmt: skip
     v.add_argument("--png", type=Path, default=None)
     _recording_options(v)
     v.set_defaults(run=_volumes)

@@ -256,8 +256,12 @@ def load_param_set(name_or_path: str | Path) -> ParamSet:
 
 def save_param_set(ps: ParamSet, path: str | Path) -> None:
     """Write ``ps`` as JSON to ``path``; a path that cannot be written is a ParameterError that
-    names it (the commands that fit a set end with this, after minutes of fitting)."""
+    names it (the commands that fit a set end with this, after minutes of fitting). A set that
+    would not load (``model_copy`` does not validate: a fit from a noise bound of NaN) is a
+    ParameterError naming what is wrong, and nothing is written."""
+    data = ps.model_dump()
+    parse_param_set(data, f"{ps.name!r} (not written to {path})")
     try:
-        Path(path).write_text(json.dumps(ps.model_dump(), indent=2) + "\n")
+        Path(path).write_text(json.dumps(data, indent=2) + "\n")
     except OSError as e:
         raise ParameterError(f"cannot write parameter set {ps.name!r} to {path}: {e}") from None

@@ -344,6 +344,10 @@ def calibrate_command(
     with ``validate``, first leave each recording out in turn (:mod:`sara_app.human.validation`)
     and widen the written set by the margin that derives; without ``widen``, that margin is
     recorded as declined and the set stays as fitted (its left-out rows say what that costs)."""
+    if not (np.isfinite(horizon_s) and horizon_s > 0):
+        raise InputError(f"horizon {horizon_s} s; expected a finite value > 0")
+    if delta_y_m is not None and not (np.isfinite(delta_y_m) and delta_y_m >= 0):
+        raise InputError(f"tracker noise bound {delta_y_m} m; expected a finite value >= 0")
     b = load_param_set(base)
     dy = b.delta_y_m if delta_y_m is None else delta_y_m
     recs, walk, kept, failed = _fit_pieces(recordings, load, ceilings, dy, walking)
