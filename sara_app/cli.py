@@ -12,10 +12,13 @@ from sara_app.errors import SaraError
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """One sub-command group per module of :mod:`sara_app.commands` (sorted by module name)."""
+    """One sub-command group per module of :mod:`sara_app.commands` (sorted by module name; a
+    module whose name starts with ``_`` serves the others)."""
     ap = argparse.ArgumentParser(prog="sara-app", description=__doc__)
     sub = ap.add_subparsers(dest="command", required=True)
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
+        if info.name.startswith("_"):
+            continue
         module = importlib.import_module(f"{commands.__name__}.{info.name}")
         module.register(sub)
     return ap

@@ -132,17 +132,26 @@ def test_a_horizon_shorter_than_a_frame_checks_nothing_and_says_so(tmp_path, cap
     assert "no two frames" in err and "0.01667 s" in err
 
 
-def test_calibrate_and_volumes_refuse_bad_numbers_before_fitting(tmp_path, capsys) -> None:
+def test_calibrate_refuses_bad_numbers_before_fitting(tmp_path, capsys) -> None:
     """A negative or NaN noise bound was fitted with and written (a set the loader then
-    refused); a negative horizon reached the fit; an empty or NaN horizon of ``volumes`` ended
-    in a ValueError. Each is refused naming the value and what is expected, nothing written."""
+    refused); a negative horizon reached the fit. The command line refuses them by the options'
+    types (tests/test_numbers.py), and the command's function too, for callers of the API."""
+    from sara_app.errors import InputError
+    from sara_app.human.report import calibrate_command
+
     rec, out = _frames(tmp_path, 30), tmp_path / "c.json"
-    for opts, said in ((["--delta-y", "-1"], "noise bound -1.0 m"),
-                       (["--delta-y", "nan"], "noise bound nan m"),
-                       (["--horizon", "-1"], "horizon -1.0 s"),
-                       (["--horizon", "inf"], "horizon inf s")):  # fmt: skip
-        assert main(["calibrate", rec, *opts, "--out", str(out)]) == 2
-        assert said in capsys.readouterr().err and not out.exists()
+    for opts in (["--delta-y", "-1"], ["--delta-y", "nan"], ["--horizon", "-1"]):
+        with pytest.raises(SystemExit) as e:
+            main(["calibrate", rec, *opts, "--out", str(out)])
+        assert e.value.code == 2 and f"'{opts[1]}'; expected" in capsys.readouterr().err
+    for kw, said in (({"delta_y_m": -1.0}, "noise bound -1.0 m"),
+                     ({"delta_y_m": float("nan")}, "noise bound nan m"),
+                     ({"horizon_s": float("inf")}, "horizon inf s")):  # fmt: skip
+        args = {"recordings": [rec], "horizon_s": 0.5, "base": "bench_work", "name": "x",
+                "out": out} | kw  # fmt: skip
+        with pytest.raises(InputError, match=said):
+            calibrate_command(**args)
+        assert not out.exists()
     for horizons in ("", "0.1,nan", "-1", "0.1,,0.2", "x"):
         with pytest.raises(SystemExit) as e:
             main(["volumes", rec, f"--horizons={horizons}"])
@@ -206,8 +215,9 @@ def test_the_displacement_command_validates_and_writes_a_loadable_set(tmp_path, 
     assert main(["displacement", *files, *args]) == 0
     d = load_param_set(out).displacement
     assert d is not None and d.max_m["head"][44] < 0.61 and d.max_m["l_knee"][44] < 0.61
-    assert main(["displacement", *files, "--margin", "0.5", "--out", str(out)]) == 2
-    assert "margin" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # refused by the option's type (tests/test_numbers.py)
+        main(["displacement", *files, "--margin", "0.5", "--out", str(out)])
+    assert "argument --margin: '0.5'; expected a finite number >= 1" in capsys.readouterr().err
     nowhere = str(tmp_path / "no" / "such" / "d.json")  # a folder that does not exist
     assert main(["displacement", *files, "--out", nowhere]) == 2
     assert "cannot write parameter set 'bench_work' to " in capsys.readouterr().err

@@ -92,10 +92,13 @@ def test_report_refuses_bad_input_before_writing(tmp_path: Path, capsys) -> None
     from sara_app.cli import main
 
     out = tmp_path / "r.html"
-    for extra, why in ((["--modes", "ssm,fly"], "valid choices"),
-                       (["--episodes", "-1"], "expected >= 0")):  # fmt: skip
-        assert main(["report", "close_worker", "--out", str(out), *extra]) == 2
-        assert why in capsys.readouterr().err and not out.exists()
+    assert main(["report", "close_worker", "--out", str(out), "--modes", "ssm,fly"]) == 2
+    assert "valid choices" in capsys.readouterr().err and not out.exists()
+    for extra in (["--episodes", "-1"], ["--duration", "-1"], ["--duration", "nan"]):
+        with pytest.raises(SystemExit) as e:  # refused by the option's type, before anything
+            main(["report", "close_worker", "--out", str(out), *extra])
+        assert e.value.code == 2 and not out.exists()
+        assert f"argument {extra[0]}: '{extra[1]}'; expected" in capsys.readouterr().err
     assert main(["report", "no_such_cell", "--out", str(out)]) != 0
     assert "no_such_cell" in capsys.readouterr().err and not out.exists()
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from sara_app.commands._numbers import COUNT, SECONDS, real, whole
+
 
 def _bench(args: argparse.Namespace) -> None:
     from sara_app import bench
@@ -44,7 +46,7 @@ def _bench(args: argparse.Namespace) -> None:
 
 def register(sub: argparse._SubParsersAction) -> None:
     b = sub.add_parser("bench", help="median and p99 of the hot-path stages")
-    b.add_argument("-n", type=int, default=2000, help="calls per stage")
+    b.add_argument("-n", type=COUNT, default=2000, help="calls per stage")
     b.add_argument(
         "--view",
         action="store_true",
@@ -75,14 +77,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     b.add_argument(
         "--hogs",
-        type=int,
+        type=whole(0),
         default=None,
         help="--lanes: busy processes beside the publisher (default: 2 per CPU)",
     )
-    b.add_argument("--lane-rounds", type=int, default=2000, help="--lanes: cycles per run")
-    b.add_argument("--people", type=int, nargs="+", default=[1, 4], help="loads of --live")
-    b.add_argument("--seconds", type=float, default=10.0, help="seconds per --live phase")
-    b.add_argument("--runs", type=int, default=3, help="runs per --live load (and of --lanes)")
+    b.add_argument("--lane-rounds", type=COUNT, default=2000, help="--lanes: cycles per run")
+    b.add_argument("--people", type=COUNT, nargs="+", default=[1, 4], help="loads of --live")
+    b.add_argument("--seconds", type=SECONDS, default=10.0, help="seconds per --live phase")
+    b.add_argument("--runs", type=COUNT, default=3, help="runs per --live load (and of --lanes)")
     b.add_argument("--pin-cpus", action=argparse.BooleanOptionalAction, default=True,
                    help="--live, --view: CPUs as serve places them")  # fmt: skip
     b.add_argument("--robot-encoding", choices=("compact", "json"), default="compact",
@@ -96,9 +98,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="--live: the idle CPUs poll instead of halting while it measures (a CPU latency "
         "request of 0 us: write access to /dev/cpu_dma_latency)",
     )
-    b.add_argument("--rate", type=float, default=120.0, help="skeletons per second of --cells")
-    b.add_argument("--clients", type=int, default=50, help="event streams of --sse")
+    b.add_argument(
+        "--rate", type=real(above=0.0), default=120.0, help="skeletons per second of --cells"
+    )
+    b.add_argument("--clients", type=COUNT, default=50, help="event streams of --sse")
     b.add_argument("--scenario", default="punches", help="scenario of --view and --live")
-    b.add_argument("--phase-s", type=float, default=6.0, help="seconds per --view phase")
-    b.add_argument("--rounds", type=int, default=2, help="off/on rounds of --view")
+    b.add_argument("--phase-s", type=SECONDS, default=6.0, help="seconds per --view phase")
+    b.add_argument("--rounds", type=COUNT, default=2, help="off/on rounds of --view")
     b.set_defaults(run=_bench)

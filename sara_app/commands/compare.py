@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from sara_app.commands._numbers import SECONDS
+
 
 def _compare(args: argparse.Namespace) -> int:
     from sara_app.errors import UnknownNameError
@@ -35,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--modes", nargs="+", default=None, help="subset of: ssm pfl jssa")
     p.add_argument(
         "--duration",
-        type=float,
+        type=SECONDS,
         default=None,
         help="seconds per run (default: each scenario's duration); a run ends at the goal",
     )

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from sara_app.commands._numbers import COUNT, FRACTION, SECONDS, SEED, real
+
 
 def _params(args: argparse.Namespace, **over: object):  # -> JssaParams
     from sara_app.safety.jssa import make_params
@@ -74,11 +76,11 @@ def _feasibility(args: argparse.Namespace) -> int:
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--d-min", type=float, default=0.05, help="d_min in m (seed: 0.05)")
-    p.add_argument("--lambda-1", type=float, default=3.0)
-    p.add_argument("--lambda-2", type=float, default=1.0)
+    p.add_argument("--d-min", type=real(low=0.0), default=0.05, help="d_min in m (seed: 0.05)")
+    p.add_argument("--lambda-1", type=real(above=0.0), default=3.0)
+    p.add_argument("--lambda-2", type=real(above=0.0), default=1.0)
     p.add_argument("--mode", choices=("single", "multi"), default="single")
-    p.add_argument("--jerk-scale", type=float, default=1.0, help="fraction of the jerk limits")
+    p.add_argument("--jerk-scale", type=FRACTION, default=1.0, help="fraction of the jerk limits")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -86,11 +88,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "jssa-study", help="Liu et al. 2022 simulation study: profile, Table 1, vs SSA"
     )
     _common(s)
-    s.add_argument("--duration", type=float, default=7.0, help="seconds (default 7)")
+    s.add_argument("--duration", type=SECONDS, default=7.0, help="seconds (default 7)")
     s.add_argument("--lambdas", default="6,7,8", help="values for the sensitivity table")
     s.add_argument(
         "--paper-jerk-scale",
-        type=float,
+        type=FRACTION,
         default=0.01,
         help="jerk scale for the paper-like JSSA/SSA comparison (0.01: Panda bounds ~ FANUC's)",
     )
@@ -100,9 +102,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     f = sub.add_parser("jssa-feasibility", help="check Liu et al. 2022 eq. 7 by sampling states")
     _common(f)
     f.add_argument("--robot", default="panda")
-    f.add_argument("--samples", type=int, default=2000)
-    f.add_argument("--seed", type=int, default=0)
-    f.add_argument("--dt", type=float, default=0.008, help="control cycle in s")
-    f.add_argument("--human-speed", type=float, default=1.6, help="m/s")
-    f.add_argument("--state-fraction", type=float, default=0.5, help="of v_max and a_max")
+    f.add_argument("--samples", type=COUNT, default=2000)
+    f.add_argument("--seed", type=SEED, default=0)
+    f.add_argument("--dt", type=SECONDS, default=0.008, help="control cycle in s")
+    f.add_argument("--human-speed", type=real(low=0.0), default=1.6, help="m/s")
+    f.add_argument(
+        "--state-fraction", type=real(low=0.0, high=1.0), default=0.5, help="of v_max and a_max"
+    )
     f.set_defaults(run=_feasibility)

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import argparse
 
+from sara_app.commands._numbers import COUNT, SECONDS, SEED
+
 
 def _episodes(args: argparse.Namespace) -> int:
     from sara_app.sim.episodes import run_episodes
@@ -39,14 +41,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("pfl", help="power and force limiting: adversarial episodes, throughput")
     s = p.add_subparsers(dest="pfl_command", required=True)
     e = s.add_parser("episodes", help="randomised adversarial episodes under the PFL shield")
-    e.add_argument("--n", type=int, default=200, help="number of episodes")
-    e.add_argument("--seed", type=int, default=0)
-    e.add_argument("--duration", type=float, default=3.0, help="seconds per episode")
+    e.add_argument("--n", type=COUNT, default=200, help="number of episodes")
+    e.add_argument("--seed", type=SEED, default=0)
+    e.add_argument("--duration", type=SECONDS, default=3.0, help="seconds per episode")
     e.add_argument("--quiet", action="store_true")
     e.set_defaults(run=_episodes)
     t = s.add_parser("throughput", help="SSM versus PFL on the shipped scenarios (a table)")
     t.add_argument("scenarios", nargs="*", help="scenario names (default: all shipped)")
     t.add_argument("--modes", nargs="+", default=["ssm", "pfl"], choices=["ssm", "pfl", "jssa"])
-    t.add_argument("--duration", type=float, default=None, help="horizon s (default: scenario's)")
+    t.add_argument("--duration", type=SECONDS, default=None, help="horizon s (default: scenario's)")
     t.add_argument("--quiet", action="store_true")
     t.set_defaults(run=_throughput)

@@ -7,6 +7,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from sara_app.commands._numbers import SECONDS, real
 from sara_app.human.model_names import MODELS
 
 if TYPE_CHECKING:
@@ -115,7 +116,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="a .amc (with its .asf beside it), a .bvh, a .csv, or a name like 02_01 or 62_03",
     )
     r.add_argument(
-        "--horizon", type=float, default=0.3, help="seconds after each frame (default 0.3)"
+        "--horizon", type=SECONDS, default=0.3, help="seconds after each frame (default 0.3)"
     )
     r.add_argument("--params", default="bench_work", help="parameter set name or JSON path")
     r.add_argument("--models", type=_models, default=list(MODELS), help="comma-separated")
@@ -134,12 +135,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     c = sub.add_parser("calibrate", help="fit per-joint bounds so the models contain recordings")
     c.add_argument("recordings", nargs="+")
-    c.add_argument("--horizon", type=float, default=0.5)
+    c.add_argument("--horizon", type=SECONDS, default=0.5)
     c.add_argument("--base", default="schepp2022_table1")
     c.add_argument("--name", default="calibrated")
     c.add_argument(
         "--delta-y",
-        type=float,
+        type=real(low=0.0),
         default=None,
         help="the tracker's noise bound in m (default: the base set's); fitted apart from the "
         "bounds: the report shows each joint's one-frame chord deviation to choose it",
@@ -159,14 +160,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     c.add_argument(
         "--max-speed",
-        type=float,
+        type=real(above=0.0),
         default=None,
         help="ceiling of a person's joint speed in m/s (with --max-acc): reconstruction "
         "failures beyond it are split off the recordings before fitting, and listed",
     )
     c.add_argument(
         "--max-acc",
-        type=float,
+        type=real(above=0.0),
         default=None,
         help="ceiling of a joint's one-frame acceleration in m/s^2 beyond the tracker noise "
         "(with --max-speed)",
@@ -206,18 +207,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     d.add_argument("recordings", nargs="+", help="recordings of the activity (names or files); "
                    "NAME@walking: that recording's walking pieces alone")  # fmt: skip
     d.add_argument("--params", default="bench_work", help="the parameter set to add it to")
-    d.add_argument("--margin", type=float, default=1.0,
+    d.add_argument("--margin", type=real(low=1.0), default=1.0,
                    help="factor on the fitted table (>= 1; default 1: as fitted)")  # fmt: skip
-    d.add_argument("--floor-speed", type=float, default=2.0,
+    d.add_argument("--floor-speed", type=real(low=0.0, high=20.0), default=2.0,
                    help="m/s: every bounded joint may keep up at least this speed (default 2.0, "
                    "ISO 13855's approach speed: the CMU walk 02_01 stays within it)")  # fmt: skip
     d.add_argument("--with-legs", action="store_true",
                    help="bound the legs too (default: the upper body only; standing work moves "
                    "the legs little, so a walk past would be a violation)")  # fmt: skip
-    d.add_argument("--max-speed", type=float, default=None,
+    d.add_argument("--max-speed", type=real(above=0.0), default=None,
                    help="with --max-acc: reconstruction failures beyond these ceilings are "
                    "split off first (as for calibrate)")  # fmt: skip
-    d.add_argument("--max-acc", type=float, default=None)
+    d.add_argument("--max-acc", type=real(above=0.0), default=None)
     d.add_argument("--out", type=Path, required=True, help="the parameter set written (JSON)")
     _recording_options(d)
     d.set_defaults(run=_displacement)

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from sara_app.commands._numbers import SECONDS, whole
 from sara_app.processes.defaults import API_PORT
 
 
@@ -33,9 +34,6 @@ def _file_report(args: argparse.Namespace) -> int:
     bad = [m for m in modes if m not in MODES]
     if bad or not modes:
         print(f"error: --modes {args.modes!r}; valid choices: {', '.join(MODES)}", file=sys.stderr)
-        return 2
-    if args.episodes < 0:
-        print(f"error: --episodes {args.episodes}; expected >= 0", file=sys.stderr)
         return 2
     audit = args.audit
     if audit is None and default_audit_path().exists():
@@ -145,9 +143,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--recording", action="append", default=[],
                    help="a further recording to check containment on (repeatable)")  # fmt: skip
     r.add_argument("--modes", default="ssm,pfl,jssa", help="closed loops to run")
-    r.add_argument("--duration", type=float, default=None,
+    r.add_argument("--duration", type=SECONDS, default=None,
                    help="seconds per closed loop (default: the scenario's)")  # fmt: skip
-    r.add_argument("--episodes", type=int, default=5, help="adversarial episodes per mode")
+    r.add_argument("--episodes", type=whole(0), default=5, help="adversarial episodes per mode")
     r.add_argument("--audit", type=Path, default=None,
                    help="audit database (default: the dashboard's, if it exists)")  # fmt: skip
     r.add_argument("--cell", default=None,

@@ -7,6 +7,8 @@ import argparse
 import json
 from pathlib import Path
 
+from sara_app.commands._numbers import COUNT, SECONDS, SEED
+
 
 def _run(args: argparse.Namespace) -> int:
     from sara_app.safety.settings import mode_facts
@@ -66,14 +68,14 @@ def _adversarial(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     r = sub.add_parser("run", help="run a scenario in closed-loop simulation and print metrics")
     r.add_argument("scenario", help="a name in scenarios/ (or 'all'), or a scenario file path")
-    r.add_argument("--duration", type=float, default=None, help="seconds (default: scenario's)")
+    r.add_argument("--duration", type=SECONDS, default=None, help="seconds (default: scenario's)")
     r.add_argument("--series", type=Path, default=None, help="write a JSONL time series")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.set_defaults(run=_run)
 
     a = sub.add_parser("adversarial", help="randomised adversarial episodes; counts collisions")
-    a.add_argument("--episodes", type=int, default=200)
-    a.add_argument("--seed", type=int, default=0)
-    a.add_argument("--duration", type=float, default=3.0, help="seconds per episode")
+    a.add_argument("--episodes", type=COUNT, default=200)
+    a.add_argument("--seed", type=SEED, default=0)
+    a.add_argument("--duration", type=SECONDS, default=3.0, help="seconds per episode")
     a.add_argument("--quiet", action="store_true")
     a.set_defaults(run=_adversarial)

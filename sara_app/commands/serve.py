@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import argparse
 
+from sara_app.commands._numbers import COUNT, PORT, SECONDS
+
 
 def _serve(args: argparse.Namespace) -> int:
     from sara_app.ops.compile_notice import compile_notice
@@ -78,14 +80,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--scenario", default=DEFAULT_SCENARIO, help="a name in scenarios/ or a file")
     s.add_argument("--cell", default="cell1", help="the cell's name (its key on the bus, its URL)")
     s.add_argument(
-        "--cells", type=int, default=1, help="run this many cells (cell1, cell2, ...) on one router"
+        "--cells",
+        type=COUNT,
+        default=1,
+        help="run this many cells (cell1, cell2, ...) on one router",
     )
-    s.add_argument("--zenoh-port", type=int, default=ZENOH_PORT,
+    s.add_argument("--zenoh-port", type=PORT, default=ZENOH_PORT,
                    help="the zenoh router's port on 127.0.0.1 (the cell's bus)")  # fmt: skip
-    s.add_argument("--viewer-port", type=int, default=VIEWER_PORT, help="the 3D view's port")
-    s.add_argument("--api-port", type=int, default=API_PORT,
+    s.add_argument("--viewer-port", type=PORT, default=VIEWER_PORT, help="the 3D view's port")
+    s.add_argument("--api-port", type=PORT, default=API_PORT,
                    help="the REST service's and landing page's port")  # fmt: skip
-    s.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    s.add_argument("--duration", type=SECONDS, default=None, help="stop after this many seconds")
     s.add_argument("--pin-cpus", action=argparse.BooleanOptionalAction, default=True,
                    help="each worker on a CPU of its own where there are more CPUs than cells, "
                    "the rest on the others")  # fmt: skip
@@ -111,13 +116,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     o.add_argument("--cell", action="append", default=[], help="a cell to show (repeatable)")
     o.add_argument("--router-host", default="127.0.0.1", help="the zenoh router's address")
-    o.add_argument("--zenoh-port", type=int, default=ZENOH_PORT, help="the router's port")
+    o.add_argument("--zenoh-port", type=PORT, default=ZENOH_PORT, help="the router's port")
     o.add_argument("--credentials", default=None, help="the cells' zenoh credentials file")
-    o.add_argument("--viewer-port", type=int, default=VIEWER_PORT, help="the 3D view's port")
-    o.add_argument("--api-port", type=int, default=API_PORT, help="the REST service's port")
+    o.add_argument("--viewer-port", type=PORT, default=VIEWER_PORT, help="the 3D view's port")
+    o.add_argument("--api-port", type=PORT, default=API_PORT, help="the REST service's port")
     o.add_argument("--api-host", default="127.0.0.1", help="address of the REST service")
     o.add_argument("--require-token", action="store_true", help="require an API token always")
-    o.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    o.add_argument("--duration", type=SECONDS, default=None, help="stop after this many seconds")
     o.set_defaults(run=_observe)
 
     for name, run, text in (
@@ -127,9 +132,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         w = sub.add_parser(name, help=text, formatter_class=fmt)
         w.add_argument("--scenario", default=DEFAULT_SCENARIO, help="a name in scenarios/, a file")
         w.add_argument("--cell", default="cell1", help="the cell's name")
-        w.add_argument("--zenoh-port", type=int, default=ZENOH_PORT, help="the router's port")
+        w.add_argument("--zenoh-port", type=PORT, default=ZENOH_PORT, help="the router's port")
         w.add_argument("--router-host", default="127.0.0.1", help="the zenoh router's address")
-        w.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+        w.add_argument(
+            "--duration", type=SECONDS, default=None, help="stop after this many seconds"
+        )
         w.add_argument("--credentials", default=None, help="serve's zenoh credentials file")
         w.add_argument("--user", default=name, help="the zenoh user (role) to log in as")
         w.add_argument("--robot-encoding", choices=("compact", "json"), default="compact",

@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from sara_app.commands._numbers import SECONDS, SEED
+
 RECOVERY_GRACE_S = 10.0
 """Faults this close to the end of a run are not held against it (a worker restarts in about
 5 s)."""
@@ -37,11 +39,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "soak",
         help="the default cell for a long time (--chaos: killing and stopping its processes)",
     )
-    s.add_argument("--duration", type=float, default=1800.0, help="seconds (default 30 min)")
+    s.add_argument("--duration", type=SECONDS, default=1800.0, help="seconds (default 30 min)")
     s.add_argument("--chaos", action="store_true", help="kill -9 or SIGSTOP a random process")
-    s.add_argument("--chaos-every", type=float, default=5.0, help="seconds between faults")
-    s.add_argument("--sample", type=float, default=None, help="seconds between samples")
+    s.add_argument("--chaos-every", type=SECONDS, default=5.0, help="seconds between faults")
+    s.add_argument("--sample", type=SECONDS, default=None, help="seconds between samples")
     s.add_argument("--scenario", default=None, help="scenario (default: serve's default)")
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--seed", type=SEED, default=0)
     s.add_argument("--out", default="soak", help="folder for soak.md, soak.json, soak.png")
     s.set_defaults(run=_soak)
