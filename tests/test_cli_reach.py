@@ -109,6 +109,10 @@ def test_every_offline_command_refuses_a_recording_too_short_to_say_anything(
     """One or two frames: no acceleration (and with one no velocity) to check or fit. Each
     command said "nan %" or ended in a ValueError or a KeyError; now each refuses, naming the
     recording and the frames it needs."""
+    from sara_app.errors import RecordingError
+    from sara_app.human.params import load_param_set
+    from sara_app.report.evidence import _containment_rows
+
     short, ok = _frames(tmp_path, n), _csv(tmp_path)
     out = str(tmp_path / "o.json")
     for args in (["reach", short], ["volumes", short], ["calibrate", short, str(ok), "--out", out],
@@ -117,6 +121,8 @@ def test_every_offline_command_refuses_a_recording_too_short_to_say_anything(
         assert main(args) == 2, args
         err = capsys.readouterr().err
         assert f"recording 'short' has {n} frame(s)" in err and "at least 3" in err, (args, err)
+    with pytest.raises(RecordingError, match="has 2 frame"):  # the evidence report's too
+        _containment_rows(load_param_set("bench_work"), ("pos",), [_frames(tmp_path, 2)])
 
 
 def test_a_horizon_shorter_than_a_frame_checks_nothing_and_says_so(tmp_path, capsys) -> None:

@@ -149,3 +149,19 @@ def test_the_report_lists_what_the_worker_answered_and_marks_its_configuration(
     assert "<b>3 answered requests could not be recorded</b>" in page
     ev.worker_answers = log.worker_answers("cell2")
     assert "None recorded for this cell" in _worker_answers(ev)
+
+
+def test_a_containment_row_of_nothing_checked_claims_nothing() -> None:
+    """A recording whose frames lie further apart than a horizon has no future position within
+    it: the row said "100 %" (contained == checked == 0), green; it says "nothing checked"."""
+    from types import SimpleNamespace
+
+    from sara_app.report.html import _containment
+
+    row = {"recording": "sparse", "model": "vel", "horizon_s": 0.1, "checked": 0,
+           "contained": 0, "share": float("nan"), "misses_per_joint": {}, "worst_m": 0.0,
+           "monitor_violations": 0, "unflagged": 0}  # fmt: skip
+    page = _containment(SimpleNamespace(containment=[row]))  # type: ignore[arg-type]
+    assert '<span class="bad">nothing checked</span>' in page and 'class="ok"' not in page
+    page = _containment(SimpleNamespace(containment=[row | {"checked": 5, "contained": 5}]))
+    assert '<span class="ok">100 %</span>' in page

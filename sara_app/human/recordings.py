@@ -171,6 +171,21 @@ def load_csv(path: str | os.PathLike[str]) -> Recording:
 
 # --- dispatch ------------------------------------------------------------------------------
 
+MIN_FRAMES = 3
+"""Frames a recording needs to be analysed (containment, volumes, fits): a velocity takes two,
+an acceleration three; with fewer, no model's containment, volume or bound says anything."""
+
+
+def require_frames(rec: Recording) -> Recording:
+    """``rec``, refused (:class:`RecordingError`) with fewer than :data:`MIN_FRAMES` frames."""
+    if rec.n_frames < MIN_FRAMES:
+        raise RecordingError(
+            f"recording {rec.name!r} has {rec.n_frames} frame(s); its analysis needs at least "
+            f"{MIN_FRAMES} (a velocity takes two frames, an acceleration three)"
+        )
+    return rec
+
+
 _SUFFIXES = (".amc", ".bvh", ".csv")
 
 

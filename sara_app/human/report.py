@@ -27,7 +27,7 @@ from sara_app.human.failures import Ceilings, describe, split
 from sara_app.human.intake import screen_recording
 from sara_app.human.params import ParamSet, load_param_set, save_param_set, to_reach_params
 from sara_app.human.reach import MODELS, HumanReach
-from sara_app.human.recordings import Recording, load_recording
+from sara_app.human.recordings import Recording, load_recording, require_frames
 from sara_app.human.segments import MIN_DURATION_S, MIN_SPEED_MPS, walking_pieces
 from sara_app.human.sound_record import MARGIN_KEYS
 from sara_app.human.validation import (
@@ -129,21 +129,6 @@ Load = Callable[[str], Recording]
 """How a command reads a recording by path or name (:func:`load_recording` with the user's
 options)."""
 
-MIN_FRAMES = 3
-"""Frames a recording needs for the offline commands: a velocity takes two, an acceleration
-three; with fewer, no model's containment, volume or bound says anything."""
-
-
-def _analysable(load: Load, name: str) -> Recording:
-    """``load(name)``, refused (:class:`InputError`) with fewer than :data:`MIN_FRAMES` frames."""
-    rec = load(name)
-    if rec.n_frames < MIN_FRAMES:
-        raise InputError(
-            f"recording {rec.name!r} has {rec.n_frames} frame(s); the offline commands need at "
-            f"least {MIN_FRAMES} (a velocity takes two frames, an acceleration three)"
-        )
-    return rec
-
 
 WALKING_SUFFIX = "@walking"
 """A recording named ``<name>@walking``: its walking pieces alone (``sara-app calibrate``)."""
@@ -170,7 +155,7 @@ def reach_command(
 ) -> dict[str, Containment]:
     if not (np.isfinite(horizon_s) and horizon_s > 0):
         raise InputError(f"horizon {horizon_s} s; expected a finite value > 0")
-    rec = _analysable(load, recording)
+    rec = require_frames(load(recording))
     ps = load_param_set(params)
     reach = HumanReach(to_reach_params(ps, rec.kind))
     # every input error comes before anything is written
@@ -205,7 +190,7 @@ def volume_table(
 ) -> dict[str, list[float]]:
     """Mean set volume per model and horizon (the trend of Schepp et al. 2022 Fig. 7), optional
     PNG."""
-    rec = _analysable(load, recording)
+    rec = require_frames(load(recording))
     ps = load_param_set(params)
     reach = HumanReach(to_reach_params(ps, rec.kind))
     columns = [*models, EFFECTIVE] if len(models) > 1 else list(models)
@@ -305,7 +290,7 @@ def _fit_pieces(
     reconstruction failures under ``ceilings`` split off; a recording without a walking piece
     is left out (and said so). Also the failures' lines."""
     walk = [walking or r.endswith(WALKING_SUFFIX) for r in recordings]
-    recs = [_analysable(load, r.removesuffix(WALKING_SUFFIX)) for r in recordings]
+    recs = [require_frames(load(r.removesuffix(WALKING_SUFFIX))) for r in recordings]
     walks = [walking_or_whole(r, w) for r, w in zip(recs, walk)]
     keep = [i for i, pieces_ in enumerate(walks) if pieces_]
     recs, walks, walk = [recs[i] for i in keep], [walks[i] for i in keep], [walk[i] for i in keep]
@@ -449,7 +434,7 @@ def legs_command(
     recs, sources = [], []
     for name in recordings:
         given = name.removesuffix(WALKING_SUFFIX)  # as given: two files may share a name
-        rec = _analysable(load, given)
+        rec = require_frames(load(given))
         parts = walking_or_whole(rec, name.endswith(WALKING_SUFFIX))
         recs += parts
         sources += [given] * len(parts)

@@ -34,7 +34,7 @@ from sara_app.human.analysis import containment
 from sara_app.human.intake import screen_recording
 from sara_app.human.params import ParamSet, to_reach_params
 from sara_app.human.reach import HumanReach
-from sara_app.human.recordings import load_recording
+from sara_app.human.recordings import load_recording, require_frames
 from sara_app.ops.audit import AuditLog
 from sara_app.ops.threshold_edit import threshold_view
 from sara_app.report.stopping import stop_rows
@@ -100,7 +100,7 @@ def _containment_rows(
     (an upper-body recording gets the upper-body sets)."""
     rows = []
     for name in names:
-        rec = load_recording(name)
+        rec = require_frames(load_recording(name))
         reach = HumanReach(to_reach_params(ps, rec.kind))
         scr = screen_recording(reach.params, rec)
         for h in HORIZONS_S:

@@ -89,8 +89,9 @@ def _containment_plot(ev: Evidence) -> str:
     fig, ax = _pyplot().subplots(figsize=(8, 3))
     models = sorted({r["model"] for r in ev.containment})
     for i, h in enumerate(HORIZONS_S):
-        vals = [min((r["share"] for r in ev.containment
-                     if r["model"] == m and r["horizon_s"] == h), default=float("nan"))
+        vals = [min((r["share"] for r in ev.containment  # rows of nothing checked have none
+                     if r["model"] == m and r["horizon_s"] == h and r["checked"]),
+                    default=float("nan"))
                 for m in models]  # fmt: skip
         ax.bar([x + 0.25 * i for x in range(len(models))], [100 * v for v in vals], 0.25,
                label=f"{h} s")  # fmt: skip
@@ -171,8 +172,11 @@ def _configuration_head(sc: dict, ps: dict, joints: str) -> str:
 def _containment(ev: Evidence) -> str:
     rows = []
     for r in ev.containment:
-        ok = r["contained"] == r["checked"]
-        share = "100 %" if ok else f"{math.floor(100_000 * r['share']) / 1000:.3f} %"
+        ok = r["contained"] == r["checked"] > 0  # a share of nothing is no containment
+        if not r["checked"]:
+            share = "nothing checked"
+        else:
+            share = "100 %" if ok else f"{math.floor(100_000 * r['share']) / 1000:.3f} %"
         misses = ", ".join(f"{j} {n}" for j, n in r["misses_per_joint"].items()) or "none"
         rows.append((
             _e(r["recording"]), _e(r["model"]), _num(r["horizon_s"], ".1f", " s"),
