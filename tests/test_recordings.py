@@ -306,6 +306,23 @@ def test_csv_errors(tmp_path: Path) -> None:
         load_csv(tmp_path / "missing.csv")
 
 
+def test_a_csv_timed_in_milliseconds_is_refused(tmp_path: Path) -> None:
+    """``time_s`` in milliseconds reads as motion a thousand times slower: a set fitted to it
+    would be a thousand times too small. Frames further apart than 0.5 s or closer than 0.1 ms
+    (median) are refused, naming the interval; a 2 Hz and a 10 kHz file are read."""
+    h, p = _upper_header(), tmp_path / "t.csv"
+    cases = ((["0", "16.7", "33.3"], False), (["0", "1", "2"], False),
+             (["0", "0.5", "1.0"], True), (["0", "0.0001", "0.0002"], True),
+             (["0", "1e-6", "2e-6"], False), (["0", "0.0167", "0.0333"], True))  # fmt: skip
+    for times, ok in cases:
+        _write(p, h, [_row(t) for t in times])
+        if ok:
+            assert load_csv(p).n_frames == 3
+        else:
+            with pytest.raises(RecordingError, match=r"frames are .* s apart.*milliseconds"):
+                load_csv(p)
+
+
 def test_load_recording_rejects_unknown_type(tmp_path: Path) -> None:
     p = tmp_path / "x.c3d"
     p.write_text("HIERARCHY\n")
