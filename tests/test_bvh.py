@@ -164,6 +164,22 @@ def test_a_non_finite_channel_is_refused_naming_its_frame(
                                [_frame((0, 90, 0), 0, n)] * 4, 0.01)).kind == "full"  # fmt: skip
 
 
+@pytest.mark.parametrize("dt, ok", [(8.333, False), (1.0, False), (1e-9, False), (0.5, True),
+                                    (1e-4, True), (0.0083333, True)])  # fmt: skip
+def test_a_frame_time_no_tracker_has_is_refused(tmp_path: Path, dt: float, ok: bool) -> None:
+    """A Frame Time in milliseconds (8.333 for 120 Hz) read as motion a thousand times slower
+    (a set fitted to it a thousand times too small); one of a nanosecond put every frame within
+    one horizon and `reach` did not end. Outside 0.1 ms to 0.5 s: refused, naming it."""
+    n = len(CMU_CM)
+    path = _write_bvh(tmp_path / "t.bvh", CMU_CM, {"Head": HEAD_END},
+                      [_frame((0, 90, 0), 0, n)] * 4, dt)  # fmt: skip
+    if ok:
+        assert load_bvh(path).times_s[1] == pytest.approx(dt, rel=1e-3)  # 120 Hz: snapped
+    else:
+        with pytest.raises(RecordingError, match=r"frames are .* s apart.*Frame Time in seconds"):
+            load_bvh(path)
+
+
 def test_a_t_pose_first_frame_is_dropped(tmp_path: Path) -> None:
     tpose = dict(CMU_CM)
     n = len(tpose)

@@ -60,7 +60,7 @@ from pathlib import Path
 import numpy as np
 
 from sara_app.errors import InputError, RecordingError
-from sara_app.human.recording import Recording
+from sara_app.human.recording import Recording, check_frame_interval
 from sara_app.human.skeleton import FULL_JOINTS, UPPER_JOINTS
 
 UNITS: dict[str, float] = {
@@ -141,6 +141,7 @@ def _read(path: Path) -> tuple[list[str], np.ndarray, np.ndarray, float]:
     dt = float(b.frame_time)
     if not (math.isfinite(dt) and dt > 0):
         raise RecordingError(f"BVH file {path.name!r}: frame time {dt!r}; expected > 0 s")
+    check_frame_interval(dt, f"BVH file {path.name!r}", "its Frame Time")
     return names, pos, rest, dt
 
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sara_app.errors import InputError
+from sara_app.errors import InputError, RecordingError
 from sara_app.human.skeleton import KINDS, skeleton
 
 # --- the recording -------------------------------------------------------------------------
@@ -85,6 +85,25 @@ class Recording:
             times_s=self.times_s[a:b].copy(),
             positions_m=self.positions_m[a:b].copy(),
             source=f"{self.source}; frames {a}:{b}" if self.source else f"frames {a}:{b}",
+        )
+
+
+FRAME_INTERVAL_S = (1e-4, 0.5)
+"""The frame interval a recording file may give (s; a CSV's median): a tracker at 10 kHz to
+2 Hz. Times in milliseconds read as motion a thousand times slower, and a set fitted to it
+would be a thousand times too small; times a million times too short put every frame of a
+recording within one horizon (an analysis of T^2 pairs that does not end)."""
+
+
+def check_frame_interval(step_s: float, what: str, field: str) -> None:
+    """Raise :class:`RecordingError` unless ``step_s`` lies in :data:`FRAME_INTERVAL_S`;
+    ``what`` names the file, ``field`` where it gives its times."""
+    lo, hi = FRAME_INTERVAL_S
+    if not lo <= step_s <= hi:
+        raise RecordingError(
+            f"{what}: its frames are {step_s:.4g} s apart ({1.0 / step_s:.4g} Hz); expected "
+            f"{lo:g} to {hi:g} s, a tracker at 2 Hz to 10 kHz: is {field} in seconds (not "
+            "milliseconds)?"
         )
 
 

@@ -26,7 +26,7 @@ import numpy as np
 from sara_app.errors import InputError, RecordingError
 from sara_app.human.bvh import load_bvh
 from sara_app.human.cmu import load_cmu
-from sara_app.human.recording import Recording, validate
+from sara_app.human.recording import Recording, check_frame_interval, validate
 from sara_app.human.skeleton import FULL_JOINTS, UPPER_JOINTS, skeleton
 
 _AXES = "xyz"
@@ -61,12 +61,6 @@ def shared_data_dir() -> Path:
 
 
 # --- CSV -----------------------------------------------------------------------------------
-
-
-FRAME_INTERVAL_S = (1e-4, 0.5)
-"""The median frame interval a CSV recording may have (s): a tracker at 10 kHz to 2 Hz. A time
-column in milliseconds reads as motion a thousand times slower, and a set fitted to it would be
-a thousand times too small; the file is refused instead."""
 
 
 def _csv_columns(joints: tuple[str, ...]) -> list[str]:
@@ -162,13 +156,8 @@ def load_csv(path: str | os.PathLike[str]) -> Recording:
             f"CSV file {p.name!r}: time_s not strictly increasing: {times[r]!r} at line {r + 2} "
             f"then {times[r + 1]!r} at line {r + 3}"
         )
-    step_s = float(np.median(dt)) if len(dt) else None
-    if step_s is not None and not FRAME_INTERVAL_S[0] <= step_s <= FRAME_INTERVAL_S[1]:
-        raise RecordingError(
-            f"CSV file {p.name!r}: its frames are {step_s:.4g} s apart (median; "
-            f"{1.0 / step_s:.4g} Hz); expected {FRAME_INTERVAL_S[0]:g} to {FRAME_INTERVAL_S[1]:g} "
-            "s, a tracker at 2 Hz to 10 kHz: is time_s in seconds (not milliseconds)?"
-        )
+    if len(dt):
+        check_frame_interval(float(np.median(dt)), f"CSV file {p.name!r}", "time_s")
     n_j = skeleton(kind).n_joints
     try:
         return Recording(
