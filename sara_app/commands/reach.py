@@ -24,21 +24,16 @@ def _models(text: str) -> list[str]:
 
 
 def _horizons(text: str) -> list[float]:
-    """``--horizons``: comma-separated seconds, each finite and > 0."""
-    import math
-
+    """``--horizons``: comma-separated seconds, each as :data:`SECONDS` takes it."""
     out = []
     for h in text.split(","):
         try:
-            v = float(h)
-        except ValueError:
-            v = math.nan
-        if not (math.isfinite(v) and v > 0):
+            out.append(SECONDS(h))
+        except argparse.ArgumentTypeError:
             raise argparse.ArgumentTypeError(
                 f"horizon {h.strip()!r}; expected comma-separated seconds, each finite and > 0 "
                 "(for example 0.1,0.2,0.5)"
-            )
-        out.append(v)
+            ) from None
     return out
 
 

@@ -267,8 +267,10 @@ def calibrate(
     measured with the fitted bounds in force (under them no joint jumps, so the monitor checks
     every joint) and the bounds raised until they cover them.
     """
-    if not any(len(_pairs(r, horizon_s)[0]) for r in recs):
-        gaps = [float(np.min(np.diff(r.times_s))) for r in recs if r.n_frames > 1]
+    # a frame pair within the horizon (what the fits take, ``_pairs``) exists where the shortest
+    # frame interval is within it
+    gaps = [float(np.min(np.diff(r.times_s))) for r in recs if r.n_frames > 1]
+    if not (gaps and min(gaps) <= horizon_s + 1e-12):
         raise InputError(
             f"no two frames of the recordings lie within the horizon {horizon_s} s"
             + (f" (their shortest frame interval is {min(gaps):.4g} s)" if gaps else "")

@@ -94,6 +94,12 @@ def in_use(models: Sequence[str]) -> tuple[str, ...]:
     return used or tuple(models)
 
 
+def _check_horizon(horizon_s: float) -> None:
+    """Refuse (:class:`InputError`) a horizon that is not a finite number of seconds > 0."""
+    if not (np.isfinite(horizon_s) and horizon_s > 0):
+        raise InputError(f"horizon {horizon_s} s; expected a finite value > 0")
+
+
 def _excess(excess_m: float) -> str:
     """A miss's distance outside the set, in words."""
     if not np.isfinite(excess_m):
@@ -153,8 +159,7 @@ def reach_command(
     models: Sequence[str],
     load: Load = load_recording,
 ) -> dict[str, Containment]:
-    if not (np.isfinite(horizon_s) and horizon_s > 0):
-        raise InputError(f"horizon {horizon_s} s; expected a finite value > 0")
+    _check_horizon(horizon_s)
     rec = require_frames(load(recording))
     ps = load_param_set(params)
     reach = HumanReach(to_reach_params(ps, rec.kind))
@@ -329,18 +334,17 @@ def calibrate_command(
     with ``validate``, first leave each recording out in turn (:mod:`sara_app.human.validation`)
     and widen the written set by the margin that derives; without ``widen``, that margin is
     recorded as declined and the set stays as fitted (its left-out rows say what that costs)."""
-    if not (np.isfinite(horizon_s) and horizon_s > 0):
-        raise InputError(f"horizon {horizon_s} s; expected a finite value > 0")
+    _check_horizon(horizon_s)
     if delta_y_m is not None and not (np.isfinite(delta_y_m) and delta_y_m >= 0):
         raise InputError(f"tracker noise bound {delta_y_m} m; expected a finite value >= 0")
+    if not widen and not validate:  # before minutes of reading recordings
+        raise InputError("--no-widen declines the margin --leave-one-out derives: give both, or "
+                         "neither (calibrate alone widens nothing)")  # fmt: skip
     b = load_param_set(base)
     dy = b.delta_y_m if delta_y_m is None else delta_y_m
     recs, walk, kept, failed = _fit_pieces(recordings, load, ceilings, dy, walking)
     if not recs:
         raise InputError("none of the recordings has a walking piece to calibrate on")
-    if not widen and not validate:
-        raise InputError("--no-widen declines the margin --leave-one-out derives: give both, or "
-                         "neither (calibrate alone widens nothing)")  # fmt: skip
     if validate and len(recs) < 2:
         raise InputError("leave-one-out validation needs at least two recordings")
     ps, rep = calibrate(b, [p for ps_ in kept for p in ps_], horizon_s, name, delta_y_m)
