@@ -127,7 +127,16 @@ def rig() -> Iterator[Rig]:
             r.close()
 
 
+def _each_new(pub: Any, msg: Any) -> Any:
+    """A sender putting ``msg`` with a new ``seq`` each call: the bridge, like every reader of
+    the bus, refuses a repeated sequence number as out of order."""
+    seq = iter(range(msg.seq, msg.seq + 1_000_000))
+    return lambda: pub.put(msg.model_copy(update={"seq": next(seq)}))
+
+
 def _receive(session: zenoh.Session, key: str, send: Any, timeout_s: float = 5.0) -> list:
+    """Sends until ``session`` receives on ``key``: the first sends may reach the bridge before
+    the subscriber's declaration has reached the router, so each send must be a new message."""
     got: list = []
     sub = session.declare_subscriber(key, lambda s: got.append(s))
     try:
@@ -146,7 +155,7 @@ def test_the_bridge_speaks_rmw_zenoh(rig: Rig) -> None:
     pub = rig.watch.publisher(keys.robot_command_key("c1"))
     cmd = RobotCommandMsg(seq=1, stamp_s=100.25, q=[0.1, 0.2, 0.3], q_dot=[0.0, 1.0, 0.0],
                           q_ddot=[0.0] * 3, mode="intended", valid_until_s=100.3)  # fmt: skip
-    got = _receive(rig.ros_side, b.key_command, lambda: pub.put(cmd))
+    got = _receive(rig.ros_side, b.key_command, _each_new(pub, cmd))
     assert got, "no JointState on " + b.key_command
     js = codec(JOINT_STATE)[1](got[0].payload.to_bytes())
     assert list(js.name) == list(NAMES) and list(js.position) == [0.1, 0.2, 0.3]
@@ -158,7 +167,7 @@ def test_the_bridge_speaks_rmw_zenoh(rig: Rig) -> None:
     occ = example_messages()["occupancy"][1]
     assert isinstance(occ, OccupancyMsg) and occ.robot is not None
     pub_occ = rig.watch.publisher(keys.occupancy_key("c1"))
-    got = _receive(rig.ros_side, b.key_markers, lambda: pub_occ.put(occ))
+    got = _receive(rig.ros_side, b.key_markers, _each_new(pub_occ, occ))
     assert got, "no MarkerArray on " + b.key_markers
     markers = codec(MARKER_ARRAY)[1](got[0].payload.to_bytes()).markers
     assert markers[0].action == MARKER_DELETEALL
@@ -242,7 +251,7 @@ def test_the_bridge_runs_as_the_cells_process(tmp_path: Any) -> None:
             cmd = RobotCommandMsg(seq=1, stamp_s=time.time(), q=zero, q_dot=zero, q_ddot=zero,
                                   mode="failsafe", valid_until_s=time.time())  # fmt: skip
             got = _receive(ros, topic_key(7, "/sara/joint_command", JOINT_STATE),
-                           lambda: pub.put(cmd), timeout_s=60.0)  # fmt: skip
+                           _each_new(pub, cmd), timeout_s=60.0)  # fmt: skip
             assert got, "the bridge process forwarded no command"
             assert tuple(codec(JOINT_STATE)[1](got[0].payload.to_bytes()).name) == names
         finally:
