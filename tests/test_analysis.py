@@ -89,3 +89,61 @@ def test_the_effective_set_contains_a_position_only_when_every_model_in_use_does
     first[: len(t) // 2] = True  # faulted in the first half only
     half = containment(reach, t, y, 0.3, models, faulted=first)["effective"]
     assert 0 < half.unflagged < misses  # the uniform motion misses in both halves
+
+
+def _tight_uniform() -> tuple[HumanReach, np.ndarray, np.ndarray]:
+    """Two seconds of a CMU walk at its own 120 Hz (uniform stamps) and a set too slow for it,
+    so every model misses somewhere."""
+    rec = load_recording("02_01")
+    p = to_reach_params(load_param_set("schepp2022_table1"), "full")
+    slow = replace(p, v_max_mps=np.full(15, 1.0), iso_v_max_mps=1.0)
+    return HumanReach(slow), rec.times_s[:240], rec.positions_m[:240]
+
+
+@pytest.mark.parametrize("pairs", [1, 37, 1000])
+def test_chunking_does_not_change_the_result(pairs: int) -> None:
+    """Frames analysed in chunks (one frame, an odd number, a few hundred) give the very counts,
+    misses per joint, unflagged misses and worst escapes of one piece, on uniform and jittered
+    stamps (the two ways the sets are built)."""
+    faulted = np.zeros(240, bool)
+    faulted[50:90] = True
+    for reach, t, y, f in (
+        (*_tight_uniform(), faulted),
+        (HumanReach(replace(to_reach_params(load_param_set("schepp2022_table1"), "full"),
+                            v_max_mps=np.full(15, 1.85))), *_jittered(2), faulted[:120]),
+    ):  # fmt: skip
+        whole = containment(reach, t, y, 0.3, faulted=f, n_worst=8, pairs_per_chunk=10**9)
+        chunked = containment(reach, t, y, 0.3, faulted=f, n_worst=8, pairs_per_chunk=pairs)
+        assert whole.keys() == chunked.keys()
+        assert any(r.contained < r.checked for r in whole.values())  # misses to merge
+        for m, r in whole.items():
+            c = chunked[m]
+            assert (c.checked, c.contained, c.unavailable, c.unflagged) == (
+                r.checked, r.contained, r.unavailable, r.unflagged)  # fmt: skip
+            assert c.misses_per_joint == r.misses_per_joint
+            assert list(c.misses_per_joint) == list(r.misses_per_joint)  # the skeleton's order
+            # the largest escapes, to rounding (a chunk's sets are evaluated at its own frames'
+            # offsets, which differ from another frame's in the last bits; a rigid motion's
+            # joints tie, so which of them is listed may differ), each at its own frame pair
+            assert [w.excess_m for w in c.worst] == pytest.approx(
+                [w.excess_m for w in r.worst], abs=1e-12)  # fmt: skip
+            for w in c.worst:
+                assert t[w.frame] == w.t_s and np.isclose(t - w.t_s, w.dt_s, atol=1e-15).any()
+
+
+def test_memory_does_not_grow_with_the_recording() -> None:
+    """The analysis holds one chunk of frame pairs at a time: four times the frames take no more
+    peak memory (traced numpy allocations) in chunks, where one piece takes far more."""
+    import tracemalloc
+
+    reach, t, y = _tight_uniform()
+    rec = load_recording("02_01")
+    peaks = {}
+    for n in (200, 800):
+        for pairs in (2000, 10**9):
+            tracemalloc.start()
+            containment(reach, rec.times_s[:n], rec.positions_m[:n], 0.3, pairs_per_chunk=pairs)
+            peaks[n, pairs] = tracemalloc.get_traced_memory()[1]
+            tracemalloc.stop()
+    assert peaks[800, 10**9] > 1.5 * peaks[200, 10**9]  # the measure sees the growth
+    assert peaks[800, 2000] < 1.1 * peaks[200, 2000]

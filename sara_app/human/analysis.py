@@ -151,16 +151,33 @@ def occupancies(
     return out
 
 
-def _future(times_s: np.ndarray, horizon_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """Future frame offsets: ``tau (T, K)`` = t_(i+k) - t_i on the real time stamps and
-    ``valid (T, K)`` (a frame exists and lies within the horizon)."""
+PAIRS_PER_CHUNK = 20_000
+"""Frame pairs (a measurement and one future frame) analysed at once. Every model's sets, the
+distances and the tallies take about 12 kB per pair, so a chunk holds about 250 MB whatever the
+recording's length and rate: the whole of CMU 62_11 (30 s at 120 Hz) at a 0.5 s horizon took
+2.6 GB in one piece, and a minute at 1 kHz would have taken about 360 GB."""
+
+
+def _horizon_frames(times_s: np.ndarray, horizon_s: float) -> int:
+    """``K``: the most future frames any frame has within the horizon (at least 1)."""
     T = len(times_s)
-    K = max(1, int(np.max(np.searchsorted(times_s, times_s + horizon_s + 1e-12, "right")
-                          - np.arange(T))) - 1)  # fmt: skip
-    frame = np.arange(T)[:, None] + np.arange(1, K + 1)[None, :]
-    tau = times_s[np.minimum(frame, T - 1)] - times_s[:, None]
-    valid = (frame < T) & (tau <= horizon_s + 1e-12)
-    return np.where(valid, tau, np.nan), valid
+    ahead = np.searchsorted(times_s, times_s + horizon_s + 1e-12, "right") - np.arange(T)
+    return max(1, int(np.max(ahead)) - 1)
+
+
+def _future(
+    times_s: np.ndarray, horizon_s: float, K: int, rows: slice
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For the frames ``rows`` (``F`` of them): the future frames ``frame (F, K)`` (clipped to
+    the last), their offsets ``tau (F, K)`` = t_(i+k) - t_i on the real time stamps (nan where
+    invalid) and ``valid (F, K)`` (a frame exists and lies within the horizon; a prefix of
+    each row, as both conditions grow with k)."""
+    T = len(times_s)
+    ahead = np.arange(T)[rows][:, None] + np.arange(1, K + 1)[None, :]
+    frame = np.minimum(ahead, T - 1)
+    tau = times_s[frame] - times_s[rows][:, None]
+    valid = (ahead < T) & (tau <= horizon_s + 1e-12)
+    return frame, np.where(valid, tau, np.nan), valid
 
 
 def containment(
@@ -172,6 +189,7 @@ def containment(
     n_worst: int = 5,
     faulted: np.ndarray | None = None,
     effective_of: tuple[str, ...] | None = None,
+    pairs_per_chunk: int = PAIRS_PER_CHUNK,
 ) -> dict[str, Containment]:
     """Share of future joint positions inside each model's set, per model (see module doc), and
     inside the effective set (key :data:`EFFECTIVE`): what the verdict relies on. A body part
@@ -188,42 +206,73 @@ def containment(
     unavailable for (:func:`occupancies`) is counted as ``unavailable``, not checked.
     The recording is ground truth with zero latency: the models run with delay 0 here, so
     a measured miss is a miss of the motion model itself, not hidden by the delay's slack.
+    The frames are analysed in chunks of about ``pairs_per_chunk`` frame pairs (memory bounded
+    by it, not by the recording); the rates are estimated once over the whole recording, so
+    the result does not depend on the chunking.
     """
     reach = HumanReach(replace(reach.params, delay_s=0.0))
     T = y.shape[0]
-    tau, valid = _future(times_s, horizon_s)
-    K = tau.shape[1]
-    occ = _occupancies_at(reach, times_s, y, tau, models)
+    K = _horizon_frames(times_s, horizon_s)
+    rs = rates(reach, times_s, y, models)
+    job = _Job(reach, times_s, y, horizon_s, models, K, rs, n_worst, effective_of)
+    f = None if faulted is None else np.asarray(faulted, bool)
+    step = max(1, pairs_per_chunk // K)
+    parts = [_chunk(job, slice(i, min(i + step, T)), None if f is None else f[i : i + step])
+             for i in range(0, T, step)]  # fmt: skip
+    return {m: _merge([p[m] for p in parts], reach.skeleton.joints, n_worst) for m in parts[0]}
+
+
+@dataclass(frozen=True)
+class _Job:
+    """What every chunk of one :func:`containment` call shares."""
+
+    reach: HumanReach
+    times_s: np.ndarray
+    y: np.ndarray
+    horizon_s: float
+    models: tuple[str, ...]
+    K: int
+    rates: Rates
+    n_worst: int
+    effective_of: tuple[str, ...] | None
+
+
+def _chunk(job: _Job, rows: slice, faulted: np.ndarray | None) -> dict[str, Containment]:
+    """:func:`containment` of the measurements ``rows`` (frame numbers stay the recording's);
+    ``faulted (F,)``: theirs."""
+    reach, K = job.reach, job.K
+    frame, tau, valid = _future(job.times_s, job.horizon_s, K, rows)
+    occ = _occupancies_at(job, tau, valid, rows)
+    fut = job.y[frame]  # (F, K, J, 3)
     names = reach.skeleton.joints
-    frame = np.minimum(np.arange(T)[:, None] + np.arange(1, K + 1)[None, :], T - 1)
-    fut = y[frame]  # (T, K, J, 3)
+    F, J = len(frame), len(names)
+    tally = (names, job.times_s[rows], tau, job.n_worst, rows.start)
     results: dict[str, Containment] = {}
-    J = len(names)
-    eff_inside = np.ones((T, K, J), dtype=bool)
-    eff_worst = np.full((T, K, J), -np.inf)
-    for m in models:
+    eff_inside = np.ones((F, K, J), dtype=bool)
+    eff_worst = np.full((F, K, J), -np.inf)
+    for m in job.models:
         o = occ[m]
         cap, joint, margin = reach.coverage[m]
-        d = point_segment_distance(fut[:, :, joint], o.ends[:, :, cap])  # (T, K, M)
+        d = point_segment_distance(fut[:, :, joint], o.ends[:, :, cap])  # (F, K, M)
         excess = d + margin - o.radius[:, :, cap]
         # A joint is contained when every capsule that must hold it does.
-        inside = np.ones((T, K, J), dtype=bool)
+        inside = np.ones((F, K, J), dtype=bool)
         np.logical_and.at(inside, (slice(None), slice(None), joint), excess <= 1e-12)  # type: ignore[arg-type]
-        worst_excess = np.full((T, K, J), -np.inf)
+        worst_excess = np.full((F, K, J), -np.inf)
         np.maximum.at(worst_excess, (slice(None), slice(None), joint), excess)  # type: ignore[arg-type]
-        known = np.ones((T, K, J), dtype=bool)
+        known = np.ones((F, K, J), dtype=bool)
         np.logical_and.at(known, (slice(None), slice(None), joint),  # type: ignore[arg-type]
                           np.isfinite(o.radius[:, :, cap]))  # fmt: skip
         v3 = valid[:, :, None] & known
-        results[m] = _tally(m, inside, worst_excess, v3, names, times_s, tau, n_worst)
+        results[m] = _tally(m, inside, worst_excess, v3, *tally)
         results[m].unavailable = int((valid[:, :, None] & ~known).sum())
-        if effective_of is None or m in effective_of:
+        if job.effective_of is None or m in job.effective_of:
             eff_inside &= inside | ~known
             eff_worst = np.maximum(eff_worst, np.where(known, worst_excess, -np.inf))
-    v3 = np.broadcast_to(valid[:, :, None], (T, K, J))
-    eff = _tally(EFFECTIVE, eff_inside, eff_worst, v3, names, times_s, tau, n_worst)
+    v3 = np.broadcast_to(valid[:, :, None], (F, K, J))
+    eff = _tally(EFFECTIVE, eff_inside, eff_worst, v3, *tally)
     if faulted is not None:
-        eff.unflagged = int((~eff_inside & v3 & ~np.asarray(faulted, bool)[:, None, None]).sum())
+        eff.unflagged = int((~eff_inside & v3 & ~faulted[:, None, None]).sum())
     results[EFFECTIVE] = eff
     return results
 
@@ -237,9 +286,11 @@ def _tally(
     times_s: np.ndarray,
     tau: np.ndarray,
     n_worst: int,
+    first_frame: int,
 ) -> Containment:
     """A :class:`Containment` from ``inside``, ``worst_excess`` and the checked ``v3`` (all
-    ``(T, K, J)``): counts, misses per joint and the ``n_worst`` escapes."""
+    ``(F, K, J)``, measurements from frame ``first_frame`` on, at ``times_s (F,)``): counts,
+    misses per joint and the ``n_worst`` escapes."""
     res = Containment(model, int(v3.sum()), int((inside & v3).sum()))
     miss = ~inside & v3
     for j in np.unique(np.nonzero(miss)[2]):
@@ -251,32 +302,50 @@ def _tally(
         i, k, j = np.unravel_index(f, flat.shape)
         if flat[i, k, j] == -np.inf:
             break
-        res.worst.append(
-            Miss(names[j], int(i), float(times_s[i]), float(tau[i, k]), float(flat[i, k, j]))
-        )
+        res.worst.append(Miss(names[j], first_frame + int(i), float(times_s[i]),
+                              float(tau[i, k]), float(flat[i, k, j])))  # fmt: skip
     return res
 
 
+def _merge(parts: list[Containment], names: tuple[str, ...], n_worst: int) -> Containment:
+    """One :class:`Containment` from the chunks' of one model: counts summed, misses per joint
+    in the skeleton's order, the ``n_worst`` largest escapes of all."""
+    if len(parts) == 1:
+        return parts[0]
+    screened = all(p.unflagged is not None for p in parts)
+    out = Containment(
+        parts[0].model,
+        sum(p.checked for p in parts),
+        sum(p.contained for p in parts),
+        unavailable=sum(p.unavailable for p in parts),
+        unflagged=sum(p.unflagged or 0 for p in parts) if screened else None,
+    )
+    for j in names:
+        n = sum(p.misses_per_joint.get(j, 0) for p in parts)
+        if n:
+            out.misses_per_joint[j] = n
+    out.worst = sorted((w for p in parts for w in p.worst), key=lambda w: -w.excess_m)[:n_worst]
+    return out
+
+
 def _occupancies_at(
-    reach: HumanReach,
-    times_s: np.ndarray,
-    y: np.ndarray,
-    tau: np.ndarray,
-    models: tuple[str, ...],
+    job: _Job, tau: np.ndarray, valid: np.ndarray, rows: slice
 ) -> dict[str, Occupancy]:
-    """Each model's sets at the instants ``tau (T, K)`` after each frame (nan: unused):
-    ``(T, K, C)``. One call when every frame has the same offsets (uniform sampling), else
-    one per frame."""
-    filled = np.where(np.isfinite(tau), tau, np.nanmax(tau, initial=0.0))
-    first = filled[0]
-    if np.allclose(filled[np.isfinite(tau).all(axis=1)], first, rtol=0, atol=1e-12):
-        return occupancies(reach, times_s, y, first, first, models)
-    rs = rates(reach, times_s, y, models)
+    """Each model's sets at the instants ``tau (F, K)`` after the frames ``rows`` (invalid
+    entries are evaluated at the horizon and not used): ``(F, K, C)``. One call when every
+    frame's valid offsets are those of the frame with the most (uniform sampling), else one
+    per frame."""
+    reach, times_s, y, models, rs = job.reach, job.times_s, job.y, job.models, job.rates
+    filled = np.where(valid, tau, job.horizon_s)
+    ref = filled[np.argmax(valid.sum(axis=1))]
+    frames = np.arange(len(times_s))[rows]
+    if np.all(np.abs(np.where(valid, filled - ref, 0.0)) <= 1e-12):
+        return occupancies(reach, times_s, y, ref, ref, models, frames, rs)
     ends: dict[str, list[np.ndarray]] = {m: [] for m in models}
     radius: dict[str, list[np.ndarray]] = {m: [] for m in models}
     names: dict[str, tuple[str, ...]] = {}
-    for i in range(y.shape[0]):
-        row = occupancies(reach, times_s, y, filled[i], filled[i], models, np.array([i]), rs)
+    for i, frame in enumerate(frames):
+        row = occupancies(reach, times_s, y, filled[i], filled[i], models, frame[None], rs)
         for m in models:  # copies: the kernels' outputs are buffers reused by the next call
             ends[m].append(np.array(row[m].ends))
             radius[m].append(np.array(row[m].radius))
