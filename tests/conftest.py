@@ -46,13 +46,26 @@ def _lock(exclusive: bool) -> None:
         fcntl.flock(_TURN_FD, fcntl.LOCK_UN)
 
 
+# A test marked ``stack`` starts a whole cell stack (``serve``: router, worker, controller,
+# replayer, API, 3D view), which on a 2-core machine pins its worker to one CPU: two at once
+# (seen: the two signals of the default cell's test, side by side) starve each other's trackers
+# and APIs. Such tests wait for each other (a lock of their own), not for the light tests.
+_STACK_LOCK = os.path.join(tempfile.gettempdir(), f"sara_app_tests_stack_{os.getuid()}.lock")
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Iterator[None]:
     if "PYTEST_XDIST_WORKER" not in os.environ:  # one process: nothing beside it
         yield
         return
     _lock(item.get_closest_marker("exclusive") is not None)
+    stack = -1
     try:
+        if item.get_closest_marker("stack") is not None:
+            stack = os.open(_STACK_LOCK, os.O_RDONLY | os.O_CREAT, 0o600)
+            fcntl.flock(stack, fcntl.LOCK_EX)
         yield
     finally:
+        if stack >= 0:
+            os.close(stack)  # releases its lock
         fcntl.flock(_MAIN_FD, fcntl.LOCK_UN)

@@ -55,6 +55,7 @@ def _child_pids(zenoh_port: int) -> dict[int, str]:
     return out
 
 
+@pytest.mark.stack
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
 def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(
     sig: signal.Signals, tmp_path: Path

@@ -16,6 +16,7 @@ import time
 import urllib.request
 from typing import Any
 
+import pytest
 from test_serve import _child_pids
 from waiting import wait_until
 
@@ -35,6 +36,7 @@ def _until(pred: Any, seconds: float, what: str) -> Any:
     return wait_until(pred, seconds, what, every_s=0.1, tolerate=(OSError,))
 
 
+@pytest.mark.stack
 def test_serve_supervises_its_worker_and_leaves_nothing_behind() -> None:
     zp, vp, ap = free_port(), free_port(), free_port()
     cmd = [sys.executable, "-m", "sara_app.cli", "serve", "--zenoh-port", str(zp),
