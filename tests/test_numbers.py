@@ -1,18 +1,23 @@
-"""The command line's numeric options (sara_app.commands._numbers): every option of every
-``sara-app`` command that takes a number checks it where it is given. Against a brute-force
-oracle for the types, and over the real parser: no option takes a bare ``float`` or ``int``
-(which let NaN, infinities and negative durations through to the commands), and every numeric
-option refuses NaN and infinity with exit status 2, naming the option."""
+"""The command line's numeric options (sara_app.options): every option of every ``sara-app``
+command and of the cell processes' own entry points (router, worker, controller, replayer, ROS 2
+bridge, the worker's early start) that takes a number checks it where it is given. Against a
+brute-force oracle for the types, and over the real parsers: no option takes a bare ``float``
+or ``int`` (which let NaN, infinities and negative durations through to the commands), and
+every numeric option refuses NaN and infinity with exit status 2, naming the option. The
+example publisher (plain zenoh, no sara_app) checks its own."""
 
 from __future__ import annotations
 
 import argparse
 import math
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
 from sara_app.cli import build_parser, main
-from sara_app.commands._numbers import COUNT, PORT, SECONDS, SEED, real, whole
+from sara_app.options import COUNT, PORT, SECONDS, SEED, real, whole
 
 _TEXTS = ["nan", "inf", "-inf", "", "x", "1e400", "-1", "0", "0.5", "1", "2", "65535", "65536",
           "1e3", " 3 ", "-0", "3.0"]  # fmt: skip
@@ -99,3 +104,64 @@ def test_every_numeric_option_refuses_nan_and_infinity(command, option, capsys) 
             main([command, *positional.get(command, []), f"{option}={text}"])
         assert e.value.code == 2
         assert f"argument {option}" in capsys.readouterr().err
+
+
+def _process_parsers() -> dict[str, argparse.ArgumentParser]:
+    """The parsers of the processes ``serve`` starts (and an integrator may start alone)."""
+    from sara_app.bus.process import process_parser
+    from sara_app.bus.router import build_parser as router_parser
+    from sara_app.processes.worker_start import early_parser
+
+    return {"router": router_parser(), "worker": process_parser("worker", "", state=True),
+            "worker_start": early_parser()}  # fmt: skip
+
+
+def test_the_processes_take_no_bare_float_or_int() -> None:
+    options = [(name, a.option_strings[-1], a.type) for name, p in _process_parsers().items()
+               for a in p._actions if a.option_strings and a.type is not None]  # fmt: skip
+    assert {(n, o) for n, o, _ in options} >= {("router", "--port"), ("worker", "--duration"),
+                                                ("worker_start", "--rt-priority")}  # fmt: skip
+    assert [(n, o) for n, o, t in options if t in (float, int)] == []
+
+
+@pytest.mark.parametrize(
+    "process, option, bad",
+    [("router", "--port", "0"), ("router", "--rt-priority", "100"), ("worker", "--duration", "nan"),
+     ("worker", "--duration", "-1"), ("worker", "--port", "inf"), ("worker", "--rt-priority", "x"),
+     ("worker_start", "--rt-priority", "-1"), ("worker_start", "--port", "70000")],
+)  # fmt: skip
+def test_a_process_refuses_a_bad_number_naming_the_option(process, option, bad, capsys) -> None:
+    with pytest.raises(SystemExit) as e:
+        _process_parsers()[process].parse_args([f"{option}={bad}"])
+    assert e.value.code == 2
+    assert f"argument {option}: {bad!r}; expected a" in capsys.readouterr().err
+
+
+def test_the_controller_process_refuses_nan_before_it_connects() -> None:
+    """Through a real entry point: no router runs, so a check after connecting would say the
+    router is missing instead."""
+    out = subprocess.run([sys.executable, "-m", "sara_app.peers.controller", "--duration=nan"],
+                         capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert out.returncode == 2 and "argument --duration: 'nan'; expected a finite" in out.stderr
+
+
+@pytest.mark.parametrize("option, bad", [("--rate", "0"), ("--rate", "nan"), ("--count", "-1")])
+def test_the_example_publisher_refuses_a_bad_number(option, bad) -> None:
+    """It divided by a rate of 0; it imports only zenoh, so it checks its own numbers."""
+    path = Path(__file__).parents[1] / "sara_app" / "bus" / "example_publisher.py"
+    out = subprocess.run([sys.executable, str(path), f"{option}={bad}"], capture_output=True,
+                         text=True, timeout=60)  # fmt: skip
+    assert out.returncode == 2 and f"argument {option}: {bad!r}; expected a" in out.stderr
+
+
+@pytest.mark.parametrize("option, bad", [("--rate", "0"), ("--rate", "nan"), ("--count", "-1")])
+def test_the_contracts_tracker_refuses_a_bad_number(option, bad, tmp_path) -> None:
+    """The tracker CONTRACT.md shows, run as written, stops with a usage error naming it."""
+    import re
+
+    text = (Path(__file__).parents[1] / "sara_app" / "bus" / "CONTRACT.md").read_text()
+    (script,) = re.findall(r"```python\n(.*?)```", text, flags=re.S)
+    (tmp_path / "tracker.py").write_text(script)
+    out = subprocess.run([sys.executable, str(tmp_path / "tracker.py"), option, bad],
+                         capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert out.returncode == 2 and f"{option} " in out.stderr.splitlines()[-1]

@@ -31,14 +31,33 @@ def read_tracker(t: float) -> dict[str, list[float]]:
     return {n: [x + 0.2 * math.sin(t), y, z] for n, (x, y, z) in STANDING.items()}
 
 
+def _number(cast, low: float, above: bool):  # type: ignore[no-untyped-def]
+    """An option's type: a finite number (``cast``: float or int) above ``low`` (or at least
+    ``low``); anything else is refused where it is given, naming the option."""
+
+    def parse(text: str):  # type: ignore[no-untyped-def]
+        try:
+            v = cast(text)
+        except ValueError:
+            v = math.nan
+        if not (math.isfinite(v) and (v > low if above else v >= low)):
+            kind = "a whole number" if cast is int else "a finite number"
+            rule = ">" if above else ">="
+            raise argparse.ArgumentTypeError(f"{text!r}; expected {kind} {rule} {low:g}")
+        return v
+
+    return parse
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--connect", default="tcp/127.0.0.1:7447", help="zenoh endpoint of the cell")
     ap.add_argument("--cell", default="cell1")
     ap.add_argument("--human", default="h1")
     ap.add_argument("--tracker", default="main", help="this tracker's id in the scenario")
-    ap.add_argument("--rate", type=float, default=60.0, help="Hz")
-    ap.add_argument("--count", type=int, default=0, help="messages to send; 0: until Ctrl-C")
+    ap.add_argument("--rate", type=_number(float, 0, above=True), default=60.0, help="Hz")
+    ap.add_argument("--count", type=_number(int, 0, above=False), default=0,
+                    help="messages to send; 0: until Ctrl-C")  # fmt: skip
     ap.add_argument("--credentials", help="the cell's zenoh credentials file (user:password)")
     ap.add_argument("--user", default="tracker", help="the zenoh user (role) to log in as")
     args = ap.parse_args()

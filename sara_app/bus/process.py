@@ -18,6 +18,7 @@ from typing import Protocol
 from sara_app.bus.access import Credentials, client_auth
 from sara_app.bus.session import ROBOT_ENCODINGS, Bus
 from sara_app.errors import SaraError
+from sara_app.options import PORT, RT_PRIORITY, SECONDS
 
 
 class CellProcess(Protocol):
@@ -58,29 +59,19 @@ def die_with_parent() -> None:
         os._exit(0)  # the parent died before the request took effect
 
 
-def process_main(
-    name: str,
-    description: str,
-    factory: Callable[..., CellProcess],
-    argv: list[str] | None = None,
-    *,
-    state: bool = False,
-    timestamped: bool = False,
-) -> int:
-    """Run ``factory(cell, scenario, bus)`` (with ``state_dir=``, ``origin=`` and ``audit=``
-    keywords when ``state``: the folder of ``--state-dir``, the ``--scenario`` argument and the
-    audit log of ``--audit``); ``timestamped``: its messages carry zenoh's publication
-    timestamp (:func:`~sara_app.bus.session.client_config`)."""
+def process_parser(name: str, description: str, *, state: bool = False) -> argparse.ArgumentParser:
+    """The options of a cell process (:func:`process_main`); ``state``: with ``--state-dir`` and
+    ``--audit``. Numbers are checked where they are given (:mod:`sara_app.options`)."""
     ap = argparse.ArgumentParser(prog=f"sara_app.{name}", description=description)
     ap.add_argument("--cell", default="cell1")
     ap.add_argument("--scenario", default="standing_beside_path")
-    ap.add_argument("--port", type=int, default=7447, help="zenoh router port")
+    ap.add_argument("--port", type=PORT, default=7447, help="zenoh router port")
     ap.add_argument("--router-host", default="127.0.0.1",
                     help="the router's address (another machine: docs/deployment.md)")  # fmt: skip
-    ap.add_argument("--duration", type=float, default=None)
+    ap.add_argument("--duration", type=SECONDS, default=None, help="s (default: until stopped)")
     ap.add_argument(
         "--rt-priority",
-        type=int,
+        type=RT_PRIORITY,
         default=0,
         help="run the loop thread under SCHED_FIFO at this priority (1-99; 0: normal scheduling)",
     )
@@ -107,6 +98,23 @@ def process_main(
             default=None,
             help="record every edit, retirement and re-plan answered in this audit log (SQLite)",
         )
+    return ap
+
+
+def process_main(
+    name: str,
+    description: str,
+    factory: Callable[..., CellProcess],
+    argv: list[str] | None = None,
+    *,
+    state: bool = False,
+    timestamped: bool = False,
+) -> int:
+    """Run ``factory(cell, scenario, bus)`` (with ``state_dir=``, ``origin=`` and ``audit=``
+    keywords when ``state``: the folder of ``--state-dir``, the ``--scenario`` argument and the
+    audit log of ``--audit``); ``timestamped``: its messages carry zenoh's publication
+    timestamp (:func:`~sara_app.bus.session.client_config`)."""
+    ap = process_parser(name, description, state=state)
     args = ap.parse_args(argv)
     if args.die_with_parent:
         die_with_parent()

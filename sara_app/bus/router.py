@@ -23,18 +23,24 @@ from sara_app.bus.access import Credentials, router_access
 from sara_app.bus.process import configure_logging, die_with_parent, set_realtime
 from sara_app.bus.session import Bus, router_config_dict
 from sara_app.errors import SaraError
+from sara_app.options import PORT, RT_PRIORITY
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The router's options (module doc); numbers checked where given (:mod:`sara_app.options`)."""
     ap = argparse.ArgumentParser(prog="sara_app.bus.router", description=__doc__.splitlines()[0])
-    ap.add_argument("--port", type=int, default=7447)
+    ap.add_argument("--port", type=PORT, default=7447)
     ap.add_argument("--cell", action="append", default=[])
     ap.add_argument("--credentials", default=None)
-    ap.add_argument("--rt-priority", type=int, default=0)
+    ap.add_argument("--rt-priority", type=RT_PRIORITY, default=0)
     ap.add_argument("--die-with-parent", action="store_true")
     ap.add_argument("--listen-host", default="127.0.0.1")
     ap.add_argument("--print-config", action="store_true")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
     if args.print_config:
         access = None
         if args.credentials:

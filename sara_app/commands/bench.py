@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from sara_app.commands._numbers import COUNT, SECONDS, real, whole
+from sara_app.options import COUNT, SECONDS, real, whole
 
 
 def _bench(args: argparse.Namespace) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from sara_app.commands._numbers import SECONDS
+from sara_app.options import SECONDS
 
 
 def _compare(args: argparse.Namespace) -> int:

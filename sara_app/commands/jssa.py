@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from sara_app.commands._numbers import COUNT, FRACTION, SECONDS, SEED, real
+from sara_app.options import COUNT, FRACTION, SECONDS, SEED, real
 
 
 def _params(args: argparse.Namespace, **over: object):  # -> JssaParams

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import argparse
 
-from sara_app.commands._numbers import COUNT, SECONDS, SEED
+from sara_app.options import COUNT, SECONDS, SEED
 
 
 def _episodes(args: argparse.Namespace) -> int:

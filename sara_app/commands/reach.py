@@ -7,8 +7,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from sara_app.commands._numbers import SECONDS, real
 from sara_app.human.model_names import MODELS
+from sara_app.options import SECONDS, real
 
 if TYPE_CHECKING:
     from sara_app.human.failures import Ceilings

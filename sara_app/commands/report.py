@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from sara_app.commands._numbers import SECONDS, whole
+from sara_app.options import SECONDS, whole
 from sara_app.processes.defaults import API_PORT
 
 

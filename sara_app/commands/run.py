@@ -7,7 +7,7 @@ import argparse
 import json
 from pathlib import Path
 
-from sara_app.commands._numbers import COUNT, SECONDS, SEED
+from sara_app.options import COUNT, SECONDS, SEED
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import argparse
 
-from sara_app.commands._numbers import COUNT, PORT, SECONDS
+from sara_app.options import COUNT, PORT, SECONDS
 
 
 def _serve(args: argparse.Namespace) -> int:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from sara_app.commands._numbers import SECONDS, SEED
+from sara_app.options import SECONDS, SEED
 
 RECOVERY_GRACE_S = 10.0
 """Faults this close to the end of a run are not held against it (a worker restarts in about

@@ -28,24 +28,27 @@ from sara_app.bus.process import realtime_session
 from sara_app.bus.session import Bus
 from sara_app.bus.starting import Starting
 from sara_app.errors import SaraError
+from sara_app.options import PORT, RT_PRIORITY
 
 LOADING = "loading the worker and compiling the safety kernels"
 
 
-def _early_args(argv: list[str]) -> argparse.Namespace:
-    ap = argparse.ArgumentParser(add_help=False)
+def early_parser() -> argparse.ArgumentParser:
+    """The options this module reads before the worker's own parser reads them all (numbers
+    checked here too: a bad ``--rt-priority`` ended in a ValueError before the worker's check)."""
+    ap = argparse.ArgumentParser(prog="sara_app.processes.worker_start", add_help=False)
     ap.add_argument("--cell", default="cell1")
     ap.add_argument("--scenario", default="standing_beside_path")
-    ap.add_argument("--port", type=int, default=7447)
+    ap.add_argument("--port", type=PORT, default=7447)
     ap.add_argument("--zenoh-user", default=None)
     ap.add_argument("--zenoh-credentials", default=None)
-    ap.add_argument("--rt-priority", default="0")  # checked by the worker's own parser
-    return ap.parse_known_args(argv)[0]
+    ap.add_argument("--rt-priority", type=RT_PRIORITY, default=0)
+    return ap
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    a = _early_args(argv)
+    a = early_parser().parse_known_args(argv)[0]
     with contextlib.ExitStack() as stack:
         try:
             cell = keys.check_name("cell", a.cell)
@@ -53,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
             if a.zenoh_user and a.zenoh_credentials:
                 auth = client_auth(a.zenoh_user, Credentials(a.zenoh_credentials))
             session, _ = realtime_session(
-                int(a.rt_priority), "worker", lambda: Bus.client(a.port, auth=auth)
+                a.rt_priority, "worker", lambda: Bus.client(a.port, auth=auth)
             )
             bus = stack.enter_context(session)
             pub = bus.publisher(keys.status_key(cell))
