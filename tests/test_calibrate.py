@@ -54,6 +54,40 @@ def test_fit_velocity_finds_the_peak_speed_and_its_frame() -> None:
     assert min(abs(drivers[j][0].t_s - k / 4) for k in range(8)) < 0.03
 
 
+def _velocity_oracle(rec: Recording, delta_y_m: float, horizon_s: float) -> np.ndarray:
+    """Brute force over every frame pair within the horizon: the least v_max per joint."""
+    t, y = rec.times_s, rec.positions_m
+    best = np.zeros(y.shape[1])
+    for i in range(len(t)):
+        for j in range(i + 1, len(t)):
+            tau = t[j] - t[i]
+            if tau > horizon_s + 1e-12:
+                break
+            d = np.linalg.norm(y[j] - y[i], axis=-1)
+            best = np.maximum(best, (d - delta_y_m) / tau)
+    return best
+
+
+def test_a_gap_in_the_stamps_keeps_every_pair_within_the_horizon() -> None:
+    """A tracker that dropped frames at the start (0.3 s between its first two frames, 120 Hz
+    after): the fit looked only as many frames ahead as the FIRST frame has within the horizon
+    (26 for 0.5 s), so every later pair 0.21-0.5 s apart was left out and the fitted speed fell
+    short of the motion (for a steady wrist, (|d| - delta_y) / tau grows with tau). Against the
+    brute-force oracle, in chunks of any size."""
+    rec = _synthetic(0.0)
+    rec.positions_m[:, 8, 1] += 1.0 * rec.times_s  # the right wrist at a steady 1 m/s
+    keep = np.r_[0, np.arange(36, len(rec.times_s))]  # frame 0, then from t = 0.3 s
+    y = rec.positions_m[keep]
+    y[0] = y[1]  # still until the tracker's second frame: frame 0's own pairs drive nothing
+    gap = Recording("gap", "full", rec.times_s[keep], y, "test")
+    want = _velocity_oracle(gap, 0.01, 0.5)
+    v, drivers = fit_velocity([gap], FULL_JOINTS, 0.01, 0.5)
+    np.testing.assert_allclose(v, want, rtol=0, atol=1e-12)
+    j = FULL_JOINTS.index("r_wrist")
+    assert drivers[j][0].value == pytest.approx(want[j], abs=1e-12)
+    assert drivers[j][0].tau_s == pytest.approx(0.5)  # the longest pairs, left out before
+
+
 def test_glitch_frame_is_reported_as_driver() -> None:
     rec = _synthetic(1.0, glitch=True)
     _, drivers = fit_velocity([rec], FULL_JOINTS, 0.004, 0.3)

@@ -60,6 +60,21 @@ def test_the_table_bounds_every_frame_pair_brute_force(rate_hz: float) -> None:
     table = fit_displacement(recs, DY, 0.5)
     assert table.shape == (J, 50)
     assert np.all(np.diff(table, axis=1) >= 0)  # non-decreasing along the cells
+    _bounds_every_pair(table, recs)
+
+
+def test_a_gap_in_the_stamps_keeps_every_pair_in_the_table() -> None:
+    """A tracker that dropped frames at the start (0.3 s between its first two frames): the
+    table looked only as many frames ahead as the first frame has within the horizon, so the
+    cells from 0.21 s on held frame 0's pairs alone and fell short of the swings."""
+    rec = _swinging(4)
+    keep = np.r_[0, np.arange(36, len(rec.times_s))]
+    gap = Recording("gap", "full", rec.times_s[keep], rec.positions_m[keep])
+    _bounds_every_pair(fit_displacement([gap], DY, 0.5), [gap])
+
+
+def _bounds_every_pair(table: np.ndarray, recs: list[Recording]) -> None:
+    """Brute force: every frame pair within 0.5 s is within the table's cell."""
     for rec in recs:
         y, t = rec.positions_m, rec.times_s
         for i in range(len(t)):

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sara_app.errors import InputError, ParameterError
-from sara_app.human.analysis import containment
+from sara_app.human.analysis import containment, frame_pairs
 from sara_app.human.failures import Failure, pieces, runs
 from sara_app.human.intake import screen
 from sara_app.human.params import ParamSet, to_reach_params
@@ -77,24 +77,14 @@ class CalibrationReport:
     """Joints whose speed bound was raised until the combined model contains the recordings."""
 
 
-def _pairs(rec: Recording, horizon_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Frame index pairs ``(i, j)`` with 0 < t_j - t_i <= horizon, and their tau."""
-    t = rec.times_s
-    n = int(np.searchsorted(t - t[0], horizon_s, side="right"))
-    i, k = np.meshgrid(np.arange(len(t)), np.arange(1, max(n, 2)), indexing="ij")
-    j = i + k
-    ok = j < len(t)
-    i, j = i[ok], j[ok]
-    tau = t[j] - t[i]
-    keep = tau <= horizon_s + 1e-12
-    return i[keep], j[keep], tau[keep]
-
-
-def _top(values: np.ndarray, rec: Recording, i: np.ndarray, tau: np.ndarray, n: int) -> list:
+def _top(
+    values: np.ndarray, rec: Recording, i: np.ndarray, tau: np.ndarray, n: int, so_far: list
+) -> list:
+    """The ``n`` largest of ``so_far`` and the pairs' ``values (N,)`` as drivers."""
     order = np.argsort(values)[::-1][:n]
-    return [
-        Driver(rec.name, float(rec.times_s[i[o]]), float(tau[o]), float(values[o])) for o in order
-    ]
+    new = [Driver(rec.name, float(rec.times_s[i[o]]), float(tau[o]), float(values[o]))
+           for o in order]  # fmt: skip
+    return sorted(so_far + new, key=lambda d: -d.value)[:n]
 
 
 def _trusted(recs: list[Recording], trusted: list[np.ndarray] | None) -> list[np.ndarray]:
@@ -116,15 +106,13 @@ def fit_velocity(
     best = np.zeros(len(joints))
     drivers: list[list[Driver]] = [[] for _ in joints]
     for rec, ok in zip(recs, _trusted(recs, trusted)):
-        i, j, tau = _pairs(rec, horizon_s)
-        disp = np.linalg.norm(rec.positions_m[j] - rec.positions_m[i], axis=-1)  # (N, J)
-        need = np.where(ok[i] & ok[j], (disp - delta_y_m) / tau[:, None], -np.inf)
-        J = need.shape[1]  # an upper-body recording fits the upper joints only
-        for q in range(J):
-            drivers[q] += _top(need[:, q], rec, i, tau, n_drivers)
-        best[:J] = np.maximum(best[:J], need.max(axis=0, initial=0.0))  # a piece without pairs: 0
-    for q in range(len(joints)):
-        drivers[q] = sorted(drivers[q], key=lambda d: -d.value)[:n_drivers]
+        for i, j, tau in frame_pairs(rec.times_s, horizon_s):
+            disp = np.linalg.norm(rec.positions_m[j] - rec.positions_m[i], axis=-1)  # (N, J)
+            need = np.where(ok[i] & ok[j], (disp - delta_y_m) / tau[:, None], -np.inf)
+            J = need.shape[1]  # an upper-body recording fits the upper joints only
+            for q in range(J):
+                drivers[q] = _top(need[:, q], rec, i, tau, n_drivers, drivers[q])
+            best[:J] = np.maximum(best[:J], need.max(axis=0, initial=0.0))  # no pairs: 0
     return best, drivers
 
 
@@ -143,16 +131,16 @@ def _acc_need(
     for rec, ok_t in zip(recs, _trusted(recs, trusted)):
         Jr = rec.positions_m.shape[1]  # an upper-body recording: its joints only
         v, dv = estimate_recording(rec.times_s, rec.positions_m, delta_y_m, a[:Jr], trusted=ok_t)
-        i, j, tau = _pairs(rec, horizon_s)
-        use = ok_t[i] & ok_t[j] & np.isfinite(dv[i])  # (N, J)
-        resid = rec.positions_m[j] - rec.positions_m[i] - v[i] * tau[:, None, None]
-        dv_i = np.where(use, dv[i], 0.0)
-        slack = np.linalg.norm(resid, axis=-1) - delta_y_m - dv_i * tau[:, None]
-        need = np.where(use, 2.0 * slack / tau[:, None] ** 2, -np.inf)
-        for q in range(Jr):
-            drivers[q] += _top(need[:, q], rec, i, tau, n_drivers)
-        need_all[:Jr] = np.maximum(need_all[:Jr], need.max(axis=0, initial=-np.inf))
-    return need_all, [sorted(d, key=lambda x: -x.value)[:n_drivers] for d in drivers]
+        for i, j, tau in frame_pairs(rec.times_s, horizon_s):
+            use = ok_t[i] & ok_t[j] & np.isfinite(dv[i])  # (N, J)
+            resid = rec.positions_m[j] - rec.positions_m[i] - v[i] * tau[:, None, None]
+            dv_i = np.where(use, dv[i], 0.0)
+            slack = np.linalg.norm(resid, axis=-1) - delta_y_m - dv_i * tau[:, None]
+            need = np.where(use, 2.0 * slack / tau[:, None] ** 2, -np.inf)
+            for q in range(Jr):
+                drivers[q] = _top(need[:, q], rec, i, tau, n_drivers, drivers[q])
+            need_all[:Jr] = np.maximum(need_all[:Jr], need.max(axis=0, initial=-np.inf))
+    return need_all, drivers
 
 
 def fit_acceleration(
@@ -267,8 +255,8 @@ def calibrate(
     measured with the fitted bounds in force (under them no joint jumps, so the monitor checks
     every joint) and the bounds raised until they cover them.
     """
-    # a frame pair within the horizon (what the fits take, ``_pairs``) exists where the shortest
-    # frame interval is within it
+    # a frame pair within the horizon (what the fits take, ``frame_pairs``) exists where the
+    # shortest frame interval is within it
     gaps = [float(np.min(np.diff(r.times_s))) for r in recs if r.n_frames > 1]
     if not (gaps and min(gaps) <= horizon_s + 1e-12):
         raise InputError(

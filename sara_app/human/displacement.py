@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sara_app.errors import InputError, ParameterError
-from sara_app.human.analysis import EFFECTIVE
+from sara_app.human.analysis import EFFECTIVE, horizon_frames
 from sara_app.human.params import DisplacementBound, ParamSet
 from sara_app.human.recording import Recording
 from sara_app.human.skeleton import FULL_JOINTS, UPPER_JOINTS
@@ -76,8 +76,9 @@ def fit_displacement(
         y, t = rec.positions_m, rec.times_s
         J = y.shape[1]
         ok = np.ones(y.shape[:2], bool) if trusted is None else np.asarray(trusted[r], bool)
-        lags = int(np.searchsorted(t - t[0], n * step_s + 1e-9, side="right"))
-        for lag in range(1, min(lags, len(t))):
+        # as many frames ahead as ANY frame has within the horizon (not the first frame's: after
+        # a gap in the stamps, the pairs beyond it were left out of the table)
+        for lag in range(1, min(horizon_frames(t, n * step_s + 1e-9) + 1, len(t))):
             tau = t[lag:] - t[:-lag]
             # a pair within rounding of a cell's end counts in that cell (and so, the table
             # being non-decreasing, in the next): stamps 50 ms apart come out 0.05 or 0.05 + 2e-17
