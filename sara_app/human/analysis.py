@@ -389,22 +389,24 @@ def mean_volume(
     rng = np.random.default_rng(seed)
     frames = np.linspace(1, y.shape[0] - 1, min(n_frames, y.shape[0] - 1)).astype(int)
     t = np.array([horizon_s])
-    occ = occupancies(reach, times_s, y, np.zeros(1), t, models)
+    # the sampled frames' sets only (their rates from the whole recording's history)
+    occ = occupancies(reach, times_s, y, np.zeros(1), t, models, frames)
+    rows = np.arange(len(frames))
     out = {}
-    known = {m: np.isfinite(occ[m].radius[frames, 0]).all(axis=-1) for m in models}
+    known = {m: np.isfinite(occ[m].radius[:, 0]).all(axis=-1) for m in models}
     for m in models:  # frames where a model is unavailable (no velocity estimate) are left out
         o = occ[m]
-        vols = [union_volume_mc(o.ends[f, 0], o.radius[f, 0], n_samples, rng)[0]
-                for f, ok in zip(frames, known[m]) if ok]  # fmt: skip
+        vols = [union_volume_mc(o.ends[r, 0], o.radius[r, 0], n_samples, rng)[0]
+                for r, ok in zip(rows, known[m]) if ok]  # fmt: skip
         out[m] = float(np.mean(vols)) if vols else float("nan")
-    frames = frames[np.all([known[m] for m in models], axis=0)]
-    if len(models) > 1 and len(frames):
+    rows = rows[np.all([known[m] for m in models], axis=0)]
+    if len(models) > 1 and len(rows):
         maps = [part_capsules(reach, m) for m in models]
         vols = [
             effective_volume_mc(
-                [(occ[m].ends[f, 0], occ[m].radius[f, 0]) for m in models], maps, n_samples, rng
+                [(occ[m].ends[r, 0], occ[m].radius[r, 0]) for m in models], maps, n_samples, rng
             )[0]
-            for f in frames
+            for r in rows
         ]
         out[EFFECTIVE] = float(np.mean(vols))
     return out
