@@ -65,6 +65,34 @@ def test_a_knee_higher_than_fitted_or_a_faster_rise_is_a_miss() -> None:
     assert [r.misses > 0 for r in rows] == [False, False, True, True]
 
 
+def test_the_check_takes_every_pair_within_the_horizon_brute_force() -> None:
+    """On stamps that are not even (denser in one part, a gap in another), the check counts
+    exactly the frame pairs within the horizon and their misses: it took spans up to the
+    horizon in median frame intervals, which left out the dense part's farther pairs and
+    counted pairs across the gap beyond the horizon."""
+    from sara_app.human.legs import _leg_tops
+
+    rec = _standing(knee_lift_m=0.25, rise_mps=0.3)
+    dt = np.full(rec.n_frames, 1 / 120)
+    dt[60:120] = 1 / 240  # denser for a while
+    dt[180] = 0.3  # and a gap
+    t = np.r_[0.0, np.cumsum(dt[1:])]
+    uneven = Recording("uneven", "full", t, rec.positions_m)
+    legs = fit_legs([_standing()])
+    res = containment(uneven, legs, 0.2)
+    tops, zp = _leg_tops(uneven)
+    above = np.array([legs.above_pelvis_m[p] for p in LEG_PARTS])
+    checked = misses = 0
+    for i in range(len(t)):
+        for j in range(i + 1, len(t)):
+            tau = t[j] - t[i]
+            if tau > 0.2 + 1e-12:
+                break
+            checked += len(LEG_PARTS)
+            misses += int((tops[j] > zp[i] + above + legs.rise_max_mps * tau).sum())
+    assert (res.checked, res.misses) == (checked, misses) and misses > 0
+
+
 def test_only_full_body_recordings_fit() -> None:
     rec = _standing()
     upper = Recording("upper", "upper", rec.times_s, rec.positions_m[:, : len(UPPER_JOINTS)])

@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sara_app.errors import InputError
+from sara_app.human.analysis import horizon_frames
 from sara_app.human.conformance import Monitor
 from sara_app.human.params import LEG_PARTS, LegHeights, ReachParams
 from sara_app.human.recording import Recording
@@ -164,16 +165,17 @@ def containment(
     flagged = rise_flagged(rec, legs.rise_max_mps, delta_y_m)
     checked = misses = unflagged = 0
     worst = -np.inf
-    for k in _spans(rec, horizon_s):
-        if k >= len(t):
-            break
-        tau = (t[k:] - t[:-k])[:, None]
-        excess = top[k:] - (zp[:-k, None] + above + legs.rise_max_mps * tau)
-        miss = excess > 0.0
-        checked += miss.size
+    # every pair within the horizon, as the other checks take them (analysis.frame_pairs): as
+    # many frames ahead as any frame has within it, and none further than the horizon
+    for k in range(1, min(horizon_frames(t, horizon_s), len(t) - 1) + 1):
+        tau = t[k:] - t[:-k]
+        within = tau <= horizon_s + 1e-12
+        excess = top[k:] - (zp[:-k, None] + above + legs.rise_max_mps * tau[:, None])
+        miss = (excess > 0.0) & within[:, None]
+        checked += int(within.sum()) * excess.shape[1]
         misses += int(miss.sum())
         unflagged += int(miss[~flagged[:-k]].sum())
-        worst = max(worst, float(excess.max()))
+        worst = max(worst, float(np.where(within[:, None], excess, -np.inf).max()))
     return LegContainment(rec.name, horizon_s, checked, misses, worst, unflagged)
 
 
