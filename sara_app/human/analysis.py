@@ -4,7 +4,7 @@ Containment: every frame i is taken as a measurement; for every later frame j wi
 each model's set for the instant tau = t_j - t_i (the tightest set the model gives for that
 time) must contain every joint of frame j, grown by its body part's half thickness. Frames are
 batched as "humans" and the future offsets as intervals, so one vectorised call per model covers
-the whole recording.
+a chunk of frames (:data:`PAIRS_PER_CHUNK` frame pairs: memory bounded whatever the recording).
 """
 
 from __future__ import annotations
@@ -190,12 +190,17 @@ def frame_pairs(
     stamps keeps every pair within the horizon."""
     T = len(times_s)
     K = horizon_frames(times_s, horizon_s)
-    step = max(1, pairs_per_chunk // K)
-    for a in range(0, T, step):
-        rows = slice(a, min(a + step, T))
+    for rows in _chunks(T, K, pairs_per_chunk):
         frame, tau, valid = future_frames(times_s, horizon_s, K, rows)
         i = np.broadcast_to(np.arange(T)[rows][:, None], frame.shape)
         yield i[valid], frame[valid], tau[valid]
+
+
+def _chunks(T: int, K: int, pairs_per_chunk: int) -> Iterator[slice]:
+    """Consecutive frame ranges of ``T`` frames with ``K`` future frames each, about
+    ``pairs_per_chunk`` pairs per range (at least one frame)."""
+    step = max(1, pairs_per_chunk // K)
+    return (slice(a, min(a + step, T)) for a in range(0, T, step))
 
 
 def containment(
@@ -234,9 +239,8 @@ def containment(
     rs = rates(reach, times_s, y, models)
     job = _Job(reach, times_s, y, horizon_s, models, K, rs, n_worst, effective_of)
     f = None if faulted is None else np.asarray(faulted, bool)
-    step = max(1, pairs_per_chunk // K)
-    parts = [_chunk(job, slice(i, min(i + step, T)), None if f is None else f[i : i + step])
-             for i in range(0, T, step)]  # fmt: skip
+    parts = [_chunk(job, rows, None if f is None else f[rows])
+             for rows in _chunks(T, K, pairs_per_chunk)]  # fmt: skip
     return {m: _merge([p[m] for p in parts], reach.skeleton.joints, n_worst) for m in parts[0]}
 
 
