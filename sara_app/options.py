@@ -65,7 +65,7 @@ COUNT = whole(1)
 SEED = whole(0)
 """A random seed (numpy takes none below 0)."""
 PORT = whole(1, 65535)
-"""A TCP port on 127.0.0.1."""
+"""A TCP port (a server of this project listens on 127.0.0.1 unless told otherwise)."""
 FRACTION = real(above=0.0, high=1.0)
 """A share of a limit, (0, 1]."""
 RT_PRIORITY = whole(0, 99)

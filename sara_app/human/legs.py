@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sara_app.errors import InputError
-from sara_app.human.analysis import horizon_frames
+from sara_app.human.analysis import frame_pairs
 from sara_app.human.conformance import Monitor
 from sara_app.human.params import LEG_PARTS, LegHeights, ReachParams
 from sara_app.human.recording import Recording
@@ -161,21 +161,16 @@ def containment(
     apart."""
     top, zp = _leg_tops(rec)
     above = np.array([legs.above_pelvis_m[p] for p in LEG_PARTS])
-    t = rec.times_s
     flagged = rise_flagged(rec, legs.rise_max_mps, delta_y_m)
     checked = misses = unflagged = 0
     worst = -np.inf
-    # every pair within the horizon, as the other checks take them (analysis.frame_pairs): as
-    # many frames ahead as any frame has within it, and none further than the horizon
-    for k in range(1, min(horizon_frames(t, horizon_s), len(t) - 1) + 1):
-        tau = t[k:] - t[:-k]
-        within = tau <= horizon_s + 1e-12
-        excess = top[k:] - (zp[:-k, None] + above + legs.rise_max_mps * tau[:, None])
-        miss = (excess > 0.0) & within[:, None]
-        checked += int(within.sum()) * excess.shape[1]
+    for i, j, tau in frame_pairs(rec.times_s, horizon_s):  # every pair within the horizon
+        excess = top[j] - (zp[i, None] + above + legs.rise_max_mps * tau[:, None])  # (N, parts)
+        miss = excess > 0.0
+        checked += miss.size
         misses += int(miss.sum())
-        unflagged += int(miss[~flagged[:-k]].sum())
-        worst = max(worst, float(np.where(within[:, None], excess, -np.inf).max()))
+        unflagged += int(miss[~flagged[i]].sum())
+        worst = max(worst, float(excess.max(initial=-np.inf)))
     return LegContainment(rec.name, horizon_s, checked, misses, worst, unflagged)
 
 
