@@ -4,6 +4,7 @@ out, and on this machine, what a PM QoS latency request of 0 does to them."""
 from __future__ import annotations
 
 import os
+import struct
 import time
 from pathlib import Path
 
@@ -78,3 +79,13 @@ def test_a_request_that_cannot_be_made_says_why(tmp_path: Path) -> None:
         with idle_polling(tmp_path / "no_such_device"):
             pass
     assert "no_such_device" in str(e.value)
+
+
+def test_the_period_tests_hold_the_latency_request(idle_cpus_poll: bool) -> None:
+    """The fixture the period tests use (conftest.py) holds a request of 0 us where it can be
+    made, read back from the kernel (its value is the smallest request held), and says so."""
+    if not idle_cpus_poll:
+        assert not os.access(QOS_DEVICE, os.W_OK)
+        return
+    with open(QOS_DEVICE, "rb") as f:
+        assert struct.unpack("i", f.read(4)) == (0,)

@@ -26,7 +26,7 @@ from sara_app.processes.serve import WORKER_RT_PRIORITY, connect_when_listening
 from sara_app.scenario import load_scenario
 
 # live cells whose rates and timings the assertions read: no other test runs beside them
-pytestmark = pytest.mark.exclusive
+pytestmark = [pytest.mark.exclusive, pytest.mark.usefixtures("idle_cpus_poll")]
 
 CELL = "ctl"
 

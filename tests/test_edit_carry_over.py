@@ -101,6 +101,7 @@ def _edit_model(d: dict) -> None:
 
 
 @pytest.mark.exclusive  # a live cell: a heartbeat late under a neighbour's load is a fault
+@pytest.mark.usefixtures("idle_cpus_poll")
 @pytest.mark.parametrize("edit", [_edit_limits, _edit_base, _edit_model])
 def test_a_robot_edit_at_rest_goes_on_from_where_the_robot_rests(edit) -> None:
     sc = _short_task()
@@ -147,6 +148,7 @@ def test_a_robot_edit_at_rest_goes_on_from_where_the_robot_rests(edit) -> None:
 
 
 @pytest.mark.exclusive  # a live cell whose passes are watched as they go
+@pytest.mark.usefixtures("idle_cpus_poll")
 @pytest.mark.parametrize("blend_rad", [None, 0.02])
 def test_an_edit_that_leaves_the_route_alone_keeps_its_progress(blend_rad: float | None) -> None:
     """A new description, or a new blend distance (accepted and then never used: the follower

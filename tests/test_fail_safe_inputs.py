@@ -41,7 +41,7 @@ from sara_app.scenario import load_scenario
 from sara_app.sim.motions import measured
 
 # live cells whose rates and timings the assertions read: no other test runs beside them
-pytestmark = pytest.mark.exclusive
+pytestmark = [pytest.mark.exclusive, pytest.mark.usefixtures("idle_cpus_poll")]
 
 CELL = "hostile"
 NAMES = skeleton("full").joints

@@ -25,7 +25,7 @@ from sara_app.ops.supervisor import stop_processes
 from sara_app.sim.motions import measured
 
 # live cells whose rates and timings the assertions read: no other test runs beside them
-pytestmark = pytest.mark.exclusive
+pytestmark = [pytest.mark.exclusive, pytest.mark.usefixtures("idle_cpus_poll")]
 
 CELL = "hist"
 P_X_M = 0.3  # in front of the robot base, facing it: a fresh person there stops the robot

@@ -44,7 +44,7 @@ from sara_app.scenario import load_scenario, scenarios_dir
 from sara_app.sim.motions import measured
 
 # live cells whose rates and timings the assertions read: no other test runs beside them
-pytestmark = pytest.mark.exclusive
+pytestmark = [pytest.mark.exclusive, pytest.mark.usefixtures("idle_cpus_poll")]
 
 CELL = "live1"
 STANDING = {  # a person standing upright, feet at x = 0

@@ -50,6 +50,7 @@ def test_only_a_person_who_chases_the_robot_makes_it_follow_the_commands() -> No
 
 
 @pytest.mark.exclusive
+@pytest.mark.usefixtures("idle_cpus_poll")
 def test_skeletons_are_stamped_on_the_frame_clock() -> None:
     """At the person's sensor rate, one skeleton per frame period: a frame clock, not a poll
     (which stamped skeletons up to half a period late and sent two in one poll after a late

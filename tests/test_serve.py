@@ -252,6 +252,7 @@ def test_lower_thread_priority_acts_on_the_calling_thread_only() -> None:
 # per cycle is issue 33's, the capacity `sara-app bench --cells`'s): this test is about the
 # plumbing of several cells, so its cells run the default scenario at 100 Hz
 @pytest.mark.exclusive
+@pytest.mark.usefixtures("idle_cpus_poll")
 def test_serve_runs_several_cells_on_one_router(tmp_path: Path) -> None:
     """``serve --cells 2``: two cells of the scenario, each with its processes and its own 3D
     view, on one router; the API lists both running and links each cell's view."""

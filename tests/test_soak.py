@@ -15,6 +15,7 @@ from sara_app.commands.soak import RECOVERY_GRACE_S
 
 
 @pytest.mark.exclusive
+@pytest.mark.usefixtures("idle_cpus_poll")
 @pytest.mark.slow
 def test_chaos_never_moves_the_robot_off_a_verified_command(tmp_path: Path) -> None:
     """45 s with a process killed or the router stopped every 3 s (15 faults, as a minute at

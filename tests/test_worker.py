@@ -32,7 +32,7 @@ from sara_app.runtime.worker import CellWorker
 from sara_app.scenario import load_scenario
 
 # live cells whose rates and timings the assertions read: no other test runs beside them
-pytestmark = pytest.mark.exclusive
+pytestmark = [pytest.mark.exclusive, pytest.mark.usefixtures("idle_cpus_poll")]
 
 EXAMPLE = Path(__file__).resolve().parent.parent / "sara_app" / "bus" / "example_publisher.py"
 STANDING = np.array(
