@@ -287,7 +287,9 @@ def _locks_on(dt: float, verdicts, status, tb, proc) -> None:
     t_next = got[-1].stamp_s + 5 * dt * (1 + int((time.time() - got[-1].stamp_s) / (5 * dt)))
     t_next += 1e-4  # each skeleton a period after the cycle before its stamp, unlocked
     t_half = time.time() + 2.5  # learning before, locked after (statuses come about 1 Hz)
-    t_end = time.monotonic() + 5.0
+    # 5 s locked: a burst of the host's own preemptions (a VM's steal, docs/measurements/
+    # 2026-12-02-test-machine-stalls.md) is a smaller share of 250 skeletons than of 125
+    t_end = time.monotonic() + 7.5
     for seq in range(100000):
         time.sleep(max(t_next - time.time(), 0.0))
         y = y0 + rng.normal(0, 0.001, y0.shape)
@@ -319,7 +321,7 @@ def _locks_on(dt: float, verdicts, status, tb, proc) -> None:
             age = v.skeleton_age_s["p"]
             ages_at.setdefault(round(v.stamp_s - age, 6), age)
     ages = np.array(list(ages_at.values()))
-    assert len(ages) > 100
+    assert len(ages) > 200
     # locked: most skeletons are taken within a quarter period of tau, none before their stamp
     assert np.mean(np.abs(ages - lock.delay_s) < dt / 4) > 0.8, (
         lock.delay_s,
