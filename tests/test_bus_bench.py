@@ -1,14 +1,22 @@
 """The latency benchmark of ``sara-app bench`` (skeleton publication -> verdict reception through
-a router and a worker process): it matches verdicts to the skeletons they used. No timing
-assertions: only that it measures what it says."""
+a router and a worker process): it matches verdicts to the skeletons they used. No latency
+bounds: only that it measures what it says, which takes a worker that answers nearly every
+skeleton (a rate: the test runs alone)."""
 
 from __future__ import annotations
 
 import math
 
+import pytest
+
 from sara_app.bench.bus import bench_latency
 
 
+# a worker at 500 Hz whose verdicts must answer 3 skeletons in 4: beside another test's
+# processes on a 2-core machine it ran at 341 verdicts/s and answered 27 of 40 (a CI mirror,
+# 2026-12-02)
+@pytest.mark.exclusive
+@pytest.mark.usefixtures("idle_cpus_poll")
 def test_latency_rows_match_every_control_period() -> None:
     rows = bench_latency(n=40, rate_hz=120.0, dts_s=(0.004, 0.002))
     assert [r[0] for r in rows] == [
