@@ -8,7 +8,9 @@ import contextlib
 import fcntl
 import os
 import tempfile
+import time
 from collections.abc import Iterator
+from typing import Any
 
 import pytest
 
@@ -70,6 +72,66 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
         if stack >= 0:
             os.close(stack)  # releases its lock
         fcntl.flock(_MAIN_FD, fcntl.LOCK_UN)
+
+
+# A test marked ``exclusive`` reads real periods, and on a virtual machine the host may take a
+# CPU away for milliseconds (steal time) even while the idle CPUs poll: a CI mirror on the AMD
+# EPYC VM of 2026-12-02 failed 5 such tests by 1 ms gaps and 1 % rates while the host took 5-6 %
+# of each CPU. When such a test fails and the host took at least STEAL_SHARE of a CPU meanwhile
+# (the kernel's steal counter, /proc/stat), its observation was the machine's, not the cell's:
+# it runs again, at most RERUNS times, and the last run's result stands, with the bounds as
+# they are. A failure with nothing stolen stands at once. The reruns are listed at the end.
+STEAL_SHARE = 0.01
+RERUNS = 2
+_RERUNS_SEEN: list[str] = []
+
+
+def _steal_s() -> list[float]:
+    """Seconds each CPU's virtual CPU was runnable but not run by the host, since boot (the
+    8th value of each ``cpuN`` line of /proc/stat, in clock ticks); empty where unreadable."""
+    try:
+        with open("/proc/stat") as f:
+            rows = [ln.split() for ln in f if ln.startswith("cpu") and ln[3].isdigit()]
+        return [int(r[8]) / os.sysconf("SC_CLK_TCK") for r in rows]
+    except (OSError, IndexError, ValueError):
+        return []
+
+
+@pytest.hookimpl(tryfirst=True, specname="pytest_runtest_protocol")
+def pytest_runtest_protocol_rerun(item: pytest.Item, nextitem: pytest.Item | None) -> bool | None:
+    if item.get_closest_marker("exclusive") is None:
+        return None  # pytest's own protocol
+    from _pytest.runner import runtestprotocol
+
+    item.ihook.pytest_runtest_logstart(nodeid=item.nodeid, location=item.location)
+    reruns: list[str] = []
+    for attempt in range(RERUNS + 1):
+        s0, t0 = _steal_s(), time.monotonic()
+        reports = runtestprotocol(item, nextitem=nextitem, log=False)
+        wall_s, s1 = time.monotonic() - t0, _steal_s()
+        stolen = max((b - a for a, b in zip(s0, s1)), default=0.0) / max(wall_s, 1e-9)
+        failed = any(r.failed for r in reports)
+        if not failed or attempt == RERUNS or stolen < STEAL_SHARE:
+            break
+        reruns.append(
+            f"{item.nodeid}: run {attempt + 1} failed while the host took "
+            f"{100 * stolen:.1f} % of a CPU; run again"
+        )
+    for r in reports:
+        r.user_properties.extend(("machine rerun", line) for line in reruns if r.when == "call")
+        item.ihook.pytest_runtest_logreport(report=r)
+    item.ihook.pytest_runtest_logfinish(nodeid=item.nodeid, location=item.location)
+    return True
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    # in the process that reports (under xdist the controller: the workers' reports carry it)
+    _RERUNS_SEEN.extend(str(v) for k, v in report.user_properties if k == "machine rerun")
+
+
+def pytest_terminal_summary(terminalreporter: Any) -> None:
+    for line in _RERUNS_SEEN:
+        terminalreporter.write_line(f"rerun (the machine, not the cell): {line}")
 
 
 @pytest.fixture()
