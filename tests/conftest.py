@@ -80,7 +80,7 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
 # of each CPU. When such a test fails and the host took at least STEAL_SHARE of a CPU meanwhile
 # (the kernel's steal counter, /proc/stat), its observation was the machine's, not the cell's:
 # it runs again, at most RERUNS times, and the last run's result stands, with the bounds as
-# they are. A failure with nothing stolen stands at once. The reruns are listed at the end.
+# they are. A failure with less stolen stands at once. The reruns are listed at the end.
 STEAL_SHARE = 0.01
 RERUNS = 2
 _RERUNS_SEEN: list[str] = []
