@@ -159,14 +159,14 @@ recording's length and rate: the whole of CMU 62_11 (30 s at 120 Hz) at a 0.5 s 
 2.6 GB in one piece, and a minute at 1 kHz would have taken about 360 GB."""
 
 
-def horizon_frames(times_s: np.ndarray, horizon_s: float) -> int:
+def _horizon_frames(times_s: np.ndarray, horizon_s: float) -> int:
     """``K``: the most future frames any frame has within the horizon (at least 1)."""
     T = len(times_s)
     ahead = np.searchsorted(times_s, times_s + horizon_s + 1e-12, "right") - np.arange(T)
     return max(1, int(np.max(ahead)) - 1)
 
 
-def future_frames(
+def _future_frames(
     times_s: np.ndarray, horizon_s: float, K: int, rows: slice
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For the frames ``rows`` (``F`` of them): the future frames ``frame (F, K)`` (clipped to
@@ -186,12 +186,12 @@ def frame_pairs(
 ) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Every frame pair ``(i, j)`` with 0 < t_j - t_i <= horizon and its ``tau``, each ``(N,)``,
     in chunks of at most about ``pairs_per_chunk`` pairs (memory bounded by it). The most future
-    frames ANY frame has (:func:`horizon_frames`) are looked at, so a frame after a gap in the
+    frames ANY frame has (:func:`_horizon_frames`) are looked at, so a frame after a gap in the
     stamps keeps every pair within the horizon."""
     T = len(times_s)
-    K = horizon_frames(times_s, horizon_s)
+    K = _horizon_frames(times_s, horizon_s)
     for rows in _chunks(T, K, pairs_per_chunk):
-        frame, tau, valid = future_frames(times_s, horizon_s, K, rows)
+        frame, tau, valid = _future_frames(times_s, horizon_s, K, rows)
         i = np.broadcast_to(np.arange(T)[rows][:, None], frame.shape)
         yield i[valid], frame[valid], tau[valid]
 
@@ -235,7 +235,7 @@ def containment(
     """
     reach = HumanReach(replace(reach.params, delay_s=0.0))
     T = y.shape[0]
-    K = horizon_frames(times_s, horizon_s)
+    K = _horizon_frames(times_s, horizon_s)
     rs = rates(reach, times_s, y, models)
     job = _Job(reach, times_s, y, horizon_s, models, K, rs, n_worst, effective_of)
     f = None if faulted is None else np.asarray(faulted, bool)
@@ -263,7 +263,7 @@ def _chunk(job: _Job, rows: slice, faulted: np.ndarray | None) -> dict[str, Cont
     """:func:`containment` of the measurements ``rows`` (frame numbers stay the recording's);
     ``faulted (F,)``: theirs."""
     reach, K = job.reach, job.K
-    frame, tau, valid = future_frames(job.times_s, job.horizon_s, K, rows)
+    frame, tau, valid = _future_frames(job.times_s, job.horizon_s, K, rows)
     occ = _occupancies_at(job, tau, valid, rows)
     fut = job.y[frame]  # (F, K, J, 3)
     names = reach.skeleton.joints

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sara_app.errors import InputError, ParameterError
-from sara_app.human.analysis import EFFECTIVE, horizon_frames
+from sara_app.human.analysis import EFFECTIVE, frame_pairs
 from sara_app.human.params import DisplacementBound, ParamSet
 from sara_app.human.recording import Recording
 from sara_app.human.skeleton import FULL_JOINTS, UPPER_JOINTS
@@ -76,16 +76,15 @@ def fit_displacement(
         y, t = rec.positions_m, rec.times_s
         J = y.shape[1]
         ok = np.ones(y.shape[:2], bool) if trusted is None else np.asarray(trusted[r], bool)
-        # as many frames ahead as ANY frame has within the horizon (not the first frame's: after
-        # a gap in the stamps, the pairs beyond it were left out of the table)
-        for lag in range(1, min(horizon_frames(t, n * step_s + 1e-9) + 1, len(t))):
-            tau = t[lag:] - t[:-lag]
+        # the pairs the fits and the containment check take (every frame's, after a gap in the
+        # stamps too), to the last cell's end and its rounding
+        for i, j, tau in frame_pairs(t, (n + 1e-6) * step_s):
             # a pair within rounding of a cell's end counts in that cell (and so, the table
             # being non-decreasing, in the next): stamps 50 ms apart come out 0.05 or 0.05 + 2e-17
             c = cells(tau - 1e-6 * step_s, step_s)
             inside = c < n
-            d = np.linalg.norm(y[lag:] - y[:-lag], axis=-1) - delta_y_m  # (T - lag, J)
-            d = np.where(ok[lag:] & ok[:-lag] & inside[:, None], d, -np.inf)
+            d = np.linalg.norm(y[j] - y[i], axis=-1) - delta_y_m  # (N, J)
+            d = np.where(ok[j] & ok[i] & inside[:, None], d, -np.inf)
             for q in range(J):
                 np.maximum.at(best[q], c[inside], d[inside, q])
     out = np.full_like(best, np.nan)
@@ -97,8 +96,8 @@ def fit_displacement(
         last = seen[-1]  # cells past the longest pair seen stay nan: no data, no claim
         filled = row[: last + 1].copy()
         nxt = row[last]  # a cell without pairs: the next cell's value (larger, so sound)
-        for i in range(last, -1, -1):
-            nxt = filled[i] = row[i] if np.isfinite(row[i]) else nxt
+        for k in range(last, -1, -1):
+            nxt = filled[k] = row[k] if np.isfinite(row[k]) else nxt
         out[q, : last + 1] = np.maximum.accumulate(np.maximum(filled, 0.0))
     return out
 
