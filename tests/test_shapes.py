@@ -483,6 +483,22 @@ def test_point_segment_distance_vs_brute_force(ends, x, spread):
     assert d <= float(np.linalg.norm(x - ends[1])) + eps
 
 
+@MANY
+@given(segments(), vec3, st.sampled_from([1.0, 1e-3, 30.0]))
+def test_point_segment_closest_parameter_gives_the_distance(ends, x, spread):
+    """The parameter returned is in [0, 1], its point is at the returned distance, and it is
+    the segment-segment closest point's parameter for the point taken as a segment."""
+    x = ends[0] + spread * x
+    eps = tol(ends, x)
+    d, s = (float(a) for a in geo.point_segment_closest(x, ends))
+    assert 0.0 <= s <= 1.0
+    assert abs(float(np.linalg.norm(x - (ends[0] + s * (ends[1] - ends[0])))) - d) <= eps
+    d_seg, _, t = geo.segment_segment_closest(np.stack([x, x]), ends)
+    assert abs(d - float(d_seg)) <= eps
+    if float(np.dot(ends[1] - ends[0], ends[1] - ends[0])) > 0.0:
+        assert abs(s - float(t)) * float(np.linalg.norm(ends[1] - ends[0])) <= eps
+
+
 @MEDIUM
 @given(segments(), st.floats(0.0, 1.0))
 def test_point_on_segment_has_zero_distance(ends, s):

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from sara_app.cell.build import build_cell, environment_boxes
-from sara_app.geometry.shapes import capsule_distances
+from sara_app.geometry.shapes import capsule_box_distances, capsule_distances
 from sara_app.human.scripted import joints, standing
 from sara_app.safety.settings import PflSettings
 from sara_app.safety.thresholds import load_thresholds
@@ -151,6 +151,88 @@ def test_between_links_clamps_unless_they_are_adjacent() -> None:
     assert _touched(truth, y) == {"panda_link7", "panda_hand"}
     c = truth.evaluate(Q0, V0, [y])
     assert c.touching[0] and not c.clamped[0]
+
+
+def _evaluate_pair_by_pair(
+    truth: ContactTruth, q: np.ndarray, v: np.ndarray, poses: list[np.ndarray]
+) -> tuple[np.ndarray, ...]:
+    """The oracle of :meth:`ContactTruth.evaluate`: the module notes' rule, one touching
+    (link, part) pair at a time, brute force (every distance, stacks grown part by part)."""
+    H, P = len(poses), truth.n_parts
+    touching, clamped, harmful = (np.zeros(H, dtype=bool) for _ in range(3))
+    ratio = np.zeros(H)
+    ends, rad = truth.robot.link_capsules(q)
+    parts = np.concatenate([y[truth.part_joints] for y in poses])  # (H P, 2, 3)
+    th = truth.half_th
+    link_part = capsule_distances(ends, rad, parts, th) <= 0.0  # (L, H P)
+    part_part = capsule_distances(parts, th, parts, th) <= 0.0
+    boxes = truth.boxes
+    on_box = np.zeros(H * P, dtype=bool)
+    for b in range(len(boxes[0])):
+        for k in range(H * P):
+            ball = capsule_box_distances(parts[k : k + 1], th[k : k + 1], *boxes)[0, b]
+            on_box[k] |= ball <= 0.0
+    E = truth.motion.energies(q[None], v[None])[0]
+    for j in range(H * P):
+        stack = {j}  # the parts stacked with j: touching, not a safe pair, transitively
+        grown = True
+        while grown:
+            new = {k for k in range(H * P) for m in stack
+                   if part_part[m, k] and not truth.safe_pair[m, k]} - stack  # fmt: skip
+            stack |= new
+            grown = bool(new)
+        for i in range(len(rad)):
+            if not (link_part[i, j] and E[i] > 0.0):
+                continue
+            others = [o for o in range(len(rad)) if not truth.no_clamp[i, o]
+                      and any(link_part[o, m] for m in stack)]  # fmt: skip
+            is_clamped = bool(others) or any(on_box[m] for m in stack)
+            thr = min(truth.T_clamp[i, m] for m in stack) if is_clamped else truth.T_free[i, j]
+            h = j // P
+            touching[h] = True
+            clamped[h] |= is_clamped
+            harmful[h] |= E[i] / thr >= 1.0
+            ratio[h] = max(ratio[h], E[i] / thr)
+    return touching, clamped, harmful, ratio
+
+
+def test_the_contact_truth_equals_its_pair_by_pair_oracle() -> None:
+    """Two people reaching around the arm, over a table, at random speeds: the vectorised truth
+    gives the oracle's touching, clamped and harmful flags and energy ratios."""
+    low = _hand_bottom()
+    sc = parse_scenario(
+        {"name": "t", "task": {"waypoints_rad": [Q0.tolist()]},
+         "environment": [_table_below(low[2] - 0.2)], "human_params": "schepp2022_table1"}
+    )  # fmt: skip
+    cell = build_cell(sc)
+    sk = cell.shield.reach.skeleton
+    truth = ContactTruth(cell.robot, sk.part_joints, cell.params.half_thickness_m, sk.parts, 2,
+                         PflSettings(), environment_boxes(sc))  # fmt: skip
+    rng = np.random.default_rng(3)
+    seen = {"free": 0, "clamped": 0, "harmful": 0, "two people": 0}
+    for _ in range(150):
+        q = Q0 + rng.uniform(-0.4, 0.4, 7)
+        v = rng.uniform(-1.5, 1.5, 7) * rng.uniform(0.0, 1.0)
+        ends, _ = cell.robot.link_capsules(q)
+        poses = []
+        for _ in range(2):  # one to four joints near random points of random links
+            y = _far()
+            near = rng.choice(len(y), rng.integers(1, 5), replace=False)
+            links = rng.integers(0, len(ends), len(near))
+            s = rng.uniform(0.0, 1.0, (len(near), 1))
+            y[near] = ends[links, 0] + s * (ends[links, 1] - ends[links, 0])
+            y[near] += rng.normal(0.0, 0.12, (len(near), 3))
+            poses.append(y)
+        got = truth.evaluate(q, v, poses)
+        want = _evaluate_pair_by_pair(truth, q, v, poses)
+        for name, g, w in zip(("touching", "clamped", "harmful", "ratio"), vars(got).values(),
+                              want, strict=True):  # fmt: skip
+            np.testing.assert_allclose(g, w, rtol=1e-12, atol=0.0, err_msg=name)
+        seen["free"] += int((got.touching & ~got.clamped).sum())
+        seen["clamped"] += int(got.clamped.sum())
+        seen["harmful"] += int(got.harmful.sum())
+        seen["two people"] += int(got.touching.all())
+    assert min(seen.values()) >= 5, seen
 
 
 def test_adversarial_pfl_episodes_have_no_harmful_contact() -> None:

@@ -27,8 +27,10 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.einsum("...i,...i->...", a, b)
 
 
-def point_segment_distance(points: np.ndarray, ends: np.ndarray) -> np.ndarray:
-    """Distance from points ``(..., 3)`` to segments ``(..., 2, 3)``, broadcast: ``(...)``."""
+def point_segment_closest(points: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closest points of segments ``(..., 2, 3)`` to points ``(..., 3)``, broadcast: the
+    distance ``(...)`` and the closest point's parameter ``s (...)`` in [0, 1] along each
+    segment (0 for a point segment)."""
     p0, p1 = ends[..., 0, :], ends[..., 1, :]
     d = p1 - p0
     dd = _dot(d, d)
@@ -36,7 +38,12 @@ def point_segment_distance(points: np.ndarray, ends: np.ndarray) -> np.ndarray:
     # clamp such as max(dd, eps) would leave s short of the true parameter by up to its length).
     s = np.clip(_dot(points - p0, d) / np.where(dd > 0.0, dd, 1.0), 0.0, 1.0)
     closest = p0 + s[..., None] * d
-    return np.linalg.norm(points - closest, axis=-1)
+    return np.linalg.norm(points - closest, axis=-1), s
+
+
+def point_segment_distance(points: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """Distance from points ``(..., 3)`` to segments ``(..., 2, 3)``, broadcast: ``(...)``."""
+    return point_segment_closest(points, ends)[0]
 
 
 def segment_segment_closest(

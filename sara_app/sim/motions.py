@@ -12,7 +12,7 @@ from typing import Protocol
 import numpy as np
 
 from sara_app.errors import ParameterError
-from sara_app.geometry.shapes import segment_segment_closest
+from sara_app.geometry.shapes import point_segment_closest
 from sara_app.human.params import ReachParams, sustained_speed_mps
 from sara_app.human.recordings import Recording, load_recording
 from sara_app.human.scripted import (
@@ -190,8 +190,7 @@ class Adversary:
     def _targets(self, robot_ends: np.ndarray) -> np.ndarray:
         """Nearest point on any link axis for every joint ``(15, 3)``."""
         seg = robot_ends.reshape(-1, 2, 3)
-        pts = np.repeat(self.y[:, None, None, :], 2, axis=2)  # joints as point segments
-        d, _, t = segment_segment_closest(pts, seg[None])
+        d, t = point_segment_closest(self.y[:, None, :], seg[None])  # (15, L)
         k = np.argmin(d, axis=1)
         a, b = seg[k, 0], seg[k, 1]
         tt = t[np.arange(len(k)), k][:, None]

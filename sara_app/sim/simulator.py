@@ -25,6 +25,7 @@ contact whose energy reaches that threshold is harmful (``SimMetrics.harmful_con
 
 from __future__ import annotations
 
+import bisect
 import math
 import sys
 from dataclasses import dataclass, field
@@ -194,17 +195,19 @@ class ContactTruth:
             if np.array_equal(nxt, stack):
                 break
             stack = nxt
-        for i, j in zip(*np.nonzero(touch), strict=True):
-            members = stack[j]
-            others = touch_any[:, members].any(axis=1) & ~self.no_clamp[i]
-            clamped = bool(on_box[members].any() or others.any())
-            thr = self.T_clamp[i, members].min() if clamped else self.T_free[i, j]
-            ratio = float(E[i] / thr)
-            h = int(self.owner[j])
-            verdict.touching[h] = True
-            verdict.clamped[h] |= clamped
-            verdict.harmful[h] |= ratio >= 1.0
-            verdict.ratio[h] = max(verdict.ratio[h], ratio)
+        # every touching (link i, part j) pair at once: j's stack (it is one of its members)
+        # clamps when a member is on a box or touches a link that can clamp with i
+        i, j = np.nonzero(touch)
+        members = stack[j]  # (N, H P)
+        links_on_stack = members @ touch_any.T  # (N, L) booleans: a link touches a member
+        clamped = (members & on_box).any(axis=1) | (links_on_stack & ~self.no_clamp[i]).any(1)
+        T_stack = np.where(members, self.T_clamp[i], np.inf).min(axis=1)  # the stack's lowest
+        ratio = E[i] / np.where(clamped, T_stack, self.T_free[i, j])
+        h = self.owner[j]
+        verdict.touching[h] = True
+        np.logical_or.at(verdict.clamped, h, clamped)
+        np.logical_or.at(verdict.harmful, h, ratio >= 1.0)
+        np.maximum.at(verdict.ratio, h, ratio)
         return verdict
 
 
@@ -288,7 +291,8 @@ class Simulation:
         if sen.next_s <= t:
             sen.next_s = t + 1.0 / sen.rate_hz
         t_target = t - self.params.delay_s
-        k = int(np.searchsorted(self._hist_t, t_target + 1e-12, side="right")) - 1
+        # bisect on the list: np.searchsorted would copy the whole growing history each call
+        k = bisect.bisect_right(self._hist_t, t_target + 1e-12) - 1
         if k < 0:
             return
         t_m = self._hist_t[k]
@@ -301,10 +305,20 @@ class Simulation:
             y = full_body(y[: len(UPPER_JOINTS)], None)[0]
         take_measurement(self.cell, sen.track, stamp, y, legs_measured=sen.legs_measured)
 
-    def _collide(self, q: np.ndarray, v: np.ndarray, poses: list[np.ndarray], moving: bool) -> None:
+    def _collide(
+        self,
+        q: np.ndarray,
+        v: np.ndarray,
+        poses: list[np.ndarray],
+        moving: bool,
+        capsules: tuple[np.ndarray, np.ndarray],
+    ) -> None:
+        """``capsules``: the cell robot's link capsules at ``q``, the truth's where the robot
+        has no margin (the same model)."""
         if not poses:
             return
-        ends, rad = self.truth_robot.link_capsules(q)
+        truth = self.truth_robot
+        ends, rad = capsules if truth is self.robot else truth.link_capsules(q)
         touching = False
         for y in poses:
             dmin = body_distance(y, self._parts, self._half_th, ends, rad)
@@ -350,7 +364,7 @@ class Simulation:
         v = shield.robot_state.v
         moving = bool(np.max(np.abs(v), initial=0.0) > _MOVING_RAD_S)
         self.separation_m = math.inf
-        self._collide(q, v, poses, moving)
+        self._collide(q, v, poses, moving, (ends, rad))
         faults = [f for f in (s.track.intake.fault(s.track.state.id) for s in self.sensors) if f]
         res = self.shield.cycle(
             t, [s.track.state for s in self.sensors], None, input_faults=faults, want_distance=False
