@@ -14,15 +14,17 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from sara_app.geometry.shapes import effective_volume_mc, point_segment_distance, union_volume_mc
+from sara_app.geometry.shapes import effective_volume_mc, union_volume_mc
 from sara_app.human.arm import (
     arm_coordinates,
     arm_occupancy,
     coordinate_uncertainty,
     frame_error,
 )
+from sara_app.human.containment_kernels import cover_joints
 from sara_app.human.reach import MODELS, HumanReach, Occupancy, part_capsules
 from sara_app.human.velocity import estimate_recording
+from sara_app.kernel_types import as_f8
 
 
 @dataclass
@@ -265,7 +267,7 @@ def _chunk(job: _Job, rows: slice, faulted: np.ndarray | None) -> dict[str, Cont
     reach, K = job.reach, job.K
     frame, tau, valid = _future_frames(job.times_s, job.horizon_s, K, rows)
     occ = _occupancies_at(job, tau, valid, rows)
-    fut = job.y[frame]  # (F, K, J, 3)
+    fut = as_f8(job.y[frame])  # (F, K, J, 3)
     names = reach.skeleton.joints
     F, J = len(frame), len(names)
     tally = (names, job.times_s[rows], tau, job.n_worst, rows.start)
@@ -274,17 +276,12 @@ def _chunk(job: _Job, rows: slice, faulted: np.ndarray | None) -> dict[str, Cont
     eff_worst = np.full((F, K, J), -np.inf)
     for m in job.models:
         o = occ[m]
-        cap, joint, margin = reach.coverage[m]
-        d = point_segment_distance(fut[:, :, joint], o.ends[:, :, cap])  # (F, K, M)
-        excess = d + margin - o.radius[:, :, cap]
         # A joint is contained when every capsule that must hold it does.
         inside = np.ones((F, K, J), dtype=bool)
-        np.logical_and.at(inside, (slice(None), slice(None), joint), excess <= 1e-12)  # type: ignore[arg-type]
         worst_excess = np.full((F, K, J), -np.inf)
-        np.maximum.at(worst_excess, (slice(None), slice(None), joint), excess)  # type: ignore[arg-type]
         known = np.ones((F, K, J), dtype=bool)
-        np.logical_and.at(known, (slice(None), slice(None), joint),  # type: ignore[arg-type]
-                          np.isfinite(o.radius[:, :, cap]))  # fmt: skip
+        cover_joints(fut, as_f8(o.ends), as_f8(o.radius), *reach.coverage[m], inside,
+                     worst_excess, known)  # fmt: skip
         v3 = valid[:, :, None] & known
         results[m] = _tally(m, inside, worst_excess, v3, *tally)
         results[m].unavailable = int((valid[:, :, None] & ~known).sum())
@@ -319,13 +316,12 @@ def _tally(
         res.misses_per_joint[names[j]] = int(miss[:, :, j].sum())
     # an excess that overflowed (coordinates near the float limit) is a miss by more than any
     # finite one: listed first, never dropped from the list as not finite
-    flat = np.where(miss, np.nan_to_num(worst_excess, nan=np.inf, posinf=np.inf), -np.inf)
-    for f in np.argsort(flat, axis=None)[::-1][:n_worst]:
-        i, k, j = np.unravel_index(f, flat.shape)
-        if flat[i, k, j] == -np.inf:
-            break
+    at = np.flatnonzero(miss)  # only the misses are sorted (a sound set has none)
+    by = np.nan_to_num(worst_excess.ravel()[at], nan=np.inf, posinf=np.inf)
+    for o in np.argsort(by, kind="stable")[::-1][:n_worst]:
+        i, k, j = np.unravel_index(at[o], miss.shape)
         res.worst.append(Miss(names[j], first_frame + int(i), float(times_s[i]),
-                              float(tau[i, k]), float(flat[i, k, j])))  # fmt: skip
+                              float(tau[i, k]), float(by[o])))  # fmt: skip
     return res
 
 
