@@ -6,10 +6,12 @@ Conventions: a capsule set is ``ends`` of shape ``(..., 2, 3)`` (segment end poi
 All functions broadcast over leading axes and never loop in Python over capsules.
 
 Where each runs: these numpy functions serve everything outside the control cycle (fitting link
-capsules, containment and volume analysis, the dashboard, the simulator's ground truth, the JSSA
-study) and are the oracle of the compiled kernels. The control cycle runs
+capsules, volume analysis, the dashboard, the simulator's ground truth, the JSSA study) and are
+the oracle of the compiled kernels. The control cycle runs
 :mod:`sara_app.geometry.shape_kernels` instead: the same mathematics written as loops, because
-at one cycle's sizes numpy spends most of its time in per-call overhead.
+at one cycle's sizes numpy spends most of its time in per-call overhead. The containment
+analysis's distances run in :mod:`sara_app.human.containment_kernels` (at a recording's sizes
+numpy's temporaries were the cost).
 """
 
 from __future__ import annotations
