@@ -22,11 +22,10 @@ from pydantic import (
 )
 
 from sara_app.errors import SaraError, ScenarioError, describe_validation
-from sara_app.human.gate import BONES, GateSettings
-from sara_app.human.intake import STALE_AFTER_S, IntakeSettings
 from sara_app.human.params import RENAMED as PARAM_SETS_RENAMED
 from sara_app.human.params import ParamSet, load_param_set, parse_param_set
 from sara_app.human.skeleton import FULL_JOINTS
+from sara_app.human.tracking_settings import BONES, STALE_AFTER_S, GateSettings, IntakeSettings
 from sara_app.safety.settings import ShieldSettings
 from sara_app.settings import Coord, Extent, Finite, Name, NonNeg, Pos, StrictFinite
 
@@ -181,8 +180,8 @@ class GateSpec(StrictFinite):
     """How long a whole skeleton may repeat before its person is a fault."""
     bone_lengths_m: dict[str, Annotated[float, Field(gt=0, lt=2)]] = {}
     """Known bone lengths (e.g. of the one operator of a cell), keyed ``joint-joint`` as in
-    ``sara_app.human.gate.BONES`` (``"l_elbow-l_wrist"``): checked from the first frame; the
-    other bones are learned from each person's first frames."""
+    ``sara_app.human.tracking_settings.BONES`` (``"l_elbow-l_wrist"``): checked from the first
+    frame; the other bones are learned from each person's first frames."""
 
     @field_validator("bone_lengths_m")
     @classmethod

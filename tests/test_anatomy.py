@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 
 from sara_app.human.anatomy import BONE_RANGE_M, bone_ranges
-from sara_app.human.gate import BONES, FLAGS, bone_indices
+from sara_app.human.gate import FLAGS, bone_indices
 from sara_app.human.intake import Intake
 from sara_app.human.recordings import PACKAGED_DATA_DIR, load_recording
 from sara_app.human.skeleton import FULL_JOINTS, skeleton
+from sara_app.human.tracking_settings import BONES
 
 DY = 0.004
 STANDING = np.array(

@@ -10,8 +10,8 @@ from hypothesis import strategies as st
 
 from sara_app.errors import ParameterError
 from sara_app.human.conformance import Monitor
-from sara_app.human.gate import GateSettings
-from sara_app.human.intake import Intake, IntakeSettings
+from sara_app.human.intake import Intake
+from sara_app.human.tracking_settings import GateSettings, IntakeSettings
 
 DY = 0.004
 J = 15

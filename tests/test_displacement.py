@@ -227,7 +227,7 @@ def test_an_edit_that_adds_or_drops_the_table_reaches_the_monitor() -> None:
     p = to_reach_params(ps, "full")
     intake = Intake(DY, p.v_max_mps, p.a_max_mps2)
     assert intake.monitor.disp_m.shape == (J, 0)
-    from sara_app.human.intake import IntakeSettings
+    from sara_app.human.tracking_settings import IntakeSettings
 
     intake.retune(DY, p.v_max_mps, p.a_max_mps2, IntakeSettings(), displacement=displacement_of(p))
     assert intake.monitor.disp_m.shape == (J, 50)

@@ -9,10 +9,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sara_app.errors import ParameterError
-from sara_app.human.gate import FLAGS, Gate, GateSettings, enclose
+from sara_app.human.gate import FLAGS, Gate, enclose
 from sara_app.human.glitches import Glitches
 from sara_app.human.intake import Intake
 from sara_app.human.recordings import load_recording
+from sara_app.human.tracking_settings import GateSettings
 from sara_app.scenario import GateSpec, GlitchSpec
 
 DY = 0.004

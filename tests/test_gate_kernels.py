@@ -12,9 +12,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sara_app.errors import InputError
-from sara_app.human.gate import Gate, GateSettings
+from sara_app.human.gate import Gate
 from sara_app.human.gate_kernels import repeated_frame
 from sara_app.human.scripted import joints, standing
+from sara_app.human.tracking_settings import GateSettings
 
 
 def _same_gate(a: Gate, b: Gate, frame: int) -> None:

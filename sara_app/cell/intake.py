@@ -21,9 +21,10 @@ import numpy as np
 from sara_app.cell.build import Cell
 from sara_app.errors import SaraError
 from sara_app.human.gate import GateResult
-from sara_app.human.intake import Displacement, Intake, IntakeSettings, displacement_of
+from sara_app.human.intake import Displacement, Intake, displacement_of
 from sara_app.human.legs import leg_caps
 from sara_app.human.skeleton import UPPER_JOINTS
+from sara_app.human.tracking_settings import IntakeSettings
 from sara_app.human.widening import widening
 from sara_app.safety.shield import HumanState
 

@@ -42,8 +42,8 @@ BONE_RANGE_M: dict[tuple[str, str], tuple[float, float]] = {
     ("l_knee", "l_ankle"): (0.18, 0.70),
     ("r_knee", "r_ankle"): (0.18, 0.70),
 }
-"""Per bone of :data:`sara_app.human.gate.BONES`: the shortest and longest length (m) of a
-measured adult's bone on any supported tracker (see the module notes)."""
+"""Per bone of :data:`sara_app.human.tracking_settings.BONES`: the shortest and longest length
+(m) of a measured adult's bone on any supported tracker (see the module notes)."""
 
 
 def bone_ranges(bones: np.ndarray, joints: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:

@@ -57,7 +57,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sara_app.errors import InputError, ParameterError
+from sara_app.errors import InputError
 from sara_app.human.anatomy import bone_ranges
 from sara_app.human.gate_kernels import (
     ALL_GOOD,
@@ -68,60 +68,12 @@ from sara_app.human.gate_kernels import (
     gate_frame,
 )
 from sara_app.human.skeleton import FULL_JOINTS
+from sara_app.human.tracking_settings import BONES, GateSettings
 from sara_app.kernel_types import as_f8
-
-BONES: tuple[tuple[str, str], ...] = (
-    ("head", "neck"),
-    ("neck", "pelvis"),
-    ("neck", "l_shoulder"),
-    ("neck", "r_shoulder"),
-    ("l_shoulder", "l_elbow"),
-    ("r_shoulder", "r_elbow"),
-    ("l_elbow", "l_wrist"),
-    ("r_elbow", "r_wrist"),
-    ("pelvis", "l_hip"),
-    ("pelvis", "r_hip"),
-    ("l_hip", "l_knee"),
-    ("r_hip", "r_knee"),
-    ("l_knee", "l_ankle"),
-    ("r_knee", "r_ankle"),
-)
-"""Joint pairs at a (nearly) constant distance on every supported source (the neck and pelvis
-are the midpoints of the shoulders and hips, or markers on the spine)."""
 
 FLAGS = ("jump", "bone", "frozen", "missing")
 """The gate's per-joint flags, in the order of :attr:`GateResult.flags`' columns (``missing``:
 the tracker said it has no measurement of the joint, :mod:`sara_app.human.trackers`)."""
-
-
-@dataclass(frozen=True)
-class GateSettings:
-    """``bone_tol_m``: allowed drift of a bone length beyond ``2 delta_y``; ``learn_frames``:
-    frames whose median gives the person's bone lengths; ``max_hold_s``: a joint held longer
-    refuses the frame."""
-
-    bone_tol_m: float = 0.05
-    learn_frames: int = 15
-    max_hold_s: float = 0.5
-    known_bones_m: tuple[tuple[str, str, float], ...] = ()
-    """Bone lengths given by the scenario ``(joint, joint, m)``: checked from the first frame;
-    the other bones are learned."""
-    anatomy: bool = True
-    """Every bone is also checked against a person's range (:mod:`sara_app.human.anatomy`).
-    Off only for synthetic point sets that are no bodies (tests of the monitor)."""
-
-    def __post_init__(self) -> None:
-        if not (self.bone_tol_m >= 0 and self.learn_frames >= 1 and self.max_hold_s > 0):
-            raise ParameterError(
-                f"gate bone_tol_m = {self.bone_tol_m}, learn_frames = {self.learn_frames}, "
-                f"max_hold_s = {self.max_hold_s}; expected >= 0, >= 1, > 0"
-            )
-        for a, b, length in self.known_bones_m:
-            if (a, b) not in BONES or not (0 < length < 2):
-                raise ParameterError(
-                    f"known bone {a}-{b} of {length} m; expected one of "
-                    f"{', '.join(f'{x}-{y}' for x, y in BONES)} with 0 < length < 2 m"
-                )
 
 
 @dataclass

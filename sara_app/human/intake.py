@@ -17,12 +17,13 @@ import numpy as np
 
 from sara_app.errors import InputError
 from sara_app.human.conformance import Monitor, Violation
-from sara_app.human.gate import FLAGS, Gate, GateResult, GateSettings, why
+from sara_app.human.gate import FLAGS, Gate, GateResult, why
 from sara_app.human.gate_kernels import repeated_frame
 from sara_app.human.params import ReachParams
 from sara_app.human.recording import Recording
 from sara_app.human.skeleton import FULL_JOINTS
 from sara_app.human.stated_velocity import reconcile
+from sara_app.human.tracking_settings import DEFAULT_INTAKE, IntakeSettings
 from sara_app.human.velocity import VelocityEstimator
 from sara_app.kernel_types import as_f8, entry
 
@@ -33,14 +34,6 @@ Displacement = tuple[np.ndarray, float] | None
 _REPEATED = entry(repeated_frame)
 """Without numba's dispatcher: ``Intake._repeated`` checks the shapes and dtypes."""
 
-STALE_AFTER_S = 0.1
-"""A whole skeleton repeated bit-exactly for longer than this, its stamps advancing, is a stale
-tracker (a pipeline that stalled and republishes its last pose): a fault until it changes. A
-real tracker's noise never repeats every coordinate of a skeleton; a tracker that republishes
-each pose once at twice its rate (a 30 Hz camera behind a 60 Hz stream) repeats for one
-period, well below this."""
-
-
 SETTLE_S = 0.3
 """How long a person must have been measured standing at one place before their sets there are
 at least as conservative as a fresh person's, whatever came before (jumps, swaps, freezes, gaps:
@@ -48,17 +41,6 @@ the history property, ``tests/test_ingest_history.py``). It is the velocity esti
 (8 frames: 0.27 s at 30 Hz) with margin: before it, a fresh person's first frames have no
 velocity estimate (the acceleration models are unusable for them) while a person who walked
 there has a sound one; a held joint's set meanwhile encloses its history and its measurement."""
-
-
-@dataclass(frozen=True)
-class IntakeSettings:
-    """The gate's settings, the monitor's ``recover_s`` and the stale-tracker rule:
-    ``stale_after_s`` (None: off, for noiseless synthetic sources, whose people at rest repeat
-    their skeleton exactly)."""
-
-    gate: GateSettings = GateSettings()
-    recover_s: float = 0.5
-    stale_after_s: float | None = STALE_AFTER_S
 
 
 @dataclass(frozen=True)
@@ -80,7 +62,7 @@ class Intake:
         delta_y_m: float,
         v_max_mps: np.ndarray,
         a_max_mps2: np.ndarray,
-        settings: IntakeSettings = IntakeSettings(),
+        settings: IntakeSettings = DEFAULT_INTAKE,
         pelvis_rise_mps: float = np.inf,
         displacement: Displacement = None,
     ) -> None:
