@@ -32,7 +32,7 @@ from sara_app.api.schema import (
 from sara_app.errors import UnknownNameError, cut
 from sara_app.ops.jobs import JobBusyError, JobRunner
 from sara_app.scenario import Scenario
-from sara_app.sim.whatif import table_markdown
+from sara_app.sim.whatif_table import table_markdown
 
 MAX_DURATION_S = 60.0
 MAX_EPISODES = 50

@@ -31,7 +31,7 @@ from sara_app.errors import SaraError
 from sara_app.ops.jobs import Job, JobRunner
 from sara_app.ops.loosening import LooseningRefusedError
 from sara_app.robot.model import urdf_path
-from sara_app.sim.whatif import table_markdown
+from sara_app.sim.whatif_table import table_markdown
 
 log = logging.getLogger("sara_app.dashboard")
 MODES = ("as edited", "SSM", "PFL", "JSSA")

@@ -16,16 +16,6 @@ from sara_app.human.params import to_reach_params
 from sara_app.scenario import Scenario
 from sara_app.sim.closed_loop import run_closed_loop
 
-COMPARED: tuple[tuple[str, str], ...] = (
-    ("time_to_goal_s", "time to goal (s)"),
-    ("intervened_share", "cycles intervening"),
-    ("failsafe_share", "cycles on the failsafe"),
-    ("min_separation_m", "min. separation (m)"),
-    ("collisions_moving", "collisions while moving"),
-    ("harmful_contacts", "harmful contacts"),
-)
-"""The numbers shown side by side: key of the run summary and label."""
-
 
 def compare(
     current: Scenario,
@@ -49,21 +39,3 @@ def compare(
                           frames=True, motion_params=moves)  # fmt: skip
     say(1.0, "done")
     return {"current": now, "edited": new}
-
-
-def table_markdown(result: dict[str, Any]) -> str:
-    """The two runs side by side as a markdown table."""
-
-    def fmt(key: str, v: Any) -> str:
-        if v is None:
-            return "not reached" if key == "time_to_goal_s" else "n/a"
-        if key.endswith("_share"):
-            return f"{100 * v:.1f} %"
-        if isinstance(v, float):
-            return f"{v:.3f}" if key.endswith("_m") else f"{v:.2f}"
-        return str(v)
-
-    cur, new = result["current"], result["edited"]
-    rows = ["| | in force | edited |", "|---|---|---|"]
-    rows += [f"| {label} | {fmt(k, cur.get(k))} | {fmt(k, new.get(k))} |" for k, label in COMPARED]
-    return "\n".join(rows)
