@@ -1,12 +1,8 @@
 """What a scenario says about tracking (``sara_app.human.tracking_settings``): the settings refuse
-what the gate cannot use, naming the valid choices; and reading a scenario loads no compiled
-kernel, so the processes that never track a person (the reference controller, the router)
-start without loading the shield's kernels (about a second of every start before)."""
+what the gate cannot use, naming the valid choices. (That reading a scenario loads no compiled
+kernel: ``tests/test_process_starts.py``.)"""
 
 from __future__ import annotations
-
-import subprocess
-import sys
 
 import pytest
 
@@ -34,17 +30,3 @@ def test_a_known_bone_must_be_a_gate_bone_of_a_plausible_length() -> None:
 def test_the_default_intake_is_the_settings_of_a_silent_scenario() -> None:
     assert DEFAULT_INTAKE == IntakeSettings() and DEFAULT_INTAKE.gate == GateSettings()
     assert DEFAULT_INTAKE.stale_after_s == STALE_AFTER_S
-
-
-@pytest.mark.parametrize(
-    "module", ["sara_app.scenario", "sara_app.peers.controller", "sara_app.bus.router"]
-)
-def test_reading_a_scenario_loads_no_compiled_kernel(module: str) -> None:
-    code = (
-        f"import sys, {module}\n"
-        "from sara_app.scenario import load_scenario\n"
-        "load_scenario('close_worker')\n"
-        "print(sorted(m for m in sys.modules if m.endswith('kernels')))"
-    )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "[]", out.stdout

@@ -1,11 +1,8 @@
-"""A what-if's table (``sara_app.sim.whatif_table``): every compared number in words, side by side;
-and the API, which shows the table, starts without the simulator or any compiled kernel (the
-runs happen in a job's process)."""
+"""A what-if's table (``sara_app.sim.whatif_table``): every compared number in words, side by
+side. (That the API, which shows it, starts without the simulator:
+``tests/test_process_starts.py``.)"""
 
 from __future__ import annotations
-
-import subprocess
-import sys
 
 from sara_app.sim.whatif_table import COMPARED, table_markdown
 
@@ -22,13 +19,3 @@ def test_the_table_says_every_number_of_both_runs() -> None:
     assert by_label["cycles intervening"] == "| cycles intervening | 25.0 % | 100.0 % |"
     assert by_label["min. separation (m)"] == "| min. separation (m) | 0.123 | n/a |"
     assert by_label["harmful contacts"] == "| harmful contacts | 2 | n/a |"
-
-
-def test_the_api_starts_without_the_simulator_or_a_kernel() -> None:
-    code = (
-        "import sys, sara_app.api.app\n"
-        "print(sorted(m for m in sys.modules\n"
-        "             if m.endswith('kernels') or m.startswith('sara_app.sim.')))"
-    )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "['sara_app.sim.whatif_table']", out.stdout

@@ -20,10 +20,10 @@ from test_reach import (
     pos_future,
 )
 
+from sara_app.human.anatomy import UNMEASURED_LEG_REACH_M
 from sara_app.human.reach import MODELS, part_capsules
 from sara_app.human.skeleton import UPPER_JOINTS, full_body
 from sara_app.human.widening import (
-    UNMEASURED_LEG_REACH_M,
     capsule_widening,
     per_capsule,
     widening,

@@ -40,8 +40,8 @@ from sara_app.dashboard.frame import (
 )
 from sara_app.errors import InputError, UnknownNameError
 from sara_app.geometry.capsule_mesh import capsule_arrays, unit_box
+from sara_app.human.anatomy import UNMEASURED_LEG_REACH_M
 from sara_app.human.skeleton import FULL_JOINTS
-from sara_app.human.widening import UNMEASURED_LEG_REACH_M
 from sara_app.robot.model import urdf_path
 
 MODEL_COLORS: dict[str, tuple[int, int, int]] = {

@@ -53,3 +53,14 @@ def bone_ranges(bones: np.ndarray, joints: tuple[str, ...]) -> tuple[np.ndarray,
     lo = np.array([BONE_RANGE_M[p][0] for p in pairs], dtype=float)
     hi = np.array([BONE_RANGE_M[p][1] for p in pairs], dtype=float)
     return lo, hi
+
+
+UNMEASURED_LEG_REACH_M = {"hip": 0.2, "knee": 0.7, "ankle": 1.2}
+"""The farthest each leg joint (either side) can be from the pelvis joint (the midpoint of the
+hips, or SaRA's torso-base marker), m: the pelvis-to-hip offset (about 0.1-0.15 m) for a hip,
+plus a tall adult's thigh (about 0.5 m) for a knee, plus the shank (about 0.5 m) for an ankle;
+0.2, 0.7 and 1.2 m are the named conservative round-ups (the CMU subjects of the walk, run,
+boxing and bench-work recordings: at most 0.16, 0.58 and 1.02 m). The foot's own size is its
+body part's thickness, as for a measured foot. Where an upper-body tracker leaves the legs
+unmeasured, each leg is a ball at the pelvis grown by the ankle's reach
+(:mod:`sara_app.human.widening`)."""

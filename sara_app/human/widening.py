@@ -19,24 +19,18 @@ which are Minkowski sums with B(delta_y)). Exceptions, per model:
 - R_ACC needs the unmeasured legs' velocities: their bound is infinite (set by the caller), so
   its leg capsules are infinite too.
 
-``UNMEASURED_LEG_REACH_M``: the farthest a hip, knee or ankle joint can be from the pelvis joint
-(the midpoint of the hips, or SaRA's torso-base marker): the pelvis-to-hip offset (about
-0.1-0.15 m) for a hip, plus a tall adult's thigh (about 0.5 m) for a knee, plus the shank
-(about 0.5 m) for an ankle; 0.2, 0.7 and 1.2 m are the named conservative round-ups (the CMU
-subjects of the walk, run, boxing and bench-work recordings: at most 0.16, 0.58 and 1.02 m). The
-foot's own size is its body part's thickness, as for a measured foot. How high the legs reach
-is bounded separately where the parameter set says so (:mod:`sara_app.human.legs`).
+``UNMEASURED_LEG_REACH_M`` (:mod:`sara_app.human.anatomy`): the farthest a hip, knee or ankle
+joint can be from the pelvis joint. How high the legs reach is bounded separately where the
+parameter set says so (:mod:`sara_app.human.legs`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from sara_app.human.anatomy import UNMEASURED_LEG_REACH_M
 from sara_app.human.reach import MODELS, HumanReach, part_capsules
 from sara_app.human.skeleton import UPPER_JOINTS
-
-UNMEASURED_LEG_REACH_M = {"hip": 0.2, "knee": 0.7, "ankle": 1.2}
-"""The farthest each leg joint (either side) can be from the pelvis joint, m (module notes)."""
 
 
 def _leg_reach(joint: str) -> float:

@@ -11,8 +11,8 @@ import math
 from collections.abc import Iterable, Sequence
 from typing import Any
 
+from sara_app.human.anatomy import UNMEASURED_LEG_REACH_M
 from sara_app.human.sound_record import summary
-from sara_app.human.widening import UNMEASURED_LEG_REACH_M
 from sara_app.report.evidence import HORIZONS_S, Evidence
 from sara_app.report.stopping import C_M
 
