@@ -49,12 +49,17 @@ def _case(rng: np.random.Generator, F: int, K: int, J: int, C: int, M: int):
     return fut, ends, radius, cap, joint, margin
 
 
-@pytest.mark.parametrize("seed", range(6))
-def test_the_kernel_equals_the_numpy_oracle(seed: int) -> None:
+def _seeded(seed: int):
+    """A case of random sizes (F, K, J, C at most 8; M up to 11 more than J)."""
     rng = np.random.default_rng(seed)
     F, K, J, C = (int(x) for x in rng.integers(1, 9, 4))
-    M = J + int(rng.integers(0, 12))
-    fut, ends, radius, cap, joint, margin = _case(rng, F, K, J, C, M)
+    return _case(rng, F, K, J, C, J + int(rng.integers(0, 12)))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_kernel_equals_the_numpy_oracle(seed: int) -> None:
+    fut, ends, radius, cap, joint, margin = _seeded(seed)
+    F, K, J = fut.shape[:3]
     want = _oracle(fut, ends, radius, cap, joint, margin)
     got = (np.ones((F, K, J), bool), np.full((F, K, J), -np.inf), np.ones((F, K, J), bool))
     cover_joints(fut, ends, radius, cap, joint, margin, *got)
@@ -69,10 +74,7 @@ def test_the_cases_that_decide_occur_in_the_random_data() -> None:
     NaN and infinite excesses and unknown joints."""
     seen = {"inside": 0, "outside": 0, "nan": 0, "unknown": 0}
     for seed in range(6):
-        rng = np.random.default_rng(seed)
-        F, K, J, C = (int(x) for x in rng.integers(1, 9, 4))
-        M = J + int(rng.integers(0, 12))
-        inside, worst, known = _oracle(*_case(rng, F, K, J, C, M))
+        inside, worst, known = _oracle(*_seeded(seed))
         seen["inside"] += int(inside.sum())
         seen["outside"] += int((~inside).sum())
         seen["nan"] += int(np.isnan(worst).sum())

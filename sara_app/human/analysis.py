@@ -312,11 +312,11 @@ def _tally(
     misses per joint and the ``n_worst`` escapes."""
     res = Containment(model, int(v3.sum()), int((inside & v3).sum()))
     miss = ~inside & v3
-    for j in np.unique(np.nonzero(miss)[2]):
-        res.misses_per_joint[names[j]] = int(miss[:, :, j].sum())
+    at = np.flatnonzero(miss)  # the misses only (a sound set has none)
+    for j, n in zip(*np.unique(at % miss.shape[2], return_counts=True), strict=True):
+        res.misses_per_joint[names[j]] = int(n)
     # an excess that overflowed (coordinates near the float limit) is a miss by more than any
     # finite one: listed first, never dropped from the list as not finite
-    at = np.flatnonzero(miss)  # only the misses are sorted (a sound set has none)
     by = np.nan_to_num(worst_excess.ravel()[at], nan=np.inf, posinf=np.inf)
     for o in np.argsort(by, kind="stable")[::-1][:n_worst]:
         i, k, j = np.unravel_index(at[o], miss.shape)
