@@ -49,6 +49,39 @@ def _lock(exclusive: bool) -> None:
         fcntl.flock(_TURN_FD, fcntl.LOCK_UN)
 
 
+# Under pytest-xdist the exclusive tests run last, one after the other on one worker
+# (exclusive_phase.py): interleaved with the light ones, each waited for its neighbour to end.
+_EXCLUSIVE_DIR = tempfile.mkdtemp(prefix="sara_app_test_exclusive_")
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_configure_node(node: Any) -> None:
+    from exclusive_phase import EXCLUSIVE_DIR_KEY
+
+    node.workerinput[EXCLUSIVE_DIR_KEY] = _EXCLUSIVE_DIR
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
+    if config.getoption("dist", None) != "worksteal":
+        return None  # another schedule asked for: xdist's own
+    from exclusive_phase import ExclusiveLastScheduling
+
+    return ExclusiveLastScheduling(config, log, folder=_EXCLUSIVE_DIR)
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    workerinput = getattr(config, "workerinput", None)
+    if workerinput is None:
+        return
+    from exclusive_phase import EXCLUSIVE_DIR_KEY, write_exclusive_ids
+
+    folder = workerinput.get(EXCLUSIVE_DIR_KEY)
+    if folder:
+        ids = [i.nodeid for i in items if i.get_closest_marker("exclusive") is not None]
+        write_exclusive_ids(folder, workerinput["workerid"], ids)
+
+
 # A test marked ``stack`` starts a whole cell stack (``serve``: router, worker, controller,
 # replayer, API, 3D view), which on a 2-core machine pins its worker to one CPU: two at once
 # (seen: the two signals of the default cell's test, side by side) starve each other's trackers
