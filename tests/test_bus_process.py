@@ -1,11 +1,19 @@
 """The process helpers of sara_app.bus.process: the heap a loop starts with is frozen, so the
-collector's full passes do not traverse it (in a subprocess: freezing is process-wide)."""
+collector's full passes do not traverse it (in a subprocess: freezing is process-wide); a cell
+process never outlives the process that started it."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from sara_app.bus.process import PARENT_PID_ENV
 
 
 def test_the_heap_built_before_the_loop_is_frozen() -> None:
@@ -52,3 +60,60 @@ def test_a_repeated_warning_is_summarised_not_a_line_each(caplog) -> None:
         warn("braking")
         assert len(caplog.records) == 2
         assert "commands expired 2048 times in the last 60 s (2049 in all)" in caplog.text
+
+
+_ARMED_CHILD = (
+    "from sara_app.bus.process import die_with_parent; die_with_parent(); "
+    "print('armed', flush=True); import time; time.sleep(60)"
+)
+
+
+def _gone(pid: int, wait_s: float) -> bool:
+    """Whether ``pid`` has exited (or is a zombie) within ``wait_s``."""
+    t_end = time.monotonic() + wait_s
+    while time.monotonic() < t_end:
+        try:
+            if Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z":
+                return True
+        except (OSError, IndexError):
+            return True
+        time.sleep(0.05)
+    return False
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_a_cell_process_whose_parent_died_before_it_was_armed_exits() -> None:
+    """The parent its starter named is not its parent any more (it died while the interpreter
+    started, and the process was adopted by a subreaper or process 1): it exits at once instead
+    of running on where no kill of ``serve`` can reach it."""
+    env = {**os.environ, PARENT_PID_ENV: str(2**22 + 7)}  # no process's parent here
+    out = subprocess.run([sys.executable, "-c", _ARMED_CHILD], env=env, capture_output=True,
+                         text=True, timeout=50)  # fmt: skip
+    assert out.returncode == 0 and "armed" not in out.stdout, (out.stdout, out.stderr)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_a_cell_process_dies_with_the_process_that_started_it() -> None:
+    """Started as serve starts its processes (``start_process``, which names itself as the
+    parent): armed, it runs while its parent lives and is gone once its parent is killed."""
+    parent = textwrap.dedent(
+        f"""
+        import sys, time
+        from sara_app.processes.serve import start_process
+        child = start_process([sys.executable, "-c", {_ARMED_CHILD!r}])
+        print(child.pid, flush=True)
+        time.sleep(60)
+        """
+    )
+    proc = subprocess.Popen([sys.executable, "-c", parent], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        child = int(proc.stdout.readline())
+        assert proc.stdout.readline().strip() == "armed"  # the child's, on the same pipe
+        assert not _gone(child, 0.5)
+        proc.kill()
+        proc.wait(10)
+        assert _gone(child, 10.0)
+    finally:
+        proc.kill()
+        proc.wait(10)

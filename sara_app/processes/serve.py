@@ -40,7 +40,7 @@ from typing import TYPE_CHECKING, Any, NoReturn
 
 from sara_app.api.guard import load_tokens
 from sara_app.bus.access import Credentials, client_auth
-from sara_app.bus.process import LOG_LEVEL_ENV
+from sara_app.bus.process import LOG_LEVEL_ENV, PARENT_PID_ENV
 from sara_app.bus.session import Bus
 from sara_app.errors import ParameterError, SaraError
 from sara_app.geometry.poses import pose_from_xyz_rpy
@@ -77,8 +77,11 @@ def start_process(
 ) -> subprocess.Popen[bytes]:
     """Start ``cmd`` in a session of its own, ``nice`` lower in priority than the caller, its
     session's autogroup (where the kernel has them) lowered by ``nice`` as well, on ``cpus``
-    only when given (:mod:`~sara_app.processes.affinity`)."""
-    proc = subprocess.Popen(niced(pinned(cmd, cpus), nice), start_new_session=True, **popen)
+    only when given (:mod:`~sara_app.processes.affinity`); it is told this process's id
+    (:data:`~sara_app.bus.process.PARENT_PID_ENV`, for ``--die-with-parent``)."""
+    env = {**(popen.pop("env", None) or os.environ), PARENT_PID_ENV: str(os.getpid())}
+    proc = subprocess.Popen(niced(pinned(cmd, cpus), nice), start_new_session=True, env=env,
+                            **popen)  # fmt: skip
     if nice > 0:  # Popen returns after exec: the child's setsid() has made its autogroup
         try:
             Path(f"/proc/{proc.pid}/autogroup").write_text(str(int(nice)))
