@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import os
+import shutil
 import tempfile
 import time
 from collections.abc import Iterator
@@ -51,14 +52,25 @@ def _lock(exclusive: bool) -> None:
 
 # Under pytest-xdist the exclusive tests run last, one after the other on one worker
 # (exclusive_phase.py): interleaved with the light ones, each waited for its neighbour to end.
-_EXCLUSIVE_DIR = tempfile.mkdtemp(prefix="sara_app_test_exclusive_")
+_EXCLUSIVE_DIR: list[str] = []  # the controller's folder for the workers' lists, once made
+
+
+def _exclusive_dir() -> str:
+    if not _EXCLUSIVE_DIR:
+        _EXCLUSIVE_DIR.append(tempfile.mkdtemp(prefix="sara_app_test_exclusive_"))
+    return _EXCLUSIVE_DIR[0]
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    for folder in _EXCLUSIVE_DIR:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 @pytest.hookimpl(optionalhook=True)
 def pytest_configure_node(node: Any) -> None:
     from exclusive_phase import EXCLUSIVE_DIR_KEY
 
-    node.workerinput[EXCLUSIVE_DIR_KEY] = _EXCLUSIVE_DIR
+    node.workerinput[EXCLUSIVE_DIR_KEY] = _exclusive_dir()
 
 
 @pytest.hookimpl(optionalhook=True)
@@ -67,7 +79,7 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
         return None  # another schedule asked for: xdist's own
     from exclusive_phase import ExclusiveLastScheduling
 
-    return ExclusiveLastScheduling(config, log, folder=_EXCLUSIVE_DIR)
+    return ExclusiveLastScheduling(config, log, folder=_exclusive_dir())
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
