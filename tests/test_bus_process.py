@@ -117,3 +117,40 @@ def test_a_cell_process_dies_with_the_process_that_started_it() -> None:
     finally:
         proc.kill()
         proc.wait(10)
+
+
+_SUBREAPER = """
+import ctypes, os, subprocess, sys, time
+ctypes.CDLL(None).prctl(36, 1, 0, 0, 0)  # PR_SET_CHILD_SUBREAPER: orphans below come here
+serve = subprocess.Popen([sys.executable, "-c", sys.argv[1]], stdout=subprocess.PIPE, text=True)
+child = int(serve.stdout.readline())
+maps = f"/proc/{child}/maps"
+while "llvmlite" not in open(maps).read():  # the worker loads its compiled kernels now
+    time.sleep(0.01)
+serve.kill()
+serve.wait()
+_, status = os.waitpid(child, 0)  # adopted: this process reaps it
+signal = os.WIFSIGNALED(status) and os.WTERMSIG(status)
+print(signal, os.WIFEXITED(status) and os.WEXITSTATUS(status))
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_a_worker_whose_serve_is_killed_while_it_loads_is_killed_with_it() -> None:
+    """``serve``'s worker entry (``processes.worker_start``) loads the kernels for up to a minute
+    on a first start: a ``serve`` killed meanwhile takes it along at once (the kernel's SIGKILL),
+    instead of leaving it to finish loading and only then notice (an exit status of 0)."""
+    serve = textwrap.dedent(
+        """
+        import sys, time
+        from sara_app.processes.serve import start_process
+        child = start_process([sys.executable, "-m", "sara_app.processes.worker_start",
+                               "--cell", "gone1", "--port", "9", "--die-with-parent"])
+        print(child.pid, flush=True)
+        time.sleep(120)
+        """
+    )
+    out = subprocess.run([sys.executable, "-c", _SUBREAPER, serve], capture_output=True,
+                         text=True, timeout=120)  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["9", "False"], out.stdout

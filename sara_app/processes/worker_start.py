@@ -24,7 +24,7 @@ from pathlib import Path
 
 from sara_app.bus import keys
 from sara_app.bus.access import Credentials, client_auth
-from sara_app.bus.process import realtime_session
+from sara_app.bus.process import die_with_parent, realtime_session
 from sara_app.bus.session import Bus
 from sara_app.bus.starting import Starting
 from sara_app.errors import SaraError
@@ -48,6 +48,8 @@ def early_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    if "--die-with-parent" in argv:
+        die_with_parent()  # first: a serve killed while the kernels load takes this process too
     a = early_parser().parse_known_args(argv)[0]
     with contextlib.ExitStack() as stack:
         try:
