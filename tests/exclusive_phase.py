@@ -49,7 +49,7 @@ class ExclusiveLastScheduling(WorkStealingScheduling):
         super().__init__(config, log)
         self._folder = folder
         self._held: list[int] = []
-        self._exclusive_node = None
+        self._dispatched = False  # the exclusive tests have gone to a worker
         self._starting = False
 
     @property
@@ -80,7 +80,7 @@ class ExclusiveLastScheduling(WorkStealingScheduling):
     def check_schedule(self) -> None:
         if self._starting:
             return
-        if self._exclusive_node is not None and not self.pending:
+        if self._dispatched and not self.pending:
             # the exclusive tests are out: never steal them; stop each worker that runs dry
             for node, pending in self.node2pending.items():
                 if len(pending) < 2 and not node.shutting_down:
@@ -98,7 +98,7 @@ class ExclusiveLastScheduling(WorkStealingScheduling):
             return  # a worker has a light test to run before its last one: wait for it
         node = idle[0]
         held, self._held = self._held, []
-        self._exclusive_node = node
+        self._dispatched = True
         self.node2pending[node].extend(held)
         node.send_runtest_some(held)
         self.check_schedule()
