@@ -183,6 +183,7 @@ def run_soak(
         _connect,
         start_process,
     )
+    from sara_app.tethered import command as tethered
 
     rng = random.Random(seed)
     sample_s = sample_s or max(1.0, duration_s / 120.0)
@@ -190,9 +191,9 @@ def run_soak(
     os.environ["SARA_APP_DATA"] = str(data)  # credentials and saved state of this run only
     cell, port = "cell1", free_port()
     creds = Credentials.create(data / "zenoh_credentials.txt")
-    router_cmd = [sys.executable, "-m", ROUTER, "--port", str(port), "--cell", cell,
-                  "--credentials", str(creds.path), "--rt-priority", str(WORKER_RT_PRIORITY),
-                  "--die-with-parent"]  # as serve starts it  # fmt: skip
+    router_cmd = tethered(ROUTER, "--port", str(port), "--cell", cell, "--credentials",
+                          str(creds.path), "--rt-priority", str(WORKER_RT_PRIORITY))  # fmt: skip
+
     children = [Child("router", lambda: start_process(router_cmd))]
     children += _cell_children(cell, scenario or DEFAULT_SCENARIO, False, port, creds, False)
     sup = Supervisor(children, "worker")

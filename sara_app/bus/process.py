@@ -19,6 +19,7 @@ from sara_app.bus.access import Credentials, client_auth
 from sara_app.bus.session import ROBOT_ENCODINGS, Bus
 from sara_app.errors import SaraError
 from sara_app.options import PORT, RT_PRIORITY, SECONDS
+from sara_app.tethered import die_with_parent
 
 
 class CellProcess(Protocol):
@@ -39,37 +40,6 @@ def configure_logging(name: str) -> None:
     if not isinstance(number, int):
         number = logging.INFO
     logging.basicConfig(level=number, format=f"%(asctime)s {name} %(message)s")
-
-
-PARENT_PID_ENV = "SARA_APP_PARENT_PID"
-"""The process id of the process that started this one (set by
-:func:`~sara_app.processes.serve.start_process`): :func:`die_with_parent` compares it with the
-parent it finds."""
-
-
-def die_with_parent() -> None:
-    """Have the kernel kill this process (SIGKILL) when its parent dies (Linux
-    ``PR_SET_PDEATHSIG``), so a cell process never outlives ``serve``, even after ``kill -9``
-    of it; exits at once when the parent is already gone. Elsewhere: nothing.
-
-    The parent can die between this process's start and the request (the interpreter's start
-    takes a second on a loaded machine): the process is then an orphan, adopted by process 1
-    or by a subreaper (``systemd --user`` on a desktop), and the kernel will never signal it.
-    So the parent its starter named (:data:`PARENT_PID_ENV`) must still be the parent once the
-    request holds; without that name, a parent of 1 is taken as gone."""
-    if not sys.platform.startswith("linux"):
-        return
-    import ctypes
-
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG = 1
-    except (OSError, AttributeError):
-        return
-    named = os.environ.pop(PARENT_PID_ENV, "")  # this process's, not its own children's
-    parent = os.getppid()  # after the request: a parent that dies from now on is signalled
-    if parent == 1 or (named.isdigit() and parent != int(named)):
-        os._exit(0)  # the parent died before the request took effect
 
 
 def process_parser(name: str, description: str, *, state: bool = False) -> argparse.ArgumentParser:

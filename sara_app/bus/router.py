@@ -20,10 +20,11 @@ import sys
 import threading
 
 from sara_app.bus.access import Credentials, router_access
-from sara_app.bus.process import configure_logging, die_with_parent, set_realtime
+from sara_app.bus.process import configure_logging, set_realtime
 from sara_app.bus.session import Bus, router_config_dict
 from sara_app.errors import SaraError
 from sara_app.options import PORT, RT_PRIORITY
+from sara_app.tethered import die_with_parent
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -19,7 +19,7 @@
   router uses none either, as while its worker restarts) and is left alone: the controllers
   brake on their own meanwhile.
 - Children never outlive ``serve``: each asks the kernel to kill it when its parent dies
-  (``bus.process.die_with_parent``), and ``stop()`` ends them in order.
+  (``sara_app.tethered``), and ``stop()`` ends them in order.
 """
 
 from __future__ import annotations

@@ -40,7 +40,7 @@ from typing import TYPE_CHECKING, Any, NoReturn
 
 from sara_app.api.guard import load_tokens
 from sara_app.bus.access import Credentials, client_auth
-from sara_app.bus.process import LOG_LEVEL_ENV, PARENT_PID_ENV
+from sara_app.bus.process import LOG_LEVEL_ENV
 from sara_app.bus.session import Bus
 from sara_app.errors import ParameterError, SaraError
 from sara_app.geometry.poses import pose_from_xyz_rpy
@@ -50,6 +50,8 @@ from sara_app.ops.supervisor import Child, Supervisor
 from sara_app.processes.affinity import CpuPlan, cpu_plan, pin_threads, pinned
 from sara_app.processes.defaults import API_PORT, DEFAULT_SCENARIO, VIEWER_PORT, ZENOH_PORT
 from sara_app.scenario import load_scenario, scenarios_dir
+from sara_app.tethered import PARENT_PID_ENV
+from sara_app.tethered import command as tethered
 
 if TYPE_CHECKING:
     from sara_app.api.registry import Silence
@@ -78,7 +80,7 @@ def start_process(
     """Start ``cmd`` in a session of its own, ``nice`` lower in priority than the caller, its
     session's autogroup (where the kernel has them) lowered by ``nice`` as well, on ``cpus``
     only when given (:mod:`~sara_app.processes.affinity`); it is told this process's id
-    (:data:`~sara_app.bus.process.PARENT_PID_ENV`, for ``--die-with-parent``)."""
+    (:data:`~sara_app.tethered.PARENT_PID_ENV`, for ``--die-with-parent``)."""
     env = {**(popen.pop("env", None) or os.environ), PARENT_PID_ENV: str(os.getpid())}
     proc = subprocess.Popen(niced(pinned(cmd, cpus), nice), start_new_session=True, env=env,
                             **popen)  # fmt: skip
@@ -110,21 +112,10 @@ def spawn_cell_process(
     extra: tuple[str, ...] = (),
     cpus: frozenset[int] | None = None,
 ) -> subprocess.Popen[bytes]:
-    cmd = [
-        sys.executable,
-        "-m",
-        module,
-        "--cell",
-        cell,
-        "--scenario",
-        scenario,
-        "--port",
-        str(port),
-        "--rt-priority",
-        str(rt_priority),
-        "--die-with-parent",
-        *extra,
-    ]
+    """``python -m module`` for ``cell`` as serve starts it: tethered to this process from its
+    first steps (:mod:`sara_app.tethered`), ``nice`` lower, at ``rt_priority``, on ``cpus``."""
+    cmd = tethered(module, "--cell", cell, "--scenario", scenario, "--port", str(port),
+                   "--rt-priority", str(rt_priority), *extra)  # fmt: skip
     return start_process(cmd, nice, cpus)
 
 
@@ -191,9 +182,9 @@ def serve(
     sc = load_scenario(scenario, folder)
     creds = Credentials.create(default_data_dir() / "zenoh_credentials.txt")
     names = cell_names(cell, cells)
-    router_cmd = [sys.executable, "-m", ROUTER, "--port", str(zenoh_port),
-                  *(x for c in names for x in ("--cell", c)), "--credentials", str(creds.path),
-                  "--rt-priority", str(WORKER_RT_PRIORITY), "--die-with-parent"]  # fmt: skip
+    router_cmd = tethered(ROUTER, "--port", str(zenoh_port),
+                          *(x for c in names for x in ("--cell", c)), "--credentials",
+                          str(creds.path), "--rt-priority", str(WORKER_RT_PRIORITY))  # fmt: skip
 
     exposed = not _is_loopback(api_host)
     tokens_path = default_data_dir() / "api_tokens.json"

@@ -6,6 +6,8 @@ minute before the worker could say anything. This module imports only the bus, o
 with the worker's credentials and publishes ``starting`` statuses (:mod:`sara_app.bus.starting`)
 while the worker's modules load; then it hands over to :func:`sara_app.runtime.worker.main`, which
 says ``starting`` again while it builds its cell. Without a router it just starts the worker.
+``serve`` starts it through :mod:`sara_app.tethered`, which asks the kernel to end it with
+``serve`` before any of this is imported.
 
 Zenoh starts its I/O threads (``rx``, ``tx``, ``net``, ``app``) once per process, with the first
 session, and every later session uses them: this early session is that first one. So it is
@@ -24,7 +26,7 @@ from pathlib import Path
 
 from sara_app.bus import keys
 from sara_app.bus.access import Credentials, client_auth
-from sara_app.bus.process import die_with_parent, realtime_session
+from sara_app.bus.process import realtime_session
 from sara_app.bus.session import Bus
 from sara_app.bus.starting import Starting
 from sara_app.errors import SaraError
@@ -48,8 +50,6 @@ def early_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    if "--die-with-parent" in argv:
-        die_with_parent()  # first: a serve killed while the kernels load takes this process too
     a = early_parser().parse_known_args(argv)[0]
     with contextlib.ExitStack() as stack:
         try:
