@@ -27,28 +27,15 @@ from sara_app.robot import (
     energy,
     occupancy_kernels,
     planning_kernels,
+    shielded_kernels,
     trajectory_kernels,
 )
-from sara_app.robot.planning_kernels import OUT_LEN
 from sara_app.safety import contact_kernels, pfl_fused_kernels, pfl_kernels, pfl_link_states
 from sara_app.safety import pfl_cycle as pfl_cycle_module
 from sara_app.safety.pfl import PflCheck
 from sara_app.safety.pfl_cycle import CompiledCycle
-from sara_app.safety.pfl_cycle_kernels import BAIL, cycle_kernel, plan_size, plan_views
+from sara_app.safety.pfl_cycle_kernels import BAIL, cycle_kernel
 from sara_app.safety.pfl_shield import PflCycle
-
-
-@pytest.mark.parametrize(("K", "L", "n"), [(1, 1, 1), (9, 8, 7), (13, 7, 6)])
-def test_plan_views_partition_the_slab(K: int, L: int, n: int) -> None:
-    """The six arrays of a plan are disjoint views that cover its slab exactly, with the
-    shapes the kernels write."""
-    slab = np.arange(plan_size(K, L, n), dtype=float)
-    views = plan_views(slab, K, L, n)
-    shapes = [(OUT_LEN,), (5, K + 1), (5, K + 1, n), (2, K, n), (K, L, 2, 3), (K, L)]
-    assert [v.shape for v in views] == shapes
-    seen = np.concatenate([v.ravel() for v in views])
-    np.testing.assert_array_equal(np.sort(seen), slab)  # each element in exactly one view
-    assert all(np.shares_memory(v, slab) for v in views)
 
 
 def test_a_follower_with_nothing_ahead_is_checked_without_replans(
@@ -140,8 +127,8 @@ def test_cache_key_carries_the_callees_sources() -> None:
     text = "".join(c for c in cells if isinstance(c, str))
     for module in (
         shape_kernels, reach_kernels, crba_kernels, energy, occupancy_kernels,
-        planning_kernels, trajectory_kernels, contact_kernels, pfl_kernels, pfl_link_states,
-        pfl_fused_kernels,
+        planning_kernels, trajectory_kernels, shielded_kernels, contact_kernels, pfl_kernels,
+        pfl_link_states, pfl_fused_kernels,
     ):  # fmt: skip
         assert source_digest(module) in text, module.__name__
 

@@ -231,7 +231,7 @@ class RobotOccupancy:
 
     def plan_arrays(self, margin_m: np.ndarray) -> tuple[np.ndarray, ...]:
         """The occupancy per interval as the compiled shield cycles plan it
-        (:data:`~sara_app.safety.pfl_cycle_kernels.OCCUPANCY`): ``(q_index, N, parents,
+        (:data:`~sara_app.robot.shielded_kernels.OCCUPANCY`): ``(q_index, N, parents,
         link_joint, ends_joint, lipschitz, radius0, T_world_base (4, 4), margin_m (L,))``, the
         tracking margin ``margin_m`` added to every capsule's radius."""
         q_index, N, parents, link_joint, ends_joint, _axes, T0 = self.kernel_arrays()

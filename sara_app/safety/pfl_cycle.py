@@ -32,10 +32,11 @@ from sara_app.human.reach_kernels import KINDS  # Pereira's arm model is refused
 from sara_app.robot.failsafe import BOUND_PAD
 from sara_app.robot.occupancy import RobotOccupancy
 from sara_app.robot.shielded import ShieldedTrajectory, from_samples
+from sara_app.robot.shielded_kernels import plan_views
 from sara_app.robot.trajectory import PathFollower
 from sara_app.safety.contact import ContactResult
 from sara_app.safety.pfl import PflCheck, PflResult
-from sara_app.safety.pfl_cycle_kernels import DONE, cycle_kernel, plan_views
+from sara_app.safety.pfl_cycle_kernels import DONE, cycle_kernel
 from sara_app.safety.pfl_link_states import PathLinkStates
 from sara_app.safety.shield import Humans
 

@@ -1,7 +1,7 @@
 """An SSM shield cycle's plans and checks in one compiled call (``Shield._plan_and_verify``).
 
 The shielded trajectory at the follower's cap and its robot capsules
-(:func:`~sara_app.safety.pfl_cycle_kernels._plan`: the kernels of ``PathFollower.peek``,
+(:func:`~sara_app.robot.shielded_kernels.plan_at_cap`: the kernels of ``PathFollower.peek``,
 ``shielded_trajectory`` and ``RobotOccupancy.intervals`` with the tracking margin), its check
 against every person (:func:`~sara_app.safety.ssm_kernels.ssm_kernel`), and while the check
 fails, the speed scaling's replans (``cut`` x the lower of the last cap and the trajectory's
@@ -27,10 +27,17 @@ from numba import njit, types
 from sara_app.geometry import shape_kernels
 from sara_app.human import reach_kernels
 from sara_app.kernel_types import B1, F8, I8, RO1, ROI1, ROI2, W1, source_digest
-from sara_app.robot import occupancy_kernels, planning_kernels, trajectory_kernels
-from sara_app.safety import distance_kernels, pfl_cycle_kernels, pfl_fused_kernels, ssm_kernels
+from sara_app.robot import occupancy_kernels, planning_kernels, shielded_kernels, trajectory_kernels
+from sara_app.robot.shielded_kernels import (
+    FOLLOWER,
+    OCCUPANCY,
+    PATH,
+    PLANNER,
+    plan_at_cap,
+    plan_views,
+)
+from sara_app.safety import distance_kernels, ssm_kernels
 from sara_app.safety.distance_kernels import separation
-from sara_app.safety.pfl_cycle_kernels import FOLLOWER, OCCUPANCY, PATH, PLANNER, _plan, plan_views
 from sara_app.safety.ssm_kernels import ARM, CONSTANTS, HUMAN, ssm_kernel
 
 __all__ = ["DISTANCE", "DONE", "PYTHON", "ssm_cycle_kernel"]
@@ -50,7 +57,7 @@ def _make_kernel() -> Any:
         source_digest(m)
         for m in (
             shape_kernels, reach_kernels, occupancy_kernels, planning_kernels,
-            trajectory_kernels, pfl_fused_kernels, pfl_cycle_kernels, ssm_kernels,
+            trajectory_kernels, shielded_kernels, ssm_kernels,
             distance_kernels,
         )
     )  # fmt: skip
@@ -83,7 +90,7 @@ def _make_kernel() -> Any:
         """From the plan at ``control = (cap0, c_min, cut)``'s ``cap0``: check, and replan
         while the check fails (see the module notes). Returns ``(code, pts, joint, bounds,
         ends, radius, free, evaluated, closest, parts)``: the last plan's views of its slab
-        (:func:`~sara_app.safety.pfl_cycle_kernels.plan_views`, less the record) and its
+        (:func:`~sara_app.robot.shielded_kernels.plan_views`, less the record) and its
         check's arrays (as :class:`~sara_app.safety.ssm.SsmResult`); ``out (OUT_LEN,)``: the
         last plan's ``peek_kernel`` record; ``info (6,)``: the last check's verdict (0/1), the
         cap of the replans (inf: none), checks, the last plan's ``peek_kernel`` status, the
@@ -95,7 +102,7 @@ def _make_kernel() -> Any:
         out[:] = 0.0
         empty = np.zeros((0, 0, 0), np.bool_)
         code = PYTHON if len(sources) == 0 else DONE  # the digests tie the cache to the callees
-        ok, status, robot, trajectory, slab, E = _plan(
+        ok, status, robot, trajectory, slab, E = plan_at_cap(
             cap0, follower, planner, path, sampling, occupancy, out
         )
         L, n = occupancy[5].shape[0], occupancy[0].shape[0]
@@ -119,7 +126,7 @@ def _make_kernel() -> Any:
             if not cand >= c_min:  # NaN too
                 break
             cap = cand
-            ok, status, robot, trajectory, slab, E = _plan(
+            ok, status, robot, trajectory, slab, E = plan_at_cap(
                 cap, follower, planner, path, sampling, occupancy, out
             )
             if not ok:
