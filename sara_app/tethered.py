@@ -1,13 +1,20 @@
-"""``python -m sara_app.tethered MODULE [ARGS]``: run a cell process's entry module (``python -m
+"""``python -m sara_app.tethered MODULE [ARGS]``: run a child process's entry module (``python -m
 MODULE ARGS``) tied to the process that started it, from the interpreter's first steps on.
 
-With ``--die-with-parent`` among ``ARGS`` the kernel is asked to kill this process with its
-parent (:func:`die_with_parent`) before ``MODULE`` is imported: a cell process's imports take a
-second or more on a loaded machine (the worker's kernels up to a minute on a first start), and a
-``serve`` killed meanwhile left it importing until its own ``main`` asked, then noticed the
-parent had changed and exited. This module imports nothing of the package, so the request comes
-within milliseconds of the start. ``serve`` starts every child through it
+The kernel is asked to kill this process with its parent (:func:`die_with_parent`) before
+``MODULE`` is imported: a cell process's imports take a second or more on a loaded machine (the
+worker's kernels up to a minute on a first start), and a ``serve`` killed meanwhile left it
+importing until its own ``main`` asked (``--die-with-parent``), then noticed the parent had
+changed and exited. This module imports nothing of the package, so the request comes within
+milliseconds of the start. ``serve`` starts every cell process through it
 (:func:`sara_app.processes.serve.spawn_cell_process`).
+
+The kernel's signal follows the *thread* that started the process, not the process: a starter
+must start children from a thread that lives as long as it does (``serve``'s main and
+supervising threads), never from a request's thread that a server may end while the child runs
+(the API's thread pool ends idle threads). The job runner (:mod:`sara_app.ops.jobs`) therefore
+does not use it: a job writes its progress to a pipe of its owner and ends at its next line
+once the owner is gone.
 """
 
 from __future__ import annotations
@@ -16,9 +23,9 @@ import os
 import runpy
 import signal
 import sys
+from collections.abc import Mapping
 
 LAUNCHER = "sara_app.tethered"
-DIE_WITH_PARENT = "--die-with-parent"
 
 PARENT_PID_ENV = "SARA_APP_PARENT_PID"
 """The process id of the process that started this one (set by
@@ -54,8 +61,14 @@ def die_with_parent() -> None:
 
 
 def command(module: str, *args: str) -> list[str]:
-    """The command line that runs ``python -m module args`` tethered to its starter."""
-    return [sys.executable, "-m", LAUNCHER, module, *args, DIE_WITH_PARENT]
+    """The command line that runs ``python -m module args`` tethered to its starter (which
+    names itself in the child's :data:`PARENT_PID_ENV`: :func:`environment`)."""
+    return [sys.executable, "-m", LAUNCHER, module, *args]
+
+
+def environment(base: Mapping[str, str] | None = None) -> dict[str, str]:
+    """``base`` (default: this process's environment) naming this process as the parent."""
+    return {**(os.environ if base is None else base), PARENT_PID_ENV: str(os.getpid())}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -64,8 +77,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"usage: python -m {LAUNCHER} MODULE [ARGS]", file=sys.stderr)
         return 2
     module, args = argv[0], argv[1:]
-    if DIE_WITH_PARENT in args:
-        die_with_parent()  # before the module's imports: the point of this launcher
+    die_with_parent()  # before the module's imports: the point of this launcher
     sys.argv = [module, *args]
     runpy.run_module(module, run_name="__main__", alter_sys=True)
     return 0

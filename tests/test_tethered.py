@@ -9,10 +9,9 @@ import subprocess
 import sys
 import textwrap
 import time
-from pathlib import Path
 
 import pytest
-from waiting import wait_until
+from waiting import exited, wait_until
 
 from sara_app.tethered import PARENT_PID_ENV
 
@@ -50,14 +49,6 @@ _ARMED_CHILD = (
 )
 
 
-def _exited(pid: int) -> bool:
-    """Whether ``pid`` has exited (gone, or a zombie not yet reaped)."""
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
-    except (OSError, IndexError):
-        return True
-
-
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
 def test_a_cell_process_whose_parent_died_before_it_was_armed_exits() -> None:
     """The parent its starter named is not its parent any more (it died while the interpreter
@@ -88,10 +79,10 @@ def test_a_cell_process_dies_with_the_process_that_started_it() -> None:
         child = int(proc.stdout.readline())
         assert proc.stdout.readline().strip() == "armed"  # the child's, on the same pipe
         time.sleep(0.5)
-        assert not _exited(child)  # a child that died meanwhile stays a zombie or gone
+        assert not exited(child)  # a child that died meanwhile stays a zombie or gone
         proc.kill()
         proc.wait(10)
-        wait_until(lambda: _exited(child), 10.0, "the child's exit with its parent")
+        wait_until(lambda: exited(child), 10.0, "the child's exit with its parent")
     finally:
         proc.kill()
         proc.wait(10)

@@ -50,8 +50,8 @@ from sara_app.ops.supervisor import Child, Supervisor
 from sara_app.processes.affinity import CpuPlan, cpu_plan, pin_threads, pinned
 from sara_app.processes.defaults import API_PORT, DEFAULT_SCENARIO, VIEWER_PORT, ZENOH_PORT
 from sara_app.scenario import load_scenario, scenarios_dir
-from sara_app.tethered import PARENT_PID_ENV
 from sara_app.tethered import command as tethered
+from sara_app.tethered import environment as tethered_environment
 
 if TYPE_CHECKING:
     from sara_app.api.registry import Silence
@@ -80,8 +80,8 @@ def start_process(
     """Start ``cmd`` in a session of its own, ``nice`` lower in priority than the caller, its
     session's autogroup (where the kernel has them) lowered by ``nice`` as well, on ``cpus``
     only when given (:mod:`~sara_app.processes.affinity`); it is told this process's id
-    (:data:`~sara_app.tethered.PARENT_PID_ENV`, for ``--die-with-parent``)."""
-    env = {**(popen.pop("env", None) or os.environ), PARENT_PID_ENV: str(os.getpid())}
+    (:data:`~sara_app.tethered.PARENT_PID_ENV`, for :mod:`sara_app.tethered`)."""
+    env = tethered_environment(popen.pop("env", None))
     proc = subprocess.Popen(niced(pinned(cmd, cpus), nice), start_new_session=True, env=env,
                             **popen)  # fmt: skip
     if nice > 0:  # Popen returns after exec: the child's setsid() has made its autogroup
