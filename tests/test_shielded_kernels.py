@@ -29,8 +29,8 @@ def test_plan_views_partition_the_slab(K: int, L: int, n: int) -> None:
 
 def test_the_compiled_ssm_cycle_loads_no_pfl_kernel() -> None:
     """The SSM cycle replans with this module's :func:`plan_at_cap`, not with the PFL cycle's
-    module: importing it (as an SSM cell's worker does) leaves PFL's checks unloaded (0.2 s of a
-    worker's start). Fails where the SSM cycle imports a PFL kernel module again."""
+    module: importing it (as an SSM cell's worker does) leaves PFL's checks unloaded (about
+    0.3 s of a worker's start). Fails where the SSM cycle imports a PFL kernel module again."""
     code = textwrap.dedent(
         """
         import sys

@@ -6,7 +6,7 @@ with. The kernels of ``PathFollower.peek`` (:func:`~sara_app.robot.planning_kern
 (:func:`~sara_app.robot.trajectory_kernels.shielded_samples_kernel`) and
 ``RobotOccupancy.intervals`` (:func:`~sara_app.robot.occupancy_kernels.intervals_kernel`) in
 sequence, the plan's arrays in one slab (:func:`plan_views`). Neither cycle's checks are here:
-a process that runs SSM loads no PFL kernel (0.2 s of a worker's start).
+a process that runs SSM loads no PFL kernel (about 0.3 s of a worker's start).
 """
 
 from __future__ import annotations

@@ -2,10 +2,9 @@
 
 From the trajectory the shield planned at the held cap: its check
 (:func:`~sara_app.safety.pfl_fused_kernels.fused_kernel`), and while a check fails and a replan
-can fix it, the plan at the lower cap (:func:`~sara_app.robot.planning_kernels.peek_kernel`,
-:func:`~sara_app.robot.trajectory_kernels.shielded_samples_kernel`,
-:func:`~sara_app.robot.occupancy_kernels.intervals_kernel`: the kernels of
-``PathFollower.peek``, ``shielded_trajectory`` and ``RobotOccupancy.intervals``) and its check,
+can fix it, the plan at the lower cap (:func:`~sara_app.robot.shielded_kernels.plan_at_cap`:
+the kernels of ``PathFollower.peek``, ``shielded_trajectory`` and ``RobotOccupancy.intervals``)
+and its check,
 with the shield's decisions (model budget, replan rule, model orders). Compared cycle by cycle
 with the Python composition of the same kernels in ``tests/pfl_reference.py`` (the same bits).
 A replan the follower cannot plan (it falls back on its held failsafe, a non-finite stop, a

@@ -48,7 +48,7 @@ from sara_app.kernel_types import WI2 as _WI2
 from sara_app.kernel_types import WI8_3 as _WI83
 from sara_app.kernel_types import W as _W
 from sara_app.kernel_types import source_digest
-from sara_app.robot import crba_kernels, energy, occupancy_kernels, shielded_kernels
+from sara_app.robot import crba_kernels, energy, occupancy_kernels
 from sara_app.robot.shielded_kernels import frames
 from sara_app.safety import contact_kernels, pfl_kernels, pfl_link_states
 from sara_app.safety.contact_kernels import classify_set
@@ -266,39 +266,26 @@ def replan_cap(candidate: float, replan: Any, sd: np.ndarray) -> float:
     return _py_min(cut * candidate, cut * _py_min(cap, top))
 
 
-def _make_check_buffers() -> Any:
-    """Build :func:`check_buffers`. It calls :func:`~sara_app.robot.shielded_kernels.frames`,
-    whose file numba's cache does not check: that file's source digest is a closure variable
-    (hashed into the cache key), so a change there recompiles it."""
-    frames_source = source_digest(shielded_kernels)
-
-    @njit(cache=True)
-    def check_buffers(
-        K: int, L: int, P: int, people: int, B: int, C: int, n: int, T0: np.ndarray
-    ) -> Any:
-        """Fresh buffers of one check of ``K`` intervals against ``people`` people of ``P``
-        body parts, in ``fused_kernel``'s groups."""
-        if len(frames_source) == 0:  # never: ties the cache to shielded_kernels.py
-            raise ValueError("no shielded_kernels source digest")
-        S = K + 1
-        geometry = (np.empty((K, L, L)), np.empty((K, L, L)), np.empty((K, L, B)),
-                    np.empty((K, L, B, 3)), np.full((K, L, B), -2, np.int8),
-                    np.full((K, L, L), -2, np.int8))  # fmt: skip
-        H = frames(S, n, T0)
-        links = (np.empty((S, n)), np.empty((S, n)), np.empty((S, n)), np.empty(S),
-                 np.empty(S, np.bool_), H, np.empty((S, n, n)), np.empty((S, L, 2, 3)),
-                 np.empty((S, L)), np.empty((S, L)), np.empty((S, L, 3)), np.empty((S, L, 3)),
-                 np.empty((K, L)), np.empty((K, L)), np.empty(K))  # fmt: skip
-        sets = (np.empty(K), np.empty(K), np.empty((1, K, P, 2, 3)), np.empty((1, K, P)),
-                np.empty((1, P, 2, 3)), np.empty((K, P)), np.empty((1, C, 2, 3)),
-                np.empty((1, K, C)), np.empty((K, people * P, 2, 3)),
-                np.empty((K, people * P)), np.empty((K, people * P)))  # fmt: skip
-        return geometry, links, sets, classes(K, L, people * P)
-
-    return check_buffers
-
-
-check_buffers = _make_check_buffers()
+@njit  # calls a kernel of another file: compiled into its one caller, the PFL cycle kernel
+def check_buffers(
+    K: int, L: int, P: int, people: int, B: int, C: int, n: int, T0: np.ndarray
+) -> Any:
+    """Fresh buffers of one check of ``K`` intervals against ``people`` people of ``P`` body parts,
+    in ``fused_kernel``'s groups."""
+    S = K + 1
+    geometry = (np.empty((K, L, L)), np.empty((K, L, L)), np.empty((K, L, B)),
+                np.empty((K, L, B, 3)), np.full((K, L, B), -2, np.int8),
+                np.full((K, L, L), -2, np.int8))  # fmt: skip
+    H = frames(S, n, T0)
+    links = (np.empty((S, n)), np.empty((S, n)), np.empty((S, n)), np.empty(S),
+             np.empty(S, np.bool_), H, np.empty((S, n, n)), np.empty((S, L, 2, 3)),
+             np.empty((S, L)), np.empty((S, L)), np.empty((S, L, 3)), np.empty((S, L, 3)),
+             np.empty((K, L)), np.empty((K, L)), np.empty(K))  # fmt: skip
+    sets = (np.empty(K), np.empty(K), np.empty((1, K, P, 2, 3)), np.empty((1, K, P)),
+            np.empty((1, P, 2, 3)), np.empty((K, P)), np.empty((1, C, 2, 3)),
+            np.empty((1, K, C)), np.empty((K, people * P, 2, 3)),
+            np.empty((K, people * P)), np.empty((K, people * P)))  # fmt: skip
+    return geometry, links, sets, classes(K, L, people * P)
 
 
 @njit(cache=True)
