@@ -22,7 +22,7 @@ from stop_reference import plan_stop_unchecked
 from sara_app.errors import RobotModelError
 from sara_app.robot.joints import REST_A, REST_V, S_TOL
 from sara_app.robot.profile import ScalarProfile
-from sara_app.robot.trajectory import FollowerStep, PathFollower, _follower_step
+from sara_app.robot.trajectory import FollowerStep, PathFollower
 
 
 def brake_gap(
@@ -196,7 +196,7 @@ def reference_peek(f: PathFollower, dt: float) -> FollowerStep:
     path = f.path
     if (S - s <= S_TOL and v <= REST_V and abs(a) <= REST_A) or f._n_pieces == 0:
         prof = ScalarProfile(s, 0.0, 0.0, [dt], [0.0])  # done (at rest at the end)
-        return _follower_step(dt, path, prof, (s, 0.0, 0.0), f._stop, False)
+        return FollowerStep(dt, path, prof, (s, 0.0, 0.0), f._stop, False)
     durs, jerks, A_f, J_f = intended(f, dt)
     d, j = cut_phases(durs, jerks, dt)
     prof = ScalarProfile(s, v, a, d, j)
@@ -212,9 +212,9 @@ def reference_peek(f: PathFollower, dt: float) -> FollowerStep:
             except RobotModelError:
                 stop = None
             if stop is not None:
-                return _follower_step(dt, path, prof, (s1, v1, a1), stop, False)
+                return FollowerStep(dt, path, prof, (s1, v1, a1), stop, False)
     # fallback: the failsafe already held
     held = f._stop
     d, j = cut_phases(held.profile.durs, held.profile.jerks, dt)
     prof = ScalarProfile(s, v, a, d, j)
-    return _follower_step(dt, path, prof, prof.end, held.advanced(dt), True)
+    return FollowerStep(dt, path, prof, prof.end, held.advanced(dt), True)

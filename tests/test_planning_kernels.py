@@ -222,3 +222,38 @@ def test_the_profile_functions_are_the_compiled_ones_and_equal_the_python_refere
         assert _bits(list(profile.velocity_phases(v, a, s, A, J))) == _bits(
             list(ref.velocity_phases(v, a, s, A, J))
         )
+
+
+def test_a_step_from_a_reused_record_keeps_its_own_stop() -> None:
+    """The shield reads each cycle's step from one record buffer that the next plan overwrites,
+    and makes the step's profile and stop only when they are first read (the committed step's
+    stop when a later cycle brakes): they are the step the record held, bit for bit, whatever
+    the buffer holds by then, and the follower brakes along that stop."""
+    rng = np.random.default_rng(5)
+    record = np.empty(pk.OUT_LEN)
+    checked = 0
+    for _ in range(4):
+        f = _follower(rng)
+        dt = 0.004
+        for i in range(400):
+            if f.done:
+                break
+            s, v, a = f.s, f.sd, f.sdd
+            status = pk.peek_kernel(
+                s, v, a, dt, f._cap, f._S, f._A_min, f._J_min, f._ramp_c, *f._ktab, _CONSTS,
+                record,
+            )  # fmt: skip
+            st = f.step_from_record(record, status, dt)
+            if st.fallback:
+                f.commit(st)
+                continue
+            expected = _step_bits(reference_peek(f, dt))
+            f.commit(st)
+            record[:] = np.nan  # the next plan's record in the same buffer
+            if i % 7 == 3:  # brake along the stop held: made now, from the step's own copy
+                assert _step_bits(st) == expected
+                held = f.stop
+                assert held is st.stop
+                f.brake(dt)
+                checked += 1
+    assert checked > 20

@@ -75,7 +75,11 @@ class ShieldedTrajectory:
     dq: np.ndarray
     sd_max: np.ndarray
     step: FollowerStep
-    stop: StopProfile
+
+    @property
+    def stop(self) -> StopProfile:
+        """The failsafe from the end of the step (the step's, made when first read)."""
+        return self.step.stop
 
     @property
     def duration_s(self) -> float:
@@ -118,6 +122,6 @@ def from_samples(step: FollowerStep, samples: _Samples) -> ShieldedTrajectory:
     traj = object.__new__(ShieldedTrajectory)
     traj.__dict__.update(
         times=times, q=q, v=v, a=a, s=s, sd=sd, sdd=sdd, failsafe_index=1, v_bound=v_bound,
-        a_bound=a_bound, dq=dq, sd_max=sd_max, step=step, stop=step.stop,
+        a_bound=a_bound, dq=dq, sd_max=sd_max, step=step,
     )  # fmt: skip
     return traj

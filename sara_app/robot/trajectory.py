@@ -37,7 +37,6 @@ call (:mod:`sara_app.robot.planning_kernels`); its Python reference, equal bit f
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -87,37 +86,79 @@ _CONSTS.flags.writeable = False
 __all__ = ["FollowerStep", "JointState", "PathFollower", "PathTrajectory", "time_scaling"]
 
 
-@dataclass(frozen=True)
 class FollowerStep:
     """One planned control step of a :class:`PathFollower` (nothing mutated until committed).
 
-    ``profile``: the path motion ``s(t)`` over ``[0, dt]`` from the follower's state;
-    ``end``: ``(s, s', s'')`` at ``dt``; ``stop``: the failsafe from ``end`` (valid);
-    ``fallback``: True when the intended motion could not be verified and the step is the first
-    ``dt`` of the failsafe the follower already held.
+    ``start``: ``(s, s', s'')`` it was planned from; ``profile``: the path motion ``s(t)`` over
+    ``[0, dt]`` from there; ``end``: ``(s, s', s'')`` at ``dt``; ``stop``: the failsafe from
+    ``end`` (valid); ``fallback``: True when the intended motion could not be verified and the
+    step is the first ``dt`` of the failsafe the follower already held.
+
+    A step read from the planning kernel's record (:meth:`PathFollower.step_from_record`) makes
+    its ``profile`` and ``stop`` objects on first use: a control cycle reads neither when it
+    commits a verified step (the next cycle plans from ``end``; the stop is needed only when a
+    later cycle falls back or brakes), and making them took about 4 us of the SSM cycle's 45.
     """
 
-    dt: float
-    path: PathTrajectory
-    profile: ScalarProfile
-    end: tuple[float, float, float]
-    stop: StopProfile
-    fallback: bool
+    __slots__ = ("dt", "path", "start", "end", "fallback", "_profile", "_stop", "_record")
 
+    def __init__(
+        self,
+        dt: float,
+        path: PathTrajectory,
+        profile: ScalarProfile,
+        end: tuple[float, float, float],
+        stop: StopProfile,
+        fallback: bool,
+    ) -> None:
+        self.dt, self.path, self.start, self.end = dt, path, profile.start, end
+        self.fallback = fallback
+        self._profile: ScalarProfile | None = profile
+        self._stop: StopProfile | None = stop
+        self._record: tuple[list[float], int] | None = None
 
-def _follower_step(
-    dt: float,
-    path: PathTrajectory,
-    profile: ScalarProfile,
-    end: tuple[float, float, float],
-    stop: StopProfile,
-    fallback: bool,
-) -> FollowerStep:
-    """``FollowerStep(dt, path, profile, end, stop, fallback)``, the fields set at once instead
-    of one frozen-dataclass ``__setattr__`` each (the same object, a third of the cost)."""
-    step = object.__new__(FollowerStep)
-    step.__dict__.update(dt=dt, path=path, profile=profile, end=end, stop=stop, fallback=fallback)
-    return step
+    @classmethod
+    def recorded(
+        cls,
+        dt: float,
+        path: PathTrajectory,
+        start: tuple[float, float, float],
+        record: list[float],
+        status: int,
+    ) -> FollowerStep:
+        """The intended step of ``peek_kernel``'s record (a list, the caller's copy) and
+        status ``STEP_OK`` or ``STEP_REST``, planned from ``start``."""
+        step = cls.__new__(cls)
+        step.dt, step.path, step.start, step.fallback = dt, path, start, False
+        step.end = (record[O_END], record[O_END + 1], record[O_END + 2])
+        step._profile = step._stop = None
+        step._record = (record, status)
+        return step
+
+    @property
+    def profile(self) -> ScalarProfile:
+        if self._profile is None:
+            self._from_record()
+        return self._profile  # type: ignore[return-value]  # made above
+
+    @property
+    def stop(self) -> StopProfile:
+        if self._stop is None:
+            self._from_record()
+        return self._stop  # type: ignore[return-value]  # made above
+
+    def _from_record(self) -> None:
+        from sara_app.robot.failsafe import StopProfile, rest_stop
+
+        if self._record is None:
+            raise RobotModelError("a follower step has neither its profiles nor their record")
+        o, status = self._record
+        self._profile = ScalarProfile._from_breaks(*profile_record(o, O_HEAD, H_CAP))
+        stop_prof = ScalarProfile._from_breaks(*profile_record(o, O_STOP, S_CAP))
+        if status == STEP_REST:
+            self._stop = rest_stop(self.path, stop_prof.start[0])
+        else:
+            self._stop = StopProfile(self.path, stop_prof, o[O_LIM], o[O_LIM + 1])
 
 
 class PathFollower:
@@ -129,6 +170,8 @@ class PathFollower:
     stop from the current state). See the module notes for the planning scheme.
     """
 
+    _held: StopProfile | FollowerStep
+
     def __init__(
         self,
         path_or_waypoints: PathTrajectory | object,
@@ -137,10 +180,9 @@ class PathFollower:
         blend_distance: float = 0.1,
         tangential_share: float = 0.5,
     ) -> None:
-        from sara_app.robot.failsafe import StopProfile, rest_stop
+        from sara_app.robot.failsafe import rest_stop
 
         self._rest_stop = rest_stop
-        self._stop_profile = StopProfile
         if not (0.0 < tangential_share < 1.0):
             raise RobotModelError(
                 f"tangential_share = {tangential_share!r}; expected a fraction in (0, 1)"
@@ -242,6 +284,18 @@ class PathFollower:
         return self._stop
 
     @property
+    def _stop(self) -> StopProfile:
+        """The failsafe held: a stop, or the committed step whose stop it is (made here)."""
+        held: StopProfile | FollowerStep = self._held
+        if isinstance(held, FollowerStep):
+            held = self._held = held.stop
+        return held
+
+    @_stop.setter
+    def _stop(self, stop: StopProfile) -> None:
+        self._held = stop
+
+    @property
     def speed_cap(self) -> float:
         """Upper bound on the path speed s' the intended motion aims for (rad/s; default inf).
 
@@ -313,7 +367,7 @@ class PathFollower:
             self._n_pieces == 0
         ):
             prof = ScalarProfile(s, 0.0, 0.0, [dt], [0.0])  # done (at rest at the end)
-            return _follower_step(dt, self.path, prof, (s, 0.0, 0.0), self._stop, False)
+            return FollowerStep(dt, self.path, prof, (s, 0.0, 0.0), self._stop, False)
         return self._peek_compiled(dt)
 
     def _peek_compiled(self, dt: float) -> FollowerStep:
@@ -348,16 +402,8 @@ class PathFollower:
             held = self._stop
             d, j = cut_phases(held.profile.durs, held.profile.jerks, dt)
             prof = ScalarProfile(self._s, self._v, self._a, d, j)
-            return _follower_step(dt, path, prof, prof.end, held.advanced(dt), True)
-        o = out.tolist()
-        prof = ScalarProfile._from_breaks(*profile_record(o, O_HEAD, H_CAP))
-        end = (o[O_END], o[O_END + 1], o[O_END + 2])
-        stop_prof = ScalarProfile._from_breaks(*profile_record(o, O_STOP, S_CAP))
-        if status == STEP_REST:
-            stop = self._rest_stop(path, stop_prof.start[0])
-        else:
-            stop = self._stop_profile(path, stop_prof, o[O_LIM], o[O_LIM + 1])
-        return _follower_step(dt, path, prof, end, stop, False)
+            return FollowerStep(dt, path, prof, prof.end, held.advanced(dt), True)
+        return FollowerStep.recorded(dt, path, (self._s, self._v, self._a), out.tolist(), status)
 
     def commit(self, step: FollowerStep, at_end: JointState | None = None) -> JointState:
         """Apply a step from :meth:`peek` (of this follower, in its current state).
@@ -365,12 +411,12 @@ class PathFollower:
         ``at_end``: the joint state at the end of the step if the caller already sampled it
         (a shielded trajectory's sample 1); returned as is unless the path ends with this step.
         """
-        if step.path is not self.path or step.profile.start != (self._s, self._v, self._a):
+        if step.path is not self.path or step.start != (self._s, self._v, self._a):
             raise RobotModelError(
                 "step was planned for another path or state; call peek() again before commit()"
             )
         self._s, self._v, self._a = step.end
-        self._stop = step.stop
+        self._held = step  # its stop, made when first needed (FollowerStep)
         self._t += step.dt
         if step.fallback:
             self.fallback_steps += 1
