@@ -33,6 +33,7 @@ import numpy as np
 from sara_app.bus.codec import Decoder
 from sara_app.bus.messages import Message, RobotStateMsg, position_on_stop
 from sara_app.bus.session import Subscription
+from sara_app.robot.deviation_kernels import max_abs, max_abs_diff
 from sara_app.robot.trajectory import JointState
 from sara_app.safety.settings import FUTURE_TOLERANCE_S
 
@@ -166,9 +167,9 @@ class MeasuredRobot:
 
     def _still(self, q: np.ndarray, v: np.ndarray, stamp_s: float, tol_rad: float) -> None:
         """Update since when the robot stands still (the state ``q``, ``v (n,)``)."""
-        if not float(np.max(np.abs(v))) <= self.rest_speed:
+        if not max_abs(v) <= self.rest_speed:
             self.still_since_s = self._still_q = None
-        elif self._still_q is None or not float(np.max(np.abs(q - self._still_q))) <= tol_rad:
+        elif self._still_q is None or not max_abs_diff(q, self._still_q) <= tol_rad:
             self.still_since_s, self._still_q = stamp_s, q
 
     def sent(self, t_point_s: float, q: np.ndarray, stop: tuple[np.ndarray, np.ndarray]) -> None:
@@ -194,7 +195,7 @@ class MeasuredRobot:
             k -= 1
         (ta, qa, older), (tb, qb, _) = c[k], c[k + 1]
         q = qa + (qb - qa) * ((t_s - ta) / (tb - ta))
-        slack = float(np.max(np.abs(position_on_stop(*older, t_s)[0] - q)))
+        slack = max_abs_diff(position_on_stop(*older, t_s)[0], q)
         return q, slack
 
     def faults(self, now_s: float, timeout_s: float, tol_rad: float) -> list[str]:
@@ -211,7 +212,7 @@ class MeasuredRobot:
         want = self.expected(self.stamp_s)
         if want is None:
             return []  # nothing commanded yet at that time: the worker has just started
-        err = float(np.max(np.abs(self.state.q - want[0])))
+        err = max_abs_diff(self.state.q, want[0])
         if not err <= tol_rad + want[1]:  # NaN too
             bound = (
                 "; this controller's states tracked the commands before: the plan is not moved "
@@ -240,7 +241,7 @@ class MeasuredRobot:
         s = self.state
         if why is not None or s is None:
             return why or "no robot state"
-        off = float(np.max(np.abs(s.q - q_seen)))
+        off = max_abs_diff(s.q, q_seen)
         if not off <= tol_rad:
             said = ", ".join(f"{x:.4f}" for x in s.q)
             return (
@@ -260,7 +261,7 @@ class MeasuredRobot:
         age = now_s - self.stamp_s
         if not age <= timeout_s:
             return f"the newest robot state is {age:.3f} s old (at most {timeout_s} s)"
-        speed = float(np.max(np.abs(s.v)))
+        speed = max_abs(s.v)
         if not speed <= self.rest_speed:
             return (
                 f"the robot is not at rest (joint speed up to {speed:.3g} rad/s; at rest: at "
@@ -291,5 +292,5 @@ class MeasuredRobot:
             s is not None
             and not self.bound
             and self._evidence(now_s, timeout_s) is None
-            and float(np.max(np.abs(s.q - q))) > tol_rad
+            and max_abs_diff(s.q, q) > tol_rad
         )

@@ -38,6 +38,7 @@ from sara_app.bus.starting import Starting, last_status_seq
 from sara_app.cell.build import Cell, build_cell
 from sara_app.cell.intake import Track
 from sara_app.errors import SaraError
+from sara_app.robot.deviation_kernels import max_abs_diff
 from sara_app.robot.trajectory import JointState
 from sara_app.runtime import display
 from sara_app.runtime.bus_io import CellBus
@@ -207,7 +208,7 @@ class CellWorker:
             lim.q_min, lim.q_max,
         )  # fmt: skip
         if why is None and self.robot_in.state is not None:
-            off = float(np.max(np.abs(self.robot_in.state.q - self.shield.robot_state.q)))
+            off = max_abs_diff(self.robot_in.state.q, self.shield.robot_state.q)
             if off <= tol:
                 return f"the robot stands where the plan is ({off:.4f} rad): nothing to re-plan"
         return why

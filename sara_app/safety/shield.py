@@ -34,6 +34,7 @@ import numpy as np
 from sara_app.errors import InputError, ParameterError, SaraError
 from sara_app.human.reach import MODELS, HumanReach
 from sara_app.kernel_types import as_f8, entry
+from sara_app.robot.deviation_kernels import max_abs_diff
 from sara_app.robot.failsafe import BOUND_PAD
 from sara_app.robot.model import RobotModel
 from sara_app.robot.occupancy import RobotOccupancy
@@ -260,7 +261,7 @@ class Shield:
         if q.shape != expected.shape or not math.isfinite(float(q.sum())):
             faults.append(f"robot state malformed: q shape {q.shape}, expected {expected.shape}")
             return
-        err = float(np.max(np.abs(q - expected)))
+        err = max_abs_diff(q, expected)
         if err > self.settings.tracking_tol_rad:
             faults.append(
                 f"tracking error {err:.4f} rad > tolerance {self.settings.tracking_tol_rad} rad"
