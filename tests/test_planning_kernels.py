@@ -15,6 +15,7 @@ from panda_limits import PANDA
 from planning_reference import reference_peek
 from profile_reference import phase_maxima, phases_end, velocity_phases
 
+from sara_app.errors import RobotModelError
 from sara_app.robot import planning_kernels as pk
 from sara_app.robot import profile
 from sara_app.robot.trajectory import _CONSTS, FollowerStep, PathFollower
@@ -248,6 +249,10 @@ def test_a_step_from_a_reused_record_keeps_its_own_stop() -> None:
                 f.commit(st)
                 continue
             expected = _step_bits(reference_peek(f, dt))
+            moved = f.copy()
+            moved._s += 1e-3  # the record's start is not this follower's state
+            with pytest.raises(RobotModelError, match="planned for another path or state"):
+                moved.commit(st)
             f.commit(st)
             record[:] = np.nan  # the next plan's record in the same buffer
             if i % 7 == 3:  # brake along the stop held: made now, from the step's own copy
