@@ -80,6 +80,16 @@ def profile_record(o: list[float], off: int, cap: int) -> tuple[list[float], ...
     )  # fmt: skip
 
 
+@njit(cache=True)
+def record_start(out: np.ndarray, off: int, cap: int) -> tuple[int, float, float, float]:
+    """Phase count and start state ``(s, s', s'')`` of the profile record at ``out[off:]``
+    (``out`` an array; the layout of :func:`profile_record`)."""
+    n = int(out[off])
+    t = off + 1 + 2 * cap
+    c = cap + 1
+    return n, out[t + c], out[t + 2 * c], out[t + 3 * c]
+
+
 STEP, STEP_REST, FALLBACK = 0, 1, 2  # peek_kernel's status
 
 _PH = types.UniTuple(_f8, 7)

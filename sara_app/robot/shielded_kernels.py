@@ -36,6 +36,7 @@ from sara_app.robot.planning_kernels import (
     S_CAP,
     STEP,
     peek_kernel,
+    record_start,
 )
 from sara_app.robot.trajectory_kernels import shielded_samples_kernel
 
@@ -53,15 +54,6 @@ PATH = types.Tuple((_RO1, _RO1, _RO3, _RO2, _RO2, _RO2))
 OCCUPANCY = types.Tuple((_ROI1, _RO3, _ROI1, _ROI1, _RO3, _RO2, _RO1, _RO2, _RO1))
 """``(q_index, N, parents, link_joint, ends_joint, lipschitz, radius0, T_world_base (4, 4),
 tracking margin (L,))``: the shield's robot occupancy per interval."""
-
-
-@njit(cache=True)
-def record_start(out: np.ndarray, off: int, cap: int) -> tuple[int, float, float, float]:
-    """Phase count and start state ``(s, s', s'')`` of a profile record of ``peek_kernel``."""
-    n = int(out[off])
-    t = off + 1 + 2 * cap
-    c = cap + 1
-    return n, out[t + c], out[t + 2 * c], out[t + 3 * c]
 
 
 def _make_plan_kernels() -> tuple[Any, Any]:

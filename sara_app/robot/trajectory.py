@@ -67,6 +67,7 @@ from sara_app.robot.planning_kernels import (
     STEP_REST,
     peek_kernel,
     profile_record,
+    record_start,
 )
 from sara_app.robot.profile import (
     ScalarProfile,
@@ -84,12 +85,6 @@ _CONSTS = np.array([S_TOL, REST_V, REST_A, LIMIT_MARGIN, 2.0, 3.0])
 _CONSTS.flags.writeable = False
 
 __all__ = ["FollowerStep", "JointState", "PathFollower", "PathTrajectory", "time_scaling"]
-
-_HEAD_ROW = H_CAP + 1
-_HEAD_S0 = O_HEAD + 1 + 2 * H_CAP + _HEAD_ROW
-"""Where a step record's head profile keeps its first break's position; its speed and
-acceleration follow one and two break rows later (:func:`~sara_app.robot.planning_kernels.
-profile_record`)."""
 
 
 class FollowerStep:
@@ -125,18 +120,19 @@ class FollowerStep:
 
     @classmethod
     def recorded(
-        cls, dt: float, path: PathTrajectory, record: list[float], status: int
+        cls,
+        dt: float,
+        path: PathTrajectory,
+        start: tuple[float, float, float],
+        record: list[float],
+        status: int,
     ) -> FollowerStep:
         """The intended step of ``peek_kernel``'s record (a list, the caller's copy) and
-        status ``STEP`` or ``STEP_REST``; ``start`` and ``end`` read from the record (the
-        start is the head profile's first break: what :meth:`PathFollower.commit` checks)."""
+        status ``STEP`` or ``STEP_REST``; ``start``: the record's own (its head profile's
+        first break, :func:`~sara_app.robot.planning_kernels.record_start`), what
+        :meth:`PathFollower.commit` checks against the follower's state."""
         step = cls.__new__(cls)
-        step.dt, step.path, step.fallback = dt, path, False
-        step.start = (
-            record[_HEAD_S0],
-            record[_HEAD_S0 + _HEAD_ROW],
-            record[_HEAD_S0 + 2 * _HEAD_ROW],
-        )
+        step.dt, step.path, step.start, step.fallback = dt, path, start, False
         step.end = (record[O_END], record[O_END + 1], record[O_END + 2])
         step._profile = step._stop = None
         step._record = (record, status)
@@ -410,7 +406,8 @@ class PathFollower:
             d, j = cut_phases(held.profile.durs, held.profile.jerks, dt)
             prof = ScalarProfile(self._s, self._v, self._a, d, j)
             return FollowerStep(dt, path, prof, prof.end, held.advanced(dt), True)
-        return FollowerStep.recorded(dt, path, out.tolist(), status)
+        _, s0, v0, a0 = record_start(out, O_HEAD, H_CAP)
+        return FollowerStep.recorded(dt, path, (s0, v0, a0), out.tolist(), status)
 
     def commit(self, step: FollowerStep, at_end: JointState | None = None) -> JointState:
         """Apply a step from :meth:`peek` (of this follower, in its current state).
