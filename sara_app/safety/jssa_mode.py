@@ -63,6 +63,7 @@ import numpy as np
 
 from sara_app.errors import SaraError
 from sara_app.human.reach import MODELS, HumanReach
+from sara_app.robot.deviation_kernels import max_abs, max_abs_diff
 from sara_app.robot.model import RobotModel
 from sara_app.robot.trajectory import JointState, PathFollower
 from sara_app.safety.jssa import JssaController, JssaParams, JssaResult, integrate
@@ -96,7 +97,7 @@ def tracking_jerk(
     u_ff = (ref_next.a - ref.a) / dt
     w = omega
     e_q = q - ref.q
-    big = float(np.max(np.abs(e_q)))
+    big = max_abs(e_q)
     if big > TRACK_CLIP_RAD:  # far away: approach at about w * clip / 3 rad/s (see above)
         e_q = e_q * (TRACK_CLIP_RAD / big)
     return u_ff - (w**3 * e_q + 3.0 * w * w * (v - ref.v) + 3.0 * w * (a - ref.a))
@@ -165,9 +166,7 @@ class JssaMode(Shield):
 
     @property
     def at_rest(self) -> bool:
-        return bool(
-            np.max(np.abs(self._v)) <= SETTLE_V_RAD_S and np.max(np.abs(self._a)) <= SETTLE_A_RAD_S2
-        )
+        return bool(max_abs(self._v) <= SETTLE_V_RAD_S and max_abs(self._a) <= SETTLE_A_RAD_S2)
 
     def restart_from(self, q: np.ndarray, waypoints: np.ndarray | None = None) -> None:
         """The measured robot rests at ``q``: the reference (through the waypoints ahead, as
@@ -184,8 +183,8 @@ class JssaMode(Shield):
         f = self.follower
         return (
             f.done
-            and float(np.max(np.abs(self._q - f.state.q))) <= GOAL_Q_RAD
-            and float(np.max(np.abs(self._v))) <= GOAL_V_RAD_S
+            and max_abs_diff(self._q, f.state.q) <= GOAL_Q_RAD
+            and max_abs(self._v) <= GOAL_V_RAD_S
         )
 
     def adopt(self, previous: Shield) -> None:
@@ -215,7 +214,7 @@ class JssaMode(Shield):
         return the nominal jerk ``(n,)`` that tracks it."""
         f = self.follower
         ref = f.state
-        err = float(np.max(np.abs(self._q - ref.q)))
+        err = max_abs_diff(self._q, ref.q)
         cap = reference_cap(err, f)
         outer = f.speed_cap
         f.speed_cap = min(outer, cap)
@@ -254,9 +253,9 @@ class JssaMode(Shield):
             return
         ref = f.state
         if (
-            np.max(np.abs(self._q - ref.q)) <= SETTLE_Q_RAD
-            and np.max(np.abs(self._v)) <= SETTLE_V_RAD_S
-            and np.max(np.abs(self._a)) <= SETTLE_A_RAD_S2
+            max_abs_diff(self._q, ref.q) <= SETTLE_Q_RAD
+            and max_abs(self._v) <= SETTLE_V_RAD_S
+            and max_abs(self._a) <= SETTLE_A_RAD_S2
         ):
             self._q, self._v, self._a = ref.q.copy(), np.zeros_like(self._v), np.zeros_like(self._a)
 
