@@ -61,7 +61,10 @@ def process_parser(name: str, description: str, *, state: bool = False) -> argpa
     ap.add_argument(
         "--die-with-parent",
         action="store_true",
-        help="end when the parent process ends (how serve starts its children)",
+        help=(
+            "end when the parent process ends, asked after this module's imports (serve asks "
+            "before them: it starts its children through python -m sara_app.tethered)"
+        ),
     )
     ap.add_argument(
         "--robot-encoding",

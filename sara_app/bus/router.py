@@ -34,7 +34,11 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--cell", action="append", default=[])
     ap.add_argument("--credentials", default=None)
     ap.add_argument("--rt-priority", type=RT_PRIORITY, default=0)
-    ap.add_argument("--die-with-parent", action="store_true")
+    ap.add_argument(
+        "--die-with-parent",
+        action="store_true",
+        help="end when the parent process ends (serve starts it through sara_app.tethered)",
+    )
     ap.add_argument("--listen-host", default="127.0.0.1")
     ap.add_argument("--print-config", action="store_true")
     return ap
