@@ -445,6 +445,29 @@ def test_a_command_whose_stop_disagrees_with_its_set_point_is_refused(caplog) ->
     assert "commands refused" in text and "not one period" in text
 
 
+def test_a_command_for_another_joint_count_is_refused_and_counted(caplog) -> None:
+    """A worker for another robot (six joints, or eight, beside this seven-joint controller):
+    its commands are refused, counted and logged, never dropped unseen; the robot stays where
+    it is and a valid command after them is followed."""
+    from sara_app.peers.controller import Controller
+
+    sc = load_scenario("standing_beside_path")
+    port = free_port()
+    with Bus.router(port), Bus.client(port) as cbus:
+        ctl = Controller(CELL, sc, cbus)
+        q0, t, dt = ctl.q.copy(), time.time(), ctl.dt_s
+        short, long = q0[:-1].tolist(), [*q0.tolist(), 0.3]
+        ctl.tick(t, [_cmd(0, t - dt, short, dt), _cmd(1, t - dt / 2, long, dt)])
+        assert ctl.command is None and ctl.delivery.refused == 2
+        assert ctl.delivery.received == 0
+        ctl.tick(t + 0.01)
+        assert float(np.max(np.abs(ctl.q - q0))) <= 1e-12
+        ctl.tick(t + 0.011, [_cmd(2, t + 0.0105, q0.tolist(), dt)])
+        assert ctl.command is not None and ctl.command.seq == 2
+    text = " ".join(r.getMessage() for r in caplog.records)
+    assert "commands refused" in text and "[6, 8] joints where this robot has 7" in text
+
+
 def test_no_set_point_is_reached_faster_than_the_joint_speed_limit() -> None:
     """Commands that come after their set point's time (a late delivery) or after the robot
     braked on its own: each set point was reached 1 us after the robot's last point, up to

@@ -15,6 +15,8 @@ plain Python, simulating a robot that tracks its set points exactly.
   holds for its first command: a controller started while a worker runs follows nothing until
   the worker commands from where the robot stands (found by ``sara-app soak --chaos``: a
   restarted controller took a set point 1.4 rad from its robot).
+- A command of another joint count than the robot's (a worker for another robot) is refused and
+  counted, never dropped unseen.
 - The newest command is the one with the latest ``stamp_s`` (a restarted worker numbers its
   commands from 0 again). Delivery is counted (:class:`Delivery`: received, lost within a
   worker run, late, expired, refused) and published about once a second on
@@ -169,6 +171,10 @@ class Controller:
         if given is None:
             given = [d.msg for d in self.sub.drain().messages if isinstance(d.msg, RobotCommandMsg)]
         got = [m for m in given if len(m.q) == len(self.q)]
+        if len(got) < len(given):  # a worker for another robot: refused, never dropped unseen
+            joints = sorted({len(m.q) for m in given if len(m.q) != len(self.q)})
+            self.delivery.refused += len(given) - len(got)
+            self._disagree_log(f"{joints} joints where this robot has {len(self.q)}")
         for cmd in got:
             self.delivery.count(cmd, now, self.dt_s)
         got.sort(key=lambda m: m.stamp_s)

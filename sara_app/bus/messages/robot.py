@@ -141,7 +141,8 @@ class ControllerStatusMsg(MsgBase):
     command delivery as the controller saw it since it started. ``commands_lost``: sequence
     numbers of a worker run never received; ``commands_late``: received after their set point's
     time (``stamp_s + dt``); ``commands_expired``: received after ``valid_until_s``;
-    ``commands_refused``: not followed (expired and not where the robot stands);
+    ``commands_refused``: not followed (expired and not where the robot stands, a stop that does
+    not start at the set point, another joint count);
     ``braking_events``: times the newest command expired and the robot braked on its own;
     ``worker_runs``: worker runs seen (a run's sequence numbers restart at 0); ``braking``: it
     brakes on its own now. Schema version 2 (version 1 had no ``braking_causes`` or
