@@ -21,8 +21,9 @@ plain Python, simulating a robot that tracks its set points exactly.
   commands from 0 again). Delivery is counted (:class:`Delivery`: received, lost within a
   worker run, late, expired, refused) and published about once a second on
   ``sara/<cell>/controller/status``.
-- It wakes when a command arrives and publishes ``robot/state`` on each command taken and at
-  least every control period, stamped with the time of the state (:meth:`Controller.run`).
+- It wakes when a command arrives and publishes ``robot/state`` on each command taken and, when
+  none came, :data:`STATE_GAP_PERIODS` control periods after the last state, stamped with the
+  time of the state (:meth:`Controller.run`).
 
 Against a real robot, replace ``_apply`` with the driver's set-point call and publish the
 driver's measured state; keep the expiry and braking rules.
@@ -62,6 +63,13 @@ the next most, and the deadline is now pushed back without one)."""
 
 
 STATUS_PERIOD_S = 1.0
+STATE_GAP_PERIODS = 1.5
+"""Without a command, a state at the latest this many control periods after the last one. A
+command comes every period, a little late now and then: at one period the state-due deadline
+expired about when the command came (0.73 wake-ups and 0.19-0.28 extra states per cycle in a
+live cell, each one decoded and checked by the worker and forwarded by the router); half a
+period of slack leaves a state per command. The worker faults states older than
+``inputs.robot_state_timeout_s`` (0.05 s by default), 25 periods at 500 Hz."""
 
 
 @dataclass
@@ -206,8 +214,8 @@ class Controller:
             if self._acceptable(cmd, now):
                 self._follow(cmd, now)
                 got = True
-        if not got and now - self.published_s < self.dt_s:
-            return  # no command: a state every control period (the contract's least)
+        if not got and now - self.published_s < STATE_GAP_PERIODS * self.dt_s:
+            return  # no command: a state every STATE_GAP_PERIODS periods (the contract's least)
         if self.command is None or not self.points:
             self.publish(now)
             return
@@ -365,7 +373,8 @@ class Controller:
                 self.tick(time.time(), commands)
             except Exception:  # noqa: BLE001 - keep braking rather than die
                 log.exception("controller tick failed")
-            self._due.arm(max(self.published_s + self.dt_s - time.time(), MIN_WAIT_S))
+            gap_s = STATE_GAP_PERIODS * self.dt_s
+            self._due.arm(max(self.published_s + gap_s - time.time(), MIN_WAIT_S))
 
     def _receive(self) -> None:
         """Tick on each batch of commands received. Should the wait end other than by the
