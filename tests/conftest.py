@@ -86,7 +86,9 @@ def pytest_configure(config: pytest.Config) -> None:
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
-    for folder in _EXCLUSIVE_DIR:
+    # this process's data folder (an audit database and a bus password file per test process:
+    # every run left three behind) and, on the controller, the workers' lists
+    for folder in (_DATA, *_EXCLUSIVE_DIR):
         shutil.rmtree(folder, ignore_errors=True)
 
 
