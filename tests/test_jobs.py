@@ -126,6 +126,27 @@ def test_a_failing_job_reports_its_error(tmp_path: Path) -> None:
         runner.close()
 
 
+def test_a_runner_leaves_no_folder_behind(tmp_path: Path, monkeypatch) -> None:
+    """A runner makes its folder with its first job and removes it on close; an API app that
+    never runs a job (its own runner: a benchmark, a test) leaves none (about a thousand empty
+    folders had piled up in /tmp)."""
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    create_app(StandInRegistry(), static_dir=None)
+    runner = JobRunner()
+    assert list(tmp_path.glob("sara-jobs-*")) == []
+    try:
+        sc = load_scenario("close_worker").model_dump(mode="json")
+        broken = {**sc, "robot": {"name": "panda", "margin_m": -1.0}}
+        job = runner.start("whatif", {"current": sc, "edited": broken, "duration_s": 0.1})
+        assert len(list(tmp_path.glob("sara-jobs-*"))) == 1
+        assert runner.wait(job.id, 120).state == "failed"
+    finally:
+        runner.close()
+    assert list(tmp_path.glob("sara-jobs-*")) == []
+
+
 def test_a_whatif_on_a_recording(api: tuple[TestClient, JobRunner]) -> None:
     """The person replaced by a recorded one (the shipped CMU walk) in the what-if only."""
     client, runner = api

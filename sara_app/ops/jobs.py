@@ -71,7 +71,8 @@ class JobRunner:
         self._jobs: dict[str, Job] = {}
         self._lock = threading.Lock()
         self._ids = itertools.count(1)
-        self._root = Path(tempfile.mkdtemp(prefix="sara-jobs-"))
+        self._root: Path | None = None
+        """The jobs' folder, made by the first job (an API that never runs one leaves none)."""
         self._procs: dict[str, subprocess.Popen[str]] = {}
 
     def start(self, kind: str, data: dict[str, Any], label: str = "") -> Job:
@@ -87,6 +88,8 @@ class JobRunner:
                     f"({100 * busy[0].progress:.0f} %); one job runs at a time"
                 )
             job = Job(f"{kind}-{next(self._ids)}", kind, label=label)
+            if self._root is None:
+                self._root = Path(tempfile.mkdtemp(prefix="sara-jobs-"))
             job.folder = self._root / job.id
             job.folder.mkdir()
             self._jobs[job.id] = job
@@ -158,4 +161,5 @@ class JobRunner:
         for proc in list(self._procs.values()):
             proc.kill()
             proc.wait(timeout=10)
-        shutil.rmtree(self._root, ignore_errors=True)
+        if self._root is not None:
+            shutil.rmtree(self._root, ignore_errors=True)
