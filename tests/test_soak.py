@@ -17,10 +17,19 @@ from sara_app.commands.soak import RECOVERY_GRACE_S
 @pytest.mark.exclusive
 @pytest.mark.usefixtures("idle_cpus_poll")
 @pytest.mark.slow
-def test_chaos_never_moves_the_robot_off_a_verified_command(tmp_path: Path) -> None:
+def test_chaos_never_moves_the_robot_off_a_verified_command(tmp_path: Path, monkeypatch) -> None:
     """45 s with a process killed or the router stopped every 3 s (15 faults, as a minute at
-    one every 4 s: more of them overlap)."""
+    one every 4 s: more of them overlap). The run's data folder (its bus password file) goes
+    with it, and this process's data folder is its own again."""
+    import os
+    import tempfile
+
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(runs))
+    data_before = os.environ.get("SARA_APP_DATA")
     res = run_soak(45.0, chaos=True, chaos_every_s=3.0, sample_s=1.5, seed=1, progress=False)
+    assert list(runs.iterdir()) == [] and os.environ.get("SARA_APP_DATA") == data_before
     assert len(res.samples) >= 25 and len(res.events) >= 12
     assert {e.target for e in res.events} >= {"router", "worker", "controller", "replayer"}
     assert res.commands > 5000 and res.states_checked > 5000

@@ -26,6 +26,7 @@ import bisect
 import json
 import os
 import random
+import shutil
 import signal
 import statistics
 import sys
@@ -188,6 +189,7 @@ def run_soak(
     rng = random.Random(seed)
     sample_s = sample_s or max(1.0, duration_s / 120.0)
     data = Path(tempfile.mkdtemp(prefix="sara_soak_"))
+    data_before = os.environ.get("SARA_APP_DATA")
     os.environ["SARA_APP_DATA"] = str(data)  # credentials and saved state of this run only
     cell, port = "cell1", free_port()
     creds = Credentials.create(data / "zenoh_credentials.txt")
@@ -219,6 +221,12 @@ def run_soak(
                 all_pids.add(c.proc.pid)
         time.sleep(0.5)
         res.orphans = sorted(p for p in all_pids if _alive(p))
+        # the run's bus password file and saved state go with it (every run left its folder)
+        shutil.rmtree(data, ignore_errors=True)
+        if data_before is None:
+            os.environ.pop("SARA_APP_DATA", None)
+        else:
+            os.environ["SARA_APP_DATA"] = data_before
     return res
 
 
