@@ -19,6 +19,7 @@ import os
 from pathlib import Path
 
 from xdist.scheduler import WorkStealingScheduling
+from xdist.scheduler.worksteal import MIN_PENDING
 
 EXCLUSIVE_DIR_KEY = "sara_exclusive_dir"
 
@@ -86,6 +87,8 @@ class ExclusiveLastScheduling(WorkStealingScheduling):
                 if len(pending) < 2 and not node.shutting_down:
                     node.shutdown()
             return
+        if self._held and self.pending:
+            self._hand_out_pending()
         if self.pending or self.steal_requested_from_node is not None or not self._held:
             super().check_schedule()
             return
@@ -102,3 +105,13 @@ class ExclusiveLastScheduling(WorkStealingScheduling):
         self.node2pending[node].extend(held)
         node.send_runtest_some(held)
         self.check_schedule()
+
+    def _hand_out_pending(self) -> None:
+        """The base class's first step only: the light tests spread over the idle workers.
+        Its next step stops a worker that is still idle when nothing is left to steal, which
+        with tests held back stopped the last worker (``pytest -n 1`` on a file with one light
+        and one exclusive test: "no active workers"); the held tests go out here later."""
+        idle = [n for n, p in self.node2pending.items()
+                if len(p) < MIN_PENDING and not n.shutting_down]  # fmt: skip
+        for i, node in enumerate(idle):
+            self._send_tests(node, len(self.pending) // (len(idle) - i))

@@ -32,13 +32,16 @@ class _Node:
         self.queue = [i for i in self.queue if i not in self.stolen]
 
 
-def _run(tmp_path: Path, names: list[str], exclusive: list[str], steps: list[int]) -> list:
+def _run(
+    tmp_path: Path, names: list[str], exclusive: list[str], steps: list[int], workers: int = 2
+) -> list:
     SENT.clear()
     write_exclusive_ids(str(tmp_path), "gw0", exclusive)
-    config = type("C", (), {"getvalue": lambda self, k: ["2*popen"] if k == "tx" else None})()
+    tx = [f"{workers}*popen"]
+    config = type("C", (), {"getvalue": lambda self, k: tx if k == "tx" else None})()
     log = type("L", (), {"workstealsched": staticmethod(lambda *a: None)})()
     sched = ExclusiveLastScheduling(config, log=log, folder=str(tmp_path))
-    nodes = [_Node("gw0"), _Node("gw1")]
+    nodes = [_Node(f"gw{i}") for i in range(workers)]
     for n in nodes:
         sched.add_node(n)  # type: ignore[arg-type]
         sched.add_node_collection(n, names)  # type: ignore[arg-type]
@@ -49,7 +52,7 @@ def _run(tmp_path: Path, names: list[str], exclusive: list[str], steps: list[int
         if sched.tests_finished:  # the controller stops every worker: each runs what it holds
             for n in nodes:
                 n.shutdown()
-        node = nodes[steps[k % len(steps)] % 2]
+        node = nodes[steps[k % len(steps)] % workers]
         k += 1
         assert k < 10_000, "the schedule never finishes"
         if getattr(node, "stolen", None) is not None:
@@ -90,3 +93,15 @@ def test_without_exclusive_ids_or_light_tests_nothing_is_held(tmp_path: Path) ->
     names = ["a", "b", "c"]
     ran = _run(tmp_path, names, names, [0, 1])
     assert sorted(n for _, n in ran) == names
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+@pytest.mark.parametrize("light", [1, 2, 3])
+def test_a_few_tests_on_few_workers_all_run(tmp_path: Path, workers: int, light: int) -> None:
+    """A file or two with an exclusive test (``pytest -n 1 tests/test_soak.py``: its one light
+    test handed out at once left no test to steal, and the base class stopped the idle worker
+    with the exclusive test still held: "no active workers")."""
+    names = ["x0", *(f"t{i}" for i in range(light)), "x1"]
+    ran = _run(tmp_path, names, ["x0", "x1"], [0, 1], workers)
+    assert sorted(n for _, n in ran) == sorted(names)
+    assert [n for _, n in ran if n.startswith("x")] == ["x0", "x1"]
