@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from sara_app.bench.live import CHROMIUM_FLAGS
+from sara_app.bench.live import CHROMIUM_FLAGS, chromium_environment
 from sara_app.bus.session import free_port
 
 CHROMIUM = "/usr/bin/chromium"
@@ -113,6 +113,7 @@ def chromium_on(url: str) -> Iterator[DevTools]:
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
         start_new_session=True,
+        env=chromium_environment(profile),  # its temporary files go with the profile
     )
     devtools = None
     try:

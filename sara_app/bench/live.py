@@ -48,6 +48,13 @@ CHROMIUM_FLAGS = (
 )
 
 
+def chromium_environment(profile: str) -> dict[str, str]:
+    """This process's environment with chromium's temporary files inside its ``profile``:
+    the folder of its singleton socket (``org.chromium.Chromium.*``) is otherwise made in
+    /tmp and left there when chromium is stopped (231 had piled up on the development VM)."""
+    return {**os.environ, "TMPDIR": profile}
+
+
 def chromium_path() -> str | None:
     """Debian's chromium, if installed (never downloaded)."""
     for name in ("chromium", "chromium-browser"):
@@ -190,9 +197,8 @@ def _view(
             raise RuntimeError("the dashboard did not start")
         if browser:
             cmd = [browser, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", display.url]
-            proc = start_process(
-                cmd, nice, browser_cpus, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
-            )
+            out = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
+            proc = start_process(cmd, nice, browser_cpus, env=chromium_environment(profile), **out)
         time.sleep(3.0)  # page load and first render before measuring
         yield display.url
     finally:

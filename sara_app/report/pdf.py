@@ -7,7 +7,7 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-from sara_app.bench.live import CHROMIUM_FLAGS, chromium_path
+from sara_app.bench.live import CHROMIUM_FLAGS, chromium_environment, chromium_path
 from sara_app.errors import InputError
 
 TIMEOUT_S = 120.0
@@ -26,7 +26,8 @@ def print_pdf(html_path: Path, pdf_path: Path) -> None:
         cmd = [exe, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", "--no-pdf-header-footer",
                f"--print-to-pdf={pdf_path.resolve()}", html_path.resolve().as_uri()]  # fmt: skip
         try:
-            subprocess.run(cmd, capture_output=True, timeout=TIMEOUT_S, check=False)
+            subprocess.run(cmd, capture_output=True, timeout=TIMEOUT_S, check=False,
+                           env=chromium_environment(profile))  # fmt: skip
         except subprocess.TimeoutExpired:
             raise InputError(f"chromium did not print {html_path} within {TIMEOUT_S} s") from None
     if not pdf_path.exists() or pdf_path.stat().st_size == 0:
