@@ -3,7 +3,6 @@ that starts no process."""
 
 from __future__ import annotations
 
-import shutil
 from typing import Any
 
 from test_api_thresholds import StandInRegistry
@@ -32,11 +31,8 @@ class AnsweringRegistry(StandInRegistry):
 
 class InertJobs(JobRunner):
     """Lists a job instead of starting its process (a what-if run takes minutes here): the job
-    shows as failed, with that reason."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        shutil.rmtree(self._root)  # no job runs: no folder for its files
+    shows as failed, with that reason (no folder is made: the runner makes one for a job's
+    files when a job starts)."""
 
     def start(self, kind: str, data: dict[str, Any], label: str = "") -> Job:
         with self._lock:
