@@ -147,6 +147,31 @@ def test_a_runner_leaves_no_folder_behind(tmp_path: Path, monkeypatch) -> None:
     assert list(tmp_path.glob("sara-jobs-*")) == []
 
 
+def test_a_runner_never_closed_leaves_no_folder_when_its_process_ends(tmp_path: Path) -> None:
+    """An API app that made its own runner is never closed by its caller (a test's app, a
+    benchmark's): the process that ran a job through it ends, and the job's folder goes with it
+    (a report job's folder was left by each run of the suite)."""
+    import subprocess
+    import sys
+
+    script = (
+        "import tempfile, sys\n"
+        f"tempfile.tempdir = {str(tmp_path)!r}\n"
+        "from sara_app.ops.jobs import JobRunner\n"
+        "from sara_app.scenario import load_scenario\n"
+        "runner = JobRunner()\n"
+        "sc = load_scenario('close_worker').model_dump(mode='json')\n"
+        "bad = {**sc, 'robot': {'name': 'panda', 'margin_m': -1.0}}\n"
+        "job = runner.start('whatif', {'current': sc, 'edited': bad, 'duration_s': 0.1})\n"
+        "runner.wait(job.id, 120)\n"
+        "print(len(list(__import__('pathlib').Path(tempfile.tempdir).glob('sara-jobs-*'))))\n"
+    )
+    cmd = [sys.executable, "-c", script]
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0 and out.stdout.strip() == "1", out.stderr[-2000:]
+    assert list(tmp_path.glob("sara-jobs-*")) == []
+
+
 def test_a_whatif_on_a_recording(api: tuple[TestClient, JobRunner]) -> None:
     """The person replaced by a recorded one (the shipped CMU walk) in the what-if only."""
     client, runner = api

@@ -17,6 +17,7 @@ import sys
 import tempfile
 import threading
 import time
+import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -74,6 +75,9 @@ class JobRunner:
         self._root: Path | None = None
         """The jobs' folder, made by the first job (an API that never runs one leaves none)."""
         self._procs: dict[str, subprocess.Popen[str]] = {}
+        self._cleanup: weakref.finalize | None = None  # type: ignore[type-arg]
+        """:meth:`close`'s work, done at the latest when the runner is collected or the
+        process exits (an app that made its own runner is never closed by its caller)."""
 
     def start(self, kind: str, data: dict[str, Any], label: str = "") -> Job:
         """Start job ``kind`` (``whatif`` or ``report``) on ``data`` (see
@@ -90,6 +94,7 @@ class JobRunner:
             job = Job(f"{kind}-{next(self._ids)}", kind, label=label)
             if self._root is None:
                 self._root = Path(tempfile.mkdtemp(prefix="sara-jobs-"))
+                self._cleanup = weakref.finalize(self, _remove_jobs, self._procs, self._root)
             job.folder = self._root / job.id
             job.folder.mkdir()
             self._jobs[job.id] = job
@@ -158,8 +163,13 @@ class JobRunner:
 
     def close(self) -> None:
         """Stop a running job and remove every job's files."""
-        for proc in list(self._procs.values()):
-            proc.kill()
-            proc.wait(timeout=10)
-        if self._root is not None:
-            shutil.rmtree(self._root, ignore_errors=True)
+        if self._cleanup is not None:
+            self._cleanup()
+
+
+def _remove_jobs(procs: dict[str, subprocess.Popen[str]], root: Path) -> None:
+    """Stop the running jobs' processes and remove the jobs' folder ``root``."""
+    for proc in list(procs.values()):
+        proc.kill()
+        proc.wait(timeout=10)
+    shutil.rmtree(root, ignore_errors=True)
