@@ -112,14 +112,20 @@ def test_bad_whatif_requests_are_refused(api: tuple[TestClient, JobRunner]) -> N
     assert runner.list() == []  # nothing started
 
 
+def _failing_whatif() -> dict:
+    """A what-if job's input whose edited scenario is invalid: the job fails at once."""
+    sc = load_scenario("close_worker").model_dump(mode="json")
+    broken = {**sc, "robot": {"name": "panda", "margin_m": -1.0}}
+    return {"current": sc, "edited": broken, "duration_s": 0.1}
+
+
 def test_a_failing_job_reports_its_error(tmp_path: Path) -> None:
     runner = JobRunner()
     try:
-        sc = load_scenario("close_worker").model_dump(mode="json")
-        broken = {**sc, "robot": {"name": "panda", "margin_m": -1.0}}
+        data = _failing_whatif()
         with pytest.raises(Exception):  # noqa: B017 - the API validates before starting
-            parse_scenario(broken, "x")
-        job = runner.start("whatif", {"current": sc, "edited": broken, "duration_s": 0.1})
+            parse_scenario(data["edited"], "x")
+        job = runner.start("whatif", data)
         done = runner.wait(job.id, 120)
         assert done.state == "failed" and "edited scenario" in str(done.error)
     finally:
@@ -137,9 +143,7 @@ def test_a_runner_leaves_no_folder_behind(tmp_path: Path, monkeypatch) -> None:
     runner = JobRunner()
     assert list(tmp_path.glob("sara-jobs-*")) == []
     try:
-        sc = load_scenario("close_worker").model_dump(mode="json")
-        broken = {**sc, "robot": {"name": "panda", "margin_m": -1.0}}
-        job = runner.start("whatif", {"current": sc, "edited": broken, "duration_s": 0.1})
+        job = runner.start("whatif", _failing_whatif())
         assert len(list(tmp_path.glob("sara-jobs-*"))) == 1
         assert runner.wait(job.id, 120).state == "failed"
     finally:

@@ -197,8 +197,14 @@ def _view(
             raise RuntimeError("the dashboard did not start")
         if browser:
             cmd = [browser, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", display.url]
-            out = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
-            proc = start_process(cmd, nice, browser_cpus, env=chromium_environment(profile), **out)
+            proc = start_process(
+                cmd,
+                nice,
+                browser_cpus,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+                env=chromium_environment(profile),
+            )
         time.sleep(3.0)  # page load and first render before measuring
         yield display.url
     finally:

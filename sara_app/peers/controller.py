@@ -137,6 +137,8 @@ class Controller:
     def __init__(self, cell: str, scenario: Scenario, bus: Bus) -> None:
         self.cell = keys.check_name("cell", cell)
         self.dt_s = scenario.shield.dt_s
+        self.state_gap_s = STATE_GAP_PERIODS * self.dt_s
+        """Without a command, a state this long after the last one (:data:`STATE_GAP_PERIODS`)."""
         self.tol_rad = scenario.shield.tracking_tol_rad
         self.v_max = np.asarray(scenario.robot.load(margin=False).limits.v_max, dtype=float)
         """The robot's joint speed limits (rad/s): no set point is reached faster."""
@@ -178,11 +180,12 @@ class Controller:
         through each)."""
         if given is None:
             given = [d.msg for d in self.sub.drain().messages if isinstance(d.msg, RobotCommandMsg)]
-        got = [m for m in given if len(m.q) == len(self.q)]
+        n = len(self.q)
+        got = [m for m in given if len(m.q) == n]
         if len(got) < len(given):  # a worker for another robot: refused, never dropped unseen
-            joints = sorted({len(m.q) for m in given if len(m.q) != len(self.q)})
             self.delivery.refused += len(given) - len(got)
-            self._disagree_log(f"{joints} joints where this robot has {len(self.q)}")
+            joints = sorted({len(m.q) for m in given} - {n})
+            self._disagree_log(f"{joints} joints where this robot has {n}")
         for cmd in got:
             self.delivery.count(cmd, now, self.dt_s)
         got.sort(key=lambda m: m.stamp_s)
@@ -214,7 +217,7 @@ class Controller:
             if self._acceptable(cmd, now):
                 self._follow(cmd, now)
                 got = True
-        if not got and now - self.published_s < STATE_GAP_PERIODS * self.dt_s:
+        if not got and now - self.published_s < self.state_gap_s:
             return  # no command: a state every STATE_GAP_PERIODS periods (the contract's least)
         if self.command is None or not self.points:
             self.publish(now)
@@ -373,8 +376,7 @@ class Controller:
                 self.tick(time.time(), commands)
             except Exception:  # noqa: BLE001 - keep braking rather than die
                 log.exception("controller tick failed")
-            gap_s = STATE_GAP_PERIODS * self.dt_s
-            self._due.arm(max(self.published_s + gap_s - time.time(), MIN_WAIT_S))
+            self._due.arm(max(self.published_s + self.state_gap_s - time.time(), MIN_WAIT_S))
 
     def _receive(self) -> None:
         """Tick on each batch of commands received. Should the wait end other than by the
