@@ -4,6 +4,7 @@ scenario chases the robot."""
 
 from __future__ import annotations
 
+import logging
 import subprocess
 import sys
 import threading
@@ -23,7 +24,8 @@ CELL = "rp"
 
 def _command(q: list[float], seq: int) -> RobotCommandMsg:
     now = time.time()
-    return RobotCommandMsg(seq=seq, stamp_s=now, q=q, q_dot=[0.0] * 7, q_ddot=[0.0] * 7,
+    n = len(q)
+    return RobotCommandMsg(seq=seq, stamp_s=now, q=q, q_dot=[0.0] * n, q_ddot=[0.0] * n,
                            mode="rest", valid_until_s=now + 0.01)  # fmt: skip
 
 
@@ -47,6 +49,35 @@ def test_only_a_person_who_chases_the_robot_makes_it_follow_the_commands() -> No
         np.testing.assert_allclose(scripted.q, q)  # the adversary chases where the robot is
         scripted.load(load_scenario("punches"))
         assert scripted.sub_cmd is None  # and stops listening when nobody chases it
+
+
+def test_a_command_of_another_joint_count_is_counted_and_logged_not_followed(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A worker for another robot on the cell's key: its commands are ignored for the chasing
+    person, but counted and said (they were dropped unseen before)."""
+    port = free_port()
+    q = [0.1, -0.2, 0.3, -1.5, 0.0, 1.8, 0.7]
+    with Bus.router(port), Bus.client(port) as rb, Bus.client(port) as tb:
+        replayer = Replayer(CELL, load_scenario("adversarial"), rb)
+        pub = tb.publisher(keys.robot_command_key(CELL))
+        with caplog.at_level(logging.WARNING, logger="sara_app.replayer"):
+            t_end = time.monotonic() + 5.0
+            seq = 0
+            while replayer.commands_ignored < 2 and time.monotonic() < t_end:
+                pub.put(_command([0.5] * (6 + 2 * (seq % 2)), seq))  # 6 and 8 joints
+                seq += 1
+                time.sleep(0.01)
+                replayer.tick(time.time())
+        assert replayer.commands_ignored >= 2
+        np.testing.assert_allclose(replayer.q, load_scenario("adversarial").task.waypoints_rad[0])
+        assert "robot commands ignored" in caplog.text and "where this robot has 7" in caplog.text
+        while not np.allclose(replayer.q, q) and time.monotonic() < t_end + 5.0:
+            pub.put(_command(q, seq))  # a valid one after them is followed
+            seq += 1
+            time.sleep(0.01)
+            replayer.tick(time.time())
+        np.testing.assert_allclose(replayer.q, q)
 
 
 @pytest.mark.exclusive

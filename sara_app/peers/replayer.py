@@ -7,7 +7,8 @@ assume; it is of the kind the person's sensor tracks (``sensor.tracks``: an uppe
 recording's legs, which the replay stands on the floor, are not sent; the simulator does the
 same). Adversaries chase the robot as commanded on ``sara/<cell>/robot/command``; only a
 scenario with such a person makes the replayer subscribe to the commands (500 a second, each a
-copy the router sends). The scenario restarts after ``sim.duration_s``; an accepted scenario
+copy the router sends). A command of another joint count than the scenario's robot is counted
+and logged, not followed. The scenario restarts after ``sim.duration_s``; an accepted scenario
 update (``params/ack``) restarts it with the new people. Like a real tracker it sends a frame
 (``TrackerFrameMsg``) as the scenario's first declared tracker (``inputs.trackers[0]``,
 ``main`` by default), listing the people it publishes, at ``FRAME_HZ``: without them the cell
@@ -34,7 +35,7 @@ from sara_app.bus.messages import (
     SkeletonMsg,
     TrackerFrameMsg,
 )
-from sara_app.bus.process import process_main
+from sara_app.bus.process import SummarisedWarning, process_main
 from sara_app.bus.session import Bus, Publisher, Subscription
 from sara_app.errors import SaraError
 from sara_app.geometry.poses import pose_from_xyz_rpy
@@ -69,6 +70,10 @@ class Replayer:
         self._decoder = dec
         self.sub_cmd: Subscription | None = None
         """The robot's commands, while a person chases the robot (:func:`reacts_to_robot`)."""
+        self.commands_ignored = 0
+        """Commands of another joint count than the scenario's robot (a worker for another
+        robot on the cell's key): the chasing people keep the robot's last position."""
+        self._ignored_log = SummarisedWarning(log, "robot commands ignored")
         self.sub_params = bus.subscribe(keys.params_key(self.cell), dec, fifo=True)
         self.sub_ack = bus.subscribe(keys.params_ack_key(self.cell), dec, fifo=True)
         self._pending: dict[str, dict] = {}
@@ -119,8 +124,16 @@ class Replayer:
     def _inputs(self) -> None:
         if self.sub_cmd is not None:  # where the robot is now: the newest command
             for d in self.sub_cmd.drain_latest().messages:
-                if isinstance(d.msg, RobotCommandMsg) and len(d.msg.q) == self.robot.n_dof:
+                if not isinstance(d.msg, RobotCommandMsg):
+                    continue
+                if len(d.msg.q) == self.robot.n_dof:
                     self.q = np.asarray(d.msg.q)
+                else:
+                    self.commands_ignored += 1
+                    self._ignored_log(
+                        f"{len(d.msg.q)} joints where this robot has {self.robot.n_dof}; the "
+                        "people chase the robot where its last valid command put it"
+                    )
         for d in self.sub_params.drain().messages:
             if isinstance(d.msg, ParamsMsg):
                 self._pending[d.msg.request_id] = d.msg.scenario
