@@ -12,6 +12,7 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -335,6 +336,7 @@ def test_run_states_every_period_without_commands_and_one_per_command_taken() ->
         gap = STATE_GAP_PERIODS * ctl.dt_s
         states = wbus.subscribe(keys.robot_state_key(CELL), fifo=True, capacity=10_000)
         pub = wbus.publisher(keys.robot_command_key(CELL))
+        own_gaps = _own_state_gaps(ctl)
         runner = threading.Thread(target=ctl.run)
         runner.start()
         dt, q0 = ctl.dt_s, ctl.q.tolist()
@@ -365,9 +367,31 @@ def test_run_states_every_period_without_commands_and_one_per_command_taken() ->
     own = len(during) - taken
     gaps = np.diff([s.stamp_s for s in during])
     assert 0 <= own <= (t_end - t0) / gap + 1 and gaps.max() < 3 * dt, (own, taken)
-    # commands a little late now and then add few of its own (1-3 of 123 here; 18-33 with a
-    # state due one period after the last, which expired about when the next command came)
-    assert own <= 0.1 * taken, (own, taken)
+    # a state of its own only 1.5 periods after the last state (the contract's rule 3), so a
+    # command a little late adds none: 1-3 of its own per 123 commands on a quiet machine, 18-33
+    # with a state due one period after the last. How many depends on how late the commands
+    # come: 12-24 per ~120 beside two busy processes (2026-12-03), each after such a gap
+    assert own_gaps and min(own_gaps) >= 1.5 * dt - 1e-9, min(own_gaps)
+
+
+def _own_state_gaps(ctl: Any) -> list[float]:
+    """Filled as ``ctl`` runs: for each state it publishes with no command taken in the same
+    tick, the time since its state before (s)."""
+    gaps: list[float] = []
+    took = [-np.inf]
+    follow, publish = ctl._follow, ctl.publish
+
+    def followed(cmd: RobotCommandMsg, now: float) -> None:
+        took[0] = now
+        follow(cmd, now)
+
+    def published(now: float) -> None:
+        if took[0] != now:
+            gaps.append(now - ctl.published_s)
+        publish(now)
+
+    ctl._follow, ctl.publish = followed, published
+    return gaps
 
 
 @pytest.mark.parametrize("fault", ["raises", "ends"])
