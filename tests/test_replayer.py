@@ -9,6 +9,8 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import pytest
@@ -29,6 +31,21 @@ def _command(q: list[float], seq: int) -> RobotCommandMsg:
                            mode="rest", valid_until_s=now + 0.01)  # fmt: skip
 
 
+def _command_until(
+    replayer: Replayer, pub: Any, q_of: Callable[[int], list[float]], done: Callable[[], bool],
+    seq: int = 0,
+) -> int:  # fmt: skip
+    """Put command ``seq`` (set point ``q_of(seq)``) on ``pub`` every 10 ms, ticking
+    ``replayer`` after each, until ``done()`` or 5 s passed; the next ``seq``."""
+    t_end = time.monotonic() + 5.0
+    while not done() and time.monotonic() < t_end:
+        pub.put(_command(q_of(seq), seq))
+        seq += 1
+        time.sleep(0.01)
+        replayer.tick(time.time())
+    return seq
+
+
 def test_only_a_person_who_chases_the_robot_makes_it_follow_the_commands() -> None:
     port = free_port()
     with Bus.router(port), Bus.client(port) as rb, Bus.client(port) as tb:
@@ -39,13 +56,7 @@ def test_only_a_person_who_chases_the_robot_makes_it_follow_the_commands() -> No
         assert scripted.sub_cmd is not None
         pub = tb.publisher(keys.robot_command_key(CELL))
         q = [0.1, -0.2, 0.3, -1.5, 0.0, 1.8, 0.7]
-        t_end = time.monotonic() + 5.0
-        seq = 0
-        while not np.allclose(scripted.q, q) and time.monotonic() < t_end:
-            pub.put(_command(q, seq))
-            seq += 1
-            time.sleep(0.01)
-            scripted.tick(time.time())
+        _command_until(scripted, pub, lambda seq: q, lambda: np.allclose(scripted.q, q))
         np.testing.assert_allclose(scripted.q, q)  # the adversary chases where the robot is
         scripted.load(load_scenario("punches"))
         assert scripted.sub_cmd is None  # and stops listening when nobody chases it
@@ -62,21 +73,15 @@ def test_a_command_of_another_joint_count_is_counted_and_logged_not_followed(
         replayer = Replayer(CELL, load_scenario("adversarial"), rb)
         pub = tb.publisher(keys.robot_command_key(CELL))
         with caplog.at_level(logging.WARNING, logger="sara_app.replayer"):
-            t_end = time.monotonic() + 5.0
-            seq = 0
-            while replayer.commands_ignored < 2 and time.monotonic() < t_end:
-                pub.put(_command([0.5] * (6 + 2 * (seq % 2)), seq))  # 6 and 8 joints
-                seq += 1
-                time.sleep(0.01)
-                replayer.tick(time.time())
+            seq = _command_until(
+                replayer, pub, lambda seq: [0.5] * (6 + 2 * (seq % 2)),  # 6 and 8 joints
+                lambda: replayer.commands_ignored >= 2,
+            )  # fmt: skip
         assert replayer.commands_ignored >= 2
         np.testing.assert_allclose(replayer.q, load_scenario("adversarial").task.waypoints_rad[0])
         assert "robot commands ignored" in caplog.text and "where this robot has 7" in caplog.text
-        while not np.allclose(replayer.q, q) and time.monotonic() < t_end + 5.0:
-            pub.put(_command(q, seq))  # a valid one after them is followed
-            seq += 1
-            time.sleep(0.01)
-            replayer.tick(time.time())
+        # a valid one after them is followed
+        _command_until(replayer, pub, lambda seq: q, lambda: np.allclose(replayer.q, q), seq)
         np.testing.assert_allclose(replayer.q, q)
 
 
