@@ -5,9 +5,6 @@ from __future__ import annotations
 
 import io
 import json
-import os
-import shutil
-import signal
 import subprocess
 import tempfile
 import time
@@ -18,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from sara_app.bench.live import CHROMIUM_FLAGS, chromium_environment
 from sara_app.bus.session import free_port
+from sara_app.ops.chromium import CHROMIUM_FLAGS, chromium_environment, stop_chromium
 
 CHROMIUM = "/usr/bin/chromium"
 FLAGS = CHROMIUM_FLAGS
@@ -122,10 +119,4 @@ def chromium_on(url: str) -> Iterator[DevTools]:
     finally:
         if devtools is not None:
             devtools.close()
-        os.killpg(proc.pid, signal.SIGTERM)  # the session this started (chromium's children)
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait(timeout=10)
-        shutil.rmtree(profile, ignore_errors=True)
+        stop_chromium(proc, profile)  # with its children, then its profile

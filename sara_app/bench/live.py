@@ -33,35 +33,8 @@ import numpy as np
 from sara_app.bus import keys
 from sara_app.bus.messages import ControllerStatusMsg, VerdictMsg
 from sara_app.bus.session import Bus, free_port
+from sara_app.ops.chromium import CHROMIUM_FLAGS, chromium_environment, chromium_path, stop_chromium
 from sara_app.processes.affinity import CpuPlan, placed_as_serve
-
-CHROMIUM_FLAGS = (
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--enable-unsafe-swiftshader",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-    "--window-size=960,600",
-)
-
-
-def chromium_environment(profile: str) -> dict[str, str]:
-    """This process's environment with chromium's temporary files inside its ``profile``:
-    the folder of its singleton socket (``org.chromium.Chromium.*``) is otherwise made in
-    /tmp and left there when chromium is stopped (231 had piled up on the development VM)."""
-    return {**os.environ, "TMPDIR": profile}
-
-
-def chromium_path() -> str | None:
-    """Debian's chromium, if installed (never downloaded)."""
-    for name in ("chromium", "chromium-browser"):
-        path = shutil.which(name)
-        if path:
-            return path
-    return "/usr/bin/chromium" if os.path.exists("/usr/bin/chromium") else None
 
 
 def _collect(hub: Bus, cell: str, seconds: float) -> np.ndarray:
@@ -210,10 +183,9 @@ def _view(
     finally:
         display.stop_event.set()
         if proc is not None:
-            proc.terminate()
-            proc.wait(10)
+            stop_chromium(proc, profile)
         display.join(10)
-        shutil.rmtree(profile, ignore_errors=True)
+        shutil.rmtree(profile, ignore_errors=True)  # no browser started
 
 
 def _stats(a: np.ndarray) -> tuple[float, float]:

@@ -7,8 +7,8 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-from sara_app.bench.live import CHROMIUM_FLAGS, chromium_environment, chromium_path
 from sara_app.errors import InputError
+from sara_app.ops.chromium import CHROMIUM_FLAGS, chromium_environment, chromium_path
 
 TIMEOUT_S = 120.0
 
