@@ -171,3 +171,23 @@ def test_a_person_tracked_upper_body_is_sent_as_an_upper_body_skeleton() -> None
             y, _ = got[0].to_arrays()
             assert got[0].kind == kind and y.shape == (joints, 3), (name, got[0].kind, y.shape)
             sub.close()
+
+
+def test_the_demo_loops_without_building_its_people_again() -> None:
+    """At the scenario's end the replayer starts it again. A person whose motion depends on time
+    alone (scripted, recorded) keeps the motion built at the scenario's load: building it again
+    took 0.12 s for ``punches`` and held the frames back past the cell's tracker timeout, so
+    ``serve``'s cell faulted at every loop. A person who chases the robot starts afresh."""
+    port = free_port()
+    with Bus.router(port), Bus.client(port) as rb:
+        for name, rebuilt in (("punches", False), ("bench_worker", False), ("adversarial", True)):
+            rep = Replayer(CELL, load_scenario(name), rb)
+            before = list(rep.motions)
+            end = rep.t0 + rep.params.delay_s + rep.scenario.sim.duration_s + 0.01
+            rep.tick(end)
+            assert rep.t0 == end, name  # started again
+            assert [m is b for m, b in zip(rep.motions, before, strict=True)] == [
+                not rebuilt
+            ] * len(before), name
+            rep.load(load_scenario(name))  # an accepted edit: its people built afresh
+            assert not any(m is b for m, b in zip(rep.motions, before, strict=True)), name

@@ -92,12 +92,23 @@ class Replayer:
         T = pose_from_xyz_rpy(sc.robot.base_xyz_m, sc.robot.base_rpy_rad)
         self.robot: RobotModel = sc.robot.load(T, margin=False)
         self.q = np.asarray(sc.task.waypoints_rad[0], dtype=float)
+        self.motions: list[HumanMotion] = []  # this scenario's people: built afresh
         self._restart(time.time())
 
     def _restart(self, now: float) -> None:
+        """The scenario from its start. A motion whose poses depend on time alone (scripted,
+        a recording: not :func:`reacts_to_robot`) is built once per scenario and replayed
+        again; building it at every loop (0.12 s for ``punches``, more on a busy machine) held
+        the frames back past the cell's tracker timeout, and the cell faulted and braked every
+        time the demo looped (every 20 s in ``serve``'s log). A person who chases the robot
+        carries its own state and starts afresh."""
         self.t0 = now
-        self.motions: list[HumanMotion] = [
-            make_motion(h, self.motion_params) for h in self.scenario.humans
+        kept: list[HumanMotion | None] = [
+            m if not reacts_to_robot(m) else None for m in self.motions
+        ] or [None] * len(self.scenario.humans)
+        self.motions = [
+            m if m is not None else make_motion(h, self.motion_params)
+            for h, m in zip(self.scenario.humans, kept, strict=True)
         ]
         self.kinds = [
             "full" if measures_legs(m, h.sensor.tracks) else "upper"
