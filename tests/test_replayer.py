@@ -86,6 +86,7 @@ def test_a_command_of_another_joint_count_is_counted_and_logged_not_followed(
 
 
 @pytest.mark.exclusive
+@pytest.mark.exclusive  # asserts the period of a real thread (failed once beside a light test)
 @pytest.mark.usefixtures("idle_cpus_poll")
 def test_skeletons_are_stamped_on_the_frame_clock() -> None:
     """At the person's sensor rate, one skeleton per frame period: a frame clock, not a poll
