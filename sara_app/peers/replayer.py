@@ -103,12 +103,10 @@ class Replayer:
         time the demo looped (every 20 s in ``serve``'s log). A person who chases the robot
         carries its own state and starts afresh."""
         self.t0 = now
-        kept: list[HumanMotion | None] = [
-            m if not reacts_to_robot(m) else None for m in self.motions
-        ] or [None] * len(self.scenario.humans)
+        built: list[HumanMotion | None] = [*self.motions] or [None] * len(self.scenario.humans)
         self.motions = [
-            m if m is not None else make_motion(h, self.motion_params)
-            for h, m in zip(self.scenario.humans, kept, strict=True)
+            m if m is not None and not reacts_to_robot(m) else make_motion(h, self.motion_params)
+            for h, m in zip(self.scenario.humans, built, strict=True)
         ]
         self.kinds = [
             "full" if measures_legs(m, h.sensor.tracks) else "upper"
