@@ -32,6 +32,25 @@ def wait_for(cond: Callable[[], object], timeout_s: float, what: str) -> object:
     raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
 
 
+BLOCK_PX = 16
+BLOCK_APART = 45  # sum over R, G, B of the difference of two blocks' mean colours
+
+
+def blocks_apart(a: np.ndarray, b: np.ndarray) -> int:
+    """How many 16 x 16 pixel blocks of the scene region (below the WebGL notice, left of the
+    panel) differ in mean colour. Not single pixels: viser lowers a page's resolution whenever
+    its frame rate drops (software WebGL, more so under load), which moves lines and edges by a
+    pixel or two all over an unchanged scene (a CI run saw 22 766 pixels apart in the browser
+    whose picture must not change) but moves no block's mean colour by more than about 20."""
+
+    def coarse(img: np.ndarray) -> np.ndarray:
+        region = img[150:454, :528]
+        h, w = region.shape[0] // BLOCK_PX, region.shape[1] // BLOCK_PX
+        return region.reshape(h, BLOCK_PX, w, BLOCK_PX, 3).mean(axis=(1, 3))
+
+    return int(np.sum(np.abs(coarse(a) - coarse(b)).sum(-1) > BLOCK_APART))
+
+
 class DevTools:
     """Minimal Chrome DevTools protocol client on one page target."""
 

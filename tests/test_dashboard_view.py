@@ -9,7 +9,7 @@ from collections.abc import Callable, Iterator
 
 import numpy as np
 import pytest
-from browser import CHROMIUM, DevTools, chromium_on, wait_for
+from browser import CHROMIUM, DevTools, blocks_apart, chromium_on, wait_for
 
 from sara_app.bus.session import free_port
 from sara_app.dashboard.frame import EFFECTIVE
@@ -43,25 +43,6 @@ def dash() -> Iterator[Dashboard]:
     d.stop()
 
 
-BLOCK_PX = 16
-BLOCK_APART = 45  # sum over R, G, B of the difference of two blocks' mean colours
-
-
-def _blocks_apart(a: np.ndarray, b: np.ndarray) -> int:
-    """How many 16 x 16 pixel blocks of the scene region (below the WebGL notice, left of the
-    panel) differ in mean colour. Not single pixels: viser lowers a page's resolution whenever
-    its frame rate drops (software WebGL, more so under load), which moves lines and edges by a
-    pixel or two all over an unchanged scene (a CI run saw 22 766 pixels apart in the browser
-    whose picture must not change) but moves no block's mean colour by more than about 20."""
-
-    def coarse(img: np.ndarray) -> np.ndarray:
-        region = img[150:454, :528]
-        h, w = region.shape[0] // BLOCK_PX, region.shape[1] // BLOCK_PX
-        return region.reshape(h, BLOCK_PX, w, BLOCK_PX, 3).mean(axis=(1, 3))
-
-    return int(np.sum(np.abs(coarse(a) - coarse(b)).sum(-1) > BLOCK_APART))
-
-
 def _settled(page: DevTools) -> np.ndarray:
     """A screenshot once two in a row agree (the scene has caught up)."""
     last = page.screenshot()
@@ -69,7 +50,7 @@ def _settled(page: DevTools) -> np.ndarray:
     def same() -> np.ndarray | None:
         nonlocal last
         img = page.screenshot()
-        ok = _blocks_apart(img, last) == 0
+        ok = blocks_apart(img, last) == 0
         last = img
         return img if ok else None
 
@@ -124,25 +105,25 @@ def test_two_browsers_keep_their_own_view_settings(dash: Dashboard) -> None:
         # robot. This is also the evidence that two has drawn the robot's meshes (viser loads
         # them asynchronously, after the rest of the scene): its picture is final.
         hidden_one = _settled(one)
-        default_two = until(two, lambda im: _blocks_apart(im, hidden_one) >= ROBOT_BLOCKS,
+        default_two = until(two, lambda im: blocks_apart(im, hidden_one) >= ROBOT_BLOCKS,
                             "the robot drawn in browser two")  # fmt: skip
         # Shown again in one: one's picture is two's (its meshes drawn too).
         _untick(one, "robot")
         sent(mine[0], "robot", True)
-        default_one = until(one, lambda im: _blocks_apart(im, default_two) == 0,
+        default_one = until(one, lambda im: blocks_apart(im, default_two) == 0,
                             "browser one's picture to be two's again")  # fmt: skip
         # Hidden in one again: one's picture changes by the robot; two's does not change.
         _untick(one, "robot")
         sent(mine[0], "robot", False)
-        no_robot = until(one, lambda im: _blocks_apart(im, default_one) >= ROBOT_BLOCKS,
+        no_robot = until(one, lambda im: blocks_apart(im, default_one) >= ROBOT_BLOCKS,
                          "the robot to vanish in browser one")  # fmt: skip
-        assert _blocks_apart(_settled(two), default_two) == 0
+        assert blocks_apart(_settled(two), default_two) == 0
         # One's effective set goes on its own too (the person stands outside this close view).
         _untick(one, EFFECTIVE)
         wait_for(lambda: not views.shows(mine[0])[EFFECTIVE], 30.0, "the untick to arrive")
         assert views.shows(other)[EFFECTIVE] and dash.scene.models[EFFECTIVE].visible
         sent(mine[0], EFFECTIVE, False)
-        assert _blocks_apart(_settled(two), default_two) == 0
+        assert blocks_apart(_settled(two), default_two) == 0
         # Hidden in both browsers: the set is no longer sent at all.
         _untick(two, EFFECTIVE)
         wait_for(lambda: not dash.scene.models[EFFECTIVE].visible, 30.0,  # type: ignore[union-attr]
