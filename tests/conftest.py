@@ -123,8 +123,10 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 # A test marked ``stack`` starts a whole cell stack (``serve``: router, worker, controller,
 # replayer, API, 3D view), which on a 2-core machine pins its worker to one CPU: two at once
 # (seen: the two signals of the default cell's test, side by side) starve each other's trackers
-# and APIs. Such tests wait for each other (a lock of their own), not for the light tests.
-_STACK_LOCK = os.path.join(tempfile.gettempdir(), f"sara_app_tests_stack_{os.getuid()}.lock")
+# and APIs. Such tests wait for each other (a lock of their own), not for the light tests. The
+# lock is on the checkout's folder, as the two above are on the tests' folder and this file: a
+# lock file in /tmp outlived every run.
+_STACK_LOCK = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 @pytest.hookimpl(hookwrapper=True)
@@ -136,7 +138,7 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
     stack = -1
     try:
         if item.get_closest_marker("stack") is not None:
-            stack = os.open(_STACK_LOCK, os.O_RDONLY | os.O_CREAT, 0o600)
+            stack = os.open(_STACK_LOCK, os.O_RDONLY)
             fcntl.flock(stack, fcntl.LOCK_EX)
         yield
     finally:
