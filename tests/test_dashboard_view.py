@@ -83,11 +83,9 @@ def test_two_browsers_keep_their_own_view_settings(dash: Dashboard) -> None:
                      f"{name} {'shown' if shown else 'hidden'} sent to browser {i}")  # fmt: skip
 
         def until(page: DevTools, ok: Callable[[np.ndarray], bool], what: str) -> np.ndarray:
-            seen: list[np.ndarray] = []
-
             def check() -> np.ndarray | None:
-                seen[:] = [_settled(page)]
-                return seen[0] if ok(seen[0]) else None
+                img = _settled(page)
+                return img if ok(img) else None
 
             return wait_for(check, 60.0, what)  # type: ignore[return-value]
 
