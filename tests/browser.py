@@ -115,6 +115,31 @@ class DevTools:
         png = base64.b64decode(self.call("Page.captureScreenshot", format="png")["data"])
         return np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
 
+    def settled_screenshot(self, timeout_s: float = 30.0) -> np.ndarray:
+        """A screenshot once two in a row agree in every 16 px block (the scene has caught up
+        with what it was sent)."""
+        last = [self.screenshot()]
+
+        def same() -> np.ndarray | None:
+            img = self.screenshot()
+            ok = blocks_apart(img, last[0]) == 0
+            last[0] = img
+            return img if ok else None
+
+        return wait_for(same, timeout_s, "the picture to settle")  # type: ignore[return-value]
+
+    def screenshot_until(
+        self, ok: Callable[[np.ndarray], bool], timeout_s: float, what: str, settled: bool = False
+    ) -> np.ndarray:
+        """The first screenshot (``settled``: the first settled one) for which ``ok`` holds,
+        taken again until ``timeout_s``; an AssertionError naming ``what`` after that."""
+
+        def check() -> np.ndarray | None:
+            img = self.settled_screenshot() if settled else self.screenshot()
+            return img if ok(img) else None
+
+        return wait_for(check, timeout_s, what)  # type: ignore[return-value]
+
     def close(self) -> None:
         self.ws.close()
 

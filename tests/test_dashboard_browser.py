@@ -5,7 +5,7 @@ protocol show the occupancy in the verdict colour, and a new verdict changes it.
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import replace
 
 import numpy as np
@@ -54,40 +54,34 @@ def test_page_connects_and_renders_the_verdict(
     dash, devtools = browser_on_dashboard
     wait_for(lambda: dash.client_count() > 0, 60.0, "the browser to connect to viser")
 
-    def shot_with(pred: Callable[[np.ndarray], bool]) -> np.ndarray | None:
-        img = devtools.screenshot()
-        return img if pred(img) else None
-
     # Verified: green occupancy (and no red, the critical-pair line is hidden).
     frame = demo_frame(1.0, verified=True)
     frame.critical_pair = None
     dash.update(frame)
-    green = wait_for(lambda: shot_with(lambda im: _dominant(im, 1) > 500), 60.0, "green occupancy")
-    assert isinstance(green, np.ndarray)
+    green = devtools.screenshot_until(lambda im: _dominant(im, 1) > 500, 60.0, "green occupancy")
     assert green.reshape(-1, 3).std(axis=0).max() > 10.0  # not blank / uniform
     assert len(np.unique(green.reshape(-1, 3), axis=0)) > 100
     # Failsafe: the same capsules turn red.
     frame = demo_frame(1.0, verified=False)
     frame.critical_pair = None
     dash.update(frame)
-    red = wait_for(
-        lambda: shot_with(lambda im: _dominant(im, 0) > max(500, 2 * _dominant(green, 0))),
+    red = devtools.screenshot_until(
+        lambda im: _dominant(im, 0) > max(500, 2 * _dominant(green, 0)),
         60.0,
         "red occupancy",
     )
-    assert isinstance(red, np.ndarray)
     assert _dominant(red, 1) < _dominant(green, 1)
     # PFL: every occupancy capsule clamped against the environment turns magenta.
     frame = demo_frame(1.0, verified=True)
     frame.critical_pair = None
     frame.contact_class = np.full(frame.robot_radius.shape, CONTACT_ENV, dtype=np.int8)
     dash.update(frame)
-    pfl = wait_for(
-        lambda: shot_with(lambda im: _magenta(im) > max(500, 2 * _magenta(green))),
+    pfl = devtools.screenshot_until(
+        lambda im: _magenta(im) > max(500, 2 * _magenta(green)),
         60.0,
         "magenta (env-constrained) occupancy",
     )
-    assert isinstance(pfl, np.ndarray) and _dominant(pfl, 1) < _dominant(green, 1)
+    assert _dominant(pfl, 1) < _dominant(green, 1)
     # The legend's colour swatches are rendered HTML, not escaped text.
     swatches = devtools.call(
         "Runtime.evaluate",
@@ -126,16 +120,15 @@ def test_page_connects_and_renders_the_verdict(
         scene.set_visible(name, False)
     dash.update(frame)
     red_elsewhere = _dominant(green, 0) + 50  # e.g. the axes gizmo
-    robot = wait_for(
-        lambda: shot_with(lambda im: _dominant(im, 0) < red_elsewhere), 60.0, "capsules hidden"
+    robot = devtools.screenshot_until(
+        lambda im: _dominant(im, 0) < red_elsewhere, 60.0, "capsules hidden"
     )
     scene.set_visible("robot", False)
-    empty = wait_for(
-        lambda: shot_with(lambda im: np.sum(np.abs(im - robot).sum(-1) > 60) > 1000),
+    empty = devtools.screenshot_until(
+        lambda im: np.sum(np.abs(im - robot).sum(-1) > 60) > 1000,
         60.0,
         "the robot to disappear",
     )
-    assert isinstance(robot, np.ndarray) and isinstance(empty, np.ndarray)
     # A set cut at a height bound (legs an upper-body tracker does not measure) is drawn as a
     # mesh ending flat at the cut: the same capsule cut through its middle keeps its bottom
     # and loses its top part in the image.
@@ -160,8 +153,7 @@ def test_page_connects_and_renders_the_verdict(
         return same and rows(im) is not None
 
     dash.update(replace(frame, humans=[replace(h, models=one, cuts={})]))
-    whole = wait_for(lambda: shot_with(settled), 60.0, "the capsule")
-    assert isinstance(whole, np.ndarray)
+    whole = devtools.screenshot_until(settled, 60.0, "the capsule")
     top, bottom = rows(whole) or (0, 0)
     assert bottom - top > 40
     cuts = {"effective": np.array([0.6])}
@@ -171,8 +163,7 @@ def test_page_connects_and_renders_the_verdict(
         r = rows(im)
         return r is not None and r[0] > top + 0.25 * (bottom - top) and abs(r[1] - bottom) <= 4
 
-    cut = wait_for(lambda: shot_with(cut_shown), 60.0, "the capsule cut at its middle")
-    assert isinstance(cut, np.ndarray)
+    cut = devtools.screenshot_until(cut_shown, 60.0, "the capsule cut at its middle")
     if os.environ.get("SARA_SCREENSHOT_DIR"):  # for looking at them by hand
         from PIL import Image
 

@@ -5,7 +5,7 @@ set in one browser changes that browser's picture and settings only."""
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -43,20 +43,6 @@ def dash() -> Iterator[Dashboard]:
     d.stop()
 
 
-def _settled(page: DevTools) -> np.ndarray:
-    """A screenshot once two in a row agree (the scene has caught up)."""
-    last = page.screenshot()
-
-    def same() -> np.ndarray | None:
-        nonlocal last
-        img = page.screenshot()
-        ok = blocks_apart(img, last) == 0
-        last = img
-        return img if ok else None
-
-    return wait_for(same, 30.0, "the picture to settle")  # type: ignore[return-value]
-
-
 def _untick(page: DevTools, name: str) -> None:
     page.click(_CHECKBOX.format(LABEL[name]))
 
@@ -82,13 +68,6 @@ def test_two_browsers_keep_their_own_view_settings(dash: Dashboard) -> None:
             wait_for(lambda: browsers[i].frames[name].visible is shown, 30.0,
                      f"{name} {'shown' if shown else 'hidden'} sent to browser {i}")  # fmt: skip
 
-        def until(page: DevTools, ok: Callable[[np.ndarray], bool], what: str) -> np.ndarray:
-            def check() -> np.ndarray | None:
-                img = _settled(page)
-                return img if ok(img) else None
-
-            return wait_for(check, 60.0, what)  # type: ignore[return-value]
-
         # Hiding the robot in browser one: exactly that browser's settings change.
         _untick(one, "robot")
         wait_for(lambda: any(not views.shows(i)["robot"] for i in ids), 30.0,
@@ -102,26 +81,32 @@ def test_two_browsers_keep_their_own_view_settings(dash: Dashboard) -> None:
         # The robot is visible in the default view: two's picture differs from one's by the
         # robot. This is also the evidence that two has drawn the robot's meshes (viser loads
         # them asynchronously, after the rest of the scene): its picture is final.
-        hidden_one = _settled(one)
-        default_two = until(two, lambda im: blocks_apart(im, hidden_one) >= ROBOT_BLOCKS,
-                            "the robot drawn in browser two")  # fmt: skip
+        hidden_one = one.settled_screenshot()
+        default_two = two.screenshot_until(
+            lambda im: blocks_apart(im, hidden_one) >= ROBOT_BLOCKS, 60.0,
+            "the robot drawn in browser two", settled=True,
+        )  # fmt: skip
         # Shown again in one: one's picture is two's (its meshes drawn too).
         _untick(one, "robot")
         sent(mine[0], "robot", True)
-        default_one = until(one, lambda im: blocks_apart(im, default_two) == 0,
-                            "browser one's picture to be two's again")  # fmt: skip
+        default_one = one.screenshot_until(
+            lambda im: blocks_apart(im, default_two) == 0, 60.0,
+            "browser one's picture to be two's again", settled=True,
+        )  # fmt: skip
         # Hidden in one again: one's picture changes by the robot; two's does not change.
         _untick(one, "robot")
         sent(mine[0], "robot", False)
-        no_robot = until(one, lambda im: blocks_apart(im, default_one) >= ROBOT_BLOCKS,
-                         "the robot to vanish in browser one")  # fmt: skip
-        assert blocks_apart(_settled(two), default_two) == 0
+        no_robot = one.screenshot_until(
+            lambda im: blocks_apart(im, default_one) >= ROBOT_BLOCKS, 60.0,
+            "the robot to vanish in browser one", settled=True,
+        )  # fmt: skip
+        assert blocks_apart(two.settled_screenshot(), default_two) == 0
         # One's effective set goes on its own too (the person stands outside this close view).
         _untick(one, EFFECTIVE)
         wait_for(lambda: not views.shows(mine[0])[EFFECTIVE], 30.0, "the untick to arrive")
         assert views.shows(other)[EFFECTIVE] and dash.scene.models[EFFECTIVE].visible
         sent(mine[0], EFFECTIVE, False)
-        assert blocks_apart(_settled(two), default_two) == 0
+        assert blocks_apart(two.settled_screenshot(), default_two) == 0
         # Hidden in both browsers: the set is no longer sent at all.
         _untick(two, EFFECTIVE)
         wait_for(lambda: not dash.scene.models[EFFECTIVE].visible, 30.0,  # type: ignore[union-attr]

@@ -116,9 +116,8 @@ def test_a_whatif_from_the_browser(setup: tuple[Dashboard, WhatIfPanels, list]) 
         scene_before = page.screenshot()
         b.gui["scrub"].value = 0.7
         page.click(_CHECKBOX.format("Show it in the 3D view"))
-        ghost = wait_for(lambda: (lambda im: im if blocks_apart(im, scene_before) >= 3 else None)(
-            page.screenshot()), 60.0, "the ghost robot in the 3D view")  # fmt: skip
-        assert isinstance(ghost, np.ndarray)
+        ghost = page.screenshot_until(lambda im: blocks_apart(im, scene_before) >= 3, 60.0,
+                                      "the ghost robot in the 3D view")  # fmt: skip
         # an edit that loosens what the verdict assumes: refused until the box is ticked
         assert not b.gui["confirm"].visible
         page.click(_BUTTON.format("Apply the edit to the cell"))
