@@ -13,17 +13,18 @@ from typing import Any
 import numpy as np
 import pytest
 from browser import CHROMIUM, DevTools, blocks_apart, chromium_on, wait_for
+from viser_client import ViserClient
 
 from sara_app.bus.session import free_port
 from sara_app.dashboard.panels import CONFIRM_LABEL
 from sara_app.dashboard.scene import demo_frame
 from sara_app.dashboard.viewer import Dashboard
-from sara_app.dashboard.whatif_panel import WhatIfHooks, WhatIfPanels
+from sara_app.dashboard.whatif_panel import WhatIfHooks, WhatIfPanels, _Browser
 from sara_app.ops.jobs import JobRunner
 from sara_app.ops.loosening import LooseningRefusedError
 from sara_app.scenario import load_scenario, parse_scenario
 
-pytestmark = pytest.mark.skipif(
+needs_chromium = pytest.mark.skipif(
     not os.path.exists(CHROMIUM), reason=f"{CHROMIUM} is absent (apt-get install chromium)"
 )
 _BUTTON = "[...document.querySelectorAll('button')].find(b => b.textContent === {!r})"
@@ -73,6 +74,7 @@ def _text(page: DevTools) -> str:
     return str(page.eval("document.body.innerText"))
 
 
+@needs_chromium
 def test_a_whatif_from_the_browser(setup: tuple[Dashboard, WhatIfPanels, list]) -> None:
     dash, panels, applied = setup
     with chromium_on(str(dash.url)) as page:
@@ -148,6 +150,36 @@ def test_a_whatif_from_the_browser(setup: tuple[Dashboard, WhatIfPanels, list]) 
 
             path = os.path.join(os.environ["SARA_SCREENSHOT_DIR"], "whatif.png")
             Image.fromarray(ghost.astype(np.uint8)).save(path)
+
+
+def test_a_client_beyond_the_duration_field_starts_no_job(
+    setup: tuple[Dashboard, WhatIfPanels, list],
+) -> None:
+    """A client that is not a browser sets the what-if's duration (a field of 1 to 60 s in the
+    browser) to 1e9 s and NaN: viser takes the values as sent, the click starts no job and the
+    panel says why; the same client's 1 s what-if starts one (its clicks arrive)."""
+    dash, panels, _ = setup
+    assert dash.server is not None
+    client = ViserClient(dash.server.get_port())
+    try:
+        client.field("Run what-if")
+        b = wait_for(lambda: next(iter(panels._browsers.values()), None), 30.0, "the panel")  # noqa: SLF001
+        assert isinstance(b, _Browser)
+        for value in (1e9, float("nan")):
+            client.send("Duration (s)", value=value)
+            wait_for(lambda v=value: str(b.gui["duration"].value) == str(v), 30.0,
+                     f"viser to take {value} as the duration")  # fmt: skip
+            client.send("Run what-if", value=True)
+            wait_for(lambda: "Not started" in b.gui["status"].content, 30.0,
+                     f"the run at {value} s refused ({b.gui['status'].content!r})")  # fmt: skip
+            assert "duration_s" in b.gui["status"].content and "60" in b.gui["status"].content
+            assert b.job is None and panels.jobs.list() == []
+            b.gui["status"].content = ""
+        client.send("Duration (s)", value=1.0)
+        client.send("Run what-if", value=True)
+        wait_for(lambda: b.job is not None, 30.0, "the 1 s what-if to start")
+    finally:
+        client.close()
 
 
 def test_a_whatif_runs_the_same_people_under_both_settings() -> None:

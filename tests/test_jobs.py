@@ -20,8 +20,9 @@ with warnings.catch_warnings():
 from test_api_thresholds import StandInRegistry
 
 from sara_app.api import create_app
+from sara_app.errors import InputError
 from sara_app.ops.audit import AuditLog
-from sara_app.ops.jobs import JobRunner
+from sara_app.ops.jobs import MAX_DURATION_S, MAX_EPISODES, JobRunner, check_limits
 from sara_app.processes.job_main import NICENESS
 from sara_app.scenario import load_scenario, parse_scenario, scenarios_dir
 from sara_app.sim.closed_loop import run_closed_loop
@@ -110,6 +111,41 @@ def test_bad_whatif_requests_are_refused(api: tuple[TestClient, JobRunner]) -> N
     r = client.post("/api/cells/bad name/whatif", json={})
     assert r.status_code in (404, 422)
     assert runner.list() == []  # nothing started
+
+
+@pytest.mark.parametrize(
+    ("kind", "key", "value"),
+    [
+        ("whatif", "duration_s", 1e9), ("whatif", "duration_s", float("nan")),
+        ("whatif", "duration_s", float("inf")), ("whatif", "duration_s", -1.0),
+        ("whatif", "duration_s", 0.0), ("whatif", "duration_s", True),
+        ("whatif", "duration_s", "10"), ("report", "duration_s", 61.0),
+        ("report", "episodes", 10**6), ("report", "episodes", -1), ("report", "episodes", 2.5),
+        ("report", "episodes", True),
+    ],
+)  # fmt: skip
+def test_a_job_beyond_its_limits_is_refused_before_it_starts(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, kind: str, key: str, value: object
+) -> None:
+    """Every job starts through the runner, the dashboard's what-if too, whose number field is
+    bounded only in the browser: a hostile client's 1e9 s would run (and keep its frames)
+    for as long as the machine lasts, holding the one job slot meanwhile."""
+    monkeypatch.setattr("tempfile.tempdir", str(tmp_path))
+    sc = load_scenario("close_worker").model_dump(mode="json")
+    data: dict = {"current": sc, "edited": sc} if kind == "whatif" else {"scenario": sc}
+    (data if kind == "whatif" else data.setdefault("settings", {}))[key] = value
+    runner = JobRunner()
+    try:
+        with pytest.raises(InputError, match=key) as e:
+            runner.start(kind, data)
+        assert str(value)[:8] in str(e.value) and ("60" in str(e.value) or "50" in str(e.value))
+        assert runner.list() == [] and list(tmp_path.iterdir()) == []  # nothing started
+    finally:
+        runner.close()
+    # the limits themselves pass (the jobs within them run in the tests above and below)
+    limit = MAX_EPISODES if key == "episodes" else MAX_DURATION_S
+    (data if kind == "whatif" else data["settings"])[key] = limit
+    check_limits(kind, data)
 
 
 def _failing_whatif() -> dict:

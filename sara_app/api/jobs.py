@@ -29,13 +29,11 @@ from sara_app.api.schema import (
     CellName,
     responses,
 )
-from sara_app.errors import UnknownNameError, cut
-from sara_app.ops.jobs import JobBusyError, JobRunner
+from sara_app.errors import InputError, UnknownNameError, cut
+from sara_app.ops.jobs import MAX_DURATION_S, MAX_EPISODES, JobBusyError, JobRunner
 from sara_app.scenario import Scenario
 from sara_app.sim.whatif_table import table_markdown
 
-MAX_DURATION_S = 60.0
-MAX_EPISODES = 50
 LABEL_VALUE_CHARS = 40
 LABEL_CHARS = 200
 
@@ -85,6 +83,8 @@ def add_job_routes(
             job = jobs.start(kind, data, label)
         except JobBusyError as e:
             raise HTTPException(409, str(e)) from None
+        except InputError as e:  # the query's checks should have said so first
+            raise HTTPException(422, str(e)) from None
         return {**job.summary(), "url": f"/api/jobs/{job.id}"}
 
     @app.post(

@@ -26,6 +26,11 @@ from sara_app.errors import InputError, SaraError, UnknownNameError
 
 KEEP = 20
 """Finished jobs kept (their files too); older ones are removed."""
+MAX_DURATION_S = 60.0
+"""The longest simulated run a job may ask for (s): a what-if keeps every frame of its edited
+run in memory, so the bound is also the job's memory."""
+MAX_EPISODES = 50
+"""The most adversarial episodes per mode an evidence report may ask for."""
 
 
 class JobBusyError(SaraError):
@@ -67,6 +72,34 @@ class Job:
         }  # fmt: skip
 
 
+def check_limits(kind: str, data: dict[str, Any]) -> None:
+    """:class:`InputError` unless ``data``'s duration (``duration_s`` of a what-if, of a
+    report's ``settings``) is None or a number in ``(0, MAX_DURATION_S]`` and a report's
+    ``episodes`` an integer in ``[0, MAX_EPISODES]``. Checked here, where every job starts: the
+    API's query checks them too, but a dashboard's number field is bounded only in the browser
+    (viser does not check a value a client sends against the field's min and max)."""
+    settings = data.get("settings", {}) if kind == "report" else data
+    if not isinstance(settings, dict):
+        raise InputError(
+            f"a {kind} job's settings are a {type(settings).__name__}; expected an object"
+        )
+    duration = settings.get("duration_s")
+    if duration is not None and not (
+        isinstance(duration, int | float) and not isinstance(duration, bool)
+        and 0.0 < duration <= MAX_DURATION_S  # NaN fails this too
+    ):  # fmt: skip
+        raise InputError(
+            f"duration_s = {str(duration)[:40]!r}; expected a number of seconds in "
+            f"(0, {MAX_DURATION_S:g}] or none (the scenario's own)"
+        )
+    episodes = settings.get("episodes", 0) if kind == "report" else 0
+    if not (isinstance(episodes, int) and not isinstance(episodes, bool)
+            and 0 <= episodes <= MAX_EPISODES):  # fmt: skip
+        raise InputError(
+            f"episodes = {str(episodes)[:40]!r}; expected an integer in [0, {MAX_EPISODES}]"
+        )
+
+
 class JobRunner:
     def __init__(self) -> None:
         self._jobs: dict[str, Job] = {}
@@ -84,6 +117,7 @@ class JobRunner:
         :mod:`sara_app.processes.job_main`); :class:`JobBusyError` while another one runs."""
         if kind not in ("whatif", "report"):
             raise UnknownNameError("job kind", kind, ("whatif", "report"))
+        check_limits(kind, data)
         with self._lock:
             busy = [j for j in self._jobs.values() if j.state == "running"]
             if busy:
