@@ -13,6 +13,7 @@ from types import SimpleNamespace
 
 import pytest
 from browser import CHROMIUM, chromium_on, wait_for
+from viser_client import ViserClient
 from worker_thread import running_worker
 
 from sara_app.bus.session import Bus, free_port
@@ -184,3 +185,67 @@ def test_a_browser_changes_the_cell_only_after_signing_in(tmp_path: Path) -> Non
     finally:
         stack.close()
         dash.stop()
+
+
+def test_a_client_loads_only_the_servers_own_scenarios_once_signed_in(tmp_path: Path) -> None:
+    """A client that is not a browser (tests/viser_client.py) sends the "Scenario" dropdown a
+    path of its choosing, which no browser offers: a JSON file holding tokens. Before signing in
+    the load is refused for want of a credential; signed in, it is refused as no scenario of
+    the server's; a name that climbs out of the scenarios folder too. The file is never quoted
+    (it was read, and its tokens shown in the refusal, before the access check). Every attempt
+    is a row of the audit; a stored scenario's name loads."""
+    folder = tmp_path / "scenarios"
+    shutil.copytree(scenarios_dir(), folder)
+    secret = tmp_path / "secret" / "tokens.json"
+    secret.parent.mkdir()
+    secret.write_text('{"secret-token-of-anna-0123456789": "anna"}')
+    sc = load_scenario("empty_cell", folder)
+    audit = AuditLog(tmp_path / "audit.sqlite")
+    port = free_port()
+    dash = Dashboard(access=DashboardAccess({TOKEN: "operator"}, "acc2", audit))
+    try:
+        with Bus.router(port), Bus.client(port) as wbus, Bus.client(port) as vbus, \
+                running_worker("acc2", sc, wbus, status_hz=10.0, audit=audit.path):  # fmt: skip
+            view = CellView("acc2", vbus, dash, sc, folder, ack_timeout_s=20.0, audit=audit)
+            dash.start(port=free_port(), on_select_scenario=view.select)  # as serve wires it
+            view.refresh_panels()
+            assert dash.server is not None and dash.panels is not None
+            client = ViserClient(dash.server.get_port())
+            try:
+                loads: list[int] = []
+
+                def load(name: str) -> str:
+                    """The panel's answer to loading ``name`` (one more audit row; the row is
+                    written before the answer is shown)."""
+                    panels = dash.panels
+                    assert panels is not None
+                    before = panels.message.content
+                    client.send("Scenario", value=name)
+                    wait_for(lambda: panels.scenario.value == name, 10, "the name taken")
+                    client.send("Load", value=True)
+                    wait_for(lambda: len(_loads(audit)) > len(loads), 30, "the load's audit row")
+                    wait_for(lambda: panels.message.content != before, 10, "the load's answer")
+                    loads[:] = _loads(audit)
+                    return str(panels.message.content)
+
+                climbing = os.path.relpath(secret.with_suffix(""), folder)  # ../secret/tokens
+                said = load(str(secret))
+                assert "sign in" in said and "secret-token" not in said, said
+                client.send("API token", value=TOKEN)
+                client.send("Sign in", value=True)
+                wait_for(lambda: any(p.endswith("/sign-in") and s == 200
+                                     for p, s, _, _ in _rows(audit)), 10, "signed in")  # fmt: skip
+                for name in (str(secret), climbing):
+                    said = load(name)
+                    assert "unknown scenario" in said and "secret-token" not in said, said
+                    assert "empty_cell" in said  # the valid choices are named
+                assert "refused" not in load("empty_cell")
+                assert loads == [401, 422, 422, 200]
+            finally:
+                client.close()
+    finally:
+        dash.stop()
+
+
+def _loads(audit: AuditLog) -> list[int]:
+    return [s for p, s, _, _ in _rows(audit) if p.endswith("/load")]

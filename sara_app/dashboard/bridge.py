@@ -386,8 +386,19 @@ class CellView(GizmoEditing):
                 self.dash.panels.show_message("the worker accepted the last edit late: applied")
 
     def select(self, name: str) -> None:
-        sc = load_scenario(name, self.folder)
-        self.send(sc.model_dump(mode="json"), "load", self.confirmed())
+        """Load the stored scenario ``name``: one of the server's scenarios folder, never a path
+        (the dropdown offers names, but a client may send any string, and a file of its choosing
+        would be read, and its content quoted in the refusal, before anything else), only for a
+        client that may change the cell, audited as "load" (refused or not)."""
+
+        def load() -> Scenario:
+            names = scenario_names(self.folder)
+            if name not in names:
+                raise UnknownNameError("scenario", name, names)
+            data = load_scenario(name, self.folder).model_dump(mode="json")
+            return self._checked(data, "load", self.confirmed())
+
+        self.dash.access.change("load", load, timeouts=(WorkerTimeoutError,))
         self.refresh_panels()
 
     def set_mode(self, mode: str) -> None:
