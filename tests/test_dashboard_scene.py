@@ -8,6 +8,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from browser import wait_for
+from viser_client import ViserClient
 
 from sara_app.bus.messages import JointFlagMsg, TrackingNowMsg, VerdictMsg, ViolationMsg
 from sara_app.bus.session import free_port
@@ -219,6 +221,45 @@ def test_scenario_callbacks_and_refusals(dash: Dashboard) -> None:
     n = len(got)
     assert not panels.apply_params() and len(got) == n
     assert "v_max = -1.0" in panels.message.content
+
+
+def test_a_clients_huge_number_in_an_integer_field_leaves_every_view_connected() -> None:
+    """A client that is not a browser (tests/viser_client.py) sends 1e300 to an integer
+    parameter (a number field: viser casts the value to the field's type). The field held
+    int(1e300) and msgpack cannot encode it: every browser's connection to the view failed
+    from then on (1011), the next browser's too, until the dashboard restarted. Integer
+    parameters are float fields now; a whole number goes back as an integer, any other as the
+    number sent (the scenario's validation refuses it)."""
+    d = Dashboard()
+    d.start(port=free_port())
+    try:
+        panels = d.panels
+        assert panels is not None and d.server is not None
+        edits: list[dict] = []
+        panels.on_params_edit = edits.append
+        panels.set_params({"task": {"cycles": 6}, "sim": {"seed": 0}})
+        hostile = ViserClient(d.server.get_port())
+        try:
+            hostile.send("task.cycles", value=1e300)
+            cycles = panels._param_inputs["task.cycles"]  # noqa: SLF001
+            wait_for(lambda: cycles.value == 1e300, 10.0, "the value taken")
+            other = ViserClient(d.server.get_port())  # the next browser still gets the view
+            try:
+                other.field("sim.seed")
+                hostile.send("sim.seed", value=7.0)
+                hostile.field("Apply parameters")
+                wait_for(lambda: panels._param_inputs["sim.seed"].value == 7.0, 10.0, "7")  # noqa: SLF001
+            finally:
+                other.close()
+        finally:
+            hostile.close()
+        assert panels.apply_params()
+        assert edits[-1] == {"task": {"cycles": int(1e300)}, "sim": {"seed": 7}}
+        assert isinstance(edits[-1]["sim"]["seed"], int)
+        cycles.value = 6.5
+        assert panels.apply_params() and edits[-1]["task"]["cycles"] == 6.5
+    finally:
+        d.stop()
 
 
 def test_flatten_round_trip_and_status_table() -> None:

@@ -20,6 +20,7 @@ is shown. :meth:`DashboardPanels.show_message` lets the owner report later outco
 from __future__ import annotations
 
 import json
+import math
 import time
 from collections.abc import Callable
 from typing import Any
@@ -86,6 +87,12 @@ def unflatten(flat: dict[str, Any]) -> dict[str, Any]:
                 node = node.setdefault(p, {})
         node[leaf] = v
     return out
+
+
+def _integral(value: float) -> int | float:
+    """An integer field's value: its integer when it is a whole finite number, else the number
+    as it is (the scenario's validation refuses it and names the field)."""
+    return int(value) if math.isfinite(value) and float(value).is_integer() else value
 
 
 def _is_vector(v: Any, n: int) -> bool:
@@ -354,7 +361,12 @@ class DashboardPanels:
                 if isinstance(v, bool):
                     inputs[key] = gui.add_checkbox(key, v)
                 elif isinstance(v, int | float):
-                    inputs[key] = gui.add_number(key, v, step=1 if isinstance(v, int) else None)
+                    # a float field for an integer too: viser casts what a client sends to the
+                    # field's type, and an integer field took int(1e300), which msgpack cannot
+                    # encode: every browser's connection to the view failed from then on
+                    inputs[key] = gui.add_number(
+                        key, float(v), step=1.0 if isinstance(v, int) else None
+                    )
                 elif _is_vector(v, 2):  # positions on the floor, e.g. a person's
                     inputs[key] = gui.add_vector2(key, (float(v[0]), float(v[1])), step=0.01)
                 elif _is_vector(v, 3):  # box centres and sizes, targets, offsets
@@ -373,6 +385,8 @@ class DashboardPanels:
             value = self._param_inputs[key].value
             if _is_vector(orig, 2) or _is_vector(orig, 3):
                 value = [float(x) for x in value]
+            elif isinstance(orig, int) and not isinstance(orig, bool):
+                value = _integral(value)
             elif not isinstance(orig, bool | int | float | str):
                 value = json.loads(value)
             out[key] = value
