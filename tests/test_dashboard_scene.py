@@ -262,6 +262,40 @@ def test_a_clients_huge_number_in_an_integer_field_leaves_every_view_connected()
         d.stop()
 
 
+def test_a_client_sets_a_fields_value_and_nothing_else() -> None:
+    """viser applies whatever properties a client's update names, and the server's fields are
+    every browser's: a client that is not a browser hid, relabelled and re-enabled fields for
+    everybody. Updates naming anything but the value are dropped (viser's page sends values
+    only), for the shared fields and for this browser's own; values still arrive."""
+    d = Dashboard()
+    d.start(port=free_port())
+    try:
+        panels, views = d.panels, d.views
+        assert panels is not None and views is not None and d.server is not None
+        panels.set_params({"task": {"cycles": 6}})
+        client = ViserClient(d.server.get_port())
+        try:
+            client.send("Safety mode", visible=False)
+            client.send("Safety mode", value="PFL", label="Load")
+            client.send("Apply parameters", disabled=True, label="Save as")
+            client.send("Robot", label="hidden", value=False)  # this browser's own field
+            client.send("task.cycles", value=3.0)  # after the others: they were handled first
+            wait_for(lambda: panels._param_inputs["task.cycles"].value == 3.0, 10.0, "3")  # noqa: SLF001
+            client.send("Robot", value=False)
+            (b,) = views._browsers.values()  # noqa: SLF001
+            wait_for(lambda: not b.boxes["robot"].value, 10.0, "this browser's robot hidden")
+        finally:
+            client.close()
+        mode = panels.safety_mode
+        assert mode.visible and mode.label == "Safety mode" and mode.value == "SSM"
+        assert b.boxes["robot"].label != "hidden"
+        apply = next(h for h in d.server.gui._gui_input_handle_from_uuid.values()  # noqa: SLF001
+                     if h.label == "Apply parameters")  # fmt: skip
+        assert not apply.disabled
+    finally:
+        d.stop()
+
+
 def test_flatten_round_trip_and_status_table() -> None:
     nested = {"a": {"b": 1, "c": {"d": [1, 2]}}, "e": "x"}
     assert flatten(nested) == {"a.b": 1, "a.c.d": [1, 2], "e": "x"}

@@ -60,8 +60,9 @@ class ViserClient:
                         self.fields[str(props["label"])] = str(m["uuid"])
         return self.fields[label]
 
-    def send(self, label: str, **updates: Any) -> None:
-        """Set properties of the field ``label`` (``value=True`` clicks a button)."""
+    def send(self, label: str, /, **updates: Any) -> None:
+        """Set properties of the field ``label`` (``value=True`` clicks a button; a browser
+        sends nothing else)."""
         msg = {"type": "GuiUpdateMessage", "uuid": self.field(label), "updates": updates}
         self.ws.send(msgspec.msgpack.encode(msg))
 

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import viser
 
-from sara_app.dashboard import origin
+from sara_app.dashboard import client_input, origin
 from sara_app.dashboard.access import DashboardAccess
 from sara_app.dashboard.frame import DisplayFrame
 from sara_app.dashboard.panels import DashboardPanels
@@ -62,6 +62,7 @@ class Dashboard:
         origin.allow_host(host)
         server = viser.ViserServer(host=host, port=port, label="SaRA cell", verbose=False)
         try:
+            client_input.install(server)  # a client sets a field's value, nothing else
             server.initial_camera.position = self.camera[0]
             server.initial_camera.look_at = self.camera[1]
             server.gui.configure_theme(control_width="large")  # room for the tables
