@@ -75,8 +75,10 @@ def test_arrays_blunt_by_default_and_tool_shape_per_link() -> None:
 
 def test_lookup_errors_name_the_bad_value() -> None:
     ts = load_thresholds()
-    with pytest.raises(UnknownNameError, match="'elbow'"):
+    with pytest.raises(UnknownNameError, match="'elbow'") as e:
         ts.energy_J("elbow", "constrained", "blunt")
+    choices = str(e.value).split("valid choices: ")[1].split(", ")
+    assert len(choices) == len(set(choices)) and "head" in choices and "l_hand" in choices
     with pytest.raises(UnknownNameError, match="'clamped'.*constrained, unconstrained"):
         ts.energy_J("hand", "clamped", "blunt")
     with pytest.raises(UnknownNameError, match="'pointed'"):

@@ -141,7 +141,7 @@ class ThresholdSet(Strict):
         """The entry for a Table I region (or a skeleton body-part name), contact and shape."""
         region = BODY_PART_REGION.get(region, region)
         if region not in REGIONS:
-            valid = REGIONS + tuple(BODY_PART_REGION)
+            valid = REGIONS + tuple(p for p in BODY_PART_REGION if p not in REGIONS)
             raise UnknownNameError("body region or body part", region, valid)
         if contact not in CONTACTS:
             raise UnknownNameError("contact type", contact, CONTACTS)
