@@ -352,8 +352,10 @@ def test_mode_dropdown_switches_through_the_edit_path(
         "refused" in panels.message.content and "JSSA needs a robot state" in panels.message.content
     )
     assert "refused" in panels.mode_message.content
+    newest = _newest(dash)
     with pytest.raises(UnknownNameError, match="valid choices: ssm, pfl, jssa"):
         v.set_mode("fast")
+    assert _rows_since(dash, newest) == [(f"/dashboard/{dash.access.cell}/safety-mode", 422)]
     # the other scenario fields are untouched by a mode switch
     bus.refuse = lambda sc: ""
     before = v.scenario.model_dump(mode="json")
@@ -361,6 +363,18 @@ def test_mode_dropdown_switches_through_the_edit_path(
     after = v.scenario.model_dump(mode="json")
     before["shield"]["mode"] = "ssm"
     assert after == before
+
+
+def _newest(dash: Dashboard) -> int:
+    """The id of the newest row of the dashboard's request audit (0: none)."""
+    rows = dash.access.audit().requests(1)
+    return int(rows[0]["id"]) if rows else 0
+
+
+def _rows_since(dash: Dashboard, newest: int) -> list[tuple[str, int]]:
+    """(path, status) of the audit's rows after row ``newest``, oldest first."""
+    rows = dash.access.audit().requests(100)
+    return [(r["path"], r["status"]) for r in reversed(rows) if r["id"] > newest]
 
 
 def _waypoint_gizmos(v: CellView) -> list[Any]:
@@ -434,6 +448,12 @@ def test_unreachable_or_refused_waypoint_is_not_applied(
     assert "refused" in panels.message.content and "out of reach" in panels.message.content
     assert v.scenario.model_dump(mode="json") == old
     np.testing.assert_allclose(_waypoint_gizmos(v)[0].position, home, atol=1e-6)  # reset
+    # a position no drag makes (a client may send one): refused like the others, one audit row
+    g, newest = _waypoint_gizmos(v)[0], _newest(dash)
+    g.position = (float("nan"), 0.0, 0.0)
+    v._on_waypoint_drag(0, g)(None)
+    assert len(bus.params.sent) == n and "not finite" in panels.message.content
+    assert _rows_since(dash, newest) == [(f"/dashboard/{dash.access.cell}/waypoint-0", 422)]
     # reachable, but the worker refuses: not kept either
     bus.refuse = lambda sc: "waypoint collides with the table"
     g = _waypoint_gizmos(v)[0]

@@ -403,12 +403,17 @@ class CellView(GizmoEditing):
 
     def set_mode(self, mode: str) -> None:
         """Switch the cell's safety mode (one of ``ssm``, ``pfl``, ``jssa``) through the
-        validated edit path; :class:`ScenarioError` if the worker refuses it."""
-        if mode not in SAFETY_MODES:
-            raise UnknownNameError("safety mode", mode, SAFETY_MODES)
-        data = self.scenario.model_dump(mode="json")
-        data["shield"]["mode"] = mode
-        self.send(data, "safety-mode")
+        validated edit path; :class:`ScenarioError` if the worker refuses it. One audited
+        change, an unknown mode (which a client may send) included."""
+
+        def switch() -> Scenario:
+            if mode not in SAFETY_MODES:
+                raise UnknownNameError("safety mode", mode, SAFETY_MODES)
+            data = self.scenario.model_dump(mode="json")
+            data["shield"]["mode"] = mode
+            return self.send(data, "safety-mode")
+
+        self.dash.access.change("safety-mode", switch, timeouts=(WorkerTimeoutError,))
         self.refresh_panels()
 
     def edit(self, params: dict[str, Any]) -> None:

@@ -71,14 +71,18 @@ class GizmoEditing:
         wps = self.scenario.task.waypoints_rad
         return np.stack([robot.frame_pose(np.asarray(q, dtype=float), frame) for q in wps])
 
-    def move_waypoint(self, i: int, T_world_target: np.ndarray) -> np.ndarray:
-        """Solve waypoint ``i`` for a tool pose ``T_world_target (4, 4)`` (warm start: the old
-        waypoint) and send the edited scenario; the new joint positions. Raises
-        :class:`ScenarioError` (nothing sent) when the pose is out of reach. One audited change
+    def move_waypoint(self, i: int, wxyz: Any, position_m: Any) -> np.ndarray:
+        """Solve waypoint ``i`` for the tool pose a drag left (``wxyz (4,)``, ``position_m
+        (3,)``, world; warm start: the old waypoint) and send the edited scenario; the new joint
+        positions. Raises :class:`ScenarioError` (nothing sent) when the pose is out of reach,
+        :class:`InputError` when it is not a pose (a client may send NaN). One audited change
         (:mod:`sara_app.dashboard.access`), refused ones included."""
-        return self.dash.access.change(
-            f"waypoint-{i}", lambda: self._move_waypoint(i, T_world_target)
-        )
+
+        def move() -> np.ndarray:
+            T = pose_from_wxyz(np.asarray(wxyz, dtype=float), np.asarray(position_m, dtype=float))
+            return self._move_waypoint(i, T)
+
+        return self.dash.access.change(f"waypoint-{i}", move)
 
     def _move_waypoint(self, i: int, T_world_target: np.ndarray) -> np.ndarray:
         wps = self.scenario.task.waypoints_rad
@@ -148,8 +152,7 @@ class GizmoEditing:
     def _on_waypoint_drag(self, i: int, g: Any) -> Any:
         def cb(_event: Any) -> None:
             def apply() -> None:
-                T = pose_from_wxyz(np.asarray(g.wxyz), np.asarray(g.position))
-                self.move_waypoint(i, T)
+                self.move_waypoint(i, g.wxyz, g.position)
 
             self._report(f"waypoint {i}", apply)
 
