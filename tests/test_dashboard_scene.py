@@ -283,7 +283,8 @@ def test_a_client_sets_a_fields_value_and_nothing_else() -> None:
             wait_for(lambda: panels._param_inputs["task.cycles"].value == 3.0, 10.0, "3")  # noqa: SLF001
             client.send("Robot", value=False)
             (b,) = views._browsers.values()  # noqa: SLF001
-            wait_for(lambda: not b.boxes["robot"].value, 10.0, "this browser's robot hidden")
+            # hidden in this browser's scene: its callback ran before the client goes
+            wait_for(lambda: not b.frames["robot"].visible, 10.0, "this browser's robot hidden")
         finally:
             client.close()
         mode = panels.safety_mode
