@@ -491,6 +491,32 @@ def test_classify_humans_over_a_range_equals_classify_of_the_slice() -> None:
         other.classify_humans(robot, h_ends, h_radius)
 
 
+def test_virtual_body_parts_follow_radii_that_grow_on_fixed_axes() -> None:
+    """Sets with fixed axes and radii that grow per interval (R_POS, R_VEL), given as ``(1, P,
+    2, 3)`` ends: parts apart on the first interval merge into virtual body parts as they
+    grow, exactly as with the ends repeated for every interval (the human-human distances'
+    broad phase is made ready for each interval's radii, not only for new axes)."""
+    rng = np.random.default_rng(5)
+    merged = 0
+    for _ in range(60):
+        clf, args = _scene(rng)
+        r_ends, r_radius, s_ends, s_radius, p1_dot, omega, eps, h_ends, h_radius, T, half = args
+        K, P = r_radius.shape[0], h_radius.shape[-1]
+        if K < 2 or not clf.multi_body:
+            continue
+        he = np.ascontiguousarray(np.asarray(h_ends)[:1])
+        hr = np.outer(np.linspace(0.01, 0.5, K), np.ones(P))
+        robot = clf.robot_side(r_ends, r_radius, s_ends, s_radius, p1_dot, omega, eps, T, half)
+        fast = clf.classify_humans(robot, he, hr)
+        ref = clf.classify(
+            r_ends, r_radius, s_ends, s_radius, p1_dot, omega, eps, np.repeat(he, K, axis=0),
+            hr, T, half,
+        )  # fmt: skip
+        assert np.array_equal(fast.stack, ref.stack)
+        merged += int(fast.stack[-1].sum() > fast.stack[0].sum())
+    assert merged > 5
+
+
 @pytest.mark.parametrize("kernel", [classify_set, classify_kernel])
 def test_classify_cache_keys_carry_the_geometry_kernels_source(kernel: Any) -> None:
     """numba's cache checks only the kernel's own file; classify_set and classify_kernel call

@@ -6,8 +6,9 @@
 * ``pair_distances`` / ``set_pair_distances`` against ``capsule_distances`` and the numpy
   ``all_pairs``, ``box_distances`` against the reference's ``segment_box_closest``; ``pair_gaps``
   equals ``pair_distances`` wherever a pair may touch and is a positive lower bound elsewhere;
-  so do ``set_pair_gaps`` (against ``set_pair_distances``, over a pair mask) and
-  ``box_axis_gaps`` (against ``box_distances``, for every radius of the capsule).
+  so does ``box_axis_gaps`` (against ``box_distances``, for every radius of the capsule).
+* ``set_neighbours`` (a breadth-first search's step over one capsule set) finds exactly the
+  unlabelled, paired capsules whose ``set_pair_distances`` distance is <= 0 or NaN.
 * ``capsule_sets_check`` against all pairs from ``geometry.capsule_distances``: ``hit`` exactly
   where an interval's smallest distance is <= 0 (round-off ties aside), nothing outside
   ``todo``, the returned distance is the exact smallest one over the checked intervals, and a
@@ -27,11 +28,14 @@ from sara_app.geometry.shape_kernels import (
     box_axis_gaps,
     box_distances,
     capsule_sets_check,
+    gap_block,
     pair_distances,
     pair_gaps,
     segment_closest,
+    set_gap_interval,
+    set_gap_scratch,
+    set_neighbours,
     set_pair_distances,
-    set_pair_gaps,
 )
 
 SETTINGS = settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -215,27 +219,60 @@ def test_set_pair_distances_equal_all_pairs(c: dict) -> None:
 
 @SETTINGS
 @given(capsule_sets(), st.integers(0, 2**32 - 1), st.booleans())
-def test_set_pair_gaps_are_exact_where_masked_pairs_may_touch(
+def test_set_neighbours_are_the_unlabelled_masked_capsules_that_may_touch(
     c: dict, seed: int, nan: bool
 ) -> None:
-    """Masked pairs: exact distance wherever it is at most the sphere slack, a positive lower
-    bound elsewhere, NaN stays NaN; unmasked pairs and the diagonal are +inf."""
+    """Each interval in order, each capsule ``a`` and a random labelling: ``set_neighbours``
+    labels and lists exactly the unlabelled capsules paired with ``a`` whose exact distance
+    (``set_pair_distances``) is <= 0 or NaN, and touches no other label; its broad phases
+    (blocks of ``gap_block``, then each capsule's sphere) never skip such a pair."""
     ends, rad = c["a_ends"].copy(), c["a_rad"]
     K, N = max(ends.shape[0], rad.shape[0]), ends.shape[1]
+    rng = np.random.default_rng(seed)
     if nan:
-        ends[-1, -1, 0, 0] = np.nan
-    mask = np.random.default_rng(seed).random((N, N)) < 0.7
+        ends[-1, rng.integers(N), 0, 0] = np.nan
+    mask = rng.random((N, N)) < 0.7
     mask = (mask | mask.T) & ~np.eye(N, dtype=bool)
-    exact, s, gaps = np.empty((3, K, N, N))
+    exact, s = np.empty((2, K, N, N))
     set_pair_distances(ends, rad, exact, s)
-    set_pair_gaps(ends, rad, mask, gaps)
-    assert np.all(gaps[:, ~mask] == np.inf)
-    exact, gaps = exact[:, mask], gaps[:, mask]
-    np.testing.assert_array_equal(np.isnan(gaps), np.isnan(exact))
-    may_touch = ~(exact > 1e-9)
-    np.testing.assert_array_equal(gaps[may_touch], exact[may_touch])
-    bound = ~np.isnan(exact) & (gaps != exact)
-    assert np.all(gaps[bound] > 1e-9) and np.all(gaps[bound] <= exact[bound] + 1e-12)
+    sph, axis = set_gap_scratch(N)
+    assert sph.shape[0] == N + -(-N // gap_block)
+    ke, kr = -1, -1
+    for k in range(K):
+        ke, kr = set_gap_interval(ends, rad, k, K, (ke, kr), sph, axis)
+        for a in range(N):
+            label = np.where(rng.random(N) < 0.3, 7, -1).astype(np.int64)
+            before = label.copy()
+            found = np.full(N, -5, dtype=np.int64)
+            tail = set_neighbours(ends, rad, ke, kr, a, mask, sph, axis, label, 3, found, 1)
+            expect = np.flatnonzero((before < 0) & mask[a] & ~(exact[k, a] > 0.0))
+            np.testing.assert_array_equal(found[1:tail], expect)
+            assert found[0] == -5 and np.all(found[tail:] == -5)
+            np.testing.assert_array_equal(label[expect], 3)
+            others = np.ones(N, dtype=bool)
+            others[expect] = False
+            np.testing.assert_array_equal(label[others], before[others])
+
+
+def test_set_neighbours_find_a_capsule_that_just_touches_across_a_block() -> None:
+    """Balls in a row overlapping by 1 mm: the block beyond capsule ``a``'s own reaches it by
+    1 mm only (its bound is -1 mm), and its neighbour there is found (a broad phase that
+    skipped where its bound is above -1.1 mm would miss it); the next one, 0.2 m further, is
+    not."""
+    N, r = 12, 0.1005
+    x = 0.2 * np.arange(N)
+    ends = np.zeros((1, N, 2, 3))
+    ends[0, :, :, 0] = x[:, None]
+    rad = np.full((1, N), r)
+    sph, axis = set_gap_scratch(N)
+    set_gap_interval(ends, rad, 0, 1, (-1, -1), sph, axis)
+    a = gap_block - 1  # the last of the first block
+    label = np.full(N, -1, dtype=np.int64)
+    label[a] = 0
+    found = np.empty(N, dtype=np.int64)
+    mask = ~np.eye(N, dtype=bool)
+    tail = set_neighbours(ends, rad, 0, 0, a, mask, sph, axis, label, 0, found, 0)
+    assert sorted(found[:tail]) == [a - 1, a + 1]
 
 
 def _pose(rng: np.random.Generator) -> np.ndarray:

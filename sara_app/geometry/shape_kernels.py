@@ -28,7 +28,6 @@ from sara_app.kernel_types import RO2 as _RO2
 from sara_app.kernel_types import RO3 as _RO3
 from sara_app.kernel_types import RO4 as _RO4
 from sara_app.kernel_types import ROB1 as _ROB1
-from sara_app.kernel_types import ROB2 as _ROB2
 from sara_app.kernel_types import W3 as _W3
 from sara_app.kernel_types import W4 as _W4
 from sara_app.kernel_types import WB1 as _WB1
@@ -42,8 +41,11 @@ __all__ = [
     "lowest_z",
     "pair_gaps",
     "segment_closest",
+    "gap_block",
+    "set_gap_interval",
+    "set_gap_scratch",
     "set_pair_entry",
-    "set_pair_gaps",
+    "set_neighbours",
     "sphere_gap",
     "sphere_slack_m",
 ]
@@ -319,7 +321,7 @@ def set_pair_distances(ends: np.ndarray, radius: np.ndarray, d: np.ndarray, s: n
     ``radius (Kr, N)`` with ``Ke, Kr`` in ``{1, K}``. The segment computation is reused from the
     previous interval when its capsule axes are exactly the same (a set whose radii grow). The
     PFL classification calls the per-pair form :func:`set_pair_entry` only where a rule reads a
-    pair; this batch form is the tested reference of it and of :func:`set_pair_gaps`."""
+    pair; this batch form is the tested reference of it and of :func:`set_neighbours`."""
     K, N = d.shape[0], d.shape[1]
     axis = np.empty((N, N))
     for k in range(K):
@@ -340,43 +342,107 @@ def set_pair_distances(ends: np.ndarray, radius: np.ndarray, d: np.ndarray, s: n
                     axis[a, b] = set_pair_entry(ends, radius, k, ke, kr, a, b, d, s)
 
 
-@njit(types.void(_RO4, _RO2, _ROB2, _W3), cache=True)
-def set_pair_gaps(ends: np.ndarray, radius: np.ndarray, mask: np.ndarray, d: np.ndarray) -> None:
-    """Surface distances ``d (K, N, N)`` of the pairs ``mask (N, N)`` within one capsule set
-    per interval (``ends (Ke, N, 2, 3)``, ``radius (Kr, N)``, ``Ke, Kr`` in ``{1, K}``), with
-    the broad phase of :func:`pair_gaps`: exact where the bounding spheres' gap is at most
-    :data:`sphere_slack_m`, that gap (a positive lower bound) elsewhere, so ``d <= 0`` (or NaN)
-    exactly where a pair may touch; ``+inf`` off the mask (not computed). For a contact test
-    that needs only the sign (the virtual body parts of the PFL classification); the axis
-    distance of a pair is reused while the axes stay the same (a set whose radii grow)."""
-    K, N = d.shape[0], d.shape[1]
-    sph = np.empty((N, 4))
-    axis = np.empty((N, N))
-    prev = (-1, -1)
-    for k in range(K):
-        ke = k if ends.shape[0] == K else 0
-        kr = k if radius.shape[0] == K else 0
-        if (ke, kr) != prev:
-            bounding_spheres(ends[ke], radius[kr : kr + 1], sph)
-            if ke != prev[0] and not (ke > 0 and _same_ends(ends, ke)):
-                axis[:] = -1.0  # not computed for these axes (a NaN axis stays NaN)
-            prev = (ke, kr)
-        for a in range(N):
-            d[k, a, a] = np.inf
-            for b in range(a + 1, N):
-                g = np.inf
-                if mask[a, b] or mask[b, a]:
-                    g = sphere_gap(sph, a, sph, b)
-                    if not g > sphere_slack_m:  # NaN goes on to the exact distance
-                        if axis[a, b] < 0.0:
-                            p, q = ends[ke, a], ends[ke, b]
-                            axis[a, b] = segment_closest(
-                                p[0, 0], p[0, 1], p[0, 2], p[1, 0], p[1, 1], p[1, 2],
-                                q[0, 0], q[0, 1], q[0, 2], q[1, 0], q[1, 1], q[1, 2],
-                            )[0]  # fmt: skip
-                        g = axis[a, b] - radius[kr, a] - radius[kr, b]
-                d[k, a, b] = g
-                d[k, b, a] = g
+gap_block = 8
+"""Capsules per block of :func:`set_neighbours`' first broad phase (contiguous parts: a person's
+body parts are contiguous in the PFL classification's sets)."""
+
+
+@njit(cache=True)
+def set_gap_scratch(N: int) -> tuple[np.ndarray, np.ndarray]:
+    """Scratch of :func:`set_gap_interval` for ``N`` capsules: spheres ``(N + blocks, 4)`` (the
+    capsules', then their blocks' of :data:`gap_block`), axis distances ``(N, N)``."""
+    return np.empty((N + (N + gap_block - 1) // gap_block, 4)), np.empty((N, N))
+
+
+@njit(cache=True)
+def set_gap_interval(
+    ends: np.ndarray,
+    radius: np.ndarray,
+    k: int,
+    K: int,
+    prev: tuple[int, int],
+    sph: np.ndarray,
+    axis: np.ndarray,
+) -> tuple[int, int]:
+    """Make the scratch of :func:`set_neighbours` (:func:`set_gap_scratch`) ready for interval
+    ``k`` of one capsule set (``ends (Ke, N, 2, 3)``, ``radius (Kr, N)``, ``Ke, Kr`` in ``{1,
+    K}``): the bounding spheres ``sph`` of the capsules and of each block of :data:`gap_block`
+    contiguous capsules (a sphere holding theirs; NaN where one is), and ``axis (N, N)``, the
+    pairs' axis distances (-1: not computed yet), kept while the axes stay the same (a set whose
+    radii grow). ``prev``: what the last call returned, ``(-1, -1)`` before the first; call it
+    for every ``k`` in order (the axes are compared with the previous interval's). Returns the
+    interval's ``(ke, kr)``."""
+    ke = k if ends.shape[0] == K else 0
+    kr = k if radius.shape[0] == K else 0
+    if ke != prev[0] or kr != prev[1]:
+        N = ends.shape[1]
+        bounding_spheres(ends[ke], radius[kr : kr + 1], sph)
+        for b in range(sph.shape[0] - N):
+            lo, hi = b * gap_block, min(N, (b + 1) * gap_block)
+            cx = cy = cz = 0.0
+            for i in range(lo, hi):
+                cx, cy, cz = cx + sph[i, 0], cy + sph[i, 1], cz + sph[i, 2]
+            cx, cy, cz = cx / (hi - lo), cy / (hi - lo), cz / (hi - lo)
+            r = 0.0
+            for i in range(lo, hi):
+                dx, dy, dz = sph[i, 0] - cx, sph[i, 1] - cy, sph[i, 2] - cz
+                ri = math.sqrt(dx * dx + dy * dy + dz * dz) + sph[i, 3]
+                r = ri if not ri <= r else r  # NaN wins
+            sph[N + b, 0], sph[N + b, 1], sph[N + b, 2], sph[N + b, 3] = cx, cy, cz, r
+        if ke != prev[0] and not (ke > 0 and _same_ends(ends, ke)):
+            axis[:] = -1.0  # not computed for these axes (a NaN axis stays NaN)
+    return ke, kr
+
+
+@njit(cache=True)
+def set_neighbours(
+    ends: np.ndarray,
+    radius: np.ndarray,
+    ke: int,
+    kr: int,
+    a: int,
+    mask: np.ndarray,
+    sph: np.ndarray,
+    axis: np.ndarray,
+    label: np.ndarray,
+    new: int,
+    found: np.ndarray,
+    tail: int,
+) -> int:
+    """The capsules that may touch capsule ``a`` (surface distance ``<= 0`` or NaN) among those
+    not labelled yet (``label[m] < 0``) and paired with it (``mask[a, m]``; ``mask, label``
+    ``(N, N)``, ``(N,)``), on the interval whose ``(ke, kr)`` :func:`set_gap_interval` made ready
+    (``sph, axis``: its scratch): each is labelled ``new`` and appended to ``found`` at
+    ``tail``; returns the new tail. A breadth-first search's step (the PFL classification's
+    virtual body parts): a labelled capsule is never compared again. Two broad phases, each a
+    lower bound of the distance that must exceed :data:`sphere_slack_m` to skip: the bounding
+    sphere of a block of :data:`gap_block` capsules, then the capsule's; then the exact
+    distance, its axis part kept in ``axis`` (the same numbers as
+    :func:`set_pair_distances`)."""
+    N = label.shape[0]
+    for b in range(sph.shape[0] - N):
+        g_block = np.nan  # the block's bound, computed where a pair first needs it
+        for m in range(b * gap_block, min(N, (b + 1) * gap_block)):
+            if label[m] >= 0 or not mask[a, m]:
+                continue
+            if g_block != g_block:
+                g_block = sphere_gap(sph, a, sph, N + b)
+            if g_block > sphere_slack_m:  # every capsule of the block is that far, at least
+                break
+            i, j = (a, m) if a < m else (m, a)
+            if sphere_gap(sph, i, sph, j) > sphere_slack_m:  # NaN goes on to the exact distance
+                continue
+            if axis[i, j] < 0.0:
+                p, q = ends[ke, i], ends[ke, j]
+                axis[i, j] = segment_closest(
+                    p[0, 0], p[0, 1], p[0, 2], p[1, 0], p[1, 1], p[1, 2],
+                    q[0, 0], q[0, 1], q[0, 2], q[1, 0], q[1, 1], q[1, 2],
+                )[0]  # fmt: skip
+            if not axis[i, j] - radius[kr, i] - radius[kr, j] > 0.0:
+                label[m] = new
+                found[tail] = m
+                tail += 1
+    return tail
 
 
 @njit(cache=True)

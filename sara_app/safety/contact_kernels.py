@@ -21,8 +21,10 @@ from sara_app.geometry import shape_kernels
 from sara_app.geometry.shape_kernels import (
     box_axis_gaps,
     box_entry,
+    set_gap_interval,
+    set_gap_scratch,
+    set_neighbours,
     set_pair_entry,
-    set_pair_gaps,
 )
 from sara_app.kernel_types import B1 as _b1
 from sara_app.kernel_types import I8 as _i8l
@@ -90,19 +92,29 @@ def _unit3(x: float, y: float, z: float) -> tuple[float, float, float]:
 
 @njit(cache=True)
 def _components(
-    d_hh: np.ndarray,
-    k: int,
+    h_ends: np.ndarray,
+    h_radius: np.ndarray,
+    gap_k: tuple[int, int],
     not_safe_h: np.ndarray,
     multi_body: bool,
     comp: np.ndarray,
     queue: np.ndarray,
+    gaps: tuple[np.ndarray, np.ndarray],
 ) -> int:
-    """Virtual body parts of interval ``k``: ``comp (P,)`` labels the connected components of
-    "not separated (``d_hh[k]``) and not a safe pair" (breadth-first, labels in order of the
-    smallest member); without ``multi_body`` every part is its own component. Returns the
-    number of components. For a symmetric relation (``d_hh`` is; ``not_safe_h`` is checked at
-    construction) the component is the reflexive-transitive closure of the reference."""
+    """Virtual body parts of one interval: ``comp (P,)`` labels the connected components of
+    "not separated and not a safe pair" (breadth-first, labels in order of the smallest
+    member); without ``multi_body`` every part is its own component. Returns the number of
+    components. The parts' human-human distances (``h_ends (Kh, P, 2, 3)``, ``h_radius (Kr,
+    P)``, the interval's ``gap_k = (ke, kr)`` made ready by
+    :func:`~sara_app.geometry.shape_kernels.set_gap_interval`, ``gaps = (sph, axis)`` its
+    scratch) are computed only where the search reads them
+    (:func:`~sara_app.geometry.shape_kernels.set_neighbours`): a part already in a component is
+    never compared again. For a symmetric relation (the distances are; ``not_safe_h`` is
+    checked at construction) the component is the reflexive-transitive closure of the
+    reference."""
     P = comp.shape[0]
+    sph, axis = gaps
+    ke, kr = gap_k
     for j in range(P):
         comp[j] = -1
     n = 0
@@ -116,11 +128,9 @@ def _components(
             while head < tail:
                 a = queue[head]
                 head += 1
-                for m in range(P):
-                    if comp[m] < 0 and not d_hh[k, a, m] > 0.0 and not_safe_h[a, m]:
-                        comp[m] = n
-                        queue[tail] = m
-                        tail += 1
+                tail = set_neighbours(
+                    h_ends, h_radius, ke, kr, a, not_safe_h, sph, axis, comp, n, queue, tail
+                )
         n += 1
     return n
 
@@ -186,7 +196,7 @@ def _make_classify_kernel(geometry_source: str) -> Any:
 
     @njit(
         _b1(
-            _RO[3], _RO[3], _WF3, _WF3, _RO[4], _RO[2], _RO[3], _RO[2], _WF3, _WF4, _RO[3], _RO[2],
+            _RO[3], _RO[4], _WF3, _WF3, _RO[4], _RO[2], _RO[3], _RO[2], _WF3, _WF4, _RO[3], _RO[2],
             _RO[4], _RO[1], _RO[3], _RO[3], _RO[2], _ROB2, _ROB2, _RO[1],
             _b1, _b1, _b1, _WB3, _WB3, _WB3, _WB3, _WI3, _WB3, _WF2, _WI3, _WI3,
         ),
@@ -194,7 +204,7 @@ def _make_classify_kernel(geometry_source: str) -> Any:
     )  # fmt: skip
     def classify_kernel(
         d_rh: np.ndarray,
-        d_hh: np.ndarray,
+        h_ends: np.ndarray,
         d_rr: np.ndarray,
         s_rr: np.ndarray,
         r_ends: np.ndarray,
@@ -230,11 +240,13 @@ def _make_classify_kernel(geometry_source: str) -> Any:
         the rules are documented in :mod:`sara_app.safety.contact`); returns whether any contact
         is possible.
 
-        Geometry inputs (surface distances): robot-human ``d_rh (K, L, P)``, human-human ``d_hh (K,
-        P, P)``, robot capsules ``r_ends (K, L, 2, 3)``, ``r_radius (K, L)``, boxes ``T_world_box
-        (B, 4, 4)``, ``half_extents_m (B, 3)``, human axis-to-box ``hb_axis (Kh, P, B)``
-        and the human radii ``h_radius (Kr, P)`` (``Kh, Kr`` in ``{1, K}``; the surface distance is
-        their difference, as :func:`~sara_app.geometry.shape_kernels.box_distances` computes it).
+        Geometry inputs: the human capsules' ends ``h_ends (Kh, P, 2, 3)`` (their human-human
+        gaps computed where the virtual body parts read them, :func:`_components`), surface
+        distances robot-human ``d_rh (K, L, P)``, robot capsules ``r_ends (K, L, 2, 3)``,
+        ``r_radius (K, L)``, boxes ``T_world_box (B, 4, 4)``, ``half_extents_m (B, 3)``, human
+        axis-to-box ``hb_axis (Kh, P, B)`` and the human radii ``h_radius (Kr, P)`` (``Kh, Kr``
+        in ``{1, K}``; the surface distance is their difference, as
+        :func:`~sara_app.geometry.shape_kernels.box_distances` computes it).
         Link samples: ``s_ends (K+1, L, 2, 3)``, ``s_radius (L,)``, ``p1_dot, omega (K+1, L, 3)``,
         ``eps_v (K, L)``. Outputs ``(K, L, P)``: ``contact_s``, ``env``, ``self_``
         (both restricted to the stack contact), ``contact``, ``cls``; ``stack (K, P, P)``, ``diam
@@ -281,6 +293,8 @@ def _make_classify_kernel(geometry_source: str) -> Any:
                 reach[t, i] = s_radius[i] + math.sqrt(dx * dx + dy * dy + dz * dz)
         comp = np.empty(P, dtype=np.int64)
         queue = np.empty(P, dtype=np.int64)
+        gaps = set_gap_scratch(P)
+        gap_k = (-1, -1)  # the human set's (ke, kr) the gaps' scratch is ready for
         diam_c = np.empty(P)
         # per link and virtual body part (component): contact through it, clamping verdicts
         contact_g = np.empty((L, P), dtype=np.bool_)
@@ -291,7 +305,9 @@ def _make_classify_kernel(geometry_source: str) -> Any:
         for k in range(K):
             kh = k if hb_axis.shape[0] == K else 0
             kr = k if h_radius.shape[0] == K else 0
-            n_c = _components(d_hh, k, not_safe_h, multi_body, comp, queue)
+            if multi_body:
+                gap_k = set_gap_interval(h_ends, h_radius, k, K, gap_k, gaps[0], gaps[1])
+            n_c = _components(h_ends, h_radius, gap_k, not_safe_h, multi_body, comp, queue, gaps)
             for c in range(n_c):
                 diam_c[c] = 0.0
             for m in range(P):  # ascending members: the same sum as the closure's row
@@ -456,22 +472,21 @@ def _make_classify_set(geometry_source: str) -> Any:
         arrays over every interval ``K``) against one human set, with the distances it needs
         computed here or in :func:`classify_kernel`: the robot-only ones (``d_rr, s_rr, d_rb,
         n_rb`` over every ``K``, the caches ``can_b, can_l`` say which are known: -2 not yet)
-        where a clamping rule first needs them, the human-human ones only where the
-        parts may stack (:func:`~sara_app.geometry.shape_kernels.set_pair_gaps` over the pairs that
-        are not safe) and the human axis-to-box ones only where the touch test needs them
-        (:func:`~sara_app.geometry.shape_kernels.box_axis_gaps`): same signs, same result.
+        where a clamping rule first needs them, the human-human ones only where the search
+        for the virtual body parts reads them (:func:`_components`: pairs that are not safe,
+        with a part not yet in the component) and the human axis-to-box ones only where the
+        touch test needs them (:func:`~sara_app.geometry.shape_kernels.box_axis_gaps`): same
+        signs, same result.
         ``d_rh (k, L, P)`` (``k = hi - lo``) as :func:`~sara_app.geometry.shape_kernels.pair_gaps`
         gives it; human sets ``(1|k, P, ...)``; outputs ``(k, ...)`` as in
         :func:`classify_kernel`."""
         if len(geometry_source) == 0:  # never: ties the cache to shape_kernels.py
             return False
         P, B = h_radius.shape[1], T_world_box.shape[0]
-        d_hh = np.empty((hi - lo, P, P))
-        set_pair_gaps(h_ends, h_radius, not_safe_h, d_hh)
         hb_axis = np.empty((h_ends.shape[0], P, B))
         box_axis_gaps(h_ends, h_radius, T_world_box, half_extents_m, hb_axis)
         return classify_kernel(
-            d_rh, d_hh, d_rr[lo:hi], s_rr[lo:hi], r_ends[lo:hi], r_radius[lo:hi], T_world_box,
+            d_rh, h_ends, d_rr[lo:hi], s_rr[lo:hi], r_ends[lo:hi], r_radius[lo:hi], T_world_box,
             half_extents_m, d_rb[lo:hi], n_rb[lo:hi], hb_axis, h_radius, s_ends[lo : hi + 1],
             s_radius, p1_dot[lo : hi + 1], omega[lo : hi + 1], eps_v[lo:hi], no_pair, not_safe_h,
             diameters_m, relax_velocity, relax_diameter, multi_body, contact_s, env, self_,
