@@ -90,7 +90,7 @@ def _unit3(x: float, y: float, z: float) -> tuple[float, float, float]:
     return x / n, y / n, z / n
 
 
-@njit(cache=True)
+@njit  # not cached on its own: it calls shape_kernels; classify_kernel's cache carries it
 def _components(
     h_ends: np.ndarray,
     h_radius: np.ndarray,
