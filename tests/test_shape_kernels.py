@@ -218,19 +218,22 @@ def test_set_pair_distances_equal_all_pairs(c: dict) -> None:
 
 
 @SETTINGS
-@given(capsule_sets(), st.integers(0, 2**32 - 1), st.booleans())
+@given(capsule_sets(), st.integers(0, 2**32 - 1), st.sampled_from(["", "ends", "radius"]))
 def test_set_neighbours_are_the_unlabelled_masked_capsules_that_may_touch(
-    c: dict, seed: int, nan: bool
+    c: dict, seed: int, nan: str
 ) -> None:
     """Each interval in order, each capsule ``a`` and a random labelling: ``set_neighbours``
     labels and lists exactly the unlabelled capsules paired with ``a`` whose exact distance
     (``set_pair_distances``) is <= 0 or NaN, and touches no other label; its broad phases
-    (blocks of ``gap_block``, then each capsule's sphere) never skip such a pair."""
-    ends, rad = c["a_ends"].copy(), c["a_rad"]
+    (blocks of ``gap_block``, then each capsule's sphere) never skip such a pair, a NaN end
+    or radius (a NaN distance) included."""
+    ends, rad = c["a_ends"].copy(), c["a_rad"].copy()
     K, N = max(ends.shape[0], rad.shape[0]), ends.shape[1]
     rng = np.random.default_rng(seed)
-    if nan:
+    if nan == "ends":
         ends[-1, rng.integers(N), 0, 0] = np.nan
+    elif nan == "radius":
+        rad[-1, rng.integers(N)] = np.nan
     mask = rng.random((N, N)) < 0.7
     mask = (mask | mask.T) & ~np.eye(N, dtype=bool)
     exact, s = np.empty((2, K, N, N))

@@ -387,7 +387,8 @@ def set_gap_interval(
             for i in range(lo, hi):
                 dx, dy, dz = sph[i, 0] - cx, sph[i, 1] - cy, sph[i, 2] - cz
                 ri = math.sqrt(dx * dx + dy * dy + dz * dz) + sph[i, 3]
-                r = ri if not ri <= r else r  # NaN wins
+                if r == r and not ri <= r:  # a NaN radius stays: no skip past a NaN capsule
+                    r = ri
             sph[N + b, 0], sph[N + b, 1], sph[N + b, 2], sph[N + b, 3] = cx, cy, cz, r
         if ke != prev[0] and not (ke > 0 and _same_ends(ends, ke)):
             axis[:] = -1.0  # not computed for these axes (a NaN axis stays NaN)
