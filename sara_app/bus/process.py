@@ -16,6 +16,7 @@ from collections.abc import Callable
 from typing import Protocol
 
 from sara_app.bus.access import Credentials, client_auth
+from sara_app.bus.io_threads import use_one_io_thread
 from sara_app.bus.session import ROBOT_ENCODINGS, Bus
 from sara_app.errors import SaraError
 from sara_app.options import PORT, RT_PRIORITY, SECONDS
@@ -95,11 +96,13 @@ def process_main(
     *,
     state: bool = False,
     timestamped: bool = False,
+    one_io_thread: bool = False,
 ) -> int:
     """Run ``factory(cell, scenario, bus)`` (with ``state_dir=``, ``origin=`` and ``audit=``
     keywords when ``state``: the folder of ``--state-dir``, the ``--scenario`` argument and the
     audit log of ``--audit``); ``timestamped``: its messages carry zenoh's publication
-    timestamp (:func:`~sara_app.bus.session.client_config`)."""
+    timestamp (:func:`~sara_app.bus.session.client_config`); ``one_io_thread``: zenoh's I/O on
+    one thread, for a process without FIFO subscriptions (:mod:`~sara_app.bus.io_threads`)."""
     ap = process_parser(name, description, state=state)
     args = ap.parse_args(argv)
     if args.die_with_parent:
@@ -125,6 +128,7 @@ def process_main(
                 robot_encoding=args.robot_encoding,
                 timestamping=timestamped,
             ),  # fmt: skip
+            one_io_thread=one_io_thread,
         )
         with bus:  # building the cell (seconds of kernel loading) at normal priority
             kw = (
@@ -159,12 +163,18 @@ def freeze_heap(name: str = "process") -> int:
     return n
 
 
-def realtime_session(priority: int, name: str, open_bus: Callable[[], Bus]) -> tuple[Bus, bool]:
+def realtime_session(
+    priority: int, name: str, open_bus: Callable[[], Bus], *, one_io_thread: bool = False
+) -> tuple[Bus, bool]:
     """``open_bus()`` with the calling thread under ``SCHED_FIFO`` at ``priority`` (0: normal
     scheduling), so that zenoh's I/O threads, which a process starts once, with its first
     session, inherit the class: received and sent messages then do not wait behind a browser or
-    other normal jobs. The calling thread is back at normal scheduling when this returns or
-    raises. Returns the session and whether the class was taken (:func:`set_realtime`)."""
+    other normal jobs. ``one_io_thread``: those threads are one, for a process without FIFO
+    subscriptions (:mod:`~sara_app.bus.io_threads`). The calling thread is back at normal
+    scheduling when this returns or raises. Returns the session and whether the class was
+    taken (:func:`set_realtime`)."""
+    if one_io_thread:
+        use_one_io_thread()
     rt = bool(priority) and set_realtime(priority, name, "session threads")
     try:
         return open_bus(), rt

@@ -32,7 +32,7 @@ from typing import Any, NamedTuple
 
 import zenoh
 
-from sara_app.bus import keys
+from sara_app.bus import io_threads, keys
 from sara_app.bus.codec import Decoded, Decoder
 from sara_app.bus.compact import KIND_CODES, CommandArrays, encode_compact
 from sara_app.bus.messages import encode
@@ -370,6 +370,7 @@ class Bus:
             )
         self.robot_encoding = robot_encoding
         """How :meth:`publisher` encodes robot states and commands (:data:`ROBOT_ENCODINGS`)."""
+        io_threads.note_session()
         try:
             self.session = zenoh.open(config)
         except zenoh.ZError as e:
@@ -401,7 +402,11 @@ class Bus:
         capacity: int = 256,
         fifo: bool = False,
     ) -> Subscription:
-        """Subscribe to ``key_expr`` (wildcards allowed); share ``decoder`` to pool counters."""
+        """Subscribe to ``key_expr`` (wildcards allowed); share ``decoder`` to pool counters.
+        ``fifo``: back-pressure instead of dropping the oldest; refused in a process whose I/O
+        runs on one thread (:func:`~sara_app.bus.io_threads.refuse_fifo`)."""
+        if fifo:
+            io_threads.refuse_fifo(key_expr)
         sub = Subscription(self.session, key_expr, decoder or Decoder(), capacity, fifo)
         self._owned.append(sub)
         return sub

@@ -407,7 +407,10 @@ class Controller:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return process_main("controller", "the reference robot controller", Controller, argv)
+    # one I/O thread: its only subscription (commands) is a ring, never back-pressured
+    return process_main(
+        "controller", "the reference robot controller", Controller, argv, one_io_thread=True
+    )
 
 
 if __name__ == "__main__":
