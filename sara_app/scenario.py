@@ -148,11 +148,17 @@ class ScriptedHuman(_HumanBase):
     speed_scale: Annotated[float, Field(gt=0, le=1)] = 1.0
 
 
+Seed = Annotated[int, Field(ge=0, le=2**63 - 1)]
+"""A random generator's seed: numpy's generators take non-negative integers only (a negative
+one passed validation and then raised a ValueError where a live replayer or a what-if built the
+person); at most a signed 64-bit integer, as stored and exchanged."""
+
+
 class AdversarialHuman(_HumanBase):
     type: Literal["adversarial"]
     strategy: Literal["rigid", "limbs"] = "rigid"
     position_m: tuple[Coord, Coord] = (1.2, 0.0)
-    seed: int = 0
+    seed: Seed = 0
 
 
 HumanSpec = Annotated[
@@ -253,7 +259,7 @@ class InputSpec(StrictFinite):
 
 class SimSpec(StrictFinite):
     duration_s: Annotated[float, Field(gt=0, le=600)] = 10.0
-    seed: int = 0
+    seed: Seed = 0
 
 
 RosTopic = Annotated[str, Field(pattern=r"^/?[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*$")]

@@ -371,3 +371,34 @@ def test_a_huge_bad_key_or_value_is_not_repeated_in_full() -> None:
         with pytest.raises(ScenarioError) as e:
             parse_scenario(bad)
         assert len(str(e.value)) < 2_000, len(str(e.value))
+
+
+def _with_seeds(adversary_seed: object, sim_seed: object) -> dict:
+    data = load_scenario("punches").model_dump(mode="json")
+    data["humans"] = [{"type": "adversarial", "id": "chaser", "seed": adversary_seed}]
+    data["sim"]["seed"] = sim_seed
+    return data
+
+
+@SETTINGS
+@given(seed=st.integers(min_value=-(2**70), max_value=2**70))
+def test_every_accepted_seed_builds_its_person_and_a_refused_one_names_the_field(
+    seed: int,
+) -> None:
+    """A scenario's seeds reach numpy's generators, which take non-negative integers only: an
+    adversarial person with seed -1 passed validation and then raised a ValueError where the
+    live replayer (or a what-if) built it. Either the seed builds the person and the
+    simulator's generator, or the scenario is refused naming the field."""
+    from sara_app.human.params import load_param_set, to_reach_params
+    from sara_app.sim.motions import make_motion
+
+    params = to_reach_params(load_param_set("schepp2022_table1"), "full")
+    for adversary_seed, sim_seed, field in ((seed, 0, "humans.0"), (0, seed, "sim.seed")):
+        data = _with_seeds(adversary_seed, sim_seed)
+        if 0 <= seed < 2**63:
+            sc = parse_scenario(data)
+            make_motion(sc.humans[0], params)
+            np.random.default_rng(sc.sim.seed)  # the simulator's generator
+        else:
+            with pytest.raises(ScenarioError, match=field):
+                parse_scenario(data)
