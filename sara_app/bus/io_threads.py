@@ -10,8 +10,13 @@ the routing and the send of a message then run on the thread that read it.
 That thread must never block. A FIFO subscription blocks the thread that delivers into its full
 queue until the loop drains it (back-pressure), so with one thread every message of the process,
 commands included, would wait for the drain. A process asks for the one thread only when it
-has no FIFO subscription (:func:`use_one_io_thread`; the router and the reference controller),
-and :func:`refuse_fifo` makes a FIFO subscription in such a process an error, not a stall.
+has no FIFO subscription (:func:`use_one_io_thread`: the reference controller), and
+:func:`refuse_fifo` makes a FIFO subscription in such a process an error, not a stall.
+
+Not the router: it waits for room in the queue towards each subscriber (1 ms before it drops a
+message, longer for a declaration), so one client that stops reading (a frozen observer) made
+a router on one thread wait on every message and stop the whole bus, 10-15 s into the stall in
+a cell at 500 Hz; on zenoh's default threads the cell went on (docs/performance.md).
 """
 
 from __future__ import annotations
@@ -26,8 +31,8 @@ ONE_IO_THREAD = (
     "net: (handover: app), acc: (handover: app))"
 )
 """Every zenoh runtime of the process handed over to one with a single worker thread.
-``sara-app bench --live`` (docs/performance.md, 2026-12-04): the router's context switches per
-control cycle 9.2 -> 2.3, the controller's 5.1 -> 3.0, with less CPU in both."""
+``sara-app bench --live`` (docs/performance.md, 2026-12-04): the controller's context switches
+per control cycle 5.1 -> 3.0."""
 
 _first_layout: list[str | None] = []
 """The layout in force when this process opened its first session (zenoh reads it then)."""

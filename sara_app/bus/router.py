@@ -20,7 +20,6 @@ import sys
 import threading
 
 from sara_app.bus.access import Credentials, router_access
-from sara_app.bus.io_threads import use_one_io_thread
 from sara_app.bus.process import configure_logging, set_realtime
 from sara_app.bus.session import Bus, router_config_dict
 from sara_app.errors import SaraError
@@ -59,7 +58,6 @@ def main(argv: list[str] | None = None) -> int:
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    use_one_io_thread()  # before its session starts zenoh's threads; routing never blocks
     try:
         if args.rt_priority:
             set_realtime(args.rt_priority, "router", "router threads")  # zenoh's inherit it
