@@ -44,7 +44,19 @@ def dash() -> Iterator[Dashboard]:
 
 
 def _untick(page: DevTools, name: str) -> None:
-    page.click(_CHECKBOX.format(LABEL[name]))
+    """Click the checkbox of ``name`` (untick or tick it) until the browser's own box shows it
+    flipped: a click while the panel still lays itself out (a loaded machine) can land beside
+    the box, and is then tried again; a click that did flip it is never repeated."""
+    box = _CHECKBOX.format(LABEL[name])
+    was = bool(page.eval(f"{box}.checked"))
+    for _ in range(5):
+        page.click(box)
+        try:
+            wait_for(lambda: bool(page.eval(f"{box}.checked")) is not was, 3.0, f"{name} flipped")
+            return
+        except AssertionError:
+            continue
+    raise AssertionError(f"five clicks on {name!r} left its box as it was")
 
 
 ROBOT_BLOCKS = 8  # what hiding the robot changes at least, seen from CAMERA
