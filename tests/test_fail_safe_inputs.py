@@ -882,8 +882,9 @@ def test_a_replan_is_refused_while_a_second_publisher_lies(cell: Cell) -> None:
 def test_a_flood_of_replans_leaves_the_loop_its_rate(cell: Cell) -> None:
     """Hostile-user probe of the re-plan, 2026-11-30: 3 000 re-plan requests in a burst (the
     editor role) took the worker's every cycle (0-1 verdicts a second for 8 s). The worker takes
-    at most two a cycle now; the others wait (or are lost in the queue, unanswered: the API
-    says so). A request stamped long ago is refused."""
+    at most two a cycle now; the others wait (or are lost to a full queue, unanswered: the API
+    says so, the verdicts count them as ``queue_full``). A request stamped long ago is
+    refused."""
     ctl = _LyingController(cell)
     pub = cell.pubs["replan"] = cell.bus.publisher(keys.robot_replan_key(CELL))  # as _replan's
     with Heartbeat(cell.bus, CELL):
@@ -903,6 +904,9 @@ def test_a_flood_of_replans_leaves_the_loop_its_rate(cell: Cell) -> None:
         assert 0 < len(answers) <= 2 * 250 * 2.5  # two a cycle at most (not the 3 000)
         vs, cs = cell.collect(4.0, every=tick)  # the rest answered, then the robot moves on
         assert any(v.mode == "intended" for v in vs[-100:]), vs[-1].faults
+        # what did not fit in the worker's queue of re-plans is counted, never dropped silently
+        lost = vs[-1].dropped.get("queue_full", 0)
+        assert lost > 0 and len(answers) + lost <= 3000, (len(answers), lost)
         old = _replan(cell, q, "stale", ctl.tick, stamp_s=time.time() - 10.0)
     assert not old.accepted and "s old" in old.reason, old.reason
 

@@ -15,7 +15,8 @@ malformed_json, malformed_compact (:mod:`sara_app.bus.compact`), non_finite, sch
 missing_field, unknown_field, unknown_source, unknown_joint, missing_joint, unknown_frame,
 inconsistent_length, invalid, key_mismatch, out_of_order, internal; and, counted by the worker
 through ``Decoder.count``: superseded, out_of_range, stamp_not_advancing, tracking_inconsistent,
-repeated, unknown_tracker, too_many_people, wrong_dof.
+repeated, unknown_tracker, too_many_people, wrong_dof; and by a request queue
+(:mod:`sara_app.bus.request_queue`): queue_full.
 """
 
 from __future__ import annotations
@@ -79,6 +80,8 @@ REASONS: tuple[str, ...] = (
     "unknown_tracker",
     "too_many_people",
     "wrong_dof",
+    # a request lost to a full queue (sara_app.bus.request_queue)
+    "queue_full",
 )
 # pydantic error type -> reason; the contract's own error types (messages.base.contract_error)
 # pass through when listed.

@@ -10,7 +10,8 @@
   the oldest when full: a sensor stream wants the newest; ``fifo=True`` for a FifoChannel, which
   back-pressures instead). ``drain()`` never blocks: it returns ``Drained(messages, rejected)``,
   the decoded messages and the number rejected during this drain; per-reason counters live in
-  the (shareable) ``Decoder``.
+  the (shareable) ``Decoder``. Requests (edits, retirements, re-plans) queue in order
+  without blocking zenoh's thread: :func:`sara_app.bus.request_queue.requests`.
 - ``bus.publisher(key)`` -> ``Publisher``: ``put(msg)`` encodes and sends, never raises (a failure
   is counted in ``failed`` and logged) and returns whether it was sent; ``next_seq()`` numbers
   messages 0, 1, 2, ...; ``has_subscribers()`` tells whether anyone listens. Each key's
@@ -410,6 +411,11 @@ class Bus:
         sub = Subscription(self.session, key_expr, decoder or Decoder(), capacity, fifo)
         self._owned.append(sub)
         return sub
+
+    def own(self, item: Subscription | Publisher) -> None:
+        """Close ``item`` with this session (one declared on it elsewhere, e.g. a
+        :class:`~sara_app.bus.request_queue.RequestQueue`)."""
+        self._owned.append(item)
 
     def publisher(self, key_expr: str) -> Publisher:
         """A publisher on one concrete key: sent at once (``express``) unless its kind is one of

@@ -36,6 +36,7 @@ from sara_app.bus.messages import (
     TrackerFrameMsg,
 )
 from sara_app.bus.process import SummarisedWarning, process_main
+from sara_app.bus.request_queue import requests
 from sara_app.bus.session import Bus, Publisher, Subscription
 from sara_app.errors import SaraError
 from sara_app.geometry.poses import pose_from_xyz_rpy
@@ -74,8 +75,8 @@ class Replayer:
         """Commands of another joint count than the scenario's robot (a worker for another
         robot on the cell's key): the chasing people keep the robot's last position."""
         self._ignored_log = SummarisedWarning(log, "robot commands ignored")
-        self.sub_params = bus.subscribe(keys.params_key(self.cell), dec, fifo=True)
-        self.sub_ack = bus.subscribe(keys.params_ack_key(self.cell), dec, fifo=True)
+        self.sub_params = requests(bus, keys.params_key(self.cell), dec)
+        self.sub_ack = requests(bus, keys.params_ack_key(self.cell), dec)
         self._pending: dict[str, dict] = {}
         self.pubs: dict[str, Publisher] = {}
         self.frame_pubs: dict[str, Publisher] = {}
@@ -207,7 +208,9 @@ class Replayer:
 
 def main(argv: list[str] | None = None) -> int:
     # its skeletons carry their publication time (sara-app bench --live measures from it)
-    return process_main("replayer", "replay scenario humans", Replayer, argv, timestamped=True)
+    return process_main(
+        "replayer", "replay scenario humans", Replayer, argv, timestamped=True, one_io_thread=True
+    )
 
 
 if __name__ == "__main__":

@@ -13,6 +13,7 @@ import numpy as np
 from sara_app.bus import keys
 from sara_app.bus.codec import Decoder
 from sara_app.bus.messages import ParamsAckMsg
+from sara_app.bus.request_queue import requests
 from sara_app.bus.session import Bus, Publisher
 from sara_app.errors import SaraError
 from sara_app.runtime import robot_link
@@ -38,9 +39,9 @@ class CellBus:
         self.frames = bus.subscribe(keys.tracker_frame_keys(cell), d)
         self.robot_decoder = robot_link.decoder(v_max_of)  # the robot's states: their own
         self.robot_state = bus.subscribe(keys.robot_state_key(cell), self.robot_decoder)
-        self.params = bus.subscribe(keys.params_key(cell), d, fifo=True)
-        self.retire = bus.subscribe(keys.retire_key(cell), d, fifo=True)
-        self.replan = bus.subscribe(keys.robot_replan_key(cell), d, fifo=True)
+        self.params = requests(bus, keys.params_key(cell), d)  # in order; a flood is counted
+        self.retire = requests(bus, keys.retire_key(cell), d)
+        self.replan = requests(bus, keys.robot_replan_key(cell), d)
         self.command = bus.publisher(keys.robot_command_key(cell))
         self.verdict = bus.publisher(keys.verdict_key(cell))
         self.occupancy = bus.publisher(keys.occupancy_key(cell))  # batched: keys.BATCHED_KINDS

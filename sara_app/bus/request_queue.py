@@ -1,0 +1,83 @@
+"""Requests on the bus (scenario edits, retirements, re-plans), queued without ever blocking
+zenoh's thread, and counted where they are lost.
+
+A FIFO subscription holds the thread that delivers into its full queue until the loop drains
+it (back-pressure): on a process whose zenoh I/O runs on one thread (:mod:`io_threads`) that is
+every message of the process, commands included (a flood of re-plans halved a worker's rate,
+2026-12-04). A :class:`RequestQueue` takes its samples from a ring instead (zenoh's thread
+never waits) and moves all of them, undecoded, into its own backlog at each drain; the loop
+then decodes and handles a bounded number per cycle, in arrival order.
+
+What does not fit is counted as ``queue_full`` in the decoder, never dropped silently:
+- the backlog holds at most ``capacity`` requests; a request arriving while it is full is
+  refused (the newest go, as a full FIFO would refuse them) and counted, exactly;
+- the ring holds twice that; a drain that finds it full may have lost its oldest requests
+  to newer ones (a ring cannot say how many): counted once, a lower bound (and once too when
+  the ring had just filled, lost nothing: it cannot tell).
+A lost request is never answered: its sender's wait for the answer ends without one (the API
+says so), and nothing it asked for happens.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import deque
+from typing import Any
+
+from sara_app.bus.codec import Decoder
+from sara_app.bus.process import SummarisedWarning
+from sara_app.bus.session import Bus, Drained, Subscription
+
+log = logging.getLogger("sara_app.bus")
+
+REQUEST_CAPACITY = 256
+"""Requests of one key waiting for the loop, at most (and the ring's size): far above an
+operator's pace (the worker takes 2-8 a cycle, 1 000-4 000 a second at 500 Hz)."""
+
+QUEUE_FULL = "queue_full"
+"""The drop reason of a request lost to a full queue (the contract's ``queue_full``)."""
+
+
+class RequestQueue(Subscription):
+    """Requests on ``key_expr``: a ring of ``2 * capacity`` samples that zenoh fills, and a
+    backlog of at most ``capacity`` that :meth:`drain` fills from it (module doc).
+    ``drain(max_n)`` decodes at most ``max_n`` of the oldest requests; the others wait for the
+    next drain."""
+
+    def __init__(self, session: Any, key_expr: str, decoder: Decoder, capacity: int) -> None:
+        super().__init__(session, key_expr, decoder, 2 * int(capacity), fifo=False)
+        self.capacity = int(capacity)
+        self._ring = 2 * int(capacity)
+        self._backlog: deque[tuple[str, bytes]] = deque()
+        self._lost_log = SummarisedWarning(log, f"requests on {key_expr} lost to a full queue")
+
+    def drain(self, max_n: int | None = None) -> Drained:
+        """Move every queued sample into the backlog (counting what does not fit), then decode
+        the ``max_n`` oldest (all: None) without blocking."""
+        arrived = self._samples(None)
+        # the ring found full may have dropped older samples for these: one at least
+        lost = int(len(arrived) >= self._ring)
+        over = len(self._backlog) + len(arrived) - self.capacity
+        if over > 0:  # the newest go, as a full FIFO refuses them
+            del arrived[len(arrived) - over :]
+            lost += over
+        if lost:
+            self.decoder.count(QUEUE_FULL, lost)
+            self._lost_log(f"{lost} at once, {len(self._backlog) + len(arrived)} waiting")
+        self._backlog.extend(arrived)
+        n = len(self._backlog) if max_n is None else min(max_n, len(self._backlog))
+        return self._decode([self._backlog.popleft() for _ in range(n)])
+
+    def waiting(self) -> int:
+        """Requests in the backlog (not counting those still in the ring)."""
+        return len(self._backlog)
+
+
+def requests(
+    bus: Bus, key_expr: str, decoder: Decoder | None = None, capacity: int = REQUEST_CAPACITY
+) -> RequestQueue:
+    """A :class:`RequestQueue` on ``key_expr`` in ``bus``'s session, closed with it; share
+    ``decoder`` to pool counters."""
+    queue = RequestQueue(bus.session, key_expr, decoder or Decoder(), capacity)
+    bus.own(queue)
+    return queue
