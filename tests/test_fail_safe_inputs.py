@@ -11,6 +11,7 @@ import os
 import signal
 import subprocess
 import sys
+import textwrap
 import time
 from collections import Counter
 from collections.abc import Iterator
@@ -909,6 +910,54 @@ def test_a_flood_of_replans_leaves_the_loop_its_rate(cell: Cell) -> None:
         assert lost > 0 and len(answers) + lost <= 3000, (len(answers), lost)
         old = _replan(cell, q, "stale", ctl.tick, stamp_s=time.time() - 10.0)
     assert not old.accepted and "s old" in old.reason, old.reason
+
+
+def test_a_flood_of_retirements_holds_up_none_of_the_workers_other_inputs(cell: Cell) -> None:
+    """Hostile-user probe, 2026-12-04: 5 000 retirements in a burst. While the worker's
+    requests came through FIFO subscriptions, the full queue's back-pressure held the thread
+    that reads the worker's link, and with it the robot's states: the cell faulted for about 2
+    s and then refused 100 states as stale (``out_of_range``); a flood of 2 MB edits faulted it
+    for more than 10 s. Now the requests wait in a queue that never holds that thread: the
+    loop keeps its rate and the robot its states (602 faulted verdicts of 750 before, 24-48
+    now, all at the flood's moment), and the requests that do not fit are counted
+    (``queue_full``)."""
+    ctl = _LyingController(cell)
+    flood = textwrap.dedent(
+        """
+        import sys, time
+        from sara_app.bus import keys
+        from sara_app.bus.messages import RetireMsg
+        from sara_app.bus.session import Bus
+        with Bus.client(int(sys.argv[1])) as bus:
+            pub = bus.publisher(keys.retire_key(sys.argv[2]))
+            time.sleep(1.0)  # its declaration known to the router
+            for i in range(5000):
+                pub.put(RetireMsg(seq=pub.next_seq(), stamp_s=time.time(), request_id=f"r{i}",
+                                  human_id="nobody", user="flood"))
+            time.sleep(0.5)
+        """
+    )
+
+    def tick() -> None:
+        ctl.tick()
+        cell.acks.drain()  # this session's own queue of answers: never left full
+
+    with Heartbeat(cell.bus, CELL):
+        cell.collect(0.5, every=tick)
+        # another process, as a hostile client is: this one is the robot and keeps ticking
+        proc = subprocess.Popen([sys.executable, "-c", flood, str(cell.port), CELL])
+        try:
+            vs, _ = cell.collect(3.0, every=tick)
+        finally:
+            assert proc.wait(timeout=30) == 0
+    assert len(vs) / 3.0 > 0.9 * 250, len(vs)
+    # the flood's own moment may fault a few tens of cycles (this process is the robot and
+    # the router: the flood takes their CPU), never seconds of them as before, not the last one
+    faulted = [i for i, v in enumerate(vs) if v.mode == "fault"]
+    assert len(faulted) < len(vs) / 3, (len(faulted), vs[faulted[0]].faults)
+    assert not faulted or faulted[-1] < len(vs) - 250, vs[faulted[-1]].faults
+    dropped = vs[-1].dropped
+    assert "out_of_range" not in dropped and dropped.get("queue_full", 0) > 0, dropped
 
 
 def _put_state(pub: Any, seq: int, q: Any, stamp_s: float | None = None) -> None:

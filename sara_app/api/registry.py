@@ -507,7 +507,8 @@ class CellRegistry:
         if not ok or ack is None:
             raise WorkerTimeoutError(
                 f"the worker of cell {cell!r} did not answer request {request_id} "
-                f"within {timeout_s:g} s; it may still apply it: the cell's scenario "
+                f"within {timeout_s:g} s; it may still apply it, or lost it to a full queue "
+                "(counted as queue_full in the cell's verdicts): the cell's scenario "
                 "(GET /api/cells/<cell>) shows what it runs"
             )
         return ParamsAnswer(request_id, ack.accepted, ack.reason)

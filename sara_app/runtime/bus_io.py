@@ -20,6 +20,10 @@ from sara_app.runtime import robot_link
 from sara_app.runtime.ledger import AnswerLedger
 from sara_app.safety.settings import FUTURE_TOLERANCE_S
 
+EDIT_QUEUE = 64
+"""Scenario edits waiting for the loop, at most (the other requests: the queues' default
+:data:`~sara_app.bus.request_queue.REQUEST_CAPACITY`): an edit may be megabytes, and the
+queue's ring holds twice this many."""
 SKELETON_QUEUE = 4096
 """Skeleton samples queued between two drains (all people); each drain decodes only the newest
 of each key, so a flood on one key cannot crowd out another person's newest message."""
@@ -39,7 +43,7 @@ class CellBus:
         self.frames = bus.subscribe(keys.tracker_frame_keys(cell), d)
         self.robot_decoder = robot_link.decoder(v_max_of)  # the robot's states: their own
         self.robot_state = bus.subscribe(keys.robot_state_key(cell), self.robot_decoder)
-        self.params = requests(bus, keys.params_key(cell), d)  # in order; a flood is counted
+        self.params = requests(bus, keys.params_key(cell), d, EDIT_QUEUE)  # a flood: counted
         self.retire = requests(bus, keys.retire_key(cell), d)
         self.replan = requests(bus, keys.robot_replan_key(cell), d)
         self.command = bus.publisher(keys.robot_command_key(cell))
