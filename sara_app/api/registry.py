@@ -61,6 +61,7 @@ from sara_app.bus.messages import (
     StatusMsg,
     VerdictMsg,
 )
+from sara_app.bus.request_queue import requests
 from sara_app.bus.session import Bus, Publisher, Subscription
 from sara_app.bus.verdict_words import verdict_words
 from sara_app.errors import InputError, WorkerTimeoutError
@@ -168,16 +169,19 @@ class CellRegistry:
             # and the controller refuse one: a status stamped an hour ahead, numbered high,
             # kept every real one out (the order rule) for that hour (hostile controller probe)
             self._subs = [
-                bus.subscribe(key, Decoder(max_future_s=ahead_s), capacity, fifo)
-                for key, capacity, fifo, ahead_s in (
-                    (keys.all_status_keys(), 256, False, FUTURE_TOLERANCE_S),
+                bus.subscribe(key, Decoder(max_future_s=ahead_s), capacity)
+                for key, capacity, ahead_s in (
+                    (keys.all_status_keys(), 256, FUTURE_TOLERANCE_S),
                     # a verdict is stamped at its cycle's time: up to a period ahead
-                    (f"{keys.ROOT}/*/verdict", 4096, False, FUTURE_TOLERANCE_S + MAX_DT_S),
-                    (f"{keys.ROOT}/*/params/ack", 256, True, FUTURE_TOLERANCE_S),
-                    (f"{keys.ROOT}/*/scenario", 64, False, FUTURE_TOLERANCE_S),
-                    (f"{keys.ROOT}/*/controller/status", 64, False, FUTURE_TOLERANCE_S),
+                    (f"{keys.ROOT}/*/verdict", 4096, FUTURE_TOLERANCE_S + MAX_DT_S),
+                    (f"{keys.ROOT}/*/scenario", 64, FUTURE_TOLERANCE_S),
+                    (f"{keys.ROOT}/*/controller/status", 64, FUTURE_TOLERANCE_S),
                 )
             ]
+            # the answers in order, in a queue that never holds this session's link (a full
+            # FIFO did: a flood of answers would have held up every verdict with it)
+            acks = f"{keys.ROOT}/*/params/ack"
+            self._subs.insert(2, requests(bus, acks, Decoder(max_future_s=FUTURE_TOLERANCE_S)))
 
     @classmethod
     def connect(cls, port: int, **kwargs: Any) -> CellRegistry:

@@ -109,7 +109,9 @@ class CellView(GizmoEditing):
         own = verdicts is None
         self.sub_verdict = bus.subscribe(keys.verdict_key(cell), dec) if own else None
         self.sub_cmd = bus.subscribe(keys.robot_command_key(cell), dec)
-        self.sub_ack = bus.subscribe(keys.params_ack_key(cell), dec, fifo=True)
+        # a ring: a view that sends nothing never reads the answers, and a full FIFO held
+        # its whole link (no verdict reached the view after 256 answers to others' requests)
+        self.sub_ack = bus.subscribe(keys.params_ack_key(cell), dec)
         self.sub_scenario = bus.subscribe(keys.scenario_key(cell), dec)
         self.sub_status = bus.subscribe(keys.status_key(cell), dec)
         self.worker_status: StatusMsg | None = None
