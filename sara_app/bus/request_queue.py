@@ -2,11 +2,12 @@
 zenoh's thread, and counted where they are lost.
 
 A FIFO subscription holds the thread that delivers into its full queue until the loop drains
-it (back-pressure): on a process whose zenoh I/O runs on one thread (:mod:`io_threads`) that is
-every message of the process, commands included (a flood of re-plans halved a worker's rate,
-2026-12-04). A :class:`RequestQueue` takes its samples from a ring instead (zenoh's thread
-never waits) and moves all of them, undecoded, into its own backlog at each drain; the loop
-then decodes and handles a bounded number per cycle, in arrival order.
+it (back-pressure): on zenoh's default threads that is every message of the process's link to
+the router (a flood of retirements held up the worker's robot states, 2026-12-04), and on one
+I/O thread (:mod:`~sara_app.bus.io_threads`) every message of the process, commands included.
+A :class:`RequestQueue` takes its samples from a ring instead (zenoh's thread never waits) and
+moves all of them, undecoded, into its own backlog at each drain; the loop then decodes and
+handles a bounded number per cycle, in arrival order.
 
 What does not fit is counted as ``queue_full`` in the decoder, never dropped silently:
 - the backlog holds at most ``capacity`` requests; a request arriving while it is full is
@@ -31,8 +32,8 @@ from sara_app.bus.session import Bus, Drained, Subscription
 log = logging.getLogger("sara_app.bus")
 
 REQUEST_CAPACITY = 256
-"""Requests of one key waiting for the loop, at most (and the ring's size): far above an
-operator's pace (the worker takes 2-8 a cycle, 1 000-4 000 a second at 500 Hz)."""
+"""Requests of one key waiting for the loop, at most (the ring zenoh fills holds twice this):
+far above an operator's pace (the worker takes 2-8 a cycle, 1 000-4 000 a second at 500 Hz)."""
 
 QUEUE_FULL = "queue_full"
 """The drop reason of a request lost to a full queue (the contract's ``queue_full``)."""
