@@ -48,7 +48,6 @@ class RequestQueue(Subscription):
     def __init__(self, session: Any, key_expr: str, decoder: Decoder, capacity: int) -> None:
         super().__init__(session, key_expr, decoder, 2 * int(capacity), fifo=False)
         self.capacity = int(capacity)
-        self._ring = 2 * int(capacity)
         self._backlog: deque[tuple[str, bytes]] = deque()
         self._lost_log = SummarisedWarning(log, f"requests on {key_expr} lost to a full queue")
 
@@ -57,7 +56,7 @@ class RequestQueue(Subscription):
         the ``max_n`` oldest (all: None) without blocking."""
         arrived = self._samples(None)
         # the ring found full may have dropped older samples for these: one at least
-        lost = int(len(arrived) >= self._ring)
+        lost = int(len(arrived) >= 2 * self.capacity)
         over = len(self._backlog) + len(arrived) - self.capacity
         if over > 0:  # the newest go, as a full FIFO refuses them
             del arrived[len(arrived) - over :]
