@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from sara_app.bench.soak import run_soak, write
+from sara_app.bench.soak import run_soak, why_faulted, write
 from sara_app.commands.soak import RECOVERY_GRACE_S
 
 
@@ -38,7 +38,7 @@ def test_chaos_never_moves_the_robot_off_a_verified_command(tmp_path: Path, monk
     # a worker restarts in a few seconds (it loads its kernels): faults near the end may not
     late = 45.0 - RECOVERY_GRACE_S
     missed = [e for e in res.events if e.recovered_s is None and e.t_s < late]
-    assert missed == [], missed
+    assert missed == [], [(e, why_faulted(e)) for e in missed]
     lines = write(res, tmp_path)
     assert (tmp_path / "soak.png").stat().st_size > 10_000
     assert any(line.startswith("| RSS worker (MB)") for line in lines)
@@ -67,3 +67,28 @@ def test_the_path_check_accepts_a_commands_path_and_its_stop_only() -> None:
     assert check.distance(10.025, np.array([0.4, 0.0])) > ON_PATH_TOL_RAD  # beyond every stop
     # the router was down for 10 s: the robot rests at the end of the last stop it had
     assert check.distance(20.0, np.array([0.25, 0.0])) <= ON_PATH_TOL_RAD
+
+
+def test_an_event_keeps_the_reasons_of_the_faults_after_it_until_the_cell_recovers() -> None:
+    """Fault verdicts after the event's end are tallied by reason (their numbers written #,
+    at most MAX_REASONS of them); the first verdict that is not a fault recovers the event and
+    ends the tally; verdicts before its end count for nothing."""
+    from sara_app.bench.soak import MAX_REASONS, Event, _after
+    from sara_app.bus.messages import VerdictMsg
+
+    def verdict(stamp_s: float, mode: str, *faults: str) -> VerdictMsg:
+        return VerdictMsg(seq=0, stamp_s=stamp_s, cell="c", safety_mode="ssm", mode=mode,
+                          cycle_time_us=100.0, faults=list(faults))  # fmt: skip
+
+    ev = Event(3.0, "router", "stop 1.6 s", end_s=10.0)
+    for stamp, age in ((10.1, "1.234"), (10.2, "0.75")):
+        _after(ev, verdict(stamp, "fault", f"robot state {age} s old > 0.1", "tracker 'a': ok 3"))
+    assert ev.recovered_s is None
+    assert ev.faults_after == {"robot state # s old > #": 2, "tracker 'a': ok #": 2}
+    assert why_faulted(ev, top=1) == "2 x 'robot state # s old > #'"
+    for k in range(2 * MAX_REASONS):  # new reasons beyond the cap are not kept
+        _after(ev, verdict(10.3, "fault", f"reason {chr(97 + k % 26)}{k // 26 * 'x'}"))
+    assert len(ev.faults_after) == MAX_REASONS
+    _after(ev, verdict(10.5, "intended"))
+    assert ev.recovered_s == pytest.approx(0.5)
+    assert why_faulted(Event(0.0, "worker", "kill -9", 1.0)) == "no verdict since"

@@ -26,6 +26,7 @@ import bisect
 import json
 import os
 import random
+import re
 import shutil
 import signal
 import statistics
@@ -51,6 +52,7 @@ CHAOS_TARGETS = ("router", "worker", "controller", "replayer")
 STOP_S = (0.2, 2.0)
 """How long a SIGSTOP lasts before its SIGCONT (uniform)."""
 CHECK_DELAY_S = 1.0
+MAX_REASONS = 16
 """How long after its arrival a robot state is checked (see ``_loop``)."""
 ON_PATH_TOL_RAD = 0.005
 """An executed state farther than this (per joint) from every command's path is a violation:
@@ -64,6 +66,10 @@ class Event:
     action: str
     end_s: float
     recovered_s: float | None = None
+    faults_after: dict[str, int] = field(default_factory=dict)
+    """The fault verdicts' reasons since the fault ended, until the cell recovered (numbers
+    in them written ``#`` so that one reason counts once; at most ``MAX_REASONS``): why it
+    took that long, or never recovered."""
 
 
 @dataclass
@@ -302,12 +308,8 @@ def _loop(
                 n_window += 1
                 last_verdict = time.monotonic()
                 for ev in res.events:
-                    if (
-                        ev.recovered_s is None
-                        and d.msg.mode != "fault"
-                        and d.msg.stamp_s > ev.end_s
-                    ):
-                        ev.recovered_s = d.msg.stamp_s - ev.end_s
+                    if ev.recovered_s is None and d.msg.stamp_s > ev.end_s:
+                        _after(ev, d.msg)
         for d in subs["ctl"].drain().messages:
             if isinstance(d.msg, ControllerStatusMsg):
                 last_ctl = time.monotonic()
@@ -345,6 +347,20 @@ def _loop(
         _signal(child, signal.SIGCONT)
     if progress:
         print(file=sys.stderr)
+
+
+def _after(ev: Event, v: VerdictMsg) -> None:
+    """A verdict after ``ev`` ended and before the cell recovered from it."""
+    if v.mode != "fault":
+        ev.recovered_s = v.stamp_s - ev.end_s
+        return
+    for why in v.faults:
+        key = _DIGITS.sub("#", why)
+        if key in ev.faults_after or len(ev.faults_after) < MAX_REASONS:
+            ev.faults_after[key] = ev.faults_after.get(key, 0) + 1
+
+
+_DIGITS = re.compile(r"\d+(\.\d+)?")
 
 
 def _ctl_counts(m: ControllerStatusMsg) -> dict[str, int]:
@@ -452,9 +468,19 @@ def table(res: SoakResult) -> list[str]:
         for k, v in sorted(by.items()):
             out.append(f"- {k}: {len(v)} times, median {statistics.median(v):.2f} s, "
                        f"max {max(v):.2f} s")  # fmt: skip
+        for e in res.events:
+            if e.recovered_s is None:
+                out.append(f"- not recovered from {e.target} {e.action} at {e.t_s:.1f} s: "
+                           + why_faulted(e))  # fmt: skip
     out.append(f"executed states off every verified command's path: {len(res.off_path)}")
     out.append(f"processes left after the run: {len(res.orphans)}")
     return out
+
+
+def why_faulted(ev: Event, top: int = 3) -> str:
+    """The most frequent reasons of the fault verdicts after ``ev``, with their counts."""
+    most = sorted(ev.faults_after.items(), key=lambda kv: -kv[1])[:top]
+    return "; ".join(f"{n} x {why!r}" for why, n in most) or "no verdict since"
 
 
 def plot(res: SoakResult, path: Path) -> None:
