@@ -10,11 +10,14 @@ import time
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from sara_app.bus import keys
 from sara_app.bus.compact import encode_compact
 from sara_app.bus.messages import RobotStateMsg, encode, position_on_stop
+from sara_app.bus.session import Drained
 from sara_app.robot.trajectory import JointState
+from sara_app.runtime import robot_link
 from sara_app.runtime.robot_link import (
     REFUSED_FAULT_S,
     REPLAN_STILL_S,
@@ -189,7 +192,8 @@ class _States:
 
     def drain(self, n: int) -> SimpleNamespace:
         got, self.queue = self.queue[:n], self.queue[n:]
-        return SimpleNamespace(messages=[SimpleNamespace(msg=m) for m in got], refused_keys=0)
+        return SimpleNamespace(messages=[SimpleNamespace(msg=m) for m in got], refused_keys=0,
+                               rejected=0)  # fmt: skip
 
 
 def test_a_drivers_standstill_noise_is_at_rest_only_up_to_the_scenarios_rest_speed() -> None:
@@ -218,3 +222,74 @@ def test_a_drivers_standstill_noise_is_at_rest_only_up_to_the_scenarios_rest_spe
     sub.queue.append(RobotStateMsg(seq=999, stamp_s=t + 0.002, q=list(q), q_dot=[2e-3] * N))
     robot.drain(sub, t + 0.002, 0.005)  # type: ignore[arg-type]
     assert "not at rest" in str(robot.replan_refusal(q, t + 0.002, 0.05, 0.005, lo, hi))
+
+
+class _Wire:
+    """The robot key's subscription with the worker's real decoder: ``put`` states as the
+    controller publishes them, ``drain`` decodes what has arrived (refusals counted)."""
+
+    def __init__(self) -> None:
+        self.queue: list[RobotStateMsg] = []
+        self.decoder = decoder(lambda: V_MAX)
+        self.key = keys.robot_state_key("c1")
+
+    def drain(self, n: int) -> Drained:
+        got, self.queue = self.queue[:n], self.queue[n:]
+        before, out, refused = self.decoder.rejected, [], []
+        for m in got:
+            d = self.decoder.decode(self.key, encode(m))
+            out.append(d) if d is not None else refused.append(self.key)
+        return Drained(out, self.decoder.rejected - before, refused)
+
+
+def test_a_router_stall_lets_the_plan_start_where_the_robot_braked_unless_disputed(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A bound stream, then a router stall: for ``stall_s`` the worker hears nothing while the
+    controller goes on publishing at 1 kHz (braked on its own, its commands expired: at rest
+    0.1 rad from the worker's plan), then the whole backlog arrives at once, the states older
+    than 0.5 s refused as too old, the rest taken, then fresh states at rest. A second or more
+    unheard unbinds the stream, though the states taken are less than a second apart by their
+    stamps, and the worker may plan from where the robot rests (bound, the two waited on each
+    other forever: soak probe 2026-12-04); after a shorter stall it may not. A second
+    publisher lying with a huge ``seq`` after the stall makes the controller's states out of
+    order: no plan from anywhere while they dispute."""
+    clock = [time.time() - 100.0]  # the worker's clock (the decoder's age check reads it)
+    monkeypatch.setattr(robot_link, "time", SimpleNamespace(time=lambda: clock[0]))
+    q_plan, q_braked = np.zeros(N), np.full(N, 0.1)
+
+    def state(seq: int, q: np.ndarray) -> RobotStateMsg:
+        return RobotStateMsg(seq=seq, stamp_s=clock[0], q=list(q), q_dot=[0.0] * N)
+
+    def run(stall_s: float, intruder: bool) -> tuple[bool, bool]:
+        robot, wire = MeasuredRobot(), _Wire()
+        seq = 0
+        for _ in range(100):  # 0.2 s tracked at 500 Hz
+            clock[0] += 0.002
+            wire.queue.append(state(seq, q_plan))
+            seq += 1
+            robot.drain(wire, clock[0], 0.005)  # type: ignore[arg-type]
+        robot.bound = True  # as its faults() leaves it while the states track the commands
+        backlog = []
+        for k in range(int(stall_s * 1000)):  # published, stuck in the stalled router
+            clock[0] += 0.001
+            backlog.append(state(seq, q_braked))
+            seq += 1
+            if k % 2:
+                robot.drain(wire, clock[0], 0.005)  # type: ignore[arg-type]
+        wire.queue += backlog
+        unbound = False
+        for k in range(300):  # the router resumed: the backlog, 64 a cycle, then fresh states
+            clock[0] += 0.002
+            if intruder and k % 5 == 0:
+                wire.queue.append(state(10**12 + k, q_plan))
+            wire.queue.append(state(seq, q_braked))
+            seq += 1
+            robot.drain(wire, clock[0], 0.005)  # type: ignore[arg-type]
+            unbound = unbound or not robot.bound
+        assert wire.decoder.counts.get("out_of_range", 0) > 100  # the late ones were refused
+        return unbound, robot.at_rest_elsewhere(q_plan, clock[0], 0.05, 0.005)
+
+    assert run(1.3, intruder=False) == (True, True)
+    assert run(0.8, intruder=False) == (False, False)
+    assert run(1.3, intruder=True)[1] is False

@@ -92,3 +92,33 @@ def test_an_event_keeps_the_reasons_of_the_faults_after_it_until_the_cell_recove
     _after(ev, verdict(10.5, "intended"))
     assert ev.recovered_s == pytest.approx(0.5)
     assert why_faulted(Event(0.0, "worker", "kill -9", 1.0)) == "no verdict since"
+
+
+def test_a_kill_ends_when_its_process_is_restarted_and_no_verdict_before_recovers_it() -> None:
+    """A controller killed a moment ago leaves a fresh enough robot state, so the next verdict
+    is not a fault: that is no recovery. The kill's fault ends when the supervisor restarted
+    the process; only a verdict after that counts."""
+    from types import SimpleNamespace
+
+    from sara_app.bench.soak import Event, _after, _restarted
+    from sara_app.bus.messages import VerdictMsg
+
+    def verdict(stamp_s: float, mode: str) -> VerdictMsg:
+        return VerdictMsg(seq=0, stamp_s=stamp_s, cell="c", safety_mode="ssm", mode=mode,
+                          cycle_time_us=100.0, faults=["robot state 0.2 s old > 0.1"])  # fmt: skip
+
+    ctl = SimpleNamespace(name="controller", restarts=2)
+    sup = SimpleNamespace(children=[SimpleNamespace(name="worker", restarts=5), ctl])
+    ev = Event(24.0, "controller", "kill -9", end_s=100.0, restarted_from=2)
+    for stamp in (100.01, 100.3):
+        _restarted([ev], sup, stamp)
+        if ev.restarted_from is None:
+            _after(ev, verdict(stamp, "intended"))
+    assert ev.recovered_s is None and ev.end_s == 100.0
+    ctl.restarts = 3  # the supervisor restarted it at 100.5
+    _restarted([ev], sup, 100.5)
+    assert ev.restarted_from is None and ev.end_s == 100.5
+    _after(ev, verdict(101.0, "fault"))
+    _after(ev, verdict(101.7, "intended"))
+    assert ev.recovered_s == pytest.approx(1.2)
+    assert ev.faults_after == {"robot state # s old > #": 1}

@@ -16,8 +16,9 @@ restarts what died, as under ``serve``. Checked from what the controller execute
 logs: every robot state the controller publishes lies on a command the worker sent (its
 commanded segment or its verified stop, within the tracking tolerance), so the robot never moved
 on something that was not verified; after the run no process of the cell is left; and after
-every fault the cell recovers (a verdict other than ``fault`` again), recovery times as a
-distribution.
+every fault the cell recovers (a verdict other than ``fault`` again after the fault ended: a
+stopped process continued, a killed one restarted), recovery times as a distribution, with the
+reasons of the fault verdicts in between.
 """
 
 from __future__ import annotations
@@ -65,7 +66,11 @@ class Event:
     target: str
     action: str
     end_s: float
+    """When the fault ended: a stopped process continued; a killed one was restarted by the
+    supervisor (until then the kill's time, and ``restarted_from`` is set)."""
     recovered_s: float | None = None
+    restarted_from: int | None = None
+    """A killed process not restarted yet: its child's restart count at the kill."""
     faults_after: dict[str, int] = field(default_factory=dict)
     """The fault verdicts' reasons since the fault ended, until the cell recovered (numbers
     in them written ``#`` so that one reason counts once; at most ``MAX_REASONS``): why it
@@ -308,8 +313,9 @@ def _loop(
                 n_window += 1
                 last_verdict = time.monotonic()
                 for ev in res.events:
-                    if ev.recovered_s is None and d.msg.stamp_s > ev.end_s:
-                        _after(ev, d.msg)
+                    if ev.recovered_s is None and ev.restarted_from is None:
+                        if d.msg.stamp_s > ev.end_s:
+                            _after(ev, d.msg)
         for d in subs["ctl"].drain().messages:
             if isinstance(d.msg, ControllerStatusMsg):
                 last_ctl = time.monotonic()
@@ -321,6 +327,7 @@ def _loop(
         for c in sup.children:
             if c.proc is not None:
                 all_pids.add(c.proc.pid)
+        _restarted(res.events, sup, now)
         mono = time.monotonic()  # as serve: a verdict counts once worker and router run
         sup.poll(mono, sup.hang_age(mono, last_verdict), last_ctl > last_verdict)
         for item in list(stopped):
@@ -363,6 +370,17 @@ def _after(ev: Event, v: VerdictMsg) -> None:
 _DIGITS = re.compile(r"\d+(\.\d+)?")
 
 
+def _restarted(events: list[Event], sup: Any, now_s: float) -> None:
+    """A killed process's fault ends when the supervisor has restarted it: until then the
+    cell may still answer as if it ran (a controller killed a moment ago leaves a robot state
+    younger than the timeout, and a verdict other than ``fault`` then is no recovery)."""
+    for ev in events:
+        if ev.restarted_from is not None:
+            child = next(c for c in sup.children if c.name == ev.target)
+            if child.restarts > ev.restarted_from:
+                ev.end_s, ev.restarted_from = now_s, None
+
+
 def _ctl_counts(m: ControllerStatusMsg) -> dict[str, int]:
     return {k: int(getattr(m, k)) for k in ("commands_received", "commands_lost", "commands_late",
                                             "commands_expired", "braking_events")}  # fmt: skip
@@ -385,7 +403,7 @@ def _strike(
     now = time.time()
     if rng.random() < 0.5:
         _signal(child, signal.SIGKILL)
-        return Event(t_s, name, "kill -9", now)
+        return Event(t_s, name, "kill -9", now, restarted_from=child.restarts)
     hold = rng.uniform(*STOP_S)
     _signal(child, signal.SIGSTOP)
     ev = Event(t_s, name, f"stop {hold:.1f} s", now + hold)

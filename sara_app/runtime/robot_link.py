@@ -16,10 +16,15 @@ send an ``intended`` command that jumped the real robot by that much, again and 
 stream not bound yet (the first one a worker sees; one whose publisher restarted, which the
 decoder tells by its numbering starting over at least a second after the last state) may
 re-anchor the plan, and one silent for a second or more (``UNBIND_GAP_S``: after a router
-restart). A robot stopped or moved elsewhere while its controller ran (a protective stop, hand
-guiding, a controller that braked on its own) is planned from again only on an operator's word
-(``robot/replan``, :meth:`MeasuredRobot.replan_refusal`): the operator confirms the position
-the controller reports, and the worker takes it only if the state is there now, at rest.
+restart its stamps skip that long; after a router stall the worker hears nothing that long,
+then states too old to take, then fresh ones: the controller braked on its own meanwhile and
+refuses a set point away from where it rests, so a bound stream there left both waiting on
+each other until an operator's re-plan, ``sara-app soak`` probe 2026-12-04). A robot
+stopped or moved elsewhere while its controller ran (a protective stop, hand guiding, a
+controller that braked on its own) with no second of silence is planned from again only on an
+operator's word (``robot/replan``, :meth:`MeasuredRobot.replan_refusal`): the operator
+confirms the position the controller reports, and the worker takes it only if the state is
+there now, at rest.
 """
 
 from __future__ import annotations
@@ -73,18 +78,23 @@ a driver whose reported speeds are within this factor of the truth (a measured s
 difference of encoder readings, whose noise is far below its rated speed)."""
 
 
-def decoder(v_max_of: Callable[[], np.ndarray]) -> Decoder:
-    """The decoder of one cell's ``robot/state`` key: its own (a publisher restart on another
-    key must not count as the controller's: a retire's restart re-anchored the plan, hostile-
-    user probe 2026-11-30), refusing before it counts for the key's order a state of another
-    number of joints than the robot's velocity limits ``v_max_of() (n,)`` (rad/s or m/s, of the
-    robot in force: an edit may change them) as ``wrong_dof`` (one with a huge ``seq`` held the
-    real controller's states back as out of order for a second), and one whose joint moves
-    faster than ``STATE_SPEED_FACTOR`` times its limit as ``out_of_range``."""
+class StateRules:
+    """The worker's own rules for a ``robot/state`` message (the :class:`Decoder`'s ``check``),
+    judged before it counts for the key's order: another number of joints than the robot's
+    velocity limits ``v_max_of() (n,)`` (rad/s or m/s, of the robot in force: an edit may change
+    them) is ``wrong_dof`` (one with a huge ``seq`` held the real controller's states back as
+    out of order for a second); a joint faster than ``STATE_SPEED_FACTOR`` times its limit is
+    ``out_of_range``; so is a state stamped more than ``MAX_STATE_AGE_S`` ago, counted apart in
+    :attr:`late`: a transport delay, not a second publisher (:meth:`MeasuredRobot.drain`)."""
 
-    def check(msg: Message) -> tuple[str, str] | None:
+    def __init__(self, v_max_of: Callable[[], np.ndarray]) -> None:
+        self.v_max_of = v_max_of
+        self.late = 0
+        """States refused as stamped too long ago, since the decoder was made."""
+
+    def __call__(self, msg: Message) -> tuple[str, str] | None:
         if isinstance(msg, RobotStateMsg):
-            v_max = v_max_of()
+            v_max = self.v_max_of()
             if len(msg.q) != len(v_max):
                 return "wrong_dof", f"{len(msg.q)} joints received, robot has {len(v_max)}"
             for j, (v, m) in enumerate(zip(msg.q_dot, v_max)):
@@ -95,10 +105,22 @@ def decoder(v_max_of: Callable[[], np.ndarray]) -> Decoder:
                     )
         age = time.time() - msg.stamp_s
         if not age <= MAX_STATE_AGE_S:
+            self.late += 1
             return "out_of_range", f"stamped {age:.3g} s ago (at most {MAX_STATE_AGE_S} s)"
         return None
 
-    return Decoder(max_future_s=FUTURE_TOLERANCE_S, check=check)  # its restarts: 1 s
+
+def decoder(v_max_of: Callable[[], np.ndarray]) -> Decoder:
+    """The decoder of one cell's ``robot/state`` key: its own (a publisher restart on another
+    key must not count as the controller's: a retire's restart re-anchored the plan, hostile-
+    user probe 2026-11-30), with :class:`StateRules` as its check."""
+    return Decoder(max_future_s=FUTURE_TOLERANCE_S, check=StateRules(v_max_of))  # restarts: 1 s
+
+
+def _late_count(sub: Subscription) -> int:
+    """States the subscription's decoder refused as stamped too long ago (0: not its rules)."""
+    rules = sub.decoder.check
+    return rules.late if isinstance(rules, StateRules) else 0
 
 
 def outside_limits(q: np.ndarray, q_min: np.ndarray, q_max: np.ndarray) -> str | None:
@@ -133,6 +155,12 @@ class MeasuredRobot:
         self._still_q: np.ndarray | None = None
         self.refused_s = -np.inf
         """When (the worker's clock) a state of the key was last refused."""
+        self.disputed_s = -np.inf
+        """When (the worker's clock) a state of the key was last refused for anything but its
+        age: what a second publisher on the key causes (a late state is a transport delay)."""
+        self.heard_s: float | None = None
+        """When (the worker's clock) a state was last accepted."""
+        self._late = 0  # the decoder's count of states refused as late, last seen
         self.rest_speed = V_REST
         """A state is at rest when no joint's reported speed exceeds this (rad/s or m/s; the
         worker sets the scenario's ``inputs.robot_rest_speed_rad_s``)."""
@@ -142,13 +170,18 @@ class MeasuredRobot:
         restarts are this key's alone), in order, the newest kept; a refused one is a fault for
         ``REFUSED_FAULT_S``. ``tol_rad``: how far apart two states may be and still stand at one
         position. The stream is bound no more after a restart of its publisher or a second of
-        silence, unless a state of the key was refused in the second before: a second
-        publisher with a huge ``seq`` makes the real controller's states out of order for a
-        second, then look like a restart (hostile-user probe, 2026-11-30)."""
+        silence (stamps a second apart, or a second without a state taken), unless a state of
+        the key was refused for anything but its age in the second before: a second publisher
+        with a huge ``seq`` makes the real controller's states out of order for a second, then
+        look like a restart (hostile-user probe, 2026-11-30); states refused as too old are
+        what a stalled router delivers when it resumes."""
         got = sub.drain(STATES_PER_DRAIN)
+        late, self._late = _late_count(sub) - self._late, _late_count(sub)
         if got.refused_keys:
             self.refused_s = now_s
-        quiet = now_s - self.refused_s >= UNBIND_GAP_S  # no state refused in the last second
+        if got.rejected > late:
+            self.disputed_s = now_s
+        quiet = now_s - self.disputed_s >= UNBIND_GAP_S  # none disputed in the last second
         restarts = sub.decoder.restarts
         if restarts > self._restarts and quiet:  # a restarted controller: a new stream
             self.bound = False
@@ -157,8 +190,10 @@ class MeasuredRobot:
             if not isinstance(d.msg, RobotStateMsg):
                 continue
             gap = self.stamp_s is not None and d.msg.stamp_s - self.stamp_s >= UNBIND_GAP_S
-            if gap and quiet:
+            unheard = self.heard_s is not None and now_s - self.heard_s >= UNBIND_GAP_S
+            if (gap or unheard) and quiet:
                 self.bound = False  # no evidence for a second or more (a router restarted)
+            self.heard_s = now_s
             self._still(np.asarray(d.msg.q), np.asarray(d.msg.q_dot), d.msg.stamp_s, tol_rad)
             self.state = JointState(
                 q=np.asarray(d.msg.q), v=np.asarray(d.msg.q_dot), a=np.zeros(len(d.msg.q))
