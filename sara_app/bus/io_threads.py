@@ -10,12 +10,10 @@ the routing and the send of a message then run on the thread that read it.
 That thread must never block. A FIFO subscription blocks the thread that delivers into its full
 queue until the loop drains it (back-pressure), so with one thread every message of the process,
 commands included, would wait for the drain. A process asks for the one thread only when it
-has no FIFO subscription (:func:`use_one_io_thread`: the reference controller), and
-:func:`refuse_fifo` makes a FIFO subscription in such a process an error, not a stall. The cell
-worker and the replayer have none any more (their requests wait in
-:mod:`~sara_app.bus.request_queue`'s queues) but keep zenoh's default threads: with them on one
-thread the chaos soak once stayed faulted for 10 s after a 1.6 s router stop, robot states
-arriving a second late throughout (docs/performance.md), not yet explained.
+has no FIFO subscription (:func:`use_one_io_thread`: the reference controller, the cell worker
+and the replayer, whose requests wait in :mod:`~sara_app.bus.request_queue`'s queues, which
+never block), and :func:`refuse_fifo` makes a FIFO subscription in such a process an error, not
+a stall.
 
 Not the router: it waits for room in the queue towards each subscriber (1 ms before it drops a
 message, longer for a declaration), so one client that stops reading (a frozen observer) made
