@@ -10,10 +10,15 @@ the routing and the send of a message then run on the thread that read it.
 That thread must never block. A FIFO subscription blocks the thread that delivers into its full
 queue until the loop drains it (back-pressure), so with one thread every message of the process,
 commands included, would wait for the drain. A process asks for the one thread only when it
-has no FIFO subscription (:func:`use_one_io_thread`: the reference controller, the cell worker
-and the replayer, whose requests wait in :mod:`~sara_app.bus.request_queue`'s queues, which
-never block), and :func:`refuse_fifo` makes a FIFO subscription in such a process an error, not
-a stall.
+has no FIFO subscription (:func:`use_one_io_thread`: the reference controller), and
+:func:`refuse_fifo` makes a FIFO subscription in such a process an error, not a stall. The cell
+worker and the replayer have none any more (their requests wait in
+:mod:`~sara_app.bus.request_queue`'s queues) but keep zenoh's default threads: with the worker
+on one thread, a flood of 5 000 retirements delayed its commands and states on that thread long
+enough for the controller to brake on its own, and the cell stayed on a tracking fault for
+0.7 s after the flood (``test_a_flood_of_retirements_holds_up_none_of_the_workers_other_inputs``
+failed 2 of 2 in a run of three test files; it passes on zenoh's default threads). The chaos
+soak's failure first blamed on the one thread was a router stall (docs/performance.md).
 
 Not the router: it waits for room in the queue towards each subscriber (1 ms before it drops a
 message, longer for a declaration), so one client that stops reading (a frozen observer) made

@@ -208,9 +208,7 @@ class Replayer:
 
 def main(argv: list[str] | None = None) -> int:
     # its skeletons carry their publication time (sara-app bench --live measures from it)
-    return process_main(
-        "replayer", "replay scenario humans", Replayer, argv, timestamped=True, one_io_thread=True
-    )
+    return process_main("replayer", "replay scenario humans", Replayer, argv, timestamped=True)
 
 
 if __name__ == "__main__":

@@ -58,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
             if a.zenoh_user and a.zenoh_credentials:
                 auth = client_auth(a.zenoh_user, Credentials(a.zenoh_credentials))
             session, _ = realtime_session(
-                a.rt_priority, "worker", lambda: Bus.client(a.port, auth=auth), one_io_thread=True
+                a.rt_priority, "worker", lambda: Bus.client(a.port, auth=auth)
             )
             bus = stack.enter_context(session)
             pub = bus.publisher(keys.status_key(cell))

@@ -462,9 +462,7 @@ class CellWorker:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return process_main(
-        "worker", "run one cell worker", CellWorker, argv, state=True, one_io_thread=True
-    )
+    return process_main("worker", "run one cell worker", CellWorker, argv, state=True)
 
 
 if __name__ == "__main__":
