@@ -53,8 +53,9 @@ CHAOS_TARGETS = ("router", "worker", "controller", "replayer")
 STOP_S = (0.2, 2.0)
 """How long a SIGSTOP lasts before its SIGCONT (uniform)."""
 CHECK_DELAY_S = 1.0
-MAX_REASONS = 16
 """How long after its arrival a robot state is checked (see ``_loop``)."""
+MAX_REASONS = 16
+"""Distinct reasons of fault verdicts kept per fault (``Event.faults_after``)."""
 ON_PATH_TOL_RAD = 0.005
 """An executed state farther than this (per joint) from every command's path is a violation:
 the scenario's tracking tolerance, within which the worker accepts the robot's state."""
@@ -356,6 +357,9 @@ def _loop(
         print(file=sys.stderr)
 
 
+_DIGITS = re.compile(r"\d+(\.\d+)?")
+
+
 def _after(ev: Event, v: VerdictMsg) -> None:
     """A verdict after ``ev`` ended and before the cell recovered from it."""
     if v.mode != "fault":
@@ -365,9 +369,6 @@ def _after(ev: Event, v: VerdictMsg) -> None:
         key = _DIGITS.sub("#", why)
         if key in ev.faults_after or len(ev.faults_after) < MAX_REASONS:
             ev.faults_after[key] = ev.faults_after.get(key, 0) + 1
-
-
-_DIGITS = re.compile(r"\d+(\.\d+)?")
 
 
 def _restarted(events: list[Event], sup: Any, now_s: float) -> None:
