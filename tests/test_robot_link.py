@@ -14,14 +14,16 @@ import pytest
 
 from sara_app.bus import keys
 from sara_app.bus.compact import encode_compact
-from sara_app.bus.messages import RobotStateMsg, encode, position_on_stop
+from sara_app.bus.messages import ControllerStatusMsg, RobotStateMsg, encode, position_on_stop
 from sara_app.bus.session import Drained
 from sara_app.robot.trajectory import JointState
 from sara_app.runtime import robot_link
 from sara_app.runtime.robot_link import (
+    BRAKING_SAID_S,
     REFUSED_FAULT_S,
     REPLAN_STILL_S,
     STATE_SPEED_FACTOR,
+    STOP_ENDS,
     MeasuredRobot,
     decoder,
 )
@@ -293,3 +295,70 @@ def test_a_router_stall_lets_the_plan_start_where_the_robot_braked_unless_disput
     assert run(1.3, intruder=False) == (True, True)
     assert run(0.8, intruder=False) == (False, False)
     assert run(1.3, intruder=True)[1] is False
+
+
+class _Status:
+    """The controller's status key as :meth:`MeasuredRobot.hear_controller` reads it."""
+
+    def __init__(self) -> None:
+        self.queue: list[ControllerStatusMsg] = []
+
+    def drain_latest(self) -> SimpleNamespace:
+        got, self.queue = self.queue[-1:], []
+        return SimpleNamespace(messages=[SimpleNamespace(msg=m) for m in got])
+
+
+def test_a_bound_stream_may_be_planned_from_where_its_controller_braked_to_a_stops_end() -> None:
+    """A controller whose commands expired brakes along the newest stop it has and rests at
+    its end; a newer command that came late leaves the worker's plan resting elsewhere. Bound
+    to the commands, the stream may be planned from there when its controller's newest status
+    (at most ``BRAKING_SAID_S`` old) says it brakes on its own and the robot rests at the end
+    of one of the stops the worker sent (at rest for ``REPLAN_STILL_S``); never from a rest
+    anywhere else (a hostile or buggy controller's), nor at a stop's end without that word (a
+    robot moved by hand along its path), nor once the commands are forgotten (a re-plan)."""
+    rng = np.random.default_rng(5)
+    robot, status = MeasuredRobot(), _Status()
+    ends = []
+    for k in range(300):  # more than STOP_ENDS: the oldest ends are forgotten
+        t, q = 10.0 + 0.002 * k, rng.normal(size=N)
+        end = q + 0.05
+        robot.sent(t, q, (np.array([t, t + 0.1]), np.vstack((q, end))))
+        if k % 3:  # a worker in fault sends one stop's end again and again: remembered once
+            robot.sent(t + 0.001, q, (np.array([t, t + 0.1]), np.vstack((q, end))))
+        ends.append(end)
+    assert len(robot.stop_ends) == STOP_ENDS
+    robot.bound = True
+    plan = ends[-1]
+
+    def said(braking: bool, now_s: float) -> None:
+        for b in (not braking, braking):  # the newest counts
+            status.queue.append(ControllerStatusMsg(
+                seq=0, stamp_s=now_s, cell="c1", commands_received=1, commands_lost=0,
+                commands_late=0, commands_expired=0, commands_refused=0, braking_events=1,
+                worker_runs=1, braking=b,
+            ))  # fmt: skip
+        robot.hear_controller(status, now_s)  # type: ignore[arg-type]
+
+    def rest_at(q: np.ndarray) -> bool:
+        sub, t = _States(), 20.0
+        for k in range(200):  # 0.4 s at rest at q
+            t = 20.0 + 0.002 * k
+            sub.queue.append(RobotStateMsg(seq=k, stamp_s=t, q=list(q), q_dot=[0.0] * N))
+            robot.drain(sub, t, 0.005)  # type: ignore[arg-type]
+        return robot.at_rest_elsewhere(plan, t, 0.05, 0.005)
+
+    said(True, 20.0)
+    assert rest_at(ends[-60] + 0.004)  # an older stop's end, within the tolerance
+    assert not rest_at(ends[-60] + 0.3)  # elsewhere
+    assert not rest_at(ends[10])  # a stop sent too long ago: forgotten
+    assert not rest_at(plan)  # where the plan rests: nothing to re-anchor
+    said(False, 20.0)
+    assert not rest_at(ends[-60])  # no word that it braked: a robot moved by hand, say
+    said(True, 20.4 - BRAKING_SAID_S - 0.01)
+    assert not rest_at(ends[-60])  # the word is too old
+    robot.bound = False
+    assert rest_at(ends[-60] + 0.3)  # a stream not bound may be planned from anywhere
+    robot.bound = True
+    said(True, 20.0)
+    robot.forget_commands()
+    assert not rest_at(ends[-60])

@@ -43,6 +43,8 @@ class CellBus:
         self.frames = bus.subscribe(keys.tracker_frame_keys(cell), d)
         self.robot_decoder = robot_link.decoder(v_max_of)  # the robot's states: their own
         self.robot_state = bus.subscribe(keys.robot_state_key(cell), self.robot_decoder)
+        # whether the controller brakes on its own (about once a second): the newest counts
+        self.controller_status = bus.subscribe(keys.controller_status_key(cell), d, capacity=8)
         self.params = requests(bus, keys.params_key(cell), d, EDIT_QUEUE)  # a flood: counted
         self.retire = requests(bus, keys.retire_key(cell), d)
         self.replan = requests(bus, keys.robot_replan_key(cell), d)

@@ -36,7 +36,12 @@ from collections.abc import Callable
 import numpy as np
 
 from sara_app.bus.codec import Decoder
-from sara_app.bus.messages import Message, RobotStateMsg, position_on_stop
+from sara_app.bus.messages import (
+    ControllerStatusMsg,
+    Message,
+    RobotStateMsg,
+    position_on_stop,
+)
 from sara_app.bus.session import Subscription
 from sara_app.robot.deviation_kernels import max_abs, max_abs_diff
 from sara_app.robot.trajectory import JointState
@@ -48,6 +53,13 @@ after a router restart the controller, which braked on its own meanwhile, rests 
 worker's plan may not, and the plan starts from there again (tests/test_supervision.py)."""
 HISTORY = 256
 """Set points remembered for the tracking check (about one second at 250 Hz)."""
+STOP_ENDS = 256
+"""Distinct ends of the verified stops sent, remembered (about half a second of motion at
+500 Hz; a worker in fault sends one stop's end again and again, so they reach back past the
+moment its states stopped coming)."""
+BRAKING_SAID_S = 2.5
+"""How long the controller's word that it brakes on its own (``controller/status``, about once
+a second) counts."""
 STATES_PER_DRAIN = 64
 """States decoded per cycle at most (a controller publishes one or a few per control period;
 each is decoded, so that a second publisher's lies cannot hide the real controller's states as
@@ -148,6 +160,12 @@ class MeasuredRobot:
         (:meth:`RobotCommandMsg.stop_arrays`), oldest first."""
         self.bound = False
         """The state stream has tracked the commands (see the module notes)."""
+        self.stop_ends: deque[np.ndarray] = deque(maxlen=STOP_ENDS)
+        """Where the verified stops sent end ``(n,)``, distinct ones, oldest first: where a
+        controller that braked on its own comes to rest (:meth:`at_rest_elsewhere`)."""
+        self.braking_said_s = -np.inf
+        """When (the worker's clock) the controller's newest status, received then, said it
+        brakes on its own (-inf: the newest said it does not, or none came)."""
         self._restarts = 0  # the decoder's count of restarted publishers, last seen
         self.still_since_s: float | None = None
         """Since when (state stamps) every state was at rest within the tolerance of the first
@@ -211,8 +229,31 @@ class MeasuredRobot:
         """The worker sent a command whose set point ``q (n,)`` is for time ``t_point_s`` and
         whose verified stop is ``stop`` (:meth:`RobotCommandMsg.stop_arrays`)."""
         if self.commanded and t_point_s <= self.commanded[-1][0]:
-            self.commanded.clear()  # time went back (a restarted clock): start afresh
+            self.forget_commands()  # time went back (a restarted clock): start afresh
         self.commanded.append((t_point_s, q, stop))
+        end = stop[1][-1]
+        if not self.stop_ends or not max_abs_diff(end, self.stop_ends[-1]) <= 1e-12:
+            self.stop_ends.append(end)
+
+    def forget_commands(self) -> None:
+        """The plan starts afresh (re-anchored, re-planned, a restarted clock): the commands
+        sent before say nothing about where the robot may rest or be."""
+        self.commanded.clear()
+        self.stop_ends.clear()
+
+    def hear_controller(self, sub: Subscription, now_s: float) -> None:
+        """The controller's newest status off ``sub`` (``controller/status``): whether it
+        brakes on its own now."""
+        for d in sub.drain_latest().messages:
+            if isinstance(d.msg, ControllerStatusMsg):
+                self.braking_said_s = now_s if d.msg.braking else -np.inf
+
+    def _braked_to_a_stop_end(self, q: np.ndarray, now_s: float, tol_rad: float) -> bool:
+        """The controller said lately that it brakes on its own, and ``q (n,)`` is within
+        ``tol_rad`` of where one of the remembered stops ends."""
+        if not now_s - self.braking_said_s <= BRAKING_SAID_S:
+            return False
+        return any(max_abs_diff(q, end) <= tol_rad for end in reversed(self.stop_ends))
 
     def expected(self, t_s: float) -> tuple[np.ndarray, float] | None:
         """The commanded position at ``t_s`` and the slack the contract allows there (None:
@@ -321,11 +362,19 @@ class MeasuredRobot:
         """Fresh states at rest, standing still farther than ``tol_rad`` from ``q (n,)``, from
         a stream not bound to the commands: the robot stands somewhere else than the worker's
         follower (a restarted worker or controller), with the evidence an operator's re-plan
-        needs (:meth:`_evidence`). A bound stream's is a tracking fault only (module notes)."""
+        needs (:meth:`_evidence`). A bound stream's is a tracking fault only (module notes),
+        unless the controller says it brakes on its own and the robot rests where one of the
+        stops the worker sent ends: the contract's controller, its commands expired, brakes
+        along the newest stop it has, which a late or lost newer command leaves older than the
+        worker's own (its plan then rests elsewhere, and the controller takes no set point away
+        from where it rests: a router stall of 0.7 s left both waiting on each other, ``sara-app
+        soak`` probe 2026-12-04). Resting at a stop's end alone is no such evidence: a robot
+        moved by hand along its back-and-forth path rested at one
+        (``test_another_keys_restart_never_moves_the_plan_to_a_robot_moved_by_hand``)."""
         s = self.state
-        return (
+        return (  # the stops' ends last: called every cycle the follower rests
             s is not None
-            and not self.bound
-            and self._evidence(now_s, timeout_s) is None
             and max_abs_diff(s.q, q) > tol_rad
+            and self._evidence(now_s, timeout_s) is None
+            and (not self.bound or self._braked_to_a_stop_end(s.q, now_s, tol_rad))
         )

@@ -163,6 +163,7 @@ class CellWorker:
         sc = self.cell.scenario
         self.robot_in.rest_speed = sc.inputs.robot_rest_speed_rad_s  # the scenario in force
         self.robot_in.drain(self.io.robot_state, now, sc.shield.tracking_tol_rad)
+        self.robot_in.hear_controller(self.io.controller_status, now)
         self.people.drain_retirements(now)
         self._drain_replans(now)
         self.edits.drain(self.io)
@@ -183,7 +184,7 @@ class CellWorker:
                 except SaraError as e:  # answered, never left unanswered by a raise
                     why = f"no plan from there: {e}"
             if why is None:
-                self.robot_in.commanded.clear()
+                self.robot_in.forget_commands()
                 log.warning("the plan starts from the measured robot state, confirmed by %r: %r",
                             m.user, m.reason)  # fmt: skip
             else:
@@ -326,7 +327,7 @@ class CellWorker:
         if why is not None:
             return [f"robot at rest outside its joint limits, not planned from there: {why}"]
         self.shield.restart_from(q_meas)
-        self.robot_in.commanded.clear()
+        self.robot_in.forget_commands()
         self._reanchored_log("follower re-anchored at the measured state")
         return []
 
