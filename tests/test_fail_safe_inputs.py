@@ -798,6 +798,39 @@ def test_a_robot_moved_by_hand_moves_again_only_on_the_operators_word(cell: Cell
     assert float(np.max(np.abs(robot.q - moved))) > 0.01  # the robot itself moved on
 
 
+def test_a_controller_that_braked_on_its_own_in_a_hiccup_is_planned_from_without_a_word(
+    cell: Cell,
+) -> None:
+    """Router-stall probe, 2026-12-04: the worker's commands held up 0.3 s on their way to
+    the controller while the robot moves (its states still reach the worker): the command it
+    follows expires, it brakes along that command's stop and rests at its end; the worker's
+    newer commands, late, are refused there, and the worker's plan rests at a newer stop's
+    end. Bound, both waited on each other until an operator's re-plan (a second of silence
+    never came). The controller's status says it brakes on its own, and the robot rests where
+    one of the worker's stops ends: the worker plans from there and the robot moves on each
+    time, with no jump."""
+    ctl = _LyingController(cell)
+    wedges = 0
+
+    def deaf() -> None:  # the controller's loop runs, its commands do not come
+        now = time.time()
+        ctl.ctl.tick(now, [])
+        ctl.robot_q.append(ctl.ctl.q.copy())
+        ctl.tick_s.append(now)
+
+    with Heartbeat(cell.bus, CELL):
+        vs, _ = cell.collect(1.5, every=ctl.tick)
+        assert any(v.mode == "intended" for v in vs)
+        for _ in range(6):
+            _until_moving(cell, ctl)
+            cell.collect(0.3, every=deaf)
+            vs, _ = cell.collect(3.0, every=ctl.tick)
+            wedges += any(any("the plan is not moved" in f for f in v.faults) for v in vs)
+            assert any(v.mode == "intended" for v in vs[-50:]), vs[-1].faults
+    assert wedges >= 3  # the hiccups did leave the plan elsewhere than the braked robot
+    assert ctl.largest_jump() < 0.05
+
+
 def _until_moving(cell: Cell, ctl: _LyingController) -> None:
     """Wait (at most 5 s) until the robot moves on intended commands: on a loaded machine it
     may stand for a while on a tracking fault (a command came late), and a re-plan confirming
