@@ -194,7 +194,8 @@ class MeasuredRobot:
         look like a restart (hostile-user probe, 2026-11-30); states refused as too old are
         what a stalled router delivers when it resumes."""
         got = sub.drain(STATES_PER_DRAIN)
-        late, self._late = _late_count(sub) - self._late, _late_count(sub)
+        late_total = _late_count(sub)
+        late, self._late = late_total - self._late, late_total
         if got.refused_keys:
             self.refused_s = now_s
         if got.rejected > late:
