@@ -260,6 +260,42 @@ def test_why_the_controller_braked_is_counted(
     assert ctl.delivery.causes == {cause: 1}, ctl.delivery.causes
 
 
+def test_the_status_says_at_once_when_the_robot_starts_and_stops_braking_on_its_own() -> None:
+    """The worker plans from where a controller that says ``braking`` rests at one of its
+    stops' ends (a stalled router's way): the word goes out on the next tick at least
+    ``STATUS_MIN_GAP_S`` after the last status, not up to a second later, and so does its end
+    once the robot follows commands again; nothing more while nothing changes."""
+    from sara_app.peers.controller import STATUS_MIN_GAP_S, STATUS_PERIOD_S, Controller
+
+    sc = load_scenario("standing_beside_path")
+    port = free_port()
+    with Bus.router(port), Bus.client(port) as cbus, Bus.client(port) as wbus:
+        statuses = wbus.subscribe(keys.controller_status_key(CELL), fifo=True, capacity=100)
+        time.sleep(0.2)  # the subscription known to the router before the first status
+        ctl = Controller(CELL, sc, cbus)
+        dt, t = ctl.dt_s, time.time()
+        ctl.tick(t, [_cmd(0, t, ctl.q.tolist(), dt)])  # the first status: following
+        tick, braked_s, followed_s = t, None, None
+        while tick < t + 0.5 * STATUS_PERIOD_S:
+            tick += 1e-3
+            if ctl.braking and braked_s is None:
+                braked_s = tick - 1e-3
+            if braked_s is not None and tick > braked_s + 0.2:
+                # commands again, from where the robot rests: followed at once
+                followed_s = tick if followed_s is None else followed_s
+                ctl.tick(tick, [_cmd(round((tick - t) * 1e3), tick, ctl.q.tolist(), dt)])
+                assert not ctl.braking
+                continue
+            ctl.tick(tick)
+        time.sleep(0.2)
+        said = [(m.stamp_s, m.braking) for m in _drain(statuses, ControllerStatusMsg)]
+    assert braked_s is not None and followed_s is not None
+    assert [b for _, b in said] == [False, True, False], said  # one status per change
+    assert said[1][0] - braked_s <= STATUS_MIN_GAP_S + 1.5e-3, (said, braked_s)
+    assert said[2][0] - followed_s <= STATUS_MIN_GAP_S + 1.5e-3, (said, followed_s)
+    assert said[2][0] - said[1][0] >= STATUS_MIN_GAP_S - 1e-9
+
+
 def test_a_command_taken_past_the_last_set_point_continues_from_the_stop() -> None:
     """Past a set point the robot is on that command's stop; the next command takes it on from
     there (it once restarted from the set point: a jump back by speed x delay, which the worker

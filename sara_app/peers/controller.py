@@ -63,6 +63,13 @@ the next most, and the deadline is now pushed back without one)."""
 
 
 STATUS_PERIOD_S = 1.0
+STATUS_MIN_GAP_S = 0.05
+"""A status goes out at once, at most this often, when the robot starts or stops braking on
+its own (besides one every :data:`STATUS_PERIOD_S`): the worker plans from where a controller
+that says ``braking`` rests at one of its stops' ends (a stalled router's way,
+:class:`~sara_app.runtime.robot_link.MeasuredRobot`), and a word up to a second late held the
+cell on a tracking fault that long; a stale ``braking`` after the robot follows commands again
+is a second's trust the word no longer deserves."""
 STATE_GAP_PERIODS = 1.5
 """Without a command, a state at the latest this many control periods after the last one. A
 command comes every period, a little late now and then: at one period the state-due deadline
@@ -163,6 +170,8 @@ class Controller:
         command tells why (:func:`brake_cause`)."""
         self.published_s = -1.0
         self.status_s = -np.inf
+        self.said_braking = False
+        """``braking`` as the last status said it."""
         self.stop_event = threading.Event()
         self.receiver_ended = False
         """The receiving thread of :meth:`run` ended before the stop; :meth:`_watch` reads."""
@@ -208,7 +217,10 @@ class Controller:
         """One poll at time ``now``: the commands received (``commands``: these instead of the
         subscription's, as a driver that receives them otherwise hands them over), then the
         robot's set point and state."""
-        if now - self.status_s >= STATUS_PERIOD_S:
+        since_s = now - self.status_s
+        if since_s >= STATUS_PERIOD_S or (
+            self.braking != self.said_braking and since_s >= STATUS_MIN_GAP_S
+        ):
             self.publish_status(now)
         gap_s, self._tick_s = now - self._tick_s, now
         got = False
@@ -325,7 +337,7 @@ class Controller:
         )
 
     def publish_status(self, now: float) -> None:
-        self.status_s = now
+        self.status_s, self.said_braking = now, self.braking
         d = self.delivery
         self.pub_status.put(
             ControllerStatusMsg(
