@@ -20,7 +20,7 @@ from sara_app.bus.codec import REASONS, Decoder
 from sara_app.bus.io_threads import ZENOH_RUNTIME_ENV
 from sara_app.bus.messages import RetireMsg
 from sara_app.bus.request_queue import QUEUE_FULL, RequestQueue, requests
-from sara_app.bus.session import Bus, Publisher, free_port
+from sara_app.bus.session import Bus, BusError, Publisher, free_port
 
 CELL = "cell1"
 
@@ -56,6 +56,19 @@ def test_requests_come_out_in_order_at_most_max_n_a_drain() -> None:
         assert rest == [f"r{i}" for i in range(3, 15)]  # the waiting first, then the new
         assert QUEUE_FULL not in q.decoder.counts and q.waiting() == 0
         assert QUEUE_FULL in REASONS  # a contract reason (CONTRACT.md's table lists them)
+
+
+def test_a_request_queue_is_never_waited_on_nor_taken_newest_only() -> None:
+    """The subscription's other ways out would pass the backlog (out of order) or count
+    requests as superseded: both refuse, naming the way in order, and the requests wait."""
+    with Bus.router(free_port()) as bus:
+        q = requests(bus, keys.retire_key(CELL), capacity=64)
+        _send(bus.publisher(keys.retire_key(CELL)), 0, 3)
+        _arrived(q, 3)
+        for way in (q.receive, q.drain_latest):
+            with pytest.raises(BusError, match=r"drain\(max_n\)"):
+                way()
+        assert [d.msg.request_id for d in q.drain().messages] == ["r0", "r1", "r2"]
 
 
 @pytest.mark.parametrize("burst", [16, 24, 40, 300])

@@ -27,7 +27,7 @@ from typing import Any
 
 from sara_app.bus.codec import Decoder
 from sara_app.bus.process import SummarisedWarning
-from sara_app.bus.session import Bus, Drained, Subscription
+from sara_app.bus.session import Bus, BusError, Drained, Subscription
 
 log = logging.getLogger("sara_app.bus")
 
@@ -71,6 +71,20 @@ class RequestQueue(Subscription):
     def waiting(self) -> int:
         """Requests in the backlog (not counting those still in the ring)."""
         return len(self._backlog)
+
+    def receive(self) -> Drained | None:
+        """Not for requests: a wait on the ring would pass the backlog (out of order)."""
+        raise BusError(
+            f"requests on {self.key_expr} are taken in order with drain(max_n), not receive(): "
+            "a subscription (Bus.subscribe) is the one to wait on"
+        )
+
+    def drain_latest(self) -> Drained:
+        """Not for requests: each one is answered, none supersedes another."""
+        raise BusError(
+            f"requests on {self.key_expr} are each taken with drain(max_n), not "
+            "drain_latest(): none of them supersedes another"
+        )
 
 
 def requests(
