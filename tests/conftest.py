@@ -189,7 +189,11 @@ class _Witnesses:
         stalls: list[float] = []
         for proc in self.procs:
             proc.terminate()
-            out, _ = proc.communicate(timeout=10)
+            try:
+                out, _ = proc.communicate(timeout=10)
+            except subprocess.TimeoutExpired:  # a hung witness must not end the test run
+                proc.kill()
+                out, _ = proc.communicate()
             stalls += [float(line.split()[1]) for line in out.splitlines() if line.strip()]
         self.procs = []
         return sorted(stalls, reverse=True)

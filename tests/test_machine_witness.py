@@ -1,6 +1,7 @@
 """The witness of the machine's stalls that the reruns of tests/conftest.py read
 (tests/machine_witness.py): a real witness process, stopped for a while as a host stops a
-virtual CPU, reports a stall of about that length, and reports nothing once stopped itself."""
+virtual CPU, reports a stall of about that length at that moment, and exits cleanly when told
+to stop."""
 
 from __future__ import annotations
 
