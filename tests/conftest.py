@@ -8,10 +8,7 @@ import contextlib
 import fcntl
 import importlib
 import os
-import select
 import shutil
-import subprocess
-import sys
 import tempfile
 import time
 from collections.abc import Iterator
@@ -154,7 +151,7 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
 # CPU away for milliseconds (steal time) even while the idle CPUs poll: a CI mirror on the AMD
 # EPYC VM of 2026-12-02 failed 5 such tests by 1 ms gaps and 1 % rates while the host took 5-6 %
 # of each CPU. When such a test fails and the host took at least STEAL_SHARE of a CPU meanwhile
-# (the kernel's steal counter, /proc/stat), or a witness of the machine (tests/machine_witness.py,
+# (the kernel's steal counter, /proc/stat), or a witness of the machine (sara_app/bench/stalls.py,
 # one per CPU, above every thread of the cell) saw its CPU stall for at least WITNESS_STALL_S
 # (the Intel Xeon VM's stalls of 2-6 ms, far under STEAL_SHARE of a run), its observation
 # was the machine's, not the cell's: it runs again, at most RERUNS times, and the last run's
@@ -164,50 +161,18 @@ STEAL_SHARE = 0.01
 WITNESS_STALL_S = 0.001
 RERUNS = 2
 _RERUNS_SEEN: list[str] = []
-_WITNESS = os.path.join(os.path.dirname(__file__), "machine_witness.py")
+def _witnesses() -> Any:
+    """The machine's witnesses (:class:`sara_app.bench.stalls.Witnesses`) for one run of a
+    test: one per CPU, none where real-time scheduling is refused."""
+    from sara_app.bench.stalls import Witnesses
 
-
-class _Witnesses:
-    """The witness processes of one run of a test, one per CPU this process may use; none
-    where real-time scheduling is refused (a witness would then see the cell's load)."""
-
-    def __init__(self) -> None:
-        self.procs: list[subprocess.Popen[str]] = []
-        for cpu in sorted(os.sched_getaffinity(0)):
-            proc = subprocess.Popen([sys.executable, "-I", "-S", _WITNESS, str(cpu)],
-                                    stdout=subprocess.PIPE, text=True)  # fmt: skip
-            ready, _, _ = select.select([proc.stdout], [], [], 10.0)
-            if not ready or proc.stdout is None or proc.stdout.readline().strip() != "ready":
-                proc.kill()
-                proc.wait()
-                self.stop()
-                break
-            self.procs.append(proc)
-
-    def stop(self) -> list[float]:
-        """Stop the witnesses; the stalls they saw (s late), longest first."""
-        stalls: list[float] = []
-        for proc in self.procs:
-            proc.terminate()
-            try:
-                out, _ = proc.communicate(timeout=10)
-            except subprocess.TimeoutExpired:  # a hung witness must not end the test run
-                proc.kill()
-                out, _ = proc.communicate()
-            stalls += [float(line.split()[1]) for line in out.splitlines() if line.strip()]
-        self.procs = []
-        return sorted(stalls, reverse=True)
+    return Witnesses()
 
 
 def _steal_s() -> list[float]:
-    """Seconds each CPU's virtual CPU was runnable but not run by the host, since boot (the
-    8th value of each ``cpuN`` line of /proc/stat, in clock ticks); empty where unreadable."""
-    try:
-        with open("/proc/stat") as f:
-            rows = [ln.split() for ln in f if ln.startswith("cpu") and ln[3].isdigit()]
-        return [int(r[8]) / os.sysconf("SC_CLK_TCK") for r in rows]
-    except (OSError, IndexError, ValueError):
-        return []
+    from sara_app.bench.stalls import steal_s
+
+    return steal_s()
 
 
 @pytest.hookimpl(tryfirst=True, specname="pytest_runtest_protocol")
@@ -219,14 +184,16 @@ def pytest_runtest_protocol_rerun(item: pytest.Item, nextitem: pytest.Item | Non
     item.ihook.pytest_runtest_logstart(nodeid=item.nodeid, location=item.location)
     reruns: list[str] = []
     for attempt in range(RERUNS + 1):
-        witnesses = _Witnesses()
+        from sara_app.bench.stalls import stolen_share
+
+        witnesses = _witnesses()
         s0, t0 = _steal_s(), time.monotonic()
         try:
             reports = runtestprotocol(item, nextitem=nextitem, log=False)
         finally:
-            stalls_s = witnesses.stop()
+            stalls_s = [s.late_s for s in witnesses.stop()]
         wall_s, s1 = time.monotonic() - t0, _steal_s()
-        stolen = max((b - a for a, b in zip(s0, s1)), default=0.0) / max(wall_s, 1e-9)
+        stolen = stolen_share(s0, s1, wall_s)
         stalled_s = stalls_s[0] if stalls_s else 0.0
         failed = any(r.failed for r in reports)
         if not failed or attempt == RERUNS:

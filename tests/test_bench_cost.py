@@ -22,6 +22,7 @@ from sara_app.bench.cost import (
     report,
     scenario_with_people,
 )
+from sara_app.bench.stalls import Stall
 from sara_app.bus.messages import VerdictMsg
 from sara_app.bus.session import Bus, free_port
 from sara_app.scenario import load_scenario
@@ -122,14 +123,19 @@ def test_the_loads_copy_the_first_person_to_their_own_spots(tmp_path: Path) -> N
     assert len(spots) == 4
 
 
-def test_the_report_adds_the_processes_and_says_how_the_cpus_idled() -> None:
-    """Two runs: each process's median and runs, the cell's total per run, and the idle
-    states' median shares (a state one run did not use counts as 0 there)."""
+def _two_runs() -> LoadCost:
     load = LoadCost(1, "punches", 500.0)
     for k, name in enumerate(PROCESSES):
         load.per_process[name] += [ProcessCost(100.0 * (k + 1), 5.0, 10.0),
                                    ProcessCost(100.0 * (k + 1) + 20, 5.0, 10.0)]  # fmt: skip
     load.verdict_hz = [500.0, 499.0]
+    return load
+
+
+def test_the_report_adds_the_processes_and_says_how_the_cpus_idled() -> None:
+    """Two runs: each process's median and runs, the cell's total per run, and the idle
+    states' median shares (a state one run did not use counts as 0 there)."""
+    load = _two_runs()
     load.idle = [{"POLL": 0.2, "C1": 0.8}, {"POLL": 0.4, "C1": 0.5, "C6": 0.1}]
     load.idle_driver = "intel_idle"
     lines = report([load]).splitlines()
@@ -138,3 +144,14 @@ def test_the_report_adds_the_processes_and_says_how_the_cpus_idled() -> None:
     idle = next(ln for ln in lines if "idle CPUs" in ln)
     assert "65 % 'C1'" in idle and "30 % 'POLL'" in idle and "5 % 'C6'" in idle, idle
     assert "intel_idle" in idle
+    assert not any("the machine:" in ln for ln in lines)  # no run witnessed anything
+
+
+def test_the_report_says_what_the_machine_stalled_over_all_runs() -> None:
+    load = _two_runs()
+    load.stalls = [[Stall(0, 1.0, 0.0021)], [Stall(1, 5.0, 0.0057), Stall(0, 6.0, 0.0013)]]
+    line = next(ln for ln in report([load]).splitlines() if "the machine:" in ln)
+    assert "3 stalls of over 1 ms on its CPUs, the longest 5.7 ms (all runs)" in line, line
+    load.stalls, load.stalls_refused = [[], []], "no real-time: [Errno 1] Operation not permitted"
+    line = next(ln for ln in report([load]).splitlines() if "the machine:" in ln)
+    assert "not witnessed: no real-time" in line, line

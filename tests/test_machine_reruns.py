@@ -4,7 +4,7 @@ host took at least ``STEAL_SHARE`` of a CPU, or while a witness saw a CPU stall 
 with less stolen and no such stall, or of a test that is not ``exclusive``, stands at once;
 every rerun is listed. Run on a copy of the conftest in a pytest of its own, with the steal
 counter and the witnesses replaced by ones whose readings the test sets (the machine's are
-whatever the host does; tests/test_machine_witness.py checks the real witness)."""
+whatever the host does; tests/test_bench_stalls.py checks the real witness)."""
 
 from __future__ import annotations
 
@@ -47,9 +47,13 @@ def _steal_s():
     _steal_calls[0] += 1
     return [{stolen_s_per_read} * _steal_calls[0]]
 
-class _Witnesses:
+class _FakeWitnesses:
     def stop(self):
-        return [{stall_s}] if {stall_s} > 0 else []
+        from sara_app.bench.stalls import Stall
+        return [Stall(0, 0.0, {stall_s})] if {stall_s} > 0 else []
+
+def _witnesses():
+    return _FakeWitnesses()
 """
     (tmp_path / "conftest.py").write_text(conftest + fake)
     (tmp_path / "test_periods.py").write_text(TESTS)

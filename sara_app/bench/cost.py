@@ -21,6 +21,9 @@ Per run and load, two phases of ``seconds`` each:
    replayer's session sets when it puts the message) to the first verdict received that used
    it: the issue's "skeleton published -> verdict received", under this phase's extra load.
 
+Through both phases a witness per CPU (:mod:`sara_app.bench.stalls`) notes every stall of the
+machine itself over 1 ms: a latency p99 taken while the machine stalled is the machine's.
+
 The rows are the median over ``runs`` runs (and the spread); ``docs/performance.md`` holds the
 numbers measured with it.
 """
@@ -43,6 +46,7 @@ from typing import Any
 import numpy as np
 
 from sara_app.bench import idle
+from sara_app.bench.stalls import Stall, Witnesses, summary
 from sara_app.bus import keys
 from sara_app.bus.session import Bus, free_port
 
@@ -82,6 +86,11 @@ class LoadCost:
     """Per run, the share of the CPUs' idle time in each cpuidle state during the CPU phase
     (:mod:`sara_app.bench.idle`): a CPU that halts between messages wakes them cold."""
     idle_driver: str = "none"
+    stalls: list[list[Stall]] = field(default_factory=list)
+    """Per run, the machine's own stalls during its measurements (:mod:`sara_app.bench.stalls`:
+    what makes a p99 the machine's rather than the cell's)."""
+    stalls_refused: str | None = None
+    """Why no stall was witnessed (None: witnessed)."""
 
 
 def _cpu_s(pid: int) -> float:
@@ -249,6 +258,17 @@ def _published_latencies(
 
 
 def _measure(hub: Bus, cell: str, pids: dict[str, int], seconds: float, out: LoadCost) -> None:
+    witnesses = Witnesses()  # above the cell's processes; about 1 % of each CPU, their own
+    try:
+        _measure_phases(hub, cell, pids, seconds, out)
+    finally:
+        out.stalls.append(witnesses.stop())
+        out.stalls_refused = witnesses.refused
+
+
+def _measure_phases(
+    hub: Bus, cell: str, pids: dict[str, int], seconds: float, out: LoadCost
+) -> None:
     cpu0 = {n: _cpu_s(p) for n, p in pids.items()}
     zenoh0 = {n: _zenoh_cpu_s(p) for n, p in pids.items()}
     sw0 = {n: _switches(p) for n, p in pids.items()}
@@ -352,6 +372,9 @@ def report(loads: list[LoadCost]) -> str:
         states = {name for run in load.idle for name in run}
         shares = {n: float(np.median([run.get(n, 0.0) for run in load.idle])) for n in states}
         lines.append(f"  {idle.describe(shares, load.idle_driver)} (median of the runs)")
+        if load.stalls:
+            stalls = [x for run in load.stalls for x in run]
+            lines.append(f"  the machine: {summary(stalls, load.stalls_refused)} (all runs)")
         stamped = [a for a in load.latency_us if a.size]
         published = [a for a in load.published_us if a.size]
         for what, pick, parts, note in (

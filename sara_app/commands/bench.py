@@ -23,6 +23,12 @@ def _bench(args: argparse.Namespace) -> None:
                            args.idle_poll)  # fmt: skip
         print(report(loads))
         return
+    if args.machine:
+        from sara_app.bench.stalls import report as stalls_report
+        from sara_app.bench.stalls import witnessed
+
+        print(stalls_report(witnessed(args.seconds, args.idle_poll)))
+        return
     if args.lanes:
         from sara_app.bench.lanes import bench_lanes, default_hogs
         from sara_app.bench.lanes import report as lanes_report
@@ -70,6 +76,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "control cycle: CPU, context switches, messages and bytes per key, latency",
     )
     b.add_argument(
+        "--machine",
+        action="store_true",
+        help="instead: the machine's own stalls over --seconds (a witness per CPU above a "
+        "cell's processes: is this machine fit for a 500 Hz cell?)",
+    )
+    b.add_argument(
         "--lanes",
         action="store_true",
         help="instead: messages a loaded machine loses per key of a worker's cycle, every key "
@@ -83,7 +95,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     b.add_argument("--lane-rounds", type=COUNT, default=2000, help="--lanes: cycles per run")
     b.add_argument("--people", type=COUNT, nargs="+", default=[1, 4], help="loads of --live")
-    b.add_argument("--seconds", type=SECONDS, default=10.0, help="seconds per --live phase")
+    b.add_argument(
+        "--seconds", type=SECONDS, default=10.0, help="seconds per --live phase; of --machine"
+    )
     b.add_argument("--runs", type=COUNT, default=3, help="runs per --live load (and of --lanes)")
     b.add_argument("--pin-cpus", action=argparse.BooleanOptionalAction, default=True,
                    help="--live, --view: CPUs as serve places them")  # fmt: skip
@@ -95,8 +109,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument(
         "--idle-poll",
         action="store_true",
-        help="--live: the idle CPUs poll instead of halting while it measures (a CPU latency "
-        "request of 0 us: write access to /dev/cpu_dma_latency)",
+        help="--live, --machine: the idle CPUs poll instead of halting while it measures (a "
+        "CPU latency request of 0 us: write access to /dev/cpu_dma_latency)",
     )
     b.add_argument(
         "--rate", type=real(above=0.0), default=120.0, help="skeletons per second of --cells"
