@@ -18,7 +18,7 @@ nothing but the standard library, so a witness starts in tens of milliseconds) i
 ``ready`` once it runs as asked (``no real-time: ...`` and exits 3 where the class is refused:
 then it would wait behind the cell and witness the cell's load, not the machine), then one
 line ``<wall time s> <late s>`` per stall (at most :data:`MAX_LINES`); it exits on SIGTERM or
-when its parent has gone.
+when its parent has gone, and leaves a Ctrl-C (SIGINT) to its parent.
 """
 
 from __future__ import annotations
@@ -54,6 +54,7 @@ def witness(cpu: int) -> int:
         print(f"no real-time: {e}", flush=True)
         return REFUSED
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C is its parent's: it stops us
     parent = os.getppid()
     print("ready", flush=True)
     next_s = time.monotonic()
@@ -173,9 +174,11 @@ def witnessed(seconds: float, idle_poll: bool = False) -> MachineStalls:
     with idle.idle_polling() if idle_poll else nullcontext():
         idle0, s0, t0 = idle.idle_times_us(), steal_s(), time.monotonic()
         w = Witnesses()
-        if w.refused is None:
-            time.sleep(seconds)
-        stalls = w.stop()
+        try:
+            if w.refused is None:
+                time.sleep(seconds)
+        finally:  # a Ctrl-C too: no witness outlives the measurement
+            stalls = w.stop()
         wall_s = time.monotonic() - t0
         shares = idle.idle_shares(idle0, idle.idle_times_us())
     stolen = stolen_share(s0, steal_s(), wall_s)
