@@ -151,7 +151,7 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
 # CPU away for milliseconds (steal time) even while the idle CPUs poll: a CI mirror on the AMD
 # EPYC VM of 2026-12-02 failed 5 such tests by 1 ms gaps and 1 % rates while the host took 5-6 %
 # of each CPU. When such a test fails and the host took at least STEAL_SHARE of a CPU meanwhile
-# (the kernel's steal counter, /proc/stat), or a witness of the machine (sara_app/bench/stalls.py,
+# (the kernel's steal counter, /proc/stat), or a witness of the machine (sara_app/ops/stalls.py,
 # one per CPU, above every thread of the cell) saw its CPU stall for at least WITNESS_STALL_S
 # (the Intel Xeon VM's stalls of 2-6 ms, far under STEAL_SHARE of a run), its observation
 # was the machine's, not the cell's: it runs again, at most RERUNS times, and the last run's
@@ -162,15 +162,15 @@ WITNESS_STALL_S = 0.001
 RERUNS = 2
 _RERUNS_SEEN: list[str] = []
 def _witnesses() -> Any:
-    """The machine's witnesses (:class:`sara_app.bench.stalls.Witnesses`) for one run of a
+    """The machine's witnesses (:class:`sara_app.ops.stalls.Witnesses`) for one run of a
     test: one per CPU, none where real-time scheduling is refused."""
-    from sara_app.bench.stalls import Witnesses
+    from sara_app.ops.stalls import Witnesses
 
     return Witnesses()
 
 
 def _steal_s() -> list[float]:
-    from sara_app.bench.stalls import steal_s
+    from sara_app.ops.stalls import steal_s
 
     return steal_s()
 
@@ -184,7 +184,7 @@ def pytest_runtest_protocol_rerun(item: pytest.Item, nextitem: pytest.Item | Non
     item.ihook.pytest_runtest_logstart(nodeid=item.nodeid, location=item.location)
     reruns: list[str] = []
     for attempt in range(RERUNS + 1):
-        from sara_app.bench.stalls import stolen_share
+        from sara_app.ops.stalls import stolen_share
 
         witnesses = _witnesses()
         s0, t0 = _steal_s(), time.monotonic()

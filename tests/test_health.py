@@ -13,6 +13,7 @@ from sara_app.bus.codec import Decoded
 from sara_app.bus.keys import parse_key
 from sara_app.bus.messages import ControllerStatusMsg, StatusMsg, VerdictMsg
 from sara_app.ops.health import AGE_BIN_S, HealthLog, VerdictCounters, percentile_s
+from sara_app.ops.stalls import Stall
 
 
 class Clock:
@@ -146,3 +147,29 @@ def test_percentiles_of_a_histogram_never_understate() -> None:
             and np.percentile(samples, q) <= got <= np.percentile(samples, q) + AGE_BIN_S
         )
     assert percentile_s(np.zeros(10, np.int64), 50, AGE_BIN_S) is None
+
+
+def test_a_watched_machine_gets_a_line_of_its_own_stalls_each_minute(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """``serve --watch-machine``: each minute, the stalls the witnesses reported since the last
+    line (what a controller that braked on its own may have met); none, said too."""
+    wall, mono = Clock(), Clock()
+    reg = CellRegistry(None, clock=wall)
+    reported = [[Stall(1, 5.0, 0.0057), Stall(0, 7.0, 0.0013)], []]
+    health = HealthLog(reg, {"c1": 500.0}, clock=mono, machine=lambda: reported.pop(0))
+    caplog.set_level(logging.INFO, logger="sara_app.health")
+    for expected in (
+        "machine: 2 stalls of over 1 ms on its CPUs, the longest 5.7 ms in the last 60 s "
+        "(CPU 0: 1, CPU 1: 1)",
+        "machine: no stall of over 1 ms on any CPU in the last 60 s",
+    ):
+        mono.t += 60.0
+        caplog.clear()
+        health.poll()
+        assert [r.getMessage() for r in caplog.records][-1] == expected
+    unwatched = HealthLog(reg, {"c1": 500.0}, clock=mono)
+    mono.t += 60.0
+    caplog.clear()
+    unwatched.poll()
+    assert not any(r.getMessage().startswith("machine:") for r in caplog.records)

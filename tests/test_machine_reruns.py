@@ -4,7 +4,7 @@ host took at least ``STEAL_SHARE`` of a CPU, or while a witness saw a CPU stall 
 with less stolen and no such stall, or of a test that is not ``exclusive``, stands at once;
 every rerun is listed. Run on a copy of the conftest in a pytest of its own, with the steal
 counter and the witnesses replaced by ones whose readings the test sets (the machine's are
-whatever the host does; tests/test_bench_stalls.py checks the real witness)."""
+whatever the host does; tests/test_stalls.py checks the real witness)."""
 
 from __future__ import annotations
 
@@ -49,7 +49,7 @@ def _steal_s():
 
 class _FakeWitnesses:
     def stop(self):
-        from sara_app.bench.stalls import Stall
+        from sara_app.ops.stalls import Stall
         return [Stall(0, 0.0, {stall_s})] if {stall_s} > 0 else []
 
 def _witnesses():

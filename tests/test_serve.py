@@ -56,13 +56,19 @@ def _child_pids(zenoh_port: int) -> dict[int, str]:
 
 
 @pytest.mark.stack
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+@pytest.mark.parametrize(
+    ("sig", "watch"),
+    [(signal.SIGINT, False), (signal.SIGTERM, True)],
+    ids=["ctrl-c", "sigterm-watching-the-machine"],
+)
 def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(
-    sig: signal.Signals, tmp_path: Path
+    sig: signal.Signals, watch: bool, tmp_path: Path
 ) -> None:
     zp, vp, ap = free_port(), free_port(), free_port()
     cmd = [sys.executable, "-m", "sara_app.cli", "serve", "--zenoh-port", str(zp),
            "--viewer-port", str(vp), "--api-port", str(ap)]  # fmt: skip
+    cmd += ["--watch-machine"] if watch else []
+    witnesses: list[int] = []
     env = {**os.environ, "SARA_APP_DATA": str(tmp_path)}  # its edit stays its own
     proc = subprocess.Popen(
         cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env
@@ -122,11 +128,22 @@ def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(
                 for task in Path(f"/proc/{pid}/task").iterdir():
                     assert os.sched_getaffinity(int(task.name)) == want, (text, task.name)
         _an_edit_is_in_the_workers_own_audit(ap)
+        witnesses = _witnesses_of(proc.pid)
+        if watch and _rt_permitted():  # one per CPU, every CPU (the worker's too)
+            assert len(witnesses) == len(os.sched_getaffinity(0)), witnesses
+            assert all(os.sched_getscheduler(w) == os.SCHED_FIFO for w in witnesses)
+        else:
+            assert witnesses == []
     finally:
         proc.send_signal(sig)
         out = _communicate_or_dump(proc, zp, timeout_s=30)
     assert proc.returncode == 0, out
     assert f"http://127.0.0.1:{vp}" in out
+    if watch:
+        said = "watching the machine: a witness on each of CPUs" if _rt_permitted() else (
+            "the machine is not watched: no real-time")  # fmt: skip
+        assert said in out, out
+    assert not any(Path(f"/proc/{w}").exists() for w in witnesses)
     # the worker and replayer are gone: nobody answers on the zenoh port any more
     import socket
 
@@ -137,6 +154,22 @@ def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(
     while _children(zp) and time.monotonic() < t_end:
         time.sleep(0.2)
     assert _children(zp) == []
+
+
+def _witnesses_of(pid: int) -> list[int]:
+    """The stall witnesses (sara_app/ops/stalls.py) that process ``pid`` started."""
+    from sara_app.ops import stalls
+
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            ppid = int(stat.read_text().rsplit(")", 1)[1].split()[1])
+            cmdline = (stat.parent / "cmdline").read_bytes().decode(errors="replace")
+        except (OSError, IndexError, ValueError):
+            continue  # ended meanwhile
+        if ppid == pid and stalls.__file__ in cmdline:
+            found.append(int(stat.parent.name))
+    return found
 
 
 def _an_edit_is_in_the_workers_own_audit(api_port: int) -> None:

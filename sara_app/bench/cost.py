@@ -21,7 +21,7 @@ Per run and load, two phases of ``seconds`` each:
    replayer's session sets when it puts the message) to the first verdict received that used
    it: the issue's "skeleton published -> verdict received", under this phase's extra load.
 
-Through both phases a witness per CPU (:mod:`sara_app.bench.stalls`) notes every stall of the
+Through both phases a witness per CPU (:mod:`sara_app.ops.stalls`) notes every stall of the
 machine itself over 1 ms: a latency p99 taken while the machine stalled is the machine's.
 
 The rows are the median over ``runs`` runs (and the spread); ``docs/performance.md`` holds the
@@ -46,9 +46,9 @@ from typing import Any
 import numpy as np
 
 from sara_app.bench import idle
-from sara_app.bench.stalls import Stall, Witnesses, summary
 from sara_app.bus import keys
 from sara_app.bus.session import Bus, free_port
+from sara_app.ops.stalls import Stall, Witnesses, summary
 
 PROCESSES = ("router", "controller", "worker", "replayer")
 PEOPLE = (1, 4)
@@ -87,7 +87,7 @@ class LoadCost:
     (:mod:`sara_app.bench.idle`): a CPU that halts between messages wakes them cold."""
     idle_driver: str = "none"
     stalls: list[list[Stall]] = field(default_factory=list)
-    """Per run, the machine's own stalls during its measurements (:mod:`sara_app.bench.stalls`:
+    """Per run, the machine's own stalls during its measurements (:mod:`sara_app.ops.stalls`:
     what makes a p99 the machine's rather than the cell's)."""
     stalls_refused: str | None = None
     """Why no stall was witnessed (None: witnessed)."""

@@ -24,8 +24,8 @@ def _bench(args: argparse.Namespace) -> None:
         print(report(loads))
         return
     if args.machine:
-        from sara_app.bench.stalls import report as stalls_report
-        from sara_app.bench.stalls import witnessed
+        from sara_app.bench.machine import report as stalls_report
+        from sara_app.bench.machine import witnessed
 
         print(stalls_report(witnessed(args.seconds, args.idle_poll)))
         return

@@ -18,7 +18,7 @@ def _serve(args: argparse.Namespace) -> int:
     return main_for_cli(
         args.scenario, args.cell, args.zenoh_port, args.viewer_port, args.api_port, args.duration,
         api_host=args.api_host, require_token=args.require_token, cells=args.cells,
-        log_level=args.log_level, pin_cpus=args.pin_cpus,
+        log_level=args.log_level, pin_cpus=args.pin_cpus, watch_machine=args.watch_machine,
     )  # fmt: skip
 
 
@@ -101,6 +101,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--api-host",
         default="127.0.0.1",
         help="address of the REST service (anything but loopback requires API tokens)",
+    )
+    s.add_argument(
+        "--watch-machine",
+        action="store_true",
+        help="a witness per CPU (real-time, about 1 %% of each) notes the machine's own stalls "
+        "of over 1 ms: a line a minute beside the cells' (did the machine hold the cell up?)",
     )
     s.add_argument(
         "--require-token",

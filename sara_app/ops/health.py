@@ -4,7 +4,8 @@ cell every minute: the verdict rate against the control rate, the worker's cycle
 the skeletons were at decision time (tracker period, transport and the cycle's own wait), the
 share of time moving, slowed,
 braking or faulted, command delivery at the robot's controller (lost, late, expired, and why it
-braked on its own) and the faults seen.
+braked on its own) and the faults seen; watching the machine (``serve --watch-machine``), a
+line of the machine's own stalls (:mod:`sara_app.ops.stalls`).
 
 The counters are kept per cell by the live registry (:class:`VerdictCounters`, updated with each
 verdict: a few increments, no allocation); :class:`HealthLog` reads them and the controller's
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -23,6 +25,7 @@ import numpy as np
 
 from sara_app.bus.messages import VerdictMsg
 from sara_app.bus.verdict_words import verdict_state
+from sara_app.ops.stalls import Stall, summary
 
 log = logging.getLogger("sara_app.health")
 
@@ -116,9 +119,13 @@ class HealthLog:
         rates_hz: dict[str, float],
         interval_s: float = 60.0,
         clock: Callable[[], float] = time.monotonic,
+        machine: Callable[[], list[Stall]] | None = None,
     ) -> None:
         self.registry, self.rates_hz, self.interval_s = registry, rates_hz, interval_s
         self.clock = clock
+        self.machine = machine
+        """The machine's stalls since it was last called (``Witnesses.take`` of
+        :mod:`sara_app.ops.stalls`), said once a line; None: not watched."""
         self._seen = {c: _Seen() for c in rates_hz}
         self._last_line_s = clock()
 
@@ -131,6 +138,8 @@ class HealthLog:
             for cell, seen in self._seen.items():
                 since = span_s if seen.first_s is None else min(span_s, now - seen.first_s)
                 log.info("%s", self.line(cell, seen, max(since, 1e-3)))
+            if self.machine is not None:
+                log.info("%s", machine_line(self.machine(), span_s))
 
     def _changes(self, cell: str, seen: _Seen, now: float) -> None:
         snap = self.registry.cell(cell)
@@ -183,6 +192,16 @@ class HealthLog:
         parts.append(f"faults: {faults} verdicts, the last: {now_c.last_fault}" if faults
                      else "faults: none")  # fmt: skip
         return "; ".join(parts)
+
+
+def machine_line(stalls: list[Stall], span_s: float) -> str:
+    """The machine's own stalls over the last ``span_s``, per CPU: what a controller that
+    braked on its own ("its loop was held up", "commands delayed") may have met."""
+    text = f"machine: {summary(stalls, None)} in the last {span_s:.0f} s"
+    per_cpu = Counter(s.cpu for s in stalls)
+    if per_cpu:
+        text += " (" + ", ".join(f"CPU {c}: {n}" for c, n in sorted(per_cpu.items())) + ")"
+    return text
 
 
 def _difference(now: VerdictCounters, before: VerdictCounters | None) -> VerdictCounters:

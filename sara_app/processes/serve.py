@@ -46,6 +46,7 @@ from sara_app.errors import ParameterError, SaraError
 from sara_app.geometry.poses import pose_from_xyz_rpy
 from sara_app.ops.audit import default_audit_path, default_data_dir
 from sara_app.ops.health import HealthLog
+from sara_app.ops.stalls import STALL_S, Witnesses
 from sara_app.ops.supervisor import Child, Supervisor
 from sara_app.processes.affinity import CpuPlan, cpu_plan, pin_threads, pinned
 from sara_app.processes.defaults import API_PORT, DEFAULT_SCENARIO, VIEWER_PORT, ZENOH_PORT
@@ -159,12 +160,14 @@ def serve(
     require_token: bool = False,
     cells: int = 1,
     pin_cpus: bool = True,
+    watch_machine: bool = False,
 ) -> int:
     """Run everything until Ctrl-C (or ``duration_s``); returns the exit code. ``cells``: run
     that many cells of the scenario on the one router (:func:`cell_names`), each with its
     processes and its 3D view (ports from ``viewer_port`` on). ``pin_cpus``: each worker on a
     CPU of its own where the machine has more CPUs than cells, everything else on the others
-    (:mod:`~sara_app.processes.affinity`).
+    (:mod:`~sara_app.processes.affinity`). ``watch_machine``: a witness per CPU
+    (:mod:`~sara_app.ops.stalls`) while it runs, its stalls in the health lines.
 
     Lowers the calling thread's CPU priority by ``display_nice`` once the worker and the
     replayer are started (the dashboard and the API run on it and on threads it starts): call
@@ -205,7 +208,10 @@ def serve(
     sup: Supervisor | None = None
     plan = cpu_plan(len(names)) if pin_cpus else None
     rest = None if plan is None else plan.rest
+    witnesses: Witnesses | None = None
     try:
+        if watch_machine:  # before this process is pinned: every CPU, the workers' too
+            witnesses = _watch_machine()
         children = [Child("router", lambda: start_process(router_cmd, cpus=rest))]
         for i, c in enumerate(names):
             cpus = (None, None) if plan is None else (plan.worker(i), plan.rest)
@@ -247,7 +253,8 @@ def serve(
         api_url = api.start().rstrip("/")
         _print_urls(names, scenario, urls, api_url, zenoh_port, creds.path, tokens_path, tokens)
 
-        health = HealthLog(registry, dict.fromkeys(names, 1.0 / sc.shield.dt_s))
+        health = HealthLog(registry, dict.fromkeys(names, 1.0 / sc.shield.dt_s),
+                           machine=None if witnesses is None else witnesses.take)  # fmt: skip
 
         def supervise() -> None:
             seen = {w: registry.silence(c) for c, w in workers.items()}
@@ -275,6 +282,22 @@ def serve(
             d.stop()
         if hub is not None:
             hub.close()
+        if witnesses is not None:
+            witnesses.stop()
+
+
+def _watch_machine() -> Witnesses | None:
+    """The witnesses of every CPU this process may use, or None (said why) where real-time
+    scheduling is refused."""
+    witnesses = Witnesses()
+    if witnesses.refused is not None:
+        log.warning("the machine is not watched: %s (a witness needs SCHED_FIFO)",
+                    witnesses.refused)  # fmt: skip
+        return None
+    cpus = ", ".join(map(str, sorted(os.sched_getaffinity(0))))
+    log.info("watching the machine: a witness on each of CPUs %s, its stalls of over %g ms "
+             "in a line a minute", cpus, 1e3 * STALL_S)  # fmt: skip
+    return witnesses
 
 
 def cell_names(cell: str, n: int) -> list[str]:
@@ -449,6 +472,7 @@ def main_for_cli(
     cells: int = 1,
     log_level: str = "info",
     pin_cpus: bool = True,
+    watch_machine: bool = False,
 ) -> NoReturn:
     os.environ[LOG_LEVEL_ENV] = log_level  # the children's level too
     # the libraries' INFO (uvicorn, viser, websockets) is theirs, not the user's: WARNING
@@ -472,6 +496,7 @@ def main_for_cli(
             require_token=require_token,
             cells=cells,
             pin_cpus=pin_cpus,
+            watch_machine=watch_machine,
         )
     except SaraError as e:
         print(f"error: {e}", file=sys.stderr)

@@ -1,6 +1,7 @@
 """The machine's own stalls, witnessed: how often a CPU of this machine runs nothing of the
-cell's for a millisecond or more (``sara-app bench --machine``, and beside ``--live``'s
-measurements; the test suite's reruns of period tests read the same witnesses).
+cell's for a millisecond or more (``sara-app serve --watch-machine``'s health lines, ``sara-app
+bench --machine`` and beside ``--live``'s measurements; the test suite's reruns of period tests
+read the same witnesses).
 
 A witness is a process pinned to one CPU under ``SCHED_FIFO`` at :data:`PRIORITY`, above every
 thread of a cell (its processes ask for 10), that sleeps :data:`PERIOD_S` at a time. A wake-up
@@ -17,8 +18,8 @@ Run as a script (``python stalls.py CPU``, what :class:`Witnesses` starts: this 
 nothing but the standard library, so a witness starts in tens of milliseconds) it prints
 ``ready`` once it runs as asked (``no real-time: ...`` and exits 3 where the class is refused:
 then it would wait behind the cell and witness the cell's load, not the machine), then one
-line ``<wall time s> <late s>`` per stall (at most :data:`MAX_LINES`); it exits on SIGTERM or
-when its parent has gone, and leaves a Ctrl-C (SIGINT) to its parent.
+line ``<wall time s> <late s>`` per stall (at most one a period: its reader keeps up); it exits
+on SIGTERM or when its parent has gone, and leaves a Ctrl-C (SIGINT) to its parent.
 """
 
 from __future__ import annotations
@@ -28,7 +29,9 @@ import select
 import signal
 import subprocess
 import sys
+import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 
 PRIORITY = 80
@@ -38,7 +41,9 @@ witness's own share of its CPU: about 1 % (a wake-up costs a few µs)."""
 STALL_S = 0.001
 """The wake-ups of a thread like this one on a polling CPU are 0.10-0.14 ms late at p99
 (docs/measurements/2026-12-02-test-machine-stalls.md)."""
-MAX_LINES = 1000
+KEPT = 10_000
+"""The stalls :meth:`Witnesses.stop` returns at most (the newest): a long watch on a machine
+that stalls all the time keeps bounded memory."""
 REFUSED = 3
 """The witness's exit status where ``SCHED_FIFO`` is refused."""
 READY_WAIT_S = 10.0
@@ -58,15 +63,12 @@ def witness(cpu: int) -> int:
     parent = os.getppid()
     print("ready", flush=True)
     next_s = time.monotonic()
-    lines = 0
     while True:
         next_s += PERIOD_S
         time.sleep(max(next_s - time.monotonic(), 0.0))
         late_s = time.monotonic() - next_s
         if late_s > STALL_S:
-            if lines < MAX_LINES:
-                print(f"{time.time() - late_s:.4f} {late_s:.4f}", flush=True)
-                lines += 1
+            print(f"{time.time() - late_s:.4f} {late_s:.4f}", flush=True)
             next_s = time.monotonic()  # one stall, one line: the schedule starts again
         if int(next_s) != int(next_s - PERIOD_S) and os.getppid() != parent:
             return 0  # the parent has gone (checked once a second)
@@ -82,16 +84,25 @@ class Stall:
 
 
 class Witnesses:
-    """One witness per CPU this process may use, from construction to :meth:`stop`. None where
-    real-time scheduling is refused (:attr:`refused` says why): a witness would then see the
-    cell's load, not the machine."""
+    """One witness per CPU this process may use, from construction to :meth:`stop`, each read
+    by a thread of this process as it reports. None where real-time scheduling is refused
+    (:attr:`refused` says why): a witness would then see the cell's load, not the machine."""
 
     def __init__(self) -> None:
         self.refused: str | None = None
         self._procs: list[tuple[int, subprocess.Popen[str]]] = []
+        self._readers: list[threading.Thread] = []
+        self._lock = threading.Lock()
+        self._new: list[Stall] = []
+        self._kept: deque[Stall] = deque(maxlen=KEPT)
         for cpu in sorted(os.sched_getaffinity(0)):
-            proc = subprocess.Popen([sys.executable, "-I", "-S", __file__, str(cpu)],
-                                    stdout=subprocess.PIPE, text=True)  # fmt: skip
+            try:
+                proc = subprocess.Popen([sys.executable, "-I", "-S", __file__, str(cpu)],
+                                        stdout=subprocess.PIPE, text=True)  # fmt: skip
+            except OSError as e:  # no process to spare: unwatched, not a crash of the caller
+                self.refused = f"no witness started: {e}"
+                self.stop()
+                return
             self._procs.append((cpu, proc))
         for _cpu, proc in self._procs:
             first = _first_line(proc)
@@ -99,21 +110,48 @@ class Witnesses:
                 self.refused = first
                 self.stop()
                 return
+        for cpu, proc in self._procs:
+            reader = threading.Thread(target=self._read, args=(cpu, proc), daemon=True,
+                                      name=f"stall-witness-{cpu}")  # fmt: skip
+            reader.start()
+            self._readers.append(reader)
+
+    def _read(self, cpu: int, proc: subprocess.Popen[str]) -> None:
+        if proc.stdout is None:
+            return
+        for line in proc.stdout:  # until the witness ends
+            if line.strip():
+                stall = _stall(cpu, line)
+                with self._lock:
+                    self._new.append(stall)
+                    self._kept.append(stall)
+
+    def take(self) -> list[Stall]:
+        """The stalls reported since the last take, in the order they came."""
+        with self._lock:
+            new, self._new = self._new, []
+        return new
 
     def stop(self) -> list[Stall]:
-        """Stop the witnesses; the stalls they saw, longest first (none where refused)."""
-        stalls: list[Stall] = []
-        for cpu, proc in self._procs:
+        """Stop the witnesses; the stalls they saw (the last :data:`KEPT`), longest first (none
+        where refused)."""
+        for _cpu, proc in self._procs:
             proc.terminate()
+        for _cpu, proc in self._procs:
             try:
-                out, _ = proc.communicate(timeout=STOP_WAIT_S)
+                proc.wait(timeout=STOP_WAIT_S)
             except subprocess.TimeoutExpired:  # a hung witness must not hang its caller
                 proc.kill()
-                out, _ = proc.communicate()
-            if self.refused is None:
-                stalls += [_stall(cpu, line) for line in out.splitlines() if line.strip()]
-        self._procs = []
-        return sorted(stalls, key=lambda s: s.late_s, reverse=True)
+                proc.wait()
+        for reader in self._readers:
+            reader.join(timeout=STOP_WAIT_S)
+        for _cpu, proc in self._procs:
+            if proc.stdout is not None:
+                proc.stdout.close()
+        self._procs, self._readers = [], []
+        with self._lock:
+            seen = list(self._kept) if self.refused is None else []
+        return sorted(seen, key=lambda s: s.late_s, reverse=True)
 
 
 def _first_line(proc: subprocess.Popen[str]) -> str:
@@ -147,45 +185,6 @@ def stolen_share(before: list[float], after: list[float], wall_s: float) -> floa
     return max((b - a for a, b in zip(before, after)), default=0.0) / max(wall_s, 1e-9)
 
 
-@dataclass(frozen=True)
-class MachineStalls:
-    """What the witnesses saw over ``seconds``: ``stalls`` (longest first) on ``cpus``;
-    ``refused``: why nothing was witnessed (None: witnessed); ``stolen``: the largest share
-    of a CPU the host took meanwhile (the steal counter); ``idle``: where the CPUs' idle time
-    went (:func:`sara_app.bench.idle.describe`)."""
-
-    seconds: float
-    cpus: tuple[int, ...]
-    stalls: tuple[Stall, ...]
-    refused: str | None
-    stolen: float
-    idle: str
-
-
-def witnessed(seconds: float, idle_poll: bool = False) -> MachineStalls:
-    """The machine's stalls over the next ``seconds`` with nothing started here but the
-    witnesses (``sara-app bench --machine``); ``idle_poll``: the idle CPUs poll meanwhile
-    (:func:`sara_app.bench.idle.idle_polling`, as a cell's machine should be set up)."""
-    from contextlib import nullcontext
-
-    from sara_app.bench import idle
-
-    cpus = tuple(sorted(os.sched_getaffinity(0)))
-    with idle.idle_polling() if idle_poll else nullcontext():
-        idle0, s0, t0 = idle.idle_times_us(), steal_s(), time.monotonic()
-        w = Witnesses()
-        try:
-            if w.refused is None:
-                time.sleep(seconds)
-        finally:  # a Ctrl-C too: no witness outlives the measurement
-            stalls = w.stop()
-        wall_s = time.monotonic() - t0
-        shares = idle.idle_shares(idle0, idle.idle_times_us())
-    stolen = stolen_share(s0, steal_s(), wall_s)
-    idle_line = idle.describe(shares, idle.idle_driver())
-    return MachineStalls(wall_s, cpus, tuple(stalls), w.refused, stolen, idle_line)
-
-
 def summary(stalls: list[Stall] | tuple[Stall, ...], refused: str | None) -> str:
     """One line: how many stalls, the longest, or why none was witnessed."""
     if refused is not None:
@@ -196,31 +195,6 @@ def summary(stalls: list[Stall] | tuple[Stall, ...], refused: str | None) -> str
     longest = max(s.late_s for s in stalls)
     return (f"{len(stalls)} stall{'s' if len(stalls) != 1 else ''} of over {STALL_S * 1e3:g} ms "
             f"on its CPUs, the longest {longest * 1e3:.1f} ms")  # fmt: skip
-
-
-def report(m: MachineStalls) -> str:
-    """``sara-app bench --machine``'s text: per CPU the stalls, a minute's worth and the
-    longest; what the host took; what a cell makes of it."""
-    lines = [
-        f"The machine's own stalls over {m.seconds:.0f} s: a witness per CPU (SCHED_FIFO "
-        f"{PRIORITY}, above a cell's processes) woke every {PERIOD_S * 1e3:g} ms; a wake-up "
-        f"over {STALL_S * 1e3:g} ms late is a stall.",
-        f"  {summary(m.stalls, m.refused)}",
-    ]
-    if m.refused is None:
-        lines.append(f"  {'cpu':>5s} {'stalls':>7s} {'per minute':>11s} {'longest ms':>11s}")
-        for cpu in m.cpus:
-            late = [s.late_s for s in m.stalls if s.cpu == cpu]
-            worst = f"{max(late) * 1e3:.1f}" if late else "-"
-            per_min = 60.0 * len(late) / max(m.seconds, 1e-9)
-            lines.append(f"  {cpu:5d} {len(late):7d} {per_min:11.1f} {worst:>11s}")
-    lines.append(f"  the host took at most {100 * m.stolen:.2f} % of a CPU meanwhile (steal: "
-                 "stalls like these barely move it)")  # fmt: skip
-    lines.append(f"  {m.idle}")
-    lines.append("  A 500 Hz cell's period is 2 ms: a cycle, a robot state or a command that "
-                 "falls into a stall is late by as much; the reference controller brakes on "
-                 "its own when its command runs out.")  # fmt: skip
-    return "\n".join(lines)
 
 
 if __name__ == "__main__":
