@@ -233,8 +233,8 @@ def idle_cpus_poll() -> Iterator[bool]:
     docs/measurements/2026-12-02-test-machine-stalls.md): they read the machine's wake-ups,
     not the cell's. Yields whether the request is held: where it cannot be made (no write
     access to ``/dev/cpu_dma_latency``, root's on most systems) the test runs as before."""
-    from sara_app.bench.idle import idle_polling
     from sara_app.errors import AccessError
+    from sara_app.ops.idle import idle_polling
 
     with contextlib.ExitStack() as stack:
         try:

@@ -59,7 +59,7 @@ def _child_pids(zenoh_port: int) -> dict[int, str]:
 @pytest.mark.parametrize(
     ("sig", "watch"),
     [(signal.SIGINT, False), (signal.SIGTERM, True)],
-    ids=["ctrl-c", "sigterm-watching-the-machine"],
+    ids=["ctrl-c", "sigterm-watching-the-machine-idle-cpus-polling"],
 )
 def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(
     sig: signal.Signals, watch: bool, tmp_path: Path
@@ -67,7 +67,7 @@ def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(
     zp, vp, ap = free_port(), free_port(), free_port()
     cmd = [sys.executable, "-m", "sara_app.cli", "serve", "--zenoh-port", str(zp),
            "--viewer-port", str(vp), "--api-port", str(ap)]  # fmt: skip
-    cmd += ["--watch-machine"] if watch else []
+    cmd += ["--watch-machine", "--idle-poll"] if watch else []
     witnesses: list[int] = []
     env = {**os.environ, "SARA_APP_DATA": str(tmp_path)}  # its edit stays its own
     proc = subprocess.Popen(
@@ -142,6 +142,10 @@ def test_serve_runs_the_default_cell_and_stops_on_ctrl_c(
     if watch:
         said = "watching the machine: a witness on each of CPUs" if _rt_permitted() else (
             "the machine is not watched: no real-time")  # fmt: skip
+        assert said in out, out
+        polled = os.access("/dev/cpu_dma_latency", os.W_OK)
+        said = "the idle CPUs poll while serve runs" if polled else (
+            "the idle CPUs are left as they are: cannot request")  # fmt: skip
         assert said in out, out
     assert not any(Path(f"/proc/{w}").exists() for w in witnesses)
     # the worker and replayer are gone: nobody answers on the zenoh port any more

@@ -9,7 +9,7 @@ Per run and load, two phases of ``seconds`` each:
    context switches (voluntary and not, all threads, from
    ``/proc/<pid>/task/*/status``) over the phase, divided by the verdicts received: the cost of
    one control cycle, and how the machine's CPUs idled meanwhile (polling or halted:
-   :mod:`sara_app.bench.idle`). This process listens to the verdicts only (as serve's registry
+   :mod:`sara_app.ops.idle`). This process listens to the verdicts only (as serve's registry
    does).
    The skeleton -> verdict latency comes from the same verdicts: a verdict's ``stamp_s -
    skeleton_age_s`` is the stamp of the skeleton it used, so the first verdict that used a
@@ -45,9 +45,9 @@ from typing import Any
 
 import numpy as np
 
-from sara_app.bench import idle
 from sara_app.bus import keys
 from sara_app.bus.session import Bus, free_port
+from sara_app.ops import idle
 from sara_app.ops.stalls import Stall, Witnesses, summary
 
 PROCESSES = ("router", "controller", "worker", "replayer")
@@ -84,7 +84,7 @@ class LoadCost:
     messages: dict[str, tuple[float, float]] = field(default_factory=dict)
     idle: list[dict[str, float]] = field(default_factory=list)
     """Per run, the share of the CPUs' idle time in each cpuidle state during the CPU phase
-    (:mod:`sara_app.bench.idle`): a CPU that halts between messages wakes them cold."""
+    (:mod:`sara_app.ops.idle`): a CPU that halts between messages wakes them cold."""
     idle_driver: str = "none"
     stalls: list[list[Stall]] = field(default_factory=list)
     """Per run, the machine's own stalls during its measurements (:mod:`sara_app.ops.stalls`:
@@ -301,7 +301,7 @@ def bench_live(
     the worker on a CPU of its own and the rest (this process too) on the others, as serve
     does where the machine has a CPU to spare; ``robot_encoding``: of states and commands;
     ``phase_lock``: the scenario's ``inputs.cycle_phase_lock``; ``idle_poll``: the idle CPUs
-    poll instead of halting while it measures (:func:`sara_app.bench.idle.idle_polling`)."""
+    poll instead of halting while it measures (:func:`sara_app.ops.idle.idle_polling`)."""
     from sara_app.processes.affinity import placed_as_serve
     from sara_app.scenario import load_scenario
 

@@ -8,7 +8,7 @@ import time
 from contextlib import nullcontext
 from dataclasses import dataclass
 
-from sara_app.bench import idle
+from sara_app.ops import idle
 from sara_app.ops.stalls import (
     PERIOD_S,
     PRIORITY,
@@ -26,7 +26,7 @@ class MachineStalls:
     """What the witnesses saw over ``seconds``: ``stalls`` (longest first) on ``cpus``;
     ``refused``: why nothing was witnessed (None: witnessed); ``stolen``: the largest share
     of a CPU the host took meanwhile (the steal counter); ``idle``: where the CPUs' idle time
-    went (:func:`sara_app.bench.idle.describe`)."""
+    went (:func:`sara_app.ops.idle.describe`)."""
 
     seconds: float
     cpus: tuple[int, ...]
@@ -39,7 +39,7 @@ class MachineStalls:
 def witnessed(seconds: float, idle_poll: bool = False) -> MachineStalls:
     """The machine's stalls over the next ``seconds`` with nothing started here but the
     witnesses (``sara-app bench --machine``); ``idle_poll``: the idle CPUs poll meanwhile
-    (:func:`sara_app.bench.idle.idle_polling`, as a cell's machine should be set up)."""
+    (:func:`sara_app.ops.idle.idle_polling`, as a cell's machine should be set up)."""
     cpus = tuple(sorted(os.sched_getaffinity(0)))
     with idle.idle_polling() if idle_poll else nullcontext():
         idle0, s0, t0 = idle.idle_times_us(), steal_s(), time.monotonic()

@@ -19,6 +19,7 @@ def _serve(args: argparse.Namespace) -> int:
         args.scenario, args.cell, args.zenoh_port, args.viewer_port, args.api_port, args.duration,
         api_host=args.api_host, require_token=args.require_token, cells=args.cells,
         log_level=args.log_level, pin_cpus=args.pin_cpus, watch_machine=args.watch_machine,
+        idle_poll=args.idle_poll,
     )  # fmt: skip
 
 
@@ -107,6 +108,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="a witness per CPU (real-time, about 1 %% of each) notes the machine's own stalls "
         "of over 1 ms: a line a minute beside the cells' (did the machine hold the cell up?)",
+    )
+    s.add_argument(
+        "--idle-poll",
+        action="store_true",
+        help="the idle CPUs poll while serve runs, so that they wake at once for the cell (a "
+        "CPU latency request of 0 us: write access to /dev/cpu_dma_latency; power and, on a "
+        "VM, host CPU)",
     )
     s.add_argument(
         "--require-token",

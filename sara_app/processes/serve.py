@@ -24,6 +24,7 @@ display side of this process (the dashboard, the API and the threads they start)
 from __future__ import annotations
 
 import atexit
+import contextlib
 import faulthandler
 import ipaddress
 import logging
@@ -42,10 +43,11 @@ from sara_app.api.guard import load_tokens
 from sara_app.bus.access import Credentials, client_auth
 from sara_app.bus.process import LOG_LEVEL_ENV
 from sara_app.bus.session import Bus
-from sara_app.errors import ParameterError, SaraError
+from sara_app.errors import AccessError, ParameterError, SaraError
 from sara_app.geometry.poses import pose_from_xyz_rpy
 from sara_app.ops.audit import default_audit_path, default_data_dir
 from sara_app.ops.health import HealthLog
+from sara_app.ops.idle import idle_polling
 from sara_app.ops.stalls import STALL_S, Witnesses
 from sara_app.ops.supervisor import Child, Supervisor
 from sara_app.processes.affinity import CpuPlan, cpu_plan, pin_threads, pinned
@@ -161,13 +163,16 @@ def serve(
     cells: int = 1,
     pin_cpus: bool = True,
     watch_machine: bool = False,
+    idle_poll: bool = False,
 ) -> int:
     """Run everything until Ctrl-C (or ``duration_s``); returns the exit code. ``cells``: run
     that many cells of the scenario on the one router (:func:`cell_names`), each with its
     processes and its 3D view (ports from ``viewer_port`` on). ``pin_cpus``: each worker on a
     CPU of its own where the machine has more CPUs than cells, everything else on the others
     (:mod:`~sara_app.processes.affinity`). ``watch_machine``: a witness per CPU
-    (:mod:`~sara_app.ops.stalls`) while it runs, its stalls in the health lines.
+    (:mod:`~sara_app.ops.stalls`) while it runs, its stalls in the health lines. ``idle_poll``:
+    the idle CPUs poll while it runs (:func:`~sara_app.ops.idle.idle_polling`; where the
+    request is refused, said and run as is).
 
     Lowers the calling thread's CPU priority by ``display_nice`` once the worker and the
     replayer are started (the dashboard and the API run on it and on threads it starts): call
@@ -209,7 +214,10 @@ def serve(
     plan = cpu_plan(len(names)) if pin_cpus else None
     rest = None if plan is None else plan.rest
     witnesses: Witnesses | None = None
+    machine = contextlib.ExitStack()
     try:
+        if idle_poll:
+            _hold_idle_polling(machine)
         if watch_machine:  # before this process is pinned: every CPU, the workers' too
             witnesses = _watch_machine()
         children = [Child("router", lambda: start_process(router_cmd, cpus=rest))]
@@ -284,6 +292,18 @@ def serve(
             hub.close()
         if witnesses is not None:
             witnesses.stop()
+        machine.close()
+
+
+def _hold_idle_polling(stack: contextlib.ExitStack) -> None:
+    """A CPU latency request of 0 held on ``stack`` (docs/deployment.md, "The machine"), or a
+    warning why not."""
+    try:
+        stack.enter_context(idle_polling())
+    except AccessError as e:
+        log.warning("the idle CPUs are left as they are: %s", e)
+        return
+    log.info("the idle CPUs poll while serve runs (a CPU latency request of 0 us)")
 
 
 def _watch_machine() -> Witnesses | None:
@@ -473,6 +493,7 @@ def main_for_cli(
     log_level: str = "info",
     pin_cpus: bool = True,
     watch_machine: bool = False,
+    idle_poll: bool = False,
 ) -> NoReturn:
     os.environ[LOG_LEVEL_ENV] = log_level  # the children's level too
     # the libraries' INFO (uvicorn, viser, websockets) is theirs, not the user's: WARNING
@@ -497,6 +518,7 @@ def main_for_cli(
             cells=cells,
             pin_cpus=pin_cpus,
             watch_machine=watch_machine,
+            idle_poll=idle_poll,
         )
     except SaraError as e:
         print(f"error: {e}", file=sys.stderr)

@@ -1,4 +1,4 @@
-"""How the CPUs idled (sara_app.bench.idle): the cpuidle counters read as the kernel lays them
+"""How the CPUs idled (sara_app.ops.idle): the cpuidle counters read as the kernel lays them
 out, and on this machine, what a PM QoS latency request of 0 does to them."""
 
 from __future__ import annotations
@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from sara_app.bench.idle import (
+from sara_app.errors import AccessError
+from sara_app.ops.idle import (
     CPU_ROOT,
     QOS_DEVICE,
     describe,
@@ -19,7 +20,6 @@ from sara_app.bench.idle import (
     idle_shares,
     idle_times_us,
 )
-from sara_app.errors import AccessError
 
 
 def _state(root: Path, cpu: int, k: int, name: str, time_us: int) -> None:
