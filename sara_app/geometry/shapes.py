@@ -10,7 +10,8 @@ capsules, volume analysis, the dashboard, the simulator's ground truth, the JSSA
 the oracle of the compiled kernels. The control cycle runs
 :mod:`sara_app.geometry.shape_kernels` instead: the same mathematics written as loops, because
 at one cycle's sizes numpy spends most of its time in per-call overhead. The containment
-analysis's distances run in :mod:`sara_app.human.containment_kernels` (at a recording's sizes
+analysis's distances run in :mod:`sara_app.human.containment_kernels`, and the Monte-Carlo
+volumes count their points in :mod:`sara_app.geometry.volume_kernels` (at a recording's sizes
 numpy's temporaries were the cost).
 """
 
@@ -198,16 +199,16 @@ def capsule_volume(ends: np.ndarray, radius_m: np.ndarray) -> np.ndarray:
 def union_volume_mc(
     ends: np.ndarray, radius_m: np.ndarray, n_samples: int, rng: np.random.Generator
 ) -> tuple[float, float]:
-    """Monte-Carlo volume of a union of capsules ``(N, 2, 3), (N,)``: ``(volume, std_error)``."""
+    """Monte-Carlo volume of a union of capsules ``(N, 2, 3), (N,)``: ``(volume, std_error)``.
+    The points are counted by :func:`~sara_app.geometry.volume_kernels.union_count`
+    (:func:`points_in_union` is its oracle)."""
+    from sara_app.geometry.volume_kernels import union_count
+
     lo = (ends.min(axis=1) - radius_m[:, None]).min(axis=0)
     hi = (ends.max(axis=1) + radius_m[:, None]).max(axis=0)
     box_volume = float(np.prod(hi - lo))
     pts = lo + rng.random((n_samples, 3)) * (hi - lo)
-    inside = np.zeros(n_samples, dtype=bool)
-    chunk = max(1, 2_000_000 // max(len(radius_m), 1))
-    for k in range(0, n_samples, chunk):
-        inside[k : k + chunk] = points_in_union(pts[k : k + chunk], ends, radius_m)
-    share = inside.mean()
+    share = union_count(pts, _f8(ends), _f8(radius_m)) / n_samples
     return box_volume * share, box_volume * float(np.sqrt(share * (1 - share) / n_samples))
 
 
@@ -220,7 +221,10 @@ def effective_volume_mc(
     """Monte-Carlo volume of the per-body-part intersection of several models' capsule sets
     (the set the per-part verdict effectively uses): the union over body parts ``p`` of the
     intersection over models ``m`` of capsule ``part_maps[m][p]`` of ``sets[m] = (ends (C_m,
-    2, 3), radius (C_m,))``. Returns ``(volume, std_error)``."""
+    2, 3), radius (C_m,))``. Returns ``(volume, std_error)``. The points are counted by
+    :func:`~sara_app.geometry.volume_kernels.effective_count`."""
+    from sara_app.geometry.volume_kernels import effective_count
+
     lo = np.full(3, -np.inf)
     hi = np.full(3, np.inf)
     for ends, radius in sets:  # the effective set lies in every model's union: the boxes meet
@@ -230,14 +234,14 @@ def effective_volume_mc(
         return 0.0, 0.0
     box_volume = float(np.prod(hi - lo))
     pts = lo + rng.random((n_samples, 3)) * (hi - lo)
-    P = len(part_maps[0])
-    inside_all = np.ones((n_samples, P), dtype=bool)
-    for (ends, radius), pm in zip(sets, part_maps):
-        caps_ends, caps_r = ends[pm], radius[pm]  # (P, 2, 3), (P,): each part's capsule
-        d = point_segment_distance(pts[:, None, :], caps_ends[None])
-        inside_all &= d <= caps_r[None, :]
-    share = inside_all.any(axis=1).mean()
+    caps_ends = np.stack([_f8(ends)[pm] for (ends, _), pm in zip(sets, part_maps)])  # (M, P, 2, 3)
+    caps_r = np.stack([_f8(radius)[pm] for (_, radius), pm in zip(sets, part_maps)])  # (M, P)
+    share = effective_count(pts, caps_ends, caps_r) / n_samples
     return box_volume * share, box_volume * float(np.sqrt(share * (1 - share) / n_samples))
+
+
+def _f8(a: np.ndarray) -> np.ndarray:
+    return np.asarray(a, dtype=np.float64)
 
 
 def transform_points(T_a_b: np.ndarray, points_b: np.ndarray) -> np.ndarray:

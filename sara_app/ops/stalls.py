@@ -120,8 +120,10 @@ class Witnesses:
         if proc.stdout is None:
             return
         for line in proc.stdout:  # until the witness ends
-            if line.strip():
+            try:
                 stall = _stall(cpu, line)
+            except ValueError:  # not a stall's line (a witness prints nothing else)
+                continue
                 with self._lock:
                     self._new.append(stall)
                     self._kept.append(stall)
