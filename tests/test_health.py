@@ -153,16 +153,29 @@ def test_a_watched_machine_gets_a_line_of_its_own_stalls_each_minute(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
     """``serve --watch-machine``: each minute, the stalls the witnesses reported since the last
-    line (what a controller that braked on its own may have met); none, said too."""
+    line (what a controller that braked on its own may have met); none, said too; a witness
+    that ended is said, never read as a CPU without stalls."""
     wall, mono = Clock(), Clock()
     reg = CellRegistry(None, clock=wall)
-    reported = [[Stall(1, 5.0, 0.0057), Stall(0, 7.0, 0.0013)], []]
-    health = HealthLog(reg, {"c1": 500.0}, clock=mono, machine=lambda: reported.pop(0))
+
+    class Watch:
+        reported = [[Stall(1, 5.0, 0.0057), Stall(0, 7.0, 0.0013)], [], [Stall(0, 9.0, 0.002)]]
+        gone = [[], [], [1]]
+
+        def take(self) -> list[Stall]:
+            return self.reported.pop(0)
+
+        def ended(self) -> list[int]:
+            return self.gone.pop(0)
+
+    health = HealthLog(reg, {"c1": 500.0}, clock=mono, machine=Watch())
     caplog.set_level(logging.INFO, logger="sara_app.health")
     for expected in (
         "machine: 2 stalls of over 1 ms on its CPUs, the longest 5.7 ms in the last 60 s "
         "(CPU 0: 1, CPU 1: 1)",
         "machine: no stall of over 1 ms on any CPU in the last 60 s",
+        "machine: NOT WATCHED on CPU 1 (its witness ended); 1 stall of over 1 ms on its CPUs, "
+        "the longest 2.0 ms in the last 60 s (CPU 0: 1)",
     ):
         mono.t += 60.0
         caplog.clear()

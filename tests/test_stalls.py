@@ -130,3 +130,19 @@ def test_the_stalls_are_taken_as_they_come_while_the_witnesses_run() -> None:
     finally:
         seen = w.stop()
     assert any(s.late_s > 0.02 for s in seen)  # stop() still returns what was taken
+
+
+def test_a_witness_that_ended_is_named() -> None:
+    """A witness killed while the others run (out of memory, a user's kill): its CPU is named,
+    so that no count of stalls reads as that CPU having none."""
+    w = Witnesses()
+    if w.refused is not None:
+        pytest.skip(f"this machine refuses SCHED_FIFO: {w.refused}")
+    try:
+        assert w.ended() == []
+        cpu, proc = w._procs[-1]  # noqa: SLF001 - which witness to kill is the test
+        proc.kill()
+        proc.wait(timeout=10)
+        assert w.ended() == [cpu]
+    finally:
+        w.stop()

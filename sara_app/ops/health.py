@@ -88,6 +88,15 @@ def percentile_s(hist: np.ndarray, q: float, bin_s: float) -> float | None:
     return bin_s * (min(k, N_BINS - 1) + 1)
 
 
+class MachineWatch(Protocol):
+    """What the health log reads of the machine's witnesses
+    (:class:`sara_app.ops.stalls.Witnesses`)."""
+
+    def take(self) -> list[Stall]: ...
+
+    def ended(self) -> list[int]: ...
+
+
 class Registry(Protocol):
     """What the health log reads (``sara_app.api.registry.CellRegistry``)."""
 
@@ -119,13 +128,13 @@ class HealthLog:
         rates_hz: dict[str, float],
         interval_s: float = 60.0,
         clock: Callable[[], float] = time.monotonic,
-        machine: Callable[[], list[Stall]] | None = None,
+        machine: MachineWatch | None = None,
     ) -> None:
         self.registry, self.rates_hz, self.interval_s = registry, rates_hz, interval_s
         self.clock = clock
         self.machine = machine
-        """The machine's stalls since it was last called (``Witnesses.take`` of
-        :mod:`sara_app.ops.stalls`), said once a line; None: not watched."""
+        """The machine's witnesses (:class:`sara_app.ops.stalls.Witnesses`), their stalls said
+        once a line; None: not watched."""
         self._seen = {c: _Seen() for c in rates_hz}
         self._last_line_s = clock()
 
@@ -139,7 +148,8 @@ class HealthLog:
                 since = span_s if seen.first_s is None else min(span_s, now - seen.first_s)
                 log.info("%s", self.line(cell, seen, max(since, 1e-3)))
             if self.machine is not None:
-                log.info("%s", machine_line(self.machine(), span_s))
+                m = self.machine
+                log.info("%s", machine_line(m.take(), span_s, m.ended()))
 
     def _changes(self, cell: str, seen: _Seen, now: float) -> None:
         snap = self.registry.cell(cell)
@@ -194,10 +204,14 @@ class HealthLog:
         return "; ".join(parts)
 
 
-def machine_line(stalls: list[Stall], span_s: float) -> str:
+def machine_line(stalls: list[Stall], span_s: float, ended: list[int]) -> str:
     """The machine's own stalls over the last ``span_s``, per CPU: what a controller that
-    braked on its own ("its loop was held up", "commands delayed") may have met."""
+    braked on its own ("its loop was held up", "commands delayed") may have met; ``ended``:
+    CPUs whose witness has ended (their stalls unseen: said, never counted as none)."""
     text = f"machine: {summary(stalls, None)} in the last {span_s:.0f} s"
+    if ended:
+        text = (f"machine: NOT WATCHED on CPU {', '.join(map(str, ended))} (its witness ended); "
+                f"{text.removeprefix('machine: ')}")  # fmt: skip
     per_cpu = Counter(s.cpu for s in stalls)
     if per_cpu:
         text += " (" + ", ".join(f"CPU {c}: {n}" for c, n in sorted(per_cpu.items())) + ")"

@@ -124,15 +124,20 @@ class Witnesses:
                 stall = _stall(cpu, line)
             except ValueError:  # not a stall's line (a witness prints nothing else)
                 continue
-                with self._lock:
-                    self._new.append(stall)
-                    self._kept.append(stall)
+            with self._lock:
+                self._new.append(stall)
+                self._kept.append(stall)
 
     def take(self) -> list[Stall]:
         """The stalls reported since the last take, in the order they came."""
         with self._lock:
             new, self._new = self._new, []
         return new
+
+    def ended(self) -> list[int]:
+        """The CPUs whose witness has ended before :meth:`stop` (killed, or out of memory):
+        their stalls are no longer seen, which no count of stalls may hide."""
+        return [cpu for cpu, proc in self._procs if proc.poll() is not None]
 
     def stop(self) -> list[Stall]:
         """Stop the witnesses; the stalls they saw (the last :data:`KEPT`), longest first (none

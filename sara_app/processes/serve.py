@@ -262,7 +262,7 @@ def serve(
         _print_urls(names, scenario, urls, api_url, zenoh_port, creds.path, tokens_path, tokens)
 
         health = HealthLog(registry, dict.fromkeys(names, 1.0 / sc.shield.dt_s),
-                           machine=None if witnesses is None else witnesses.take)  # fmt: skip
+                           machine=witnesses)  # fmt: skip
 
         def supervise() -> None:
             seen = {w: registry.silence(c) for c, w in workers.items()}
