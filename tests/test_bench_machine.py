@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from sara_app.bench.machine import MachineStalls, report
+from sara_app.bench.machine import MachineStalls, report, verdict
 from sara_app.ops import stalls
 from sara_app.ops.stalls import Stall
 
@@ -43,3 +43,17 @@ def test_the_report_counts_each_cpus_stalls_a_minute() -> None:
     refused = MachineStalls(30.0, (0, 1), (), "no real-time: [Errno 1]", 0.0, "")
     assert "not witnessed: no real-time" in report(refused)
     assert not any(ln.split()[:2] == ["cpu", "stalls"] for ln in report(refused).splitlines())
+
+
+def test_the_verdict_judges_the_longest_stall_against_a_period_and_a_commands_validity() -> None:
+    """At 500 Hz a command is valid for 10 ms (COMMAND_VALID_MIN_S): a longer stall runs it out
+    (the controller brakes on its own), a stall over a 2 ms period makes cycles late."""
+    assert verdict([]).startswith("No stall longer than a 500 Hz period")
+    assert verdict([Stall(0, 0.0, 0.0015)]).startswith("No stall longer")
+    late = verdict([Stall(0, 0.0, 0.0015), Stall(1, 0.0, 0.0057)])
+    assert late.startswith("Stalls up to 5.7 ms: longer than a period") and "(10 ms)" in late
+    unfit = verdict([Stall(1, 0.0, 0.0132)])
+    assert unfit.startswith("Not fit for a 500 Hz cell as it is: a stall of 13.2 ms"), unfit
+    assert "will brake on its own" in unfit
+    m = MachineStalls(30.0, (0,), (Stall(0, 1.0, 0.0132),), None, 0.0, "idle")
+    assert report(m).splitlines()[-1].strip() == unfit

@@ -8,6 +8,7 @@ import time
 from contextlib import nullcontext
 from dataclasses import dataclass
 
+from sara_app.bus.messages.robot import COMMAND_VALID_MIN_S, COMMAND_VALID_PERIODS
 from sara_app.ops import idle
 from sara_app.ops.stalls import (
     PERIOD_S,
@@ -19,6 +20,9 @@ from sara_app.ops.stalls import (
     stolen_share,
     summary,
 )
+
+CELL_PERIOD_S = 0.002
+"""The control period the verdict judges against (500 Hz, the shipped scenarios')."""
 
 
 @dataclass(frozen=True)
@@ -78,4 +82,24 @@ def report(m: MachineStalls) -> str:
     lines.append("  A 500 Hz cell's period is 2 ms: a cycle, a robot state or a command that "
                  "falls into a stall is late by as much; the reference controller brakes on "
                  "its own when its command runs out.")  # fmt: skip
+    if m.refused is None:
+        lines.append(f"  {verdict(m.stalls)}")
     return "\n".join(lines)
+
+
+def verdict(stalls: tuple[Stall, ...] | list[Stall]) -> str:
+    """What the longest stall means for a 500 Hz cell: over a command's validity
+    (:data:`~sara_app.bus.messages.robot.COMMAND_VALID_MIN_S`) the command in force runs out
+    during it; over a period, a cycle or a command comes late; else nothing the cell feels."""
+    valid_s = max(COMMAND_VALID_PERIODS * CELL_PERIOD_S, COMMAND_VALID_MIN_S)
+    longest = max((s.late_s for s in stalls), default=0.0)
+    if longest > valid_s:
+        return (f"Not fit for a 500 Hz cell as it is: a stall of {longest * 1e3:.1f} ms outlasts "
+                f"a command's validity ({valid_s * 1e3:.0f} ms), so the robot's controller "
+                "will brake on its own here (where the idle CPUs halt, measure again with "
+                "--idle-poll: polling ones stall less).")  # fmt: skip
+    if longest > CELL_PERIOD_S:
+        return (f"Stalls up to {longest * 1e3:.1f} ms: longer than a period, shorter than a "
+                f"command's validity ({valid_s * 1e3:.0f} ms): late cycles and commands, "
+                "not expired ones.")  # fmt: skip
+    return "No stall longer than a 500 Hz period: nothing a cell here would feel."
