@@ -22,9 +22,9 @@ from sara_app.bench.cost import (
     report,
     scenario_with_people,
 )
-from sara_app.ops.stalls import Stall
 from sara_app.bus.messages import VerdictMsg
 from sara_app.bus.session import Bus, free_port
+from sara_app.ops.stalls import Stall
 from sara_app.scenario import load_scenario
 
 
