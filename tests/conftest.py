@@ -161,6 +161,8 @@ STEAL_SHARE = 0.01
 WITNESS_STALL_S = 0.001
 RERUNS = 2
 _RERUNS_SEEN: list[str] = []
+
+
 def _witnesses() -> Any:
     """The machine's witnesses (:class:`sara_app.ops.stalls.Witnesses`) for one run of a
     test: one per CPU, none where real-time scheduling is refused."""
