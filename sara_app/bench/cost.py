@@ -22,7 +22,9 @@ Per run and load, two phases of ``seconds`` each:
    it: the issue's "skeleton published -> verdict received", under this phase's extra load.
 
 Through both phases a witness per CPU (:mod:`sara_app.ops.stalls`) notes every stall of the
-machine itself over 1 ms: a latency p99 taken while the machine stalled is the machine's.
+machine itself over 1 ms: a latency p99 taken while the machine stalled is the machine's. The
+witnesses' own wake-ups (about 25 µs of CPU every 2 ms on each CPU, ahead of the cell's
+threads) are in the latencies measured, not in the processes' CPU.
 
 The rows are the median over ``runs`` runs (and the spread); ``docs/performance.md`` holds the
 numbers measured with it.
@@ -258,7 +260,7 @@ def _published_latencies(
 
 
 def _measure(hub: Bus, cell: str, pids: dict[str, int], seconds: float, out: LoadCost) -> None:
-    witnesses = Witnesses()  # above the cell's processes; about 1 % of each CPU, their own
+    witnesses = Witnesses()  # above the cell's processes; about 1.5 % of each CPU, their own
     try:
         _measure_phases(hub, cell, pids, seconds, out)
     finally:

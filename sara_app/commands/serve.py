@@ -106,7 +106,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument(
         "--watch-machine",
         action="store_true",
-        help="a witness per CPU (real-time, about 1 %% of each) notes the machine's own stalls "
+        help="a witness per CPU (real-time, about 1.5 %% of each) notes the machine's own stalls "
         "of over 1 ms: a line a minute beside the cells' (did the machine hold the cell up?)",
     )
     s.add_argument(
