@@ -90,7 +90,10 @@ def report(m: MachineStalls) -> str:
 def verdict(stalls: tuple[Stall, ...] | list[Stall]) -> str:
     """What the longest stall means for a 500 Hz cell: over a command's validity
     (:data:`~sara_app.bus.messages.robot.COMMAND_VALID_MIN_S`) the command in force runs out
-    during it; over a period, a cycle or a command comes late; else nothing the cell feels."""
+    during it wherever it falls on the worker or the bus; over a period, cycles and commands come
+    late, and one that was already late may run out (``serve`` on the Intel Xeon VM, stalls of
+    up to 7 ms: the controller braked on its own 1-6 times a minute); else nothing the cell
+    feels."""
     valid_s = max(COMMAND_VALID_PERIODS * CELL_PERIOD_S, COMMAND_VALID_MIN_S)
     longest = max((s.late_s for s in stalls), default=0.0)
     if longest > valid_s:
@@ -100,6 +103,7 @@ def verdict(stalls: tuple[Stall, ...] | list[Stall]) -> str:
                 "--idle-poll: polling ones stall less).")  # fmt: skip
     if longest > CELL_PERIOD_S:
         return (f"Stalls up to {longest * 1e3:.1f} ms: longer than a period, shorter than a "
-                f"command's validity ({valid_s * 1e3:.0f} ms): late cycles and commands, "
-                "not expired ones.")  # fmt: skip
+                f"command's validity ({valid_s * 1e3:.0f} ms): late cycles and commands, and "
+                "now and then one that runs out before the next comes (the controller then "
+                "brakes on its own).")  # fmt: skip
     return "No stall longer than a 500 Hz period: nothing a cell here would feel."
