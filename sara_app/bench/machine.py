@@ -8,7 +8,7 @@ import time
 from contextlib import nullcontext
 from dataclasses import dataclass
 
-from sara_app.bus.messages.robot import COMMAND_VALID_MIN_S, COMMAND_VALID_PERIODS
+from sara_app.bus.messages.robot import command_validity_s
 from sara_app.ops import idle
 from sara_app.ops.stalls import (
     PERIOD_S,
@@ -94,7 +94,7 @@ def verdict(stalls: tuple[Stall, ...] | list[Stall]) -> str:
     late, and one that was already late may run out (``serve`` on the Intel Xeon VM, stalls of
     up to 7 ms: the controller braked on its own 1-6 times a minute); else nothing the cell
     feels."""
-    valid_s = max(COMMAND_VALID_PERIODS * CELL_PERIOD_S, COMMAND_VALID_MIN_S)
+    valid_s = command_validity_s(CELL_PERIOD_S)
     longest = max((s.late_s for s in stalls), default=0.0)
     if longest > valid_s:
         return (f"Not fit for a 500 Hz cell as it is: a stall of {longest * 1e3:.1f} ms outlasts "

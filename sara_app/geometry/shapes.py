@@ -203,12 +203,13 @@ def union_volume_mc(
     The points are counted by :func:`~sara_app.geometry.volume_kernels.union_count`
     (:func:`points_in_union` is its oracle)."""
     from sara_app.geometry.volume_kernels import union_count
+    from sara_app.kernel_types import as_f8
 
     lo = (ends.min(axis=1) - radius_m[:, None]).min(axis=0)
     hi = (ends.max(axis=1) + radius_m[:, None]).max(axis=0)
     box_volume = float(np.prod(hi - lo))
     pts = lo + rng.random((n_samples, 3)) * (hi - lo)
-    share = union_count(pts, _f8(ends), _f8(radius_m)) / n_samples
+    share = union_count(pts, as_f8(ends), as_f8(radius_m)) / n_samples
     return box_volume * share, box_volume * float(np.sqrt(share * (1 - share) / n_samples))
 
 
@@ -224,6 +225,7 @@ def effective_volume_mc(
     2, 3), radius (C_m,))``. Returns ``(volume, std_error)``. The points are counted by
     :func:`~sara_app.geometry.volume_kernels.effective_count`."""
     from sara_app.geometry.volume_kernels import effective_count
+    from sara_app.kernel_types import as_f8
 
     lo = np.full(3, -np.inf)
     hi = np.full(3, np.inf)
@@ -234,14 +236,11 @@ def effective_volume_mc(
         return 0.0, 0.0
     box_volume = float(np.prod(hi - lo))
     pts = lo + rng.random((n_samples, 3)) * (hi - lo)
-    caps_ends = np.stack([_f8(ends)[pm] for (ends, _), pm in zip(sets, part_maps)])  # (M, P, 2, 3)
-    caps_r = np.stack([_f8(radius)[pm] for (_, radius), pm in zip(sets, part_maps)])  # (M, P)
+    # each model's capsule of each part: (M, P, 2, 3), (M, P)
+    caps_ends = np.stack([as_f8(ends)[pm] for (ends, _), pm in zip(sets, part_maps)])
+    caps_r = np.stack([as_f8(radius)[pm] for (_, radius), pm in zip(sets, part_maps)])
     share = effective_count(pts, caps_ends, caps_r) / n_samples
     return box_volume * share, box_volume * float(np.sqrt(share * (1 - share) / n_samples))
-
-
-def _f8(a: np.ndarray) -> np.ndarray:
-    return np.asarray(a, dtype=np.float64)
 
 
 def transform_points(T_a_b: np.ndarray, points_b: np.ndarray) -> np.ndarray:

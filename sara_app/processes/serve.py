@@ -214,12 +214,12 @@ def serve(
     plan = cpu_plan(len(names)) if pin_cpus else None
     rest = None if plan is None else plan.rest
     witnesses: Witnesses | None = None
-    machine = contextlib.ExitStack()
+    machine = contextlib.ExitStack()  # the idle request and the witnesses, released last
     try:
         if idle_poll:
             _hold_idle_polling(machine)
         if watch_machine:  # before this process is pinned: every CPU, the workers' too
-            witnesses = _watch_machine()
+            witnesses = _watch_machine(machine)
         children = [Child("router", lambda: start_process(router_cmd, cpus=rest))]
         for i, c in enumerate(names):
             cpus = (None, None) if plan is None else (plan.worker(i), plan.rest)
@@ -290,8 +290,6 @@ def serve(
             d.stop()
         if hub is not None:
             hub.close()
-        if witnesses is not None:
-            witnesses.stop()
         machine.close()
 
 
@@ -306,10 +304,11 @@ def _hold_idle_polling(stack: contextlib.ExitStack) -> None:
     log.info("the idle CPUs poll while serve runs (a CPU latency request of 0 us)")
 
 
-def _watch_machine() -> Witnesses | None:
-    """The witnesses of every CPU this process may use, or None (said why) where real-time
-    scheduling is refused."""
+def _watch_machine(stack: contextlib.ExitStack) -> Witnesses | None:
+    """The witnesses of every CPU this process may use, stopped with ``stack``, or None (said
+    why) where real-time scheduling is refused."""
     witnesses = Witnesses()
+    stack.callback(witnesses.stop)
     if witnesses.refused is not None:
         log.warning("the machine is not watched: %s (a witness needs SCHED_FIFO)",
                     witnesses.refused)  # fmt: skip

@@ -19,13 +19,12 @@ import numpy as np
 
 from sara_app.bus.compact import CommandArrays, CompactError
 from sara_app.bus.messages import (
-    COMMAND_VALID_MIN_S,
-    COMMAND_VALID_PERIODS,
     JointFlagMsg,
     TrackingNowMsg,
     VerdictMsg,
     ViolationMsg,
 )
+from sara_app.bus.messages.robot import command_validity_s
 from sara_app.human.conformance import Violation
 from sara_app.human.intake import TrackingNow
 from sara_app.kernel_types import as_f8, entry
@@ -113,7 +112,7 @@ class CycleMessages:
             why = "a joint value or stop sample is not finite" if status == FINITE else (
                 "the held stop's times do not increase strictly")  # fmt: skip
             raise CompactError("non_finite" if status == FINITE else "invalid", why)
-        valid_until_s = now + max(COMMAND_VALID_PERIODS * dt, COMMAND_VALID_MIN_S)
+        valid_until_s = now + command_validity_s(dt)
         command = CommandArrays(seq, now, mode, valid_until_s, n, body)
         command.check_fields()
         return command

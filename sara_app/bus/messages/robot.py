@@ -44,6 +44,13 @@ COMMAND_VALID_MIN_S = 0.010
 ``COMMAND_VALID_MIN_S`` (``valid_until_s``): a controller that takes a command that late has
 left the commanded path by less than a tracking tolerance (about a_brake * 10 ms^2 / 2, 1.5 mrad
 at 30 rad/s^2), while a 500 Hz loop on a busy machine misses two periods now and then."""
+
+
+def command_validity_s(dt_s: float) -> float:
+    """How long after its stamp a command of a cell with control period ``dt_s`` is valid."""
+    return max(COMMAND_VALID_PERIODS * dt_s, COMMAND_VALID_MIN_S)
+
+
 MAX_FAILSAFE_SAMPLES = 512
 
 
