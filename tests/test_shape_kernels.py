@@ -3,6 +3,8 @@
 * ``segment_closest`` gives the distance of ``geometry.segment_segment_closest`` (points,
   parallel, anti-parallel, collinear, nearly parallel pairs), and its parameters lie in [0, 1]
   and realise that distance.
+* ``point_segment_gap`` gives the distance of ``geometry.point_segment_distance`` (point
+  segments, points beyond either end, NaN coordinates).
 * ``pair_distances`` / ``set_pair_distances`` against ``capsule_distances`` and the numpy
   ``all_pairs``, ``box_distances`` against the reference's ``segment_box_closest``; ``pair_gaps``
   equals ``pair_distances`` wherever a pair may touch and is a positive lower bound elsewhere;
@@ -31,6 +33,7 @@ from sara_app.geometry.shape_kernels import (
     gap_block,
     pair_distances,
     pair_gaps,
+    point_segment_gap,
     segment_closest,
     set_gap_interval,
     set_gap_scratch,
@@ -364,3 +367,20 @@ def test_below_gaps_drops_exactly_the_pairs_above_a_bound() -> None:
                 if not above:
                     assert out[k, i, j] == gaps[k, i, j]
     assert touch == bool((~(out > 0.0)).any())
+
+
+def test_point_segment_gap_is_the_numpy_distance() -> None:
+    """Random points against random segments, a tenth of them point segments, some points far
+    beyond either end; NaN in any coordinate gives NaN, as numpy does."""
+    rng = np.random.default_rng(7)
+    n = 4000
+    ends = rng.normal(size=(n, 2, 3))
+    ends[::10, 1] = ends[::10, 0]  # point segments
+    pts = rng.normal(size=(n, 3)) * 3.0
+    want = geo.point_segment_distance(pts, ends)
+    got = np.array([point_segment_gap(*pts[i], *ends[i, 0], *ends[i, 1]) for i in range(n)])
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+    for k in range(9):  # NaN in each coordinate in turn
+        args = [*pts[0], *ends[0, 0], *ends[0, 1]]
+        args[k] = np.nan
+        assert np.isnan(point_segment_gap(*args)), k

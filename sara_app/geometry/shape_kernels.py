@@ -41,6 +41,7 @@ __all__ = [
     "gap_block",
     "lowest_z",
     "pair_gaps",
+    "point_segment_gap",
     "segment_closest",
     "set_gap_interval",
     "set_gap_scratch",
@@ -93,6 +94,27 @@ def segment_closest(
     gy = ry + s * d1y - tc * d2y
     gz = rz + s * d1z - tc * d2z
     return math.sqrt(gx * gx + gy * gy + gz * gz), s, tc
+
+
+@njit(types.float64(*([types.float64] * 9)), cache=True)
+def point_segment_gap(
+    px: float, py: float, pz: float, ax: float, ay: float, az: float,
+    bx: float, by: float, bz: float,
+) -> float:  # fmt: skip
+    """Distance from point ``p`` to segment ``[a, b]``
+    (:func:`sara_app.geometry.shapes.point_segment_closest`: only an exactly degenerate segment
+    is a point; the parameter is clipped as ``np.clip``, which keeps NaN). Its sums of three
+    products run left to right, where numpy's ``einsum`` adds in an order of its own: a
+    result may differ from numpy's in its last bits."""
+    dx, dy, dz = bx - ax, by - ay, bz - az
+    dd = dx * dx + dy * dy + dz * dz
+    s = ((px - ax) * dx + (py - ay) * dy + (pz - az) * dz) / (dd if dd > 0.0 else 1.0)
+    if s < 0.0:
+        s = 0.0
+    elif s > 1.0:
+        s = 1.0
+    gx, gy, gz = px - (ax + s * dx), py - (ay + s * dy), pz - (az + s * dz)
+    return math.sqrt(gx * gx + gy * gy + gz * gz)
 
 
 @njit(cache=True)
