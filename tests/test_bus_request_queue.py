@@ -1,8 +1,10 @@
 """Request queues (sara_app.bus.request_queue) on real zenoh sessions on 127.0.0.1: requests come
 out in order and a drain takes at most what it asks for; whatever a full queue loses is counted
-as ``queue_full``, never dropped silently; and in a process whose zenoh I/O runs on one thread
-a flooded queue that nobody drains holds up no other message, where a FIFO subscription holds
-up all of them (a subprocess: the layout is read once per process)."""
+as ``queue_full``, never dropped silently, and what waits is bounded in bytes as well as in
+count (a payload over the contract's largest is ``too_large`` at once); and in a process
+whose zenoh I/O runs on one thread a flooded queue that nobody drains holds up no other
+message, where a FIFO subscription holds up all of them (a subprocess: the layout is read once
+per process)."""
 
 from __future__ import annotations
 
@@ -16,7 +18,7 @@ import time
 import pytest
 
 from sara_app.bus import keys
-from sara_app.bus.codec import REASONS, Decoder
+from sara_app.bus.codec import MAX_PAYLOAD_BYTES, REASONS, Decoder
 from sara_app.bus.io_threads import ZENOH_RUNTIME_ENV
 from sara_app.bus.messages import RetireMsg
 from sara_app.bus.request_queue import QUEUE_FULL, RequestQueue, requests
@@ -91,6 +93,32 @@ def test_what_a_full_queue_loses_is_counted(burst: int) -> None:
         else:  # the 16 oldest it holds; every other one counted, the ring's overrun once
             assert len(taken) == 16 and taken[-1] - taken[0] == 15, taken
             assert lost == burst - 16 if burst <= 32 else 16 + 1 <= lost <= burst - 16, lost
+
+
+def test_what_waits_is_bounded_in_bytes_and_an_oversized_request_is_refused_at_once() -> None:
+    """Large requests (edits may be megabytes) fill a queue of 64 by bytes long before its
+    count: the backlog keeps the oldest that fit in its 1 MB, the newer ones are counted
+    ``queue_full`` even where a smaller one would fit (the newest go, in order), a payload
+    over 4 MiB is ``too_large`` without waiting, and room taken out frees bytes again."""
+    mb = 1_000_000
+    with Bus.router(free_port()) as bus:
+        q = requests(bus, keys.retire_key(CELL), Decoder(), capacity=64, max_bytes=mb)
+        raw = bus.session.declare_publisher(keys.retire_key(CELL))
+        for size in (300_000, 300_000, 300_000, 300_000, 10, MAX_PAYLOAD_BYTES + 1):
+            raw.put(b"x" * size)
+        _arrived(q, 3)
+        deadline = time.monotonic() + 10.0
+        counts = q.decoder.counts
+        while counts.get(QUEUE_FULL, 0) + counts.get("too_large", 0) < 3:
+            assert time.monotonic() < deadline, counts
+            q.drain(0)
+            time.sleep(0.01)
+        assert q.waiting() == 3  # 900 kB: the fourth would pass 1 MB
+        assert counts[QUEUE_FULL] == 2 and counts["too_large"] == 1, counts
+        q.drain(2)  # two taken (refused by the decoder: not messages), 600 kB free again
+        raw.put(b"x" * 600_000)
+        _arrived(q, 2)
+        assert q.waiting() == 2 and counts[QUEUE_FULL] == 2
 
 
 # A process on one I/O thread: a key flooded and never drained (a request queue or a FIFO

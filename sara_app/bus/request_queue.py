@@ -9,9 +9,14 @@ A :class:`RequestQueue` takes its samples from a ring instead (zenoh's thread ne
 moves all of them, undecoded, into its own backlog at each drain; the loop then decodes and
 handles a bounded number per cycle, in arrival order.
 
-What does not fit is counted as ``queue_full`` in the decoder, never dropped silently:
-- the backlog holds at most ``capacity`` requests; a request arriving while it is full is
-  refused (the newest go, as a full FIFO would refuse them) and counted, exactly;
+What does not fit is counted in the decoder, never dropped silently:
+- a request over the contract's largest payload (``MAX_PAYLOAD_BYTES``) is ``too_large`` at
+  once: the decoder would refuse it, and held undecoded it only took memory;
+- the backlog holds at most ``capacity`` requests and ``max_bytes`` of payload; a request
+  that finds it full is refused with every newer one of the same drain (the newest go, as a
+  full FIFO would refuse them) and counted as ``queue_full``, exactly. The byte bound is what
+  keeps a flood of large edits from growing the worker: 300 edits of 2 MB sent at once took
+  its memory to 710 MB with the count alone (2026-12-04);
 - the ring holds twice that; a drain that finds it full may have lost its oldest requests
   to newer ones (a ring cannot say how many): counted once, a lower bound (and once too when
   the ring had just filled, lost nothing: it cannot tell).
@@ -25,7 +30,7 @@ import logging
 from collections import deque
 from typing import Any
 
-from sara_app.bus.codec import Decoder
+from sara_app.bus.codec import MAX_PAYLOAD_BYTES, Decoder
 from sara_app.bus.process import SummarisedWarning
 from sara_app.bus.session import Bus, BusError, Drained, Subscription
 
@@ -35,20 +40,33 @@ REQUEST_CAPACITY = 256
 """Requests of one key waiting for the loop, at most (the ring zenoh fills holds twice this):
 far above an operator's pace (the worker takes 2-8 a cycle, 1 000-4 000 a second at 500 Hz)."""
 
+REQUEST_BYTES = 16 * 1024 * 1024
+"""Payload bytes of one key's requests waiting for the loop, at most: four requests of the
+largest payload the contract takes (4 MiB), hundreds of an operator's usual size."""
+
 QUEUE_FULL = "queue_full"
 """The drop reason of a request lost to a full queue (the contract's ``queue_full``)."""
 
 
 class RequestQueue(Subscription):
     """Requests on ``key_expr``: a ring of ``2 * capacity`` samples that zenoh fills, and a
-    backlog of at most ``capacity`` that :meth:`drain` fills from it (module doc).
-    ``drain(max_n)`` decodes at most ``max_n`` of the oldest requests; the others wait for the
-    next drain."""
+    backlog of at most ``capacity`` requests and ``max_bytes`` of payload that :meth:`drain`
+    fills from it (module doc). ``drain(max_n)`` decodes at most ``max_n`` of the oldest
+    requests; the others wait for the next drain."""
 
-    def __init__(self, session: Any, key_expr: str, decoder: Decoder, capacity: int) -> None:
+    def __init__(
+        self,
+        session: Any,
+        key_expr: str,
+        decoder: Decoder,
+        capacity: int,
+        max_bytes: int = REQUEST_BYTES,
+    ) -> None:
         super().__init__(session, key_expr, decoder, 2 * int(capacity), fifo=False)
         self.capacity = int(capacity)
+        self.max_bytes = int(max_bytes)
         self._backlog: deque[tuple[str, bytes]] = deque()
+        self._bytes = 0  # the backlog's payload bytes
         self._lost_log = SummarisedWarning(log, f"requests on {key_expr} lost to a full queue")
 
     def drain(self, max_n: int | None = None) -> Drained:
@@ -57,16 +75,30 @@ class RequestQueue(Subscription):
         arrived = self._samples(None)
         # the ring found full may have dropped older samples for these: one at least
         lost = int(len(arrived) >= 2 * self.capacity)
-        over = len(self._backlog) + len(arrived) - self.capacity
-        if over > 0:  # the newest go, as a full FIFO refuses them
-            del arrived[len(arrived) - over :]
-            lost += over
+        too_large = full = 0
+        for key, payload in arrived:
+            size = len(payload)
+            if size > MAX_PAYLOAD_BYTES:
+                too_large += 1
+            elif full or len(self._backlog) >= self.capacity or self._bytes + size > self.max_bytes:
+                full += 1  # this one and every newer one: a full FIFO refuses the newest
+            else:
+                self._backlog.append((key, payload))
+                self._bytes += size
+        lost += full
+        if too_large:
+            self.decoder.count("too_large", too_large)
         if lost:
             self.decoder.count(QUEUE_FULL, lost)
-            self._lost_log(f"{lost} at once, {len(self._backlog) + len(arrived)} waiting")
-        self._backlog.extend(arrived)
+        if lost or too_large:
+            self._lost_log(
+                f"{lost} at once for room, {too_large} over {MAX_PAYLOAD_BYTES} bytes; "
+                f"{len(self._backlog)} waiting ({self._bytes} bytes)"
+            )
         n = len(self._backlog) if max_n is None else min(max_n, len(self._backlog))
-        return self._decode([self._backlog.popleft() for _ in range(n)])
+        taken = [self._backlog.popleft() for _ in range(n)]
+        self._bytes -= sum(len(p) for _, p in taken)
+        return self._decode(taken)
 
     def waiting(self) -> int:
         """Requests in the backlog (not counting those still in the ring)."""
@@ -88,10 +120,14 @@ class RequestQueue(Subscription):
 
 
 def requests(
-    bus: Bus, key_expr: str, decoder: Decoder | None = None, capacity: int = REQUEST_CAPACITY
+    bus: Bus,
+    key_expr: str,
+    decoder: Decoder | None = None,
+    capacity: int = REQUEST_CAPACITY,
+    max_bytes: int = REQUEST_BYTES,
 ) -> RequestQueue:
     """A :class:`RequestQueue` on ``key_expr`` in ``bus``'s session, closed with it; share
     ``decoder`` to pool counters."""
-    queue = RequestQueue(bus.session, key_expr, decoder or Decoder(), capacity)
+    queue = RequestQueue(bus.session, key_expr, decoder or Decoder(), capacity, max_bytes)
     bus.own(queue)
     return queue

@@ -23,7 +23,8 @@ from sara_app.safety.settings import FUTURE_TOLERANCE_S
 EDIT_QUEUE = 64
 """Scenario edits waiting for the loop, at most (the other requests: the queues' default
 :data:`~sara_app.bus.request_queue.REQUEST_CAPACITY`): an edit may be megabytes, and the
-queue's ring holds twice this many."""
+queue's ring holds twice this many; waiting, they take at most
+:data:`~sara_app.bus.request_queue.REQUEST_BYTES`."""
 SKELETON_QUEUE = 4096
 """Skeleton samples queued between two drains (all people); each drain decodes only the newest
 of each key, so a flood on one key cannot crowd out another person's newest message."""

@@ -31,6 +31,10 @@ from sara_app.scenario import Scenario, check_against_robot, parse_scenario
 
 log = logging.getLogger("sara_app.worker")
 MAX_PENDING_EDITS = 16
+EDITS_PER_CYCLE = 1
+"""Scenario edits the loop decodes in one cycle, at most: an edit may be megabytes of JSON
+(tens of ms to decode), and a flood decoded all at once held every one of them in memory
+together (the others wait in the request queue, bounded and counted there)."""
 
 
 class Built(NamedTuple):
@@ -234,7 +238,7 @@ class LiveEdits:
     def drain(self, io: CellBus) -> None:
         """Requested edits off the bus into the builder (refused at once when it is full),
         finished builds into the queue of those to swap in."""
-        for d in io.params.drain().messages:
+        for d in io.params.drain(EDITS_PER_CYCLE).messages:
             m = d.msg
             if isinstance(m, ParamsMsg) and not self.builder.submit(
                 m.request_id, m.scenario, m.confirm, m.user
