@@ -14,9 +14,10 @@ What does not fit is counted in the decoder, never dropped silently:
   once: the decoder would refuse it, and held undecoded it only took memory;
 - the backlog holds at most ``capacity`` requests and ``max_bytes`` of payload; a request
   that finds it full is refused with every newer one of the same drain (the newest go, as a
-  full FIFO would refuse them) and counted as ``queue_full``, exactly. The byte bound is what
-  keeps a flood of large edits from growing the worker: 300 edits of 2 MB sent at once took
-  its memory to 710 MB with the count alone (2026-12-04);
+  full FIFO would refuse them) and counted as ``queue_full``, exactly. The byte bound, with
+  the worker decoding one edit a cycle (:mod:`sara_app.runtime.edits`), took its peak memory
+  under 300 edits of 2 MB sent at once from 700-840 MB to 340-520 MB
+  (docs/measurements/2026-12-05-edit-flood-memory.md);
 - the ring holds twice that; a drain that finds it full may have lost its oldest requests
   to newer ones (a ring cannot say how many): counted once, a lower bound (and once too when
   the ring had just filled, lost nothing: it cannot tell).
