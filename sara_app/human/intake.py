@@ -6,7 +6,8 @@ A frame goes through the gate (:mod:`sara_app.human.gate`): held joints are repl
 last trusted position and widened; the estimator (:mod:`sara_app.human.velocity`) uses trusted
 frames only; the monitor (:mod:`sara_app.human.conformance`) checks the trusted motion against
 the parameter set and faults the person while it does not hold. A frame with a joint held too
-long is refused (the caller counts it; the person ages).
+long is refused (the caller counts it; the person ages; the estimator keeps its stamp with
+every joint distrusted).
 """
 
 from __future__ import annotations
@@ -78,6 +79,7 @@ class Intake:
         ``repeated`` (the contract's reasons)."""
         self._raw = np.full((J, 3), np.nan)  # the last frame as measured
         self._none_missing = np.zeros(J, dtype=np.bool_)
+        self._none_trusted = np.zeros(J, dtype=np.bool_)
         self._raw_since_s = -np.inf  # stamp of the first frame with those values
         self.newest_s = -np.inf  # the newest stamp taken, repeated or not
         self.repeats = 0
@@ -127,6 +129,12 @@ class Intake:
                              rise=n_measured < len(y))  # fmt: skip
         if g.refused:
             self.refusal = "tracking_inconsistent"
+            # its stamp enters the estimator with every joint distrusted: later frames then
+            # have the lags a fresh person's frames give them, and one that falls on this frame
+            # has no estimate. Skipped, it let later frames reach across it to older ones, a
+            # differently centred estimate that cleared a torso where a fresh person's at the
+            # same place did not (tests/test_ingest_history.py, found in CI 2026-12-05)
+            self.estimator.update(t_s, g.y, self._none_trusted)
             return None
         v, dv = self.estimator.update(t_s, g.y, g.trusted)
         return g, v, dv
